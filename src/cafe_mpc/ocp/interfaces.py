@@ -1,0 +1,266 @@
+"""The small per-knot interface between optimal-control problems and the MS-iLQR solver.
+
+The solver (``cafe_mpc.solver``) depends on nothing but this module. It follows Pinocchio's
+model/data split and Crocoddyl's action models:
+
+* a *model* (``ActionModel``, ``ResetMap``, ``SwitchingConstraint``) is immutable after construction and
+  may be shared by many knots (and by many problems);
+* a *data* object holds every array the model writes; it is created once per knot with
+  ``model.create_data()`` and reused across solver iterations and MPC updates, so the hot path only
+  writes into preallocated arrays.
+
+States live on a manifold (``StateManifold``): the solver works in the tangent space (``ndx``) and uses
+``integrate``/``difference`` to move between points, so the floating-base orientation can be a unit
+quaternion (no Euler-angle singularity at pitch +-pi/2) without the solver knowing.
+
+Conventions (all arrays are ``numpy.ndarray`` of float64):
+
+* ``difference(x0, x1)`` is ``x1 ⊖ x0`` expressed in the tangent space at ``x0``;
+  ``integrate(x, dx)`` is ``x ⊕ dx``. ``integrate(x0, difference(x0, x1)) == x1``.
+* Running knot ``k`` of a phase: ``x_{k+1} = f(x_k, u_k)`` (paper Eq. (1)); ``Fx = ∂f/∂x`` maps the tangent
+  at ``x_k`` to the tangent at ``f(x_k, u_k)``. The running cost already includes its time step.
+* A phase with ``N`` running models has ``N + 1`` states; its last state carries the terminal cost
+  (a model with ``nu == 0``) and, when the phase is not the last, goes through the phase's reset map
+  ``x^{[i+1]}_0 = P_i(x^{[i]}_N)`` (Eq. (1)), which may change the state space (Eq. (24), (31)).
+* Inequality constraints are turned into relaxed-barrier costs inside the models (Sec. III-B-2) and only
+  their worst violation is reported (``constraint_violation``); switching equality constraints
+  ``g_i(x_N) = 0`` (Eq. (2)) are handled by the solver's augmented-Lagrangian outer loop.
+"""
+
+from __future__ import annotations
+
+from abc import ABC, abstractmethod
+from dataclasses import dataclass, field
+
+import numpy as np
+
+
+class StateManifold(ABC):
+    """A state space with ``nx`` coordinates and an ``ndx``-dimensional tangent space."""
+
+    nx: int
+    ndx: int
+
+    @abstractmethod
+    def zero(self) -> np.ndarray:
+        """A neutral point of the manifold (shape ``(nx,)``)."""
+
+    @abstractmethod
+    def integrate(self, x: np.ndarray, dx: np.ndarray) -> np.ndarray:
+        """``x ⊕ dx``."""
+
+    @abstractmethod
+    def difference(self, x0: np.ndarray, x1: np.ndarray) -> np.ndarray:
+        """``x1 ⊖ x0``, in the tangent space at ``x0``."""
+
+    @abstractmethod
+    def jacobian_difference(self, x0: np.ndarray, x1: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Jacobians of ``difference(x0, x1)`` w.r.t. ``x0`` and ``x1`` (each ``ndx x ndx``)."""
+
+    @abstractmethod
+    def jacobian_integrate(self, x: np.ndarray, dx: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Jacobians of ``integrate(x, dx)`` w.r.t. ``x`` and ``dx`` (each ``ndx x ndx``)."""
+
+
+class EuclideanState(StateManifold):
+    """``R^n`` with ``integrate = +`` and ``difference = -``."""
+
+    def __init__(self, n: int) -> None:
+        if n <= 0:
+            raise ValueError(f"EuclideanState dimension must be positive, got {n}")
+        self.nx = n
+        self.ndx = n
+        self._eye = np.eye(n)
+
+    def zero(self) -> np.ndarray:
+        return np.zeros(self.nx)
+
+    def integrate(self, x: np.ndarray, dx: np.ndarray) -> np.ndarray:
+        return x + dx
+
+    def difference(self, x0: np.ndarray, x1: np.ndarray) -> np.ndarray:
+        return x1 - x0
+
+    def jacobian_difference(self, x0: np.ndarray, x1: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        return -self._eye, self._eye.copy()
+
+    def jacobian_integrate(self, x: np.ndarray, dx: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        return self._eye.copy(), self._eye.copy()
+
+
+class ActionData:
+    """Per-knot workspace written by ``ActionModel.calc`` / ``calc_diff``.
+
+    Models may subclass it to keep extra results (contact forces, foot positions, ...).
+    """
+
+    def __init__(self, model: ActionModel) -> None:
+        ndx, nu = model.state.ndx, model.nu
+        ndx_next = model.next_state.ndx
+        self.x_next = np.zeros(model.next_state.nx)
+        self.cost = 0.0
+        self.constraint_violation = 0.0  # max over inequality constraints of max(0, -g)
+        self.Fx = np.zeros((ndx_next, ndx))
+        self.Fu = np.zeros((ndx_next, nu))
+        self.Lx = np.zeros(ndx)
+        self.Lu = np.zeros(nu)
+        self.Lxx = np.zeros((ndx, ndx))
+        self.Luu = np.zeros((nu, nu))
+        self.Lux = np.zeros((nu, ndx))
+
+
+class ActionModel(ABC):
+    """A discrete-time knot: dynamics ``f(x, u)``, cost ``l(x, u)`` and barrier-penalised inequalities.
+
+    A terminal model has ``nu == 0``; ``calc``/``calc_diff`` are then called with ``u`` of size 0 and must
+    leave ``x_next``/``Fx``/``Fu`` untouched.
+    """
+
+    state: StateManifold
+    next_state: StateManifold
+    nu: int
+
+    def create_data(self) -> ActionData:
+        return ActionData(self)
+
+    @abstractmethod
+    def calc(self, data: ActionData, x: np.ndarray, u: np.ndarray) -> None:
+        """Write ``data.x_next``, ``data.cost`` and ``data.constraint_violation``."""
+
+    @abstractmethod
+    def calc_diff(self, data: ActionData, x: np.ndarray, u: np.ndarray) -> None:
+        """Write ``Fx, Fu, Lx, Lu, Lxx, Luu, Lux`` (Gauss-Newton Hessians). Assumes ``calc`` ran first."""
+
+
+class ResetData:
+    """Workspace of a reset map."""
+
+    def __init__(self, reset: ResetMap) -> None:
+        self.x_next = np.zeros(reset.next_state.nx)
+        self.Px = np.zeros((reset.next_state.ndx, reset.state.ndx))
+
+
+class ResetMap(ABC):
+    """``x^{[i+1]}_0 = P_i(x^{[i]}_N)`` (paper Eq. (1), (24), (31)); may change the state space."""
+
+    state: StateManifold
+    next_state: StateManifold
+
+    def create_data(self) -> ResetData:
+        return ResetData(self)
+
+    @abstractmethod
+    def calc(self, data: ResetData, x: np.ndarray) -> None:
+        """Write ``data.x_next``."""
+
+    @abstractmethod
+    def calc_diff(self, data: ResetData, x: np.ndarray) -> None:
+        """Write ``data.Px`` (tangent to tangent). Assumes ``calc`` ran first."""
+
+
+class IdentityReset(ResetMap):
+    """The trivial reset (take-off, Sec. IV-A-2): ``x^+ = x^-``."""
+
+    def __init__(self, state: StateManifold) -> None:
+        self.state = state
+        self.next_state = state
+        self._eye = np.eye(state.ndx)
+
+    def calc(self, data: ResetData, x: np.ndarray) -> None:
+        data.x_next[:] = x
+
+    def calc_diff(self, data: ResetData, x: np.ndarray) -> None:
+        data.Px[:] = self._eye
+
+
+class ConstraintData:
+    """Workspace of a switching (phase-terminal) equality constraint."""
+
+    def __init__(self, constraint: SwitchingConstraint) -> None:
+        self.value = np.zeros(constraint.dim)
+        self.Hx = np.zeros((constraint.dim, constraint.state.ndx))
+
+
+class SwitchingConstraint(ABC):
+    """``g_i(x_N) = 0`` at the end of a phase (paper Eq. (2), e.g. touchdown foot height (25))."""
+
+    state: StateManifold
+    dim: int
+
+    def create_data(self) -> ConstraintData:
+        return ConstraintData(self)
+
+    @abstractmethod
+    def calc(self, data: ConstraintData, x: np.ndarray) -> None:
+        """Write ``data.value``."""
+
+    @abstractmethod
+    def calc_diff(self, data: ConstraintData, x: np.ndarray) -> None:
+        """Write ``data.Hx``. Assumes ``calc`` ran first."""
+
+
+@dataclass
+class Phase:
+    """One phase of a multi-phase problem (paper Eq. (14), (17)).
+
+    ``running_models`` has one model per time step (``N`` of them, ``N >= 1``); ``terminal_model`` prices the
+    phase's last state (``nu == 0``). ``reset_map`` leads to the next phase (``None`` only for the last phase;
+    the problem substitutes an identity when the state spaces agree). ``dt`` is for bookkeeping (plan times)
+    and is not used by the solver.
+    """
+
+    running_models: list[ActionModel]
+    terminal_model: ActionModel
+    reset_map: ResetMap | None = None
+    switching_constraint: SwitchingConstraint | None = None
+    dt: float = 0.0
+    name: str = ""
+    metadata: dict = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        if len(self.running_models) == 0:
+            raise ValueError(f"phase {self.name!r} has no running models (a phase needs a duration)")
+        if self.terminal_model.nu != 0:
+            raise ValueError(f"phase {self.name!r}: terminal model must have nu == 0")
+        state = self.running_models[0].state
+        for k, model in enumerate(self.running_models):
+            if model.state.ndx != state.ndx or model.next_state.ndx != state.ndx:
+                raise ValueError(f"phase {self.name!r}: knot {k} changes the state space inside a phase")
+        if self.terminal_model.state.ndx != state.ndx:
+            raise ValueError(f"phase {self.name!r}: terminal model state dimension does not match")
+        if self.switching_constraint is not None and self.switching_constraint.state.ndx != state.ndx:
+            raise ValueError(f"phase {self.name!r}: switching constraint state dimension does not match")
+
+    @property
+    def state(self) -> StateManifold:
+        return self.running_models[0].state
+
+    @property
+    def horizon(self) -> int:
+        return len(self.running_models)
+
+
+@dataclass
+class MultiPhaseProblem:
+    """An ordered list of phases and the initial state (paper Eq. (14), (17))."""
+
+    x0: np.ndarray
+    phases: list[Phase]
+
+    def __post_init__(self) -> None:
+        if not self.phases:
+            raise ValueError("a problem needs at least one phase")
+        self.x0 = np.asarray(self.x0, dtype=float)
+        if self.x0.shape != (self.phases[0].state.nx,):
+            raise ValueError(
+                f"x0 has shape {self.x0.shape}, the first phase's state needs ({self.phases[0].state.nx},)"
+            )
+        for i, (phase, following) in enumerate(zip(self.phases[:-1], self.phases[1:], strict=True)):
+            if phase.reset_map is None:
+                if phase.state.ndx != following.state.ndx:
+                    raise ValueError(f"phase {i} changes state dimension but has no reset map")
+                phase.reset_map = IdentityReset(phase.state)
+            if phase.reset_map.state.ndx != phase.state.ndx:
+                raise ValueError(f"phase {i}: reset map source dimension does not match the phase")
+            if phase.reset_map.next_state.ndx != following.state.ndx:
+                raise ValueError(f"phase {i}: reset map target dimension does not match phase {i + 1}")
