@@ -82,7 +82,8 @@ def urdf_from_parameters(table: dict) -> str:
         lines.append(f'  <link name="{leg}_foot"/>\n')
         lines.append(
             f'  <joint name="{leg}_foot_fixed" type="fixed"><parent link="{leg}_shank"/>'
-            f'<child link="{leg}_foot"/><origin xyz="0 0 {-geometry["shank_length"]:.10g}" rpy="0 0 0"/></joint>\n'
+            f'<child link="{leg}_foot"/>'
+            f'<origin xyz="0 0 {-geometry["shank_length"]:.10g}" rpy="0 0 0"/></joint>\n'
         )
     lines.append("</robot>\n")
     return "".join(lines)
@@ -161,7 +162,8 @@ def mjcf_from_model(
         out.append(f"{pad}  {inertial(joint_id)}\n")
         lower, upper = float(position_lower[index]), float(position_upper[index])
         out.append(
-            f"{pad}  <joint name={quoteattr(joint_name)} type=\"hinge\" axis=\"{_fmt(_revolute_axis(model, joint_id))}\" "
+            f'{pad}  <joint name={quoteattr(joint_name)} type="hinge" '
+            f'axis="{_fmt(_revolute_axis(model, joint_id))}" '
             f'range="{lower:.10g} {upper:.10g}" limited="true" armature="{plant.armature[index]:.10g}" '
             f'damping="{plant.joint_damping:.10g}" frictionloss="{plant.joint_friction:.10g}"/>\n'
         )
@@ -178,11 +180,14 @@ def mjcf_from_model(
                 f'contype="0" conaffinity="0" group="1" rgba="0.3 0.3 0.35 1"/>\n'
             )
             out.append(
-                f"{pad}  <geom name={quoteattr(model.frames[frame_id].name)} type=\"sphere\" "
+                f'{pad}  <geom name={quoteattr(model.frames[frame_id].name)} type="sphere" '
                 f'size="{plant.foot_radius:.10g}" pos="{_fmt(foot_pos)}" contype="0" conaffinity="1" '
                 f'condim="3" friction="{plant.floor_friction:.10g} 0.005 0.0001" rgba="0.1 0.1 0.1 1"/>\n'
             )
-            out.append(f'{pad}  <site name={quoteattr(model.frames[frame_id].name + "_site")} pos="{_fmt(foot_pos)}"/>\n')
+            out.append(
+                f'{pad}  <site name={quoteattr(model.frames[frame_id].name + "_site")} '
+                f'pos="{_fmt(foot_pos)}"/>\n'
+            )
         for child in children[joint_id]:
             body(child, depth + 1)
         out.append(f"{pad}</body>\n")

@@ -83,7 +83,12 @@ class Robot:
     def mjcf(self) -> str:
         """MJCF text of the MuJoCo plant (same kinematics/inertias plus the plant extras)."""
         return mjcf_from_model(
-            self.model, list(self.foot_frame_ids), self.plant, self.position_lower, self.position_upper, self.name
+            self.model,
+            list(self.foot_frame_ids),
+            self.plant,
+            self.position_lower,
+            self.position_upper,
+            self.name,
         )
 
     def foot_positions(self, q: np.ndarray) -> np.ndarray:
@@ -104,7 +109,9 @@ class Robot:
 
     def summary(self) -> dict:
         """Masses, limits and feet as plain data (for ``cafe-mpc robot NAME --json``)."""
-        bodies = {self.model.names[j]: float(self.model.inertias[j].mass) for j in range(1, self.model.njoints)}
+        bodies = {
+            self.model.names[j]: float(self.model.inertias[j].mass) for j in range(1, self.model.njoints)
+        }
         return {
             "name": self.name,
             "total_mass": self.total_mass,
@@ -138,8 +145,12 @@ def _per_leg(values: list[float] | None, default: np.ndarray, key: str) -> np.nd
 
 
 def _standing_configuration(
-    model: pin.Model, foot_frame_ids: tuple[int, ...], height: float, foot_radius: float,
-    joint_guess: np.ndarray, foot_xy: np.ndarray,
+    model: pin.Model,
+    foot_frame_ids: tuple[int, ...],
+    height: float,
+    foot_radius: float,
+    joint_guess: np.ndarray,
+    foot_xy: np.ndarray,
 ) -> np.ndarray:
     """Joint angles that put the feet at ``foot_xy`` on the floor with the base at ``height`` (level).
 
@@ -209,7 +220,12 @@ def _build_robot(table: dict) -> Robot:
     if sorted(leg_names) != sorted(LEG_NAMES):
         raise RobotLoadError(f"robot {name!r}: leg_names must be a permutation of {LEG_NAMES}")
     source = table.get("source", "parameters")
-    geometry, joints, plant_table, standing = table["geometry"], table["joints"], table["plant"], table["standing"]
+    geometry, joints, plant_table, standing = (
+        table["geometry"],
+        table["joints"],
+        table["plant"],
+        table["standing"],
+    )
     if source == "parameters":
         urdf = urdf_from_parameters(table)
         foot_frames = tuple(f"{leg}_foot" for leg in leg_names)
@@ -256,7 +272,9 @@ def _build_robot(table: dict) -> Robot:
     else:
         position_lower = -position_upper
     plant = PlantParameters(
-        motor_torque_limits=_per_leg(plant_table.get("motor_torque_limits"), torque_limits, "plant.motor_torque_limits"),
+        motor_torque_limits=_per_leg(
+            plant_table.get("motor_torque_limits"), torque_limits, "plant.motor_torque_limits"
+        ),
         armature=_per_leg(plant_table["armature"], np.zeros(12), "plant.armature"),
         joint_damping=float(plant_table["joint_damping"]),
         joint_friction=float(plant_table["joint_friction"]),
@@ -266,7 +284,9 @@ def _build_robot(table: dict) -> Robot:
         body_box=tuple(float(v) for v in geometry["body_box"]),
     )
     if plant.timestep <= 0 or plant.foot_radius <= 0 or plant.floor_friction <= 0:
-        raise RobotLoadError(f"robot {name!r}: plant timestep, foot radius and floor friction must be positive")
+        raise RobotLoadError(
+            f"robot {name!r}: plant timestep, foot radius and floor friction must be positive"
+        )
     offsets = np.asarray(standing["foothold_offsets"], dtype=float)
     if offsets.shape != (4, 2):
         raise RobotLoadError(f"robot {name!r}: standing.foothold_offsets must be 4 (x, y) pairs")

@@ -1,0 +1,120 @@
+"""Command line: ``cafe-mpc run | robot | bench``.
+
+Every user error (bad preset, key, value, robot file, NaN state) ends with one line ``cafe-mpc: error: ...``
+on stderr and a non-zero exit code, never a traceback.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import sys
+from pathlib import Path
+
+EXIT_USAGE = 2
+EXIT_FAILED = 1
+
+
+def _command_run(arguments: argparse.Namespace) -> int:
+    from cafe_mpc.config import load_config
+    from cafe_mpc.experiments.run import default_out_dir, run
+
+    overrides = list(arguments.set or [])
+    if arguments.duration is not None:
+        overrides.append(f"simulation.duration={arguments.duration}")
+    if arguments.render:
+        overrides.append("output.render=true")
+    config = load_config(arguments.config, overrides)
+    out_dir = Path(arguments.out) if arguments.out else default_out_dir(config)
+    result = run(config, out_dir, show_progress=True)
+    metrics = result.metrics
+    print(
+        f"{config.name}: fell={metrics['fell']} base_height_mean={metrics['base_height_mean']:.3f} m "
+        f"sim {metrics['sim_time_s']:.2f} s in {metrics['wall_time_s']:.2f} s "
+        f"(real-time factor {metrics['real_time_factor']:.2f})"
+    )
+    if "render_error" in metrics:
+        print(f"no video: {metrics['render_error']}")
+    print(f"results in {result.out_dir}")
+    return 0
+
+
+def _command_robot(arguments: argparse.Namespace) -> int:
+    from cafe_mpc.robots.consistency import check_consistency
+    from cafe_mpc.robots.robot import load_robot
+
+    robot = load_robot(arguments.name)
+    summary = robot.summary()
+    summary["consistency"] = check_consistency(robot, samples=arguments.samples)
+    if arguments.json:
+        print(json.dumps(summary, indent=2))
+    else:
+        print(f"{robot.name}: total mass {robot.total_mass:.3f} kg, feet {', '.join(robot.foot_frame_names)}")
+        print(
+            f"torque limits (plan) {robot.torque_limits[:3].tolist()} Nm, "
+            f"motor {robot.plant.motor_torque_limits[:3].tolist()} Nm"
+        )
+        consistency = summary["consistency"]
+        print(
+            f"Pinocchio vs MuJoCo: mass diff {consistency['total_mass_difference']:.2e} kg, "
+            f"feet {consistency['foot_position_max_error_m']:.2e} m, "
+            f"mass matrix {consistency['mass_matrix_max_error']:.2e}: "
+            f"{'passed' if consistency['passed'] else 'FAILED'}"
+        )
+    return 0 if summary["consistency"]["passed"] else EXIT_FAILED
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="cafe-mpc", description="CAFE-MPC on a simulated quadruped")
+    parser.add_argument("-v", "--verbose", action="store_true", help="log at INFO level to stderr")
+    commands = parser.add_subparsers(dest="command", required=True)
+
+    run_parser = commands.add_parser("run", help="run a preset or a YAML config in simulation")
+    run_parser.add_argument("config", help="preset name (e.g. stand) or path to a YAML config")
+    run_parser.add_argument("--duration", type=float, help="simulated seconds (overrides the config)")
+    run_parser.add_argument("--out", help="output folder (default runs/<time>-<preset>/)")
+    run_parser.add_argument(
+        "--set",
+        action="append",
+        metavar="KEY=VALUE",
+        help="override a config key by its dotted path; repeatable",
+    )
+    run_parser.add_argument("--render", action="store_true", help="write a video (needs off-screen GL)")
+    run_parser.set_defaults(handler=_command_run)
+
+    robot_parser = commands.add_parser("robot", help="robot summary and Pinocchio/MuJoCo consistency check")
+    robot_parser.add_argument("name", help="robot name (mini_cheetah, go1) or robot YAML file")
+    robot_parser.add_argument("--json", action="store_true", help="print one JSON object")
+    robot_parser.add_argument("--samples", type=int, default=5, help="random configurations to compare")
+    robot_parser.set_defaults(handler=_command_robot)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
+    arguments = parser.parse_args(argv)
+    console = logging.StreamHandler()
+    console.setLevel(logging.INFO if arguments.verbose else logging.WARNING)
+    console.setFormatter(logging.Formatter("%(levelname)s %(name)s: %(message)s"))
+    logging.getLogger().addHandler(console)
+    from cafe_mpc.config import ConfigError
+    from cafe_mpc.robots.robot import RobotLoadError
+    from cafe_mpc.sim.loop import ControllerError
+    from cafe_mpc.sim.plant import SimulationDiverged
+
+    try:
+        return int(arguments.handler(arguments))
+    except (ConfigError, RobotLoadError, FileExistsError) as error:
+        print(f"cafe-mpc: error: {error}", file=sys.stderr)
+        return EXIT_USAGE
+    except (SimulationDiverged, ControllerError, ValueError) as error:
+        print(f"cafe-mpc: error: {error}", file=sys.stderr)
+        return EXIT_FAILED
+    except KeyboardInterrupt:
+        print("cafe-mpc: interrupted", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,158 @@
+"""One run: config -> controller -> closed-loop simulation -> config, metrics, log and plots on disk.
+
+Results are written to a hidden ``.<name>.partial`` folder and renamed only when everything succeeded,
+so a failed run never leaves a folder that looks like a result.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import shutil
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import yaml
+
+from cafe_mpc.config import RunConfig
+from cafe_mpc.robots.robot import Robot, load_robot
+from cafe_mpc.sim.loop import Controller, FallCriteria, Push, SimulationLog, simulate
+from cafe_mpc.wbc.pd import PDController
+
+logger = logging.getLogger(__name__)
+
+
+@dataclass
+class RunResult:
+    config: RunConfig
+    robot: Robot
+    log: SimulationLog
+    metrics: dict
+    out_dir: Path | None
+
+
+def build_controller(config: RunConfig, robot: Robot) -> Controller:
+    """The low-level controller named by ``config.wbc``."""
+    if config.wbc == "pd":
+        return PDController(
+            robot, config.pd.kp, config.pd.kd, gravity_feedforward=config.pd.gravity_feedforward
+        )
+    raise ValueError(f"unknown low-level controller {config.wbc!r}")
+
+
+def simulate_config(config: RunConfig, progress=None) -> tuple[Robot, SimulationLog]:
+    """Build robot and controller from ``config`` and run the closed loop (no files written)."""
+    robot = load_robot(config.robot)
+    controller = build_controller(config, robot)
+    q0 = robot.q_standing.copy()
+    q0[2] += config.simulation.initial_height_offset
+    pushes = [Push(p.start, p.duration, p.force_on(robot.total_mass)) for p in config.pushes]
+    log = simulate(
+        robot,
+        controller,
+        config.simulation.duration,
+        control_rate_hz=config.simulation.control_rate_hz,
+        q0=q0,
+        pushes=pushes,
+        plant_timestep=config.simulation.plant_timestep,
+        fall=FallCriteria(config.simulation.fall.min_base_height, config.simulation.fall.max_tilt_rad),
+        stop_on_fall=config.simulation.stop_on_fall,
+        progress=progress,
+    )
+    return robot, log
+
+
+def default_out_dir(config: RunConfig, root: Path = Path("runs")) -> Path:
+    return root / f"{time.strftime('%Y%m%d-%H%M%S')}-{config.name}"
+
+
+def run(config: RunConfig, out_dir: Path | None, show_progress: bool = False) -> RunResult:
+    """Run ``config``; when ``out_dir`` is given write config.yaml, metrics.json, log.npz, run.log, plots."""
+    from cafe_mpc.report.metrics import base_metrics
+
+    partial: Path | None = None
+    handler: logging.Handler | None = None
+    if out_dir is not None:
+        out_dir = Path(out_dir)
+        if out_dir.exists() and any(out_dir.iterdir()):
+            raise FileExistsError(f"output folder {out_dir} exists and is not empty; choose another --out")
+        partial = out_dir.parent / f".{out_dir.name}.partial"
+        shutil.rmtree(partial, ignore_errors=True)
+        partial.mkdir(parents=True)
+        handler = logging.FileHandler(partial / "run.log")
+        handler.setFormatter(logging.Formatter("%(asctime)s %(levelname)s %(name)s: %(message)s"))
+        logging.getLogger("cafe_mpc").addHandler(handler)
+        logging.getLogger("cafe_mpc").setLevel(logging.INFO)
+    bar = None
+    try:
+        logger.info(
+            "run %s: robot %s, controller %s, %.2f s",
+            config.name,
+            config.robot,
+            config.wbc,
+            config.simulation.duration,
+        )
+        progress = None
+        if show_progress and config.simulation.duration >= 3.0:
+            from tqdm import tqdm
+
+            bar = tqdm(
+                total=round(config.simulation.duration, 3),
+                unit="sim s",
+                bar_format="{l_bar}{bar}| {n:.2f}/{total:.2f} sim s [{elapsed}<{remaining}]",
+            )
+            progress = bar.update
+        robot, log = simulate_config(config, progress)
+        metrics = base_metrics(robot, log, 1.0 / config.simulation.control_rate_hz)
+        metrics["robot"] = robot.name
+        metrics["controller"] = config.wbc
+        logger.info(
+            "metrics: fell=%s, base height mean %.3f m, real-time factor %.2f",
+            metrics["fell"],
+            metrics["base_height_mean"] or float("nan"),
+            metrics["real_time_factor"] or float("nan"),
+        )
+        if partial is not None:
+            with open(partial / "config.yaml", "w") as handle:
+                yaml.safe_dump(config.model_dump(mode="json"), handle, sort_keys=False)
+            with open(partial / "metrics.json", "w") as handle:
+                json.dump(metrics, handle, indent=2)
+            log.save(str(partial / "log.npz"))
+            if config.output.plots and log.ticks > 1:
+                from cafe_mpc.report.plots import plot_run
+
+                plot_run(robot, log, partial)
+            if config.output.render:
+                from cafe_mpc.report.video import RenderUnavailable, render_run
+
+                try:
+                    video = render_run(robot, log, partial / "run.mp4", config.output.render_fps)
+                    logger.info("video written to %s", video.name)
+                except RenderUnavailable as error:
+                    logger.warning("no video: %s", error)
+                    metrics["render_error"] = str(error)
+                    with open(partial / "metrics.json", "w") as handle:
+                        json.dump(metrics, handle, indent=2)
+        if bar is not None:
+            bar.close()
+            bar = None
+        if handler is not None:
+            logging.getLogger("cafe_mpc").removeHandler(handler)
+            handler.close()
+            handler = None
+        if partial is not None and out_dir is not None:
+            if out_dir.exists():
+                out_dir.rmdir()
+            partial.rename(out_dir)
+        return RunResult(config, robot, log, metrics, out_dir)
+    except BaseException:
+        if partial is not None:
+            shutil.rmtree(partial, ignore_errors=True)
+        raise
+    finally:
+        if bar is not None:
+            bar.close()
+        if handler is not None:
+            logging.getLogger("cafe_mpc").removeHandler(handler)
+            handler.close()

@@ -1,0 +1,201 @@
+"""Closed-loop simulation: a controller called at a fixed rate around the MuJoCo plant.
+
+The controller sees only ``PlantState`` (planning coordinates) and returns joint torques, which are held
+(zero-order hold) until its next call. Push disturbances are world-frame forces on the base over time
+intervals. Every control tick is logged into preallocated arrays.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from typing import Protocol
+
+import numpy as np
+
+from cafe_mpc.robots.robot import Robot
+from cafe_mpc.sim.plant import MujocoPlant, PlantState
+
+logger = logging.getLogger(__name__)
+
+
+class Controller(Protocol):
+    """Low-level controller interface: ``reset`` once, then ``compute`` at the control rate."""
+
+    def reset(self, state: PlantState) -> None: ...
+
+    def compute(self, t: float, state: PlantState) -> np.ndarray: ...
+
+
+class ControllerError(RuntimeError):
+    """A controller returned something that cannot be sent to the motors (wrong size, NaN)."""
+
+
+@dataclass(frozen=True)
+class Push:
+    """A world-frame force (N) on the base during ``[start, start + duration)`` seconds."""
+
+    start: float
+    duration: float
+    force: tuple[float, float, float]
+
+    def active(self, t: float) -> bool:
+        return self.start <= t < self.start + self.duration
+
+
+@dataclass
+class SimulationLog:
+    """States, torques and contact forces at every control tick (rows), trimmed to ``ticks``."""
+
+    time: np.ndarray
+    q: np.ndarray
+    v: np.ndarray
+    torque_command: np.ndarray
+    torque_applied: np.ndarray
+    foot_forces: np.ndarray
+    contacts: np.ndarray
+    external_force: np.ndarray
+    ticks: int = 0
+    fell: bool = False
+    fall_time: float | None = None
+    fall_reason: str = ""
+    wall_time: float = 0.0
+    extra: dict = field(default_factory=dict)
+
+    @classmethod
+    def allocate(cls, ticks: int, nq: int, nv: int, nu: int) -> SimulationLog:
+        return cls(
+            time=np.zeros(ticks),
+            q=np.zeros((ticks, nq)),
+            v=np.zeros((ticks, nv)),
+            torque_command=np.zeros((ticks, nu)),
+            torque_applied=np.zeros((ticks, nu)),
+            foot_forces=np.zeros((ticks, 4, 3)),
+            contacts=np.zeros((ticks, 4), dtype=bool),
+            external_force=np.zeros((ticks, 3)),
+        )
+
+    def trimmed(self) -> SimulationLog:
+        n = self.ticks
+        return SimulationLog(
+            self.time[:n],
+            self.q[:n],
+            self.v[:n],
+            self.torque_command[:n],
+            self.torque_applied[:n],
+            self.foot_forces[:n],
+            self.contacts[:n],
+            self.external_force[:n],
+            n,
+            self.fell,
+            self.fall_time,
+            self.fall_reason,
+            self.wall_time,
+            self.extra,
+        )
+
+    def save(self, path: str) -> None:
+        """Write the log as a compressed ``.npz`` file."""
+        np.savez_compressed(
+            path,
+            time=self.time[: self.ticks],
+            q=self.q[: self.ticks],
+            v=self.v[: self.ticks],
+            torque_command=self.torque_command[: self.ticks],
+            torque_applied=self.torque_applied[: self.ticks],
+            foot_forces=self.foot_forces[: self.ticks],
+            contacts=self.contacts[: self.ticks],
+            external_force=self.external_force[: self.ticks],
+        )
+
+
+@dataclass(frozen=True)
+class FallCriteria:
+    """When the run counts as a fall: base too low, tilted too far, or the trunk hit the floor."""
+
+    min_base_height: float = 0.10
+    max_tilt_rad: float = 1.2  # angle between base z axis and world z
+
+
+def base_tilt(q: np.ndarray) -> float:
+    """Angle (rad) between the base's z axis and the world z axis, from the quaternion (x, y, z, w)."""
+    x, y = q[3], q[4]
+    z_axis_z = 1.0 - 2.0 * (x * x + y * y)
+    return float(np.arccos(np.clip(z_axis_z, -1.0, 1.0)))
+
+
+def simulate(
+    robot: Robot,
+    controller: Controller,
+    duration: float,
+    control_rate_hz: float = 500.0,
+    q0: np.ndarray | None = None,
+    v0: np.ndarray | None = None,
+    pushes: Sequence[Push] = (),
+    plant_timestep: float | None = None,
+    fall: FallCriteria | None = FallCriteria(),
+    stop_on_fall: bool = True,
+    progress: Callable[[float], None] | None = None,
+) -> SimulationLog:
+    """Run ``controller`` on the MuJoCo plant for ``duration`` seconds of simulated time."""
+    if not duration > 0:
+        raise ValueError(f"duration must be positive, got {duration}")
+    if not control_rate_hz > 0:
+        raise ValueError(f"control rate must be positive, got {control_rate_hz}")
+    plant = MujocoPlant(robot, plant_timestep)
+    control_period = 1.0 / control_rate_hz
+    substeps = round(control_period / plant.timestep)
+    if substeps < 1 or abs(substeps * plant.timestep - control_period) > 1e-9:
+        raise ValueError(
+            f"control period {control_period} s must be a whole multiple of the plant step {plant.timestep} s"
+        )
+    for push in pushes:
+        if push.duration <= 0 or push.start < 0 or not np.all(np.isfinite(push.force)):
+            raise ValueError(f"invalid push {push}: start >= 0, duration > 0 and a finite force required")
+    plant.reset(robot.q_standing if q0 is None else q0, v0)
+    state = plant.read_state()
+    controller.reset(state)
+    ticks = round(duration * control_rate_hz)
+    log = SimulationLog.allocate(ticks, robot.nq, robot.nv, robot.nu)
+    external = np.zeros(3)
+    start_wall = time.perf_counter()
+    for tick in range(ticks):
+        t = tick * control_period
+        state = plant.read_state()
+        torques = np.asarray(controller.compute(t, state), dtype=float)
+        if torques.shape != (robot.nu,) or not np.all(np.isfinite(torques)):
+            raise ControllerError(f"controller returned invalid torques at t = {t:.3f} s: {torques}")
+        external[:] = 0.0
+        for push in pushes:
+            if push.active(t):
+                external += push.force
+        plant.set_external_force(external)
+        log.time[tick] = t
+        log.q[tick] = state.q
+        log.v[tick] = state.v
+        log.contacts[tick] = state.contacts
+        log.foot_forces[tick] = state.foot_forces
+        log.torque_command[tick] = torques
+        log.torque_applied[tick] = np.clip(torques, -plant.torque_limits, plant.torque_limits)
+        log.external_force[tick] = external
+        log.ticks = tick + 1
+        if fall is not None and not log.fell:
+            reason = ""
+            if state.q[2] < fall.min_base_height:
+                reason = f"base height {state.q[2]:.3f} m below {fall.min_base_height} m"
+            elif base_tilt(state.q) > fall.max_tilt_rad:
+                reason = f"base tilt {base_tilt(state.q):.2f} rad above {fall.max_tilt_rad} rad"
+            elif plant.trunk_touched_floor:
+                reason = "trunk touched the floor"
+            if reason:
+                log.fell, log.fall_time, log.fall_reason = True, t, reason
+                logger.warning("robot fell at t = %.3f s: %s", t, reason)
+                if stop_on_fall:
+                    break
+        plant.step(torques, substeps)
+        if progress is not None:
+            progress(control_period)
+    log.wall_time = time.perf_counter() - start_wall
+    return log.trimmed()

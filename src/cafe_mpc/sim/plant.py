@@ -1,0 +1,155 @@
+"""The MuJoCo plant: the simulated robot that every controller is tested against.
+
+The plant is built from ``Robot.mjcf`` (same kinematics and inertias as the planning model, plus rotor
+armature, joint damping and friction, torque saturation, foot spheres and elliptic cones). It never
+shares an object with a controller: it reads and writes plain arrays in the planning model's
+coordinates (Pinocchio's free-flyer convention):
+
+* ``q = [base position, base quaternion (x, y, z, w), 12 joint angles]``
+* ``v = [base linear velocity (base frame), base angular velocity (base frame), 12 joint rates]``
+
+MuJoCo's free joint stores the quaternion as ``(w, x, y, z)`` and the linear velocity in the world frame;
+the conversion happens here and only here.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import mujoco
+import numpy as np
+
+from cafe_mpc.robots.robot import Robot
+
+_DIVERGENCE_WARNINGS = (
+    mujoco.mjtWarning.mjWARN_BADQPOS,
+    mujoco.mjtWarning.mjWARN_BADQVEL,
+    mujoco.mjtWarning.mjWARN_BADQACC,
+)
+
+
+class SimulationDiverged(RuntimeError):
+    """The simulator produced a non-finite state."""
+
+
+@dataclass
+class PlantState:
+    """Measured state in planning coordinates (arrays are owned by the plant and overwritten each read)."""
+
+    time: float
+    q: np.ndarray
+    v: np.ndarray
+    contacts: np.ndarray  # 4 bools, leg order
+    foot_forces: np.ndarray  # 4 x 3 world-frame ground reaction forces on the feet
+
+
+class MujocoPlant:
+    """MuJoCo simulation of a ``Robot`` with torque inputs and planning-coordinate read-out."""
+
+    def __init__(self, robot: Robot, timestep: float | None = None) -> None:
+        self.robot = robot
+        self.model = mujoco.MjModel.from_xml_string(robot.mjcf)
+        if timestep is not None:
+            if not timestep > 0:
+                raise ValueError(f"plant timestep must be positive, got {timestep}")
+            self.model.opt.timestep = timestep
+        self.data = mujoco.MjData(self.model)
+        names = [self.model.joint(i).name for i in range(1, self.model.njnt)]
+        if tuple(names) != robot.joint_names:
+            raise ValueError(f"plant joint order {names} differs from the robot's {robot.joint_names}")
+        self.base_body = self.model.body("base").id
+        self.floor_geom = self.model.geom("floor").id
+        self.trunk_geom = self.model.geom("trunk").id
+        self.foot_geoms = np.array([self.model.geom(name).id for name in robot.foot_frame_names])
+        self._foot_index = {int(g): i for i, g in enumerate(self.foot_geoms)}
+        self.torque_limits = np.array(robot.plant.motor_torque_limits)
+        self._state = PlantState(
+            0.0, np.zeros(robot.nq), np.zeros(robot.nv), np.zeros(4, bool), np.zeros((4, 3))
+        )
+        self._rotation = np.zeros(9)
+        self._contact_wrench = np.zeros(6)
+        self._contact_frame = np.zeros((3, 3))
+        self.trunk_touched_floor = False
+
+    @property
+    def timestep(self) -> float:
+        return float(self.model.opt.timestep)
+
+    @property
+    def time(self) -> float:
+        return float(self.data.time)
+
+    def reset(self, q: np.ndarray, v: np.ndarray | None = None) -> None:
+        """Set the plant to ``(q, v)`` given in planning coordinates."""
+        q = np.asarray(q, dtype=float)
+        v = np.zeros(self.robot.nv) if v is None else np.asarray(v, dtype=float)
+        if q.shape != (self.robot.nq,) or v.shape != (self.robot.nv,):
+            raise ValueError(f"reset expects q ({self.robot.nq},) and v ({self.robot.nv},)")
+        if not (np.all(np.isfinite(q)) and np.all(np.isfinite(v))):
+            raise ValueError("reset state contains NaN or inf")
+        mujoco.mj_resetData(self.model, self.data)
+        quaternion_xyzw = q[3:7] / np.linalg.norm(q[3:7])
+        self.data.qpos[:3] = q[:3]
+        self.data.qpos[3:7] = [quaternion_xyzw[3], *quaternion_xyzw[:3]]
+        self.data.qpos[7:] = q[7:]
+        mujoco.mju_quat2Mat(self._rotation, self.data.qpos[3:7])
+        self.data.qvel[:3] = self._rotation.reshape(3, 3) @ v[:3]
+        self.data.qvel[3:] = v[3:]
+        self.data.ctrl[:] = 0.0
+        self.trunk_touched_floor = False
+        mujoco.mj_forward(self.model, self.data)
+
+    def set_external_force(self, force_world: np.ndarray) -> None:
+        """Apply a world-frame force (N) at the base's centre of mass until changed."""
+        self.data.xfrc_applied[self.base_body, :3] = force_world
+
+    def step(self, torques: np.ndarray, n_steps: int = 1) -> None:
+        """Hold ``torques`` (saturated by the actuators' ``ctrlrange``) for ``n_steps`` physics steps."""
+        self.data.ctrl[:] = torques
+        for _ in range(n_steps):
+            mujoco.mj_step(self.model, self.data)
+            # MuJoCo resets itself (and only warns) when the state blows up; turn that into an error.
+            for warning in _DIVERGENCE_WARNINGS:
+                if self.data.warning[warning].number > 0:
+                    raise SimulationDiverged(
+                        f"MuJoCo state became non-finite or huge ({warning.name}) "
+                        f"at t = {self.data.time:.4f} s"
+                    )
+        if not (np.all(np.isfinite(self.data.qpos)) and np.all(np.isfinite(self.data.qvel))):
+            raise SimulationDiverged(f"MuJoCo state became non-finite at t = {self.data.time:.4f} s")
+
+    def applied_torques(self) -> np.ndarray:
+        """Torques the motors actually apply (after saturation)."""
+        return np.clip(self.data.ctrl, -self.torque_limits, self.torque_limits)
+
+    def read_state(self) -> PlantState:
+        """Current state in planning coordinates, feet contacts and ground reaction forces."""
+        state = self._state
+        qpos, qvel = self.data.qpos, self.data.qvel
+        state.time = float(self.data.time)
+        state.q[:3] = qpos[:3]
+        state.q[3:6] = qpos[4:7]
+        state.q[6] = qpos[3]
+        state.q[7:] = qpos[7:]
+        mujoco.mju_quat2Mat(self._rotation, qpos[3:7])
+        state.v[:3] = self._rotation.reshape(3, 3).T @ qvel[:3]
+        state.v[3:] = qvel[3:]
+        state.contacts[:] = False
+        state.foot_forces[:] = 0.0
+        for i in range(self.data.ncon):
+            contact = self.data.contact[i]
+            geom1, geom2 = int(contact.geom1), int(contact.geom2)
+            if self.trunk_geom in (geom1, geom2):
+                self.trunk_touched_floor = True
+            foot = self._foot_index.get(geom1, self._foot_index.get(geom2, -1))
+            if foot < 0:
+                continue
+            mujoco.mj_contactForce(self.model, self.data, i, self._contact_wrench)
+            self._contact_frame[:] = contact.frame.reshape(3, 3)
+            force_world = self._contact_frame.T @ self._contact_wrench[:3]
+            # mj_contactForce gives the force of geom1 on geom2 along the normal (geom1 -> geom2).
+            if geom1 == self.foot_geoms[foot]:
+                force_world = -force_world
+            state.foot_forces[foot] += force_world
+            state.contacts[foot] = True
+        return state

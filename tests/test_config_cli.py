@@ -1,0 +1,89 @@
+"""Config validation and the command line's promises (files written, one-line errors)."""
+
+import json
+
+import pytest
+import yaml
+
+from cafe_mpc.cli import main
+from cafe_mpc.config import ConfigError, load_config
+
+
+def test_preset_loads_and_overrides_apply():
+    config = load_config(
+        "stand", ["simulation.duration=1.5", "pushes=[{start: 0.5, duration: 0.05, force: [10, 0, 0]}]"]
+    )
+    assert config.simulation.duration == 1.5
+    assert config.pushes[0].force == (10.0, 0.0, 0.0)
+    config = load_config("stand", ["pushes=[{start: 0.5, duration: 0.1, velocity_change: [1, 0, 0]}]"])
+    assert config.pushes[0].force_on(8.0) == pytest.approx((80.0, 0.0, 0.0))
+
+
+@pytest.mark.parametrize(
+    ("overrides", "message"),
+    [
+        (["simulation.durtion=3"], "unknown config key 'simulation.durtion'"),
+        (["nonsense=1"], "unknown config key 'nonsense'"),
+        (["simulation.duration=-1"], "simulation.duration: Input should be greater than 0"),
+        (["simulation.control_rate_hz=0"], "control_rate_hz"),
+        (["simulation.control_rate_hz=300"], "whole multiple"),
+        (["robot=atlas"], "unknown robot 'atlas'"),
+        (["pushes=[{start: 1, duration: 0.1}]"], "exactly one of"),
+        (["wbc=magic"], "wbc"),
+        (["pd.kp"], "key=value"),
+    ],
+)
+def test_bad_config_values_name_the_key(overrides, message):
+    with pytest.raises(ConfigError, match=message.replace("(", r"\(")):
+        load_config("stand", overrides)
+
+
+def test_unknown_preset_and_missing_file():
+    with pytest.raises(ConfigError, match="unknown preset 'trott'"):
+        load_config("trott")
+    with pytest.raises(ConfigError, match="does not exist"):
+        load_config("missing.yaml")
+
+
+def test_cli_run_writes_what_it_promises(tmp_path, capsys):
+    out = tmp_path / "stand"
+    assert main(["run", "stand", "--duration", "0.5", "--out", str(out)]) == 0
+    for name in (
+        "config.yaml",
+        "metrics.json",
+        "log.npz",
+        "run.log",
+        "base_height.png",
+        "orientation.png",
+        "velocities.png",
+        "joint_torques.png",
+        "contact_forces.png",
+    ):
+        assert (out / name).is_file(), name
+    metrics = json.loads((out / "metrics.json").read_text())
+    for key in ("fell", "sim_time_s", "wall_time_s", "real_time_factor", "base_height_mean"):
+        assert key in metrics
+    assert metrics["fell"] is False
+    assert metrics["sim_time_s"] == pytest.approx(0.5)
+    written = yaml.safe_load((out / "config.yaml").read_text())
+    assert written["simulation"]["duration"] == 0.5
+    assert "results in" in capsys.readouterr().out
+
+
+def test_cli_errors_are_one_line_and_leave_nothing(tmp_path, capsys):
+    out = tmp_path / "bad"
+    assert main(["run", "stand", "--duration", "-2", "--out", str(out)]) == 2
+    error = capsys.readouterr().err.strip().splitlines()
+    assert len(error) == 1 and error[0].startswith("cafe-mpc: error:")
+    assert not out.exists()
+    assert not any(tmp_path.iterdir())
+    assert main(["run", "jump", "--out", str(out)]) == 2
+    assert main(["robot", "no_such_robot"]) == 2
+
+
+def test_cli_robot_json(capsys):
+    assert main(["robot", "mini_cheetah", "--json", "--samples", "2"]) == 0
+    summary = json.loads(capsys.readouterr().out)
+    assert summary["total_mass"] == pytest.approx(8.252)
+    assert summary["consistency"]["passed"] is True
+    assert summary["foot_frames"] == ["FL_foot", "FR_foot", "HL_foot", "HR_foot"]
