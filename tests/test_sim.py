@@ -80,3 +80,10 @@ def test_bad_rates_are_rejected(robot):
         simulate(robot, PDController(robot), 0.0)
     with pytest.raises(ValueError, match="whole multiple"):
         simulate(robot, PDController(robot), 0.1, control_rate_hz=300.0)
+
+
+def test_second_quadruped_from_config_stands():
+    go1 = load_robot("go1")
+    log = simulate(go1, PDController(go1), 1.5)
+    assert not log.fell
+    assert abs(log.q[-1, 2] - go1.standing_height) < 0.03

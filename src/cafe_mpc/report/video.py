@@ -29,7 +29,7 @@ def render_run(robot: Robot, log: SimulationLog, path: Path, fps: int = 30) -> P
         from cafe_mpc.sim.plant import MujocoPlant
 
         plant = MujocoPlant(robot)
-        renderer = mujoco.Renderer(plant.model, height=360, width=640)
+        renderer = mujoco.Renderer(plant.model, height=368, width=640)
     except Exception as error:  # GL back-ends fail with many exception types
         raise RenderUnavailable(
             f"off-screen rendering is not available ({type(error).__name__}: {error}); "
