@@ -1,0 +1,715 @@
+"""Multi-phase multiple-shooting iLQR (MS-iLQR, paper Sec. III).
+
+The solver sees only the per-knot interface of ``cafe_mpc.ocp.interfaces``: phases of running models,
+terminal models, reset maps between phases and switching (phase-terminal) equality constraints. States live
+on manifolds; every perturbation, defect and value-function model is expressed in the tangent space at the
+nominal state, defects are ``d_{k+1} = f(x̄_k, ū_k) ⊖ x̄_{k+1}`` (Eq. (4)) and ``P(x̄_N) ⊖ x̄_0`` (Eq. (15)).
+
+One inner iteration:
+
+* **Backward sweep** (Eqs. (8), (9), (10)) with the defect terms ``ŝ = s + S d``, Gauss-Newton (the
+  second-order dynamics terms of (8d)-(8f) and (16c) are dropped: iLQR), across reset maps with Eq. (16)
+  and the reset Jacobian, with ``mu I`` added to ``Quu`` (Cholesky; on failure ``mu`` grows and the sweep
+  restarts). The value function is updated with the regularised gains and the *unregularised* ``Quu``
+  (``S = Qxx + K'Quu K + K'Qux + Qux'K``), which equals Eq. (9) when ``mu = 0`` and keeps the expected cost
+  change of the quadratic model exact for ``mu > 0``.
+* **Forward sweep** (Eqs. (11)-(13)): ``u' = ū + α k + K (x' ⊖ x̄)``. In the paper's *hybrid* roll-out a
+  shooting knot follows the linearised dynamics with the *full* defect (Eq. (12), in tangent form
+  ``x'_{k+1} = x̄_{k+1} ⊕ (A δx + B δu + d̄_{k+1})``) and a roll-out knot is overwritten with the nonlinear
+  ``x'_{k+1} = f(x'_k, u'_k)`` (Eq. (13)); across a reset the same rule applies with ``P`` and the reset
+  defect. For a linear-quadratic problem one full step lands on the optimum whatever the defects (tested).
+  We keep this update (not Crocoddyl-FDDP's ``(1 - α)`` defect scaling) and add two things, because on its
+  own it stalls near feasibility: the defects it leaves are the linearisation remainders, and once the
+  defects are small the L1 merit rejects every step whose remainder exceeds them (the Maratos effect; see
+  ``test_wild_guess_does_not_stall_near_feasibility``):
+
+  - if the hybrid trial fails the Armijo test, the same step is tried with the *nonlinear* roll-out on every
+    knot (a second-order correction: no remainders, the trial is feasible);
+  - once the nominal is feasible (max defect ``<= defect_tolerance``) only the nonlinear roll-out is used,
+    so the iterates stay feasible (plain iLQR steps with the cost-only Armijo test).
+
+* **Line search** on the merit ``φ = J + ρ ||d||_1`` (``J`` includes the augmented-Lagrangian terms). The
+  model of the change of ``J`` is exact for linear dynamics and quadratic costs (the paper's "exact expected
+  cost change"): ``ΔJ(α) = c0 + α Σ Qu'k + ½ α² Σ k'Quu k`` with ``c0 = Σ (s'd + ½ d'S d)`` over all defects
+  (value function at the knot receiving the defect). The model's defects after the step are zero, so the
+  expected merit change is ``ΔJ(α) - ρ ||d̄||_1``, negative with
+  ``ρ = max(|ΔJ(0)|, |ΔJ(1)|) / ((1 - 0.2) ||d̄||_1) + 1`` (facts file). Armijo:
+  ``φ(α) - φ(0) <= 0.1 (ΔJ(α) - ρ ||d̄||_1)``; steps are halved down to ``line_search_min_step``; a trial with
+  a non-finite cost or defect is rejected; if every step fails, ``mu`` grows and the iteration is repeated.
+* **Augmented Lagrangian** outer loop (Sec. III-B-2) for the switching constraints ``g_i(x_N) = 0``
+  (Eq. (2)). Inequality constraints are relaxed-barrier costs inside the models; only their violation is
+  reported.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Sequence
+
+import numpy as np
+from scipy.linalg.lapack import dpotrf, dpotrs
+
+from cafe_mpc.ocp.interfaces import MultiPhaseProblem
+from cafe_mpc.solver.options import SolverOptions
+from cafe_mpc.solver.results import PhaseSolution, SolverResult, SolverStatistics, TrajectoryEvaluation
+from cafe_mpc.solver.workspace import EMPTY_CONTROL, PhaseWorkspace, Workspace
+
+
+class _Totals:
+    """Cost and feasibility of one trajectory (nominal or trial)."""
+
+    __slots__ = (
+        "augmented_cost",
+        "cost",
+        "defect_l1",
+        "defect_max",
+        "inequality_violation",
+        "switching_violation",
+    )
+
+    def __init__(self) -> None:
+        self.cost = 0.0
+        self.augmented_cost = 0.0
+        self.defect_l1 = 0.0
+        self.defect_max = 0.0
+        self.inequality_violation = 0.0
+        self.switching_violation = 0.0
+
+    def finite(self) -> bool:
+        return math.isfinite(self.augmented_cost) and math.isfinite(self.defect_l1)
+
+
+class MSiLQRSolver:
+    """Multi-phase MS-iLQR with augmented Lagrangian for switching constraints (paper Sec. III).
+
+    Create once and call ``solve`` repeatedly; the per-knot workspace is kept between solves and reused for
+    phases built from the same model objects.
+    """
+
+    def __init__(self, options: SolverOptions | None = None) -> None:
+        self.options = options if options is not None else SolverOptions()
+        self.workspace: Workspace | None = None
+        self._regularization = self.options.regularization_initial
+        self._merit_weight = 0.0
+        # Backward-sweep sums of the expected cost change ΔJ(α) = c0 + α g + ½ α² h.
+        self._expected_constant = 0.0
+        self._expected_linear = 0.0
+        self._expected_quadratic = 0.0
+
+    # ---------------------------------------------------------------------------------------------- public
+    def solve(
+        self,
+        problem: MultiPhaseProblem,
+        initial_xs: Sequence[np.ndarray | None] | None = None,
+        initial_us: Sequence[np.ndarray | None] | None = None,
+        rollout_knots: Sequence[object] | None = None,
+        *,
+        initial_multipliers: Sequence[np.ndarray | None] | None = None,
+        initial_penalties: Sequence[float | None] | None = None,
+    ) -> SolverResult:
+        """Solve ``problem`` from a (possibly infeasible) initial guess.
+
+        ``initial_xs``/``initial_us``: one entry per phase, ``(N_i + 1, nx_i)`` states and ``(N_i, nu_i)``
+        controls; an entry (or the whole argument) may be ``None``: missing controls are zeros, a phase
+        without states is seeded by simulating the dynamics from its start. The first state is always
+        replaced by ``problem.x0``.
+        ``rollout_knots``: one entry per phase, either a boolean mask of length ``N_i + 1``, a collection of
+        knot indices or ``None`` (no roll-out knot). Roll-out states (set ``M~``) are overwritten by
+        simulating ``f`` (or the reset map for index 0) during initialisation and in every forward sweep
+        (Eq. (13)); the others are shooting states (set ``M``). Default: every knot is a roll-out knot
+        when ``initial_xs`` is ``None`` (single shooting), otherwise none is.
+        ``initial_multipliers``/``initial_penalties``: augmented-Lagrangian parameters per phase (warm start
+        of the AL loop; ``None`` entries use ``0`` and ``options.al_initial_penalty``).
+
+        Raises ``ValueError`` when the initial guess has the wrong shapes or a non-finite cost or defect.
+        """
+        options = self.options
+        start = time.perf_counter()
+        workspace = self._prepare_workspace(problem)
+        seed_states = self._initialize(workspace, initial_xs, initial_us, rollout_knots)
+        self._initialize_augmented_lagrangian(workspace, initial_multipliers, initial_penalties)
+
+        nominal = self._evaluate_nominal(workspace, problem.x0, seed_states)
+        if not nominal.finite():
+            raise ValueError("the initial guess has a non-finite cost or defect")
+        self._linearize(workspace)
+
+        stats = SolverStatistics()
+        self._regularization = options.regularization_initial
+        status, inner_converged, policy_valid = "max_iterations", False, False
+        last_iteration_time = 0.0
+        for al_iteration in range(options.max_al_iterations):
+            stats.al_iterations = al_iteration + 1
+            inner_converged, status = False, "max_iterations"
+            for _ in range(options.max_iterations):
+                elapsed = time.perf_counter() - start
+                budget = options.time_budget
+                if budget is not None and stats.iterations > 0 and elapsed + last_iteration_time > budget:
+                    status = "time_budget"
+                    break
+                iteration_start = time.perf_counter()
+                outcome = self._backward_pass_with_regularization(workspace, stats)
+                policy_valid = outcome == "ok"
+                if not policy_valid:
+                    status = outcome
+                    break
+                decrease = -(self._expected_linear + 0.5 * self._expected_quadratic)
+                if (
+                    nominal.defect_max <= options.defect_tolerance
+                    and decrease <= options.expected_decrease_tolerance
+                ):
+                    inner_converged, status = True, "converged"
+                    break
+                regularization = self._regularization
+                trial, alpha, n_trials, mode = self._line_search(workspace, problem.x0, nominal)
+                cost_change = math.inf
+                if trial is not None:
+                    cost_change = trial.augmented_cost - nominal.augmented_cost
+                    for work in workspace.phases:
+                        work.swap_trial()
+                    nominal = trial
+                    self._linearize(workspace)
+                    policy_valid = False
+                    self._regularization = max(
+                        regularization / options.regularization_decrease, options.regularization_min
+                    )
+                last_iteration_time = time.perf_counter() - iteration_start
+                self._record(
+                    stats, nominal, regularization, decrease, alpha, n_trials, mode, last_iteration_time
+                )
+                if trial is None:
+                    if not self._increase_regularization():
+                        status = "regularization_limit"
+                        break
+                elif (
+                    nominal.defect_max <= options.defect_tolerance
+                    and abs(cost_change) <= options.cost_change_tolerance
+                ):
+                    inner_converged, status = True, "converged"
+                    break
+            if status in ("regularization_limit", "non_finite", "time_budget"):
+                break
+            if nominal.switching_violation <= options.switching_tolerance:
+                break
+            # Also after the last AL iteration: the parameters warm-start the next (MPC) solve.
+            self._update_augmented_lagrangian(workspace)
+            nominal = self._totals_from_nominal(workspace, nominal)
+            policy_valid = False
+
+        if options.final_backward_pass and not policy_valid and status != "non_finite":
+            policy_valid = self._backward_pass_with_regularization(workspace, stats) == "ok"
+        converged = inner_converged and nominal.switching_violation <= options.switching_tolerance
+        if status == "converged" and not converged:
+            status = "max_iterations"
+        stats.solve_time = time.perf_counter() - start
+        return self._make_result(workspace, nominal, converged, status, stats, policy_valid)
+
+    def evaluate(
+        self, problem: MultiPhaseProblem, xs: Sequence[np.ndarray], us: Sequence[np.ndarray]
+    ) -> TrajectoryEvaluation:
+        """Cost, defects and constraint violations of the trajectory ``(xs, us)`` (no roll-out, no AL terms).
+
+        ``xs[0][0]`` is used as given (not replaced by ``problem.x0``).
+        """
+        workspace = self._prepare_workspace(problem)
+        seed_states = self._initialize(workspace, xs, us, None)
+        for work in workspace.phases:
+            work.multiplier[:] = 0.0
+            work.penalty = 0.0
+        totals = self._evaluate_nominal(workspace, np.asarray(xs[0][0], dtype=float), seed_states)
+        return TrajectoryEvaluation(
+            cost=totals.cost,
+            defects=[work.defects.copy() for work in workspace.phases],
+            defect_max=totals.defect_max,
+            defect_l1=totals.defect_l1,
+            switching_values=[
+                work.switching_value.copy() if work.constraint is not None else None
+                for work in workspace.phases
+            ],
+            switching_violation=totals.switching_violation,
+            inequality_violation=totals.inequality_violation,
+        )
+
+    # ---------------------------------------------------------------------------------------------- set-up
+    def _prepare_workspace(self, problem: MultiPhaseProblem) -> Workspace:
+        if self.workspace is None or not self.workspace.matches(problem):
+            self.workspace = Workspace(problem, previous=self.workspace)
+        self.workspace.problem = problem
+        return self.workspace
+
+    def _initialize(
+        self,
+        workspace: Workspace,
+        initial_xs: Sequence[np.ndarray | None] | None,
+        initial_us: Sequence[np.ndarray | None] | None,
+        rollout_knots: Sequence[object] | None,
+    ) -> list[np.ndarray]:
+        """Copy the guess into the workspace; return per phase the states the initial roll-out overwrites."""
+        n_phases = len(workspace.phases)
+        for name, guess in (("initial_xs", initial_xs), ("initial_us", initial_us)):
+            if guess is not None and len(guess) != n_phases:
+                raise ValueError(f"{name} has {len(guess)} entries for {n_phases} phases")
+        workspace.set_rollout_knots(rollout_knots, default=initial_xs is None)
+        seed_states: list[np.ndarray] = []
+        for i, work in enumerate(workspace.phases):
+            us_guess = None if initial_us is None else initial_us[i]
+            if us_guess is None:
+                work.us[:] = 0.0
+            else:
+                us_array = np.asarray(us_guess, dtype=float).reshape(work.horizon, work.nu)
+                work.us[:] = us_array
+            xs_guess = None if initial_xs is None else initial_xs[i]
+            if xs_guess is None:
+                seed_states.append(np.ones(work.horizon + 1, dtype=bool))
+                work.xs[:] = 0.0
+            else:
+                xs_array = np.asarray(xs_guess, dtype=float)
+                if xs_array.shape != work.xs.shape:
+                    raise ValueError(
+                        f"phase {i}: initial states have shape {xs_array.shape}, need {work.xs.shape}"
+                    )
+                work.xs[:] = xs_array
+                seed_states.append(work.rollout)
+        return seed_states
+
+    def _initialize_augmented_lagrangian(
+        self,
+        workspace: Workspace,
+        initial_multipliers: Sequence[np.ndarray | None] | None,
+        initial_penalties: Sequence[float | None] | None,
+    ) -> None:
+        for i, work in enumerate(workspace.phases):
+            multiplier = None if initial_multipliers is None else initial_multipliers[i]
+            penalty = None if initial_penalties is None else initial_penalties[i]
+            work.multiplier[:] = 0.0 if multiplier is None else np.asarray(multiplier, dtype=float)
+            work.penalty = self.options.al_initial_penalty if penalty is None else float(penalty)
+
+    # ------------------------------------------------------------------------ evaluation and linearisation
+    def _evaluate_nominal(
+        self, workspace: Workspace, x0: np.ndarray, seed_states: list[np.ndarray]
+    ) -> _Totals:
+        """Evaluate cost, defects (Eqs. (4), (15)) and switching constraints of the nominal trajectory.
+
+        States flagged in ``seed_states`` are overwritten by simulating the dynamics (roll-out, Eq. (13)); the
+        first state of the first phase is set to ``x0``.
+        """
+        totals = _Totals()
+        previous: PhaseWorkspace | None = None
+        for work, seed in zip(workspace.phases, seed_states, strict=True):
+            xs, us, defects = work.xs, work.us, work.defects
+            if previous is None:
+                xs[0] = x0
+                defects[0] = 0.0
+            else:
+                reset_state = previous.reset_data.x_next
+                if seed[0]:
+                    xs[0] = reset_state
+                    defects[0] = 0.0
+                else:
+                    defects[0] = work.difference(xs[0], reset_state)
+            for k, (model, data) in enumerate(zip(work.models, work.running_data, strict=True)):
+                model.calc(data, xs[k], us[k])
+                totals.cost += data.cost
+                if data.constraint_violation > totals.inequality_violation:
+                    totals.inequality_violation = data.constraint_violation
+                if seed[k + 1]:
+                    xs[k + 1] = data.x_next
+                    defects[k + 1] = 0.0
+                else:
+                    defects[k + 1] = work.difference(xs[k + 1], data.x_next)
+            self._evaluate_phase_end(work, xs[-1], work.switching_value, totals)
+            previous = work
+        self._sum_defects(workspace, totals, trial=False)
+        totals.augmented_cost += totals.cost
+        return totals
+
+    @staticmethod
+    def _evaluate_phase_end(
+        work: PhaseWorkspace, x_end: np.ndarray, switching_out: np.ndarray, totals: _Totals
+    ) -> None:
+        """Terminal cost, switching constraint (with its augmented-Lagrangian terms) and reset map."""
+        data = work.terminal_data
+        work.terminal_model.calc(data, x_end, EMPTY_CONTROL)
+        totals.cost += data.cost
+        if data.constraint_violation > totals.inequality_violation:
+            totals.inequality_violation = data.constraint_violation
+        if work.constraint is not None:
+            constraint_data = work.constraint_data
+            work.constraint.calc(constraint_data, x_end)
+            value = constraint_data.value
+            switching_out[:] = value
+            totals.augmented_cost += float(work.multiplier @ value) + 0.5 * work.penalty * float(
+                value @ value
+            )
+            if value.size:
+                totals.switching_violation = max(totals.switching_violation, float(np.max(np.abs(value))))
+        if work.reset_map is not None:
+            work.reset_map.calc(work.reset_data, x_end)
+
+    @staticmethod
+    def _sum_defects(workspace: Workspace, totals: _Totals, trial: bool) -> None:
+        for work in workspace.phases:
+            magnitudes = np.abs(work.defects_try if trial else work.defects)
+            if magnitudes.size:
+                totals.defect_l1 += float(magnitudes.sum())
+                totals.defect_max = max(totals.defect_max, float(magnitudes.max()))
+
+    @staticmethod
+    def _augmented_lagrangian_terms(workspace: Workspace) -> float:
+        total = 0.0
+        for work in workspace.phases:
+            if work.constraint is not None:
+                value = work.switching_value
+                total += float(work.multiplier @ value) + 0.5 * work.penalty * float(value @ value)
+        return total
+
+    def _totals_from_nominal(self, workspace: Workspace, nominal: _Totals) -> _Totals:
+        """The nominal totals after the augmented-Lagrangian parameters changed."""
+        nominal.augmented_cost = nominal.cost + self._augmented_lagrangian_terms(workspace)
+        return nominal
+
+    @staticmethod
+    def _linearize(workspace: Workspace) -> None:
+        """Derivatives at the nominal trajectory; ``A``, ``B`` and the reset Jacobian in the tangent spaces.
+
+        ``A = J Fx`` and ``B = J Fu`` with ``J = ∂(y ⊖ x̄_{k+1})/∂y`` at ``y = f(x̄_k, ū_k)``: a perturbation
+        of the knot then maps to a perturbation of the *next nominal state* (identity on Euclidean states).
+        The models'
+        ``calc`` ran last at the nominal trajectory (initial evaluation or accepted trial).
+        """
+        phases = workspace.phases
+        for i, work in enumerate(phases):
+            xs, us, A, B = work.xs, work.us, work.A, work.B
+            for k, (model, data) in enumerate(zip(work.models, work.running_data, strict=True)):
+                model.calc_diff(data, xs[k], us[k])
+                if work.euclidean:
+                    A[k] = data.Fx
+                    B[k] = data.Fu
+                else:
+                    _, jacobian = work.state.jacobian_difference(xs[k + 1], data.x_next)
+                    np.matmul(jacobian, data.Fx, out=A[k])
+                    np.matmul(jacobian, data.Fu, out=B[k])
+            work.terminal_model.calc_diff(work.terminal_data, xs[-1], EMPTY_CONTROL)
+            if work.constraint is not None:
+                work.constraint.calc_diff(work.constraint_data, xs[-1])
+            if work.reset_map is not None:
+                reset_data = work.reset_data
+                work.reset_map.calc_diff(reset_data, xs[-1])
+                following = phases[i + 1]
+                if following.euclidean:
+                    work.reset_jacobian[:] = reset_data.Px
+                else:
+                    _, jacobian = following.state.jacobian_difference(following.xs[0], reset_data.x_next)
+                    np.matmul(jacobian, reset_data.Px, out=work.reset_jacobian)
+
+    # -------------------------------------------------------------------------------------- backward sweep
+    def _backward_pass_with_regularization(self, workspace: Workspace, stats: SolverStatistics) -> str:
+        """Run the backward sweep, raising ``mu`` after each failed Cholesky factorisation.
+
+        Returns ``"ok"``, ``"regularization_limit"`` or ``"non_finite"``.
+        """
+        while True:
+            outcome = self._backward_pass(workspace)
+            if outcome != "cholesky":
+                return outcome
+            stats.backward_failures += 1
+            if not self._increase_regularization():
+                return "regularization_limit"
+
+    def _backward_pass(self, workspace: Workspace) -> str:
+        """Riccati-like sweep of Eqs. (8)-(10) with defects, and Eq. (16) across reset maps (Gauss-Newton).
+
+        Also accumulates the quadratic model of the cost change along the step (see the module docstring).
+        Returns ``"ok"``, ``"cholesky"`` (``Quu + mu I`` not positive definite) or ``"non_finite"``.
+        """
+        mu = self._regularization
+        constant = linear = quadratic = 0.0
+        following: PhaseWorkspace | None = None
+        for work in reversed(workspace.phases):
+            n_knots, nu = work.horizon, work.nu
+            S, s, defects, rollout = work.S, work.s, work.defects, work.rollout
+            # Boundary condition (10), plus the augmented-Lagrangian terms of the switching constraint (2).
+            S_end, s_end = S[n_knots], s[n_knots]
+            s_end[:] = work.terminal_data.Lx
+            S_end[:] = work.terminal_data.Lxx
+            if work.constraint is not None:
+                jacobian = work.constraint_data.Hx
+                s_end += jacobian.T @ (work.multiplier + work.penalty * work.switching_value)
+                S_end += work.penalty * (jacobian.T @ jacobian)
+            if following is not None:
+                # Eq. (16): value function across the reset map (second-order term of (16c) dropped).
+                S0, s0 = following.S[0], following.s[0]
+                if following.rollout[0]:
+                    s_hat = s0
+                else:
+                    defect = following.defects[0]
+                    S_defect = S0 @ defect
+                    s_hat = s0 + S_defect
+                    constant += float(s0 @ defect) + 0.5 * float(defect @ S_defect)
+                P = work.reset_jacobian
+                s_end += P.T @ s_hat
+                S_end += P.T @ (S0 @ P)
+            A, B, K, kff = work.A, work.B, work.K, work.k
+            Qu_all, Quu_all, Qux_all, rhs_all = work.Qu, work.Quu, work.Qux, work.rhs
+            for k in range(n_knots - 1, -1, -1):
+                data = work.running_data[k]
+                S_next, s_next = S[k + 1], s[k + 1]
+                if rollout[k + 1]:
+                    s_hat = s_next
+                else:
+                    defect = defects[k + 1]
+                    S_defect = S_next @ defect
+                    s_hat = s_next + S_defect  # Eq. (8a)
+                    constant += float(s_next @ defect) + 0.5 * float(defect @ S_defect)
+                A_k = A[k]
+                SA = S_next @ A_k
+                Qx = data.Lx + A_k.T @ s_hat  # Eq. (8b)
+                Qxx = data.Lxx + A_k.T @ SA  # Eq. (8d), Gauss-Newton
+                if nu:
+                    B_k = B[k]
+                    Qu, Quu, Qux, rhs = Qu_all[k], Quu_all[k], Qux_all[k], rhs_all[k]
+                    np.add(data.Lu, B_k.T @ s_hat, out=Qu)  # Eq. (8c)
+                    np.add(data.Lux, B_k.T @ SA, out=Qux)  # Eq. (8f)
+                    np.add(data.Luu, B_k.T @ (S_next @ B_k), out=Quu)  # Eq. (8e)
+                    if mu:
+                        Quu.ravel()[:: nu + 1] += mu
+                    factor, info = dpotrf(Quu, lower=1, clean=0)
+                    if info != 0:
+                        return "non_finite" if not np.isfinite(Quu).all() else "cholesky"
+                    rhs[:, 0] = Qu
+                    rhs[:, 1:] = Qux
+                    solution, info = dpotrs(factor, rhs, lower=1)
+                    k_ff, K_k = kff[k], K[k]
+                    np.negative(solution[:, 0], out=k_ff)  # Eq. (7): δũ = -Quu^-1 Qu
+                    np.negative(solution[:, 1:], out=K_k)  # Eq. (7): K = -Quu^-1 Qux
+                    K_T = K_k.T
+                    # Eq. (9) with the unregularised Quu (identical to (9) when mu = 0).
+                    s_k = Qx + K_T @ Qu
+                    S_k = Qxx + K_T @ Qux
+                    Qu_k = float(Qu @ k_ff)
+                    linear += Qu_k
+                    if mu:
+                        s_k -= mu * (K_T @ k_ff)
+                        S_k -= mu * (K_T @ K_k)
+                        quadratic += -Qu_k - mu * float(k_ff @ k_ff)
+                    else:
+                        quadratic -= Qu_k
+                else:
+                    s_k, S_k = Qx, Qxx
+                s[k] = s_k
+                np.add(S_k, S_k.T, out=S[k])
+                S[k] *= 0.5
+            following = work
+        first = workspace.phases[0]
+        check = constant + linear + quadratic + float(first.s[0].sum()) + float(first.S[0].sum())
+        if not math.isfinite(check):
+            return "non_finite"
+        self._expected_constant = constant
+        self._expected_linear = linear
+        self._expected_quadratic = quadratic
+        return "ok"
+
+    def _increase_regularization(self) -> bool:
+        options = self.options
+        self._regularization = max(
+            self._regularization * options.regularization_increase, options.regularization_failure_min
+        )
+        return self._regularization <= options.regularization_max
+
+    # --------------------------------------------------------------------------------------- forward sweep
+    def _line_search(
+        self, workspace: Workspace, x0: np.ndarray, nominal: _Totals
+    ) -> tuple[_Totals | None, float, int, str]:
+        """Backtracking on the merit ``J + ρ ||d||_1`` with the Armijo test (see the module docstring).
+
+        Infeasible nominal: the hybrid roll-out of Eqs. (12)-(13) first; if it fails the test, the same step
+        with the nonlinear roll-out on every knot (a second-order correction that removes the linearisation
+        remainders, the Maratos effect of the L1 merit). Feasible nominal (max defect <=
+        ``defect_tolerance``): nonlinear roll-out only, so the trajectory stays feasible, with the cost-only
+        Armijo test. Returns the accepted trial totals (``None`` if none), the step, the number of trials and
+        the roll-out that was accepted (``"hybrid"``, ``"nonlinear"`` or ``""``).
+        """
+        options = self.options
+        constant, linear, quadratic = self._expected_constant, self._expected_linear, self._expected_quadratic
+        feasibility = nominal.defect_l1
+        feasible = nominal.defect_max <= options.defect_tolerance or feasibility == 0.0
+        if feasible:
+            merit_weight = 0.0
+        else:
+            largest_change = max(abs(constant), abs(constant + linear + 0.5 * quadratic))
+            merit_weight = largest_change / ((1.0 - options.merit_feasibility_weight) * feasibility) + 1.0
+        self._merit_weight = merit_weight
+        merit_nominal = nominal.augmented_cost + merit_weight * feasibility
+        slack = 1e-13 * (1.0 + abs(merit_nominal))  # round-off allowance near convergence
+        alpha, n_trials = 1.0, 0
+        while alpha >= options.line_search_min_step:
+            expected = (
+                constant + alpha * linear + 0.5 * alpha * alpha * quadratic - merit_weight * feasibility
+            )
+            threshold = merit_nominal + options.armijo * min(expected, 0.0) + slack
+            for nonlinear in (True,) if feasible else (False, True):
+                n_trials += 1
+                trial = self._try_step(workspace, x0, alpha, nonlinear)
+                if trial.finite() and trial.augmented_cost + merit_weight * trial.defect_l1 <= threshold:
+                    return trial, alpha, n_trials, "nonlinear" if nonlinear else "hybrid"
+            alpha *= options.line_search_decrease
+        return None, 0.0, n_trials, ""
+
+    def _try_step(self, workspace: Workspace, x0: np.ndarray, alpha: float, nonlinear: bool) -> _Totals:
+        """Hybrid forward roll-out, Eqs. (11)-(13), through reset maps (Eq. (15)); writes the trial arrays.
+
+        ``nonlinear``: treat every knot as a roll-out knot (Eq. (13) everywhere).
+        """
+        totals = _Totals()
+        previous: PhaseWorkspace | None = None
+        dx_end = EMPTY_CONTROL
+        for work in workspace.phases:
+            xs, us, defects = work.xs, work.us, work.defects
+            xs_try, us_try, defects_try = work.xs_try, work.us_try, work.defects_try
+            rollout = work.all_rollout if nonlinear else work.rollout
+            A, B, K, kff = work.A, work.B, work.K, work.k
+            if previous is None:
+                xs_try[0] = xs[0]
+                defects_try[0] = 0.0
+            else:
+                reset_state = previous.reset_data.x_next
+                if rollout[0]:
+                    xs_try[0] = reset_state
+                    defects_try[0] = 0.0
+                else:
+                    xs_try[0] = work.integrate(xs[0], previous.reset_jacobian @ dx_end + defects[0])
+                    defects_try[0] = work.difference(xs_try[0], reset_state)
+            for k, (model, data) in enumerate(zip(work.models, work.running_data, strict=True)):
+                dx = work.difference(xs[k], xs_try[k])
+                du = alpha * kff[k] + K[k] @ dx  # Eq. (11)
+                np.add(us[k], du, out=us_try[k])
+                model.calc(data, xs_try[k], us_try[k])
+                totals.cost += data.cost
+                if data.constraint_violation > totals.inequality_violation:
+                    totals.inequality_violation = data.constraint_violation
+                if rollout[k + 1]:
+                    xs_try[k + 1] = data.x_next  # Eq. (13)
+                    defects_try[k + 1] = 0.0
+                else:
+                    # Eq. (12) in the tangent space at the next nominal state.
+                    xs_try[k + 1] = work.integrate(xs[k + 1], A[k] @ dx + B[k] @ du + defects[k + 1])
+                    defects_try[k + 1] = work.difference(xs_try[k + 1], data.x_next)
+            dx_end = work.difference(xs[-1], xs_try[-1])
+            self._evaluate_phase_end(work, xs_try[-1], work.switching_value_try, totals)
+            previous = work
+            if not math.isfinite(totals.cost):
+                break
+        self._sum_defects(workspace, totals, trial=True)
+        totals.augmented_cost += totals.cost
+        return totals
+
+    # -------------------------------------------------------------------------------- augmented Lagrangian
+    def _update_augmented_lagrangian(self, workspace: Workspace) -> None:
+        """Outer update (facts: sigma x5 while ``|g| > threshold``, else ``lambda += sigma g``)."""
+        options = self.options
+        for work in workspace.phases:
+            if work.constraint is None or work.switching_value.size == 0:
+                continue
+            violation = float(np.max(np.abs(work.switching_value)))
+            if violation > options.al_update_threshold:
+                work.penalty = min(work.penalty * options.al_penalty_growth, options.al_max_penalty)
+            else:
+                work.multiplier += work.penalty * work.switching_value
+
+    # ---------------------------------------------------------------------------------------------- output
+    def _record(
+        self,
+        stats: SolverStatistics,
+        nominal: _Totals,
+        regularization: float,
+        decrease: float,
+        alpha: float,
+        n_trials: int,
+        mode: str,
+        duration: float,
+    ) -> None:
+        stats.iterations += 1
+        stats.line_search_steps.append(n_trials)
+        stats.step_sizes.append(alpha)
+        stats.forward_modes.append(mode)
+        stats.regularizations.append(regularization)
+        stats.merit_weights.append(self._merit_weight)
+        stats.expected_decreases.append(decrease)
+        predicted = self._expected_constant + alpha * (
+            self._expected_linear + 0.5 * alpha * self._expected_quadratic
+        )
+        stats.predicted_cost_changes.append(predicted if alpha > 0.0 else 0.0)
+        stats.costs.append(nominal.cost)
+        stats.defect_norms.append(nominal.defect_l1)
+        stats.iteration_times.append(duration)
+        self._log(stats, nominal, alpha)
+
+    def _log(self, stats: SolverStatistics, nominal: _Totals, alpha: float) -> None:
+        if not self.options.verbose:
+            return
+        if stats.iterations == 1:
+            print(
+                f"{'it':>4} {'cost':>14} {'defect_l1':>10} {'expected':>10} {'step':>8} {'mu':>8} {'ms':>7}"
+            )
+        print(
+            f"{stats.iterations:4d} {nominal.cost:14.7e} {nominal.defect_l1:10.3e} "
+            f"{stats.expected_decreases[-1]:10.3e} {alpha:8.4f} {stats.regularizations[-1]:8.1e} "
+            f"{1e3 * stats.iteration_times[-1]:7.2f}"
+        )
+
+    @staticmethod
+    def _make_result(
+        workspace: Workspace,
+        nominal: _Totals,
+        converged: bool,
+        status: str,
+        stats: SolverStatistics,
+        policy_valid: bool,
+    ) -> SolverResult:
+        phases = []
+        for work in workspace.phases:
+            has_constraint = work.constraint is not None
+            phases.append(
+                PhaseSolution(
+                    xs=work.xs.copy(),
+                    us=work.us.copy(),
+                    K=work.K.copy(),
+                    k=work.k.copy(),
+                    Qu=work.Qu.copy(),
+                    Quu=work.Quu.copy(),
+                    Qux=work.Qux.copy(),
+                    S=work.S.copy(),
+                    s=work.s.copy(),
+                    defects=work.defects.copy(),
+                    rollout_knots=work.rollout.copy(),
+                    switching_value=work.switching_value.copy() if has_constraint else None,
+                    multiplier=work.multiplier.copy() if has_constraint else None,
+                    penalty=work.penalty if has_constraint else None,
+                    name=work.phase.name,
+                )
+            )
+        return SolverResult(
+            phases=phases,
+            cost=nominal.cost,
+            augmented_cost=nominal.augmented_cost,
+            defect_max=nominal.defect_max,
+            defect_l1=nominal.defect_l1,
+            switching_violation=nominal.switching_violation,
+            inequality_violation=nominal.inequality_violation,
+            converged=converged,
+            status=status,
+            statistics=stats,
+            policy_valid=policy_valid,
+        )
+
+
+def evaluate_trajectory(
+    problem: MultiPhaseProblem, xs: Sequence[np.ndarray], us: Sequence[np.ndarray]
+) -> TrajectoryEvaluation:
+    """Total cost, defects (Eqs. (4), (15)), switching and inequality violations of ``(xs, us)``.
+
+    Uses a fresh workspace (data objects are created for this call); for repeated evaluations of one problem
+    use ``MSiLQRSolver.evaluate``, which reuses the solver's workspace.
+    """
+    return MSiLQRSolver().evaluate(problem, xs, us)

@@ -1,0 +1,118 @@
+"""Settings of the MS-iLQR solver (paper Sec. III; published values in ``shared/facts``, "Solver (MS-iLQR)").
+
+The defaults are tuned for *accurate* offline solves (tight tolerances, many iterations, no time budget),
+which is what the unit tests and trajectory optimisation need. ``SolverOptions.paper_mpc()`` and
+``SolverOptions.paper_first_solve()`` return the published real-time settings.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+
+
+@dataclass
+class SolverOptions:
+    """Every knob of ``MSiLQRSolver``.
+
+    Iterations and stopping
+        ``max_iterations``: inner MS-iLQR iterations per augmented-Lagrangian (AL) iteration (one iteration
+        is a backward sweep plus a line search; a backward sweep that only detects convergence does not
+        count). ``max_al_iterations``: outer AL iterations (Sec. III-B-2, bi-level).
+        ``time_budget``: wall-clock seconds for the whole ``solve`` (``None``: unlimited). An iteration is
+        not started when the elapsed time plus the duration of the previous iteration would exceed the
+        budget (the first iteration always runs, and so does the final backward sweep).
+        The inner loop has converged when the largest defect (max-norm, tangent space) is at most
+        ``defect_tolerance`` and either the expected decrease of the feed-forward step
+        ``0.5 * sum Qu' Quu^-1 Qu`` is at most ``expected_decrease_tolerance`` or an accepted step changed
+        the cost by at most ``cost_change_tolerance``. The AL loop stops when every switching constraint
+        satisfies ``max|g_i| <= switching_tolerance``. ``defect_tolerance`` also decides when the nominal
+        counts as feasible (from then on the forward sweep rolls the nonlinear dynamics out on every knot).
+        ``final_backward_pass``: after the last accepted step, run one more backward sweep so that the
+        returned gains and Q-function partials belong to the returned trajectory (needed by the VWBC).
+
+    Regularisation (``mu * I`` added to ``Quu``, Eq. (8e))
+        Starts at ``regularization_initial`` every solve. On a failed Cholesky factorisation or a failed
+        line search ``mu <- max(mu * regularization_increase, regularization_failure_min)``; the solve gives
+        up when ``mu > regularization_max``. After an accepted step
+        ``mu <- max(mu / regularization_decrease, regularization_min)``. Use ``0`` for
+        ``regularization_initial`` and ``regularization_min`` to solve an LQ problem exactly.
+
+    Line search (merit ``cost + rho * ||defects||_1``, Armijo against the model's expected change)
+        Steps ``1, line_search_decrease, line_search_decrease^2, ...`` down to ``line_search_min_step``;
+        acceptance ``merit(alpha) - merit(0) <= armijo * expected_merit_change(alpha)``;
+        ``rho = max|expected cost change| / ((1 - merit_feasibility_weight) * ||d||_1) + 1``.
+
+    Augmented Lagrangian for switching constraints (Eq. (2))
+        Terminal cost ``lambda' g + 0.5 sigma ||g||^2``; after each inner solve, per phase: if
+        ``max|g| > al_update_threshold`` then ``sigma <- min(sigma * al_penalty_growth, al_max_penalty)``
+        else ``lambda <- lambda + sigma g``. ``sigma`` starts at ``al_initial_penalty``.
+    """
+
+    max_iterations: int = 100
+    max_al_iterations: int = 20
+    time_budget: float | None = None
+
+    cost_change_tolerance: float = 1e-10
+    expected_decrease_tolerance: float = 1e-12
+    defect_tolerance: float = 1e-9
+    switching_tolerance: float = 1e-3
+
+    regularization_initial: float = 1e-9
+    regularization_min: float = 1e-9
+    regularization_failure_min: float = 1e-3
+    regularization_increase: float = 2.0
+    regularization_decrease: float = 20.0
+    regularization_max: float = 1e2
+
+    line_search_decrease: float = 0.5
+    line_search_min_step: float = 1e-3
+    armijo: float = 0.1
+    merit_feasibility_weight: float = 0.2
+
+    al_initial_penalty: float = 20.0
+    al_max_penalty: float = 1e4
+    al_penalty_growth: float = 5.0
+    al_update_threshold: float = 5e-3
+
+    final_backward_pass: bool = True
+    verbose: bool = False
+
+    def __post_init__(self) -> None:
+        if self.max_iterations < 0 or self.max_al_iterations < 1:
+            raise ValueError("max_iterations must be >= 0 and max_al_iterations >= 1")
+        if not 0.0 < self.line_search_decrease < 1.0:
+            raise ValueError("line_search_decrease must be in (0, 1)")
+        if not 0.0 < self.line_search_min_step <= 1.0:
+            raise ValueError("line_search_min_step must be in (0, 1]")
+        if not 0.0 < self.armijo < 1.0:
+            raise ValueError("armijo must be in (0, 1)")
+        if not 0.0 <= self.merit_feasibility_weight < 1.0:
+            raise ValueError("merit_feasibility_weight must be in [0, 1)")
+        if self.regularization_min < 0 or self.regularization_initial < 0:
+            raise ValueError("regularisation values must be non-negative")
+        if self.regularization_increase <= 1.0 or self.regularization_decrease <= 1.0:
+            raise ValueError("regularisation increase/decrease factors must be > 1")
+        if self.time_budget is not None and self.time_budget <= 0:
+            raise ValueError("time_budget must be positive (or None)")
+
+    @classmethod
+    def paper_first_solve(cls) -> SolverOptions:
+        """Published settings of the first (cold) MPC solve: 10 inner x 20 AL iterations, thresholds
+        1e-2/1e-3."""
+        return cls(
+            max_iterations=10,
+            max_al_iterations=20,
+            cost_change_tolerance=1e-2,
+            expected_decrease_tolerance=1e-3,
+            defect_tolerance=1e-3,
+            switching_tolerance=1e-3,
+            regularization_initial=1e-3,
+            regularization_min=1e-3,
+        )
+
+    @classmethod
+    def paper_mpc(cls, mpc_period: float = 0.02) -> SolverOptions:
+        """Published in-loop settings: 4 iterations, one AL update, wall-clock cap ``0.9 * mpc_period``."""
+        return replace(
+            cls.paper_first_solve(), max_iterations=4, max_al_iterations=1, time_budget=0.9 * mpc_period
+        )
