@@ -1,0 +1,69 @@
+"""The message from the MPC to the low-level controller: the whole-body part of the latest solution.
+
+Per whole-body running knot: time, planned state ``x*`` and torque ``tau*``, gain ``K`` and the local
+Q-function pieces ``Qu, Quu, Qux`` (paper Eq. (6)-(8)), stance flags and planned contact forces.
+``knot_at(t)`` returns the knot the low-level controller uses at time ``t`` (the closest in time, as the
+paper's VWBC and Riccati controller do).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+
+@dataclass
+class Plan:
+    """Arrays over the ``n`` whole-body running knots of one MPC solution."""
+
+    times: np.ndarray  # (n,)
+    xs: np.ndarray  # (n + 1, nx): states, the last one ends the whole-body part
+    us: np.ndarray  # (n, nu)
+    K: np.ndarray  # (n, nu, ndx)
+    Qu: np.ndarray  # (n, nu)
+    Quu: np.ndarray  # (n, nu, nu)
+    Qux: np.ndarray  # (n, nu, ndx)
+    contacts: np.ndarray  # (n, 4) bool
+    forces: np.ndarray  # (n, 4, 3) world-frame planned ground reaction forces
+    dt: np.ndarray  # (n,) time step of each knot
+
+    def __post_init__(self) -> None:
+        n = len(self.times)
+        if n == 0:
+            raise ValueError("a plan needs at least one whole-body knot")
+        shapes = {
+            "us": self.us,
+            "K": self.K,
+            "Qu": self.Qu,
+            "Quu": self.Quu,
+            "Qux": self.Qux,
+            "contacts": self.contacts,
+            "forces": self.forces,
+            "dt": self.dt,
+        }
+        for name, array in shapes.items():
+            if len(array) != n:
+                raise ValueError(f"plan field {name} has {len(array)} knots, times has {n}")
+        if len(self.xs) != n + 1:
+            raise ValueError(f"plan xs needs {n + 1} states, got {len(self.xs)}")
+        for name in ("xs", "us", "K", "Qu", "Quu", "Qux", "forces"):
+            if not np.all(np.isfinite(getattr(self, name))):
+                raise ValueError(f"plan field {name} contains NaN or inf")
+
+    @property
+    def start_time(self) -> float:
+        return float(self.times[0])
+
+    @property
+    def end_time(self) -> float:
+        return float(self.times[-1] + self.dt[-1])
+
+    def knot_at(self, t: float) -> int:
+        """Index of the knot whose time is closest to ``t`` (clamped to the plan)."""
+        index = int(np.searchsorted(self.times, t))
+        if index <= 0:
+            return 0
+        if index >= len(self.times):
+            return len(self.times) - 1
+        return index if self.times[index] - t < t - self.times[index - 1] else index - 1

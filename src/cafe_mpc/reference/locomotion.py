@@ -1,0 +1,317 @@
+"""Heuristic locomotion reference from user commands (paper Sec. VI-A).
+
+Commands (forward/lateral speed in the heading frame, yaw rate, body height) may change over time. The
+reference integrates them into a base trajectory (x, y, yaw; roll = pitch = 0), places footholds with the
+Raibert heuristic clamped to a box about each hip, and interpolates swing feet with cubic Bezier curves
+(zero velocity at lift-off and touchdown, apex ``swing_height`` above the lift-off height at mid-swing).
+The normal ground-reaction-force reference is the weight shared by the stance feet.
+
+The reference is re-anchored at every MPC update on the measured base position and yaw (the position
+weights are zero in the paper's cost, so the robot is never pulled back to where the integration says it
+should be) and on the measured stance-foot positions.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from cafe_mpc.ocp.contact_schedule import ContactSchedule, GaitCycle
+from cafe_mpc.robots.robot import Robot
+
+GRAVITY = 9.81
+
+
+@dataclass(frozen=True)
+class VelocityCommand:
+    """User command from ``start`` on: speeds in the heading (yaw) frame, yaw rate and body height."""
+
+    start: float = 0.0
+    vx: float = 0.0
+    vy: float = 0.0
+    yaw_rate: float = 0.0
+    height: float | None = None  # None: the robot's standing height
+
+    def __post_init__(self) -> None:
+        for name in ("start", "vx", "vy", "yaw_rate"):
+            if not math.isfinite(getattr(self, name)):
+                raise ValueError(f"command {name} must be finite")
+        if self.start < 0:
+            raise ValueError(f"command start must be >= 0, got {self.start}")
+
+
+def validate_command(command: VelocityCommand, robot: Robot) -> None:
+    """Reject commands outside what the robot can do (clear message, no crash deep inside)."""
+    straight_legs = np.concatenate([[0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0], np.zeros(robot.nu)])
+    leg_length = float(np.max(-robot.foot_positions(straight_legs)[:, 2]))
+    if abs(command.vx) > 3.0:
+        raise ValueError(f"command vx = {command.vx} m/s is outside [-3, 3] m/s for {robot.name}")
+    if abs(command.vy) > 1.0:
+        raise ValueError(f"command vy = {command.vy} m/s is outside [-1, 1] m/s for {robot.name}")
+    if abs(command.yaw_rate) > 3.0:
+        raise ValueError(f"command yaw_rate = {command.yaw_rate} rad/s is outside [-3, 3] rad/s")
+    if command.height is not None and not (0.12 <= command.height <= 0.9 * leg_length + robot.foot_radius):
+        raise ValueError(
+            f"command height = {command.height} m is outside [0.12, {0.9 * leg_length + robot.foot_radius:.3f}] m "
+            f"(leg length {leg_length:.3f} m)"
+        )
+
+
+def _yaw_rotation(yaw: float) -> np.ndarray:
+    c, s = math.cos(yaw), math.sin(yaw)
+    return np.array([[c, -s], [s, c]])
+
+
+def quaternion_from_yaw(yaw: float) -> np.ndarray:
+    """Unit quaternion (x, y, z, w) of a pure yaw rotation."""
+    return np.array([0.0, 0.0, math.sin(0.5 * yaw), math.cos(0.5 * yaw)])
+
+
+def yaw_from_quaternion(quaternion_xyzw: np.ndarray) -> float:
+    x, y, z, w = quaternion_xyzw
+    return math.atan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
+
+
+def cubic_bezier_blend(s: float) -> tuple[float, float]:
+    """Cubic Bezier with control points (0, 0, 1, 1): value ``3s^2 - 2s^3`` and its derivative in ``s``."""
+    s = min(max(s, 0.0), 1.0)
+    return 3.0 * s * s - 2.0 * s * s * s, 6.0 * s - 6.0 * s * s
+
+
+@dataclass
+class FootReference:
+    """Reference of one foot at one time: stance flag, world position and velocity."""
+
+    stance: bool
+    position: np.ndarray
+    velocity: np.ndarray
+
+
+class LocomotionReference:
+    """Base, feet and force references for a periodic gait driven by timed ``VelocityCommand`` s."""
+
+    def __init__(
+        self,
+        robot: Robot,
+        gait: GaitCycle,
+        commands: Sequence[VelocityCommand],
+        swing_height: float = 0.06,
+        raibert_gain: float = 0.03,
+        foothold_box: tuple[float, float] = (0.10, 0.06),
+        cycle_start: float = 0.0,
+    ) -> None:
+        if not commands:
+            commands = [VelocityCommand()]
+        commands = sorted(commands, key=lambda c: c.start)
+        for command in commands:
+            validate_command(command, robot)
+        if not 0.0 <= swing_height <= 0.2:
+            raise ValueError(f"swing_height must be in [0, 0.2] m, got {swing_height}")
+        self.robot = robot
+        self.gait = gait
+        self.commands = list(commands)
+        self.swing_height = swing_height
+        self.raibert_gain = raibert_gain
+        self.foothold_box = np.array(foothold_box, dtype=float)
+        self.cycle_start = cycle_start
+        self.offsets = robot.foothold_offsets.copy()
+        self.mass = robot.total_mass
+        self.nominal_joints = robot.q_standing[7:].copy()
+        # anchor (re-set at every update)
+        self.anchor_time = 0.0
+        self.anchor_xy = np.zeros(2)
+        self.anchor_yaw = 0.0
+        self.measured_velocity_xy = np.zeros(2)
+        self.stance_positions = robot.foot_positions(robot.q_standing)
+        self.liftoff_positions = self.stance_positions.copy()
+        self._schedule: ContactSchedule | None = None
+        self._schedule_window = (math.inf, -math.inf)
+
+    # ----------------------------------------------------------------------------------------- commands
+    def command_at(self, t: float) -> VelocityCommand:
+        active = self.commands[0]
+        for command in self.commands:
+            if command.start <= t + 1e-12:
+                active = command
+        return active
+
+    def height_at(self, t: float) -> float:
+        command = self.command_at(t)
+        return self.robot.standing_height if command.height is None else command.height
+
+    # --------------------------------------------------------------------------------------- schedule
+    def schedule(self, t0: float, t1: float) -> ContactSchedule:
+        """The gait's contact schedule covering ``[t0, t1]`` (cached; widened as needed)."""
+        if not (self._schedule_window[0] <= t0 and t1 <= self._schedule_window[1]):
+            start = max(0.0, t0 - 2.0 * self.gait.period)
+            end = t1 + 4.0 * self.gait.period
+            self._schedule = self.gait.schedule(start, end, cycle_start=self.cycle_start)
+            self._schedule_window = (start, end)
+        assert self._schedule is not None
+        return self._schedule
+
+    def stance_at(self, t: float) -> tuple[bool, bool, bool, bool]:
+        return self.gait.flags_at(t, self.cycle_start)
+
+    # ------------------------------------------------------------------------------------------ update
+    def update(self, t: float, q: np.ndarray, v: np.ndarray) -> None:
+        """Re-anchor on the measured state: base x, y, yaw and velocity; stance feet positions."""
+        self.anchor_time = t
+        self.anchor_xy = q[:2].copy()
+        self.anchor_yaw = yaw_from_quaternion(q[3:7])
+        rotation = _quaternion_matrix(q[3:7])
+        self.measured_velocity_xy = (rotation @ v[:3])[:2]
+        feet = self.robot.foot_positions(q)
+        stance = self.stance_at(t)
+        for foot in range(4):
+            if stance[foot]:
+                self.stance_positions[foot] = feet[foot]
+                self.stance_positions[foot, 2] = self.robot.foot_radius
+                self.liftoff_positions[foot] = feet[foot]
+
+    # ------------------------------------------------------------------------------------------- base
+    def base_pose(self, t: float) -> tuple[np.ndarray, float]:
+        """Reference base (x, y) and yaw at ``t >= anchor_time``, integrating the commands (closed form)."""
+        xy, yaw, time = self.anchor_xy.copy(), self.anchor_yaw, self.anchor_time
+        t = max(t, time)
+        boundaries = [c.start for c in self.commands if time < c.start < t] + [t]
+        for boundary in boundaries:
+            command = self.command_at(time)
+            dt = boundary - time
+            velocity = np.array([command.vx, command.vy])
+            if abs(command.yaw_rate) < 1e-9:
+                xy = xy + _yaw_rotation(yaw) @ velocity * dt
+            else:
+                w = command.yaw_rate
+                # integral of R(yaw + w s) ds from 0 to dt, applied to the body-frame velocity
+                s0, c0 = math.sin(yaw), math.cos(yaw)
+                s1, c1 = math.sin(yaw + w * dt), math.cos(yaw + w * dt)
+                integral = np.array([[s1 - s0, c1 - c0], [-(c1 - c0), s1 - s0]]) / w
+                xy = xy + integral @ velocity
+                yaw = yaw + w * dt
+            time = boundary
+        return xy, yaw
+
+    def base_state(self, t: float) -> tuple[np.ndarray, np.ndarray]:
+        """Reference configuration ``q`` (19) and velocity ``v`` (18, base frame) at ``t``."""
+        xy, yaw = self.base_pose(t)
+        command = self.command_at(t)
+        q = np.concatenate([[xy[0], xy[1], self.height_at(t)], quaternion_from_yaw(yaw), self.nominal_joints])
+        v = np.zeros(self.robot.nv)
+        v[0], v[1], v[5] = command.vx, command.vy, command.yaw_rate
+        return q, v
+
+    # ------------------------------------------------------------------------------------------- feet
+    def hip_xy(self, t: float, foot: int) -> np.ndarray:
+        """World (x, y) of a foot's nominal foothold under its hip at the reference base pose at ``t``."""
+        xy, yaw = self.base_pose(t)
+        return xy + _yaw_rotation(yaw) @ self.offsets[foot]
+
+    def foothold(self, foot: int, touchdown_time: float, stance_duration: float) -> np.ndarray:
+        """Raibert foothold (Sec. VI-A): the hip at mid-stance plus velocity feedback, clamped to a box."""
+        nominal = self.hip_xy(touchdown_time, foot)
+        mid_stance = self.hip_xy(touchdown_time + 0.5 * stance_duration, foot)
+        command = self.command_at(touchdown_time)
+        _, yaw = self.base_pose(touchdown_time)
+        commanded_world = _yaw_rotation(yaw) @ np.array([command.vx, command.vy])
+        feedback = self.raibert_gain * (self.measured_velocity_xy - commanded_world)
+        target = mid_stance + feedback
+        step = _yaw_rotation(-yaw) @ (target - nominal)
+        step = np.clip(step, -self.foothold_box, self.foothold_box)
+        xy = nominal + _yaw_rotation(yaw) @ step
+        return np.array([xy[0], xy[1], self.robot.foot_radius])
+
+    def _swings(self, foot: int, t0: float, t1: float) -> list[tuple[float, float, float]]:
+        """Swing intervals ``(liftoff, touchdown, next stance duration)`` of ``foot`` overlapping [t0, t1]."""
+        schedule = self.schedule(t0, t1)
+        phases = schedule.phases
+        swings = []
+        index = 0
+        while index < len(phases):
+            if not phases[index].stance[foot]:
+                start = phases[index].start
+                end_index = index
+                while end_index + 1 < len(phases) and not phases[end_index + 1].stance[foot]:
+                    end_index += 1
+                end = phases[end_index].end
+                stance_duration = 0.0
+                k = end_index + 1
+                while k < len(phases) and phases[k].stance[foot]:
+                    stance_duration += phases[k].duration
+                    k += 1
+                if end > t0 and start < t1:
+                    swings.append((start, end, max(stance_duration, 1e-3)))
+                index = end_index + 1
+            else:
+                index += 1
+        return swings
+
+    def feet(self, times: Sequence[float]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Stance flags (n, 4), positions (n, 4, 3) and velocities (n, 4, 3) of the feet at ``times``."""
+        times = np.asarray(times, dtype=float)
+        n = len(times)
+        stance = np.zeros((n, 4), dtype=bool)
+        positions = np.zeros((n, 4, 3))
+        velocities = np.zeros((n, 4, 3))
+        if n == 0:
+            return stance, positions, velocities
+        t0, t1 = float(times[0]), float(times[-1])
+        for foot in range(4):
+            start_position = self.stance_positions[foot].copy()
+            swings = self._swings(foot, t0, t1)
+            segments = []  # (liftoff, touchdown, p_liftoff, p_touchdown)
+            for liftoff, touchdown, stance_duration in swings:
+                p0 = self.liftoff_positions[foot].copy() if liftoff <= self.anchor_time else start_position
+                p1 = self.foothold(foot, touchdown, stance_duration)
+                segments.append((liftoff, touchdown, p0, p1))
+                start_position = p1
+            for i, t in enumerate(times):
+                position = self.stance_positions[foot]
+                in_swing = False
+                for liftoff, touchdown, p0, p1 in segments:
+                    if liftoff - 1e-9 <= t < touchdown - 1e-9:
+                        in_swing = True
+                        duration = touchdown - liftoff
+                        s = (t - liftoff) / duration
+                        blend, dblend = cubic_bezier_blend(s)
+                        positions[i, foot, :2] = p0[:2] + (p1[:2] - p0[:2]) * blend
+                        velocities[i, foot, :2] = (p1[:2] - p0[:2]) * dblend / duration
+                        apex = max(p0[2], p1[2]) + self.swing_height
+                        if s < 0.5:
+                            blend, dblend = cubic_bezier_blend(2.0 * s)
+                            positions[i, foot, 2] = p0[2] + (apex - p0[2]) * blend
+                            velocities[i, foot, 2] = (apex - p0[2]) * dblend * 2.0 / duration
+                        else:
+                            blend, dblend = cubic_bezier_blend(2.0 * s - 1.0)
+                            positions[i, foot, 2] = apex + (p1[2] - apex) * blend
+                            velocities[i, foot, 2] = (p1[2] - apex) * dblend * 2.0 / duration
+                        break
+                    if t >= touchdown - 1e-9:
+                        position = p1
+                if not in_swing:
+                    stance[i, foot] = True
+                    positions[i, foot] = position
+        return stance, positions, velocities
+
+    def normal_forces(self, stance: np.ndarray) -> np.ndarray:
+        """GRF reference (n, 4, 3): weight shared by the stance feet, zero on swing feet."""
+        stance = np.atleast_2d(stance)
+        forces = np.zeros((*stance.shape, 3))
+        count = stance.sum(axis=1, keepdims=True)
+        share = np.where(count > 0, self.mass * GRAVITY / np.maximum(count, 1), 0.0)
+        forces[..., 2] = np.where(stance, share, 0.0)
+        return forces
+
+
+def _quaternion_matrix(quaternion_xyzw: np.ndarray) -> np.ndarray:
+    x, y, z, w = quaternion_xyzw / np.linalg.norm(quaternion_xyzw)
+    return np.array(
+        [
+            [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+            [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+            [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
+        ]
+    )
