@@ -53,9 +53,10 @@ def validate_command(command: VelocityCommand, robot: Robot) -> None:
         raise ValueError(f"command vy = {command.vy} m/s is outside [-1, 1] m/s for {robot.name}")
     if abs(command.yaw_rate) > 3.0:
         raise ValueError(f"command yaw_rate = {command.yaw_rate} rad/s is outside [-3, 3] rad/s")
-    if command.height is not None and not (0.12 <= command.height <= 0.9 * leg_length + robot.foot_radius):
+    highest = 0.9 * leg_length + robot.foot_radius
+    if command.height is not None and not (0.12 <= command.height <= highest):
         raise ValueError(
-            f"command height = {command.height} m is outside [0.12, {0.9 * leg_length + robot.foot_radius:.3f}] m "
+            f"command height = {command.height} m is outside [0.12, {highest:.3f}] m "
             f"(leg length {leg_length:.3f} m)"
         )
 

@@ -1,0 +1,100 @@
+"""Heuristic locomotion reference (Sec. VI-A): command integration, Raibert footholds, Bezier swings."""
+
+import math
+
+import numpy as np
+import pytest
+
+from cafe_mpc.ocp.contact_schedule import get_gait
+from cafe_mpc.reference.locomotion import (
+    LocomotionReference,
+    VelocityCommand,
+    cubic_bezier_blend,
+    validate_command,
+    yaw_from_quaternion,
+)
+from cafe_mpc.robots.robot import load_robot
+
+
+@pytest.fixture(scope="module")
+def robot():
+    return load_robot("mini_cheetah")
+
+
+def test_base_integrates_commands_with_yaw_rate(robot):
+    reference = LocomotionReference(robot, get_gait("trot"), [VelocityCommand(0.0, 0.5, 0.0, 0.5)])
+    reference.update(0.0, robot.q_standing, np.zeros(robot.nv))
+    q, v = reference.base_state(2.0)
+    assert yaw_from_quaternion(q[3:7]) == pytest.approx(1.0)
+    # closed form: a circle of radius vx / yaw_rate = 1 m
+    assert q[0] == pytest.approx(math.sin(1.0), abs=1e-9)
+    assert q[1] == pytest.approx(1.0 - math.cos(1.0), abs=1e-9)
+    assert v[0] == 0.5 and v[5] == 0.5 and q[2] == robot.standing_height
+
+
+def test_commands_switch_in_time(robot):
+    commands = [VelocityCommand(0.0, 0.0), VelocityCommand(1.0, 0.8), VelocityCommand(2.0, 0.0, 0.3)]
+    reference = LocomotionReference(robot, get_gait("trot"), commands)
+    reference.update(0.0, robot.q_standing, np.zeros(robot.nv))
+    assert reference.base_state(0.5)[1][0] == 0.0
+    assert reference.base_state(1.5)[1][0] == 0.8
+    q, v = reference.base_state(3.0)
+    assert q[0] == pytest.approx(0.8) and q[1] == pytest.approx(0.3) and v[1] == 0.3
+
+
+def test_swing_feet_follow_bezier_and_land_on_raibert_footholds(robot):
+    reference = LocomotionReference(robot, get_gait("trot"), [VelocityCommand(0.0, 0.5)], swing_height=0.06)
+    reference.update(0.0, robot.q_standing, np.zeros(robot.nv))
+    times = np.arange(0.0, 0.5, 0.01)
+    stance, positions, velocities = reference.feet(times)
+    assert stance[0].tolist() == [True, False, False, True]
+    fr = 1
+    apex = positions[:25, fr, 2].max()
+    assert apex == pytest.approx(robot.foot_radius + 0.06, abs=1e-3)
+    # lands where the Raibert heuristic says: hip at mid-stance (0.25 + 0.125 s) plus velocity feedback
+    landing = positions[30, fr]
+    expected_x = robot.foothold_offsets[fr, 0] + 0.5 * 0.375 + 0.03 * (0.0 - 0.5)
+    assert landing[0] == pytest.approx(expected_x, abs=1e-9)
+    assert landing[2] == pytest.approx(robot.foot_radius)
+    # velocities are the time derivative of the positions (finite differences, swing only)
+    numeric = np.gradient(positions[:25, fr], times[:25], axis=0)
+    assert np.allclose(numeric[2:-2], velocities[2:-2, fr][: len(numeric) - 4], atol=0.05)
+    # stance feet do not move
+    assert np.allclose(positions[:25, 0], positions[0, 0])
+
+
+def test_footholds_are_clamped_to_a_box_about_the_hip(robot):
+    reference = LocomotionReference(
+        robot, get_gait("bound"), [VelocityCommand(0.0, 2.5)], foothold_box=(0.05, 0.05)
+    )
+    reference.update(0.0, robot.q_standing, np.zeros(robot.nv))
+    foothold = reference.foothold(0, 0.2, 0.1)
+    nominal = reference.hip_xy(0.2, 0)
+    assert abs(foothold[0] - nominal[0]) <= 0.05 + 1e-12
+
+
+def test_normal_force_reference_shares_the_weight(robot):
+    reference = LocomotionReference(robot, get_gait("trot"), [VelocityCommand()])
+    forces = reference.normal_forces(np.array([[True, False, False, True], [False] * 4]))
+    assert forces[0, :, 2].sum() == pytest.approx(robot.total_mass * 9.81)
+    assert np.all(forces[1] == 0.0)
+
+
+def test_bezier_blend():
+    assert cubic_bezier_blend(0.0) == (0.0, 0.0)
+    assert cubic_bezier_blend(1.0) == (1.0, 0.0)
+    assert cubic_bezier_blend(0.5)[0] == pytest.approx(0.5)
+
+
+@pytest.mark.parametrize(
+    ("command", "message"),
+    [
+        (VelocityCommand(0.0, 10.0), "vx = 10"),
+        (VelocityCommand(0.0, 0.5, 2.0), "vy = 2"),
+        (VelocityCommand(0.0, 0.5, height=0.6), "height = 0.6"),
+        (VelocityCommand(0.0, 0.5, yaw_rate=9.0), "yaw_rate = 9"),
+    ],
+)
+def test_out_of_range_commands_are_rejected(robot, command, message):
+    with pytest.raises(ValueError, match=message):
+        validate_command(command, robot)
