@@ -1,0 +1,97 @@
+"""Crocoddyl: the peer we benchmark against (never our engine).
+
+``crocoddyl_problem`` builds Crocoddyl's version of a whole-body multi-contact problem that our own
+models also build (``cafe_mpc.bench.problems``): the same robot, contact sequence, time step, initial
+state, state-tracking and torque-regularisation costs. The Crocoddyl side uses
+``DifferentialActionModelContactFwdDynamics`` with 3D point contacts in ``LOCAL_WORLD_ALIGNED`` and
+Baumgarte gains ``[0, alpha]`` (our Eq. (20)), ``IntegratedActionModelEuler`` (semi-implicit Euler, so our
+models are built with ``scheme="semi_implicit"`` for comparisons), and ``ActionModelImpulseFwdDynamics``
+knots for touchdowns (our impact reset map (22)). Costs are ``0.5 * r' diag(w) r`` on
+``r = x ⊖ x_ref`` and on ``r = tau``, scaled by ``dt`` on running knots, as ours.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import crocoddyl
+import numpy as np
+import pinocchio as pin
+
+from cafe_mpc.robots.robot import Robot
+
+
+def _cost_sum(
+    state: crocoddyl.StateMultibody, nu: int, x_ref: np.ndarray, state_weights: np.ndarray,
+    torque_weight: float,
+) -> crocoddyl.CostModelSum:
+    costs = crocoddyl.CostModelSum(state, nu)
+    if np.any(state_weights > 0):
+        residual = crocoddyl.ResidualModelState(state, x_ref, nu)
+        activation = crocoddyl.ActivationModelWeightedQuad(np.asarray(state_weights, dtype=float))
+        costs.addCost("state", crocoddyl.CostModelResidual(state, activation, residual), 1.0)
+    if torque_weight > 0:
+        residual = crocoddyl.ResidualModelControl(state, nu)
+        activation = crocoddyl.ActivationModelWeightedQuad(np.full(nu, float(torque_weight)))
+        costs.addCost("torque", crocoddyl.CostModelResidual(state, activation, residual), 1.0)
+    return costs
+
+
+def crocoddyl_problem(
+    robot: Robot,
+    x0: np.ndarray,
+    phases: Sequence[tuple[Sequence[bool], int]],
+    dt: float,
+    x_ref: np.ndarray,
+    state_weights: np.ndarray,
+    torque_weight: float,
+    terminal_weights: np.ndarray,
+    baumgarte_alpha: float = 10.0,
+) -> crocoddyl.ShootingProblem:
+    """Crocoddyl shooting problem for ``phases`` = [(stance flags in leg order, number of knots), ...].
+
+    Between phases, feet that touch down get an impulse knot (zero cost); the last phase ends with the
+    terminal cost ``terminal_weights``. Non-final phases have no terminal cost (ours must match).
+    """
+    model = robot.model
+    state = crocoddyl.StateMultibody(model)
+    actuation = crocoddyl.ActuationModelFloatingBase(state)
+    nu = actuation.nu
+    gains = np.array([0.0, baumgarte_alpha])
+    running: list[crocoddyl.ActionModelAbstract] = []
+
+    def contacts_for(stance: Sequence[bool]) -> crocoddyl.ContactModelMultiple:
+        contacts = crocoddyl.ContactModelMultiple(state, nu)
+        for foot, frame_id in enumerate(robot.foot_frame_ids):
+            if stance[foot]:
+                contact = crocoddyl.ContactModel3D(
+                    state, frame_id, np.zeros(3), pin.LOCAL_WORLD_ALIGNED, nu, gains
+                )
+                contacts.addContact(robot.foot_frame_names[foot], contact)
+        return contacts
+
+    previous: Sequence[bool] | None = None
+    for stance, knots in phases:
+        if previous is not None:
+            touchdown = [s and not p for s, p in zip(stance, previous, strict=True)]
+            if any(touchdown):
+                impulses = crocoddyl.ImpulseModelMultiple(state)
+                for foot, frame_id in enumerate(robot.foot_frame_ids):
+                    if touchdown[foot]:
+                        impulse = crocoddyl.ImpulseModel3D(state, frame_id, pin.LOCAL_WORLD_ALIGNED)
+                        impulses.addImpulse(robot.foot_frame_names[foot], impulse)
+                costs = crocoddyl.CostModelSum(state, 0)
+                running.append(crocoddyl.ActionModelImpulseFwdDynamics(state, impulses, costs, 0.0, 0.0, True))
+        costs = _cost_sum(state, nu, x_ref, state_weights, torque_weight)
+        differential = crocoddyl.DifferentialActionModelContactFwdDynamics(
+            state, actuation, contacts_for(stance), costs, 0.0, True
+        )
+        integrated = crocoddyl.IntegratedActionModelEuler(differential, dt)
+        running.extend([integrated] * knots)
+        previous = stance
+    terminal_costs = _cost_sum(state, nu, x_ref, terminal_weights, 0.0)
+    terminal_differential = crocoddyl.DifferentialActionModelContactFwdDynamics(
+        state, actuation, contacts_for(previous or [True] * 4), terminal_costs, 0.0, True
+    )
+    terminal = crocoddyl.IntegratedActionModelEuler(terminal_differential, 0.0)
+    return crocoddyl.ShootingProblem(np.asarray(x0, dtype=float), running, terminal)

@@ -1,0 +1,231 @@
+"""The CAFE-MPC loop: receding horizon, warm start, policy lag, and a low-level controller at 500 Hz.
+
+Every ``period`` seconds of simulated time the controller builds the CAFE problem from the measured
+state, warm-starts MS-iLQR from the shifted previous solution and turns the whole-body part of the
+solution into a ``Plan``. The new plan takes effect only after the solve's latency (the measured wall-clock
+solve time, or a configured constant in the deterministic mode), so the simulation is honest about
+delay; until then the previous plan keeps driving the low-level controller (Riccati feedback (33) or
+VWBC (34)) at every control tick.
+
+A failed solve (exception, non-finite result, invalid policy) keeps the previous plan and is counted in
+``failures``; with no plan at all the robot is held by the PD standing controller, and says so in the log.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from dataclasses import dataclass, field
+from typing import Literal, Protocol
+
+import numpy as np
+
+from cafe_mpc.mpc.plan import Plan
+from cafe_mpc.mpc.problem import BuiltProblem, CafeProblemBuilder, WarmStart
+from cafe_mpc.ocp.knots import weight_split_forces
+from cafe_mpc.reference.locomotion import LocomotionReference
+from cafe_mpc.robots.robot import Robot
+from cafe_mpc.sim.plant import PlantState
+from cafe_mpc.solver import MSiLQRSolver, SolverOptions, SolverResult
+from cafe_mpc.wbc.pd import PDController, static_stance_torques
+
+logger = logging.getLogger(__name__)
+
+
+class LowLevelController(Protocol):
+    def set_plan(self, plan: Plan) -> None: ...
+
+    def compute(self, t: float, q: np.ndarray, v: np.ndarray) -> np.ndarray: ...
+
+
+@dataclass
+class MpcSettings:
+    """Receding-horizon settings (facts: "Solver (MS-iLQR)", "Horizons and rates")."""
+
+    period: float = 0.02
+    latency: Literal["fixed", "measured"] = "fixed"
+    fixed_latency: float = 0.0
+    first_solve: SolverOptions = field(
+        default_factory=lambda: SolverOptions(
+            max_iterations=30, max_al_iterations=3, cost_change_tolerance=1e-4, expected_decrease_tolerance=1e-5,
+            defect_tolerance=1e-6, switching_tolerance=1e-3, regularization_initial=1e-6, regularization_min=1e-6,
+        )
+    )
+    update_solve: SolverOptions = field(
+        default_factory=lambda: SolverOptions(
+            max_iterations=4, max_al_iterations=1, cost_change_tolerance=1e-2, expected_decrease_tolerance=1e-3,
+            defect_tolerance=1e-3, switching_tolerance=1e-3, regularization_initial=1e-6, regularization_min=1e-6,
+        )
+    )
+
+    def __post_init__(self) -> None:
+        if not self.period > 0:
+            raise ValueError(f"MPC period must be positive, got {self.period}")
+        if self.fixed_latency < 0:
+            raise ValueError("MPC latency must be >= 0")
+
+
+@dataclass
+class MpcStatistics:
+    solves: int = 0
+    failures: int = 0
+    iterations: list[int] = field(default_factory=list)
+    iteration_times: list[float] = field(default_factory=list)
+    solve_times: list[float] = field(default_factory=list)
+    line_search_steps: list[int] = field(default_factory=list)
+    costs: list[float] = field(default_factory=list)
+    defects: list[float] = field(default_factory=list)
+    statuses: list[str] = field(default_factory=list)
+    fallback_ticks: int = 0
+
+    def summary(self) -> dict:
+        def median(values: list[float]) -> float | None:
+            return float(np.median(values)) * 1e3 if values else None
+
+        return {
+            "solves": self.solves,
+            "failures": self.failures,
+            "iterations_mean": float(np.mean(self.iterations)) if self.iterations else None,
+            "iteration_time_ms_median": median(self.iteration_times),
+            "solve_time_ms_median": median(self.solve_times),
+            "solve_time_ms_p99": float(np.percentile(self.solve_times, 99)) * 1e3 if self.solve_times else None,
+            "line_search_steps_mean": float(np.mean(self.line_search_steps)) if self.line_search_steps else None,
+            "defect_max_median": float(np.median(self.defects)) if self.defects else None,
+            "pd_fallback_ticks": self.fallback_ticks,
+        }
+
+
+class CafeMpcController:
+    """Closed-loop CAFE-MPC with a plan-following low-level controller (the sim's ``Controller``)."""
+
+    def __init__(
+        self,
+        robot: Robot,
+        reference: LocomotionReference,
+        builder: CafeProblemBuilder,
+        low_level: LowLevelController,
+        settings: MpcSettings | None = None,
+    ) -> None:
+        self.robot = robot
+        self.reference = reference
+        self.builder = builder
+        self.low_level = low_level
+        self.settings = settings or MpcSettings()
+        self.first_solver = MSiLQRSolver(self.settings.first_solve)
+        self.solver = MSiLQRSolver(self.settings.update_solve)
+        self.warm_start = WarmStart()
+        self.statistics = MpcStatistics()
+        self.fallback = PDController(robot)
+        self.standing_torque = static_stance_torques(robot, robot.q_standing)
+        self.plan: Plan | None = None
+        self.pending: tuple[float, Plan] | None = None
+        self.previous: tuple[BuiltProblem, SolverResult] | None = None
+        self.next_update = 0.0
+        self._x = np.zeros(robot.nq + robot.nv)
+
+    # -------------------------------------------------------------------------------------- interface
+    def reset(self, state: PlantState) -> None:
+        self.plan, self.pending, self.previous = None, None, None
+        self.statistics = MpcStatistics()
+        self.next_update = 0.0
+        self.fallback.reset(state)
+
+    def compute(self, t: float, state: PlantState) -> np.ndarray:
+        if t + 1e-9 >= self.next_update:
+            self._update(t, state)
+            self.next_update += self.settings.period
+        if self.pending is not None and t + 1e-9 >= self.pending[0]:
+            self.plan = self.pending[1]
+            self.low_level.set_plan(self.plan)
+            self.pending = None
+        if self.plan is None:
+            self.statistics.fallback_ticks += 1
+            return self.fallback.compute(t, state)
+        torques = self.low_level.compute(t, state.q, state.v)
+        if not np.all(np.isfinite(torques)):
+            self.statistics.fallback_ticks += 1
+            return self.fallback.compute(t, state)
+        return torques
+
+    # ----------------------------------------------------------------------------------------- solves
+    def _update(self, t: float, state: PlantState) -> None:
+        self._x[: self.robot.nq] = state.q
+        self._x[self.robot.nq :] = state.v
+        first = self.previous is None
+        start = time.perf_counter()
+        try:
+            self.reference.update(t, state.q, state.v)
+            built = self.builder.build(t, self._x.copy(), self.reference)
+            srb_forces = self._srb_force_guess(built)
+            previous_built, previous_solution = self.previous if self.previous else (None, None)
+            guess = self.warm_start.guess(built, previous_built, previous_solution, self.standing_torque,
+                                          srb_forces)
+            solver = self.first_solver if first else self.solver
+            result = solver.solve(built.problem, guess.xs, guess.us, guess.rollout)
+            plan = self._plan_from(built, result, solver)
+        except (ValueError, FloatingPointError, np.linalg.LinAlgError, RuntimeError) as error:
+            self.statistics.failures += 1
+            logger.warning("MPC solve at t = %.3f s failed (%s); keeping the previous plan", t, error)
+            return
+        elapsed = time.perf_counter() - start
+        stats = result.statistics
+        self.statistics.solves += 1
+        self.statistics.iterations.append(stats.iterations)
+        self.statistics.iteration_times.extend(stats.iteration_times)
+        self.statistics.solve_times.append(elapsed)
+        self.statistics.line_search_steps.append(int(sum(stats.line_search_steps)))
+        self.statistics.costs.append(result.cost)
+        self.statistics.defects.append(result.defect_max)
+        self.statistics.statuses.append(result.status)
+        if result.status == "non_finite" or not getattr(result, "policy_valid", True) or plan is None:
+            self.statistics.failures += 1
+            logger.warning("MPC solve at t = %.3f s returned %s; keeping the previous plan", t, result.status)
+            return
+        self.previous = (built, result)
+        latency = elapsed if self.settings.latency == "measured" else self.settings.fixed_latency
+        if self.plan is None or latency <= 0:
+            self.plan = plan
+            self.low_level.set_plan(plan)
+            self.pending = None
+        else:
+            self.pending = (t + latency, plan)
+
+    def _srb_force_guess(self, built: BuiltProblem) -> np.ndarray:
+        for info in built.phases:
+            if info.kind == "srb":
+                weight = self.builder.srb.weight
+                return np.array([weight_split_forces(c.astype(float), weight) for c in info.contacts])
+        return np.zeros((0, 12))
+
+    def _plan_from(self, built: BuiltProblem, result: SolverResult, solver: MSiLQRSolver) -> Plan | None:
+        times, xs, us, gains, qu, quu, qux, contacts, forces, dts = [], [], [], [], [], [], [], [], [], []
+        workspace = solver.workspace
+        for index in built.whole_body_phases:
+            info = built.phases[index]
+            phase = result.phases[index]
+            data = workspace.phases[index].running_data if workspace is not None else None
+            n = len(phase.us)
+            for k in range(n):
+                times.append(info.times[k])
+                xs.append(phase.xs[k])
+                us.append(phase.us[k])
+                gains.append(phase.K[k])
+                qu.append(phase.Qu[k])
+                quu.append(phase.Quu[k])
+                qux.append(phase.Qux[k])
+                contacts.append(info.stance)
+                dts.append(info.times[k + 1] - info.times[k])
+                knot_forces = np.zeros((4, 3))
+                if data is not None:
+                    stacked = np.asarray(data[k].forces)
+                    feet = [i for i, s in enumerate(info.stance) if s]
+                    for j, foot in enumerate(feet):
+                        knot_forces[foot] = stacked[3 * j : 3 * j + 3]
+                forces.append(knot_forces)
+            last_state = phase.xs[n]
+        xs.append(last_state)
+        return Plan(
+            times=np.array(times), xs=np.array(xs), us=np.array(us), K=np.array(gains), Qu=np.array(qu),
+            Quu=np.array(quu), Qux=np.array(qux), contacts=np.array(contacts, dtype=bool),
+            forces=np.array(forces), dt=np.array(dts),
+        )
