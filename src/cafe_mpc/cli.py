@@ -65,6 +65,16 @@ def _command_robot(arguments: argparse.Namespace) -> int:
     return 0 if summary["consistency"]["passed"] else EXIT_FAILED
 
 
+def _command_bench(arguments: argparse.Namespace) -> int:
+    from cafe_mpc.bench.solver_bench import format_report, run_solver_benchmark
+
+    if arguments.iterations < 1 or arguments.repeats < 1:
+        raise ValueError("--iterations and --repeats must be at least 1")
+    result = run_solver_benchmark(arguments.iterations, arguments.repeats)
+    print(json.dumps(result, indent=2) if arguments.json else format_report(result))
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="cafe-mpc", description="CAFE-MPC on a simulated quadruped")
     parser.add_argument("-v", "--verbose", action="store_true", help="log at INFO level to stderr")
@@ -88,6 +98,13 @@ def build_parser() -> argparse.ArgumentParser:
     robot_parser.add_argument("--json", action="store_true", help="print one JSON object")
     robot_parser.add_argument("--samples", type=int, default=5, help="random configurations to compare")
     robot_parser.set_defaults(handler=_command_robot)
+
+    bench_parser = commands.add_parser("bench", help="benchmarks (solver: MS-iLQR vs Crocoddyl FDDP)")
+    bench_parser.add_argument("what", choices=["solver"], help="what to benchmark")
+    bench_parser.add_argument("--json", action="store_true", help="print one JSON object")
+    bench_parser.add_argument("--iterations", type=int, default=10, help="iterations per solve")
+    bench_parser.add_argument("--repeats", type=int, default=5, help="solves per problem")
+    bench_parser.set_defaults(handler=_command_bench)
     return parser
 
 

@@ -22,7 +22,10 @@ from cafe_mpc.robots.robot import Robot
 
 
 def _cost_sum(
-    state: crocoddyl.StateMultibody, nu: int, x_ref: np.ndarray, state_weights: np.ndarray,
+    state: crocoddyl.StateMultibody,
+    nu: int,
+    x_ref: np.ndarray,
+    state_weights: np.ndarray,
     torque_weight: float,
 ) -> crocoddyl.CostModelSum:
     costs = crocoddyl.CostModelSum(state, nu)
@@ -81,7 +84,9 @@ def crocoddyl_problem(
                         impulse = crocoddyl.ImpulseModel3D(state, frame_id, pin.LOCAL_WORLD_ALIGNED)
                         impulses.addImpulse(robot.foot_frame_names[foot], impulse)
                 costs = crocoddyl.CostModelSum(state, 0)
-                running.append(crocoddyl.ActionModelImpulseFwdDynamics(state, impulses, costs, 0.0, 0.0, True))
+                running.append(
+                    crocoddyl.ActionModelImpulseFwdDynamics(state, impulses, costs, 0.0, 0.0, True)
+                )
         costs = _cost_sum(state, nu, x_ref, state_weights, torque_weight)
         differential = crocoddyl.DifferentialActionModelContactFwdDynamics(
             state, actuation, contacts_for(stance), costs, 0.0, True

@@ -1,0 +1,29 @@
+"""Dynamics models of the CAFE-MPC plans (paper Sec. IV-A..C).
+
+* ``MultibodyState`` / ``WholeBodyDynamics``: whole-body state manifold and KKT contact dynamics with an
+  Euler step (Eqs. (19)-(23));
+* ``ImpactReset``: touchdown impact map (22), (24);
+* ``SRBState`` / ``SRBDynamics``: single-rigid-body tail (29), (30);
+* ``WholeBodyToSRB`` / ``ComposedReset``: the model transition (31), (32);
+* ``FootKinematics``: foot positions/velocities and their Jacobians for costs and constraints.
+"""
+
+from cafe_mpc.dynamics.impact import ImpactReset
+from cafe_mpc.dynamics.kinematics import FootKinematics
+from cafe_mpc.dynamics.multibody_state import MultibodyState
+from cafe_mpc.dynamics.srb import SRBDynamics, SRBParameters, SRBState
+from cafe_mpc.dynamics.transition import ComposedReset, WholeBodyToSRB
+from cafe_mpc.dynamics.whole_body import ContactDynamicsError, WholeBodyDynamics
+
+__all__ = [
+    "ComposedReset",
+    "ContactDynamicsError",
+    "FootKinematics",
+    "ImpactReset",
+    "MultibodyState",
+    "SRBDynamics",
+    "SRBParameters",
+    "SRBState",
+    "WholeBodyDynamics",
+    "WholeBodyToSRB",
+]

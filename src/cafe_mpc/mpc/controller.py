@@ -47,14 +47,26 @@ class MpcSettings:
     fixed_latency: float = 0.0
     first_solve: SolverOptions = field(
         default_factory=lambda: SolverOptions(
-            max_iterations=30, max_al_iterations=3, cost_change_tolerance=1e-4, expected_decrease_tolerance=1e-5,
-            defect_tolerance=1e-6, switching_tolerance=1e-3, regularization_initial=1e-6, regularization_min=1e-6,
+            max_iterations=30,
+            max_al_iterations=3,
+            cost_change_tolerance=1e-4,
+            expected_decrease_tolerance=1e-5,
+            defect_tolerance=1e-6,
+            switching_tolerance=1e-3,
+            regularization_initial=1e-6,
+            regularization_min=1e-6,
         )
     )
     update_solve: SolverOptions = field(
         default_factory=lambda: SolverOptions(
-            max_iterations=4, max_al_iterations=1, cost_change_tolerance=1e-2, expected_decrease_tolerance=1e-3,
-            defect_tolerance=1e-3, switching_tolerance=1e-3, regularization_initial=1e-6, regularization_min=1e-6,
+            max_iterations=4,
+            max_al_iterations=1,
+            cost_change_tolerance=1e-2,
+            expected_decrease_tolerance=1e-3,
+            defect_tolerance=1e-3,
+            switching_tolerance=1e-3,
+            regularization_initial=1e-6,
+            regularization_min=1e-6,
         )
     )
 
@@ -88,8 +100,12 @@ class MpcStatistics:
             "iterations_mean": float(np.mean(self.iterations)) if self.iterations else None,
             "iteration_time_ms_median": median(self.iteration_times),
             "solve_time_ms_median": median(self.solve_times),
-            "solve_time_ms_p99": float(np.percentile(self.solve_times, 99)) * 1e3 if self.solve_times else None,
-            "line_search_steps_mean": float(np.mean(self.line_search_steps)) if self.line_search_steps else None,
+            "solve_time_ms_p99": float(np.percentile(self.solve_times, 99)) * 1e3
+            if self.solve_times
+            else None,
+            "line_search_steps_mean": float(np.mean(self.line_search_steps))
+            if self.line_search_steps
+            else None,
             "defect_max_median": float(np.median(self.defects)) if self.defects else None,
             "pd_fallback_ticks": self.fallback_ticks,
         }
@@ -116,7 +132,7 @@ class CafeMpcController:
         self.warm_start = WarmStart()
         self.statistics = MpcStatistics()
         self.fallback = PDController(robot)
-        self.standing_torque = static_stance_torques(robot, robot.q_standing)
+        self._stance_torques: dict[tuple[bool, ...], np.ndarray] = {}
         self.plan: Plan | None = None
         self.pending: tuple[float, Plan] | None = None
         self.previous: tuple[BuiltProblem, SolverResult] | None = None
@@ -158,8 +174,9 @@ class CafeMpcController:
             built = self.builder.build(t, self._x.copy(), self.reference)
             srb_forces = self._srb_force_guess(built)
             previous_built, previous_solution = self.previous if self.previous else (None, None)
-            guess = self.warm_start.guess(built, previous_built, previous_solution, self.standing_torque,
-                                          srb_forces)
+            guess = self.warm_start.guess(
+                built, previous_built, previous_solution, self.stance_torque, srb_forces
+            )
             solver = self.first_solver if first else self.solver
             result = solver.solve(built.problem, guess.xs, guess.us, guess.rollout)
             plan = self._plan_from(built, result, solver)
@@ -190,6 +207,16 @@ class CafeMpcController:
         else:
             self.pending = (t + latency, plan)
 
+    def stance_torque(self, stance: tuple[bool, ...] | None) -> np.ndarray:
+        """Static torques carrying the weight on ``stance`` at the standing pose (zero in flight)."""
+        key = tuple(stance) if stance is not None else (False,) * 4
+        if key not in self._stance_torques:
+            if any(key):
+                self._stance_torques[key] = static_stance_torques(self.robot, self.robot.q_standing, key)
+            else:
+                self._stance_torques[key] = np.zeros(self.robot.nu)
+        return self._stance_torques[key]
+
     def _srb_force_guess(self, built: BuiltProblem) -> np.ndarray:
         for info in built.phases:
             if info.kind == "srb":
@@ -217,6 +244,9 @@ class CafeMpcController:
                 dts.append(info.times[k + 1] - info.times[k])
                 knot_forces = np.zeros((4, 3))
                 if data is not None:
+                    # re-evaluate: after a rejected final line search the data hold a trial point
+                    model = built.problem.phases[index].running_models[k]
+                    model.calc(data[k], phase.xs[k], phase.us[k])
                     stacked = np.asarray(data[k].forces)
                     feet = [i for i, s in enumerate(info.stance) if s]
                     for j, foot in enumerate(feet):
@@ -225,7 +255,14 @@ class CafeMpcController:
             last_state = phase.xs[n]
         xs.append(last_state)
         return Plan(
-            times=np.array(times), xs=np.array(xs), us=np.array(us), K=np.array(gains), Qu=np.array(qu),
-            Quu=np.array(quu), Qux=np.array(qux), contacts=np.array(contacts, dtype=bool),
-            forces=np.array(forces), dt=np.array(dts),
+            times=np.array(times),
+            xs=np.array(xs),
+            us=np.array(us),
+            K=np.array(gains),
+            Qu=np.array(qu),
+            Quu=np.array(quu),
+            Qux=np.array(qux),
+            contacts=np.array(contacts, dtype=bool),
+            forces=np.array(forces),
+            dt=np.array(dts),
         )

@@ -19,13 +19,15 @@ which case they become roll-out knots (the adaptive scheme of Fig. 5).
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from collections.abc import Callable
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
 from cafe_mpc.dynamics.srb import SRBState
 from cafe_mpc.ocp.contact_schedule import touchdown_flags
-from cafe_mpc.ocp.interfaces import FreeTerminal, MultiPhaseProblem, Phase
+from cafe_mpc.ocp.costs import WholeBodyWeights
+from cafe_mpc.ocp.interfaces import MultiPhaseProblem, Phase
 from cafe_mpc.ocp.knots import SRBModelFactory, WholeBodyModelFactory, WholeBodyReference
 from cafe_mpc.reference.locomotion import LocomotionReference
 from cafe_mpc.solver.results import SolverResult
@@ -33,7 +35,15 @@ from cafe_mpc.solver.results import SolverResult
 TIME_EPS = 1e-7
 
 PAPER_SCHEDULES: dict[str, float] = {
-    "S0": 0.0, "S1": 0.1, "S2": 0.2, "S3": 0.3, "S4": 0.4, "S5": 0.5, "S10": 1.0, "S15": 1.5, "S20": 2.0,
+    "S0": 0.0,
+    "S1": 0.1,
+    "S2": 0.2,
+    "S3": 0.3,
+    "S4": 0.4,
+    "S5": 0.5,
+    "S10": 1.0,
+    "S15": 1.5,
+    "S20": 2.0,
 }
 """Table I: Ts of the paper's model schedules (Tw = 0.25 s for all)."""
 
@@ -120,7 +130,21 @@ class CafeProblemBuilder:
         self.srb = srb
         self.schedule = schedule
         self.robot = whole_body.robot
-        self.free_terminal_whole_body = FreeTerminal(whole_body.state)
+        # Intermediate whole-body phases end with a cost-free terminal that keeps the state-only
+        # constraints (joint limits and speeds, base height): without them the last torques of a phase
+        # are free to whip the light legs (the end state is priced only by the phases after it).
+        zero = WholeBodyWeights(
+            base_position=(0.0,) * 6,
+            base_velocity=(0.0,) * 6,
+            joint_position=0.0,
+            joint_velocity=0.0,
+            torque=0.0,
+            swing_foot_position=0.0,
+            swing_foot_velocity=0.0,
+        )
+        self.intermediate = WholeBodyModelFactory(
+            whole_body.robot, replace(whole_body.settings, terminal_weights=zero)
+        )
 
     def build(self, t0: float, x0: np.ndarray, reference: LocomotionReference) -> BuiltProblem:
         schedule = self.schedule
@@ -142,20 +166,25 @@ class CafeProblemBuilder:
             running = []
             for k in range(first, last):
                 q_ref, v_ref = reference.base_state(wb_times[k])
-                ref = WholeBodyReference(np.concatenate([q_ref, v_ref]), feet_positions[k], feet_velocities[k])
+                ref = WholeBodyReference(
+                    np.concatenate([q_ref, v_ref]), feet_positions[k], feet_velocities[k]
+                )
                 running.append(self.whole_body.running_knot(stance, ref, schedule.whole_body_dt))
             is_last = index == len(groups) - 1
             next_stance = groups[index + 1][0] if not is_last else tuple(bool(s) for s in stance_wb[n_wb])
+            q_ref, v_ref = reference.base_state(wb_times[last])
+            terminal_ref = WholeBodyReference(
+                np.concatenate([q_ref, v_ref]), feet_positions[last], feet_velocities[last]
+            )
+            if is_last:
+                # the whole-body plan's terminal cost (also before the SRB tail, which drops the joints)
+                terminal = self.whole_body.terminal_knot(stance, terminal_ref)
+            else:
+                terminal = self.intermediate.terminal_knot(stance, terminal_ref)
             if is_last and not has_srb:
-                q_ref, v_ref = reference.base_state(wb_times[last])
-                ref = WholeBodyReference(
-                    np.concatenate([q_ref, v_ref]), feet_positions[last], feet_velocities[last]
-                )
-                terminal = self.whole_body.terminal_knot(stance, ref)
                 reset = None
                 switching = None
             else:
-                terminal = self.free_terminal_whole_body
                 if is_last:
                     reset = self.whole_body.transition_to_srb(stance, next_stance, self.srb.state)
                 else:
@@ -166,8 +195,13 @@ class CafeProblemBuilder:
                 Phase(running, terminal, reset, switching, dt=schedule.whole_body_dt, name=f"wb{index}")
             )
             infos.append(
-                PhaseInfo("whole_body", stance, wb_times[first : last + 1].copy(),
-                          stance_wb[first:last].copy(), entered_by_impact)
+                PhaseInfo(
+                    "whole_body",
+                    stance,
+                    wb_times[first : last + 1].copy(),
+                    stance_wb[first:last].copy(),
+                    entered_by_impact,
+                )
             )
         if has_srb:
             n_srb = schedule.srb_knots
@@ -182,10 +216,13 @@ class CafeProblemBuilder:
                 running.append(self.srb.running_knot(ref, schedule.srb_dt))
             q_ref, v_ref = reference.base_state(srb_times[-1])
             terminal_ref = self.srb.reference(
-                whole_body_to_srb_state(np.concatenate([q_ref, v_ref])), srb_feet[-1],
+                whole_body_to_srb_state(np.concatenate([q_ref, v_ref])),
+                srb_feet[-1],
                 tuple(bool(s) for s in stance_srb[-1]),
             )
-            phases.append(Phase(running, self.srb.terminal_knot(terminal_ref), dt=schedule.srb_dt, name="srb"))
+            phases.append(
+                Phase(running, self.srb.terminal_knot(terminal_ref), dt=schedule.srb_dt, name="srb")
+            )
             entered = any(touchdown_flags(groups[-1][0], tuple(bool(s) for s in stance_srb[0])))
             infos.append(PhaseInfo("srb", None, srb_times, stance_srb[:-1].copy(), entered))
         problem = MultiPhaseProblem(np.asarray(x0, dtype=float), phases)
@@ -210,10 +247,15 @@ class WarmStart:
         built: BuiltProblem,
         previous: BuiltProblem | None,
         solution: SolverResult | None,
-        standing_torque: np.ndarray,
+        stance_torque: Callable[[tuple[bool, ...]], np.ndarray],
         srb_force_guess: np.ndarray,
     ) -> InitialGuess:
-        """Initial states, controls and roll-out masks for ``built`` from the previous solution."""
+        """Initial states, controls and roll-out masks for ``built`` from the previous solution.
+
+        ``stance_torque(stance)`` gives the torque guess of appended knots (the static torques that carry
+        the weight on that phase's stance feet): copying the last planned torque into a phase with other
+        stance feet would swing the now-unloaded legs violently.
+        """
         x0 = built.problem.x0
         xs, us, rollout = [], [], []
         previous_wb: list[tuple[float, np.ndarray, np.ndarray | None, bool]] = []
@@ -227,13 +269,13 @@ class WarmStart:
                     else:
                         previous_srb.append((float(t), phase.xs[k], control))
         last_wb_state = previous_wb[-1][1] if previous_wb else x0
-        last_wb_torque = next((c for _, _, c, _ in reversed(previous_wb) if c is not None), standing_torque)
         previous_end = previous_wb[-1][0] if previous_wb else -math.inf
         for info in built.phases:
             n = len(info.times) - 1
             if info.kind == "whole_body":
+                appended_torque = stance_torque(info.stance)
                 phase_x = np.empty((n + 1, len(x0)))
-                phase_u = np.empty((n, len(standing_torque)))
+                phase_u = np.empty((n, appended_torque.size))
                 phase_rollout = np.zeros(n + 1, dtype=bool)
                 new_phase_after_impact = info.entered_by_impact and info.times[0] > previous_end - TIME_EPS
                 for k, t in enumerate(info.times):
@@ -241,11 +283,11 @@ class WarmStart:
                     if match is not None:
                         phase_x[k] = match[0]
                         if k < n:
-                            phase_u[k] = match[1] if match[1] is not None else last_wb_torque
+                            phase_u[k] = match[1] if match[1] is not None else appended_torque
                     else:
                         phase_x[k] = last_wb_state
                         if k < n:
-                            phase_u[k] = last_wb_torque
+                            phase_u[k] = appended_torque
                         phase_rollout[k] = new_phase_after_impact and k > 0
                 xs.append(phase_x)
                 us.append(phase_u)
@@ -276,9 +318,8 @@ def _lookup_whole_body(
     """State/control of the previous whole-body knot at time ``t`` (post-reset copy for phase starts)."""
     found = None
     for time, state, control, is_start in records:
-        if abs(time - t) < 1e-6:
-            if found is None or is_start == prefer_phase_start:
-                found = (state, control)
+        if abs(time - t) < 1e-6 and (found is None or is_start == prefer_phase_start):
+            found = (state, control)
     return found
 
 

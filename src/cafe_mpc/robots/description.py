@@ -185,7 +185,7 @@ def mjcf_from_model(
                 f'condim="3" friction="{plant.floor_friction:.10g} 0.005 0.0001" rgba="0.1 0.1 0.1 1"/>\n'
             )
             out.append(
-                f'{pad}  <site name={quoteattr(model.frames[frame_id].name + "_site")} '
+                f"{pad}  <site name={quoteattr(model.frames[frame_id].name + '_site')} "
                 f'pos="{_fmt(foot_pos)}"/>\n'
             )
         for child in children[joint_id]:

@@ -550,7 +550,12 @@ class MSiLQRSolver:
             threshold = merit_nominal + options.armijo * min(expected, 0.0) + slack
             for nonlinear in (True,) if feasible else (False, True):
                 n_trials += 1
-                trial = self._try_step(workspace, x0, alpha, nonlinear)
+                try:
+                    trial = self._try_step(workspace, x0, alpha, nonlinear)
+                except (FloatingPointError, np.linalg.LinAlgError):
+                    # A model that cannot evaluate the trial point (e.g. a singular contact KKT system far
+                    # from the nominal) rejects the step like a non-finite cost does.
+                    continue
                 if trial.finite() and trial.augmented_cost + merit_weight * trial.defect_l1 <= threshold:
                     return trial, alpha, n_trials, "nonlinear" if nonlinear else "hybrid"
             alpha *= options.line_search_decrease

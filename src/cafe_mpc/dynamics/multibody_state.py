@@ -1,0 +1,77 @@
+"""The whole-body state manifold ``x = [q, v]`` of a floating-base robot (paper Sec. IV-A).
+
+The paper writes the base orientation as ZYX Euler angles; here it is Pinocchio's free-flyer
+configuration (position and unit quaternion) so that any orientation, e.g. a 2*pi barrel roll, is
+representable without a singularity. The tangent space (``ndx = 2 * nv = 36``) is
+
+    [base linear (base frame, 3), base angular (base frame, 3), joints (12), v (18)]
+
+and ``integrate``/``difference`` are Pinocchio's (SE(3) exponential/logarithm on the base, plain
+addition on the joints and on the velocity), so the tangent of ``q`` has the same coordinates as ``v``.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pinocchio as pin
+
+from cafe_mpc.ocp.interfaces import StateManifold
+
+
+class MultibodyState(StateManifold):
+    """``x = [q (nq), v (nv)]`` on ``Q x R^nv`` with Pinocchio's Lie-group operations on ``Q``."""
+
+    def __init__(self, model: pin.Model) -> None:
+        self.model = model
+        self.nq = model.nq
+        self.nv = model.nv
+        self.nx = model.nq + model.nv
+        self.ndx = 2 * model.nv
+
+    def zero(self) -> np.ndarray:
+        return np.concatenate([pin.neutral(self.model), np.zeros(self.nv)])
+
+    def check(self, x: np.ndarray, name: str = "x") -> np.ndarray:
+        """``x`` as a float array of the right size, or a ``ValueError`` naming the mismatch."""
+        x = np.asarray(x, dtype=float)
+        if x.shape != (self.nx,):
+            raise ValueError(
+                f"{name} must have shape ({self.nx},) = [q ({self.nq}), v ({self.nv})], got {x.shape}"
+            )
+        return x
+
+    def integrate(self, x: np.ndarray, dx: np.ndarray) -> np.ndarray:
+        nq, nv = self.nq, self.nv
+        out = np.empty(self.nx)
+        out[:nq] = pin.integrate(self.model, x[:nq], dx[:nv])
+        out[nq:] = x[nq:] + dx[nv:]
+        return out
+
+    def difference(self, x0: np.ndarray, x1: np.ndarray) -> np.ndarray:
+        nq, nv = self.nq, self.nv
+        out = np.empty(self.ndx)
+        out[:nv] = pin.difference(self.model, x0[:nq], x1[:nq])
+        out[nv:] = x1[nq:] - x0[nq:]
+        return out
+
+    def jacobian_difference(self, x0: np.ndarray, x1: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        nq, nv = self.nq, self.nv
+        d0, d1 = pin.dDifference(self.model, x0[:nq], x1[:nq])
+        j0 = np.zeros((self.ndx, self.ndx))
+        j1 = np.zeros((self.ndx, self.ndx))
+        j0[:nv, :nv] = d0
+        j1[:nv, :nv] = d1
+        j0[nv:, nv:] = -np.eye(nv)
+        j1[nv:, nv:] = np.eye(nv)
+        return j0, j1
+
+    def jacobian_integrate(self, x: np.ndarray, dx: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        nq, nv = self.nq, self.nv
+        d0, d1 = pin.dIntegrate(self.model, x[:nq], dx[:nv])
+        j0 = np.zeros((self.ndx, self.ndx))
+        j1 = np.zeros((self.ndx, self.ndx))
+        j0[:nv, :nv] = d0
+        j1[:nv, :nv] = d1
+        j0[nv:, nv:] = np.eye(nv)
+        j1[nv:, nv:] = np.eye(nv)
+        return j0, j1

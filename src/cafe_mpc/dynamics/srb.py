@@ -1,0 +1,240 @@
+"""Single-rigid-body (SRB) dynamics of the tail plan (paper Sec. IV-B, Eqs. (29), (30)).
+
+State (``SRBState``, ``nx = 13``, ``ndx = 12``), without Euler angles:
+
+    x = [c (world position, 3), quaternion (x, y, z, w), c_dot (world linear velocity, 3), omega (body, 3)]
+    tangent = [dc (world), dtheta (body-frame rotation, R ⊕ dtheta = R exp(dtheta)), dc_dot, domega]
+
+Control: the four world-frame foot forces ``u = [f_FL, f_FR, f_HL, f_HR]`` (12). Foot positions ``p_j`` and
+contact flags ``s_j`` are per-knot parameters (from the reference, Raibert footholds), neither state nor
+control. Continuous dynamics (29):
+
+    c_ddot    = sum_j s_j f_j / m - g
+    omega_dot = I^-1 (-omega x I omega + R' sum_j s_j (p_j - c) x f_j)
+
+and one explicit Euler step (30) on the manifold (everything evaluated at ``x_k``):
+``c+ = c + c_dot dt``, ``R+ = R exp(omega dt)``, ``c_dot+ = c_dot + c_ddot dt``,
+``omega+ = omega + omega_dot dt``. Jacobians are analytic (numpy; no finite differences).
+
+The SRB position ``c`` is the base-frame origin (the WB -> SRB map (31), (32) keeps the base pose), which
+for the Mini Cheetah is the trunk's centre of mass; the legs' mass is lumped into ``m`` and ``I``.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+import pinocchio as pin
+
+from cafe_mpc.ocp.interfaces import StateManifold
+
+GRAVITY = 9.81
+
+
+def quaternion_to_rotation(quaternion: np.ndarray) -> np.ndarray:
+    """Rotation matrix of a unit quaternion ``(x, y, z, w)``."""
+    return pin.Quaternion(quaternion).toRotationMatrix()
+
+
+def quaternion_multiply(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Hamilton product ``a ⊗ b`` of quaternions stored ``(x, y, z, w)``."""
+    ax, ay, az, aw = a.tolist()
+    bx, by, bz, bw = b.tolist()
+    return np.array(
+        [
+            aw * bx + ax * bw + ay * bz - az * by,
+            aw * by - ax * bz + ay * bw + az * bx,
+            aw * bz + ax * by - ay * bx + az * bw,
+            aw * bw - ax * bx - ay * by - az * bz,
+        ]
+    )
+
+
+class SRBState(StateManifold):
+    """``[c, quaternion, c_dot, omega]`` on ``R^3 x SO(3) x R^3 x R^3`` (see the module docstring)."""
+
+    nx = 13
+    ndx = 12
+
+    def zero(self) -> np.ndarray:
+        x = np.zeros(13)
+        x[6] = 1.0
+        return x
+
+    def check(self, x: np.ndarray, name: str = "x") -> np.ndarray:
+        x = np.asarray(x, dtype=float)
+        if x.shape != (13,):
+            raise ValueError(f"{name} must have shape (13,) = [c, quat xyzw, c_dot, omega], got {x.shape}")
+        return x
+
+    def integrate(self, x: np.ndarray, dx: np.ndarray) -> np.ndarray:
+        out = np.empty(13)
+        out[0:3] = x[0:3] + dx[0:3]
+        quaternion = quaternion_multiply(x[3:7], pin.exp3_quat(dx[3:6]))
+        out[3:7] = quaternion / np.linalg.norm(quaternion)
+        out[7:13] = x[7:13] + dx[6:12]
+        return out
+
+    def difference(self, x0: np.ndarray, x1: np.ndarray) -> np.ndarray:
+        out = np.empty(12)
+        out[0:3] = x1[0:3] - x0[0:3]
+        out[3:6] = pin.log3(quaternion_to_rotation(x0[3:7]).T @ quaternion_to_rotation(x1[3:7]))
+        out[6:12] = x1[7:13] - x0[7:13]
+        return out
+
+    def jacobian_difference(self, x0: np.ndarray, x1: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        error = quaternion_to_rotation(x0[3:7]).T @ quaternion_to_rotation(x1[3:7])
+        jlog = pin.Jlog3(error)
+        j0 = -np.eye(12)
+        j1 = np.eye(12)
+        j0[3:6, 3:6] = -jlog @ error.T
+        j1[3:6, 3:6] = jlog
+        return j0, j1
+
+    def jacobian_integrate(self, x: np.ndarray, dx: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        j0 = np.eye(12)
+        j1 = np.eye(12)
+        j0[3:6, 3:6] = pin.exp3(dx[3:6]).T
+        j1[3:6, 3:6] = pin.Jexp3(dx[3:6])
+        return j0, j1
+
+
+@dataclass(frozen=True)
+class SRBParameters:
+    """Mass and body-frame inertia of the single rigid body (authors' values: 8.912 kg with rotors,
+    diag(0.0616, 0.2207, 0.2726) kg m^2, legs lumped)."""
+
+    mass: float = 8.912
+    inertia: tuple[tuple[float, ...], ...] = field(
+        default_factory=lambda: ((0.0616, 0.0, 0.0), (0.0, 0.2207, 0.0), (0.0, 0.0, 0.2726))
+    )
+    gravity: float = GRAVITY
+
+    def __post_init__(self) -> None:
+        if not (math.isfinite(self.mass) and self.mass > 0):
+            raise ValueError(f"SRB mass must be positive, got {self.mass}")
+        inertia = self.inertia_matrix
+        if inertia.shape != (3, 3) or not np.allclose(inertia, inertia.T):
+            raise ValueError("SRB inertia must be a symmetric 3 x 3 matrix")
+        if np.any(np.linalg.eigvalsh(inertia) <= 0):
+            raise ValueError("SRB inertia must be positive definite")
+
+    @property
+    def inertia_matrix(self) -> np.ndarray:
+        inertia = np.asarray(self.inertia, dtype=float)
+        return np.diag(inertia) if inertia.shape == (3,) else inertia
+
+
+class SRBDynamicsData:
+    """Workspace of ``SRBDynamics`` (one per knot)."""
+
+    def __init__(self) -> None:
+        self.x_next = np.zeros(13)
+        self.Fx = np.zeros((12, 12))
+        self.Fu = np.zeros((12, 12))
+        self.linear_acceleration = np.zeros(3)
+        self.angular_acceleration = np.zeros(3)
+        self.rotation = np.eye(3)
+        self.contact_mask = np.zeros(12)  # contact flag of each force component
+        self.active_forces = np.zeros(12)  # s_j f_j
+        self.lever_arms = np.zeros((4, 3))  # p_j - c
+        self.moment_map = np.zeros((3, 12))  # [[p_1 - c]x ... [p_4 - c]x]: world moment = moment_map @ f
+        self.body_moment = np.zeros(3)
+
+
+class SRBDynamics:
+    """Discrete SRB dynamics (29), (30) with time step ``dt``; immutable and shareable between knots."""
+
+    def __init__(self, parameters: SRBParameters | None = None, dt: float = 0.05) -> None:
+        if not (math.isfinite(dt) and dt > 0):
+            raise ValueError(f"time step must be positive and finite, got {dt}")
+        self.parameters = parameters or SRBParameters()
+        self.dt = float(dt)
+        self.state = SRBState()
+        self.nu = 12
+        self.mass = self.parameters.mass
+        self.inertia = self.parameters.inertia_matrix
+        self.inertia_inverse = np.linalg.inv(self.inertia)
+        self.gravity_vector = np.array([0.0, 0.0, -self.parameters.gravity])
+        self._force_to_velocity = (self.dt / self.mass) * np.tile(np.eye(3), (1, 4))
+
+    def create_data(self) -> SRBDynamicsData:
+        data = SRBDynamicsData()
+        data.Fx[:] = np.eye(12)
+        data.Fx[0:3, 6:9] = self.dt * np.eye(3)
+        return data
+
+    def calc(
+        self,
+        data: SRBDynamicsData,
+        x: np.ndarray,
+        u: np.ndarray,
+        foot_positions: np.ndarray,
+        contacts: np.ndarray,
+    ) -> None:
+        """Write ``data.x_next`` and the accelerations; ``contacts`` holds 4 flags in {0, 1} as floats."""
+        dt = self.dt
+        position, quaternion, velocity, omega = x[0:3], x[3:7], x[7:10], x[10:13]
+        rotation = quaternion_to_rotation(quaternion)
+        data.rotation = rotation
+        mask = data.contact_mask.reshape(4, 3)
+        mask[:] = contacts[:, None]
+        np.multiply(u, data.contact_mask, out=data.active_forces)
+        lever = data.lever_arms
+        np.subtract(foot_positions, position, out=lever)
+        moment_map = data.moment_map  # rows of [l]x for each foot, side by side
+        moment_map[0, 1::3] = -lever[:, 2]
+        moment_map[0, 2::3] = lever[:, 1]
+        moment_map[1, 0::3] = lever[:, 2]
+        moment_map[1, 2::3] = -lever[:, 0]
+        moment_map[2, 0::3] = -lever[:, 1]
+        moment_map[2, 1::3] = lever[:, 0]
+        np.matmul(rotation.T, moment_map @ data.active_forces, out=data.body_moment)
+        np.matmul(self._force_to_velocity, data.active_forces, out=data.linear_acceleration)
+        data.linear_acceleration *= 1.0 / dt
+        data.linear_acceleration += self.gravity_vector
+        gyroscopic = pin.skew(omega) @ (
+            self.inertia @ omega
+        )  # omega x I omega (np.cross is slow on 3-vectors)
+        np.matmul(self.inertia_inverse, data.body_moment - gyroscopic, out=data.angular_acceleration)
+        x_next = data.x_next
+        np.multiply(velocity, dt, out=x_next[0:3])
+        x_next[0:3] += position
+        next_quaternion = quaternion_multiply(quaternion, pin.exp3_quat(dt * omega))
+        np.multiply(
+            next_quaternion, 1.0 / math.sqrt(float(np.dot(next_quaternion, next_quaternion))), out=x_next[3:7]
+        )
+        np.multiply(data.linear_acceleration, dt, out=x_next[7:10])
+        x_next[7:10] += velocity
+        np.multiply(data.angular_acceleration, dt, out=x_next[10:13])
+        x_next[10:13] += omega
+
+    def calc_diff(
+        self,
+        data: SRBDynamicsData,
+        x: np.ndarray,
+        u: np.ndarray,
+        foot_positions: np.ndarray,
+        contacts: np.ndarray,
+    ) -> None:
+        """Write ``data.Fx``, ``data.Fu`` (tangent Jacobians). Assumes ``calc`` ran with these arguments."""
+        dt = self.dt
+        omega = x[10:13]
+        Fx, Fu = data.Fx, data.Fu
+        step = dt * omega
+        # Orientation: R+ = R exp(omega dt).
+        Fx[3:6, 3:6] = pin.exp3(step).T
+        Fx[3:6, 9:12] = dt * pin.Jexp3(step)
+        # Angular velocity: omega+ = omega + dt I^-1 (R' sum_j (p_j - c) x s_j f_j - omega x I omega).
+        body_map = (dt * self.inertia_inverse) @ data.rotation.T  # dt I^-1 R'
+        force_sum = data.active_forces.reshape(4, 3).sum(axis=0)
+        Fx[9:12, 0:3] = body_map @ pin.skew(force_sum)  # d/dc of (p - c) x f = [f]x
+        Fx[9:12, 3:6] = dt * (self.inertia_inverse @ pin.skew(data.body_moment))  # R' m, R -> R exp(dtheta)
+        gyroscopic = pin.skew(self.inertia @ omega) - pin.skew(omega) @ self.inertia
+        Fx[9:12, 9:12] = dt * (self.inertia_inverse @ gyroscopic)
+        Fx[9:12, 9:12] += np.eye(3)
+        # Controls: only stance-foot forces act.
+        np.multiply(self._force_to_velocity, data.contact_mask, out=Fu[6:9])
+        np.multiply(body_map @ data.moment_map, data.contact_mask, out=Fu[9:12])

@@ -1,0 +1,232 @@
+"""Whole-body phase dynamics: KKT contact dynamics + Euler step on the state manifold (paper Eqs. (19)-(23)).
+
+For a fixed set of stance feet, the continuous dynamics are the KKT system (21)
+
+    [M   Jc^T] [ qdd ]   [ B^T tau - n(q, v)         ]
+    [Jc  0   ] [ -Fc ] = [ -Jc_dot v - alpha Jc v    ]
+
+i.e. the equations of motion (19) with the non-slip constraint at the acceleration level with first-order
+Baumgarte stabilisation (20), ``Jc qdd + Jc_dot v = -alpha Jc v``. Contacts are points at the foot frames
+with ``LOCAL_WORLD_ALIGNED`` Jacobians, so ``Fc`` stacks world-frame ground reaction forces in leg order
+(stance feet only). With no stance foot the dynamics are the free-floating ABA.
+
+The solution and its analytical derivatives come from Pinocchio: ``constraintDynamics`` (exact Cholesky of
+the KKT system; proximal iterations only with ``damping > 0``) and ``computeConstraintDynamicsDerivatives``
+(``d qdd / d(q, v, tau)`` and ``d Fc / d(q, v, tau)``), or ``aba`` and ``computeABADerivatives`` in flight.
+No finite differences. ``calc_diff`` reuses the forward pass of ``calc`` stored in the data's Pinocchio
+``Data``, so it must follow ``calc`` with the same ``(x, u)`` (``WholeBodyKnot`` guarantees it).
+
+Time stepping (23) on the manifold, ``dt`` fixed per model:
+
+* ``"explicit"`` (paper):  ``q+ = q ⊕ v dt``,          ``v+ = v + qdd dt``;
+* ``"semi_implicit"`` (Crocoddyl's ``IntegratedActionModelEuler``): ``q+ = q ⊕ (v + qdd dt) dt``.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Literal
+
+import numpy as np
+import pinocchio as pin
+
+from cafe_mpc.dynamics.multibody_state import MultibodyState
+from cafe_mpc.ocp.contact_schedule import as_contact_flags, flags_to_string
+from cafe_mpc.robots.robot import Robot
+
+IntegrationScheme = Literal["explicit", "semi_implicit"]
+INTEGRATION_SCHEMES: tuple[str, ...] = ("explicit", "semi_implicit")
+
+
+class ContactDynamicsError(FloatingPointError):
+    """The contact dynamics produced a non-finite result (non-finite input or a singular KKT system)."""
+
+
+def foot_contact_models(
+    robot: Robot, stance: tuple[bool, ...], baumgarte_alpha: float
+) -> pin.StdVec_RigidConstraintModel:
+    """Pinocchio point-contact models (3D, ``LOCAL_WORLD_ALIGNED``) on the stance feet, in leg order,
+    with the first-order Baumgarte gain ``Kd = alpha`` (Eq. (20)) and no position feedback."""
+    model = robot.model
+    contact_models = pin.StdVec_RigidConstraintModel()
+    for leg, frame_id in enumerate(robot.foot_frame_ids):
+        if not stance[leg]:
+            continue
+        frame = model.frames[frame_id]
+        contact = pin.RigidConstraintModel(
+            pin.ContactType.CONTACT_3D,
+            model,
+            frame.parentJoint,
+            frame.placement,
+            pin.ReferenceFrame.LOCAL_WORLD_ALIGNED,
+        )
+        contact.name = robot.leg_names[leg]
+        contact.setBaumgarteCorrectorParameters(pin.BaumgarteCorrectorParameters(0.0, float(baumgarte_alpha)))
+        contact_models.append(contact)
+    return contact_models
+
+
+def proximal_settings(damping: float) -> pin.ProximalSettings:
+    """Exact KKT solve (one iteration, no regularisation) when ``damping == 0``; otherwise proximal
+    iterations with regularisation ``mu = damping`` (converges to the exact solution for full-rank contact
+    Jacobians and stays finite for rank-deficient ones). One object per data: Pinocchio writes into it."""
+    if damping == 0.0:
+        return pin.ProximalSettings(1e-12, 0.0, 1)
+    return pin.ProximalSettings(1e-12, float(damping), 50)
+
+
+class WholeBodyDynamicsData:
+    """Per-knot workspace of ``WholeBodyDynamics`` (one Pinocchio ``Data`` each; created once, reused)."""
+
+    def __init__(self, dynamics: WholeBodyDynamics) -> None:
+        model = dynamics.model
+        nv, nu, nf = model.nv, dynamics.nu, dynamics.n_forces
+        self.pinocchio = model.createData()
+        self.contact_datas = pin.StdVec_RigidConstraintData()
+        for contact in dynamics.contact_models:
+            self.contact_datas.append(contact.createData())
+        if dynamics.n_contacts:
+            pin.initConstraintDynamics(model, self.pinocchio, dynamics.contact_models, self.contact_datas)
+        self.proximal = proximal_settings(dynamics.damping)
+        self.tau = np.zeros(nv)
+        self.acceleration = np.zeros(nv)
+        self.forces = np.zeros(nf)
+        """Stance-foot ground reaction forces (world frame, 3 per stance foot, leg order)."""
+        self.x_next = np.zeros(model.nq + nv)
+        self.Fx = np.zeros((2 * nv, 2 * nv))
+        self.Fu = np.zeros((2 * nv, nu))
+        self.dforces_dx = np.zeros((nf, 2 * nv))
+        self.dforces_du = np.zeros((nf, nu))
+        self._step = np.zeros(nv)
+
+
+class WholeBodyDynamics:
+    """Discrete whole-body dynamics ``x+ = f(x, tau)`` of one contact phase (Eqs. (19)-(23)).
+
+    Immutable after construction and shareable between knots with the same stance flags and time step;
+    each knot gets its own ``WholeBodyDynamicsData``.
+
+    Args:
+        robot: the robot (its Pinocchio model is the planning model).
+        stance: 4 contact flags in leg order.
+        dt: integration time step (s).
+        baumgarte_alpha: first-order Baumgarte gain ``alpha`` of Eq. (20) (1/s).
+        integration: ``"explicit"`` (paper Eq. (23)) or ``"semi_implicit"`` (Crocoddyl's Euler).
+        damping: 0 for the exact KKT solve; ``> 0`` regularises a (nearly) singular contact Jacobian with
+            Pinocchio's proximal algorithm. With 0, a singular system raises ``ContactDynamicsError``.
+    """
+
+    def __init__(
+        self,
+        robot: Robot,
+        stance: tuple[bool, ...],
+        dt: float,
+        baumgarte_alpha: float = 10.0,
+        integration: IntegrationScheme = "explicit",
+        damping: float = 0.0,
+    ) -> None:
+        self.robot = robot
+        self.model = robot.model
+        self.state = MultibodyState(robot.model)
+        self.stance = as_contact_flags(stance, "stance flags")
+        if not (math.isfinite(dt) and dt > 0):
+            raise ValueError(f"time step must be positive and finite, got {dt}")
+        if not (math.isfinite(baumgarte_alpha) and baumgarte_alpha >= 0):
+            raise ValueError(f"Baumgarte alpha must be non-negative, got {baumgarte_alpha}")
+        if integration not in INTEGRATION_SCHEMES:
+            raise ValueError(f"integration must be one of {INTEGRATION_SCHEMES}, got {integration!r}")
+        if not (math.isfinite(damping) and damping >= 0):
+            raise ValueError(f"damping must be non-negative, got {damping}")
+        self.dt = float(dt)
+        self.baumgarte_alpha = float(baumgarte_alpha)
+        self.integration = integration
+        self.damping = float(damping)
+        self.nu = robot.model.nv - 6
+        self.contact_legs = tuple(leg for leg in range(4) if self.stance[leg])
+        self.n_contacts = len(self.contact_legs)
+        self.n_forces = 3 * self.n_contacts
+        self.contact_models = foot_contact_models(robot, self.stance, self.baumgarte_alpha)
+        self._eye_nv = np.eye(robot.model.nv)
+        self._strict_lower = np.tril_indices(robot.model.nv, -1)
+
+    def __repr__(self) -> str:
+        return f"WholeBodyDynamics({flags_to_string(self.stance)}, dt={self.dt}, {self.integration})"
+
+    def create_data(self) -> WholeBodyDynamicsData:
+        return WholeBodyDynamicsData(self)
+
+    def force_index(self, leg: int) -> int:
+        """Offset of ``leg``'s force in ``data.forces`` (``ValueError`` for a swing leg)."""
+        if not self.stance[leg]:
+            raise ValueError(f"leg {leg} is not in stance")
+        return 3 * self.contact_legs.index(leg)
+
+    def calc(self, data: WholeBodyDynamicsData, x: np.ndarray, u: np.ndarray) -> None:
+        """Write ``data.acceleration``, ``data.forces`` and ``data.x_next``."""
+        model, nq, dt = self.model, self.model.nq, self.dt
+        q, v = x[:nq], x[nq:]
+        data.tau[6:] = u
+        if self.n_contacts:
+            acceleration = pin.constraintDynamics(
+                model, data.pinocchio, q, v, data.tau, self.contact_models, data.contact_datas, data.proximal
+            )
+            data.forces[:] = data.pinocchio.lambda_c
+        else:
+            # WORLD convention: what computeABADerivatives(model, data) reuses in calc_diff.
+            acceleration = pin.aba(model, data.pinocchio, q, v, data.tau, pin.Convention.WORLD)
+        if not math.isfinite(float(np.dot(acceleration, acceleration))):
+            self._raise_non_finite(x, u)
+        data.acceleration[:] = acceleration
+        v_next = data.x_next[nq:]
+        np.multiply(acceleration, dt, out=v_next)
+        v_next += v
+        if self.integration == "explicit":
+            np.multiply(v, dt, out=data._step)
+        else:
+            np.multiply(v_next, dt, out=data._step)
+        data.x_next[:nq] = pin.integrate(model, q, data._step)
+
+    def calc_diff(self, data: WholeBodyDynamicsData, x: np.ndarray, u: np.ndarray) -> None:
+        """Write ``data.Fx``, ``data.Fu`` (tangent Jacobians of ``x_next``) and ``data.dforces_dx``,
+        ``data.dforces_du``. Assumes ``calc(data, x, u)`` ran last on this data."""
+        model, nq, nv, dt = self.model, self.model.nq, self.model.nv, self.dt
+        q = x[:nq]
+        pd = data.pinocchio
+        if self.n_contacts:
+            pin.computeConstraintDynamicsDerivatives(
+                model, pd, self.contact_models, data.contact_datas, data.proximal
+            )
+            da_dq, da_dv, da_dtau = pd.ddq_dq, pd.ddq_dv, pd.ddq_dtau
+            data.dforces_dx[:, :nv] = pd.dlambda_dq
+            data.dforces_dx[:, nv:] = pd.dlambda_dv
+            data.dforces_du[:] = pd.dlambda_dtau[:, 6:]
+        else:
+            pin.computeABADerivatives(model, pd)  # reuses the WORLD-convention ABA of calc
+            da_dq, da_dv = pd.ddq_dq, pd.ddq_dv
+            # Pinocchio fills only the upper triangle of Minv (= d qdd / d tau); symmetrise it.
+            da_dtau = pd.Minv
+            da_dtau[self._strict_lower] = da_dtau.T[self._strict_lower]
+        Fx, Fu = data.Fx, data.Fu
+        np.multiply(da_dq, dt, out=Fx[nv:, :nv])
+        np.multiply(da_dv, dt, out=Fx[nv:, nv:])
+        Fx[nv:, nv:] += self._eye_nv
+        np.multiply(da_dtau[:, 6:], dt, out=Fu[nv:])
+        dintegrate_dq, dintegrate_dstep = pin.dIntegrate(model, q, data._step)
+        if self.integration == "explicit":
+            Fx[:nv, :nv] = dintegrate_dq
+            np.multiply(dintegrate_dstep, dt, out=Fx[:nv, nv:])
+            # Fu[:nv] stays zero: tau acts on q only one step later.
+        else:
+            dintegrate_dstep *= dt  # d q+ / d v+
+            Fx[:nv, :nv] = dintegrate_dq
+            Fx[:nv, :nv] += dintegrate_dstep @ Fx[nv:, :nv]
+            np.matmul(dintegrate_dstep, Fx[nv:, nv:], out=Fx[:nv, nv:])
+            np.matmul(dintegrate_dstep, Fu[nv:], out=Fu[:nv])
+
+    def _raise_non_finite(self, x: np.ndarray, u: np.ndarray) -> None:
+        if not (np.all(np.isfinite(x)) and np.all(np.isfinite(u))):
+            raise ContactDynamicsError(f"{self!r}: non-finite state or torque")
+        raise ContactDynamicsError(
+            f"{self!r}: the contact KKT system is singular (rank-deficient contact Jacobian); "
+            "construct the dynamics with damping > 0 to regularise it"
+        )

@@ -1,0 +1,632 @@
+"""Knot models (``ActionModel``) of the CAFE-MPC plans and the factories that build them.
+
+* ``WholeBodyKnot``: whole-body dynamics of one contact phase (Eqs. (19)-(23)) + cost (18) + inequality
+  constraints (26), (27) as relaxed-barrier costs; with ``dynamics=None`` it is a terminal model (``nu = 0``,
+  no torque term, state-only constraints).
+* ``SRBKnot``: SRB dynamics (29), (30) + cost (28), unconstrained; terminal without the force term.
+
+References (design choice). Each knot owns a small mutable reference object (``WholeBodyReference`` /
+``SRBReference``) in ``knot.reference``; the MPC updates it *in place* every update (``reference.set(...)``)
+without rebuilding models or data. Everything heavy (dynamics, Pinocchio contact models, cost and constraint
+terms, barrier stack) is shared: a factory caches one prototype knot per (stance, running/terminal, dt) and
+``prototype.with_reference(reference)`` makes a knot that shares it all but the reference (a shallow copy,
+a few microseconds). Data objects (``knot.create_data()``) are per knot and hold every array and the
+Pinocchio ``Data``; a data object can be reused by any knot built from the same prototype.
+"""
+
+from __future__ import annotations
+
+import copy
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+import pinocchio as pin
+
+from cafe_mpc.dynamics.impact import ImpactReset
+from cafe_mpc.dynamics.kinematics import FootKinematics
+from cafe_mpc.dynamics.multibody_state import MultibodyState
+from cafe_mpc.dynamics.srb import SRBDynamics, SRBParameters, SRBState, quaternion_to_rotation
+from cafe_mpc.dynamics.transition import ComposedReset, WholeBodyToSRB
+from cafe_mpc.dynamics.whole_body import IntegrationScheme, WholeBodyDynamics
+from cafe_mpc.ocp.constraints import (
+    BarrierStack,
+    TouchdownFootHeight,
+    WholeBodyConstraintSettings,
+    WholeBodyInequality,
+    whole_body_inequalities,
+)
+from cafe_mpc.ocp.contact_schedule import ContactFlags, as_contact_flags, flags_to_string, touchdown_flags
+from cafe_mpc.ocp.costs import (
+    BaseError,
+    SRBWeights,
+    WholeBodyCostTerm,
+    WholeBodyWeights,
+    whole_body_cost_terms,
+)
+from cafe_mpc.ocp.interfaces import ActionData, ActionModel, IdentityReset, ResetMap
+from cafe_mpc.robots.robot import Robot
+
+
+def _array(value, shape: tuple[int, ...], name: str) -> np.ndarray:
+    array = np.asarray(value, dtype=float)
+    if array.shape != shape:
+        raise ValueError(f"{name} must have shape {shape}, got {array.shape}")
+    if not np.all(np.isfinite(array)):
+        raise ValueError(f"{name} must be finite")
+    return array
+
+
+# --------------------------------------------------------------------------------------------------
+# Whole-body knot
+# --------------------------------------------------------------------------------------------------
+
+
+class WholeBodyReference:
+    """Mutable per-knot reference of a whole-body knot (updated in place).
+
+    ``state``: ``x_ref = [q_ref (19, quaternion base), v_ref (18, base-frame velocities)]``;
+    ``foot_positions``/``foot_velocities``: world-frame swing-foot targets (4 x 3, leg order; only swing
+    feet are used); ``torque``: torque regularisation target (12, default zero).
+    """
+
+    __slots__ = ("foot_positions", "foot_velocities", "state", "torque")
+
+    def __init__(
+        self,
+        state: np.ndarray,
+        foot_positions: np.ndarray | None = None,
+        foot_velocities: np.ndarray | None = None,
+        torque: np.ndarray | None = None,
+    ) -> None:
+        state = np.asarray(state, dtype=float)
+        self.state = _array(state, state.shape, "reference state").copy()
+        if self.state.ndim != 1:
+            raise ValueError("reference state must be a vector")
+        self.foot_positions = np.zeros((4, 3))
+        self.foot_velocities = np.zeros((4, 3))
+        self.torque = np.zeros(12)
+        self.set(foot_positions=foot_positions, foot_velocities=foot_velocities, torque=torque)
+
+    def set(
+        self,
+        state: np.ndarray | None = None,
+        foot_positions: np.ndarray | None = None,
+        foot_velocities: np.ndarray | None = None,
+        torque: np.ndarray | None = None,
+    ) -> None:
+        """Overwrite the given parts in place (shapes are checked)."""
+        if state is not None:
+            self.state[:] = _array(state, self.state.shape, "reference state")
+        if foot_positions is not None:
+            self.foot_positions[:] = _array(foot_positions, (4, 3), "reference foot positions")
+        if foot_velocities is not None:
+            self.foot_velocities[:] = _array(foot_velocities, (4, 3), "reference foot velocities")
+        if torque is not None:
+            self.torque[:] = _array(torque, (12,), "reference torque")
+
+    def copy(self) -> WholeBodyReference:
+        return WholeBodyReference(self.state, self.foot_positions, self.foot_velocities, self.torque)
+
+
+class WholeBodyKnotData(ActionData):
+    """Per-knot workspace: dynamics data (its ``x_next``/``Fx``/``Fu`` are this data's), foot kinematics,
+    base rotation, cost/constraint term data and the stacked barrier."""
+
+    def __init__(self, model: WholeBodyKnot) -> None:
+        super().__init__(model)
+        ndx, nu = model.state.ndx, model.nu
+        self.dynamics = model.dynamics.create_data() if model.dynamics is not None else None
+        if self.dynamics is not None:
+            self.x_next = self.dynamics.x_next
+            self.Fx = self.dynamics.Fx
+            self.Fu = self.dynamics.Fu
+        self.kinematics = model.kinematics.create_data()
+        self.base_rotation = np.eye(3)
+        self.cost_datas = [term.create_data(ndx, nu) for term in model.costs]
+        self.cost_values = np.zeros(len(model.costs))
+        """Unscaled ``0.5 r' W r`` of each cost term (diagnostics)."""
+        self.barrier = model.barrier.create_data()
+        self.constraint_datas = [
+            constraint.create_data(self.barrier.g[rows], ndx, nu)
+            for constraint, rows in zip(model.constraints, model.constraint_rows, strict=True)
+        ]
+        self.last_x = np.full(model.state.nx, np.nan)
+        self.last_u = np.full(nu, np.nan)
+        self.layout = model.layout
+
+    @property
+    def forces(self) -> np.ndarray:
+        """Stance-foot forces (world, 3 per stance foot in leg order) of the last ``calc``."""
+        return self.dynamics.forces if self.dynamics is not None else np.zeros(0)
+
+
+class WholeBodyKnot(ActionModel):
+    """Whole-body knot: ``x+ = f(x, tau)`` (Eqs. (19)-(23)), cost (18) and barrier-penalised (26), (27).
+
+    Args:
+        robot: the robot.
+        dynamics: the phase dynamics (sets ``nu = 12`` and the time step), or ``None`` for a terminal knot.
+        costs: cost terms (``cafe_mpc.ocp.costs``), summed and multiplied by ``dt`` on running knots.
+        constraints: inequality terms (``cafe_mpc.ocp.constraints``); ``eps B(g)``, times ``dt`` if running.
+        reference: this knot's mutable reference.
+        stance: stance flags of a terminal knot (a running knot takes the dynamics').
+    """
+
+    def __init__(
+        self,
+        robot: Robot,
+        dynamics: WholeBodyDynamics | None,
+        costs: Sequence[WholeBodyCostTerm],
+        constraints: Sequence[WholeBodyInequality],
+        reference: WholeBodyReference,
+        stance: Sequence[bool] | None = None,
+    ) -> None:
+        self.robot = robot
+        self.dynamics = dynamics
+        self.state = dynamics.state if dynamics is not None else MultibodyState(robot.model)
+        self.next_state = self.state
+        self.nu = dynamics.nu if dynamics is not None else 0
+        self.cost_scale = dynamics.dt if dynamics is not None else 1.0
+        if dynamics is not None:
+            self.stance = dynamics.stance
+            if stance is not None and as_contact_flags(stance) != dynamics.stance:
+                raise ValueError("stance flags differ from the dynamics' stance flags")
+        else:
+            if stance is None:
+                raise ValueError("a terminal whole-body knot needs its phase's stance flags")
+            self.stance = as_contact_flags(stance)
+        self.costs = tuple(costs)
+        self.constraints = tuple(constraints)
+        for term in (*self.costs, *self.constraints):
+            if dynamics is None and (
+                getattr(term, "needs_control", False) or getattr(term, "needs_forces", False)
+            ):
+                raise ValueError(f"term {term.name!r} needs a control/forces: not allowed on a terminal knot")
+            if getattr(term, "needs_forces", False) and term.n_contacts != dynamics.n_contacts:
+                raise ValueError(
+                    f"term {term.name!r} expects {term.n_contacts} contacts, "
+                    f"the dynamics has {dynamics.n_contacts}"
+                )
+        self.kinematics = FootKinematics(
+            robot,
+            position_legs=sorted({leg for term in self.costs for leg in term.position_legs}),
+            velocity_legs=sorted({leg for term in self.costs for leg in term.velocity_legs}),
+        )
+        rows, start = [], 0
+        for constraint in self.constraints:
+            rows.append(slice(start, start + constraint.dim))
+            start += constraint.dim
+        self.constraint_rows = tuple(rows)
+        self.barrier = BarrierStack(
+            np.concatenate([np.full(c.dim, c.barrier.delta) for c in self.constraints] or [np.zeros(0)]),
+            np.concatenate([np.full(c.dim, c.barrier.eps) for c in self.constraints] or [np.zeros(0)]),
+        )
+        self.layout = object()
+        """Identity token shared by every knot made from this one with ``with_reference``: a data object
+        created by one of them can be reused by any other (``data.layout is knot.layout``)."""
+        self._needs_rotation = any(
+            getattr(term, "base_error", "tangent") == "world" for term in self.costs
+        ) or any(constraint.name == "base_height" for constraint in self.constraints)
+        self.reference = self._check_reference(reference)
+
+    def _check_reference(self, reference: WholeBodyReference) -> WholeBodyReference:
+        if not isinstance(reference, WholeBodyReference):
+            raise ValueError(f"reference must be a WholeBodyReference, got {type(reference).__name__}")
+        if reference.state.shape != (self.state.nx,):
+            raise ValueError(
+                f"reference state must have shape ({self.state.nx},), got {reference.state.shape}"
+            )
+        return reference
+
+    def __repr__(self) -> str:
+        kind = f"dt={self.cost_scale}" if self.dynamics is not None else "terminal"
+        return f"WholeBodyKnot({flags_to_string(self.stance)}, {kind})"
+
+    @property
+    def is_terminal(self) -> bool:
+        return self.dynamics is None
+
+    def with_reference(self, reference: WholeBodyReference) -> WholeBodyKnot:
+        """A knot sharing everything with this one except the reference."""
+        knot = copy.copy(self)
+        knot.reference = self._check_reference(reference)
+        return knot
+
+    def create_data(self) -> WholeBodyKnotData:
+        return WholeBodyKnotData(self)
+
+    def _check_sizes(self, x: np.ndarray, u: np.ndarray) -> None:
+        if x.shape != (self.state.nx,):
+            raise ValueError(f"{self!r}: x must have shape ({self.state.nx},), got {x.shape}")
+        if u.shape != (self.nu,):
+            raise ValueError(f"{self!r}: u must have shape ({self.nu},), got {u.shape}")
+
+    def calc(self, data: WholeBodyKnotData, x: np.ndarray, u: np.ndarray) -> None:
+        self._check_sizes(x, u)
+        nq = self.state.nq
+        if self.dynamics is not None:
+            self.dynamics.calc(data.dynamics, x, u)
+        if self._needs_rotation:
+            data.base_rotation = pin.Quaternion(x[3:7]).toRotationMatrix()
+        if not self.kinematics.empty:
+            self.kinematics.calc(data.kinematics, x[:nq], x[nq:])
+        reference = self.reference
+        cost = 0.0
+        for index, (term, term_data) in enumerate(zip(self.costs, data.cost_datas, strict=True)):
+            value = term.calc(term_data, data, x, u, reference)
+            data.cost_values[index] = value
+            cost += value
+        cost *= self.cost_scale
+        if self.constraints:
+            for constraint, constraint_data in zip(self.constraints, data.constraint_datas, strict=True):
+                constraint.calc(constraint_data, data, x, u)
+            cost += self.cost_scale * self.barrier.evaluate(data.barrier)
+            data.constraint_violation = max(0.0, -float(data.barrier.g.min()))
+        else:
+            data.constraint_violation = 0.0
+        data.cost = cost
+        data.last_x[:] = x
+        data.last_u[:] = u
+
+    def calc_diff(self, data: WholeBodyKnotData, x: np.ndarray, u: np.ndarray) -> None:
+        if not (np.array_equal(x, data.last_x) and np.array_equal(u, data.last_u)):
+            self.calc(data, x, u)  # keep the forward pass consistent with (x, u)
+        nq = self.state.nq
+        if self.dynamics is not None:
+            self.dynamics.calc_diff(data.dynamics, x, u)
+        if not self.kinematics.empty:
+            self.kinematics.calc_diff(data.kinematics, x[:nq], x[nq:])
+        data.Lx.fill(0.0)
+        data.Lxx.fill(0.0)
+        if self.nu:
+            data.Lu.fill(0.0)
+            data.Luu.fill(0.0)
+            data.Lux.fill(0.0)
+        reference, scale = self.reference, self.cost_scale
+        for term, term_data in zip(self.costs, data.cost_datas, strict=True):
+            term.calc_diff(term_data, data, x, u, reference)
+            term.accumulate(term_data, data, scale)
+        barrier = data.barrier
+        for constraint, constraint_data, rows in zip(
+            self.constraints, data.constraint_datas, self.constraint_rows, strict=True
+        ):
+            constraint.calc_diff(constraint_data, data, x, u)
+            constraint.accumulate(constraint_data, data, barrier.d1[rows], barrier.d2[rows], scale)
+
+
+# --------------------------------------------------------------------------------------------------
+# SRB knot
+# --------------------------------------------------------------------------------------------------
+
+
+class SRBReference:
+    """Mutable per-knot reference and parameters of an SRB knot (updated in place).
+
+    ``state``: ``[c, quat, c_dot (world), omega (body)]`` (13); ``foot_positions``: world foot positions
+    (4 x 3, Raibert footholds; parameters of the dynamics); ``contacts``: stance flags as floats (4);
+    ``forces``: GRF regularisation target (12), by default ``weight / n_stance`` vertical on stance feet and
+    zero on swing feet (Eq. (28)).
+    """
+
+    __slots__ = ("contacts", "foot_positions", "forces", "state", "weight")
+
+    def __init__(
+        self,
+        state: np.ndarray,
+        foot_positions: np.ndarray,
+        contacts: Sequence[bool],
+        weight: float,
+        forces: np.ndarray | None = None,
+    ) -> None:
+        if not (math.isfinite(weight) and weight > 0):
+            raise ValueError(f"weight (m g) must be positive, got {weight}")
+        self.weight = float(weight)
+        self.state = _array(state, (13,), "SRB reference state").copy()
+        self.foot_positions = _array(foot_positions, (4, 3), "SRB foot positions").copy()
+        self.contacts = np.zeros(4)
+        self.forces = np.zeros(12)
+        self.set(contacts=contacts, forces=forces)
+
+    def set(
+        self,
+        state: np.ndarray | None = None,
+        foot_positions: np.ndarray | None = None,
+        contacts: Sequence[bool] | None = None,
+        forces: np.ndarray | None = None,
+    ) -> None:
+        """Overwrite the given parts in place. New ``contacts`` without ``forces`` reset the force target to
+        the weight split over the stance feet."""
+        if state is not None:
+            self.state[:] = _array(state, (13,), "SRB reference state")
+        if foot_positions is not None:
+            self.foot_positions[:] = _array(foot_positions, (4, 3), "SRB foot positions")
+        if contacts is not None:
+            self.contacts[:] = as_contact_flags(contacts, "SRB contact flags")
+            if forces is None:
+                self.forces[:] = weight_split_forces(self.contacts, self.weight)
+        if forces is not None:
+            self.forces[:] = _array(forces, (12,), "SRB reference forces")
+
+    @property
+    def contact_flags(self) -> ContactFlags:
+        return as_contact_flags(self.contacts > 0.5)
+
+
+def weight_split_forces(contacts: Sequence[float], weight: float) -> np.ndarray:
+    """``[0, 0, weight / n_stance]`` on each stance foot, zero on swing feet (12)."""
+    contacts = np.asarray(contacts, dtype=float)
+    forces = np.zeros((4, 3))
+    n_stance = float(contacts.sum())
+    if n_stance > 0:
+        forces[:, 2] = contacts * weight / n_stance
+    return forces.reshape(-1)
+
+
+class SRBKnotData(ActionData):
+    def __init__(self, model: SRBKnot) -> None:
+        super().__init__(model)
+        self.dynamics = model.dynamics.create_data() if model.dynamics is not None else None
+        if self.dynamics is not None:
+            self.x_next = self.dynamics.x_next
+            self.Fx = self.dynamics.Fx
+            self.Fu = self.dynamics.Fu
+        self.r = np.zeros(12)
+        self.weighted_r = np.zeros(12)
+        self.rotation_error = np.eye(3)
+        self.force_residual = np.zeros(12)
+        self.last_x = np.full(13, np.nan)
+        self.last_u = np.full(model.nu, np.nan)
+        self.layout = model.layout
+
+
+class SRBKnot(ActionModel):
+    """SRB knot: dynamics (29), (30), cost (28) (base tracking + GRF regularisation), no constraints.
+
+    The tracking residual is ``SRBState.difference(x_ref, x)`` = ``[c - c_ref, log3(R_ref' R), c_dot -
+    c_dot_ref, omega - omega_ref]``; the force residual ``u - forces_ref``. ``dynamics=None``: terminal knot
+    (``nu = 0``, tracking only, not scaled by a time step).
+    """
+
+    def __init__(self, dynamics: SRBDynamics | None, weights: SRBWeights, reference: SRBReference) -> None:
+        self.dynamics = dynamics
+        self.state = SRBState()
+        self.next_state = self.state
+        self.nu = 12 if dynamics is not None else 0
+        self.cost_scale = dynamics.dt if dynamics is not None else 1.0
+        self.weights = weights
+        self.state_weights = weights.state_weights()
+        self.force_weights = weights.force_weights() if dynamics is not None else np.zeros(12)
+        self._flat_diagonal_x = np.arange(12) * 13
+        self.layout = object()
+        """Shared by knots made with ``with_reference``; data with the same layout is interchangeable."""
+        self.reference = self._check_reference(reference)
+
+    @staticmethod
+    def _check_reference(reference: SRBReference) -> SRBReference:
+        if not isinstance(reference, SRBReference):
+            raise ValueError(f"reference must be an SRBReference, got {type(reference).__name__}")
+        return reference
+
+    def __repr__(self) -> str:
+        return f"SRBKnot({'dt=' + str(self.cost_scale) if self.dynamics is not None else 'terminal'})"
+
+    def with_reference(self, reference: SRBReference) -> SRBKnot:
+        knot = copy.copy(self)
+        knot.reference = self._check_reference(reference)
+        return knot
+
+    def create_data(self) -> SRBKnotData:
+        return SRBKnotData(self)
+
+    def calc(self, data: SRBKnotData, x: np.ndarray, u: np.ndarray) -> None:
+        if x.shape != (13,) or u.shape != (self.nu,):
+            raise ValueError(
+                f"{self!r}: x must have shape (13,) and u ({self.nu},), got {x.shape}, {u.shape}"
+            )
+        reference = self.reference
+        if self.dynamics is not None:
+            self.dynamics.calc(data.dynamics, x, u, reference.foot_positions, reference.contacts)
+        x_ref, r = reference.state, data.r
+        np.subtract(x[0:3], x_ref[0:3], out=r[0:3])
+        data.rotation_error = quaternion_to_rotation(x_ref[3:7]).T @ quaternion_to_rotation(x[3:7])
+        r[3:6] = pin.log3(data.rotation_error)
+        np.subtract(x[7:13], x_ref[7:13], out=r[6:12])
+        np.multiply(self.state_weights, r, out=data.weighted_r)
+        cost = 0.5 * float(np.dot(data.weighted_r, r))
+        if self.nu:
+            np.subtract(u, reference.forces, out=data.force_residual)
+            cost += 0.5 * float(np.dot(self.force_weights * data.force_residual, data.force_residual))
+        data.cost = self.cost_scale * cost
+        data.constraint_violation = 0.0
+        data.last_x[:] = x
+        data.last_u[:] = u
+
+    def calc_diff(self, data: SRBKnotData, x: np.ndarray, u: np.ndarray) -> None:
+        if not (np.array_equal(x, data.last_x) and np.array_equal(u, data.last_u)):
+            self.calc(data, x, u)
+        reference, scale = self.reference, self.cost_scale
+        if self.dynamics is not None:
+            self.dynamics.calc_diff(data.dynamics, x, u, reference.foot_positions, reference.contacts)
+        jlog = pin.Jlog3(data.rotation_error)
+        np.multiply(data.weighted_r, scale, out=data.Lx)
+        data.Lx[3:6] = scale * (jlog.T @ data.weighted_r[3:6])
+        data.Lxx.fill(0.0)
+        data.Lxx.reshape(-1)[self._flat_diagonal_x] = scale * self.state_weights
+        data.Lxx[3:6, 3:6] = jlog.T @ ((scale * self.state_weights[3:6])[:, None] * jlog)
+        if self.nu:
+            np.multiply(self.force_weights * scale, data.force_residual, out=data.Lu)
+            data.Luu.fill(0.0)
+            data.Luu.reshape(-1)[self._flat_diagonal_x] = scale * self.force_weights
+
+
+# --------------------------------------------------------------------------------------------------
+# Factories
+# --------------------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class WholeBodySettings:
+    """Everything that configures whole-body knots (settings facts defaults)."""
+
+    dt: float = 0.01
+    baumgarte_alpha: float = 10.0
+    integration: IntegrationScheme = "explicit"
+    contact_damping: float = 0.0
+    running_weights: WholeBodyWeights = field(default_factory=WholeBodyWeights.regular_running)
+    terminal_weights: WholeBodyWeights = field(default_factory=WholeBodyWeights.regular_terminal)
+    constraints: WholeBodyConstraintSettings = field(default_factory=WholeBodyConstraintSettings)
+    terminal_constraints: bool = True
+    """State-only inequalities (joint limits, joint speeds, base height) also on terminal knots."""
+    base_error: BaseError = "tangent"
+    """Base residual of the state-tracking cost (see ``StateTrackingCost``)."""
+    impact_on_all_stance_feet: bool = True
+    """Impact map constrains every post-switch stance foot (True) or only the new touchdowns (False)."""
+
+
+class WholeBodyModelFactory:
+    """Builds whole-body knots, reset maps, touchdown constraints and the WB -> SRB transition for a robot,
+    sharing dynamics and term objects between knots (cached per stance and time step)."""
+
+    def __init__(self, robot: Robot, settings: WholeBodySettings | None = None) -> None:
+        self.robot = robot
+        self.settings = settings or WholeBodySettings()
+        self.state = MultibodyState(robot.model)
+        self._dynamics: dict[tuple, WholeBodyDynamics] = {}
+        self._prototypes: dict[tuple, WholeBodyKnot] = {}
+        self._standing_feet = robot.foot_positions(robot.q_standing)
+
+    def default_reference(self, state: np.ndarray | None = None) -> WholeBodyReference:
+        """Standing state and standing foot positions, zero foot velocities and torque target."""
+        x_ref = self.robot.x_standing if state is None else self.state.check(state, "reference state")
+        return WholeBodyReference(x_ref, self._standing_feet)
+
+    def dynamics(self, stance: Sequence[bool], dt: float | None = None) -> WholeBodyDynamics:
+        stance = as_contact_flags(stance, "stance flags")
+        dt = self.settings.dt if dt is None else float(dt)
+        key = (stance, dt)
+        if key not in self._dynamics:
+            self._dynamics[key] = WholeBodyDynamics(
+                self.robot,
+                stance,
+                dt,
+                baumgarte_alpha=self.settings.baumgarte_alpha,
+                integration=self.settings.integration,
+                damping=self.settings.contact_damping,
+            )
+        return self._dynamics[key]
+
+    def _prototype(self, stance: ContactFlags, running: bool, dt: float | None) -> WholeBodyKnot:
+        key = (stance, running, dt)
+        if key not in self._prototypes:
+            settings = self.settings
+            weights = settings.running_weights if running else settings.terminal_weights
+            costs = whole_body_cost_terms(
+                self.robot.model, stance, weights, with_torque=running, base_error=settings.base_error
+            )
+            if running or settings.terminal_constraints:
+                constraints = whole_body_inequalities(self.robot, stance, settings.constraints, running)
+            else:
+                constraints = []
+            dynamics = self.dynamics(stance, dt) if running else None
+            self._prototypes[key] = WholeBodyKnot(
+                self.robot, dynamics, costs, constraints, self.default_reference(), stance=stance
+            )
+        return self._prototypes[key]
+
+    def running_knot(
+        self, stance: Sequence[bool], reference: WholeBodyReference | None = None, dt: float | None = None
+    ) -> WholeBodyKnot:
+        """A running knot of a phase with these stance flags (``dt`` defaults to the settings')."""
+        stance = as_contact_flags(stance, "stance flags")
+        dt = self.settings.dt if dt is None else float(dt)
+        return self._prototype(stance, True, dt).with_reference(reference or self.default_reference())
+
+    def terminal_knot(
+        self, stance: Sequence[bool], reference: WholeBodyReference | None = None
+    ) -> WholeBodyKnot:
+        """The terminal knot of a phase with these stance flags (``nu = 0``)."""
+        stance = as_contact_flags(stance, "stance flags")
+        return self._prototype(stance, False, None).with_reference(reference or self.default_reference())
+
+    def reset_map(self, stance_before: Sequence[bool], stance_after: Sequence[bool]) -> ResetMap:
+        """Impact map (22), (24) when a foot touches down, identity otherwise (take-off, Sec. IV-A-2)."""
+        before = as_contact_flags(stance_before, "stance before")
+        after = as_contact_flags(stance_after, "stance after")
+        touchdown = touchdown_flags(before, after)
+        if not any(touchdown):
+            return IdentityReset(self.state)
+        impact_feet = after if self.settings.impact_on_all_stance_feet else touchdown
+        return ImpactReset(self.robot, impact_feet, damping=self.settings.contact_damping)
+
+    def touchdown_constraint(
+        self, stance_before: Sequence[bool], stance_after: Sequence[bool], surface_height: float = 0.0
+    ) -> TouchdownFootHeight | None:
+        """Eq. (25) on the feet touching down at the switch (``None`` when none does)."""
+        touchdown = touchdown_flags(stance_before, stance_after)
+        if not any(touchdown):
+            return None
+        return TouchdownFootHeight(self.robot, touchdown, surface_height)
+
+    def transition_to_srb(
+        self, stance_before: Sequence[bool], stance_after: Sequence[bool], srb_state: SRBState | None = None
+    ) -> ResetMap:
+        """Eq. (31): the reset map of the switch (impact or identity) followed by the projection (32)."""
+        projection = WholeBodyToSRB(self.state, srb_state)
+        reset = self.reset_map(stance_before, stance_after)
+        if isinstance(reset, IdentityReset):
+            return projection
+        return ComposedReset(reset, projection)
+
+
+@dataclass(frozen=True)
+class SRBSettings:
+    """Configuration of SRB knots (settings facts defaults)."""
+
+    dt: float = 0.05
+    parameters: SRBParameters = field(default_factory=SRBParameters)
+    running_weights: SRBWeights = field(default_factory=SRBWeights.regular_running)
+    terminal_weights: SRBWeights = field(default_factory=SRBWeights.regular_terminal)
+
+
+class SRBModelFactory:
+    """Builds SRB knots sharing one ``SRBDynamics`` per time step (one prototype per running/terminal and
+    ``dt``; knots differ only by their reference)."""
+
+    def __init__(self, settings: SRBSettings | None = None) -> None:
+        self.settings = settings or SRBSettings()
+        self.state = SRBState()
+        self._dynamics: dict[float, SRBDynamics] = {}
+        self._prototypes: dict[tuple, SRBKnot] = {}
+        parameters = self.settings.parameters
+        self.weight = parameters.mass * parameters.gravity
+
+    def dynamics(self, dt: float | None = None) -> SRBDynamics:
+        dt = self.settings.dt if dt is None else float(dt)
+        if dt not in self._dynamics:
+            self._dynamics[dt] = SRBDynamics(self.settings.parameters, dt)
+        return self._dynamics[dt]
+
+    def reference(
+        self, state: np.ndarray, foot_positions: np.ndarray, contacts: Sequence[bool]
+    ) -> SRBReference:
+        return SRBReference(state, foot_positions, contacts, self.weight)
+
+    def _default_reference(self) -> SRBReference:
+        return SRBReference(self.state.zero(), np.zeros((4, 3)), (True, True, True, True), self.weight)
+
+    def running_knot(self, reference: SRBReference, dt: float | None = None) -> SRBKnot:
+        dt = self.settings.dt if dt is None else float(dt)
+        key = ("running", dt)
+        if key not in self._prototypes:
+            self._prototypes[key] = SRBKnot(
+                self.dynamics(dt), self.settings.running_weights, self._default_reference()
+            )
+        return self._prototypes[key].with_reference(reference)
+
+    def terminal_knot(self, reference: SRBReference) -> SRBKnot:
+        key = ("terminal",)
+        if key not in self._prototypes:
+            self._prototypes[key] = SRBKnot(None, self.settings.terminal_weights, self._default_reference())
+        return self._prototypes[key].with_reference(reference)

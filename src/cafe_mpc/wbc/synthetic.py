@@ -1,0 +1,65 @@
+"""Synthetic whole-body ``Plan``s around a static pose, for testing and benchmarking low-level controllers.
+
+The real plans come from the MS-iLQR MPC; these stand-ins have the same shapes and plausible numbers so
+that the Riccati controller (33) and the VWBC (34) can be exercised without running the MPC: a constant
+state ``x*`` (standing pose, zero velocity), the static stance torques (weight split equally over the
+stance feet) as ``tau*``, a random symmetric positive definite ``Quu``, and ``Qux = -Quu K`` for a gain ``K``
+that is a joint PD plus random base-error feedback (so ``K = -Quu^{-1} Qux`` as in Eq. (7)).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from cafe_mpc.mpc.plan import Plan
+from cafe_mpc.robots.robot import Robot
+from cafe_mpc.wbc.pd import static_stance_torques
+
+
+def synthetic_plan(
+    robot: Robot,
+    stance: np.ndarray | tuple[bool, ...] = (True, True, True, True),
+    knots: int = 8,
+    dt: float = 0.02,
+    seed: int = 0,
+    kp: float = 40.0,
+    kd: float = 1.0,
+    base_gain_scale: float = 5.0,
+    qu_scale: float = 0.0,
+    q: np.ndarray | None = None,
+    t0: float = 0.0,
+) -> Plan:
+    """A ``Plan`` of ``knots`` identical knots holding ``q`` (default: standing), feet in ``stance``."""
+    rng = np.random.default_rng(seed)
+    stance = np.asarray(stance, dtype=bool)
+    nu, nv = robot.nu, robot.nv
+    q = robot.q_standing if q is None else np.asarray(q, dtype=float)
+    x = np.concatenate([q, np.zeros(nv)])
+    tau = static_stance_torques(robot, q, stance)
+    Quu = np.empty((knots, nu, nu))
+    Qux = np.empty((knots, nu, 2 * nv))
+    K = np.empty((knots, nu, 2 * nv))
+    for k in range(knots):
+        L = rng.normal(size=(nu, nu)) / np.sqrt(nu)
+        Quu[k] = L @ L.T + 0.5 * np.eye(nu)
+        gain = np.zeros((nu, 2 * nv))
+        gain[:, 6:nv] = -kp * np.eye(nu)
+        gain[:, nv + 6 :] = -kd * np.eye(nu)
+        gain[:, :6] = base_gain_scale * rng.normal(size=(nu, 6))
+        gain[:, nv : nv + 6] = 0.1 * base_gain_scale * rng.normal(size=(nu, 6))
+        K[k] = gain
+        Qux[k] = -Quu[k] @ gain
+    forces = np.zeros((knots, 4, 3))
+    forces[:, stance, 2] = robot.total_mass * 9.81 / max(int(stance.sum()), 1)
+    return Plan(
+        times=t0 + dt * np.arange(knots),
+        xs=np.tile(x, (knots + 1, 1)),
+        us=np.tile(tau, (knots, 1)),
+        K=K,
+        Qu=qu_scale * rng.normal(size=(knots, nu)),
+        Quu=Quu,
+        Qux=Qux,
+        contacts=np.tile(stance, (knots, 1)),
+        forces=forces,
+        dt=np.full(knots, dt),
+    )

@@ -1,0 +1,457 @@
+"""Cost terms (18), constraints (25)-(27), the barrier stack and whole-body knots against finite
+differences."""
+
+from __future__ import annotations
+
+import numpy as np
+import pinocchio as pin
+import pytest
+
+from cafe_mpc.ocp.barrier import RelaxedBarrier
+from cafe_mpc.ocp.constraints import (
+    BarrierStack,
+    TouchdownFootHeight,
+    WholeBodyConstraintSettings,
+    friction_pyramid_matrix,
+)
+from cafe_mpc.ocp.costs import (
+    SRBWeights,
+    StateTrackingCost,
+    SwingFootPositionCost,
+    SwingFootVelocityCost,
+    TorqueRegularisationCost,
+    WholeBodyWeights,
+    base_weights_to_tangent,
+)
+from cafe_mpc.ocp.knots import WholeBodyKnot, WholeBodyModelFactory, WholeBodyReference, WholeBodySettings
+from cafe_mpc.robots.robot import load_robot
+
+EPS = 1e-6
+
+
+@pytest.fixture(scope="module")
+def robot():
+    return load_robot("mini_cheetah")
+
+
+@pytest.fixture(scope="module")
+def factory(robot):
+    return WholeBodyModelFactory(robot)
+
+
+def random_state(robot, rng, spread=0.3, speed=1.0):
+    q = pin.integrate(robot.model, robot.q_standing, spread * rng.standard_normal(robot.nv))
+    return np.concatenate([q, speed * rng.standard_normal(robot.nv)])
+
+
+def random_reference(robot, rng):
+    return WholeBodyReference(
+        random_state(robot, rng, spread=1.0),
+        foot_positions=rng.standard_normal((4, 3)),
+        foot_velocities=rng.standard_normal((4, 3)),
+        torque=rng.standard_normal(12),
+    )
+
+
+def knot_with_terms(robot, stance, costs=(), constraints=(), reference=None, running=True, factory=None):
+    factory = factory or WholeBodyModelFactory(robot)
+    dynamics = factory.dynamics(stance) if running else None
+    reference = reference or factory.default_reference()
+    return WholeBodyKnot(robot, dynamics, costs, constraints, reference, stance=stance)
+
+
+def fd_of(function, x, u, state, nu):
+    """Central differences of a vector function of (x, u) w.r.t. the tangent of x and u."""
+    base = np.atleast_1d(function(x, u))
+    jx = np.zeros((base.size, state.ndx))
+    ju = np.zeros((base.size, nu))
+    for i, e in enumerate(np.eye(state.ndx) * EPS):
+        jx[:, i] = (
+            np.atleast_1d(function(state.integrate(x, e), u))
+            - np.atleast_1d(function(state.integrate(x, -e), u))
+        ) / (2 * EPS)
+    for i, e in enumerate(np.eye(nu) * EPS):
+        ju[:, i] = (np.atleast_1d(function(x, u + e)) - np.atleast_1d(function(x, u - e))) / (2 * EPS)
+    return jx, ju
+
+
+# --------------------------------------------------------------------------------------------------
+# Weights
+# --------------------------------------------------------------------------------------------------
+
+
+def test_base_weight_mapping_to_tangent_order():
+    # facts order [x, y, z, yaw, pitch, roll] -> tangent [x, y, z, roll (about x), pitch (y), yaw (z)]
+    np.testing.assert_array_equal(base_weights_to_tangent([1, 2, 3, 4, 5, 6]), [1, 2, 3, 6, 5, 4])
+    weights = WholeBodyWeights.regular_running().state_weights()
+    np.testing.assert_array_equal(weights[:6], [0, 0, 10, 2, 2, 1])
+    np.testing.assert_array_equal(weights[6:18], 1.0)
+    np.testing.assert_array_equal(weights[18:24], [2, 2, 2, 2, 2, 1])
+    np.testing.assert_array_equal(weights[24:], 0.01)
+    np.testing.assert_array_equal(
+        SRBWeights().state_weights(), np.r_[[0, 0, 10, 2, 2, 1], [2, 2, 2, 2, 2, 1]]
+    )
+    with pytest.raises(ValueError):
+        WholeBodyWeights(base_position=(1, 2, 3))
+    with pytest.raises(ValueError):
+        WholeBodyWeights(torque=-1.0)
+
+
+# --------------------------------------------------------------------------------------------------
+# Cost-term residual Jacobians
+# --------------------------------------------------------------------------------------------------
+
+
+def term_residual_check(robot, knot, term_index, x, u):
+    term = knot.costs[term_index]
+    data = knot.create_data()
+
+    def residual(x_, u_):
+        knot.calc(data, x_, u_)
+        return data.cost_datas[term_index].r.copy()
+
+    jx, ju = fd_of(residual, x, u, knot.state, knot.nu)
+    knot.calc(data, x, u)
+    knot.calc_diff(data, x, u)
+    rx, ru = term.residual_jacobians(data.cost_datas[term_index])
+    np.testing.assert_allclose(rx, jx, atol=1e-6 * max(1.0, np.abs(jx).max()))
+    if knot.nu:
+        np.testing.assert_allclose(ru, ju, atol=1e-6)
+    # Gauss-Newton pieces of this term alone: Lx = Rx' W r dt, Lxx = Rx' W Rx dt.
+    scale = knot.cost_scale
+    r = data.cost_datas[term_index].r
+    np.testing.assert_allclose(data.Lx, scale * rx.T @ (term.weights * r), atol=1e-9)
+    np.testing.assert_allclose(data.Lxx, scale * rx.T @ (term.weights[:, None] * rx), atol=1e-9)
+    if knot.nu:
+        np.testing.assert_allclose(data.Lu, scale * ru.T @ (term.weights * r), atol=1e-9)
+        np.testing.assert_allclose(data.Luu, scale * ru.T @ (term.weights[:, None] * ru), atol=1e-9)
+        np.testing.assert_allclose(data.Lux, scale * ru.T @ (term.weights[:, None] * rx), atol=1e-9)
+
+
+@pytest.mark.parametrize("base_error", ["tangent", "world"])
+def test_state_tracking_residual(robot, base_error):
+    rng = np.random.default_rng(1)
+    weights = rng.uniform(0.5, 2.0, 36)
+    term = StateTrackingCost(robot.model, weights, base_error)
+    knot = knot_with_terms(robot, (1, 0, 0, 1), costs=[term], reference=random_reference(robot, rng))
+    term_residual_check(robot, knot, 0, random_state(robot, rng, 1.0), rng.standard_normal(12))
+
+
+def test_state_tracking_world_residual_meaning(robot):
+    """'world': position and linear-velocity errors are world-frame, whatever the orientations."""
+    rng = np.random.default_rng(2)
+    term = StateTrackingCost(robot.model, np.ones(36), "world")
+    reference = random_reference(robot, rng)
+    knot = knot_with_terms(robot, (1, 1, 1, 1), costs=[term], reference=reference, running=False)
+    data = knot.create_data()
+    x = random_state(robot, rng, 1.0)
+    knot.calc(data, x, np.zeros(0))
+    r = data.cost_datas[0].r
+    rotation = pin.Quaternion(x[3:7]).toRotationMatrix()
+    rotation_ref = pin.Quaternion(reference.state[3:7]).toRotationMatrix()
+    np.testing.assert_allclose(r[0:3], x[0:3] - reference.state[0:3])
+    np.testing.assert_allclose(r[18:21], rotation @ x[19:22] - rotation_ref @ reference.state[19:22])
+    np.testing.assert_allclose(pin.exp3(r[3:6]), rotation_ref.T @ rotation, atol=1e-12)
+
+
+def test_swing_foot_residuals(robot):
+    rng = np.random.default_rng(3)
+    legs = (1, 2)
+    reference = random_reference(robot, rng)
+    x, u = random_state(robot, rng, 1.0), rng.standard_normal(12)
+    position = SwingFootPositionCost(legs, rng.uniform(1, 3, 3), robot.nv)
+    velocity = SwingFootVelocityCost(legs, rng.uniform(1, 3, 12), robot.nv)
+    term_residual_check(
+        robot, knot_with_terms(robot, (1, 0, 0, 1), costs=[velocity], reference=reference), 0, x, u
+    )
+    knot = knot_with_terms(robot, (1, 0, 0, 1), costs=[position], reference=reference)
+    term_residual_check(robot, knot, 0, x, u)
+    # The residual is the world-frame foot position error.
+    data = knot.create_data()
+    knot.calc(data, x, u)
+    feet = robot.foot_positions(x[:19])
+    np.testing.assert_allclose(
+        data.cost_datas[0].r, (feet - knot.reference.foot_positions)[list(legs)].ravel()
+    )
+
+
+def test_torque_residual(robot):
+    rng = np.random.default_rng(4)
+    knot = knot_with_terms(
+        robot,
+        (1, 1, 1, 1),
+        costs=[TorqueRegularisationCost(rng.uniform(0.1, 1, 12))],
+        reference=random_reference(robot, rng),
+    )
+    term_residual_check(robot, knot, 0, random_state(robot, rng), rng.standard_normal(12))
+
+
+# --------------------------------------------------------------------------------------------------
+# Constraints
+# --------------------------------------------------------------------------------------------------
+
+
+def constraint_check(robot, knot, x, u):
+    data = knot.create_data()
+    for index, constraint in enumerate(knot.constraints):
+
+        def values(x_, u_, index=index):
+            knot.calc(data, x_, u_)
+            return data.constraint_datas[index].g.copy()
+
+        jx, ju = fd_of(values, x, u, knot.state, knot.nu)
+        knot.calc(data, x, u)
+        knot.calc_diff(data, x, u)
+        cd = data.constraint_datas[index]
+        np.testing.assert_allclose(cd.Gx, jx, atol=1e-6 * max(1.0, np.abs(jx).max()), err_msg=constraint.name)
+        if knot.nu:
+            np.testing.assert_allclose(
+                cd.Gu, ju, atol=1e-6 * max(1.0, np.abs(ju).max()), err_msg=constraint.name
+            )
+
+
+@pytest.mark.parametrize("stance", [(1, 1, 1, 1), (0, 1, 1, 0), (0, 0, 0, 0)])
+def test_inequality_jacobians(robot, factory, stance):
+    rng = np.random.default_rng(5)
+    knot = factory.running_knot(stance)
+    names = [c.name for c in knot.constraints]
+    assert ("friction" in names) == any(stance)
+    assert {"torque_limits", "joint_position_limits", "joint_velocity_limits", "base_height"} <= set(names)
+    constraint_check(robot, knot, random_state(robot, rng), 5.0 * rng.standard_normal(12))
+    terminal = factory.terminal_knot(stance)
+    assert {c.name for c in terminal.constraints} == {
+        "joint_position_limits",
+        "joint_velocity_limits",
+        "base_height",
+    }
+    constraint_check(robot, terminal, random_state(robot, rng), np.zeros(0))
+
+
+def test_friction_pyramid_values(robot, factory):
+    """Eq. (26) rows per stance foot: [fz, mu fz - fx, mu fz + fx, mu fz - fy, mu fz + fy]."""
+    knot = factory.running_knot((1, 0, 0, 1))
+    data = knot.create_data()
+    rng = np.random.default_rng(6)
+    x, u = random_state(robot, rng), rng.standard_normal(12)
+    knot.calc(data, x, u)
+    index = [c.name for c in knot.constraints].index("friction")
+    forces = data.forces.reshape(2, 3)
+    expected = np.concatenate([friction_pyramid_matrix(0.6) @ f for f in forces])
+    np.testing.assert_allclose(data.constraint_datas[index].g, expected)
+    fx, fy, fz = forces[0]
+    np.testing.assert_allclose(
+        data.constraint_datas[index].g[:5], [fz, 0.6 * fz - fx, 0.6 * fz + fx, 0.6 * fz - fy, 0.6 * fz + fy]
+    )
+
+
+def test_constraint_violation_is_reported(robot, factory):
+    knot = factory.running_knot((1, 1, 1, 1))
+    data = knot.create_data()
+    x = robot.x_standing.copy()
+    u = np.zeros(12)
+    u[4] = 17.0 + 3.0  # 3 Nm beyond the hip torque limit
+    knot.calc(data, x, u)
+    friction = data.constraint_datas[[c.name for c in knot.constraints].index("friction")].g
+    assert data.constraint_violation == pytest.approx(max(3.0, -friction.min()))
+    x[2] = 0.15  # 5 cm below the minimum base height; zero torque to isolate it
+    knot.calc(data, x, np.zeros(12))
+    friction = data.constraint_datas[[c.name for c in knot.constraints].index("friction")].g
+    assert data.constraint_violation == pytest.approx(max(0.05, -friction.min()))
+    assert np.isfinite(data.cost)
+
+
+def test_barrier_stack_matches_relaxed_barrier():
+    rng = np.random.default_rng(7)
+    deltas, eps = rng.uniform(0.05, 1.0, 40), rng.uniform(0.01, 0.2, 40)
+    stack = BarrierStack(deltas, eps)
+    data = stack.create_data()
+    data.g[:] = rng.uniform(-2.0, 3.0, 40)
+    data.g[:5] = deltas[:5]  # on the switch point
+    value = stack.evaluate(data)
+    reference_value, d1, d2 = RelaxedBarrier(deltas, eps).derivatives(data.g)
+    assert value == pytest.approx(reference_value, rel=1e-12)
+    np.testing.assert_allclose(data.d1, d1, rtol=1e-12)
+    np.testing.assert_allclose(data.d2, d2, rtol=1e-12)
+    # First derivative vs finite differences of the value.
+    g = data.g.copy()
+    for i in range(40):
+        data.g[:] = g
+        data.g[i] += EPS
+        plus = stack.evaluate(data)
+        data.g[i] -= 2 * EPS
+        minus = stack.evaluate(data)
+        assert (plus - minus) / (2 * EPS) == pytest.approx(d1[i], abs=1e-6)
+    assert (
+        BarrierStack(np.zeros(0), np.zeros(0)).evaluate(BarrierStack(np.zeros(0), np.zeros(0)).create_data())
+        == 0.0
+    )
+
+
+def test_touchdown_constraint(robot):
+    rng = np.random.default_rng(8)
+    constraint = TouchdownFootHeight(robot, (0, 1, 1, 0), surface_height=0.01)
+    data = constraint.create_data()
+    x = random_state(robot, rng)
+    constraint.calc(data, x)
+    feet = robot.foot_positions(x[:19])
+    np.testing.assert_allclose(data.value, feet[[1, 2], 2] - robot.foot_radius - 0.01)
+    constraint.calc_diff(data, x)
+    jx = np.zeros((2, 36))
+    for i, e in enumerate(np.eye(36) * EPS):
+        constraint.calc(data, constraint.state.integrate(x, e))
+        plus = data.value.copy()
+        constraint.calc(data, constraint.state.integrate(x, -e))
+        jx[:, i] = (plus - data.value) / (2 * EPS)
+    np.testing.assert_allclose(data.Hx, jx, atol=1e-7)
+    # Standing feet touch the floor: zero residual at the standing pose on a flat floor.
+    flat = TouchdownFootHeight(robot, (1, 1, 1, 1))
+    flat_data = flat.create_data()
+    flat.calc(flat_data, robot.x_standing)
+    np.testing.assert_allclose(flat_data.value, 0.0, atol=1e-9)
+    with pytest.raises(ValueError):
+        TouchdownFootHeight(robot, (0, 0, 0, 0))
+
+
+# --------------------------------------------------------------------------------------------------
+# Whole knots
+# --------------------------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("base_error", ["tangent", "world"])
+@pytest.mark.parametrize("stance", [(1, 1, 1, 1), (1, 0, 0, 1), (0, 0, 1, 0), (0, 0, 0, 0)])
+@pytest.mark.parametrize("terminal", [False, True])
+def test_knot_gradient_matches_finite_differences(robot, base_error, stance, terminal):
+    rng = np.random.default_rng(9)
+    factory = WholeBodyModelFactory(robot, WholeBodySettings(base_error=base_error))
+    reference = random_reference(robot, rng)
+    knot = factory.terminal_knot(stance, reference) if terminal else factory.running_knot(stance, reference)
+    data = knot.create_data()
+    x = random_state(robot, rng, 0.1, 0.5)
+    u = rng.standard_normal(knot.nu)
+
+    def cost(x_, u_):
+        knot.calc(data, x_, u_)
+        return data.cost
+
+    gx, gu = fd_of(cost, x, u, knot.state, knot.nu)
+    knot.calc(data, x, u)
+    knot.calc_diff(data, x, u)
+    np.testing.assert_allclose(data.Lx, gx[0], atol=1e-6 * max(1.0, np.abs(gx).max()))
+    if knot.nu:
+        np.testing.assert_allclose(data.Lu, gu[0], atol=1e-6 * max(1.0, np.abs(gu).max()))
+        np.testing.assert_allclose(data.Lux.shape, (12, 36))
+    for hessian in (data.Lxx, data.Luu) if knot.nu else (data.Lxx,):
+        np.testing.assert_allclose(hessian, hessian.T, atol=1e-12)
+        assert np.linalg.eigvalsh(hessian).min() > -1e-9  # Gauss-Newton: positive semi-definite
+
+
+def test_knot_hessian_is_gauss_newton_sum(robot, factory):
+    """Lxx/Luu/Lux = sum over cost terms of Rx' W Rx dt + sum over constraints of G' diag(eps B'') G dt."""
+    rng = np.random.default_rng(10)
+    knot = factory.running_knot((1, 0, 0, 1), random_reference(robot, rng))
+    data = knot.create_data()
+    x, u = random_state(robot, rng), rng.standard_normal(12)
+    knot.calc(data, x, u)
+    knot.calc_diff(data, x, u)
+    jacobian = np.zeros((0, 48))
+    weights = np.zeros(0)
+    for term, td in zip(knot.costs, data.cost_datas, strict=True):
+        rx, ru = term.residual_jacobians(td)
+        jacobian = np.vstack([jacobian, np.hstack([rx, ru])])
+        weights = np.concatenate([weights, term.weights])
+    for cd in data.constraint_datas:
+        jacobian = np.vstack([jacobian, np.hstack([cd.Gx, cd.Gu])])
+    weights = np.concatenate([weights, data.barrier.d2])
+    hessian = knot.cost_scale * jacobian.T @ (weights[:, None] * jacobian)
+    np.testing.assert_allclose(data.Lxx, hessian[:36, :36], atol=1e-9)
+    np.testing.assert_allclose(data.Luu, hessian[36:, 36:], atol=1e-9)
+    np.testing.assert_allclose(data.Lux, hessian[36:, :36], atol=1e-9)
+
+
+def test_running_cost_is_half_weighted_square_times_dt(robot):
+    factory = WholeBodyModelFactory(
+        robot, WholeBodySettings(constraints=WholeBodyConstraintSettings.unconstrained())
+    )
+    x_ref = robot.x_standing.copy()
+    knot = factory.running_knot((1, 1, 1, 1), factory.default_reference(x_ref))
+    data = knot.create_data()
+    x = x_ref.copy()
+    x[2] += 0.1  # base height error 0.1 m, z weight 10
+    u = np.full(12, 2.0)  # torque weight 0.1
+    knot.calc(data, x, u)
+    assert data.cost == pytest.approx(0.01 * 0.5 * (10 * 0.1**2 + 12 * 0.1 * 4.0))
+    assert data.constraint_violation == 0.0
+
+
+def test_reference_update_in_place(robot, factory):
+    """The MPC sets references per knot without rebuilding: the next calc sees them."""
+    knot = factory.running_knot((1, 1, 1, 1))
+    other = factory.running_knot((1, 1, 1, 1))
+    assert knot.dynamics is other.dynamics and knot.reference is not other.reference
+    data = knot.create_data()
+    x, u = robot.x_standing, np.zeros(12)
+    knot.calc(data, x, u)
+    before = data.cost
+    target = robot.x_standing.copy()
+    target[2] += 0.05
+    knot.reference.set(state=target)
+    knot.calc(data, x, u)
+    assert data.cost > before
+    other_data = other.create_data()
+    other.calc(other_data, x, u)
+    assert other_data.cost == pytest.approx(before)  # other knots untouched
+    with pytest.raises(ValueError):
+        knot.reference.set(state=np.zeros(36))
+    with pytest.raises(ValueError):
+        knot.reference.set(foot_positions=np.zeros((3, 3)))
+
+
+def test_knot_size_validation(robot, factory):
+    knot = factory.running_knot((1, 0, 0, 1))
+    data = knot.create_data()
+    with pytest.raises(ValueError):
+        knot.calc(data, np.zeros(36), np.zeros(12))
+    with pytest.raises(ValueError):
+        knot.calc(data, robot.x_standing, np.zeros(11))
+    terminal = factory.terminal_knot((1, 0, 0, 1))
+    assert terminal.nu == 0
+    with pytest.raises(ValueError):
+        terminal.calc(terminal.create_data(), robot.x_standing, np.zeros(12))
+    with pytest.raises(ValueError):
+        WholeBodyKnot(
+            robot,
+            None,
+            [TorqueRegularisationCost(np.ones(12))],
+            [],
+            factory.default_reference(),
+            (1, 1, 1, 1),
+        )
+    with pytest.raises(ValueError):
+        factory.running_knot((1, 0, 1))
+    with pytest.raises(ValueError):
+        factory.running_knot((1, 1, 1, 1), WholeBodyReference(np.zeros(13)))
+
+
+def test_calc_diff_recomputes_if_calc_was_at_another_point(robot, factory):
+    knot = factory.running_knot((1, 1, 0, 0))
+    rng = np.random.default_rng(11)
+    x1, x2, u = random_state(robot, rng), random_state(robot, rng), rng.standard_normal(12)
+    fresh = knot.create_data()
+    knot.calc(fresh, x2, u)
+    knot.calc_diff(fresh, x2, u)
+    stale = knot.create_data()
+    knot.calc(stale, x1, u)
+    knot.calc_diff(stale, x2, u)
+    np.testing.assert_allclose(stale.Fx, fresh.Fx)
+    np.testing.assert_allclose(stale.Lx, fresh.Lx)
+
+
+def test_knots_from_one_prototype_share_data_layout(robot, factory):
+    a = factory.running_knot((1, 0, 0, 1))
+    b = factory.running_knot((1, 0, 0, 1))
+    c = factory.running_knot((0, 1, 1, 0))
+    assert a.layout is b.layout and a.layout is not c.layout
+    data = a.create_data()
+    assert data.layout is b.layout
+    b.calc(data, robot.x_standing, np.zeros(12))  # reusable by b
+    assert np.isfinite(data.cost)

@@ -1,0 +1,262 @@
+"""Impact map (22), (24), WB -> SRB transition (31), (32) and SRB dynamics (29), (30)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pinocchio as pin
+import pytest
+
+from cafe_mpc.dynamics.impact import ImpactReset
+from cafe_mpc.dynamics.multibody_state import MultibodyState
+from cafe_mpc.dynamics.srb import SRBDynamics, SRBParameters, SRBState, quaternion_to_rotation
+from cafe_mpc.dynamics.transition import ComposedReset, WholeBodyToSRB
+from cafe_mpc.ocp.interfaces import IdentityReset
+from cafe_mpc.ocp.knots import SRBModelFactory, WholeBodyModelFactory, weight_split_forces
+from cafe_mpc.robots.robot import load_robot
+
+EPS = 1e-6
+
+
+@pytest.fixture(scope="module")
+def robot():
+    return load_robot("mini_cheetah")
+
+
+def random_wb_state(robot, rng, spread=0.3, speed=1.0):
+    q = pin.integrate(robot.model, robot.q_standing, spread * rng.standard_normal(robot.nv))
+    return np.concatenate([q, speed * rng.standard_normal(robot.nv)])
+
+
+def random_srb_state(rng):
+    state = SRBState()
+    x = state.integrate(state.zero(), rng.standard_normal(12))
+    x[2] = 0.3
+    return x
+
+
+def fd_reset_jacobian(reset, x):
+    data = reset.create_data()
+    source, target = reset.state, reset.next_state
+    reset.calc(data, x)
+    x_next = data.x_next.copy()
+    jacobian = np.zeros((target.ndx, source.ndx))
+    for i, e in enumerate(np.eye(source.ndx) * EPS):
+        reset.calc(data, source.integrate(x, e))
+        plus = target.difference(x_next, data.x_next)
+        reset.calc(data, source.integrate(x, -e))
+        minus = target.difference(x_next, data.x_next)
+        jacobian[:, i] = (plus - minus) / (2 * EPS)
+    return jacobian
+
+
+def analytic_reset_jacobian(reset, x):
+    data = reset.create_data()
+    reset.calc(data, x)
+    reset.calc_diff(data, x)
+    return data
+
+
+# --------------------------------------------------------------------------------------------------
+# Impact
+# --------------------------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("feet", [(1, 0, 0, 0), (1, 0, 0, 1), (0, 1, 1, 1), (1, 1, 1, 1)])
+def test_impact_stops_touching_feet_and_jacobian(robot, feet):
+    rng = np.random.default_rng(1)
+    reset = ImpactReset(robot, feet)
+    x = random_wb_state(robot, rng)
+    data = analytic_reset_jacobian(reset, x)
+    q, v_after = data.x_next[:19], data.x_next[19:]
+    np.testing.assert_array_equal(q, x[:19])  # Eq. (24): configuration unchanged
+    model, pd = robot.model, robot.model.createData()
+    pin.forwardKinematics(model, pd, q, v_after)
+    pin.computeJointJacobians(model, pd, q)
+    jacobians = []
+    for leg, frame_id in enumerate(robot.foot_frame_ids):
+        velocity = pin.getFrameVelocity(model, pd, frame_id, pin.LOCAL_WORLD_ALIGNED).linear
+        if feet[leg]:
+            np.testing.assert_allclose(velocity, 0.0, atol=1e-10)
+            jacobians.append(pin.getFrameJacobian(model, pd, frame_id, pin.LOCAL_WORLD_ALIGNED)[:3])
+        else:
+            assert np.linalg.norm(velocity) > 1e-3
+    # Eq. (22): M (v+ - v-) = Jc' Lambda.
+    mass_matrix = pin.crba(model, pd, q)
+    np.testing.assert_allclose(
+        mass_matrix @ (v_after - x[19:]), np.vstack(jacobians).T @ data.impulses, atol=1e-9
+    )
+    np.testing.assert_allclose(data.Px, fd_reset_jacobian(reset, x), atol=1e-6)
+
+
+def test_impact_requires_a_foot(robot):
+    with pytest.raises(ValueError):
+        ImpactReset(robot, (0, 0, 0, 0))
+    with pytest.raises(ValueError):
+        ImpactReset(robot, (1, 0, 0))
+
+
+def test_factory_reset_maps(robot):
+    factory = WholeBodyModelFactory(robot)
+    assert isinstance(factory.reset_map((1, 1, 1, 1), (1, 0, 0, 1)), IdentityReset)  # take-off
+    assert isinstance(factory.reset_map((0, 0, 0, 0), (0, 0, 0, 0)), IdentityReset)
+    impact = factory.reset_map((1, 0, 0, 1), (1, 1, 1, 1))
+    assert isinstance(impact, ImpactReset)
+    assert impact.impact_feet == (True, True, True, True)  # persistent stance feet constrained too
+    assert factory.touchdown_constraint((1, 0, 0, 1), (0, 1, 1, 0)).legs == (1, 2)
+    assert factory.touchdown_constraint((1, 1, 1, 1), (1, 0, 0, 1)) is None
+
+
+# --------------------------------------------------------------------------------------------------
+# WB -> SRB transition
+# --------------------------------------------------------------------------------------------------
+
+
+def test_transition_projection_and_jacobian(robot):
+    rng = np.random.default_rng(2)
+    projection = WholeBodyToSRB(MultibodyState(robot.model))
+    x = random_wb_state(robot, rng, spread=1.0)
+    data = analytic_reset_jacobian(projection, x)
+    rotation = quaternion_to_rotation(x[3:7])
+    np.testing.assert_allclose(data.x_next[:7], x[:7])
+    np.testing.assert_allclose(data.x_next[7:10], rotation @ x[19:22])  # world linear velocity
+    np.testing.assert_allclose(data.x_next[10:13], x[22:25])  # body angular velocity
+    np.testing.assert_allclose(data.Px, fd_reset_jacobian(projection, x), atol=1e-6)
+
+
+def test_transition_with_impact_jacobian(robot):
+    rng = np.random.default_rng(3)
+    factory = WholeBodyModelFactory(robot)
+    transition = factory.transition_to_srb((1, 0, 0, 1), (1, 1, 1, 1))
+    assert isinstance(transition, ComposedReset)
+    assert transition.next_state.nx == 13
+    x = random_wb_state(robot, rng)
+    data = analytic_reset_jacobian(transition, x)
+    np.testing.assert_allclose(data.Px, fd_reset_jacobian(transition, x), atol=1e-6)
+    assert isinstance(factory.transition_to_srb((1, 1, 1, 1), (1, 1, 1, 1)), WholeBodyToSRB)
+
+
+# --------------------------------------------------------------------------------------------------
+# SRB
+# --------------------------------------------------------------------------------------------------
+
+
+def test_srb_state_manifold():
+    state = SRBState()
+    rng = np.random.default_rng(4)
+    x0, x1 = random_srb_state(rng), random_srb_state(rng)
+    np.testing.assert_allclose(state.integrate(x0, state.difference(x0, x1)), x1, atol=1e-10)
+    j0, j1 = state.jacobian_difference(x0, x1)
+    dx = state.difference(x0, x1)
+    ji0, ji1 = state.jacobian_integrate(x0, dx)
+    base = state.integrate(x0, dx)
+    for i, e in enumerate(np.eye(12) * EPS):
+        d0 = state.difference(state.integrate(x0, e), x1) - state.difference(state.integrate(x0, -e), x1)
+        d1 = state.difference(x0, state.integrate(x1, e)) - state.difference(x0, state.integrate(x1, -e))
+        i0 = state.difference(base, state.integrate(state.integrate(x0, e), dx)) - state.difference(
+            base, state.integrate(state.integrate(x0, -e), dx)
+        )
+        i1 = state.difference(base, state.integrate(x0, dx + e)) - state.difference(
+            base, state.integrate(x0, dx - e)
+        )
+        np.testing.assert_allclose(j0[:, i], d0 / (2 * EPS), atol=1e-6)
+        np.testing.assert_allclose(j1[:, i], d1 / (2 * EPS), atol=1e-6)
+        np.testing.assert_allclose(ji0[:, i], i0 / (2 * EPS), atol=1e-6)
+        np.testing.assert_allclose(ji1[:, i], i1 / (2 * EPS), atol=1e-6)
+    # A full turn is representable: integrating 2*pi about x returns the same rotation.
+    turned = state.integrate(x0, np.r_[0, 0, 0, 2 * np.pi, 0, 0, np.zeros(6)])
+    np.testing.assert_allclose(state.difference(x0, turned), 0.0, atol=1e-9)
+
+
+@pytest.mark.parametrize("contacts", [(1, 1, 1, 1), (1, 0, 0, 1), (0, 0, 1, 0), (0, 0, 0, 0)])
+def test_srb_dynamics_jacobians(contacts):
+    rng = np.random.default_rng(5)
+    dynamics = SRBDynamics(dt=0.05)
+    data = dynamics.create_data()
+    state = dynamics.state
+    x, u = random_srb_state(rng), 20.0 * rng.standard_normal(12)
+    feet = rng.standard_normal((4, 3))
+    flags = np.asarray(contacts, dtype=float)
+    dynamics.calc(data, x, u, feet, flags)
+    x_next = data.x_next.copy()
+    dynamics.calc_diff(data, x, u, feet, flags)
+    fx, fu = np.zeros((12, 12)), np.zeros((12, 12))
+    for i, e in enumerate(np.eye(12) * EPS):
+        dynamics.calc(data, state.integrate(x, e), u, feet, flags)
+        plus = state.difference(x_next, data.x_next)
+        dynamics.calc(data, state.integrate(x, -e), u, feet, flags)
+        fx[:, i] = (plus - state.difference(x_next, data.x_next)) / (2 * EPS)
+        dynamics.calc(data, x, u + e, feet, flags)
+        plus = state.difference(x_next, data.x_next)
+        dynamics.calc(data, x, u - e, feet, flags)
+        fu[:, i] = (plus - state.difference(x_next, data.x_next)) / (2 * EPS)
+    np.testing.assert_allclose(data.Fx, fx, atol=1e-6)
+    np.testing.assert_allclose(data.Fu, fu, atol=1e-6)
+
+
+def test_srb_free_fall():
+    """Eq. (29) with no contact: c_ddot = -g, omega_dot = -I^-1 (omega x I omega) (zero for omega = 0)."""
+    dynamics = SRBDynamics(dt=0.05)
+    data = dynamics.create_data()
+    x = SRBState().zero()
+    x[2] = 1.0
+    x[7:10] = [0.5, 0.0, 1.0]
+    dynamics.calc(data, x, 100.0 * np.ones(12), np.zeros((4, 3)), np.zeros(4))  # swing forces do nothing
+    np.testing.assert_allclose(data.linear_acceleration, [0.0, 0.0, -9.81])
+    np.testing.assert_allclose(data.angular_acceleration, 0.0)
+    np.testing.assert_allclose(data.x_next[0:3], x[0:3] + 0.05 * x[7:10])
+    np.testing.assert_allclose(data.x_next[7:10], x[7:10] + 0.05 * np.array([0.0, 0.0, -9.81]))
+
+
+def test_srb_static_balance():
+    """Weight split over four feet placed symmetrically about the COM: no acceleration at all."""
+    parameters = SRBParameters()
+    dynamics = SRBDynamics(parameters, dt=0.05)
+    data = dynamics.create_data()
+    x = SRBState().zero()
+    x[0:3] = [0.1, -0.2, 0.25]
+    x[3:7] = pin.Quaternion(pin.rpy.rpyToMatrix(0.0, 0.0, 0.7)).coeffs()
+    feet = x[0:3] + np.array([[0.2, 0.1, -0.25], [0.2, -0.1, -0.25], [-0.2, 0.1, -0.25], [-0.2, -0.1, -0.25]])
+    forces = weight_split_forces(np.ones(4), parameters.mass * parameters.gravity)
+    dynamics.calc(data, x, forces, feet, np.ones(4))
+    np.testing.assert_allclose(data.linear_acceleration, 0.0, atol=1e-12)
+    np.testing.assert_allclose(data.angular_acceleration, 0.0, atol=1e-12)
+    np.testing.assert_allclose(data.x_next, x, atol=1e-12)
+
+
+def test_srb_parameters_validation():
+    with pytest.raises(ValueError):
+        SRBParameters(mass=0.0)
+    with pytest.raises(ValueError):
+        SRBParameters(inertia=((1.0, 0.0, 0.0), (0.0, -1.0, 0.0), (0.0, 0.0, 1.0)))
+    with pytest.raises(ValueError):
+        SRBDynamics(dt=0.0)
+
+
+@pytest.mark.parametrize("terminal", [False, True])
+def test_srb_knot_gradient(terminal):
+    rng = np.random.default_rng(6)
+    factory = SRBModelFactory()
+    reference = factory.reference(random_srb_state(rng), rng.standard_normal((4, 3)), (1, 0, 0, 1))
+    knot = factory.terminal_knot(reference) if terminal else factory.running_knot(reference)
+    data = knot.create_data()
+    state = knot.state
+    x, u = random_srb_state(rng), 10.0 * rng.standard_normal(knot.nu)
+    knot.calc(data, x, u)
+    knot.calc_diff(data, x, u)
+
+    def cost(x_, u_):
+        knot.calc(data, x_, u_)
+        return data.cost
+
+    gx = [
+        (cost(state.integrate(x, e), u) - cost(state.integrate(x, -e), u)) / (2 * EPS)
+        for e in np.eye(12) * EPS
+    ]
+    np.testing.assert_allclose(data.Lx, gx, atol=1e-6)
+    if not terminal:
+        gu = [(cost(x, u + e) - cost(x, u - e)) / (2 * EPS) for e in np.eye(12) * EPS]
+        np.testing.assert_allclose(data.Lu, gu, atol=1e-6)
+        np.testing.assert_allclose(np.diag(data.Luu), 0.05 * 0.01)
+    # Reference forces: weight / stance count on stance feet, zero on swing feet.
+    weight = factory.settings.parameters.mass * 9.81
+    np.testing.assert_allclose(reference.forces.reshape(4, 3)[:, 2], [weight / 2, 0, 0, weight / 2])

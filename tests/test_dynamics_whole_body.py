@@ -1,0 +1,334 @@
+"""Whole-body state manifold and KKT contact dynamics (paper Eqs. (19)-(23)) against finite differences,
+Crocoddyl and the MuJoCo plant."""
+
+from __future__ import annotations
+
+import itertools
+
+import numpy as np
+import pinocchio as pin
+import pytest
+
+from cafe_mpc.dynamics.multibody_state import MultibodyState
+from cafe_mpc.dynamics.whole_body import ContactDynamicsError, WholeBodyDynamics
+from cafe_mpc.robots.robot import load_robot
+
+ALL_STANCES = list(itertools.product((False, True), repeat=4))
+EPS = 1e-6
+
+
+@pytest.fixture(scope="module")
+def robot():
+    return load_robot("mini_cheetah")
+
+
+def random_state(robot, rng, spread=0.3, speed=1.0):
+    q = pin.integrate(robot.model, robot.q_standing, spread * rng.standard_normal(robot.nv))
+    return np.concatenate([q, speed * rng.standard_normal(robot.nv)])
+
+
+def fd_jacobians(dynamics, x, u):
+    """Central differences of x_next (tangent at x_next), forces w.r.t. the tangent of x and u."""
+    state, data = dynamics.state, dynamics.create_data()
+
+    def evaluate(x_, u_):
+        dynamics.calc(data, x_, u_)
+        return data.x_next.copy(), data.forces.copy()
+
+    x_next, forces = evaluate(x, u)
+    fx = np.zeros((state.ndx, state.ndx))
+    fu = np.zeros((state.ndx, dynamics.nu))
+    gx = np.zeros((forces.size, state.ndx))
+    gu = np.zeros((forces.size, dynamics.nu))
+    for i, e in enumerate(np.eye(state.ndx) * EPS):
+        xp, fp = evaluate(state.integrate(x, e), u)
+        xm, fm = evaluate(state.integrate(x, -e), u)
+        fx[:, i] = (state.difference(x_next, xp) - state.difference(x_next, xm)) / (2 * EPS)
+        gx[:, i] = (fp - fm) / (2 * EPS)
+    for i, e in enumerate(np.eye(dynamics.nu) * EPS):
+        xp, fp = evaluate(x, u + e)
+        xm, fm = evaluate(x, u - e)
+        fu[:, i] = (state.difference(x_next, xp) - state.difference(x_next, xm)) / (2 * EPS)
+        gu[:, i] = (fp - fm) / (2 * EPS)
+    return fx, fu, gx, gu
+
+
+# --------------------------------------------------------------------------------------------------
+# State manifold
+# --------------------------------------------------------------------------------------------------
+
+
+def test_multibody_state_round_trip_and_jacobians(robot):
+    state = MultibodyState(robot.model)
+    rng = np.random.default_rng(0)
+    x0, x1 = random_state(robot, rng, 1.0), random_state(robot, rng, 1.0)
+    assert (state.nx, state.ndx) == (37, 36)
+    np.testing.assert_allclose(state.integrate(x0, state.difference(x0, x1)), x1, atol=1e-10)
+    j0, j1 = state.jacobian_difference(x0, x1)
+    ji0, ji1 = state.jacobian_integrate(x0, state.difference(x0, x1))
+    fd0, fd1, fdi0, fdi1 = (np.zeros((36, 36)) for _ in range(4))
+    dx = state.difference(x0, x1)
+    for i, e in enumerate(np.eye(36) * EPS):
+        fd0[:, i] = (
+            state.difference(state.integrate(x0, e), x1) - state.difference(state.integrate(x0, -e), x1)
+        ) / (2 * EPS)
+        fd1[:, i] = (
+            state.difference(x0, state.integrate(x1, e)) - state.difference(x0, state.integrate(x1, -e))
+        ) / (2 * EPS)
+        base = state.integrate(x0, dx)
+        fdi0[:, i] = (
+            state.difference(base, state.integrate(state.integrate(x0, e), dx))
+            - state.difference(base, state.integrate(state.integrate(x0, -e), dx))
+        ) / (2 * EPS)
+        fdi1[:, i] = (
+            state.difference(base, state.integrate(x0, dx + e))
+            - state.difference(base, state.integrate(x0, dx - e))
+        ) / (2 * EPS)
+    for analytic, numeric in ((j0, fd0), (j1, fd1), (ji0, fdi0), (ji1, fdi1)):
+        np.testing.assert_allclose(analytic, numeric, atol=1e-6)
+
+
+def test_full_roll_is_representable(robot):
+    """A 2*pi roll is a tangent step of 2*pi about x: it integrates back to the same orientation (a
+    quaternion of sign -1) and the difference between the two is zero, no Euler-angle wrap."""
+    state = MultibodyState(robot.model)
+    x = robot.x_standing.copy()
+    step = np.zeros(36)
+    step[3] = 2 * np.pi
+    rolled = state.integrate(x, step)
+    np.testing.assert_allclose(np.abs(rolled[3:7]), np.abs(x[3:7]), atol=1e-12)
+    np.testing.assert_allclose(state.difference(x, rolled), 0.0, atol=1e-12)
+    half = state.integrate(x, step / 2)
+    assert np.linalg.norm(state.difference(x, half)[3:6]) == pytest.approx(np.pi, abs=1e-9)
+
+
+# --------------------------------------------------------------------------------------------------
+# Dynamics derivatives
+# --------------------------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("stance", ALL_STANCES, ids=lambda s: "".join(str(int(f)) for f in s))
+def test_dynamics_jacobians_match_finite_differences(robot, stance):
+    rng = np.random.default_rng(sum(2**i * s for i, s in enumerate(stance)))
+    dynamics = WholeBodyDynamics(robot, stance, dt=0.01)
+    data = dynamics.create_data()
+    x, u = random_state(robot, rng), 3.0 * rng.standard_normal(12)
+    fx, fu, gx, gu = fd_jacobians(dynamics, x, u)
+    dynamics.calc(data, x, u)
+    dynamics.calc_diff(data, x, u)
+    assert data.forces.shape == (3 * sum(stance),)
+    np.testing.assert_allclose(data.Fx, fx, atol=2e-6 * max(1.0, np.abs(fx).max()))
+    np.testing.assert_allclose(data.Fu, fu, atol=2e-6)
+    if sum(stance):
+        np.testing.assert_allclose(data.dforces_dx, gx, atol=2e-6 * max(1.0, np.abs(gx).max()))
+        np.testing.assert_allclose(data.dforces_du, gu, atol=2e-6 * max(1.0, np.abs(gu).max()))
+
+
+@pytest.mark.parametrize("stance", [(0, 0, 0, 0), (1, 0, 0, 0), (0, 1, 1, 0), (1, 1, 1, 1)])
+def test_semi_implicit_jacobians_match_finite_differences(robot, stance):
+    rng = np.random.default_rng(7)
+    dynamics = WholeBodyDynamics(robot, stance, dt=0.02, integration="semi_implicit")
+    data = dynamics.create_data()
+    x, u = random_state(robot, rng), 3.0 * rng.standard_normal(12)
+    fx, fu, _, _ = fd_jacobians(dynamics, x, u)
+    dynamics.calc(data, x, u)
+    dynamics.calc_diff(data, x, u)
+    np.testing.assert_allclose(data.Fx, fx, atol=2e-6 * max(1.0, np.abs(fx).max()))
+    np.testing.assert_allclose(data.Fu, fu, atol=2e-6)
+
+
+def test_explicit_and_semi_implicit_steps(robot):
+    """Eq. (23): q+ = q ⊕ v dt (explicit) vs q+ = q ⊕ v+ dt (semi-implicit); v+ = v + a dt in both."""
+    rng = np.random.default_rng(3)
+    x, u = random_state(robot, rng), rng.standard_normal(12)
+    explicit = WholeBodyDynamics(robot, (1, 0, 1, 0), 0.01)
+    semi = WholeBodyDynamics(robot, (1, 0, 1, 0), 0.01, integration="semi_implicit")
+    de, ds = explicit.create_data(), semi.create_data()
+    explicit.calc(de, x, u)
+    semi.calc(ds, x, u)
+    np.testing.assert_allclose(de.acceleration, ds.acceleration)
+    np.testing.assert_allclose(de.x_next[19:], x[19:] + 0.01 * de.acceleration)
+    np.testing.assert_allclose(de.x_next[:19], pin.integrate(robot.model, x[:19], 0.01 * x[19:]))
+    np.testing.assert_allclose(ds.x_next[:19], pin.integrate(robot.model, x[:19], 0.01 * ds.x_next[19:]))
+
+
+# --------------------------------------------------------------------------------------------------
+# Physics of the contact dynamics
+# --------------------------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("stance", [(1, 0, 0, 0), (1, 0, 0, 1), (1, 1, 1, 0), (1, 1, 1, 1)])
+def test_stance_feet_follow_baumgarte_and_equations_of_motion(robot, stance):
+    """Eq. (20): stance-foot acceleration = -alpha * foot velocity; Eq. (19): M a + n = S' tau + Jc' F."""
+    rng = np.random.default_rng(11)
+    alpha = 10.0
+    dynamics = WholeBodyDynamics(robot, stance, 0.01, baumgarte_alpha=alpha)
+    data = dynamics.create_data()
+    x, u = random_state(robot, rng), 2.0 * rng.standard_normal(12)
+    dynamics.calc(data, x, u)
+    model, pd = robot.model, robot.model.createData()
+    q, v, a = x[:19], x[19:], data.acceleration
+    pin.forwardKinematics(model, pd, q, v, a)
+    pin.computeJointJacobians(model, pd, q)
+    pin.updateFramePlacements(model, pd)
+    contact_jacobian = []
+    for leg, frame_id in enumerate(robot.foot_frame_ids):
+        if not stance[leg]:
+            continue
+        acceleration = pin.getFrameClassicalAcceleration(model, pd, frame_id, pin.LOCAL_WORLD_ALIGNED).linear
+        velocity = pin.getFrameVelocity(model, pd, frame_id, pin.LOCAL_WORLD_ALIGNED).linear
+        assert np.linalg.norm(velocity) > 1e-3  # non-trivial check
+        np.testing.assert_allclose(acceleration, -alpha * velocity, atol=1e-8)
+        contact_jacobian.append(pin.getFrameJacobian(model, pd, frame_id, pin.LOCAL_WORLD_ALIGNED)[:3])
+    tau = np.concatenate([np.zeros(6), u])
+    residual = pin.rnea(model, pd, q, v, a) - tau - np.vstack(contact_jacobian).T @ data.forces
+    np.testing.assert_allclose(residual, 0.0, atol=1e-8)
+
+
+def test_standing_forces_carry_the_weight(robot):
+    """At rest with gravity-compensating torques the four vertical forces sum to m g."""
+    dynamics = WholeBodyDynamics(robot, (1, 1, 1, 1), 0.01)
+    data = dynamics.create_data()
+    x = robot.x_standing
+    # Static torques: least-squares split of gravity over the four feet, joint torques from the statics.
+    model, pd = robot.model, robot.model.createData()
+    gravity = pin.computeGeneralizedGravity(model, pd, x[:19])
+    pin.computeJointJacobians(model, pd, x[:19])
+    jc = np.vstack(
+        [pin.getFrameJacobian(model, pd, f, pin.LOCAL_WORLD_ALIGNED)[:3] for f in robot.foot_frame_ids]
+    )
+    forces = np.linalg.lstsq(jc[:, :6].T, gravity[:6], rcond=None)[0]
+    tau = gravity[6:] - jc[:, 6:].T @ forces
+    dynamics.calc(data, x, tau)
+    np.testing.assert_allclose(data.acceleration, 0.0, atol=1e-8)
+    assert data.forces[2::3].sum() == pytest.approx(robot.total_mass * 9.81, rel=1e-9)
+
+
+def test_flight_is_free_floating(robot):
+    """No stance foot: the base centre of mass falls with -g whatever the joint torques."""
+    dynamics = WholeBodyDynamics(robot, (0, 0, 0, 0), 0.01)
+    data = dynamics.create_data()
+    rng = np.random.default_rng(5)
+    x, u = random_state(robot, rng), 5.0 * rng.standard_normal(12)
+    dynamics.calc(data, x, u)
+    model, pd = robot.model, robot.model.createData()
+    pin.centerOfMass(model, pd, x[:19], x[19:], data.acceleration)
+    np.testing.assert_allclose(pd.acom[0], [0.0, 0.0, -9.81], atol=1e-9)
+
+
+def test_damping_regularised_solution_matches_exact(robot):
+    rng = np.random.default_rng(9)
+    x, u = random_state(robot, rng), rng.standard_normal(12)
+    exact = WholeBodyDynamics(robot, (1, 1, 1, 1), 0.01)
+    damped = WholeBodyDynamics(robot, (1, 1, 1, 1), 0.01, damping=1e-8)
+    de, dd = exact.create_data(), damped.create_data()
+    exact.calc(de, x, u)
+    damped.calc(dd, x, u)
+    damped.calc_diff(dd, x, u)
+    np.testing.assert_allclose(dd.acceleration, de.acceleration, rtol=1e-6, atol=1e-6)
+    assert np.all(np.isfinite(dd.Fx))
+
+
+def test_non_finite_input_raises_instead_of_nan(robot):
+    dynamics = WholeBodyDynamics(robot, (1, 1, 0, 0), 0.01)
+    data = dynamics.create_data()
+    x = robot.x_standing.copy()
+    x[20] = np.nan
+    with pytest.raises(ContactDynamicsError):
+        dynamics.calc(data, x, np.zeros(12))
+
+
+@pytest.mark.parametrize(
+    "kwargs",
+    [
+        {"stance": (1, 1, 1)},
+        {"stance": (1, 1, 1, 1, 0)},
+        {"stance": (1, 2, 1, 1)},
+        {"stance": (1, 1, 1, 1), "dt": 0.0},
+        {"stance": (1, 1, 1, 1), "dt": float("nan")},
+        {"stance": (1, 1, 1, 1), "integration": "rk4"},
+        {"stance": (1, 1, 1, 1), "damping": -1.0},
+    ],
+)
+def test_invalid_construction_raises(robot, kwargs):
+    arguments = {"dt": 0.01, **kwargs}
+    with pytest.raises(ValueError):
+        WholeBodyDynamics(robot, **arguments)
+
+
+# --------------------------------------------------------------------------------------------------
+# Cross-checks with Crocoddyl and MuJoCo
+# --------------------------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("stance", [(0, 0, 0, 0), (1, 0, 0, 1), (1, 1, 1, 1)])
+def test_semi_implicit_matches_crocoddyl(robot, stance):
+    """Same problem as Crocoddyl's contact forward dynamics (ContactModel3D, LOCAL_WORLD_ALIGNED, gains
+    [0, alpha]) wrapped in IntegratedActionModelEuler: identical next state and Jacobians."""
+    crocoddyl = pytest.importorskip("crocoddyl")
+    state = crocoddyl.StateMultibody(robot.model)
+    actuation = crocoddyl.ActuationModelFloatingBase(state)
+    contacts = crocoddyl.ContactModelMultiple(state, actuation.nu)
+    for leg, frame_id in enumerate(robot.foot_frame_ids):
+        if stance[leg]:
+            contact = crocoddyl.ContactModel3D(
+                state, frame_id, np.zeros(3), pin.LOCAL_WORLD_ALIGNED, actuation.nu, np.array([0.0, 10.0])
+            )
+            contacts.addContact(robot.leg_names[leg], contact)
+    costs = crocoddyl.CostModelSum(state, actuation.nu)
+    if any(stance):
+        differential = crocoddyl.DifferentialActionModelContactFwdDynamics(state, actuation, contacts, costs)
+    else:
+        differential = crocoddyl.DifferentialActionModelFreeFwdDynamics(state, actuation, costs)
+    integrated = crocoddyl.IntegratedActionModelEuler(differential, 0.01)
+    croc_data = integrated.createData()
+    rng = np.random.default_rng(21)
+    x, u = random_state(robot, rng), 2.0 * rng.standard_normal(12)
+    integrated.calc(croc_data, x, u)
+    integrated.calcDiff(croc_data, x, u)
+    dynamics = WholeBodyDynamics(robot, stance, 0.01, integration="semi_implicit")
+    data = dynamics.create_data()
+    dynamics.calc(data, x, u)
+    dynamics.calc_diff(data, x, u)
+    np.testing.assert_allclose(data.x_next, croc_data.xnext, atol=1e-10)
+    np.testing.assert_allclose(data.Fx, croc_data.Fx, atol=1e-8)
+    np.testing.assert_allclose(data.Fu, croc_data.Fu, atol=1e-8)
+
+
+def test_free_fall_matches_mujoco_plant(robot):
+    """0.1 s of free flight at 1 ms (no armature, damping or friction in the plant): the planning model
+    and MuJoCo agree. MuJoCo's free joint: qpos [pos, quat wxyz], qvel [world linear, body angular]."""
+    mujoco = pytest.importorskip("mujoco")
+    plant = mujoco.MjModel.from_xml_string(robot.mjcf)
+    plant.dof_armature[:] = 0.0
+    plant.dof_damping[:] = 0.0
+    plant.dof_frictionloss[:] = 0.0
+    plant.opt.timestep = 0.001
+    plant_data = mujoco.MjData(plant)
+    rng = np.random.default_rng(4)
+    q0 = robot.q_standing.copy()
+    q0[2] = 2.0
+    q0[3:7] = pin.Quaternion(pin.rpy.rpyToMatrix(0.2, -0.1, 0.3)).coeffs()
+    v0 = np.concatenate([[0.3, -0.2, 0.5, 1.0, -0.5, 0.8], 0.5 * rng.standard_normal(12)])
+    rotation = pin.Quaternion(q0[3:7]).toRotationMatrix()
+    plant_data.qpos[:] = np.concatenate([q0[:3], [q0[6]], q0[3:6], q0[7:]])
+    plant_data.qvel[:] = np.concatenate([rotation @ v0[:3], v0[3:]])
+    for _ in range(100):
+        mujoco.mj_step(plant, plant_data)
+    assert plant_data.ncon == 0
+    q_plant = np.concatenate(
+        [plant_data.qpos[:3], plant_data.qpos[4:7], plant_data.qpos[3:4], plant_data.qpos[7:]]
+    )
+    rotation_plant = pin.Quaternion(q_plant[3:7]).toRotationMatrix()
+    v_plant = np.concatenate([rotation_plant.T @ plant_data.qvel[:3], plant_data.qvel[3:]])
+
+    for integration, tolerance in (("semi_implicit", 1e-4), ("explicit", 2e-3)):
+        dynamics = WholeBodyDynamics(robot, (0, 0, 0, 0), 0.001, integration=integration)
+        data = dynamics.create_data()
+        x = np.concatenate([q0, v0])
+        for _ in range(100):
+            dynamics.calc(data, x, np.zeros(12))
+            x = data.x_next.copy()
+        assert np.abs(pin.difference(robot.model, x[:19], q_plant)).max() < tolerance, integration
+        assert np.abs(x[19:] - v_plant).max() < 5e-3, integration
+        assert x[2] < q0[2] + 0.05  # it fell (upward initial speed 0.5 m/s is spent after ~0.05 s)

@@ -1,0 +1,32 @@
+"""The MS-iLQR solver reaches the same optimum as Crocoddyl's FDDP on the same whole-body problem."""
+
+import crocoddyl
+import numpy as np
+import pytest
+
+from cafe_mpc.bench.problems import STAND, TROT_CYCLE, whole_body_problem
+from cafe_mpc.robots.robot import load_robot
+from cafe_mpc.solver import MSiLQRSolver, SolverOptions, evaluate_trajectory
+
+
+@pytest.fixture(scope="module")
+def robot():
+    return load_robot("mini_cheetah")
+
+
+@pytest.mark.parametrize(("name", "phases"), [("stand", STAND), ("trot", TROT_CYCLE)])
+def test_same_cost_as_crocoddyl_fddp(robot, name, phases):
+    peer = whole_body_problem(robot, phases)
+    ours = MSiLQRSolver(SolverOptions(max_iterations=100)).solve(
+        peer.problem, peer.initial_xs, peer.initial_us
+    )
+    problem, xs, us = peer.crocoddyl(robot)
+    # the two problems agree at the initial guess (same costs and dynamics)
+    initial = evaluate_trajectory(peer.problem, peer.initial_xs, peer.initial_us)
+    assert initial.cost == pytest.approx(problem.calc(xs, us), rel=1e-9)
+    fddp = crocoddyl.SolverFDDP(problem)
+    assert fddp.solve(xs, us, 100, False)
+    assert ours.defect_max < 1e-6
+    assert ours.cost == pytest.approx(fddp.cost, rel=0.01)
+    # and they agree on the optimal first torque
+    assert np.allclose(ours.phases[0].us[0], fddp.us[0], atol=0.05)
