@@ -99,4 +99,6 @@ def crocoddyl_problem(
         state, actuation, contacts_for(previous or [True] * 4), terminal_costs, 0.0, True
     )
     terminal = crocoddyl.IntegratedActionModelEuler(terminal_differential, 0.0)
-    return crocoddyl.ShootingProblem(np.asarray(x0, dtype=float), running, terminal)
+    problem = crocoddyl.ShootingProblem(np.asarray(x0, dtype=float), running, terminal)
+    problem.nthreads = 1  # one core, as ours (Crocoddyl defaults to all cores with OpenMP)
+    return problem

@@ -35,7 +35,7 @@ def synthetic_plan(
     nu, nv = robot.nu, robot.nv
     q = robot.q_standing if q is None else np.asarray(q, dtype=float)
     x = np.concatenate([q, np.zeros(nv)])
-    tau = static_stance_torques(robot, q, stance)
+    tau = static_stance_torques(robot, q, stance) if stance.any() else np.zeros(nu)  # flight: no support
     Quu = np.empty((knots, nu, nu))
     Qux = np.empty((knots, nu, 2 * nv))
     K = np.empty((knots, nu, 2 * nv))

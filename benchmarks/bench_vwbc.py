@@ -1,0 +1,131 @@
+"""Benchmark of the VWBC QP (34): solve time per tick and solver iterations with and without warm start.
+
+Synthetic plans (``cafe_mpc.wbc.synthetic``) around the standing pose with all four feet in stance
+(``standing``) and with a diagonal pair in stance (``trot``, FL + HR); the state drifts a little from tick
+to tick (configuration random walk + noisy velocity), as consecutive 500 Hz ticks do. ``disturbed`` is the
+standing plan with ten times the velocity noise, so that friction-pyramid constraints become active.
+
+For every solver (ProxQP always, DAQP when installed) and warm-start mode: the histogram of iterations,
+the median / 99th percentile of the solver call and of the whole tick (assembly + solve) in ms, the share
+of one-iteration ticks and fallbacks. ProxQP counts proximal augmented-Lagrangian iterations, DAQP counts
+active-set changes (comparable to the paper's qpOASES numbers). The Riccati controller (33) is scored on
+the same states for friction-pyramid violations.
+
+    .venv/bin/python benchmarks/bench_vwbc.py [--ticks 400] [--json]
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib.util
+import json
+import platform
+import sys
+
+import numpy as np
+import pinocchio as pin
+
+from cafe_mpc.robots.robot import load_robot
+from cafe_mpc.wbc.riccati import RiccatiController
+from cafe_mpc.wbc.synthetic import synthetic_plan
+from cafe_mpc.wbc.vwbc import FrictionConeScorer, VWBCController, VWBCSettings
+
+SCENARIOS = {
+    "standing": {"stance": (True, True, True, True), "v_scale": 0.03},
+    "trot": {"stance": (True, False, False, True), "v_scale": 0.03},
+    "disturbed": {"stance": (True, True, True, True), "v_scale": 0.3},
+}
+MODES = {"proxqp": ("plan", "previous", "equality", "none"), "daqp": ("plan", "previous", "none")}
+
+
+def states(robot, ticks: int, v_scale: float, seed: int = 0):
+    """Nearby measured states: slowly drifting configuration error, noisy (low-passed) velocity."""
+    rng = np.random.default_rng(seed)
+    dq, v = np.zeros(robot.nv), np.zeros(robot.nv)
+    for _ in range(ticks):
+        dq = 0.98 * dq + 0.002 * rng.normal(size=robot.nv)
+        v = 0.9 * v + v_scale * rng.normal(size=robot.nv)
+        yield pin.integrate(robot.model, robot.q_standing, dq), v.copy()
+
+
+def run(robot, plan, scenario: dict, solver: str, mode: str, ticks: int) -> dict:
+    vwbc = VWBCController(robot, VWBCSettings(solver=solver, warm_start=mode))
+    vwbc.set_plan(plan)
+    for i, (q, v) in enumerate(states(robot, ticks, scenario["v_scale"])):
+        vwbc.compute(0.002 * i, q, v)
+    stats = vwbc.statistics()
+    histogram = stats["qp_iterations_histogram"]
+    total = sum(histogram.values())
+    return {
+        "solver": stats["solver"],
+        "warm_start": mode,
+        "iterations_histogram": {str(k): n for k, n in histogram.items()},
+        "iterations_mean": sum(k * n for k, n in histogram.items()) / total,
+        "one_iteration_share": histogram.get(1, 0) / total,
+        "at_most_3_iterations_share": sum(n for k, n in histogram.items() if k <= 3) / total,
+        "solve_ms_median": stats["qp_solve_time_ms_median"],
+        "solve_ms_p99": stats["qp_solve_time_ms_p99"],
+        "tick_ms_median": stats["tick_time_ms_median"],
+        "tick_ms_p99": stats["tick_time_ms_p99"],
+        "fallbacks": stats["fallbacks"],
+        "friction_cone_violations": stats["friction_cone_violations"],
+    }
+
+
+def riccati_violations(robot, plan, scenario: dict, ticks: int) -> int:
+    riccati = RiccatiController(robot)
+    riccati.set_plan(plan)
+    scorer = FrictionConeScorer(robot)
+    stance = np.array(scenario["stance"])
+    for i, (q, v) in enumerate(states(robot, ticks, scenario["v_scale"])):
+        scorer.score(q, v, riccati.compute(0.002 * i, q, v), stance)
+    return scorer.violations
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--ticks", type=int, default=400, help="ticks per run (default 400)")
+    parser.add_argument("--json", action="store_true", help="print the results as JSON")
+    args = parser.parse_args(argv)
+    robot = load_robot("mini_cheetah")
+    solvers = ["proxqp"] + (["daqp"] if importlib.util.find_spec("daqp") else [])
+    results: dict = {
+        "machine": {"python": platform.python_version(), "processor": platform.machine()},
+        "ticks": args.ticks,
+        "scenarios": {},
+    }
+    for name, scenario in SCENARIOS.items():
+        plan = synthetic_plan(robot, stance=np.array(scenario["stance"]), knots=20, seed=1)
+        runs = [run(robot, plan, scenario, s, m, args.ticks) for s in solvers for m in MODES[s]]
+        results["scenarios"][name] = {
+            "stance": list(scenario["stance"]),
+            "velocity_noise": scenario["v_scale"],
+            "riccati_friction_cone_violations": riccati_violations(robot, plan, scenario, args.ticks),
+            "runs": runs,
+        }
+    if args.json:
+        json.dump(results, sys.stdout, indent=2)
+        print()
+        return 0
+    for name, scenario in results["scenarios"].items():
+        print(
+            f"\n{name}: stance {scenario['stance']}, velocity noise {scenario['velocity_noise']}, "
+            f"{args.ticks} ticks; Riccati cone violations {scenario['riccati_friction_cone_violations']}"
+        )
+        print(
+            f"  {'solver':<30} {'warm':<9} {'iter mean':>9} {'1 it':>6} {'<=3':>6} "
+            f"{'solve med/p99 ms':>17} {'tick med/p99 ms':>16} {'fb':>3} {'cone':>4}  histogram"
+        )
+        for r in scenario["runs"]:
+            print(
+                f"  {r['solver']:<30} {r['warm_start']:<9} {r['iterations_mean']:9.2f} "
+                f"{r['one_iteration_share']:6.1%} {r['at_most_3_iterations_share']:6.1%} "
+                f"{r['solve_ms_median']:8.3f}/{r['solve_ms_p99']:.3f} "
+                f"{r['tick_ms_median']:7.3f}/{r['tick_ms_p99']:.3f} {r['fallbacks']:3d} "
+                f"{r['friction_cone_violations']:4d}  {r['iterations_histogram']}"
+            )
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

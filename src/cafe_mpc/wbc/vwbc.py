@@ -1,0 +1,669 @@
+"""Value-function whole-body controller (VWBC, paper Sec. V-A, Eq. (34)): the Riccati policy (33) in a QP.
+
+At each low-level tick (500 Hz) the VWBC solves
+
+    min_{qdd, tau, F}  Q_k(x ⊖ x*_k, tau - tau*_k)                                   (34a)
+    s.t.  M(q) qdd + h(q, v) = S' tau + Jc' F                                          (34b)
+          Jc qdd + Jcdot v = -alpha Jc v        (feet in the stance set C)              (34c)
+          -tau_lim <= tau <= tau_lim                                                    (34d)
+          Fz >= 0                                                                       (34e)
+          |Fx|, |Fy| <= mu Fz                   (inner friction pyramid)                (34f)
+
+with ``Q_k(dx, dtau) = 0.5 dtau' Quu dtau + dtau' (Qux dx + Qu)`` (the dx-only terms of the action-value
+function (6) are constant in the QP and dropped). ``k`` is the plan knot closest in time and ``dx = x ⊖ x*_k``
+uses the Riccati controller's convention (``pin.difference(q*, q)``, ``v - v*``). Without the inequality
+constraints the dynamics (34b)-(34c) determine ``qdd`` and ``F`` from ``tau``, so the minimiser is the
+unconstrained policy (7) ``tau* - Quu^{-1} (Qux dx + Qu)`` (with ``Qu = 0`` exactly the Riccati torque (33)).
+The QP is therefore strictly convex on its feasible set although its Hessian is singular in ``qdd`` and
+``F``; no regularisation is added by default (``VWBCSettings.regularization`` adds ``0.5 eps |(qdd, F)|^2``
+if a solver ever needs it — it biases the solution away from (7)).
+
+Contacts: Jacobians and forces are expressed in ``LOCAL_WORLD_ALIGNED`` at the foot frames (forces are the
+world-frame ground reaction forces, as in ``Plan.forces``); ``Jcdot v`` is the classical foot acceleration
+at zero joint acceleration. The stance set ``C`` is the plan knot's contact flags (the paper's choice);
+``VWBCSettings.stance_source = "intersect"`` uses the feet that are planned *and* measured in contact.
+
+Solvers: one preallocated solver object and matrix set per stance pattern (sizes change with the number of
+stance feet). ProxQP (``proxsuite.proxqp.dense``, default) solves (34) as written; it is a proximal
+augmented-Lagrangian method, so its iteration counts are *not* the active-set counts the paper reports for
+qpOASES, and its own equality-constrained initial guess beats a primal warm start by about one iteration
+(measured in ``benchmarks/bench_vwbc.py``). DAQP (optional, ``solver="daqp"``), a dual active-set method
+like qpOASES, solves the same QP condensed onto ``tau`` (``qdd`` and ``F`` are affine in ``tau`` through the
+KKT system of (34b)-(34c)); its iterations are active-set changes. Warm start (paper end of Sec. V-A): the
+plan's ``[(v*_{k+1} - v*_k) / dt_k, tau*_k, F*_k]`` or the previous tick's solution.
+
+Fallback (when the QP is not solved, returns non-finite numbers or, optionally, exceeds a wall-clock
+budget): the clamped Riccati feedback ``tau*_k + K_k dx`` (33). The controller never returns NaN.
+
+Friction-cone scoring: ``contact_forces_for_torque`` gives the contact forces that a torque implies through
+the same contact dynamics (34b)-(34c) (KKT system, ``pin.forwardDynamics``), so a Riccati controller and the
+VWBC can be scored the same way (``FrictionConeScorer``). For a solved QP these forces equal its ``F``.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections import Counter
+from dataclasses import dataclass
+from typing import Literal
+
+import numpy as np
+import pinocchio as pin
+import proxsuite
+
+from cafe_mpc.mpc.plan import Plan
+from cafe_mpc.robots.robot import Robot
+
+WarmStart = Literal["plan", "previous", "equality", "none"]
+StanceSource = Literal["plan", "intersect"]
+Solver = Literal["proxqp", "daqp"]
+
+_PROXQP = proxsuite.proxqp
+_INITIAL_GUESS = {
+    "plan": _PROXQP.InitialGuess.WARM_START,
+    "previous": _PROXQP.InitialGuess.WARM_START,
+    "equality": _PROXQP.InitialGuess.EQUALITY_CONSTRAINED_INITIAL_GUESS,
+    "none": _PROXQP.InitialGuess.NO_INITIAL_GUESS,
+}
+_SOLVED = _PROXQP.QPSolverOutput.PROXQP_SOLVED
+#: Real-time budget of one 500 Hz tick's QP (ms); slower solves are always counted, and trigger the
+#: fallback only if ``VWBCSettings.time_budget_ms`` is set.
+REAL_TIME_BUDGET_MS = 2.0
+
+
+@dataclass
+class VWBCSettings:
+    """Parameters of the VWBC QP (34) and its solver.
+
+    ``solver``: ``"proxqp"`` (ProxQP on (34) as is; the project's dependency) or ``"daqp"`` (DAQP, a dual
+    active-set solver, on (34) condensed onto ``tau``; optional package).
+    ``warm_start``: ``"plan"`` (guess from the plan, the paper's choice: for ProxQP the primal
+    ``[qdd_fd, tau*, F*]`` with zero multipliers, for DAQP the constraints active at ``tau*``),
+    ``"previous"`` (previous tick's solution — ProxQP primal-dual, DAQP working set — when the stance
+    pattern is unchanged, else the plan guess), ``"equality"`` (ProxQP's default initial guess: the
+    equality-constrained QP's solution; for DAQP the same as ``"none"``) or ``"none"`` (cold start: ProxQP
+    from zero, DAQP from the empty working set).
+    ``time_budget_ms``: if set, a tick whose assembly + solve took longer falls back to the Riccati
+    torque. Off by default because a wall-clock rule makes simulated runs depend on machine load; slow
+    ticks (over ``REAL_TIME_BUDGET_MS``) are counted either way.
+    """
+
+    mu: float = 0.6
+    alpha: float = 10.0
+    solver: Solver = "proxqp"
+    warm_start: WarmStart = "plan"
+    stance_source: StanceSource = "plan"
+    eps_abs: float = 1e-6
+    eps_rel: float = 0.0
+    max_iter: int = 200
+    regularization: float = 0.0  # on qdd and F (ProxQP only; DAQP's condensed QP has no qdd, F)
+    time_budget_ms: float | None = None
+    cone_tolerance: float = 1e-3  # N; a force further than this outside the pyramid counts as a violation
+
+    def __post_init__(self) -> None:
+        if self.warm_start not in _INITIAL_GUESS:
+            raise ValueError(f"warm_start must be one of {sorted(_INITIAL_GUESS)}, got {self.warm_start!r}")
+        if self.solver not in ("proxqp", "daqp"):
+            raise ValueError(f"solver must be 'proxqp' or 'daqp', got {self.solver!r}")
+        if self.stance_source not in ("plan", "intersect"):
+            raise ValueError(f"stance_source must be 'plan' or 'intersect', got {self.stance_source!r}")
+        if not self.mu > 0 or self.alpha < 0 or self.regularization < 0:
+            raise ValueError("VWBC needs mu > 0, alpha >= 0 and regularization >= 0")
+        if not self.eps_abs > 0 or self.max_iter < 1:
+            raise ValueError("VWBC needs eps_abs > 0 and max_iter >= 1")
+        if self.time_budget_ms is not None and not self.time_budget_ms > 0:
+            raise ValueError(f"time_budget_ms must be positive or None, got {self.time_budget_ms}")
+
+
+def friction_cone_violation(forces: np.ndarray, mu: float) -> float:
+    """Largest violation (N) of ``Fz >= 0`` and ``|Fx|, |Fy| <= mu Fz`` (34e)-(34f) over rows of ``forces``.
+
+    ``forces`` is ``(n, 3)``; returns 0 for an empty set or forces inside the pyramid.
+    """
+    if len(forces) == 0:
+        return 0.0
+    fz = forces[:, 2]
+    worst = max(
+        float(np.max(-fz)),
+        float(np.max(np.abs(forces[:, 0]) - mu * fz)),
+        float(np.max(np.abs(forces[:, 1]) - mu * fz)),
+    )
+    return max(worst, 0.0)
+
+
+class ContactDynamicsTerms:
+    """Pinocchio terms of the contact dynamics (34b)-(34c) at ``(q, v)``; preallocated, reused per tick.
+
+    After ``compute(q, v, stance)``: ``M`` (symmetric), ``h`` (Coriolis + gravity), ``Jc`` (``3 nc x nv``,
+    linear foot Jacobians in ``LOCAL_WORLD_ALIGNED``) and ``drift = Jcdot v + alpha Jc v`` (so that (34c)
+    reads ``Jc qdd = -drift``), for the stance feet in leg order.
+    """
+
+    def __init__(self, robot: Robot, alpha: float = 10.0) -> None:
+        self.robot = robot
+        self.model = robot.model
+        self.data = robot.model.createData()
+        self.alpha = float(alpha)
+        nv = self.model.nv
+        self.M = np.zeros((nv, nv))
+        self.h = np.zeros(nv)
+        self._J_all = np.zeros((12, nv))
+        self._drift_all = np.zeros(12)
+        self._zero_a = np.zeros(nv)
+        self._lower = np.tril_indices(nv, -1)
+        self.Jc = self._J_all[:0]
+        self.drift = self._drift_all[:0]
+
+    def compute(self, q: np.ndarray, v: np.ndarray, stance: np.ndarray) -> None:
+        model, data = self.model, self.data
+        self.M[:] = pin.crba(model, data, q)  # symmetric in pin 4 Python; mirror in case only triu is set
+        self.M[self._lower] = self.M.T[self._lower]
+        self.h[:] = pin.nonLinearEffects(model, data, q, v)
+        pin.computeJointJacobians(model, data, q)
+        pin.forwardKinematics(model, data, q, v, self._zero_a)
+        pin.updateFramePlacements(model, data)
+        row = 0
+        for foot, frame_id in enumerate(self.robot.foot_frame_ids):
+            if not stance[foot]:
+                continue
+            J = self._J_all[row : row + 3]
+            J[:] = pin.getFrameJacobian(model, data, frame_id, pin.LOCAL_WORLD_ALIGNED)[:3]
+            accel = pin.getFrameClassicalAcceleration(model, data, frame_id, pin.LOCAL_WORLD_ALIGNED)
+            self._drift_all[row : row + 3] = accel.linear + self.alpha * (J @ v)
+            row += 3
+        self.Jc = self._J_all[:row]
+        self.drift = self._drift_all[:row]
+
+
+def contact_forces_for_torque(
+    robot: Robot,
+    q: np.ndarray,
+    v: np.ndarray,
+    tau: np.ndarray,
+    stance: np.ndarray,
+    alpha: float = 10.0,
+    terms: ContactDynamicsTerms | None = None,
+) -> np.ndarray:
+    """World-frame contact forces (4 x 3, zero rows for swing feet) implied by joint torques ``tau``.
+
+    Solves the KKT system of the contact dynamics (34b)-(34c) (``pin.forwardDynamics`` with the stance-foot
+    Jacobian and drift ``Jcdot v + alpha Jc v``) — the forces the plant would need for the feet to follow the
+    stabilised no-slip constraint. Used to score any controller's torque against the friction cone.
+    """
+    stance = np.asarray(stance, dtype=bool)
+    forces = np.zeros((4, 3))
+    if not stance.any():
+        return forces
+    terms = ContactDynamicsTerms(robot, alpha) if terms is None else terms
+    terms.compute(q, v, stance)
+    tau_full = np.zeros(robot.nv)
+    tau_full[robot.nv - robot.nu :] = tau
+    # KKT: [M Jc'; Jc 0] [qdd; -F] = [S' tau - h; -drift]  (computeAllTerms is called inside)
+    pin.forwardDynamics(terms.model, terms.data, q, v, tau_full, terms.Jc, terms.drift, 0.0)
+    forces[stance] = np.asarray(terms.data.lambda_c).reshape(-1, 3)
+    return forces
+
+
+class FrictionConeScorer:
+    """Counts ticks whose torque implies a stance force outside the friction pyramid (any controller)."""
+
+    def __init__(self, robot: Robot, mu: float = 0.6, alpha: float = 10.0, tolerance: float = 1e-3) -> None:
+        self.robot = robot
+        self.mu = float(mu)
+        self.tolerance = float(tolerance)
+        self.terms = ContactDynamicsTerms(robot, alpha)
+        self.ticks = 0
+        self.violations = 0
+
+    def score(self, q: np.ndarray, v: np.ndarray, tau: np.ndarray, stance: np.ndarray) -> bool:
+        """Score one tick; returns True (and counts it) when the implied forces leave the cone."""
+        forces = contact_forces_for_torque(self.robot, q, v, tau, stance, self.terms.alpha, terms=self.terms)
+        self.ticks += 1
+        violated = friction_cone_violation(forces[np.asarray(stance, bool)], self.mu) > self.tolerance
+        self.violations += int(violated)
+        return violated
+
+
+class _StanceQP:
+    """Preallocated matrices of (34) for one stance pattern, shared by the solver backends.
+
+    Variables ``z = [qdd (nv), tau (nu), F (3 nc)]``. Equalities ``A z = b``: (34b) then (34c). Inequalities
+    ``l <= C z <= u`` (constant per pattern): torque bounds (34d), then per foot the four pyramid faces (34f),
+    then ``Fz >= 0`` (34e) for every foot.
+    """
+
+    solver_name = ""
+
+    def __init__(self, stance: tuple[bool, ...], nv: int, nu: int, limits: np.ndarray, s: VWBCSettings):
+        self.stance = np.array(stance, dtype=bool)
+        nc = int(self.stance.sum())
+        self.nc, self.nv, self.nu = nc, nv, nu
+        n, n_eq, n_in = nv + nu + 3 * nc, nv + 3 * nc, nu + 5 * nc
+        self.n, self.n_eq, self.n_in = n, n_eq, n_in
+        self.tau = slice(nv, nv + nu)
+        self.force = slice(nv + nu, n)
+        self.H = np.zeros((n, n))
+        if s.regularization > 0:
+            self.H[:nv, :nv] = s.regularization * np.eye(nv)
+            self.H[self.force, self.force] = s.regularization * np.eye(3 * nc)
+        self.g = np.zeros(n)
+        self.A = np.zeros((n_eq, n))
+        self.A[nv - nu : nv, self.tau] = -np.eye(nu)  # -S' tau (actuated joints are the last nu of v)
+        self.b = np.zeros(n_eq)
+        self.C = np.zeros((n_in, n))
+        self.C[:nu, self.tau] = np.eye(nu)
+        self.l = np.full(n_in, -np.inf)
+        self.u = np.full(n_in, np.inf)
+        self.l[:nu], self.u[:nu] = -limits, limits
+        for i in range(nc):
+            fx = nv + nu + 3 * i
+            rows = nu + 4 * i
+            for face, (axis, sign) in enumerate(((0, 1.0), (0, -1.0), (1, 1.0), (1, -1.0))):
+                self.C[rows + face, fx + axis] = sign
+                self.C[rows + face, fx + 2] = -s.mu
+                self.u[rows + face] = 0.0
+            self.C[nu + 4 * nc + i, fx + 2] = 1.0
+            self.l[nu + 4 * nc + i] = 0.0
+        self.x0 = np.zeros(n)  # primal warm start from the plan
+        self.x = np.zeros(n)  # solution of the last solve
+        self.iterations = 0
+        self.status = ""
+        self.solved = False
+        self.has_previous = False  # the backend holds a solution of this pattern from the previous tick
+
+    def fill(self, terms: ContactDynamicsTerms, Quu: np.ndarray, g_tau: np.ndarray) -> None:
+        """Write the tick's dynamics (34b)-(34c) and cost (34a) into the preallocated matrices."""
+        nv, tau, force = self.nv, self.tau, self.force
+        self.H[tau, tau] = Quu
+        self.H[tau, tau] += Quu.T
+        self.H[tau, tau] *= 0.5
+        self.g[tau] = g_tau
+        self.A[:nv, :nv] = terms.M
+        self.A[:nv, force] = -terms.Jc.T
+        self.A[nv:, :nv] = terms.Jc
+        np.negative(terms.h, out=self.b[:nv])
+        np.negative(terms.drift, out=self.b[nv:])
+
+    def solve(self, mode: WarmStart) -> None:
+        """Solve with the warm start ``mode``; sets ``x``, ``iterations``, ``status`` and ``solved``."""
+        raise NotImplementedError
+
+
+class _ProxQPStance(_StanceQP):
+    """(34) as is, solved by ProxQP (dense). Box constraints are not used: ProxQP's warm start cannot take
+    their duals."""
+
+    solver_name = f"proxsuite.proxqp.dense {proxsuite.__version__}"
+
+    def __init__(self, stance: tuple[bool, ...], nv: int, nu: int, limits: np.ndarray, s: VWBCSettings):
+        super().__init__(stance, nv, nu, limits, s)
+        self.qp = _PROXQP.dense.QP(self.n, self.n_eq, self.n_in)
+        self.qp.settings.eps_abs = s.eps_abs
+        self.qp.settings.eps_rel = s.eps_rel
+        self.qp.settings.max_iter = s.max_iter
+        self.qp.settings.verbose = False
+        self.initialized = False
+        self.y0 = np.zeros(self.n_eq)
+        self.z0 = np.zeros(self.n_in)
+        self.prev_x = np.zeros(self.n)
+        self.prev_y = np.zeros(self.n_eq)
+        self.prev_z = np.zeros(self.n_in)
+
+    def solve(self, mode: WarmStart) -> None:
+        qp = self.qp
+        if not self.initialized:
+            qp.init(self.H, self.g, self.A, self.b, self.C, self.l, self.u)
+            self.initialized = True
+        else:
+            qp.update(H=self.H, g=self.g, A=self.A, b=self.b)
+        qp.settings.initial_guess = _INITIAL_GUESS[mode]
+        if mode == "previous" and self.has_previous:
+            qp.solve(self.prev_x, self.prev_y, self.prev_z)
+        elif mode in ("plan", "previous"):
+            qp.solve(self.x0, self.y0, self.z0)  # primal from the plan, zero multipliers
+        else:
+            qp.solve()
+        results = qp.results
+        self.iterations = int(results.info.iter)
+        self.status = results.info.status.name
+        self.solved = results.info.status == _SOLVED
+        self.x[:] = results.x
+        if self.solved:
+            self.prev_x[:] = results.x
+            self.prev_y[:] = results.y
+            self.prev_z[:] = results.z
+
+
+_DAQP_INF = 1e30  # DAQP's bound magnitude treated as infinite
+_DAQP_ACTIVE, _DAQP_LOWER = 1, 2  # DAQP constraint sense bits
+
+
+class _DaqpStance(_StanceQP):
+    """(34) condensed onto ``tau`` and solved by DAQP (dual active set).
+
+    The dynamics (34b)-(34c) are a nonsingular KKT system in ``(qdd, F)`` for given ``tau`` (the stance-foot
+    Jacobian has full row rank), so ``qdd = qdd0 + Gq tau`` and ``F = F0 + GF tau`` exactly, and (34) becomes
+    a strictly convex QP in ``tau`` alone: ``Quu`` is positive definite, as DAQP requires (the uncondensed
+    Hessian is singular in ``qdd`` and ``F``). Same minimiser as (34); ``qdd`` and ``F`` are recovered.
+    Warm start: ``"previous"`` keeps DAQP's working set from the last solve of this pattern, ``"plan"``
+    starts from the constraints active at the plan torque ``tau*_k``, ``"none"``/``"equality"`` from the
+    empty working set. Iterations are active-set changes, comparable to the paper's qpOASES counts.
+    """
+
+    def __init__(self, stance: tuple[bool, ...], nv: int, nu: int, limits: np.ndarray, s: VWBCSettings):
+        import daqp  # optional dependency: only with VWBCSettings.solver = "daqp"
+
+        super().__init__(stance, nv, nu, limits, s)
+        self.solver_name = f"daqp {_package_version('daqp')}"
+        self._daqp = daqp
+        nc3, n_gen = 3 * self.nc, 5 * self.nc
+        self.kkt = np.zeros((nv + nc3, nv + nc3))
+        self.rhs = np.zeros((nv + nc3, 1 + nu))
+        self.rhs[nv - nu : nv, 1:] = np.eye(nu)  # S' columns
+        self.Cf = np.ascontiguousarray(self.C[nu:, self.force])  # pyramid + unilateral rows on F
+        self.Hc = np.zeros((nu, nu))
+        self.fc = np.zeros(nu)
+        self.Ac = np.zeros((n_gen, nu))
+        self.bu = np.concatenate([limits, np.minimum(self.u[nu:], _DAQP_INF)])
+        self.bl = np.concatenate([-limits, np.maximum(self.l[nu:], -_DAQP_INF)])
+        self.bu_const, self.bl_const = self.bu[nu:].copy(), self.bl[nu:].copy()
+        self.sense = np.zeros(nu + n_gen, dtype=np.int32)
+        self.model = daqp.Model()
+        self.initialized = False
+        self.settings = {"primal_tol": s.eps_abs, "iter_limit": s.max_iter}
+
+    def _condense(self) -> tuple[np.ndarray, np.ndarray]:
+        nv, nu = self.nv, self.nu
+        self.kkt[:nv, :nv] = self.A[:nv, :nv]
+        self.kkt[:nv, nv:] = self.A[:nv, self.force]
+        self.kkt[nv:, :nv] = self.A[nv:, :nv]
+        self.rhs[:, 0] = self.b
+        solution = np.linalg.solve(self.kkt, self.rhs)  # [[qdd0, Gq]; [F0, GF]]
+        self.Hc[:] = self.H[self.tau, self.tau]
+        self.fc[:] = self.g[self.tau]
+        F0, GF = solution[nv:, 0], solution[nv:, 1:]
+        np.matmul(self.Cf, GF, out=self.Ac)
+        shift = self.Cf @ F0
+        np.subtract(self.bu_const, shift, out=self.bu[nu:])
+        np.subtract(self.bl_const, shift, out=self.bl[nu:])
+        return solution[:, 0], solution[:, 1:]
+
+    def _plan_sense(self) -> None:
+        """Working set of the constraints active (within 1e-9) at the plan torque."""
+        tau = self.x0[self.tau]
+        values = np.concatenate([tau, self.Ac @ tau])
+        self.sense[:] = 0
+        self.sense[values >= self.bu - 1e-9] = _DAQP_ACTIVE
+        self.sense[values <= self.bl + 1e-9] = _DAQP_ACTIVE | _DAQP_LOWER
+
+    def solve(self, mode: WarmStart) -> None:
+        nv = self.nv
+        offset, gain = self._condense()
+        if mode == "plan" or (mode == "previous" and not self.has_previous):
+            self._plan_sense()
+        elif mode in ("none", "equality"):
+            self.sense[:] = 0
+        if not self.initialized:
+            self.model.setup(self.Hc, self.fc, self.Ac, self.bu, self.bl, self.sense)
+            self.model.settings = self.settings
+            self.initialized = True
+        elif mode == "previous" and self.has_previous:
+            self.model.update(H=self.Hc, f=self.fc, A=self.Ac, bupper=self.bu, blower=self.bl)
+        else:
+            self.model.update(
+                H=self.Hc, f=self.fc, A=self.Ac, bupper=self.bu, blower=self.bl, sense=self.sense
+            )
+        tau, _, exitflag, info = self.model.solve()
+        self.iterations = int(info["iterations"])
+        self.status = f"DAQP_EXITFLAG_{exitflag}"
+        self.solved = exitflag == 1
+        self.x[self.tau] = tau
+        qdd_f = offset + gain @ tau
+        self.x[:nv] = qdd_f[:nv]
+        self.x[self.force] = qdd_f[nv:]
+
+
+def _package_version(name: str) -> str:
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        return version(name)
+    except PackageNotFoundError:
+        return "unknown"
+
+
+class VWBCController:
+    """VWBC (34) on the latest ``Plan``, with the Riccati fallback (33) and per-tick statistics.
+
+    Same interface as ``RiccatiController``: ``set_plan(plan)`` then ``compute(t, q, v)`` (optionally the
+    measured ``contacts``); ``compute(t, state)`` with a ``PlantState`` also works, so the controller can be
+    passed to ``cafe_mpc.sim.loop.simulate``. The returned array is owned by the controller and overwritten
+    on the next call.
+    """
+
+    def __init__(
+        self, robot: Robot, settings: VWBCSettings | None = None, torque_limits: np.ndarray | None = None
+    ) -> None:
+        self.robot = robot
+        self.model = robot.model
+        self.settings = VWBCSettings() if settings is None else settings
+        limits = robot.torque_limits if torque_limits is None else np.asarray(torque_limits, dtype=float)
+        if limits.shape != (robot.nu,) or np.any(limits < 0):
+            raise ValueError(f"torque limits must be {robot.nu} non-negative numbers")
+        self.limits = limits.copy()
+        self.plan: Plan | None = None
+        if self.settings.solver == "daqp":
+            try:
+                import daqp  # noqa: F401
+            except ImportError as error:
+                raise ImportError("VWBC solver 'daqp' needs the daqp package (pip install daqp)") from error
+            self.solver_name = f"daqp {_package_version('daqp')}"
+        else:
+            self.solver_name = _ProxQPStance.solver_name
+        self.terms = ContactDynamicsTerms(robot, self.settings.alpha)
+        self._qps: dict[tuple[bool, ...], _StanceQP] = {}
+        nv, nu = robot.nv, robot.nu
+        self._dx = np.zeros(2 * nv)
+        self._g_tau = np.zeros(nu)
+        self._torques = np.zeros(nu)
+        self._stance = np.zeros(4, dtype=bool)
+        self._previous_pattern: tuple[bool, ...] | None = None
+        # last tick's results (for tests, logging by the caller and the friction-cone score)
+        self.last_knot = -1
+        self.last_used_qp = False
+        self.last_status = ""
+        self.last_iterations = 0
+        self.last_qdd = np.zeros(nv)
+        self.last_forces = np.zeros((4, 3))
+        self.last_stance = np.zeros(4, dtype=bool)
+        self.reset_statistics()
+
+    # ------------------------------------------------------------------ interface
+    def set_plan(self, plan: Plan) -> None:
+        if plan.us.shape[1] != self.robot.nu or plan.K.shape[2] != 2 * self.robot.nv:
+            raise ValueError("plan sizes do not match the robot")
+        self.plan = plan
+
+    def reset(self, state: object | None = None) -> None:
+        """Forget the previous tick's solution (closed-loop ``Controller`` protocol)."""
+        self._previous_pattern = None
+
+    def state_error(self, q: np.ndarray, v: np.ndarray, x_plan: np.ndarray) -> np.ndarray:
+        """``x ⊖ x*`` in the tangent space at ``x*`` (the Riccati controller's convention)."""
+        nq, nv = self.model.nq, self.model.nv
+        self._dx[:nv] = pin.difference(self.model, x_plan[:nq], q)
+        np.subtract(v, x_plan[nq:], out=self._dx[nv:])
+        return self._dx
+
+    def compute(
+        self,
+        t: float,
+        q: np.ndarray | object,
+        v: np.ndarray | None = None,
+        contacts: np.ndarray | None = None,
+    ) -> np.ndarray:
+        """Joint torques for time ``t`` at the measured state (``(q, v)`` or a ``PlantState``)."""
+        if v is None:  # called by the closed loop with a PlantState
+            state = q
+            q, v, contacts = state.q, state.v, state.contacts  # type: ignore[attr-defined]
+        if self.plan is None:
+            raise RuntimeError("VWBCController has no plan yet")
+        start = time.perf_counter()
+        plan, s = self.plan, self.settings
+        k = plan.knot_at(t)
+        self.last_knot = k
+        dx = self.state_error(q, v, plan.xs[k])
+        np.copyto(self._stance, plan.contacts[k])
+        if s.stance_source == "intersect" and contacts is not None:
+            self._stance &= np.asarray(contacts, dtype=bool)
+        if contacts is not None and np.any(np.asarray(contacts, bool) != plan.contacts[k]):
+            self.stance_mismatch_ticks += 1
+        self.last_stance[:] = self._stance
+        self.last_status = ""
+        self.last_iterations = 0
+        self.ticks += 1
+
+        try:
+            reason = self._solve_qp(k, q, v, dx)
+        except (RuntimeError, ValueError, np.linalg.LinAlgError) as error:  # solver/KKT failures
+            reason = f"exception:{type(error).__name__}"
+        elapsed_ms = 1e3 * (time.perf_counter() - start)
+        self._record_time(elapsed_ms)
+        if elapsed_ms > REAL_TIME_BUDGET_MS:
+            self.slow_ticks += 1
+        if not reason and s.time_budget_ms is not None and elapsed_ms > s.time_budget_ms:
+            reason = "time_budget"
+        self.last_used_qp = not reason
+        if reason:
+            self._fallback(k, dx, reason)
+            try:  # score the fallback torque's implied forces like a Riccati controller's
+                self.last_forces[:] = contact_forces_for_torque(
+                    self.robot, q, v, self._torques, self._stance, s.alpha, terms=self.terms
+                )
+            except (RuntimeError, ValueError):
+                self.last_forces[:] = np.nan
+        if friction_cone_violation(self.last_forces[self._stance], s.mu) > s.cone_tolerance:
+            self.friction_cone_violations += 1
+        return self._torques
+
+    # ------------------------------------------------------------------ QP (34)
+    def _qp_for(self, pattern: tuple[bool, ...]) -> _StanceQP:
+        qp = self._qps.get(pattern)
+        if qp is None:
+            backend = _DaqpStance if self.settings.solver == "daqp" else _ProxQPStance
+            qp = backend(pattern, self.robot.nv, self.robot.nu, self.limits, self.settings)
+            self._qps[pattern] = qp
+        return qp
+
+    def _solve_qp(self, k: int, q: np.ndarray, v: np.ndarray, dx: np.ndarray) -> str:
+        """Assemble and solve (34); returns '' on success (torques set), else the failure reason."""
+        plan, s, nv, nq = self.plan, self.settings, self.robot.nv, self.robot.nq
+        assert plan is not None
+        pattern = tuple(bool(c) for c in self._stance)
+        qp = self._qp_for(pattern)
+        self.terms.compute(q, v, self._stance)
+        # linear term of (34a) in tau: Qux dx + Qu - Quu tau*
+        np.matmul(plan.Qux[k], dx, out=self._g_tau)
+        self._g_tau += plan.Qu[k]
+        self._g_tau -= plan.Quu[k] @ plan.us[k]
+        qp.fill(self.terms, plan.Quu[k], self._g_tau)
+        # warm start from the plan (paper end of Sec. V-A): finite-difference qdd, tau*_k, F*_k
+        np.subtract(plan.xs[k + 1, nq:], plan.xs[k, nq:], out=qp.x0[:nv])
+        qp.x0[:nv] /= plan.dt[k]
+        qp.x0[qp.tau] = plan.us[k]
+        qp.x0[qp.force] = plan.forces[k][qp.stance].ravel()
+        qp.has_previous = self._previous_pattern == pattern
+        self._previous_pattern = None
+        solve_start = time.perf_counter()
+        qp.solve(s.warm_start)
+        solve_ms = 1e3 * (time.perf_counter() - solve_start)
+        self.last_iterations = qp.iterations
+        self.last_status = qp.status
+        self.status_counts[qp.status] += 1
+        self.iterations_histogram[qp.iterations] += 1
+        self._record_solve_time(solve_ms)
+        if not qp.solved:
+            return f"status:{qp.status}"
+        x = qp.x
+        if not np.all(np.isfinite(x)):
+            return "nan"
+        # The solvers meet the bounds to their tolerance; clip the rest so no command exceeds the limits.
+        np.clip(x[qp.tau], -self.limits, self.limits, out=self._torques)
+        self.last_qdd[:] = x[:nv]
+        self.last_forces[:] = 0.0
+        self.last_forces[qp.stance] = x[qp.force].reshape(-1, 3)
+        self._previous_pattern = pattern
+        return ""
+
+    def _fallback(self, k: int, dx: np.ndarray, reason: str) -> None:
+        """Clamped Riccati feedback (33); the plan torque alone if even that is not finite."""
+        plan = self.plan
+        assert plan is not None
+        self.fallbacks += 1
+        self.fallback_reasons[reason.split(":")[0]] += 1
+        self.last_status = self.last_status or reason
+        self._previous_pattern = None
+        np.matmul(plan.K[k], dx, out=self._torques)
+        self._torques += plan.us[k]
+        if not np.all(np.isfinite(self._torques)):
+            self._torques[:] = plan.us[k]
+        np.clip(self._torques, -self.limits, self.limits, out=self._torques)
+        self.last_qdd[:] = np.nan
+
+    # ------------------------------------------------------------------ statistics
+    def reset_statistics(self) -> None:
+        self.ticks = 0
+        self.fallbacks = 0
+        self.slow_ticks = 0
+        self.friction_cone_violations = 0
+        self.stance_mismatch_ticks = 0
+        self.iterations_histogram: Counter[int] = Counter()
+        self.status_counts: Counter[str] = Counter()
+        self.fallback_reasons: Counter[str] = Counter()
+        self._solve_ms = np.zeros(1024)
+        self._tick_ms = np.zeros(1024)
+        self._n_solve = 0
+        self._n_tick = 0
+
+    def _record_solve_time(self, ms: float) -> None:
+        if self._n_solve == len(self._solve_ms):
+            self._solve_ms = np.concatenate([self._solve_ms, np.zeros(len(self._solve_ms))])
+        self._solve_ms[self._n_solve] = ms
+        self._n_solve += 1
+
+    def _record_time(self, ms: float) -> None:
+        if self._n_tick == len(self._tick_ms):
+            self._tick_ms = np.concatenate([self._tick_ms, np.zeros(len(self._tick_ms))])
+        self._tick_ms[self._n_tick] = ms
+        self._n_tick += 1
+
+    def statistics(self) -> dict:
+        """Per-run counters: QP iterations histogram, solve/tick times (ms), fallbacks, cone violations."""
+
+        def percentile(values: np.ndarray, p: float) -> float:
+            return float(np.percentile(values, p)) if len(values) else math.nan
+
+        solve, tick = self._solve_ms[: self._n_solve], self._tick_ms[: self._n_tick]
+        return {
+            "ticks": self.ticks,
+            "qp_iterations_histogram": dict(sorted(self.iterations_histogram.items())),
+            "qp_solve_time_ms_median": percentile(solve, 50),
+            "qp_solve_time_ms_p99": percentile(solve, 99),
+            "tick_time_ms_median": percentile(tick, 50),
+            "tick_time_ms_p99": percentile(tick, 99),
+            "fallbacks": self.fallbacks,
+            "fallback_reasons": dict(self.fallback_reasons),
+            "qp_status_counts": dict(self.status_counts),
+            "friction_cone_violations": self.friction_cone_violations,
+            "slow_ticks": self.slow_ticks,
+            "stance_mismatch_ticks": self.stance_mismatch_ticks,
+            "warm_start": self.settings.warm_start,
+            "solver": self.solver_name,
+        }
+
+    def contact_forces_for_torque(
+        self, q: np.ndarray, v: np.ndarray, tau: np.ndarray, stance: np.ndarray
+    ) -> np.ndarray:
+        """Contact forces implied by ``tau`` through (34b)-(34c) (see the module function)."""
+        return contact_forces_for_torque(self.robot, q, v, tau, stance, self.settings.alpha)

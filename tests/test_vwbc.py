@@ -1,0 +1,292 @@
+"""The value-function whole-body controller (VWBC, paper Eq. (34)) against the Riccati policy (33).
+
+Synthetic plans (``cafe_mpc.wbc.synthetic``) stand in for MPC solutions: standing pose, static stance
+torques, random SPD ``Quu`` and ``Qux = -Quu K``.
+"""
+
+import importlib.util
+
+import numpy as np
+import pinocchio as pin
+import pytest
+
+from cafe_mpc.robots.robot import load_robot
+from cafe_mpc.sim.loop import simulate
+from cafe_mpc.sim.plant import PlantState
+from cafe_mpc.wbc.riccati import RiccatiController
+from cafe_mpc.wbc.synthetic import synthetic_plan
+from cafe_mpc.wbc.vwbc import (
+    FrictionConeScorer,
+    VWBCController,
+    VWBCSettings,
+    contact_forces_for_torque,
+    friction_cone_violation,
+)
+
+HAS_DAQP = importlib.util.find_spec("daqp") is not None
+SOLVERS = ["proxqp", pytest.param("daqp", marks=pytest.mark.skipif(not HAS_DAQP, reason="daqp missing"))]
+FOUR = np.ones(4, dtype=bool)
+TROT = np.array([True, False, False, True])
+GENEROUS = np.full(12, 1e3)
+
+
+@pytest.fixture(scope="module")
+def robot():
+    return load_robot("mini_cheetah")
+
+
+def perturbed_state(robot, seed, dq_scale=0.005, v_scale=0.02):
+    rng = np.random.default_rng(seed)
+    q = pin.integrate(robot.model, robot.q_standing, dq_scale * rng.normal(size=robot.nv))
+    return q, v_scale * rng.normal(size=robot.nv)
+
+
+def unconstrained_policy(controller, plan, q, v, k=0):
+    """Eq. (7) with the feed-forward increment: tau* - Quu^{-1} (Qux dx + Qu)."""
+    dx = controller.state_error(q, v, plan.xs[k]).copy()
+    return plan.us[k] - np.linalg.solve(plan.Quu[k], plan.Qux[k] @ dx + plan.Qu[k])
+
+
+def dynamics_residual(robot, q, v, qdd, tau, forces, stance):
+    """M qdd + h - S' tau - Jc' F (34b), computed independently with RNEA."""
+    data = robot.model.createData()
+    residual = pin.rnea(robot.model, data, q, v, qdd).copy()
+    residual[6:] -= tau
+    pin.computeJointJacobians(robot.model, data, q)
+    pin.updateFramePlacements(robot.model, data)
+    for foot, frame_id in enumerate(robot.foot_frame_ids):
+        if stance[foot]:
+            J = pin.getFrameJacobian(robot.model, data, frame_id, pin.LOCAL_WORLD_ALIGNED)[:3]
+            residual -= J.T @ forces[foot]
+    return residual
+
+
+def foot_accelerations(robot, q, v, qdd, stance):
+    """Classical foot accelerations and alpha * foot velocities (for (34c))."""
+    data = robot.model.createData()
+    pin.forwardKinematics(robot.model, data, q, v, qdd)
+    pin.updateFramePlacements(robot.model, data)
+    acc, vel = [], []
+    for foot, frame_id in enumerate(robot.foot_frame_ids):
+        if stance[foot]:
+            rf = pin.LOCAL_WORLD_ALIGNED
+            acc.append(pin.getFrameClassicalAcceleration(robot.model, data, frame_id, rf).linear)
+            vel.append(pin.getFrameVelocity(robot.model, data, frame_id, rf).linear)
+    return np.array(acc), np.array(vel)
+
+
+@pytest.mark.parametrize("solver", SOLVERS)
+@pytest.mark.parametrize("stance", [FOUR, TROT, ~FOUR], ids=["four", "trot", "flight"])
+def test_unconstrained_qp_equals_riccati_policy(robot, solver, stance):
+    plan = synthetic_plan(robot, stance=stance, seed=3)
+    settings = VWBCSettings(solver=solver, eps_abs=1e-10)
+    vwbc = VWBCController(robot, settings, torque_limits=GENEROUS)
+    vwbc.set_plan(plan)
+    riccati = RiccatiController(robot, clamp=False)
+    riccati.set_plan(plan)
+    q, v = perturbed_state(robot, seed=1)
+    tau = vwbc.compute(0.0, q, v).copy()
+    assert vwbc.last_used_qp and vwbc.fallbacks == 0
+    # no inequality is active, so the QP is the unconstrained policy (7) = Riccati (33) when Qu = 0
+    forces = vwbc.last_forces[stance]
+    assert np.all(forces[:, 2] > 1.0)
+    assert np.all(np.abs(forces[:, :2]) < 0.6 * forces[:, 2:] - 0.1)
+    np.testing.assert_allclose(tau, riccati.torques_at(0.0, q, v), atol=1e-6)
+    np.testing.assert_allclose(tau, unconstrained_policy(vwbc, plan, q, v), atol=1e-6)
+
+
+@pytest.mark.parametrize("solver", SOLVERS)
+def test_unconstrained_qp_with_qu_adds_feedforward_increment(robot, solver):
+    plan = synthetic_plan(robot, seed=4, qu_scale=0.5)
+    vwbc = VWBCController(robot, VWBCSettings(solver=solver, eps_abs=1e-10), torque_limits=GENEROUS)
+    vwbc.set_plan(plan)
+    riccati = RiccatiController(robot, clamp=False)
+    riccati.set_plan(plan)
+    q, v = perturbed_state(robot, seed=2)
+    tau = vwbc.compute(0.0, q, v).copy()
+    expected = unconstrained_policy(vwbc, plan, q, v)
+    np.testing.assert_allclose(tau, expected, atol=1e-6)
+    increment = -np.linalg.solve(plan.Quu[0], plan.Qu[0])
+    assert np.abs(increment).max() > 0.05  # the test distinguishes (7) with Qu from (33)
+    np.testing.assert_allclose(tau - riccati.torques_at(0.0, q, v), increment, atol=1e-6)
+
+
+@pytest.mark.parametrize("solver", SOLVERS)
+def test_torque_limit_is_respected_and_other_joints_redistribute(robot, solver):
+    plan = synthetic_plan(robot, seed=5)
+    probe = VWBCController(robot, torque_limits=GENEROUS)
+    q, v = perturbed_state(robot, seed=6)
+    free = unconstrained_policy(probe, plan, q, v)
+    joint = int(np.argmax(np.abs(free)))
+    limits = GENEROUS.copy()
+    limits[joint] = 0.5 * abs(free[joint])
+    vwbc = VWBCController(robot, VWBCSettings(solver=solver, eps_abs=1e-10), torque_limits=limits)
+    vwbc.set_plan(plan)
+    tau = vwbc.compute(0.0, q, v).copy()
+    assert vwbc.last_used_qp
+    assert np.all(np.abs(tau) <= limits + 1e-9)
+    assert tau[joint] == pytest.approx(np.sign(free[joint]) * limits[joint], abs=1e-7)
+    # optimal with tau[joint] fixed: the other joints minimise (34a) given it (Quu is not diagonal)
+    others = np.arange(12) != joint
+    Quu = plan.Quu[0]
+    dx = vwbc.state_error(q, v, plan.xs[0]).copy()
+    c = plan.Qux[0] @ dx + plan.Qu[0]
+    d_joint = tau[joint] - plan.us[0, joint]
+    d_others = -np.linalg.solve(Quu[np.ix_(others, others)], c[others] + Quu[others, joint] * d_joint)
+    np.testing.assert_allclose(tau[others], plan.us[0, others] + d_others, atol=1e-6)
+    clamped = np.clip(free, -limits, limits)  # the clamped Riccati torque keeps the others unchanged
+    assert np.abs(tau[others] - clamped[others]).max() > 1e-2
+
+
+@pytest.mark.parametrize("solver", SOLVERS)
+@pytest.mark.parametrize("stance", [FOUR, TROT], ids=["four", "trot"])
+def test_friction_pyramid_and_dynamics_hold(robot, solver, stance):
+    mu = 0.05  # makes the pyramid active for this perturbation
+    plan = synthetic_plan(robot, stance=stance, seed=7)
+    settings = VWBCSettings(solver=solver, mu=mu, eps_abs=1e-9)
+    vwbc = VWBCController(robot, settings, torque_limits=GENEROUS)
+    vwbc.set_plan(plan)
+    q, v = perturbed_state(robot, seed=8, dq_scale=0.02, v_scale=0.1)
+    riccati = RiccatiController(robot, clamp=False)
+    riccati.set_plan(plan)
+    tau_riccati = riccati.torques_at(0.0, q, v).copy()
+    scorer = FrictionConeScorer(robot, mu=mu)
+    assert scorer.score(q, v, tau_riccati, stance)  # the Riccati torque leaves the cone ...
+    tau = vwbc.compute(0.0, q, v).copy()
+    assert vwbc.last_used_qp
+    forces = vwbc.last_forces.copy()
+    assert friction_cone_violation(forces[stance], mu) < 1e-6  # ... the VWBC's does not
+    assert np.all(forces[stance, 2] >= -1e-8)
+    assert np.all(forces[~stance] == 0.0)
+    assert vwbc.statistics()["friction_cone_violations"] == 0
+    assert not scorer.score(q, v, tau, stance)
+    assert scorer.violations == 1 and scorer.ticks == 2
+    # (34b) whole-body dynamics and (34c) stabilised no-slip
+    residual = dynamics_residual(robot, q, v, vwbc.last_qdd, tau, forces, stance)
+    assert np.abs(residual).max() < 1e-6
+    acc, vel = foot_accelerations(robot, q, v, vwbc.last_qdd, stance)
+    np.testing.assert_allclose(acc, -settings.alpha * vel, atol=1e-6)
+    # the KKT helper recovers the QP's forces from its torque
+    implied = contact_forces_for_torque(robot, q, v, tau, stance, settings.alpha)
+    np.testing.assert_allclose(implied, forces, atol=1e-6)
+
+
+@pytest.mark.parametrize("solver", SOLVERS)
+def test_infeasible_qp_falls_back_to_clamped_riccati(robot, solver):
+    plan = synthetic_plan(robot, seed=9)
+    limits = np.full(12, 1e-3)  # cannot hold the robot: the zero-torque contact forces leave the cone
+    assert (
+        friction_cone_violation(
+            contact_forces_for_torque(robot, robot.q_standing, np.zeros(18), 0 * limits, FOUR), 0.6
+        )
+        > 0.1
+    )
+    vwbc = VWBCController(robot, VWBCSettings(solver=solver, max_iter=50), torque_limits=limits)
+    vwbc.set_plan(plan)
+    riccati = RiccatiController(robot, clamp=False)
+    riccati.set_plan(plan)
+    q, v = perturbed_state(robot, seed=10)
+    tau = vwbc.compute(0.0, q, v).copy()
+    assert not vwbc.last_used_qp
+    assert np.all(np.isfinite(tau))
+    np.testing.assert_allclose(tau, np.clip(riccati.torques_at(0.0, q, v), -limits, limits))
+    stats = vwbc.statistics()
+    assert stats["fallbacks"] == 1 and stats["ticks"] == 1
+    assert sum(stats["fallback_reasons"].values()) == 1
+    assert stats["friction_cone_violations"] == 1  # the fallback torque is scored like the Riccati one
+
+
+def test_nan_state_never_returns_nan(robot):
+    plan = synthetic_plan(robot, seed=11)
+    vwbc = VWBCController(robot)
+    vwbc.set_plan(plan)
+    q = robot.q_standing.copy()
+    v = np.zeros(robot.nv)
+    v[3] = np.nan
+    tau = vwbc.compute(0.0, q, v)
+    assert np.all(np.isfinite(tau)) and vwbc.fallbacks == 1
+    np.testing.assert_allclose(tau, np.clip(plan.us[0], -robot.torque_limits, robot.torque_limits))
+
+
+def run_sequence(robot, plan, settings, ticks=120, v_scale=0.3, seed=0, limits=None):
+    """Nearby ticks: a slowly drifting configuration error and a noisy velocity."""
+    vwbc = VWBCController(robot, settings, torque_limits=limits)
+    vwbc.set_plan(plan)
+    rng = np.random.default_rng(seed)
+    dq, v = np.zeros(robot.nv), np.zeros(robot.nv)
+    torques = np.zeros((ticks, robot.nu))
+    for i in range(ticks):
+        dq = 0.98 * dq + 0.002 * rng.normal(size=robot.nv)
+        v = 0.9 * v + v_scale * rng.normal(size=robot.nv)
+        torques[i] = vwbc.compute(0.002 * i, pin.integrate(robot.model, robot.q_standing, dq), v)
+    return vwbc.statistics(), torques
+
+
+def mean_iterations(stats):
+    histogram = stats["qp_iterations_histogram"]
+    return sum(k * n for k, n in histogram.items()) / sum(histogram.values())
+
+
+def test_proxqp_warm_start_reduces_iterations_versus_cold_start(robot):
+    plan = synthetic_plan(robot, knots=20, seed=12)
+    cold, tau_cold = run_sequence(robot, plan, VWBCSettings(warm_start="none"))
+    means = {}
+    for mode in ("plan", "previous"):
+        warm, tau_warm = run_sequence(robot, plan, VWBCSettings(warm_start=mode))
+        assert warm["fallbacks"] == cold["fallbacks"] == 0
+        means[mode] = mean_iterations(warm)
+        assert means[mode] < mean_iterations(cold) - 1.0
+        np.testing.assert_allclose(tau_warm, tau_cold, atol=1e-3)  # same QPs, same answers
+    # the previous tick's primal-dual pair is a better start than the plan's primal with zero multipliers
+    assert means["previous"] < means["plan"]
+
+
+@pytest.mark.skipif(not HAS_DAQP, reason="daqp missing")
+def test_daqp_warm_start_reduces_active_set_iterations(robot):
+    plan = synthetic_plan(robot, knots=20, seed=12)
+    cold, tau_cold = run_sequence(robot, plan, VWBCSettings(solver="daqp", warm_start="none"))
+    warm, tau_warm = run_sequence(robot, plan, VWBCSettings(solver="daqp", warm_start="previous"))
+    assert max(cold["qp_iterations_histogram"]) > 1  # constraints do become active in this sequence
+    assert mean_iterations(warm) < mean_iterations(cold)
+    assert warm["qp_iterations_histogram"].get(1, 0) > cold["qp_iterations_histogram"].get(1, 0)
+    np.testing.assert_allclose(tau_warm, tau_cold, atol=1e-6)
+    _, tau_proxqp = run_sequence(robot, plan, VWBCSettings(eps_abs=1e-9))
+    np.testing.assert_allclose(tau_warm, tau_proxqp, atol=1e-4)  # both backends solve the same QP
+
+
+def test_statistics_interface_and_stance_sources(robot):
+    plan = synthetic_plan(robot, seed=13)
+    vwbc = VWBCController(robot)
+    with pytest.raises(RuntimeError):
+        vwbc.compute(0.0, robot.q_standing, np.zeros(robot.nv))
+    vwbc.set_plan(plan)
+    measured = np.array([False, True, True, True])
+    state = PlantState(0.0, robot.q_standing.copy(), np.zeros(robot.nv), measured, np.zeros((4, 3)))
+    vwbc.compute(0.0, state)  # closed-loop call with a PlantState; stance from the plan
+    assert np.array_equal(vwbc.last_stance, FOUR)
+    intersect = VWBCController(robot, VWBCSettings(stance_source="intersect"))
+    intersect.set_plan(plan)
+    intersect.compute(0.0, robot.q_standing, np.zeros(robot.nv), measured)
+    assert np.array_equal(intersect.last_stance, measured)
+    assert np.all(intersect.last_forces[0] == 0.0) and intersect.last_forces[1, 2] > 0
+    for _ in range(3):
+        vwbc.compute(0.01, robot.q_standing, np.zeros(robot.nv))
+    stats = vwbc.statistics()
+    assert stats["ticks"] == 4 and sum(stats["qp_iterations_histogram"].values()) == 4
+    assert stats["stance_mismatch_ticks"] == 1
+    for key in ("qp_solve_time_ms_median", "qp_solve_time_ms_p99", "fallbacks", "friction_cone_violations"):
+        assert key in stats
+    assert np.isfinite(stats["qp_solve_time_ms_p99"])
+    with pytest.raises(ValueError):
+        VWBCSettings(warm_start="hot")
+
+
+def test_vwbc_holds_the_robot_standing_in_closed_loop(robot):
+    plan = synthetic_plan(robot, knots=40, seed=14, base_gain_scale=0.0, kp=60.0, kd=1.5)
+    vwbc = VWBCController(robot)
+    vwbc.set_plan(plan)
+    log = simulate(robot, vwbc, 0.6)
+    stats = vwbc.statistics()
+    assert not log.fell
+    assert stats["fallbacks"] == 0 and stats["friction_cone_violations"] == 0
+    assert abs(log.q[-1, 2] - robot.standing_height) < 0.03
