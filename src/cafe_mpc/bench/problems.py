@@ -25,15 +25,7 @@ TROT_CYCLE = [((True, False, False, True), 12), ((False, True, True, False), 13)
 """25 knots at 10 ms: one trot cycle squeezed into the 0.25 s whole-body horizon (stance pair FL+HR, then
 FR+HL with the touchdown impact between them)."""
 
-ZERO_WEIGHTS = WholeBodyWeights(
-    base_position=(0.0,) * 6,
-    base_velocity=(0.0,) * 6,
-    joint_position=0.0,
-    joint_velocity=0.0,
-    torque=0.0,
-    swing_foot_position=0.0,
-    swing_foot_velocity=0.0,
-)
+ZERO_WEIGHTS = WholeBodyWeights.zero()
 
 
 @dataclass

@@ -133,15 +133,7 @@ class CafeProblemBuilder:
         # Intermediate whole-body phases end with a cost-free terminal that keeps the state-only
         # constraints (joint limits and speeds, base height): without them the last torques of a phase
         # are free to whip the light legs (the end state is priced only by the phases after it).
-        zero = WholeBodyWeights(
-            base_position=(0.0,) * 6,
-            base_velocity=(0.0,) * 6,
-            joint_position=0.0,
-            joint_velocity=0.0,
-            torque=0.0,
-            swing_foot_position=0.0,
-            swing_foot_velocity=0.0,
-        )
+        zero = WholeBodyWeights.zero()
         self.intermediate = WholeBodyModelFactory(
             whole_body.robot, replace(whole_body.settings, terminal_weights=zero)
         )

@@ -123,6 +123,19 @@ class WholeBodyWeights:
         )
 
     @classmethod
+    def zero(cls) -> WholeBodyWeights:
+        """No cost at all (the terminal of an intermediate phase: its state is priced by later phases)."""
+        return cls(
+            base_position=(0.0,) * 6,
+            base_velocity=(0.0,) * 6,
+            joint_position=0.0,
+            joint_velocity=0.0,
+            torque=0.0,
+            swing_foot_position=0.0,
+            swing_foot_velocity=0.0,
+        )
+
+    @classmethod
     def barrel_roll_running(cls) -> WholeBodyWeights:
         """The barrel-roll set (facts): foot terms off."""
         return cls(
