@@ -1,0 +1,93 @@
+"""CAFE problem construction (Sec. IV-D), warm start (Fig. 5) and a short MPC closed loop."""
+
+import numpy as np
+import pytest
+
+from cafe_mpc.mpc.controller import CafeMpcController, MpcSettings
+from cafe_mpc.mpc.problem import CafeProblemBuilder, ModelSchedule, WarmStart
+from cafe_mpc.ocp.contact_schedule import get_gait
+from cafe_mpc.ocp.knots import SRBModelFactory, WholeBodyModelFactory
+from cafe_mpc.reference.locomotion import LocomotionReference, VelocityCommand
+from cafe_mpc.robots.robot import load_robot
+from cafe_mpc.sim.loop import simulate
+from cafe_mpc.solver import MSiLQRSolver
+from cafe_mpc.wbc.pd import static_stance_torques
+from cafe_mpc.wbc.riccati import RiccatiController
+
+
+@pytest.fixture(scope="module")
+def robot():
+    return load_robot("mini_cheetah")
+
+
+def _builder(robot, schedule):
+    return CafeProblemBuilder(WholeBodyModelFactory(robot), SRBModelFactory(), schedule)
+
+
+def _reference(robot, gait, vx=0.5):
+    reference = LocomotionReference(robot, get_gait(gait), [VelocityCommand(0.0, vx)])
+    reference.update(0.0, robot.q_standing, np.zeros(robot.nv))
+    return reference
+
+
+def test_phases_split_at_contact_changes_and_srb_tail(robot):
+    built = _builder(robot, ModelSchedule.named("S4")).build(0.2, robot.x_standing, _reference(robot, "trot"))
+    kinds = [(info.kind, info.stance, len(info.times) - 1) for info in built.phases]
+    assert kinds == [
+        ("whole_body", (True, False, False, True), 5),
+        ("whole_body", (False, True, True, False), 20),
+        ("srb", None, 8),
+    ]
+    assert built.phases[1].entered_by_impact
+    # touchdown of FR and HL at t = 0.25: switching constraint on the first phase, impact reset
+    assert built.problem.phases[0].switching_constraint is not None
+    assert built.phases[2].times[0] == pytest.approx(0.45)
+
+
+def test_schedule_s0_has_no_tail_and_bad_schedules_are_rejected(robot):
+    built = _builder(robot, ModelSchedule.named("S0")).build(
+        0.0, robot.x_standing, _reference(robot, "bound")
+    )
+    assert all(info.kind == "whole_body" for info in built.phases)
+    assert [info.stance for info in built.phases][:2] == [(True, True, False, False), (False,) * 4]
+    with pytest.raises(ValueError, match="shorter than one whole-body knot"):
+        ModelSchedule(0.005, 0.5)
+    with pytest.raises(ValueError, match="unknown model schedule"):
+        ModelSchedule.named("S7")
+
+
+def test_warm_start_shifts_by_time_and_rolls_out_after_impacts(robot):
+    builder = _builder(robot, ModelSchedule.named("S2"))
+    reference = _reference(robot, "trot")
+    torque = static_stance_torques(robot, robot.q_standing)
+    first = builder.build(0.0, robot.x_standing, reference)
+    forces = np.tile([0.0, 0.0, 20.0] * 4, (4, 1))
+    guess = WarmStart().guess(first, None, None, lambda stance: torque, forces)
+    solution = MSiLQRSolver(MpcSettings().update_solve).solve(
+        first.problem, guess.xs, guess.us, guess.rollout
+    )
+    second = builder.build(0.02, solution.phases[0].xs[2], reference)
+    shifted = WarmStart().guess(second, first, solution, lambda stance: torque, forces)
+    # knot k of the new problem is knot k + 2 of the previous one
+    assert np.allclose(shifted.xs[0][5], solution.phases[0].xs[7])
+    assert np.allclose(shifted.us[0][5], solution.phases[0].us[7])
+    # the appended phase entered through an impact gets roll-out knots (Fig. 5)
+    assert second.phases[1].entered_by_impact
+    assert shifted.rollout[1][1:].all() and not shifted.rollout[0].any()
+
+
+def test_mpc_closed_loop_stands(robot):
+    reference = LocomotionReference(robot, get_gait("stand"), [VelocityCommand()])
+    controller = CafeMpcController(
+        robot,
+        reference,
+        _builder(robot, ModelSchedule.named("S1")),
+        RiccatiController(robot),
+        MpcSettings(period=0.02),
+    )
+    log = simulate(robot, controller, 0.3)
+    assert not log.fell
+    assert controller.statistics.solves == 15 and controller.statistics.failures == 0
+    assert controller.statistics.fallback_ticks == 0
+    assert np.all(np.isfinite(log.torque_command))
+    assert abs(log.q[-1, 2] - robot.standing_height) < 0.02
