@@ -52,20 +52,9 @@ def median_microseconds(function: Callable[[], None], repeats: int, warmup: int 
 
 
 def crocoddyl_action(robot: Robot, stance: tuple[bool, ...], dt: float):
-    import crocoddyl
+    from cafe_mpc.bench.crocoddyl_peer import crocoddyl_contact_action
 
-    state = crocoddyl.StateMultibody(robot.model)
-    actuation = crocoddyl.ActuationModelFloatingBase(state)
-    contacts = crocoddyl.ContactModelMultiple(state, actuation.nu)
-    for leg, frame_id in enumerate(robot.foot_frame_ids):
-        if stance[leg]:
-            contact = crocoddyl.ContactModel3D(
-                state, frame_id, np.zeros(3), pin.LOCAL_WORLD_ALIGNED, actuation.nu, np.array([0.0, 10.0])
-            )
-            contacts.addContact(robot.leg_names[leg], contact)
-    costs = crocoddyl.CostModelSum(state, actuation.nu)
-    differential = crocoddyl.DifferentialActionModelContactFwdDynamics(state, actuation, contacts, costs)
-    return crocoddyl.IntegratedActionModelEuler(differential, dt)
+    return crocoddyl_contact_action(robot, stance, dt)
 
 
 def run(robot_name: str, repeats: int) -> dict:

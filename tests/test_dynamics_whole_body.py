@@ -265,22 +265,9 @@ def test_invalid_construction_raises(robot, kwargs):
 def test_semi_implicit_matches_crocoddyl(robot, stance):
     """Same problem as Crocoddyl's contact forward dynamics (ContactModel3D, LOCAL_WORLD_ALIGNED, gains
     [0, alpha]) wrapped in IntegratedActionModelEuler: identical next state and Jacobians."""
-    crocoddyl = pytest.importorskip("crocoddyl")
-    state = crocoddyl.StateMultibody(robot.model)
-    actuation = crocoddyl.ActuationModelFloatingBase(state)
-    contacts = crocoddyl.ContactModelMultiple(state, actuation.nu)
-    for leg, frame_id in enumerate(robot.foot_frame_ids):
-        if stance[leg]:
-            contact = crocoddyl.ContactModel3D(
-                state, frame_id, np.zeros(3), pin.LOCAL_WORLD_ALIGNED, actuation.nu, np.array([0.0, 10.0])
-            )
-            contacts.addContact(robot.leg_names[leg], contact)
-    costs = crocoddyl.CostModelSum(state, actuation.nu)
-    if any(stance):
-        differential = crocoddyl.DifferentialActionModelContactFwdDynamics(state, actuation, contacts, costs)
-    else:
-        differential = crocoddyl.DifferentialActionModelFreeFwdDynamics(state, actuation, costs)
-    integrated = crocoddyl.IntegratedActionModelEuler(differential, 0.01)
+    from cafe_mpc.bench.crocoddyl_peer import crocoddyl_contact_action
+
+    integrated = crocoddyl_contact_action(robot, stance, 0.01)
     croc_data = integrated.createData()
     rng = np.random.default_rng(21)
     x, u = random_state(robot, rng), 2.0 * rng.standard_normal(12)

@@ -40,6 +40,38 @@ def _cost_sum(
     return costs
 
 
+def crocoddyl_contact_action(
+    robot: Robot,
+    stance: Sequence[bool],
+    dt: float,
+    costs: crocoddyl.CostModelSum | None = None,
+    baumgarte_alpha: float = 10.0,
+    state: crocoddyl.StateMultibody | None = None,
+) -> crocoddyl.IntegratedActionModelEuler:
+    """Crocoddyl's equivalent of our ``WholeBodyDynamics(stance, dt, integration="semi_implicit")``:
+    3D point contacts in ``LOCAL_WORLD_ALIGNED`` with Baumgarte gains ``[0, alpha]`` (free dynamics in
+    flight), semi-implicit Euler; ``dt = 0`` gives a terminal model. ``costs`` defaults to an empty sum."""
+    state = state or crocoddyl.StateMultibody(robot.model)
+    actuation = crocoddyl.ActuationModelFloatingBase(state)
+    nu = actuation.nu
+    costs = costs if costs is not None else crocoddyl.CostModelSum(state, nu)
+    if any(stance):
+        contacts = crocoddyl.ContactModelMultiple(state, nu)
+        gains = np.array([0.0, baumgarte_alpha])
+        for foot, frame_id in enumerate(robot.foot_frame_ids):
+            if stance[foot]:
+                contact = crocoddyl.ContactModel3D(
+                    state, frame_id, np.zeros(3), pin.LOCAL_WORLD_ALIGNED, nu, gains
+                )
+                contacts.addContact(robot.foot_frame_names[foot], contact)
+        differential = crocoddyl.DifferentialActionModelContactFwdDynamics(
+            state, actuation, contacts, costs, 0.0, True
+        )
+    else:
+        differential = crocoddyl.DifferentialActionModelFreeFwdDynamics(state, actuation, costs)
+    return crocoddyl.IntegratedActionModelEuler(differential, dt)
+
+
 def crocoddyl_problem(
     robot: Robot,
     x0: np.ndarray,
@@ -56,22 +88,9 @@ def crocoddyl_problem(
     Between phases, feet that touch down get an impulse knot (zero cost); the last phase ends with the
     terminal cost ``terminal_weights``. Non-final phases have no terminal cost (ours must match).
     """
-    model = robot.model
-    state = crocoddyl.StateMultibody(model)
-    actuation = crocoddyl.ActuationModelFloatingBase(state)
-    nu = actuation.nu
-    gains = np.array([0.0, baumgarte_alpha])
+    state = crocoddyl.StateMultibody(robot.model)
+    nu = robot.nu
     running: list[crocoddyl.ActionModelAbstract] = []
-
-    def contacts_for(stance: Sequence[bool]) -> crocoddyl.ContactModelMultiple:
-        contacts = crocoddyl.ContactModelMultiple(state, nu)
-        for foot, frame_id in enumerate(robot.foot_frame_ids):
-            if stance[foot]:
-                contact = crocoddyl.ContactModel3D(
-                    state, frame_id, np.zeros(3), pin.LOCAL_WORLD_ALIGNED, nu, gains
-                )
-                contacts.addContact(robot.foot_frame_names[foot], contact)
-        return contacts
 
     previous: Sequence[bool] | None = None
     for stance, knots in phases:
@@ -88,17 +107,13 @@ def crocoddyl_problem(
                     crocoddyl.ActionModelImpulseFwdDynamics(state, impulses, costs, 0.0, 0.0, True)
                 )
         costs = _cost_sum(state, nu, x_ref, state_weights, torque_weight)
-        differential = crocoddyl.DifferentialActionModelContactFwdDynamics(
-            state, actuation, contacts_for(stance), costs, 0.0, True
-        )
-        integrated = crocoddyl.IntegratedActionModelEuler(differential, dt)
+        integrated = crocoddyl_contact_action(robot, stance, dt, costs, baumgarte_alpha, state)
         running.extend([integrated] * knots)
         previous = stance
     terminal_costs = _cost_sum(state, nu, x_ref, terminal_weights, 0.0)
-    terminal_differential = crocoddyl.DifferentialActionModelContactFwdDynamics(
-        state, actuation, contacts_for(previous or [True] * 4), terminal_costs, 0.0, True
+    terminal = crocoddyl_contact_action(
+        robot, previous or [True] * 4, 0.0, terminal_costs, baumgarte_alpha, state
     )
-    terminal = crocoddyl.IntegratedActionModelEuler(terminal_differential, 0.0)
     problem = crocoddyl.ShootingProblem(np.asarray(x0, dtype=float), running, terminal)
     problem.nthreads = 1  # one core, as ours (Crocoddyl defaults to all cores with OpenMP)
     return problem
