@@ -27,7 +27,7 @@ from cafe_mpc.reference.locomotion import LocomotionReference
 from cafe_mpc.robots.robot import Robot
 from cafe_mpc.sim.plant import PlantState
 from cafe_mpc.solver import MSiLQRSolver, SolverOptions, SolverResult
-from cafe_mpc.wbc.pd import PDController, static_stance_torques
+from cafe_mpc.wbc.pd import PDController
 
 logger = logging.getLogger(__name__)
 
@@ -128,7 +128,6 @@ class CafeMpcController:
         self.warm_start = WarmStart()
         self.statistics = MpcStatistics()
         self.fallback = PDController(robot)
-        self._stance_torques: dict[tuple[bool, ...], np.ndarray] = {}
         self.plan: Plan | None = None
         self.pending: tuple[float, Plan] | None = None
         self.previous: tuple[BuiltProblem, SolverResult] | None = None
@@ -174,7 +173,14 @@ class CafeMpcController:
                 built, previous_built, previous_solution, self.stance_torque, srb_forces
             )
             solver = self.first_solver if first else self.solver
-            result = solver.solve(built.problem, guess.xs, guess.us, guess.rollout)
+            result = solver.solve(
+                built.problem,
+                guess.xs,
+                guess.us,
+                guess.rollout,
+                initial_multipliers=guess.multipliers,
+                initial_penalties=guess.penalties,
+            )
             plan = self._plan_from(built, result, solver)
         except (ValueError, FloatingPointError, np.linalg.LinAlgError, RuntimeError) as error:
             self.statistics.failures += 1
@@ -205,13 +211,7 @@ class CafeMpcController:
 
     def stance_torque(self, stance: tuple[bool, ...] | None) -> np.ndarray:
         """Static torques carrying the weight on ``stance`` at the standing pose (zero in flight)."""
-        key = tuple(stance) if stance is not None else (False,) * 4
-        if key not in self._stance_torques:
-            if any(key):
-                self._stance_torques[key] = static_stance_torques(self.robot, self.robot.q_standing, key)
-            else:
-                self._stance_torques[key] = np.zeros(self.robot.nu)
-        return self._stance_torques[key]
+        return self.builder.stance_torque(stance)
 
     def _srb_force_guess(self, built: BuiltProblem) -> np.ndarray:
         for info in built.phases:

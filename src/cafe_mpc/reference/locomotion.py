@@ -259,7 +259,10 @@ class LocomotionReference:
         velocities = np.zeros((n, 4, 3))
         if n == 0:
             return stance, positions, velocities
-        t0, t1 = float(times[0]), float(times[-1])
+        # Swings between the anchor (the last measurement) and ``times[0]`` matter too: a foot that touches
+        # down in between stands on that swing's foothold, not where it stood at the anchor (missing this put
+        # the SRB tail's stance feet up to 0.4 m from where the whole-body plan had placed them).
+        t0, t1 = min(float(times[0]), self.anchor_time), float(max(times[-1], times[0]))
         for foot in range(4):
             start_position = self.stance_positions[foot].copy()
             swings = self._swings(foot, t0, t1)
