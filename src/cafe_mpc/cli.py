@@ -34,10 +34,31 @@ def _command_run(arguments: argparse.Namespace) -> int:
         f"sim {metrics['sim_time_s']:.2f} s in {metrics['wall_time_s']:.2f} s "
         f"(real-time factor {metrics['real_time_factor']:.2f})"
     )
+    if config.gait is not None:
+        print(_gait_summary(metrics))
     if "render_error" in metrics:
         print(f"no video: {metrics['render_error']}")
     print(f"results in {result.out_dir}")
     return 0
+
+
+def _number(value: float | None, digits: int = 3) -> str:
+    return "n/a" if value is None else f"{value:.{digits}f}"
+
+
+def _gait_summary(metrics: dict) -> str:
+    """One line of tracking, MPC and low-level numbers for a gait run."""
+    mpc, wbc = metrics.get("mpc") or {}, metrics.get("wbc") or {}
+    return (
+        f"vx_mean={_number(metrics.get('vx_mean'))} m/s (window from {metrics['metrics_window_start_s']} s) "
+        f"vx_rms_error={_number(metrics.get('vx_rms_error'))} "
+        f"pitch_rms={_number(metrics.get('pitch_rms'))} rad; "
+        f"mpc solves={mpc.get('solves')} failures={mpc.get('failures')} "
+        f"solve median {_number(mpc.get('solve_time_ms_median'), 1)} ms; "
+        f"{wbc.get('controller')}: torque limit violations {wbc.get('torque_limit_violations')}, "
+        f"friction cone violations {wbc.get('friction_cone_violations')}, "
+        f"foot slip max {_number(wbc.get('foot_slip_max_m'), 4)} m"
+    )
 
 
 def _command_robot(arguments: argparse.Namespace) -> int:
@@ -80,8 +101,23 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("-v", "--verbose", action="store_true", help="log at INFO level to stderr")
     commands = parser.add_subparsers(dest="command", required=True)
 
-    run_parser = commands.add_parser("run", help="run a preset or a YAML config in simulation")
-    run_parser.add_argument("config", help="preset name (e.g. stand) or path to a YAML config")
+    from cafe_mpc.config import available_presets
+
+    presets = ", ".join(available_presets())
+    run_parser = commands.add_parser(
+        "run",
+        help="run a preset or a YAML config in simulation",
+        description=f"Run a preset or a YAML config in simulation. Presets: {presets}.",
+        epilog=(
+            "examples:\n"
+            "  cafe-mpc run bound                      # bound forward at 0.5 m/s (CAFE-MPC + VWBC), 10 s\n"
+            "  cafe-mpc run bound --duration 2 --set wbc=riccati --set mpc.schedule=S0\n"
+            "  cafe-mpc run trot --set gait.commands.0.vx=0.8 --set mpc.period=0.03\n"
+            "  cafe-mpc run bound-push --set wbc=riccati   # the paper's push test, Riccati controller"
+        ),
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    run_parser.add_argument("config", help=f"preset name ({presets}) or path to a YAML config")
     run_parser.add_argument("--duration", type=float, help="simulated seconds (overrides the config)")
     run_parser.add_argument("--out", help="output folder (default runs/<time>-<preset>/)")
     run_parser.add_argument(

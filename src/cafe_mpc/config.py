@@ -1,18 +1,28 @@
 """Run configurations: YAML files a user can read and edit, validated at the boundary.
 
-A run config names a robot, the low-level controller and simulation settings. Presets live in
+A run config names a robot, the low-level controller (``wbc``: PD standing, or CAFE-MPC with the Riccati
+feedback (33) or the VWBC QP (34) at the control rate), the gait and its velocity commands, the MPC's model
+schedule and rates, the whole-body cost weights, pushes and simulation settings. Presets live in
 ``cafe_mpc/configs/<name>.yaml``; ``cafe-mpc run PRESET_OR_FILE --set key=value`` overrides any key by its
-dotted path (``simulation.duration=3``, ``pushes.0.start=1.5``). Unknown keys and out-of-range values are
-rejected with a one-line message that names the key and the allowed range.
+dotted path (``simulation.duration=3``, ``pushes.0.start=1.5``, ``gait.commands.0.vx=0.8``). Unknown keys and
+out-of-range values are rejected with a one-line message that names the key and the allowed range.
 """
 
 from __future__ import annotations
 
+import functools
+import itertools
 from pathlib import Path
-from typing import Any, Literal
+from typing import TYPE_CHECKING, Any, Literal
 
 import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
+
+if TYPE_CHECKING:  # heavy modules (Pinocchio) are imported only where a value is built
+    from cafe_mpc.mpc.problem import ModelSchedule
+    from cafe_mpc.ocp.costs import WholeBodyWeights
+    from cafe_mpc.reference.locomotion import VelocityCommand
+    from cafe_mpc.robots.robot import Robot
 
 PRESET_DIR = Path(__file__).parent / "configs"
 
@@ -76,6 +86,182 @@ class PDConfig(StrictModel):
     gravity_feedforward: bool = True
 
 
+class VWBCConfig(StrictModel):
+    """The VWBC QP (34) solver (``cafe_mpc.wbc.vwbc.VWBCSettings``)."""
+
+    solver: Literal["daqp", "proxqp"] = Field(
+        "daqp", description="daqp: dual active set on the QP condensed onto tau; proxqp: the QP as written"
+    )
+    warm_start: Literal["previous", "plan", "equality", "none"] = Field(
+        "previous", description="previous tick's solution, the plan's guess, or cold"
+    )
+
+
+class CommandConfig(StrictModel):
+    """A velocity command from ``start`` on (heading frame): ``reference.locomotion.VelocityCommand``."""
+
+    start: float = Field(0.0, ge=0.0, description="s; the command holds until the next one starts")
+    vx: float = Field(0.0, description="m/s forward in the heading frame")
+    vy: float = Field(0.0, description="m/s to the left in the heading frame")
+    yaw_rate: float = Field(0.0, description="rad/s")
+    height: float | None = Field(None, description="m body height; null: the robot's standing height")
+
+
+def _default_commands() -> list[CommandConfig]:
+    return [CommandConfig(vx=0.5)]
+
+
+class GaitConfig(StrictModel):
+    """The periodic gait and the heuristic reference's parameters (paper Sec. VI-A)."""
+
+    name: str = Field("trot", description="a gait of cafe_mpc.ocp.contact_schedule.GAITS")
+    swing_height: float = Field(0.06, ge=0.0, le=0.2, description="m, swing apex above lift-off")
+    raibert_gain: float = Field(0.03, ge=0.0, le=1.0, description="s, Raibert velocity feedback gain")
+    commands: list[CommandConfig] = Field(default_factory=_default_commands, min_length=1)
+
+    @field_validator("name")
+    @classmethod
+    def _gait_known(cls, value: str) -> str:
+        from cafe_mpc.ocp.contact_schedule import GAITS
+
+        key = value.replace("-", "_").lower()
+        if key not in GAITS:
+            raise ValueError(f"unknown gait {value!r}; known gaits: {', '.join(sorted(GAITS))}")
+        return key
+
+    @field_validator("commands")
+    @classmethod
+    def _commands_in_order(cls, commands: list[CommandConfig]) -> list[CommandConfig]:
+        starts = [command.start for command in commands]
+        if starts[0] != 0.0:
+            raise ValueError(f"the first command must start at 0 s, got {starts[0]}")
+        if any(later <= earlier for earlier, later in itertools.pairwise(starts)):
+            raise ValueError(f"command start times must increase strictly, got {starts}")
+        return commands
+
+
+class MpcConfig(StrictModel):
+    """Receding-horizon settings: model schedule (Tw, Ts, dt_w, dt_s), period and policy lag.
+
+    ``schedule`` names one of the paper's schedules (S0..S20: Tw = 0.25 s, Ts = 0..2 s); for another split
+    set ``schedule: null`` and give ``whole_body_horizon`` and ``srb_horizon``. The time steps apply to both.
+    """
+
+    schedule: str | None = Field("S4", description="paper schedule S0..S5, S10, S15, S20; null: explicit")
+    whole_body_horizon: float | None = Field(None, gt=0.0, le=2.0, description="Tw, s (schedule: null)")
+    srb_horizon: float | None = Field(None, ge=0.0, le=5.0, description="Ts, s (schedule: null)")
+    whole_body_dt: float = Field(0.01, gt=0.0, le=0.1, description="dt_w, s")
+    srb_dt: float = Field(0.05, gt=0.0, le=0.5, description="dt_s, s")
+    period: float = Field(0.02, gt=0.0, le=0.5, description="s of simulated time between MPC updates")
+    latency: Literal["fixed", "measured"] = Field(
+        "fixed",
+        description="plan takes effect after fixed_latency (deterministic) or the measured solve time",
+    )
+    fixed_latency: float = Field(0.0, ge=0.0, le=0.5, description="s, with latency: fixed")
+
+    @field_validator("schedule")
+    @classmethod
+    def _schedule_known(cls, value: str | None) -> str | None:
+        from cafe_mpc.mpc.problem import PAPER_SCHEDULES
+
+        if value is not None and value not in PAPER_SCHEDULES:
+            raise ValueError(
+                f"unknown model schedule {value!r}; known: {', '.join(PAPER_SCHEDULES)} "
+                "(or null with whole_body_horizon and srb_horizon)"
+            )
+        return value
+
+    @model_validator(mode="after")
+    def _schedule_consistent(self) -> MpcConfig:
+        explicit = self.whole_body_horizon is not None or self.srb_horizon is not None
+        if self.schedule is not None and explicit:
+            raise ValueError(
+                f"give either schedule ({self.schedule!r}) or whole_body_horizon and srb_horizon, not both "
+                "(set mpc.schedule=null for an explicit split)"
+            )
+        if self.schedule is None and (self.whole_body_horizon is None or self.srb_horizon is None):
+            raise ValueError("with schedule null, give both whole_body_horizon and srb_horizon")
+        try:
+            self.model_schedule()
+        except ValueError as error:
+            raise ValueError(
+                f"{error} (keys whole_body_horizon, srb_horizon, whole_body_dt, srb_dt)"
+            ) from error
+        return self
+
+    def model_schedule(self) -> ModelSchedule:
+        """The ``ModelSchedule`` this section describes."""
+        from cafe_mpc.mpc.problem import ModelSchedule
+
+        if self.schedule is not None:
+            return ModelSchedule.named(self.schedule, self.whole_body_dt, self.srb_dt)
+        assert self.whole_body_horizon is not None and self.srb_horizon is not None
+        return ModelSchedule(self.whole_body_horizon, self.srb_horizon, self.whole_body_dt, self.srb_dt)
+
+
+Weights = float | list[float]
+"""A scalar (every joint / axis) or a list (12 per joint, or 3 x y z shared by the legs, or 12 per leg)."""
+
+
+class WholeBodyWeightsConfig(StrictModel):
+    """The main fields of ``cafe_mpc.ocp.costs.WholeBodyWeights`` (running cost ``0.5 dx' W dx dt``).
+
+    Base weights are in the facts file's order ``[x, y, z, yaw, pitch, roll]``.
+    """
+
+    base_position: tuple[float, float, float, float, float, float]
+    base_velocity: tuple[float, float, float, float, float, float]
+    joint_position: Weights
+    joint_velocity: Weights
+    torque: Weights
+    swing_foot_position: Weights
+    swing_foot_velocity: Weights
+
+    @model_validator(mode="after")
+    def _weights_valid(self) -> WholeBodyWeightsConfig:
+        self.to_weights()  # raises ValueError naming the field (shape, negative or non-finite)
+        return self
+
+    @classmethod
+    def from_weights(cls, weights: WholeBodyWeights) -> WholeBodyWeightsConfig:
+        """From a ``WholeBodyWeights`` (tuples become lists so the YAML dump stays plain)."""
+
+        def plain(value: Any) -> Any:
+            return [float(v) for v in value] if isinstance(value, tuple | list) else float(value)
+
+        return cls(**{name: plain(getattr(weights, name)) for name in cls.model_fields})
+
+    def to_weights(self) -> WholeBodyWeights:
+        from cafe_mpc.ocp.costs import WholeBodyWeights
+
+        def value(item: Any) -> Any:
+            return tuple(item) if isinstance(item, tuple | list) else item
+
+        return WholeBodyWeights(**{name: value(getattr(self, name)) for name in type(self).model_fields})
+
+
+def _regular_running() -> WholeBodyWeightsConfig:
+    from cafe_mpc.ocp.costs import WholeBodyWeights
+
+    return WholeBodyWeightsConfig.from_weights(WholeBodyWeights.regular_running())
+
+
+def _regular_terminal() -> WholeBodyWeightsConfig:
+    from cafe_mpc.ocp.costs import WholeBodyWeights
+
+    return WholeBodyWeightsConfig.from_weights(WholeBodyWeights.regular_terminal())
+
+
+class CostsConfig(StrictModel):
+    """Whole-body cost weights; defaults are the authors' "regular" set (facts, ``WholeBodyWeights``).
+
+    The SRB tail uses the same base weights (paper Eq. (28)) with the facts' GRF regularisation.
+    """
+
+    running: WholeBodyWeightsConfig = Field(default_factory=_regular_running)
+    terminal: WholeBodyWeightsConfig = Field(default_factory=_regular_terminal)
+
+
 class OutputConfig(StrictModel):
     plots: bool = True
     render: bool = False
@@ -87,8 +273,14 @@ class RunConfig(StrictModel):
 
     name: str = "stand"
     robot: str = "mini_cheetah"
-    wbc: Literal["pd"] = Field("pd", description="low-level controller")
+    wbc: Literal["pd", "riccati", "vwbc"] = Field(
+        "pd", description="pd: stand in place; riccati / vwbc: CAFE-MPC with that low-level controller"
+    )
     pd: PDConfig = PDConfig()
+    vwbc: VWBCConfig = VWBCConfig()
+    gait: GaitConfig | None = Field(None, description="gait and commands (MPC controllers); null for pd")
+    mpc: MpcConfig = MpcConfig()
+    costs: CostsConfig = Field(default_factory=CostsConfig)
     simulation: SimulationConfig = SimulationConfig()
     pushes: list[PushConfig] = Field(default_factory=list)
     output: OutputConfig = OutputConfig()
@@ -103,6 +295,53 @@ class RunConfig(StrictModel):
         except RobotLoadError as error:
             raise ValueError(str(error)) from error
         return value
+
+    @model_validator(mode="after")
+    def _controller_matches_gait(self) -> RunConfig:
+        if self.wbc == "pd" and self.gait is not None:
+            raise ValueError(
+                f"wbc: 'pd' stands in place and cannot follow gait {self.gait.name!r}; use wbc=riccati or "
+                "wbc=vwbc (or gait=null to stand)"
+            )
+        if self.wbc != "pd" and self.gait is None:
+            raise ValueError(
+                f"wbc: {self.wbc!r} runs CAFE-MPC and needs a gait section (e.g. --set gait.name=trot)"
+            )
+        if self.mpc.period < 1.0 / self.simulation.control_rate_hz - 1e-12:
+            raise ValueError(
+                f"mpc.period: {self.mpc.period} s is shorter than the control period "
+                f"1/{self.simulation.control_rate_hz} s"
+            )
+        if self.gait is not None:
+            _check_commands(self.robot, self.gait.commands)
+        return self
+
+
+def _check_commands(robot_name: str, commands: list[CommandConfig]) -> None:
+    """The reference's range checks (``validate_command``: speeds, yaw rate, height vs leg length)."""
+    from cafe_mpc.reference.locomotion import validate_command
+
+    robot = _cached_robot(robot_name)
+    for index, command in enumerate(commands):
+        try:
+            validate_command(velocity_command(command), robot)
+        except ValueError as error:
+            raise ValueError(f"gait.commands.{index}: {error}") from error
+
+
+@functools.lru_cache(maxsize=4)
+def _cached_robot(name: str) -> Robot:
+    """The robot, loaded once per name (configs re-validate on every assignment)."""
+    from cafe_mpc.robots.robot import load_robot
+
+    return load_robot(name)
+
+
+def velocity_command(command: CommandConfig) -> VelocityCommand:
+    """The reference's ``VelocityCommand`` of a config command."""
+    from cafe_mpc.reference.locomotion import VelocityCommand
+
+    return VelocityCommand(command.start, command.vx, command.vy, command.yaw_rate, command.height)
 
 
 def available_presets() -> list[str]:
@@ -121,36 +360,50 @@ def _read_yaml(path: Path) -> dict[str, Any]:
 
 
 def _set_dotted(raw: dict[str, Any], model: type[BaseModel], dotted: str, value: Any) -> None:
-    """Set ``raw[a][b]... = value`` after checking that the path exists in the config schema."""
+    """Set ``raw[a][b]... = value`` after checking that the path exists in the config schema.
+
+    Sections missing from ``raw`` (or null, like ``gait`` of the stand preset) are created from the schema's
+    defaults, so ``--set gait.commands.0.vx=0.8`` works on any config.
+    """
     parts = dotted.split(".")
     node: Any = raw
     schema: Any = model
     for depth, part in enumerate(parts):
         last = depth == len(parts) - 1
-        if isinstance(schema, type) and issubclass(schema, BaseModel):
-            if part not in schema.model_fields:
-                allowed = ", ".join(schema.model_fields)
-                where = ".".join(parts[:depth]) or "top level"
-                raise ConfigError(f"unknown config key {dotted!r}: {where} allows {allowed}")
-            field = schema.model_fields[part]
-            annotation = field.annotation
-            if last:
-                node[part] = value
-                return
-            if part not in node or node[part] is None:
-                default = field.get_default(call_default_factory=True)
-                node[part] = default.model_dump() if isinstance(default, BaseModel) else default
-            node = node[part]
-            schema = _inner_model(annotation)
-        elif isinstance(node, list):
+        if isinstance(node, list):  # list index; the element schema stays ``schema``
             if not part.isdigit() or int(part) >= len(node):
                 raise ConfigError(f"config key {dotted!r}: index {part} is not in a list of {len(node)}")
             if last:
                 node[int(part)] = value
                 return
             node = node[int(part)]
+        elif isinstance(node, dict) and isinstance(schema, type) and issubclass(schema, BaseModel):
+            if part not in schema.model_fields:
+                allowed = ", ".join(schema.model_fields)
+                where = ".".join(parts[:depth]) or "top level"
+                raise ConfigError(f"unknown config key {dotted!r}: {where} allows {allowed}")
+            field = schema.model_fields[part]
+            if last:
+                node[part] = value
+                return
+            schema = _inner_model(field.annotation)
+            if part not in node or node[part] is None:
+                default = field.get_default(call_default_factory=True)
+                if default is None and isinstance(schema, type) and issubclass(schema, BaseModel):
+                    default = {}  # an optional section (gait: null) that a sub-key override creates
+                node[part] = _plain(default)
+            node = node[part]
         else:
             raise ConfigError(f"unknown config key {dotted!r}: {'.'.join(parts[:depth])} has no sub-keys")
+
+
+def _plain(value: Any) -> Any:
+    """A default as plain YAML data (models and lists of models dumped)."""
+    if isinstance(value, BaseModel):
+        return value.model_dump()
+    if isinstance(value, list):
+        return [_plain(item) for item in value]
+    return value
 
 
 def _inner_model(annotation: Any) -> Any:
@@ -181,13 +434,16 @@ def format_validation_error(error: ValidationError) -> str:
     lines = []
     for problem in error.errors():
         location = ".".join(str(part) for part in problem["loc"]) or "config"
-        message = problem["msg"]
+        message = problem["msg"].removeprefix("Value error, ")
         got = problem.get("input")
         if problem["type"] == "extra_forbidden":
             message = "unknown key"
-        lines.append(
-            f"{location}: {message} (got {got!r})" if not isinstance(got, dict) else f"{location}: {message}"
-        )
+        if not problem["loc"] and isinstance(got, dict):
+            lines.append(message)  # a whole-config check: the message names its keys
+        elif isinstance(got, dict):
+            lines.append(f"{location}: {message}")
+        else:
+            lines.append(f"{location}: {message} (got {got!r})")
     return "; ".join(lines)
 
 

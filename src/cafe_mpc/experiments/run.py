@@ -1,5 +1,8 @@
 """One run: config -> controller -> closed-loop simulation -> config, metrics, log and plots on disk.
 
+The controller comes from ``experiments.controllers.build_controller`` (PD standing, or CAFE-MPC over the
+Riccati or VWBC low level); metrics from ``report.metrics``, plots from ``report.plots``.
+
 Results are written to a hidden ``.<name>.partial`` folder and renamed only when everything succeeded,
 so a failed run never leaves a folder that looks like a result.
 """
@@ -13,12 +16,22 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
+import numpy as np
 import yaml
 
 from cafe_mpc.config import RunConfig
+from cafe_mpc.experiments.controllers import (
+    RunController,
+    build_controller,
+    low_level_of,
+    recorder_of,
+    reference_commands,
+)
+from cafe_mpc.mpc.controller import CafeMpcController
 from cafe_mpc.robots.robot import Robot, load_robot
-from cafe_mpc.sim.loop import Controller, FallCriteria, Push, SimulationLog, simulate
-from cafe_mpc.wbc.pd import PDController
+from cafe_mpc.sim.loop import FallCriteria, Push, SimulationLog, simulate
+from cafe_mpc.wbc.riccati import RiccatiController
+from cafe_mpc.wbc.vwbc import VWBCController
 
 logger = logging.getLogger(__name__)
 
@@ -30,19 +43,16 @@ class RunResult:
     log: SimulationLog
     metrics: dict
     out_dir: Path | None
+    controller: RunController | None = None
 
 
-def build_controller(config: RunConfig, robot: Robot) -> Controller:
-    """The low-level controller named by ``config.wbc``."""
-    if config.wbc == "pd":
-        return PDController(
-            robot, config.pd.kp, config.pd.kd, gravity_feedforward=config.pd.gravity_feedforward
-        )
-    raise ValueError(f"unknown low-level controller {config.wbc!r}")
+def simulate_run(config: RunConfig, progress=None) -> tuple[Robot, RunController, SimulationLog]:
+    """Build robot and controller from ``config`` and run the closed loop (no files written).
 
-
-def simulate_config(config: RunConfig, progress=None) -> tuple[Robot, SimulationLog]:
-    """Build robot and controller from ``config`` and run the closed loop (no files written)."""
+    For CAFE-MPC runs the log's ``extra`` holds per-tick ``torque_requested`` (before clamping),
+    ``planned_stance`` (the plan knot's stance used by the low-level controller) and ``gait_stance`` (the
+    reference's contact schedule); they are saved in ``log.npz`` as ``extra_<name>``.
+    """
     robot = load_robot(config.robot)
     controller = build_controller(config, robot)
     q0 = robot.q_standing.copy()
@@ -60,7 +70,47 @@ def simulate_config(config: RunConfig, progress=None) -> tuple[Robot, Simulation
         stop_on_fall=config.simulation.stop_on_fall,
         progress=progress,
     )
+    recorder = recorder_of(controller)
+    if recorder is not None:
+        requested, planned = recorder.traces(log.time)
+        log.extra["torque_requested"] = requested
+        log.extra["planned_stance"] = planned
+    if isinstance(controller, CafeMpcController):
+        reference = controller.reference
+        stance = [reference.stance_at(float(t)) for t in log.time]
+        log.extra["gait_stance"] = np.array(stance, dtype=bool).reshape(-1, 4)
+    return robot, controller, log
+
+
+def simulate_config(config: RunConfig, progress=None) -> tuple[Robot, SimulationLog]:
+    """Build robot and controller from ``config`` and run the closed loop (no files written)."""
+    robot, _, log = simulate_run(config, progress)
     return robot, log
+
+
+def run_metrics(config: RunConfig, robot: Robot, controller: RunController, log: SimulationLog) -> dict:
+    """Everything ``metrics.json`` reports: base metrics, tracking, the ``mpc`` and ``wbc`` blocks."""
+    from cafe_mpc.report.metrics import base_metrics, tracking_metrics, wbc_metrics
+
+    metrics = base_metrics(robot, log, 1.0 / config.simulation.control_rate_hz)
+    metrics["robot"] = robot.name
+    metrics["controller"] = config.wbc
+    metrics["gait"] = config.gait.name if config.gait is not None else None
+    metrics.update(tracking_metrics(robot, log, reference_commands(config)))
+    is_mpc = isinstance(controller, CafeMpcController)
+    metrics["mpc"] = controller.statistics.summary() if is_mpc else None
+    low_level = low_level_of(controller)
+    metrics["wbc"] = wbc_metrics(
+        robot,
+        log,
+        config.wbc,
+        torque_limit_violations=(
+            low_level.limit_violations if isinstance(low_level, RiccatiController) else None
+        ),
+        qp_statistics=low_level.statistics() if isinstance(low_level, VWBCController) else None,
+        planned_stance=log.extra.get("planned_stance"),
+    )
+    return metrics
 
 
 def default_out_dir(config: RunConfig, root: Path = Path("runs")) -> Path:
@@ -69,8 +119,6 @@ def default_out_dir(config: RunConfig, root: Path = Path("runs")) -> Path:
 
 def run(config: RunConfig, out_dir: Path | None, show_progress: bool = False) -> RunResult:
     """Run ``config``; when ``out_dir`` is given write config.yaml, metrics.json, log.npz, run.log, plots."""
-    from cafe_mpc.report.metrics import base_metrics
-
     partial: Path | None = None
     handler: logging.Handler | None = None
     if out_dir is not None:
@@ -103,16 +151,18 @@ def run(config: RunConfig, out_dir: Path | None, show_progress: bool = False) ->
                 bar_format="{l_bar}{bar}| {n:.2f}/{total:.2f} sim s [{elapsed}<{remaining}]",
             )
             progress = bar.update
-        robot, log = simulate_config(config, progress)
-        metrics = base_metrics(robot, log, 1.0 / config.simulation.control_rate_hz)
-        metrics["robot"] = robot.name
-        metrics["controller"] = config.wbc
+        robot, controller, log = simulate_run(config, progress)
+        metrics = run_metrics(config, robot, controller, log)
         logger.info(
-            "metrics: fell=%s, base height mean %.3f m, real-time factor %.2f",
+            "metrics: fell=%s, base height mean %.3f m, vx mean %.3f m/s, real-time factor %.2f",
             metrics["fell"],
             metrics["base_height_mean"] or float("nan"),
+            metrics["vx_mean"] if metrics["vx_mean"] is not None else float("nan"),
             metrics["real_time_factor"] or float("nan"),
         )
+        if metrics["mpc"] is not None:
+            logger.info("mpc: %s", metrics["mpc"])
+        logger.info("wbc: %s", metrics["wbc"])
         if partial is not None:
             with open(partial / "config.yaml", "w") as handle:
                 yaml.safe_dump(config.model_dump(mode="json"), handle, sort_keys=False)
@@ -122,7 +172,16 @@ def run(config: RunConfig, out_dir: Path | None, show_progress: bool = False) ->
             if config.output.plots and log.ticks > 1:
                 from cafe_mpc.report.plots import plot_run
 
-                plot_run(robot, log, partial)
+                plot_run(
+                    robot,
+                    log,
+                    partial,
+                    commands=reference_commands(config),
+                    mpc_statistics=controller.statistics
+                    if isinstance(controller, CafeMpcController)
+                    else None,
+                    mpc_period=config.mpc.period,
+                )
             if config.output.render:
                 from cafe_mpc.report.video import RenderUnavailable, render_run
 
@@ -145,7 +204,7 @@ def run(config: RunConfig, out_dir: Path | None, show_progress: bool = False) ->
             if out_dir.exists():
                 out_dir.rmdir()
             partial.rename(out_dir)
-        return RunResult(config, robot, log, metrics, out_dir)
+        return RunResult(config, robot, log, metrics, out_dir, controller)
     except BaseException:
         if partial is not None:
             shutil.rmtree(partial, ignore_errors=True)

@@ -22,7 +22,6 @@ import numpy as np
 
 from cafe_mpc.mpc.plan import Plan
 from cafe_mpc.mpc.problem import BuiltProblem, CafeProblemBuilder, WarmStart
-from cafe_mpc.ocp.knots import weight_split_forces
 from cafe_mpc.reference.locomotion import LocomotionReference
 from cafe_mpc.robots.robot import Robot
 from cafe_mpc.sim.plant import PlantState
@@ -170,7 +169,11 @@ class CafeMpcController:
             srb_forces = self._srb_force_guess(built)
             previous_built, previous_solution = self.previous if self.previous else (None, None)
             guess = self.warm_start.guess(
-                built, previous_built, previous_solution, self.stance_torque, srb_forces
+                built,
+                previous_built,
+                previous_solution,
+                lambda stance: self.builder.stance_torque(stance, self.reference.support_factor(t)),
+                srb_forces,
             )
             solver = self.first_solver if first else self.solver
             result = solver.solve(
@@ -213,12 +216,9 @@ class CafeMpcController:
         """Static torques carrying the weight on ``stance`` at the standing pose (zero in flight)."""
         return self.builder.stance_torque(stance)
 
-    def _srb_force_guess(self, built: BuiltProblem) -> np.ndarray:
-        for info in built.phases:
-            if info.kind == "srb":
-                weight = self.builder.srb.weight
-                return np.array([weight_split_forces(c.astype(float), weight) for c in info.contacts])
-        return np.zeros((0, 12))
+    @staticmethod
+    def _srb_force_guess(built: BuiltProblem) -> np.ndarray:
+        return built.srb_forces
 
     def _plan_from(self, built: BuiltProblem, result: SolverResult, solver: MSiLQRSolver) -> Plan | None:
         times, xs, us, gains, qu, quu, qux, contacts, forces, dts = [], [], [], [], [], [], [], [], [], []

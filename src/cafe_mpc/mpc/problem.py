@@ -105,6 +105,8 @@ class BuiltProblem:
     problem: MultiPhaseProblem
     phases: list[PhaseInfo]
     start_time: float
+    srb_forces: np.ndarray = field(default_factory=lambda: np.zeros((0, 12)))
+    """GRF targets of the SRB knots (n_srb, 12): also their warm-start guess."""
 
     @property
     def whole_body_phases(self) -> list[int]:
@@ -147,24 +149,31 @@ class CafeProblemBuilder:
         self.intermediate = WholeBodyModelFactory(
             whole_body.robot, replace(whole_body.settings, terminal_weights=zero)
         )
-        self._stance_torques: dict[tuple[bool, ...], np.ndarray] = {}
+        self._stance_torques: dict[tuple[tuple[bool, ...], float | None], np.ndarray] = {}
 
-    def stance_torque(self, stance: tuple[bool, ...] | None) -> np.ndarray:
-        """Torques that hold the standing pose with the weight split over ``stance`` (zero in flight).
+    def stance_torque(
+        self, stance: tuple[bool, ...] | None, support_factor: float | None = None
+    ) -> np.ndarray:
+        """Torques that hold the standing pose with ``support_factor * m g`` on each stance foot (default:
+        the weight split over the stance feet); zero in flight.
 
-        This is the torque regularisation target of every running knot: regularising toward zero instead
-        biases the plan toward straight legs (less knee torque), which in closed loop lifted the base from
-        0.25 m to 0.32 m while trotting. It is also the torque guess of appended warm-start knots.
+        This is the torque regularisation target of every running knot: regularising toward zero biases
+        the plan toward straight legs (less knee torque), which in closed loop lifted the trotting base from
+        0.25 m to 0.32 m; regularising toward the static split biased bounding the same way (the stance legs
+        of a gait with flight phases carry more than their share of the weight on average, see
+        ``GaitCycle.support_factor``). It is also the torque guess of appended warm-start knots.
         """
         key = tuple(bool(s) for s in stance) if stance is not None else (False,) * 4
-        if key not in self._stance_torques:
+        factor = None if support_factor is None else round(float(support_factor), 6)
+        if (key, factor) not in self._stance_torques:
             if any(key):
-                torque = static_stance_torques(self.robot, self.robot.q_standing, key)
+                force = None if factor is None else factor * self.robot.total_mass * 9.81
+                torque = static_stance_torques(self.robot, self.robot.q_standing, key, force)
             else:
                 torque = np.zeros(self.robot.nu)
             torque.setflags(write=False)
-            self._stance_torques[key] = torque
-        return self._stance_torques[key]
+            self._stance_torques[(key, factor)] = torque
+        return self._stance_torques[(key, factor)]
 
     def build(self, t0: float, x0: np.ndarray, reference: LocomotionReference) -> BuiltProblem:
         schedule = self.schedule
@@ -190,7 +199,7 @@ class CafeProblemBuilder:
                     states[k],
                     feet_positions[k],
                     feet_velocities[k],
-                    self.stance_torque(stance),
+                    self.stance_torque(stance, reference.support_factor(float(wb_times[k]))),
                 )
                 running.append(self.whole_body.running_knot(stance, ref, schedule.whole_body_dt))
             is_last = index == len(groups) - 1
@@ -229,10 +238,16 @@ class CafeProblemBuilder:
             stance_srb = np.array([reference.stance_at(t + TIME_EPS) for t in srb_times], dtype=bool)
             _, srb_feet, _ = reference.feet(srb_times)
             running = []
+            srb_forces = np.zeros((n_srb, 12))
             for j in range(n_srb):
                 q_ref, v_ref = reference.base_state(srb_times[j])
                 state = whole_body_to_srb_state(np.concatenate([q_ref, v_ref]))
+                # GRF target (28): the gait's average stance force on each stance foot
+                srb_forces[j].reshape(4, 3)[:, 2] = (
+                    stance_srb[j] * reference.support_factor(float(srb_times[j])) * self.srb.weight
+                )
                 ref = self.srb.reference(state, srb_feet[j], tuple(bool(s) for s in stance_srb[j]))
+                ref.set(forces=srb_forces[j])
                 running.append(self.srb.running_knot(ref, schedule.srb_dt))
             q_ref, v_ref = reference.base_state(srb_times[-1])
             terminal_ref = self.srb.reference(
@@ -245,8 +260,10 @@ class CafeProblemBuilder:
             )
             entered = any(touchdown_flags(groups[-1][0], tuple(bool(s) for s in stance_srb[0])))
             infos.append(PhaseInfo("srb", None, srb_times, stance_srb[:-1].copy(), entered))
+        else:
+            srb_forces = np.zeros((0, 12))
         problem = MultiPhaseProblem(np.asarray(x0, dtype=float), phases)
-        return BuiltProblem(problem, infos, t0)
+        return BuiltProblem(problem, infos, t0, srb_forces)
 
     def _whole_body_references(
         self,

@@ -223,6 +223,19 @@ class GaitCycle:
     def period(self) -> float:
         return sum(duration for _, duration in self.cycle)
 
+    @property
+    def support_factor(self) -> float:
+        """Average vertical force of a stance foot over the cycle, in units of the robot's weight.
+
+        Over one period the feet must deliver the weight's impulse ``m g T``; shared over the stance
+        foot-time ``sum(n_stance * duration)`` a stance foot carries ``m g T / sum(...)`` on average: 1/4
+        standing, 1/2 trotting, 1 bounding (half the time in flight, two feet), 3/4 pronking.
+        """
+        foot_time = sum(sum(flags) * duration for flags, duration in self.cycle)
+        if foot_time <= 0:
+            raise ValueError(f"gait {self.name!r} never touches the ground")
+        return self.period / foot_time
+
     def flags_at(self, t: float, t0: float = 0.0) -> ContactFlags:
         """Stance flags at time ``t`` for a cycle that starts at ``t0`` (and repeats forever)."""
         tau = (t - t0) % self.period

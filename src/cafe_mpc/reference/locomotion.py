@@ -19,7 +19,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from cafe_mpc.ocp.contact_schedule import ContactSchedule, GaitCycle
+from cafe_mpc.ocp.contact_schedule import ContactPhase, ContactSchedule, GaitCycle
 from cafe_mpc.robots.robot import Robot
 
 GRAVITY = 9.81
@@ -103,6 +103,7 @@ class LocomotionReference:
         raibert_gain: float = 0.03,
         foothold_box: tuple[float, float] = (0.10, 0.06),
         cycle_start: float = 0.0,
+        start_stance: float = 0.0,
     ) -> None:
         if not commands:
             commands = [VelocityCommand()]
@@ -117,7 +118,13 @@ class LocomotionReference:
         self.swing_height = swing_height
         self.raibert_gain = raibert_gain
         self.foothold_box = np.array(foothold_box, dtype=float)
-        self.cycle_start = cycle_start
+        if not (math.isfinite(start_stance) and start_stance >= 0.0):
+            raise ValueError(f"start_stance must be >= 0 s, got {start_stance}")
+        self.start_stance = float(start_stance)
+        """All four feet stand on ``[0, start_stance)``; the gait's first cycle starts at ``start_stance``
+        (``cycle_start`` is then ignored). Dynamic gaits such as bounding cannot start from rest in their
+        first phase: a short stand lets the first plans load the legs and lean into the gait."""
+        self.cycle_start = self.start_stance if self.start_stance > 0 else cycle_start
         self.offsets = robot.foothold_offsets.copy()
         self.mass = robot.total_mass
         self.nominal_joints = robot.q_standing[7:].copy()
@@ -149,12 +156,24 @@ class LocomotionReference:
         if not (self._schedule_window[0] <= t0 and t1 <= self._schedule_window[1]):
             start = max(0.0, t0 - 2.0 * self.gait.period)
             end = t1 + 4.0 * self.gait.period
-            self._schedule = self.gait.schedule(start, end, cycle_start=self.cycle_start)
+            if start < self.start_stance:
+                stand = ContactPhase((True, True, True, True), start, self.start_stance)
+                gait = self.gait.schedule(self.start_stance, max(end, self.start_stance + self.gait.period))
+                phases = list(gait.phases)
+                if phases[0].stance == stand.stance:
+                    phases[0] = ContactPhase(stand.stance, stand.start, phases[0].end)
+                else:
+                    phases.insert(0, stand)
+                self._schedule = ContactSchedule(phases)
+            else:
+                self._schedule = self.gait.schedule(start, end, cycle_start=self.cycle_start)
             self._schedule_window = (start, end)
         assert self._schedule is not None
         return self._schedule
 
     def stance_at(self, t: float) -> tuple[bool, bool, bool, bool]:
+        if t < self.start_stance - 1e-9:
+            return (True, True, True, True)
         return self.gait.flags_at(t, self.cycle_start)
 
     # ------------------------------------------------------------------------------------------ update
@@ -300,12 +319,26 @@ class LocomotionReference:
                     positions[i, foot] = position
         return stance, positions, velocities
 
-    def normal_forces(self, stance: np.ndarray) -> np.ndarray:
-        """GRF reference (n, 4, 3): weight shared by the stance feet, zero on swing feet."""
+    def support_factor(self, t: float) -> float:
+        """Vertical force of a stance foot at ``t`` in units of the weight, averaged over the gait cycle
+        (``GaitCycle.support_factor``: 1/2 trotting, 1 bounding); 1/4 during the initial stand."""
+        if t < self.start_stance - 1e-9:
+            return 0.25
+        return self.gait.support_factor
+
+    def normal_forces(self, stance: np.ndarray, times: Sequence[float] | None = None) -> np.ndarray:
+        """GRF reference (n, 4, 3): vertical, ``support_factor * m g`` on each stance foot (the weight
+        shared by the stance feet when the gait has no flight), zero on swing feet.
+
+        Without ``times`` the weight is split over the stance feet of each row (static balance).
+        """
         stance = np.atleast_2d(stance)
         forces = np.zeros((*stance.shape, 3))
-        count = stance.sum(axis=1, keepdims=True)
-        share = np.where(count > 0, self.mass * GRAVITY / np.maximum(count, 1), 0.0)
+        if times is None:
+            count = stance.sum(axis=1, keepdims=True)
+            share = np.where(count > 0, self.mass * GRAVITY / np.maximum(count, 1), 0.0)
+        else:
+            share = np.array([[self.support_factor(float(t)) * self.mass * GRAVITY] for t in times])
         forces[..., 2] = np.where(stance, share, 0.0)
         return forces
 

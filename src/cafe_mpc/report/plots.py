@@ -1,8 +1,12 @@
-"""Plots of a run (PNG): base height, orientation, velocities, joint torques with limits, contact forces."""
+"""Plots of a run (PNG): base height, orientation, velocities, joint torques with limits, contact forces,
+and (with the commands / MPC statistics given) commanded vs actual velocities, foot heights over the
+contact schedule, MPC solve times, and hip and knee torques with their limits (paper Fig. 9 style)."""
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import matplotlib
 
@@ -10,9 +14,19 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 import numpy as np
 
-from cafe_mpc.report.metrics import roll_pitch_yaw
+from cafe_mpc.reference.locomotion import VelocityCommand
+from cafe_mpc.report.metrics import (
+    METRICS_WINDOW_START_S,
+    body_rates,
+    commanded_at,
+    foot_trajectories,
+    roll_pitch_yaw,
+)
 from cafe_mpc.robots.robot import Robot
 from cafe_mpc.sim.loop import SimulationLog
+
+if TYPE_CHECKING:
+    from cafe_mpc.mpc.controller import MpcStatistics
 
 JOINT_KINDS = ("abad", "hip", "knee")
 
@@ -39,8 +53,20 @@ def _mark_pushes(axis: plt.Axes, log: SimulationLog) -> None:
         )
 
 
-def plot_run(robot: Robot, log: SimulationLog, out_dir: Path) -> list[Path]:
-    """Write the standard plots of a run into ``out_dir``; returns the files written."""
+def plot_run(
+    robot: Robot,
+    log: SimulationLog,
+    out_dir: Path,
+    commands: Sequence[VelocityCommand] | None = None,
+    mpc_statistics: MpcStatistics | None = None,
+    mpc_period: float | None = None,
+) -> list[Path]:
+    """Write the plots of a run into ``out_dir``; returns the files written.
+
+    Always: ``base_height``, ``orientation``, ``velocities``, ``joint_torques``, ``contact_forces``,
+    ``foot_heights`` and ``hip_knee_torques``. With ``commands``: ``velocity_tracking``. With
+    ``mpc_statistics`` (a CAFE-MPC run): ``mpc_solve_times``.
+    """
     out_dir = Path(out_dir)
     t = log.time
     written = []
@@ -115,4 +141,137 @@ def plot_run(robot: Robot, log: SimulationLog, out_dir: Path) -> list[Path]:
     axes[-1].set_xlabel("time [s]")
     figure.suptitle("ground reaction forces (world frame; grey: contact)", fontsize=10)
     written.append(_save(figure, out_dir / "contact_forces.png"))
+
+    if commands is not None:
+        written.append(plot_velocity_tracking(robot, log, commands, out_dir / "velocity_tracking.png"))
+    written.append(plot_foot_heights(robot, log, out_dir / "foot_heights.png"))
+    written.append(plot_hip_knee_torques(robot, log, out_dir / "hip_knee_torques.png"))
+    if mpc_statistics is not None and mpc_statistics.solve_times:
+        written.append(plot_mpc_solve_times(mpc_statistics, mpc_period, out_dir / "mpc_solve_times.png"))
     return written
+
+
+def _shade(axis: plt.Axes, t: np.ndarray, where: np.ndarray, color: str, alpha: float, label: str) -> None:
+    axis.fill_between(
+        t,
+        0,
+        1,
+        where=where,
+        transform=axis.get_xaxis_transform(),
+        color=color,
+        alpha=alpha,
+        lw=0,
+        label=label,
+    )
+
+
+def plot_velocity_tracking(
+    robot: Robot, log: SimulationLog, commands: Sequence[VelocityCommand], path: Path
+) -> Path:
+    """Commanded (dashed) vs actual heading-frame vx, vy and yaw rate; the metrics window starts at the
+    dotted line."""
+    t = log.time
+    heading, yaw_rate, _ = body_rates(log.q, log.v)
+    commanded = commanded_at(t, commands, robot.standing_height)
+    figure, axes = plt.subplots(3, 1, figsize=(8, 6), sharex=True)
+    actual = (heading[:, 0], heading[:, 1], yaw_rate)
+    for axis, values, column, label in zip(
+        axes, actual, range(3), ("vx [m/s]", "vy [m/s]", "yaw rate [rad/s]"), strict=True
+    ):
+        axis.plot(t, values, lw=0.8, label="actual")
+        axis.step(t, commanded[:, column], "k--", lw=1.0, where="post", label="commanded")
+        if len(t) and t[-1] > METRICS_WINDOW_START_S:
+            axis.axvline(METRICS_WINDOW_START_S, color="grey", ls=":", lw=0.8, label="metrics window")
+        low = min(np.min(values, initial=0.0), np.min(commanded[:, column], initial=0.0))
+        high = max(np.max(values, initial=0.0), np.max(commanded[:, column], initial=0.0))
+        if high - low < 0.1:  # do not magnify numerical noise about a zero command
+            middle = 0.5 * (high + low)
+            axis.set_ylim(middle - 0.1, middle + 0.1)
+        _mark_pushes(axis, log)
+        axis.set_ylabel(label)
+    axes[0].legend(loc="best", fontsize=8)
+    axes[-1].set_xlabel("time [s]")
+    figure.suptitle("velocity tracking (heading frame)", fontsize=10)
+    return _save(figure, path)
+
+
+def plot_foot_heights(robot: Robot, log: SimulationLog, path: Path) -> Path:
+    """Foot heights above the floor, the gait's contact schedule shaded (grey; the plant's measured
+    contact as the black strip at the bottom). Without a gait (PD) the measured contact is shaded."""
+    t = log.time
+    heights = foot_trajectories(robot, log.q)[:, :, 2] - robot.foot_radius
+    schedule = log.extra.get("gait_stance")
+    figure, axes = plt.subplots(4, 1, figsize=(8, 7), sharex=True)
+    for leg_index, leg in enumerate(robot.leg_names):
+        axis = axes[leg_index]
+        axis.plot(t, heights[:, leg_index], lw=0.8, label="foot height")
+        shaded = log.contacts[:, leg_index] if schedule is None else schedule[:, leg_index]
+        _shade(axis, t, shaded, "grey", 0.2, "planned stance" if schedule is not None else "contact")
+        if schedule is not None:
+            axis.fill_between(
+                t,
+                0,
+                0.06,
+                where=log.contacts[:, leg_index],
+                transform=axis.get_xaxis_transform(),
+                color="k",
+                lw=0,
+                label="measured contact",
+            )
+        axis.set_ylabel(f"{leg} [m]")
+    axes[0].legend(loc="upper right", fontsize=7)
+    axes[-1].set_xlabel("time [s]")
+    figure.suptitle("foot heights above the floor", fontsize=10)
+    return _save(figure, path)
+
+
+def plot_hip_knee_torques(robot: Robot, log: SimulationLog, path: Path) -> Path:
+    """Hip and knee torques of the front-right and hind-right legs with their limits (paper Fig. 9).
+
+    Solid: the command sent to the plant; faint: what the low-level controller requested before clamping
+    (the Riccati controller's unclamped Eq. (33) torque), when the run recorded it.
+    """
+    t = log.time
+    requested = log.extra.get("torque_requested")
+    legs = [robot.leg_names.index(name) for name in ("FR", "HR") if name in robot.leg_names] or [1, 3]
+    figure, axes = plt.subplots(len(legs), 2, figsize=(10, 3 * len(legs)), sharex=True, squeeze=False)
+    for row, leg_index in enumerate(legs):
+        for column, kind_index in enumerate((1, 2)):
+            j = 3 * leg_index + kind_index
+            axis = axes[row, column]
+            if requested is not None and np.any(np.isfinite(requested[:, j])):
+                axis.plot(t, requested[:, j], color="tab:orange", lw=0.8, alpha=0.6, label="requested")
+            axis.plot(t, log.torque_command[:, j], color="tab:blue", lw=0.8, label="commanded")
+            for limit, style, label in (
+                (robot.torque_limits[j], "r--", "plan limit"),
+                (robot.plant.motor_torque_limits[j], "k:", "motor limit"),
+            ):
+                axis.axhline(limit, color=style[0], ls=style[1:], lw=0.8, label=label)
+                axis.axhline(-limit, color=style[0], ls=style[1:], lw=0.8)
+            _mark_pushes(axis, log)
+            axis.set_title(f"{robot.leg_names[leg_index]} {JOINT_KINDS[kind_index]}", fontsize=9)
+            axis.set_ylabel("torque [Nm]")
+    axes[0, 0].legend(loc="best", fontsize=7)
+    for axis in axes[-1]:
+        axis.set_xlabel("time [s]")
+    figure.suptitle("hip and knee torques with limits (paper Fig. 9)", fontsize=10)
+    return _save(figure, path)
+
+
+def plot_mpc_solve_times(statistics: MpcStatistics, period: float | None, path: Path) -> Path:
+    """Wall-clock time and iterations of every MPC solve, with the MPC period (the real-time budget)."""
+    solve_ms = 1e3 * np.asarray(statistics.solve_times)
+    index = np.arange(len(solve_ms))
+    figure, axes = plt.subplots(2, 1, figsize=(8, 5), sharex=True)
+    axes[0].plot(index, solve_ms, ".", ms=3, label="solve")
+    axes[0].axhline(float(np.median(solve_ms)), color="k", lw=0.8, label="median")
+    axes[0].axhline(float(np.percentile(solve_ms, 99)), color="k", ls="--", lw=0.8, label="p99")
+    if period is not None:
+        axes[0].axhline(1e3 * period, color="r", ls=":", lw=1.0, label="MPC period")
+    axes[0].set_ylabel("solve time [ms]")
+    axes[0].legend(loc="best", fontsize=7)
+    axes[1].plot(index[: len(statistics.iterations)], statistics.iterations, ".", ms=3)
+    axes[1].set_ylabel("iterations")
+    axes[1].set_xlabel("MPC solve (successful solves, in order)")
+    figure.suptitle("MPC solves (the first one runs to convergence)", fontsize=10)
+    return _save(figure, path)

@@ -97,9 +97,15 @@ class SimulationLog:
         )
 
     def save(self, path: str) -> None:
-        """Write the log as a compressed ``.npz`` file."""
+        """Write the log as a compressed ``.npz`` file (per-tick arrays of ``extra`` as ``extra_<name>``)."""
+        extras = {
+            f"extra_{name}": value[: self.ticks]
+            for name, value in self.extra.items()
+            if isinstance(value, np.ndarray) and value.ndim >= 1 and len(value) >= self.ticks
+        }
         np.savez_compressed(
             path,
+            **extras,
             time=self.time[: self.ticks],
             q=self.q[: self.ticks],
             v=self.v[: self.ticks],

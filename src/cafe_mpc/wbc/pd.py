@@ -14,8 +14,12 @@ from cafe_mpc.robots.robot import Robot
 from cafe_mpc.sim.plant import PlantState
 
 
-def static_stance_torques(robot: Robot, q: np.ndarray, stance: np.ndarray | None = None) -> np.ndarray:
-    """Joint torques that hold configuration ``q`` still with the weight split over the stance feet."""
+def static_stance_torques(
+    robot: Robot, q: np.ndarray, stance: np.ndarray | None = None, force_per_foot: float | None = None
+) -> np.ndarray:
+    """Joint torques that hold configuration ``q`` with a vertical force on each stance foot (leg gravity
+    included): by default the weight split over the stance feet (static balance); gaits with flight phases
+    pass their average stance force (``force_per_foot``, N)."""
     stance = np.ones(4, dtype=bool) if stance is None else np.asarray(stance, dtype=bool)
     if stance.shape != (4,) or not stance.any():
         raise ValueError("static_stance_torques needs 4 stance flags with at least one foot on the ground")
@@ -24,7 +28,7 @@ def static_stance_torques(robot: Robot, q: np.ndarray, stance: np.ndarray | None
     gravity = pin.computeGeneralizedGravity(model, data, q)
     pin.computeJointJacobians(model, data, q)
     pin.updateFramePlacements(model, data)
-    weight = robot.total_mass * 9.81 / stance.sum()
+    weight = robot.total_mass * 9.81 / stance.sum() if force_per_foot is None else float(force_per_foot)
     contact_term = np.zeros(model.nv)
     for foot, frame_id in enumerate(robot.foot_frame_ids):
         if stance[foot]:

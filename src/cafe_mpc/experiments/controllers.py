@@ -1,0 +1,156 @@
+"""The closed-loop controller of a run config: PD standing, or CAFE-MPC over a Riccati or VWBC low level.
+
+``build_controller(config, robot)`` is the one place that turns the config's ``gait``, ``mpc``, ``costs``
+and ``vwbc`` sections into objects: the heuristic locomotion reference (Sec. VI-A), the CAFE problem
+builder with its model schedule (Sec. IV-D), the MPC loop (Sec. VI-C) and the low-level controller
+(Riccati feedback (33) or VWBC (34)). The low-level controller is wrapped in a ``LowLevelRecorder`` so the
+run can report what it asked for before clamping (the Riccati controller clamps to the torque limits; the
+paper's Fig. 9 shows the unclamped request) and which stance the plan assumed at every tick (for the
+friction-cone score of controllers that do not check it themselves).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from cafe_mpc.config import ConfigError, RunConfig, velocity_command
+from cafe_mpc.mpc.controller import CafeMpcController, LowLevelController, MpcSettings
+from cafe_mpc.mpc.plan import Plan
+from cafe_mpc.mpc.problem import CafeProblemBuilder
+from cafe_mpc.ocp.contact_schedule import get_gait
+from cafe_mpc.ocp.costs import SRBWeights
+from cafe_mpc.ocp.knots import SRBModelFactory, SRBSettings, WholeBodyModelFactory, WholeBodySettings
+from cafe_mpc.reference.locomotion import LocomotionReference, VelocityCommand
+from cafe_mpc.robots.robot import Robot
+from cafe_mpc.wbc.pd import PDController
+from cafe_mpc.wbc.riccati import RiccatiController
+from cafe_mpc.wbc.vwbc import VWBCController, VWBCSettings
+
+RunController = PDController | CafeMpcController
+
+
+class LowLevelRecorder:
+    """A plan-following low-level controller (same interface) that records every call it serves.
+
+    Per call: the time, the torque requested before any clamping (for the Riccati controller its
+    unclamped Eq. (33) torque; the VWBC's QP already respects the limits, so its output) and the stance
+    flags of the plan knot used. ``traces(times)`` aligns the records with the simulation's ticks.
+    """
+
+    def __init__(self, inner: RiccatiController | VWBCController) -> None:
+        self.inner = inner
+        self.times: list[float] = []
+        self.requested: list[np.ndarray] = []
+        self.stances: list[np.ndarray] = []
+
+    @property
+    def plan(self) -> Plan | None:
+        return self.inner.plan
+
+    def set_plan(self, plan: Plan) -> None:
+        self.inner.set_plan(plan)
+
+    def compute(self, t: float, q: np.ndarray, v: np.ndarray) -> np.ndarray:
+        plan = self.inner.plan
+        requested = None
+        if isinstance(self.inner, RiccatiController) and plan is not None:
+            requested = self.inner.torques_at(t, q, v).copy()  # compute() clamps its buffer in place
+        torques = self.inner.compute(t, q, v)
+        self.times.append(t)
+        self.requested.append(np.array(torques, dtype=float) if requested is None else requested)
+        self.stances.append(
+            plan.contacts[plan.knot_at(t)].copy() if plan is not None else np.zeros(4, dtype=bool)
+        )
+        return torques
+
+    def traces(self, times: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Requested torques ``(ticks, nu)`` (NaN where this controller was not called, e.g. before the
+        first plan) and planned stance flags ``(ticks, 4)`` (False there), on the tick grid ``times``."""
+        times = np.asarray(times, dtype=float)
+        nu = len(self.requested[0]) if self.requested else 12
+        requested = np.full((len(times), nu), np.nan)
+        stance = np.zeros((len(times), 4), dtype=bool)
+        if len(times) == 0 or not self.times:
+            return requested, stance
+        rows = np.searchsorted(times, np.asarray(self.times) - 1e-9)
+        keep = (rows < len(times)) & (np.abs(times[np.minimum(rows, len(times) - 1)] - self.times) < 1e-9)
+        requested[rows[keep]] = np.asarray(self.requested)[keep]
+        stance[rows[keep]] = np.asarray(self.stances)[keep]
+        return requested, stance
+
+
+def reference_commands(config: RunConfig) -> list[VelocityCommand]:
+    """The commands the run tracks: the gait's, or standing still at the standing height (PD)."""
+    if config.gait is None:
+        return [VelocityCommand()]
+    return [velocity_command(command) for command in config.gait.commands]
+
+
+def build_controller(config: RunConfig, robot: Robot) -> RunController:
+    """The closed-loop controller named by ``config.wbc`` (``pd``, or CAFE-MPC over ``riccati``/``vwbc``).
+
+    Raises ``ConfigError`` (one line, naming the section) when a setting is rejected by the library.
+    """
+    if config.wbc == "pd":
+        return PDController(
+            robot, config.pd.kp, config.pd.kd, gravity_feedforward=config.pd.gravity_feedforward
+        )
+    gait = config.gait
+    if gait is None:  # RunConfig rejects this; kept for configs built with model_construct
+        raise ConfigError(f"wbc: {config.wbc!r} needs a gait section")
+    try:
+        reference = LocomotionReference(
+            robot,
+            get_gait(gait.name),
+            reference_commands(config),
+            swing_height=gait.swing_height,
+            raibert_gain=gait.raibert_gain,
+        )
+    except ValueError as error:
+        raise ConfigError(f"gait: {error}") from error
+    try:
+        schedule = config.mpc.model_schedule()
+        settings = MpcSettings(
+            period=config.mpc.period, latency=config.mpc.latency, fixed_latency=config.mpc.fixed_latency
+        )
+    except ValueError as error:
+        raise ConfigError(f"mpc: {error}") from error
+    try:
+        running = config.costs.running.to_weights()
+        terminal = config.costs.terminal.to_weights()
+        srb_running = SRBWeights.from_whole_body(running, force=SRBWeights.regular_running().force)
+        srb_terminal = SRBWeights.from_whole_body(terminal, force=SRBWeights.regular_terminal().force)
+    except ValueError as error:
+        raise ConfigError(f"costs: {error}") from error
+    whole_body = WholeBodyModelFactory(
+        robot,
+        WholeBodySettings(dt=schedule.whole_body_dt, running_weights=running, terminal_weights=terminal),
+    )
+    srb = SRBModelFactory(
+        SRBSettings(dt=schedule.srb_dt, running_weights=srb_running, terminal_weights=srb_terminal)
+    )
+    builder = CafeProblemBuilder(whole_body, srb, schedule)
+    low_level: RiccatiController | VWBCController
+    if config.wbc == "riccati":
+        low_level = RiccatiController(robot)
+    else:
+        try:
+            vwbc_settings = VWBCSettings(solver=config.vwbc.solver, warm_start=config.vwbc.warm_start)
+        except ValueError as error:
+            raise ConfigError(f"vwbc: {error}") from error
+        low_level = VWBCController(robot, vwbc_settings)
+    return CafeMpcController(robot, reference, builder, LowLevelRecorder(low_level), settings)
+
+
+def low_level_of(controller: RunController) -> LowLevelController | None:
+    """The Riccati/VWBC controller under a CAFE-MPC controller (unwrapped), None for PD."""
+    if not isinstance(controller, CafeMpcController):
+        return None
+    low_level = controller.low_level
+    return low_level.inner if isinstance(low_level, LowLevelRecorder) else low_level
+
+
+def recorder_of(controller: RunController) -> LowLevelRecorder | None:
+    if isinstance(controller, CafeMpcController) and isinstance(controller.low_level, LowLevelRecorder):
+        return controller.low_level
+    return None

@@ -1,0 +1,250 @@
+"""Gait run configs (validation, presets, controller construction) and the run metrics on synthetic logs.
+
+No closed-loop gait runs here (those are in the MPC tests): every test is construction or arithmetic.
+"""
+
+import math
+
+import numpy as np
+import pytest
+
+from cafe_mpc.cli import main
+from cafe_mpc.config import ConfigError, available_presets, load_config
+from cafe_mpc.experiments.controllers import LowLevelRecorder, build_controller, low_level_of
+from cafe_mpc.mpc.controller import CafeMpcController
+from cafe_mpc.reference.locomotion import VelocityCommand, quaternion_from_yaw
+from cafe_mpc.report.metrics import (
+    foot_slip_max,
+    foot_trajectories,
+    tracking_metrics,
+    wbc_metrics,
+)
+from cafe_mpc.robots.robot import load_robot
+from cafe_mpc.sim.loop import SimulationLog
+from cafe_mpc.wbc.pd import PDController
+from cafe_mpc.wbc.riccati import RiccatiController
+from cafe_mpc.wbc.synthetic import synthetic_plan
+from cafe_mpc.wbc.vwbc import VWBCController
+
+GAIT_PRESETS = ["trot", "pace", "bound", "pronk", "flying-trot", "trot-commands", "bound-push"]
+
+
+@pytest.fixture(scope="module")
+def robot():
+    return load_robot("mini_cheetah")
+
+
+# ------------------------------------------------------------------------------------------- config
+@pytest.mark.parametrize(
+    ("overrides", "message"),
+    [
+        (["gait.name=gallop"], "gait.name: unknown gait 'gallop'"),
+        (["gait.commands.0.vx=10"], "gait.commands.0: command vx = 10"),
+        (["gait.commands.0.height=0.6"], "gait.commands.0: command height = 0.6"),
+        (["gait.commands=[{start: 1.0, vx: 0.2}]"], "first command must start at 0"),
+        (["gait.commands=[{vx: 0.2}, {start: 2, vx: 0.3}, {start: 1, vx: 0.4}]"], "increase strictly"),
+        (["gait.swing_height=0.5"], "gait.swing_height"),
+        (["mpc.schedule=S7"], "mpc.schedule: unknown model schedule 'S7'"),
+        (["mpc.srb_horizon=0.3"], "give either schedule"),
+        (
+            ["mpc.schedule=null", "mpc.whole_body_horizon=0.005", "mpc.srb_horizon=0.3"],
+            "shorter than one whole-body knot",
+        ),
+        (
+            ["mpc.schedule=null", "mpc.whole_body_horizon=0.25"],
+            "give both whole_body_horizon and srb_horizon",
+        ),
+        (["mpc.period=-0.02"], "mpc.period: Input should be greater than 0"),
+        (["mpc.period=0.001"], "shorter than the control period"),
+        (["mpc.latency=sometimes"], "mpc.latency"),
+        (["wbc=osc"], "wbc: Input should be 'pd', 'riccati' or 'vwbc'"),
+        (["wbc=pd"], "wbc: 'pd' stands in place"),
+        (["gait=null"], "needs a gait section"),
+        (["vwbc.solver=qpoases"], "vwbc.solver"),
+        (["costs.running.torque=-1"], "costs.running: torque: weights must be finite and non-negative"),
+        (["costs.terminal.base_position=[1, 2]"], "costs.terminal.base_position"),
+        (["gait.commands.0.speed=1"], "unknown config key 'gait.commands.0.speed'"),
+    ],
+)
+def test_bad_gait_config_names_the_key(overrides, message):
+    with pytest.raises(ConfigError, match=message.replace("(", r"\(")) as error:
+        load_config("bound", overrides)
+    assert "\n" not in str(error.value)
+
+
+def test_gait_names_overrides_and_defaults():
+    config = load_config("stand", ["wbc=riccati", "gait.name=flying-trot", "gait.commands.0.vx=0.8"])
+    assert config.gait is not None and config.gait.name == "flying_trot"
+    assert config.gait.commands[0].vx == 0.8
+    config = load_config("stand", ["wbc=vwbc", "gait={name: pace}"])
+    assert config.gait.commands[0].vx == 0.5  # default command
+    assert config.vwbc.solver == "daqp" and config.vwbc.warm_start == "previous"
+    config = load_config("bound", ["mpc.schedule=null", "mpc.whole_body_horizon=0.2", "mpc.srb_horizon=0.3"])
+    schedule = config.mpc.model_schedule()
+    assert (schedule.whole_body_knots, schedule.srb_knots) == (20, 6)
+    stand = load_config("stand")
+    assert stand.wbc == "pd" and stand.gait is None
+    # the facts' regular weights are the cost defaults
+    assert tuple(stand.costs.running.base_position) == (0.0, 0.0, 10.0, 1.0, 2.0, 2.0)
+    assert stand.costs.terminal.torque == 0.0
+
+
+@pytest.mark.parametrize("preset", sorted(set(available_presets()) | set(GAIT_PRESETS)))
+def test_every_preset_loads_and_builds_its_controller(robot, preset):
+    config = load_config(preset)
+    controller = build_controller(config, robot)
+    if config.wbc == "pd":
+        assert isinstance(controller, PDController)
+        return
+    assert isinstance(controller, CafeMpcController)
+    expected = {"riccati": RiccatiController, "vwbc": VWBCController}[config.wbc]
+    assert isinstance(low_level_of(controller), expected)
+    assert controller.builder.schedule == config.mpc.model_schedule()
+    assert controller.settings.period == config.mpc.period
+    assert controller.reference.commands[0].vx == config.gait.commands[0].vx
+
+
+def test_gait_presets_match_the_issues():
+    for preset in ("trot", "pace", "bound", "pronk", "flying-trot"):
+        config = load_config(preset)
+        assert config.wbc == "vwbc" and config.mpc.schedule == "S4"
+        assert config.simulation.duration == 10.0
+        assert [(c.start, c.vx, c.vy, c.yaw_rate) for c in config.gait.commands] == [(0.0, 0.5, 0.0, 0.0)]
+    commands = load_config("trot-commands").gait.commands
+    assert max(c.vx for c in commands) == 0.8
+    assert any(c.vy == 0.3 for c in commands) and any(c.yaw_rate == 0.5 for c in commands)
+    push = load_config("bound-push")
+    assert push.gait.name == "bound" and push.gait.commands[0].vx == 0.5
+    assert push.simulation.duration == 5.0
+    assert (push.pushes[0].start, push.pushes[0].duration) == (2.0, 0.05)
+    assert push.pushes[0].velocity_change == (1.5, 0.0, 0.0)
+
+
+def test_overrides_reach_the_controller(robot):
+    config = load_config(
+        "bound", ["wbc=riccati", "mpc.schedule=S0", "costs.running.torque=0.3", "gait.swing_height=0.08"]
+    )
+    controller = build_controller(config, robot)
+    assert isinstance(low_level_of(controller), RiccatiController)
+    assert controller.builder.schedule.srb_knots == 0
+    assert controller.builder.whole_body.settings.running_weights.torque == 0.3
+    assert controller.reference.swing_height == 0.08
+
+
+def test_run_help_lists_presets(capsys):
+    with pytest.raises(SystemExit):
+        main(["run", "--help"])
+    out = capsys.readouterr().out
+    for preset in GAIT_PRESETS:
+        assert preset in out
+
+
+# ------------------------------------------------------------------------------------------ metrics
+def synthetic_log(robot, q: np.ndarray, v: np.ndarray, dt: float = 0.002, contacts=None) -> SimulationLog:
+    ticks = len(q)
+    log = SimulationLog.allocate(ticks, robot.nq, robot.nv, robot.nu)
+    log.time[:] = dt * np.arange(ticks)
+    log.q[:] = q
+    log.v[:] = v
+    log.contacts[:] = True if contacts is None else contacts
+    log.ticks = ticks
+    return log
+
+
+def straight_line(robot, speed: float, yaw: float, seconds: float = 1.0, dt: float = 0.002):
+    """Base moving at ``speed`` along its heading ``yaw`` at the standing height (base-frame velocity)."""
+    ticks = round(seconds / dt)
+    q = np.tile(robot.q_standing, (ticks, 1))
+    distance = speed * dt * np.arange(ticks)
+    q[:, 0], q[:, 1] = distance * math.cos(yaw), distance * math.sin(yaw)
+    q[:, 3:7] = quaternion_from_yaw(yaw)
+    v = np.zeros((ticks, robot.nv))
+    v[:, 0] = speed
+    return q, v
+
+
+@pytest.mark.parametrize("yaw", [0.0, 1.2])
+def test_tracking_of_a_constant_velocity_log_is_exact(robot, yaw):
+    q, v = straight_line(robot, 0.5, yaw)
+    metrics = tracking_metrics(robot, synthetic_log(robot, q, v), [VelocityCommand(0.0, 0.5)])
+    assert metrics["metrics_window_start_s"] == 0.5
+    assert metrics["vx_mean"] == pytest.approx(0.5)
+    for key in ("vx_rms_error", "vy_rms_error", "yaw_rate_rms_error", "height_rms_error"):
+        assert metrics[key] == pytest.approx(0.0, abs=1e-9), key
+    assert metrics["pitch_rms"] == pytest.approx(0.0, abs=1e-9)
+    assert metrics["pitch_rate_rms"] == pytest.approx(0.0, abs=1e-9)
+
+
+def test_tracking_errors_against_changing_commands(robot):
+    q, v = straight_line(robot, 0.5, 0.0, seconds=2.0)
+    v[:, 5] = 0.2  # yaw rate about the (level) body z axis
+    commands = [VelocityCommand(0.0, 0.5), VelocityCommand(1.0, 0.8, yaw_rate=0.2, height=0.27)]
+    metrics = tracking_metrics(robot, synthetic_log(robot, q, v), commands)
+    # from 0.5 s: 0.5 s at zero error, 1 s at 0.3 m/s error -> RMS 0.3 sqrt(2/3)
+    assert metrics["vx_rms_error"] == pytest.approx(0.3 * math.sqrt(2.0 / 3.0), rel=1e-2)
+    assert metrics["yaw_rate_rms_error"] == pytest.approx(0.2 * math.sqrt(1.0 / 3.0), rel=1e-2)
+    assert metrics["height_rms_error"] == pytest.approx(0.02 * math.sqrt(2.0 / 3.0), rel=1e-2)
+    short = tracking_metrics(robot, synthetic_log(robot, q[:100], v[:100]), commands)
+    assert short["metrics_window_start_s"] == 0.0 and short["vx_mean"] == pytest.approx(0.5)
+
+
+def test_foot_slip_is_the_largest_slide_within_one_contact(robot):
+    ticks = 10
+    q = np.tile(robot.q_standing, (ticks, 1))
+    q[:, 0] = np.linspace(0.0, 0.09, ticks)  # the whole robot (and so every foot) slides 1 cm per tick
+    contacts = np.ones((ticks, 4), dtype=bool)
+    contacts[5] = False  # lift-off at tick 5: stances are ticks 0-4 (4 cm) and 6-9 (3 cm)
+    contacts[:, 1] = False  # a foot that never touches does not count
+    feet = foot_trajectories(robot, q)
+    assert np.allclose(feet[0], robot.foot_positions(robot.q_standing))
+    assert foot_slip_max(feet, contacts) == pytest.approx(0.04)
+    assert foot_slip_max(feet, np.zeros((ticks, 4), dtype=bool)) == 0.0
+    metrics = wbc_metrics(
+        robot, synthetic_log(robot, q, np.zeros((ticks, robot.nv)), contacts=contacts), "pd"
+    )
+    assert metrics["foot_slip_max_m"] == pytest.approx(0.04)
+    assert metrics["controller"] == "pd" and metrics["torque_limit_violations"] == 0
+    for key in ("qp_iterations_histogram", "qp_solve_time_ms_median", "qp_solve_time_ms_p99", "fallbacks"):
+        assert metrics[key] is None
+
+
+def test_wbc_metrics_count_limit_and_cone_violations(robot):
+    ticks = 3
+    q = np.tile(robot.q_standing, (ticks, 1))
+    log = synthetic_log(robot, q, np.zeros((ticks, robot.nv)))
+    log.torque_command[1, 2] = 30.0  # over the 17 Nm limit; with four feet on the ground the cone holds
+    log.torque_command[2, :] = np.tile([8.0, 0.0, 0.0], 4)  # large abduction torques push the feet sideways
+    metrics = wbc_metrics(robot, log, "pd")
+    assert metrics["torque_limit_violations"] == 1
+    assert metrics["friction_cone_violations"] >= 1
+    given = wbc_metrics(
+        robot,
+        log,
+        "vwbc",
+        torque_limit_violations=0,
+        qp_statistics={
+            "friction_cone_violations": 4,
+            "qp_iterations_histogram": {1: 10, 2: 3},
+            "qp_solve_time_ms_median": 0.1,
+            "qp_solve_time_ms_p99": float("nan"),
+            "fallbacks": 2,
+        },
+    )
+    assert given["friction_cone_violations"] == 4 and given["fallbacks"] == 2
+    assert given["qp_iterations_histogram"] == {"1": 10, "2": 3}
+    assert given["qp_solve_time_ms_p99"] is None
+
+
+def test_recorder_keeps_the_unclamped_riccati_request(robot):
+    plan = synthetic_plan(robot, stance=(True, False, False, True), kp=400.0)
+    recorder = LowLevelRecorder(RiccatiController(robot))
+    recorder.set_plan(plan)
+    q = robot.q_standing.copy()
+    q[7:] += 0.2  # far from the plan: the feedback exceeds the limits
+    sent = recorder.compute(0.002, q, np.zeros(robot.nv)).copy()
+    requested, stance = recorder.traces(np.array([0.0, 0.002, 0.004]))
+    assert np.all(np.abs(sent) <= robot.torque_limits + 1e-9)
+    assert np.max(np.abs(requested[1]) - robot.torque_limits) > 0
+    assert np.all(np.isnan(requested[[0, 2]]))
+    assert stance[1].tolist() == [True, False, False, True] and not stance[0].any()
+    assert recorder.inner.limit_violations == 1
