@@ -44,6 +44,10 @@ def robot():
         (["gait.commands=[{start: 1.0, vx: 0.2}]"], "first command must start at 0"),
         (["gait.commands=[{vx: 0.2}, {start: 2, vx: 0.3}, {start: 1, vx: 0.4}]"], "increase strictly"),
         (["gait.swing_height=0.5"], "gait.swing_height"),
+        (["gait.start_stance=-0.1"], "gait.start_stance: Input should be greater than or equal to 0"),
+        (["gait.start_stance=.nan"], "gait.start_stance"),
+        (["gait.start_stance=.inf"], "gait.start_stance"),
+        (["gait.start_stance=soon"], "gait.start_stance"),
         (["mpc.schedule=S7"], "mpc.schedule: unknown model schedule 'S7'"),
         (["mpc.srb_horizon=0.3"], "give either schedule"),
         (
@@ -129,6 +133,18 @@ def test_overrides_reach_the_controller(robot):
     assert controller.builder.schedule.srb_knots == 0
     assert controller.builder.whole_body.settings.running_weights.torque == 0.3
     assert controller.reference.swing_height == 0.08
+
+
+def test_start_stance_reaches_the_reference(robot):
+    for preset in ("bound", "bound-push", "pronk", "flying-trot"):  # dynamic gaits start from a short stand
+        assert load_config(preset).gait.start_stance == 0.2
+    assert load_config("trot").gait.start_stance == 0.0
+    assert load_config("stand", ["wbc=riccati", "gait.name=pace"]).gait.start_stance == 0.0  # the default
+    config = load_config("trot", ["gait.start_stance=0.35"])
+    assert config.gait.start_stance == 0.35
+    reference = build_controller(config, robot).reference
+    assert reference.start_stance == 0.35 and reference.cycle_start == 0.35
+    assert build_controller(load_config("trot"), robot).reference.start_stance == 0.0
 
 
 def test_run_help_lists_presets(capsys):
@@ -248,3 +264,25 @@ def test_recorder_keeps_the_unclamped_riccati_request(robot):
     assert np.all(np.isnan(requested[[0, 2]]))
     assert stance[1].tolist() == [True, False, False, True] and not stance[0].any()
     assert recorder.inner.limit_violations == 1
+
+
+def test_recorder_preallocates_and_grows(robot):
+    plan = synthetic_plan(robot, stance=(True, False, False, True))
+    recorder = LowLevelRecorder(VWBCController(robot), capacity=3)
+    buffers = (recorder._times, recorder._requested, recorder._stances)
+    q, v = robot.q_standing, np.zeros(robot.nv)
+    recorder.set_plan(plan)
+    sent = [recorder.compute(0.002 * i, q, v).copy() for i in (1, 2, 3)]
+    current = (recorder._times, recorder._requested, recorder._stances)
+    assert all(a is b for a, b in zip(current, buffers, strict=True))  # written in place, no new arrays
+    for i in range(4, 7):  # past the capacity: the buffers double
+        sent.append(recorder.compute(0.002 * i, q, v).copy())
+    assert len(recorder._times) == 6 and len(recorder.times) == 6
+    grid = 0.002 * np.arange(9)
+    requested, stance = recorder.traces(grid)
+    np.testing.assert_allclose(requested[1:7], np.array(sent))  # the VWBC's output is its request
+    assert np.all(np.isnan(requested[[0, 7, 8]])) and not stance[[0, 7, 8]].any()  # ticks not served
+    assert np.all(stance[1:7] == [True, False, False, True])
+    # a run's recorder is sized for its ticks
+    controller = build_controller(load_config("trot", ["simulation.duration=1.5"]), robot)
+    assert len(controller.low_level._times) >= 750

@@ -5,11 +5,13 @@ torques, random SPD ``Quu`` and ``Qux = -Quu K``.
 """
 
 import importlib.util
+from dataclasses import replace
 
 import numpy as np
 import pinocchio as pin
 import pytest
 
+from cafe_mpc.mpc.plan import Plan
 from cafe_mpc.robots.robot import load_robot
 from cafe_mpc.sim.loop import simulate
 from cafe_mpc.sim.plant import PlantState
@@ -290,3 +292,139 @@ def test_vwbc_holds_the_robot_standing_in_closed_loop(robot):
     assert not log.fell
     assert stats["fallbacks"] == 0 and stats["friction_cone_violations"] == 0
     assert abs(log.q[-1, 2] - robot.standing_height) < 0.03
+
+
+FLIGHT = np.zeros(4, dtype=bool)
+WARM_STARTS = ["plan", "previous", "equality", "none"]
+
+
+def multi_pattern_plan(robot, patterns, dt=0.02, seed=0):
+    """A plan whose knot ``k`` has the stance ``patterns[k]`` (bounding/pronking-like flight knots)."""
+    knots = [synthetic_plan(robot, stance=p, knots=1, dt=dt, seed=seed + i) for i, p in enumerate(patterns)]
+    stack = {
+        name: np.concatenate([getattr(knot, name) for knot in knots])
+        for name in ("us", "K", "Qu", "Quu", "Qux", "contacts", "forces")
+    }
+    return Plan(
+        times=dt * np.arange(len(patterns)),
+        xs=np.tile(knots[0].xs[0], (len(patterns) + 1, 1)),
+        dt=np.full(len(patterns), dt),
+        **stack,
+    )
+
+
+def cold_solution(robot, plan, settings, t, q, v, limits):
+    """The tick solved by a fresh controller from a cold start (no state carried over)."""
+    cold = VWBCController(robot, replace(settings, warm_start="none"), torque_limits=limits)
+    cold.set_plan(plan)
+    tau = cold.compute(t, q, v).copy()
+    assert cold.last_used_qp
+    return tau
+
+
+@pytest.mark.parametrize("solver", SOLVERS)
+@pytest.mark.parametrize("warm_start", WARM_STARTS)
+def test_all_flight_plan_over_several_ticks(robot, solver, warm_start):
+    """No stance foot: the QP has only the torque bounds (DAQP: simple bounds, no general constraints)."""
+    plan = synthetic_plan(robot, stance=FLIGHT, seed=15)
+    settings = VWBCSettings(solver=solver, warm_start=warm_start, eps_abs=1e-10)
+    vwbc = VWBCController(robot, settings, torque_limits=GENEROUS)
+    vwbc.set_plan(plan)
+    for tick in range(6):
+        q, v = perturbed_state(robot, seed=20 + tick)
+        t = 0.01 * tick
+        tau = vwbc.compute(t, q, v).copy()
+        assert vwbc.last_used_qp, vwbc.last_status
+        assert np.all(vwbc.last_forces == 0.0)
+        k = plan.knot_at(t)
+        np.testing.assert_allclose(tau, unconstrained_policy(vwbc, plan, q, v, k), atol=1e-6)
+    stats = vwbc.statistics()
+    assert stats["ticks"] == 6 and stats["fallbacks"] == 0 and stats["qp_exceptions"] == {}
+
+
+@pytest.mark.parametrize("solver", SOLVERS)
+@pytest.mark.parametrize("warm_start", ["plan", "previous"])
+def test_all_flight_plan_with_active_torque_bounds(robot, solver, warm_start):
+    plan = synthetic_plan(robot, stance=FLIGHT, seed=16)
+    probe = VWBCController(robot, torque_limits=GENEROUS)
+    q0, v0 = perturbed_state(robot, seed=30, dq_scale=0.02)
+    limits = np.maximum(0.5 * np.abs(unconstrained_policy(probe, plan, q0, v0)), 0.05)
+    settings = VWBCSettings(solver=solver, warm_start=warm_start, eps_abs=1e-10)
+    vwbc = VWBCController(robot, settings, torque_limits=limits)
+    vwbc.set_plan(plan)
+    for tick in range(5):
+        q, v = perturbed_state(robot, seed=30 + tick, dq_scale=0.02)
+        tau = vwbc.compute(0.01 * tick, q, v).copy()
+        assert vwbc.last_used_qp, vwbc.last_status
+        assert np.all(np.abs(tau) <= limits + 1e-9)
+        assert np.any(np.abs(np.abs(tau) - limits) < 1e-7)  # some bound is active
+        expected = cold_solution(robot, plan, settings, 0.01 * tick, q, v, limits)
+        np.testing.assert_allclose(tau, expected, atol=1e-5)
+    assert vwbc.fallbacks == 0
+
+
+@pytest.mark.parametrize("solver", SOLVERS)
+def test_alternating_stance_and_flight_with_previous_warm_start(robot, solver):
+    """The QP's size changes between ticks (stance patterns of a bound / pronk); each tick must solve."""
+    patterns = [FOUR, FLIGHT, FLIGHT, TROT, FLIGHT, ~TROT, FOUR, FLIGHT, TROT, TROT, FLIGHT, FOUR]
+    plan = multi_pattern_plan(robot, patterns, seed=40)
+    settings = VWBCSettings(solver=solver, warm_start="previous", eps_abs=1e-10)
+    vwbc = VWBCController(robot, settings, torque_limits=GENEROUS)
+    vwbc.set_plan(plan)
+    seen = []
+    for tick in range(2 * len(patterns)):  # two ticks per knot: same-pattern and changed-pattern ticks
+        t = 0.01 * tick
+        q, v = perturbed_state(robot, seed=50 + tick)
+        tau = vwbc.compute(t, q, v).copy()
+        assert vwbc.last_used_qp, (tick, vwbc.last_status)
+        stance = plan.contacts[plan.knot_at(t)]
+        assert np.array_equal(vwbc.last_stance, stance)
+        assert np.all(vwbc.last_forces[~stance] == 0.0)
+        seen.append(int(stance.sum()))
+        expected = cold_solution(robot, plan, settings, t, q, v, GENEROUS)
+        np.testing.assert_allclose(tau, expected, atol=1e-5)
+    assert {0, 2, 4} <= set(seen)
+    assert vwbc.fallbacks == 0
+    # alternating whole plans (a new plan every tick, as after each MPC update) with the robot's limits
+    flight_plan, stance_plan = synthetic_plan(robot, FLIGHT, seed=60), synthetic_plan(robot, FOUR, seed=61)
+    vwbc = VWBCController(robot, settings)
+    for tick in range(8):
+        vwbc.set_plan(flight_plan if tick % 2 else stance_plan)
+        q, v = perturbed_state(robot, seed=70 + tick)
+        vwbc.compute(0.002 * tick, q, v)
+        assert vwbc.last_used_qp, (tick, vwbc.last_status)
+    assert vwbc.statistics()["fallbacks"] == 0
+
+
+@pytest.mark.parametrize("solver", SOLVERS)
+@pytest.mark.parametrize("error", [IndexError, KeyError, ZeroDivisionError])
+def test_exception_in_qp_solver_falls_back_and_recovers(robot, solver, error, monkeypatch):
+    """Any exception inside the QP falls back to the clamped Riccati torque; the run goes on."""
+    plan = synthetic_plan(robot, seed=17)
+    limits = np.full(12, 5.0)
+    vwbc = VWBCController(robot, VWBCSettings(solver=solver, warm_start="previous"), torque_limits=limits)
+    vwbc.set_plan(plan)
+    riccati = RiccatiController(robot, clamp=False)
+    riccati.set_plan(plan)
+    q, v = perturbed_state(robot, seed=18)
+    vwbc.compute(0.0, q, v)  # a solved tick first: the solver object exists and holds a solution
+    assert vwbc.last_used_qp
+    backend = type(vwbc._qps[tuple(FOUR)])
+    original = backend.solve
+
+    def broken(self, mode):
+        raise error("deep inside the solver")
+
+    monkeypatch.setattr(backend, "solve", broken)
+    tau = vwbc.compute(0.002, q, v).copy()
+    assert not vwbc.last_used_qp and np.all(np.isfinite(tau))
+    np.testing.assert_allclose(tau, np.clip(riccati.torques_at(0.002, q, v), -limits, limits))
+    stats = vwbc.statistics()
+    assert stats["fallbacks"] == 1 and stats["fallback_reasons"] == {"exception": 1}
+    assert stats["qp_exceptions"] == {error.__name__: 1}
+    assert vwbc.last_error.startswith(error.__name__) and vwbc.last_status == f"exception:{error.__name__}"
+    assert tuple(FOUR) not in vwbc._qps  # the possibly half-updated solver is dropped ...
+    monkeypatch.setattr(backend, "solve", original)
+    tau = vwbc.compute(0.004, q, v).copy()  # ... and rebuilt on the next tick
+    assert vwbc.last_used_qp and vwbc.statistics()["fallbacks"] == 1
+    np.testing.assert_allclose(tau, cold_solution(robot, plan, vwbc.settings, 0.004, q, v, limits), atol=1e-4)

@@ -117,6 +117,9 @@ class GaitConfig(StrictModel):
     name: str = Field("trot", description="a gait of cafe_mpc.ocp.contact_schedule.GAITS")
     swing_height: float = Field(0.06, ge=0.0, le=0.2, description="m, swing apex above lift-off")
     raibert_gain: float = Field(0.03, ge=0.0, le=1.0, description="s, Raibert velocity feedback gain")
+    start_stance: float = Field(
+        0.0, ge=0.0, le=3600.0, description="s of all-feet stand before the gait's first cycle starts"
+    )
     commands: list[CommandConfig] = Field(default_factory=_default_commands, min_length=1)
 
     @field_validator("name")

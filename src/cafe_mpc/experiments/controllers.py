@@ -35,47 +35,83 @@ class LowLevelRecorder:
     Per call: the time, the torque requested before any clamping (for the Riccati controller its
     unclamped Eq. (33) torque; the VWBC's QP already respects the limits, so its output) and the stance
     flags of the plan knot used. ``traces(times)`` aligns the records with the simulation's ticks.
+
+    The records live in preallocated arrays (``capacity`` rows, e.g. the run's tick count; doubled when
+    full), so the control-rate path writes into them without allocating per tick. ``times``,
+    ``requested`` and ``stances`` are views of the rows recorded so far.
     """
 
-    def __init__(self, inner: RiccatiController | VWBCController) -> None:
+    def __init__(self, inner: RiccatiController | VWBCController, capacity: int = 1024) -> None:
         self.inner = inner
-        self.times: list[float] = []
-        self.requested: list[np.ndarray] = []
-        self.stances: list[np.ndarray] = []
+        capacity = max(int(capacity), 1)
+        self._times = np.zeros(capacity)
+        self._requested = np.zeros((capacity, inner.robot.nu))
+        self._stances = np.zeros((capacity, 4), dtype=bool)
+        self._count = 0
 
     @property
     def plan(self) -> Plan | None:
         return self.inner.plan
 
+    @property
+    def times(self) -> np.ndarray:
+        return self._times[: self._count]
+
+    @property
+    def requested(self) -> np.ndarray:
+        return self._requested[: self._count]
+
+    @property
+    def stances(self) -> np.ndarray:
+        return self._stances[: self._count]
+
     def set_plan(self, plan: Plan) -> None:
         self.inner.set_plan(plan)
 
+    def _grow(self) -> None:
+        """Double the capacity (rare: only when the run outlasts the preallocated ticks)."""
+
+        def doubled(array: np.ndarray) -> np.ndarray:
+            grown = np.zeros((2 * len(array), *array.shape[1:]), dtype=array.dtype)
+            grown[: len(array)] = array
+            return grown
+
+        self._times = doubled(self._times)
+        self._requested = doubled(self._requested)
+        self._stances = doubled(self._stances)
+
     def compute(self, t: float, q: np.ndarray, v: np.ndarray) -> np.ndarray:
+        if self._count == len(self._times):
+            self._grow()
+        row = self._count
         plan = self.inner.plan
-        requested = None
-        if isinstance(self.inner, RiccatiController) and plan is not None:
-            requested = self.inner.torques_at(t, q, v).copy()  # compute() clamps its buffer in place
+        riccati = isinstance(self.inner, RiccatiController) and plan is not None
+        if riccati:  # before compute(), which clamps the same buffer in place
+            self._requested[row] = self.inner.torques_at(t, q, v)
         torques = self.inner.compute(t, q, v)
-        self.times.append(t)
-        self.requested.append(np.array(torques, dtype=float) if requested is None else requested)
-        self.stances.append(
-            plan.contacts[plan.knot_at(t)].copy() if plan is not None else np.zeros(4, dtype=bool)
-        )
+        if not riccati:
+            self._requested[row] = torques
+        self._times[row] = t
+        if plan is not None:
+            self._stances[row] = plan.contacts[plan.knot_at(t)]
+        else:
+            self._stances[row] = False
+        self._count = row + 1
         return torques
 
     def traces(self, times: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Requested torques ``(ticks, nu)`` (NaN where this controller was not called, e.g. before the
         first plan) and planned stance flags ``(ticks, 4)`` (False there), on the tick grid ``times``."""
         times = np.asarray(times, dtype=float)
-        nu = len(self.requested[0]) if self.requested else 12
-        requested = np.full((len(times), nu), np.nan)
+        requested = np.full((len(times), self._requested.shape[1]), np.nan)
         stance = np.zeros((len(times), 4), dtype=bool)
-        if len(times) == 0 or not self.times:
+        if len(times) == 0 or self._count == 0:
             return requested, stance
-        rows = np.searchsorted(times, np.asarray(self.times) - 1e-9)
-        keep = (rows < len(times)) & (np.abs(times[np.minimum(rows, len(times) - 1)] - self.times) < 1e-9)
-        requested[rows[keep]] = np.asarray(self.requested)[keep]
-        stance[rows[keep]] = np.asarray(self.stances)[keep]
+        recorded = self.times
+        rows = np.searchsorted(times, recorded - 1e-9)
+        keep = (rows < len(times)) & (np.abs(times[np.minimum(rows, len(times) - 1)] - recorded) < 1e-9)
+        requested[rows[keep]] = self.requested[keep]
+        stance[rows[keep]] = self.stances[keep]
         return requested, stance
 
 
@@ -105,6 +141,7 @@ def build_controller(config: RunConfig, robot: Robot) -> RunController:
             reference_commands(config),
             swing_height=gait.swing_height,
             raibert_gain=gait.raibert_gain,
+            start_stance=gait.start_stance,
         )
     except ValueError as error:
         raise ConfigError(f"gait: {error}") from error
@@ -139,7 +176,9 @@ def build_controller(config: RunConfig, robot: Robot) -> RunController:
         except ValueError as error:
             raise ConfigError(f"vwbc: {error}") from error
         low_level = VWBCController(robot, vwbc_settings)
-    return CafeMpcController(robot, reference, builder, LowLevelRecorder(low_level), settings)
+    ticks = config.simulation.duration * config.simulation.control_rate_hz  # the run's low-level calls
+    recorder = LowLevelRecorder(low_level, capacity=int(np.ceil(ticks)) + 2)
+    return CafeMpcController(robot, reference, builder, recorder, settings)
 
 
 def low_level_of(controller: RunController) -> LowLevelController | None:

@@ -32,8 +32,10 @@ like qpOASES, solves the same QP condensed onto ``tau`` (``qdd`` and ``F`` are a
 KKT system of (34b)-(34c)); its iterations are active-set changes. Warm start (paper end of Sec. V-A): the
 plan's ``[(v*_{k+1} - v*_k) / dt_k, tau*_k, F*_k]`` or the previous tick's solution.
 
-Fallback (when the QP is not solved, returns non-finite numbers or, optionally, exceeds a wall-clock
-budget): the clamped Riccati feedback ``tau*_k + K_k dx`` (33). The controller never returns NaN.
+Fallback (when the QP is not solved, returns non-finite numbers, raises any exception — the solver's
+object for that stance pattern is then rebuilt on its next tick — or, optionally, exceeds a wall-clock
+budget): the clamped Riccati feedback ``tau*_k + K_k dx`` (33), counted in ``fallbacks`` with its reason.
+The controller never returns NaN, and an error inside the QP never propagates out of ``compute``.
 
 Friction-cone scoring: ``contact_forces_for_torque`` gives the contact forces that a torque implies through
 the same contact dynamics (34b)-(34c) (KKT system, ``pin.forwardDynamics``), so a Riccati controller and the
@@ -349,6 +351,13 @@ class _DaqpStance(_StanceQP):
     Warm start: ``"previous"`` keeps DAQP's working set from the last solve of this pattern, ``"plan"``
     starts from the constraints active at the plan torque ``tau*_k``, ``"none"``/``"equality"`` from the
     empty working set. Iterations are active-set changes, comparable to the paper's qpOASES counts.
+
+    In flight (no stance foot) the condensed QP has no general constraints, only the torque bounds, which
+    DAQP takes as simple bounds: ``A`` has zero rows. ``daqp.Model.update`` (0.11) indexes ``A[0, 0]``
+    whenever ``A`` is passed, so ``A`` is only passed when it has rows. ``update`` also silently ignores
+    arrays whose shape differs from ``setup``'s and reports failures only in its return value; the model is
+    therefore set up again whenever the problem dimensions differ from those it was set up with or an
+    update fails, instead of solving stale data.
     """
 
     def __init__(self, stance: tuple[bool, ...], nv: int, nu: int, limits: np.ndarray, s: VWBCSettings):
@@ -370,7 +379,7 @@ class _DaqpStance(_StanceQP):
         self.bu_const, self.bl_const = self.bu[nu:].copy(), self.bl[nu:].copy()
         self.sense = np.zeros(nu + n_gen, dtype=np.int32)
         self.model = daqp.Model()
-        self.initialized = False
+        self.model_dims: tuple[int, int, int] | None = None  # (n, m, rows of A) of the last setup
         self.settings = {"primal_tol": s.eps_abs, "iter_limit": s.max_iter}
 
     def _condense(self) -> tuple[np.ndarray, np.ndarray]:
@@ -404,16 +413,11 @@ class _DaqpStance(_StanceQP):
             self._plan_sense()
         elif mode in ("none", "equality"):
             self.sense[:] = 0
-        if not self.initialized:
-            self.model.setup(self.Hc, self.fc, self.Ac, self.bu, self.bl, self.sense)
-            self.model.settings = self.settings
-            self.initialized = True
-        elif mode == "previous" and self.has_previous:
-            self.model.update(H=self.Hc, f=self.fc, A=self.Ac, bupper=self.bu, blower=self.bl)
-        else:
-            self.model.update(
-                H=self.Hc, f=self.fc, A=self.Ac, bupper=self.bu, blower=self.bl, sense=self.sense
-            )
+        keep_working_set = mode == "previous" and self.has_previous
+        if not self._update(keep_working_set):
+            if keep_working_set:  # the previous working set is lost with the model: start from the plan's
+                self._plan_sense()
+            self._setup()
         tau, _, exitflag, info = self.model.solve()
         self.iterations = int(info["iterations"])
         self.status = f"DAQP_EXITFLAG_{exitflag}"
@@ -422,6 +426,29 @@ class _DaqpStance(_StanceQP):
         qdd_f = offset + gain @ tau
         self.x[:nv] = qdd_f[:nv]
         self.x[self.force] = qdd_f[nv:]
+
+    def _dims(self) -> tuple[int, int, int]:
+        return self.nu, len(self.bu), self.Ac.shape[0]
+
+    def _setup(self) -> None:
+        """(Re)build the DAQP workspace for the current data and working set ``sense``."""
+        self.model_dims = None
+        exitflag, _ = self.model.setup(self.Hc, self.fc, self.Ac, self.bu, self.bl, self.sense)
+        if exitflag < 0:
+            raise RuntimeError(f"daqp setup failed (exitflag {exitflag})")
+        self.model.settings = self.settings
+        self.model_dims = self._dims()
+
+    def _update(self, keep_working_set: bool) -> bool:
+        """Update the set-up model in place; False when it must be set up (again) instead."""
+        if self.model_dims != self._dims():  # not set up yet, or sizes changed
+            return False
+        data = {"H": self.Hc, "f": self.fc, "bupper": self.bu, "blower": self.bl}
+        if self.Ac.shape[0] > 0:  # no general constraints in flight: update() would index A[0, 0]
+            data["A"] = self.Ac
+        if not keep_working_set:
+            data["sense"] = self.sense
+        return self.model.update(**data) >= 0
 
 
 def _package_version(name: str) -> str:
@@ -477,6 +504,7 @@ class VWBCController:
         self.last_qdd = np.zeros(nv)
         self.last_forces = np.zeros((4, 3))
         self.last_stance = np.zeros(4, dtype=bool)
+        self.last_error = ""  # the last exception raised inside the QP (type: message), '' if none
         self.reset_statistics()
 
     # ------------------------------------------------------------------ interface
@@ -526,8 +554,12 @@ class VWBCController:
 
         try:
             reason = self._solve_qp(k, q, v, dx)
-        except (RuntimeError, ValueError, np.linalg.LinAlgError) as error:  # solver/KKT failures
+        except Exception as error:  # any failure in the QP (solver, KKT, bindings): fall back, never raise
             reason = f"exception:{type(error).__name__}"
+            self.last_error = f"{type(error).__name__}: {error}"
+            self.exception_counts[type(error).__name__] += 1
+            # the pattern's solver may be half-updated: build it afresh on its next tick
+            self._qps.pop(tuple(bool(c) for c in self._stance), None)
         elapsed_ms = 1e3 * (time.perf_counter() - start)
         self._record_time(elapsed_ms)
         if elapsed_ms > REAL_TIME_BUDGET_MS:
@@ -541,7 +573,7 @@ class VWBCController:
                 self.last_forces[:] = contact_forces_for_torque(
                     self.robot, q, v, self._torques, self._stance, s.alpha, terms=self.terms
                 )
-            except (RuntimeError, ValueError):
+            except Exception:  # scoring only; the fallback torque stands
                 self.last_forces[:] = np.nan
         if friction_cone_violation(self.last_forces[self._stance], s.mu) > s.cone_tolerance:
             self.friction_cone_violations += 1
@@ -621,6 +653,7 @@ class VWBCController:
         self.iterations_histogram: Counter[int] = Counter()
         self.status_counts: Counter[str] = Counter()
         self.fallback_reasons: Counter[str] = Counter()
+        self.exception_counts: Counter[str] = Counter()  # exceptions inside the QP, by type
         self._solve_ms = np.zeros(1024)
         self._tick_ms = np.zeros(1024)
         self._n_solve = 0
@@ -654,6 +687,7 @@ class VWBCController:
             "tick_time_ms_p99": percentile(tick, 99),
             "fallbacks": self.fallbacks,
             "fallback_reasons": dict(self.fallback_reasons),
+            "qp_exceptions": dict(self.exception_counts),
             "qp_status_counts": dict(self.status_counts),
             "friction_cone_violations": self.friction_cone_violations,
             "slow_ticks": self.slow_ticks,
