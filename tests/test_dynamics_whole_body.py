@@ -283,11 +283,13 @@ def test_semi_implicit_matches_crocoddyl(robot, stance):
 
 
 def test_free_fall_matches_mujoco_plant(robot):
-    """0.1 s of free flight at 1 ms (no armature, damping or friction in the plant): the planning model
-    and MuJoCo agree. MuJoCo's free joint: qpos [pos, quat wxyz], qvel [world linear, body angular]."""
+    """0.1 s of free flight at 1 ms (plant armature = the model's rotor inertia, no damping or friction):
+    the planning model and MuJoCo agree. MuJoCo's free joint: qpos [pos, quat wxyz], qvel [world linear,
+    body angular]."""
     mujoco = pytest.importorskip("mujoco")
     plant = mujoco.MjModel.from_xml_string(robot.mjcf)
     plant.dof_armature[:] = 0.0
+    plant.dof_armature[6:] = robot.model.armature[6:]
     plant.dof_damping[:] = 0.0
     plant.dof_frictionloss[:] = 0.0
     plant.opt.timestep = 0.001

@@ -1,7 +1,8 @@
 """Checks that the MuJoCo plant and the Pinocchio planning model describe the same robot.
 
-They must agree on total mass, forward kinematics of the feet and the joint-space mass matrix when the
-plant's armature is removed (armature is the one inertial term the planning model deliberately lacks).
+They must agree on total mass, forward kinematics of the feet and the joint-space mass matrix, with the
+plant's armature set to the planning model's (the model carries the rotor inertia when the robot file says
+``rotor_inertia_in_model``; otherwise both are compared without it).
 MuJoCo's free-joint velocity is ``[world linear, body angular]`` and Pinocchio's ``[body linear, body
 angular]``, so the mass matrices are compared after the change of velocity coordinates
 ``v_mujoco = T v_pinocchio`` with ``T = blockdiag(R, I, I)``: ``M_pinocchio = T' M_mujoco T``.
@@ -38,6 +39,7 @@ def check_consistency(robot: Robot, samples: int = 5, seed: int = 0) -> dict:
     plant = MujocoPlant(robot)
     mj_model, mj_data = plant.model, plant.data
     mj_model.dof_armature[:] = 0.0
+    mj_model.dof_armature[6:] = robot.model.armature[6:]  # compare like with like
     data = robot.model.createData()
     foot_sites = [mj_model.site(f"{name}_site").id for name in robot.foot_frame_names]
     mass_pinocchio = robot.total_mass

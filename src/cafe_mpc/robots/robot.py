@@ -287,6 +287,8 @@ def _build_robot(table: dict) -> Robot:
         raise RobotLoadError(
             f"robot {name!r}: plant timestep, foot radius and floor friction must be positive"
         )
+    if bool(joints.get("rotor_inertia_in_model", False)):
+        model.armature[6:] = plant.armature  # reflected rotor inertia, in CRBA/ABA and their derivatives
     offsets = np.asarray(standing["foothold_offsets"], dtype=float)
     if offsets.shape != (4, 2):
         raise RobotLoadError(f"robot {name!r}: standing.foothold_offsets must be 4 (x, y) pairs")
