@@ -91,3 +91,47 @@ def test_mpc_closed_loop_stands(robot):
     assert controller.statistics.fallback_ticks == 0
     assert np.all(np.isfinite(log.torque_command))
     assert abs(log.q[-1, 2] - robot.standing_height) < 0.02
+
+
+class _RecordingRiccati(RiccatiController):
+    def __init__(self, robot):
+        super().__init__(robot)
+        self.activations: list[tuple[float, float]] = []  # (plan start time, tick time it took effect)
+        self.now = 0.0
+
+    def set_plan(self, plan):
+        self.activations.append((plan.start_time, self.now))
+        super().set_plan(plan)
+
+    def compute(self, t, q, v):
+        self.now = t
+        return super().compute(t, q, v)
+
+
+@pytest.mark.parametrize("latency", [0.02, 0.05])
+def test_plans_take_effect_after_their_latency(robot, latency):
+    """Policy lag: each plan drives the robot from ``start + latency`` on, also when the latency equals or
+    exceeds the MPC period (several plans in flight)."""
+    reference = LocomotionReference(robot, get_gait("stand"), [VelocityCommand()])
+    low_level = _RecordingRiccati(robot)
+    controller = CafeMpcController(
+        robot,
+        reference,
+        _builder(robot, ModelSchedule.named("S0")),
+        low_level,
+        MpcSettings(period=0.02, latency="fixed", fixed_latency=latency),
+    )
+    original = controller._activate_pending
+
+    def activate(t):
+        low_level.now = t
+        original(t)
+
+    controller._activate_pending = activate
+    log = simulate(robot, controller, 0.16)
+    assert not log.fell
+    first, *later = low_level.activations
+    assert first[0] == pytest.approx(0.0)  # the very first plan acts at once (nothing else to follow)
+    assert len(later) >= 3
+    for start, applied in later:
+        assert applied == pytest.approx(start + latency, abs=1e-9)

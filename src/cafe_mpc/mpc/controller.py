@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import logging
 import time
+from collections import deque
 from dataclasses import dataclass, field, replace
 from typing import Literal, Protocol
 
@@ -128,26 +129,28 @@ class CafeMpcController:
         self.statistics = MpcStatistics()
         self.fallback = PDController(robot)
         self.plan: Plan | None = None
-        self.pending: tuple[float, Plan] | None = None
+        self.pending: deque[tuple[float, Plan]] = deque()
+        """Solved plans waiting for their latency to pass, oldest first (several when latency > period)."""
         self.previous: tuple[BuiltProblem, SolverResult] | None = None
         self.next_update = 0.0
         self._x = np.zeros(robot.nq + robot.nv)
 
     # -------------------------------------------------------------------------------------- interface
     def reset(self, state: PlantState) -> None:
-        self.plan, self.pending, self.previous = None, None, None
+        self.plan, self.previous = None, None
+        self.pending.clear()
         self.statistics = MpcStatistics()
         self.next_update = 0.0
         self.fallback.reset(state)
 
     def compute(self, t: float, state: PlantState) -> np.ndarray:
+        # A plan that comes due now takes effect before the next update starts (with a latency of one MPC
+        # period the new update would otherwise replace it before it was ever used).
+        self._activate_pending(t)
         if t + 1e-9 >= self.next_update:
             self._update(t, state)
             self.next_update += self.settings.period
-        if self.pending is not None and t + 1e-9 >= self.pending[0]:
-            self.plan = self.pending[1]
-            self.low_level.set_plan(self.plan)
-            self.pending = None
+            self._activate_pending(t)
         if self.plan is None:
             self.statistics.fallback_ticks += 1
             return self.fallback.compute(t, state)
@@ -156,6 +159,14 @@ class CafeMpcController:
             self.statistics.fallback_ticks += 1
             return self.fallback.compute(t, state)
         return torques
+
+    def _activate_pending(self, t: float) -> None:
+        due = None
+        while self.pending and t + 1e-9 >= self.pending[0][0]:
+            due = self.pending.popleft()[1]
+        if due is not None:
+            self.plan = due
+            self.low_level.set_plan(due)
 
     # ----------------------------------------------------------------------------------------- solves
     def _update(self, t: float, state: PlantState) -> None:
@@ -208,9 +219,9 @@ class CafeMpcController:
         if self.plan is None or latency <= 0:
             self.plan = plan
             self.low_level.set_plan(plan)
-            self.pending = None
+            self.pending.clear()
         else:
-            self.pending = (t + latency, plan)
+            self.pending.append((t + latency, plan))
 
     def stance_torque(self, stance: tuple[bool, ...] | None) -> np.ndarray:
         """Static torques carrying the weight on ``stance`` at the standing pose (zero in flight)."""
