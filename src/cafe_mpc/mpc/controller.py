@@ -95,6 +95,9 @@ class MpcStatistics:
             "failures": self.failures,
             "iterations_mean": float(np.mean(self.iterations)) if self.iterations else None,
             "iteration_time_ms_median": median(self.iteration_times),
+            "iteration_time_ms_p99": float(np.percentile(self.iteration_times, 99)) * 1e3
+            if self.iteration_times
+            else None,
             "solve_time_ms_median": median(self.solve_times),
             "solve_time_ms_p99": float(np.percentile(self.solve_times, 99)) * 1e3
             if self.solve_times
