@@ -1,4 +1,4 @@
-"""Command line: ``cafe-mpc run | robot | bench``.
+"""Command line: ``cafe-mpc run | experiment | robot | bench``.
 
 Every user error (bad preset, key, value, robot file, NaN state) ends with one line ``cafe-mpc: error: ...``
 on stderr and a non-zero exit code, never a traceback.
@@ -39,6 +39,29 @@ def _command_run(arguments: argparse.Namespace) -> int:
     if "render_error" in metrics:
         print(f"no video: {metrics['render_error']}")
     print(f"results in {result.out_dir}")
+    return 0
+
+
+def _command_experiment(arguments: argparse.Namespace) -> int:
+    from cafe_mpc.experiments.comparisons import run_experiment
+
+    result = run_experiment(
+        arguments.name,
+        out_dir=Path(arguments.out) if arguments.out else None,
+        duration=arguments.duration,
+        overrides=list(arguments.set or []),
+        schedules=arguments.schedules,
+        gaits=arguments.gaits,
+        warm_starts=arguments.warm_starts,
+        show_progress=True,
+        echo=print,
+    )
+    print((result.out_dir / "comparison.md").read_text().rstrip())
+    print(f"results in {result.out_dir} (comparison.json, .md, .png; one folder per variant)")
+    if result.errors:
+        failed = ", ".join(result.errors)
+        print(f"cafe-mpc: error: variants ended in an error: {failed} (see comparison.json)", file=sys.stderr)
+        return EXIT_FAILED
     return 0
 
 
@@ -128,6 +151,51 @@ def build_parser() -> argparse.ArgumentParser:
     )
     run_parser.add_argument("--render", action="store_true", help="write a video (needs off-screen GL)")
     run_parser.set_defaults(handler=_command_run)
+
+    from cafe_mpc.experiments.comparisons import EXPERIMENTS
+
+    listing = "\n".join(
+        f"  {e.name:<11} {e.title} ({e.paper}); default {e.default_duration:g} s"
+        for e in EXPERIMENTS.values()
+    )
+    experiment_parser = commands.add_parser(
+        "experiment",
+        help=f"compare variants ({', '.join(EXPERIMENTS)})",
+        description=(
+            "Run several variants of a preset side by side (each in its own subfolder with its usual\n"
+            "files) and write comparison.json, comparison.md (a markdown table) and comparison.png.\n\n"
+            f"experiments:\n{listing}"
+        ),
+        epilog=(
+            "examples:\n"
+            "  cafe-mpc experiment schedules                    # bound: S0 (no SRB tail) vs S4, 10 s each\n"
+            "  cafe-mpc experiment schedules --schedules S0,S1,S2,S4\n"
+            "  cafe-mpc experiment push                         # bound-push: VWBC vs Riccati, 5 s each\n"
+            "  cafe-mpc experiment warm-start --duration 2      # QP iterations: bound and pace x 3 modes"
+        ),
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    experiment_parser.add_argument("name", help=f"experiment: {', '.join(EXPERIMENTS)}")
+    experiment_parser.add_argument("--duration", type=float, help="simulated seconds per variant")
+    experiment_parser.add_argument("--out", help="output folder (default runs/<time>-experiment-<name>/)")
+    experiment_parser.add_argument(
+        "--set",
+        action="append",
+        metavar="KEY=VALUE",
+        help="override a config key in every variant (not the keys the experiment varies); repeatable",
+    )
+    experiment_parser.add_argument(
+        "--schedules", metavar="S0,S4,...", help="schedules: the model schedules to compare (default S0,S4)"
+    )
+    experiment_parser.add_argument(
+        "--gaits", metavar="bound,pace", help="warm-start: gait presets (default bound,pace)"
+    )
+    experiment_parser.add_argument(
+        "--warm-starts",
+        metavar="previous,plan,none",
+        help="warm-start: VWBC warm-start modes (default previous,plan,none; also equality)",
+    )
+    experiment_parser.set_defaults(handler=_command_experiment)
 
     robot_parser = commands.add_parser("robot", help="robot summary and Pinocchio/MuJoCo consistency check")
     robot_parser.add_argument("name", help="robot name (mini_cheetah, go1) or robot YAML file")
