@@ -3,7 +3,7 @@
 PYTHON ?= python3.11
 VENV := .venv
 BIN := $(VENV)/bin
-DEMO ?= stand
+DEMO ?= trot
 
 .PHONY: install demo test lint bench clean
 
