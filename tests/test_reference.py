@@ -98,3 +98,21 @@ def test_bezier_blend():
 def test_out_of_range_commands_are_rejected(robot, command, message):
     with pytest.raises(ValueError, match=message):
         validate_command(command, robot)
+
+
+def test_feet_after_a_touchdown_between_anchor_and_query_stand_on_its_foothold(robot):
+    """A window that starts after a touchdown (the SRB tail's) must see that swing's foothold, not where the
+    foot stood before it lifted off (the bug put SRB stance feet up to 0.4 m away)."""
+    reference = LocomotionReference(robot, get_gait("trot"), [VelocityCommand(0.0, 0.5)])
+    reference.update(0.1, robot.q_standing, np.zeros(robot.nv))  # FR is swinging until 0.25 s
+    _, whole, _ = reference.feet(np.arange(0.1, 0.4, 0.01))
+    _, tail, _ = reference.feet(np.array([0.3, 0.35]))
+    landed = whole[20, 1]  # FR at 0.3 s, from the window that contains its touchdown
+    np.testing.assert_allclose(tail[0, 1], landed, atol=1e-12)
+    assert landed[0] - robot.foot_positions(robot.q_standing)[1, 0] > 0.05  # it stepped forward
+    # stance flags of a gait with an initial stand
+    standing_first = LocomotionReference(robot, get_gait("bound"), [VelocityCommand()], start_stance=0.2)
+    assert standing_first.stance_at(0.1) == (True, True, True, True)
+    assert standing_first.stance_at(0.25) == get_gait("bound").flags_at(0.05)
+    assert get_gait("bound").support_factor == pytest.approx(1.0)
+    assert get_gait("trot").support_factor == pytest.approx(0.5)
