@@ -74,6 +74,12 @@ def test_warm_start_shifts_by_time_and_rolls_out_after_impacts(robot):
     # the appended phase entered through an impact gets roll-out knots (Fig. 5)
     assert second.phases[1].entered_by_impact
     assert shifted.rollout[1][1:].all() and not shifted.rollout[0].any()
+    # the touchdown constraint of the same switch keeps its AL multiplier and penalty;
+    # a new switch starts afresh
+    assert first.phases[0].times[-1] == pytest.approx(second.phases[0].times[-1])
+    np.testing.assert_array_equal(shifted.multipliers[0], solution.phases[0].multiplier)
+    assert shifted.penalties[0] == solution.phases[0].penalty
+    assert all(m is None for m in shifted.multipliers[2:])
 
 
 def test_mpc_closed_loop_stands(robot):

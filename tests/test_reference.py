@@ -3,6 +3,7 @@
 import math
 
 import numpy as np
+import pinocchio as pin
 import pytest
 
 from cafe_mpc.ocp.contact_schedule import get_gait
@@ -116,3 +117,27 @@ def test_feet_after_a_touchdown_between_anchor_and_query_stand_on_its_foothold(r
     assert standing_first.stance_at(0.25) == get_gait("bound").flags_at(0.05)
     assert get_gait("bound").support_factor == pytest.approx(1.0)
     assert get_gait("trot").support_factor == pytest.approx(0.5)
+
+
+def test_leg_inverse_kinematics_reaches_feet_and_matches_rates(robot):
+    from cafe_mpc.reference.inverse_kinematics import LegInverseKinematics
+
+    ik = LegInverseKinematics(robot)
+    base = robot.q_standing[:7].copy()
+    feet = robot.foot_positions(robot.q_standing)
+    joints, _, error = ik.solve(base, feet)
+    np.testing.assert_allclose(joints, robot.q_standing[7:], atol=1e-6)
+    assert error < 1e-5
+    # moved feet are reached; joint rates are the derivative of the solution along a foot motion
+    target = feet + np.array([0.04, -0.01, 0.03])
+    velocity = np.tile([0.2, 0.1, -0.3], (4, 1))
+    base_velocity = np.array([0.3, 0.0, 0.0, 0.0, 0.0, 0.1])
+    joints, rates, error = ik.solve(base, target, None, base_velocity, velocity)
+    q = robot.q_standing.copy()
+    q[7:] = joints
+    np.testing.assert_allclose(robot.foot_positions(q), target, atol=1e-5)
+    dt = 1e-6
+    moved_base = np.concatenate([base[:3] + dt * base_velocity[:3], base[3:7]])
+    moved_base[3:7] = pin.Quaternion(pin.exp3(dt * base_velocity[3:]) @ np.eye(3)).coeffs()
+    later, _, _ = ik.solve(moved_base, target + dt * velocity, joints)
+    np.testing.assert_allclose((later - joints) / dt, rates, atol=1e-3)

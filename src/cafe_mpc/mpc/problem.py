@@ -392,27 +392,31 @@ def _augmented_lagrangian_guess(
     for index, info in enumerate(built.phases):
         if info.kind != "whole_body":
             continue
-        end = float(info.times[-1])
-        following = built.phases[index + 1] if index + 1 < len(built.phases) else None
+        end, after = float(info.times[-1]), _stance_after(built, index)
         for old_index, old in enumerate(previous.phases):
-            same_end = abs(float(old.times[-1]) - end) <= 1e-6
-            if old.kind != "whole_body" or not same_end or old.stance != info.stance:
-                continue
-            old_following = previous.phases[old_index + 1] if old_index + 1 < len(previous.phases) else None
-            if (following is None) != (old_following is None):
-                continue
             if (
-                following is not None
-                and old_following is not None
-                and (following.kind != old_following.kind or following.stance != old_following.stance)
+                old.kind == "whole_body"
+                and abs(float(old.times[-1]) - end) <= 1e-6
+                and old.stance == info.stance
+                and _stance_after(previous, old_index) == after
             ):
-                continue
-            phase = solution.phases[old_index]
-            if phase.multiplier is not None:
-                multipliers[index] = phase.multiplier.copy()
-                penalties[index] = phase.penalty
-            break
+                phase = solution.phases[old_index]
+                if phase.multiplier is not None and after is not None:
+                    multipliers[index] = phase.multiplier.copy()
+                    penalties[index] = phase.penalty
+                break
     return multipliers, penalties
+
+
+def _stance_after(built: BuiltProblem, index: int) -> tuple[bool, ...] | None:
+    """Stance flags right after phase ``index`` ends (the next whole-body phase's or the SRB tail's first
+    knot's); ``None`` at the end of the horizon."""
+    if index + 1 >= len(built.phases):
+        return None
+    following = built.phases[index + 1]
+    if following.kind == "whole_body":
+        return following.stance
+    return tuple(bool(s) for s in following.contacts[0])
 
 
 def _lookup_whole_body(
