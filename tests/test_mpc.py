@@ -141,3 +141,20 @@ def test_plans_take_effect_after_their_latency(robot, latency):
     assert len(later) >= 3
     for start, applied in later:
         assert applied == pytest.approx(start + latency, abs=1e-9)
+
+
+def test_torque_and_force_targets_carry_the_gaits_average_stance_load(robot):
+    """Running knots regularise torque toward the torques that hold the gait's average stance force (not
+    zero), and the SRB tail's GRF targets carry the same load: twice the trot's per foot when bounding."""
+    builder = _builder(robot, ModelSchedule.named("S4"))
+    weight = robot.total_mass * 9.81
+    for gait, factor in (("trot", 0.5), ("bound", 1.0)):
+        built = builder.build(0.0, robot.x_standing, _reference(robot, gait))
+        first = built.problem.phases[0].running_models[0]
+        stance = built.phases[0].stance
+        expected = static_stance_torques(robot, robot.q_standing, stance, factor * weight)
+        np.testing.assert_allclose(first.reference.torque, expected, atol=1e-12)
+        assert np.abs(first.reference.torque).max() > 1.0
+        vertical = built.srb_forces.reshape(len(built.srb_forces), 4, 3)[:, :, 2]
+        stance_forces = vertical[vertical > 0]
+        np.testing.assert_allclose(stance_forces, factor * builder.srb.weight)

@@ -72,3 +72,11 @@ def test_bad_robot_files_give_clear_errors(tmp_path):
     not_yaml.write_text("name: [unclosed\n")
     with pytest.raises(RobotLoadError, match=r"bad\.yaml"):
         load_robot(str(not_yaml))
+
+
+def test_planning_model_carries_the_rotor_inertia():
+    """The Mini Cheetah file sets ``rotor_inertia_in_model``: the Pinocchio model has the plant's armature on
+    the 12 joints (none on the floating base), so the planned legs are as heavy as the plant's."""
+    robot = load_robot("mini_cheetah")
+    np.testing.assert_allclose(robot.model.armature[6:], robot.plant.armature)
+    assert not robot.model.armature[:6].any()

@@ -85,12 +85,9 @@ class LowLevelRecorder:
             self._grow()
         row = self._count
         plan = self.inner.plan
-        riccati = isinstance(self.inner, RiccatiController) and plan is not None
-        if riccati:  # before compute(), which clamps the same buffer in place
-            self._requested[row] = self.inner.torques_at(t, q, v)
         torques = self.inner.compute(t, q, v)
-        if not riccati:
-            self._requested[row] = torques
+        riccati = isinstance(self.inner, RiccatiController) and plan is not None
+        self._requested[row] = self.inner.requested if riccati else torques
         self._times[row] = t
         if plan is not None:
             self._stances[row] = plan.contacts[plan.knot_at(t)]

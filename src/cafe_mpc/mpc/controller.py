@@ -180,14 +180,13 @@ class CafeMpcController:
         try:
             self.reference.update(t, state.q, state.v)
             built = self.builder.build(t, self._x.copy(), self.reference)
-            srb_forces = self._srb_force_guess(built)
             previous_built, previous_solution = self.previous if self.previous else (None, None)
             guess = self.warm_start.guess(
                 built,
                 previous_built,
                 previous_solution,
                 lambda stance: self.builder.stance_torque(stance, self.reference.support_factor(t)),
-                srb_forces,
+                built.srb_forces,
             )
             solver = self.first_solver if first else self.solver
             result = solver.solve(
@@ -229,10 +228,6 @@ class CafeMpcController:
     def stance_torque(self, stance: tuple[bool, ...] | None) -> np.ndarray:
         """Static torques carrying the weight on ``stance`` at the standing pose (zero in flight)."""
         return self.builder.stance_torque(stance)
-
-    @staticmethod
-    def _srb_force_guess(built: BuiltProblem) -> np.ndarray:
-        return built.srb_forces
 
     def _plan_from(self, built: BuiltProblem, result: SolverResult, solver: MSiLQRSolver) -> Plan | None:
         times, xs, us, gains, qu, quu, qux, contacts, forces, dts = [], [], [], [], [], [], [], [], [], []

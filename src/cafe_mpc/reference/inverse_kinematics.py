@@ -34,6 +34,7 @@ class LegInverseKinematics:
         self.iterations = iterations
         self.tolerance = tolerance
         self.damping = damping
+        self._damping_matrix = damping * np.eye(3)
         self.lower = robot.position_lower
         self.upper = robot.position_upper
         self._q = robot.q_standing.copy()
@@ -66,7 +67,7 @@ class LegInverseKinematics:
                 error_max = max(error_max, float(np.max(np.abs(error))))
                 columns = slice(6 + 3 * leg, 9 + 3 * leg)
                 jacobian = pin.getFrameJacobian(model, data, frame_id, LWA)[:3, columns]
-                step = np.linalg.solve(jacobian.T @ jacobian + self.damping * np.eye(3), jacobian.T @ error)
+                step = np.linalg.solve(jacobian.T @ jacobian + self._damping_matrix, jacobian.T @ error)
                 rows, limits = slice(7 + 3 * leg, 10 + 3 * leg), slice(3 * leg, 3 * leg + 3)
                 q[rows] = np.clip(q[rows] + step, self.lower[limits], self.upper[limits])
             if error_max < self.tolerance:
@@ -81,7 +82,7 @@ class LegInverseKinematics:
                 base_part = jacobian[:, :6] @ base_velocity
                 leg_jacobian = jacobian[:, columns]
                 rates[3 * leg : 3 * leg + 3] = np.linalg.solve(
-                    leg_jacobian.T @ leg_jacobian + self.damping * np.eye(3),
+                    leg_jacobian.T @ leg_jacobian + self._damping_matrix,
                     leg_jacobian.T @ (foot_velocities[leg] - base_part),
                 )
         return joints, rates, error_max

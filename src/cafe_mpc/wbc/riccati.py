@@ -26,6 +26,8 @@ class RiccatiController:
         self.limit_violations = 0
         self._dx = np.zeros(2 * robot.nv)
         self._torques = np.zeros(robot.nu)
+        self.requested = np.zeros(robot.nu)
+        """The last ``compute``'s torque before clamping (what Eq. (33) asked for; Fig. 9 plots it)."""
 
     def set_plan(self, plan: Plan) -> None:
         self.plan = plan
@@ -49,6 +51,7 @@ class RiccatiController:
 
     def compute(self, t: float, q: np.ndarray, v: np.ndarray) -> np.ndarray:
         torques = self.torques_at(t, q, v)
+        self.requested[:] = torques
         if np.any(np.abs(torques) > self.limits):
             self.limit_violations += 1
             if self.clamp:
