@@ -25,6 +25,7 @@ import sys
 import numpy as np
 import pinocchio as pin
 
+from cafe_mpc.core.measurement import Measurement
 from cafe_mpc.robots.robot import load_robot
 from cafe_mpc.wbc.riccati import RiccatiController
 from cafe_mpc.wbc.synthetic import synthetic_plan
@@ -50,9 +51,8 @@ def states(robot, ticks: int, v_scale: float, seed: int = 0):
 
 def run(robot, plan, scenario: dict, solver: str, mode: str, ticks: int) -> dict:
     vwbc = VWBCController(robot, VWBCSettings(solver=solver, warm_start=mode))
-    vwbc.set_plan(plan)
     for i, (q, v) in enumerate(states(robot, ticks, scenario["v_scale"])):
-        vwbc.compute(0.002 * i, q, v)
+        vwbc.compute(0.002 * i, Measurement.of_state(q, v, scenario["stance"]), plan)
     stats = vwbc.statistics()
     histogram = stats["qp_iterations_histogram"]
     total = sum(histogram.values())
@@ -74,11 +74,10 @@ def run(robot, plan, scenario: dict, solver: str, mode: str, ticks: int) -> dict
 
 def riccati_violations(robot, plan, scenario: dict, ticks: int) -> int:
     riccati = RiccatiController(robot)
-    riccati.set_plan(plan)
     scorer = FrictionConeScorer(robot)
     stance = np.array(scenario["stance"])
     for i, (q, v) in enumerate(states(robot, ticks, scenario["v_scale"])):
-        scorer.score(q, v, riccati.compute(0.002 * i, q, v), stance)
+        scorer.score(q, v, riccati.compute(0.002 * i, Measurement.of_state(q, v, stance), plan), stance)
     return scorer.violations
 
 

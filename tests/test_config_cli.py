@@ -87,3 +87,9 @@ def test_cli_robot_json(capsys):
     assert summary["total_mass"] == pytest.approx(8.252)
     assert summary["consistency"]["passed"] is True
     assert summary["foot_frames"] == ["FL_foot", "FR_foot", "HL_foot", "HR_foot"]
+    assert summary["srb_mass"] == pytest.approx(8.912)  # 12 rotors of 0.055 kg added to the links
+    inertia = summary["srb_inertia"]
+    assert len(inertia) == 3 and all(len(row) == 3 for row in inertia) and inertia[1][1] > inertia[0][0] > 0
+    assert main(["robot", "go1", "--json", "--samples", "1"]) == 0
+    go1 = json.loads(capsys.readouterr().out)
+    assert go1["srb_mass"] == pytest.approx(go1["total_mass"]) and go1["srb_inertia"] != inertia

@@ -81,7 +81,7 @@ def fd_of(function, x, u, state, nu):
 
 
 def test_base_weight_mapping_to_tangent_order():
-    # facts order [x, y, z, yaw, pitch, roll] -> tangent [x, y, z, roll (about x), pitch (y), yaw (z)]
+    # authors' order [x, y, z, yaw, pitch, roll] -> tangent [x, y, z, roll (about x), pitch (y), yaw (z)]
     np.testing.assert_array_equal(base_weights_to_tangent([1, 2, 3, 4, 5, 6]), [1, 2, 3, 6, 5, 4])
     weights = WholeBodyWeights.regular_running().state_weights()
     np.testing.assert_array_equal(weights[:6], [0, 0, 10, 2, 2, 1])

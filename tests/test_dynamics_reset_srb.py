@@ -2,15 +2,17 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pinocchio as pin
 import pytest
 
+from cafe_mpc.core.interfaces import IdentityReset
 from cafe_mpc.dynamics.impact import ImpactReset
 from cafe_mpc.dynamics.multibody_state import MultibodyState
-from cafe_mpc.dynamics.srb import SRBDynamics, SRBParameters, SRBState, quaternion_to_rotation
+from cafe_mpc.dynamics.srb import SRBDynamics, SRBParameters, SRBState, quaternion_to_rotation, srb_parameters
 from cafe_mpc.dynamics.transition import ComposedReset, WholeBodyToSRB
-from cafe_mpc.ocp.interfaces import IdentityReset
 from cafe_mpc.ocp.knots import SRBModelFactory, WholeBodyModelFactory, weight_split_forces
 from cafe_mpc.robots.robot import load_robot
 
@@ -260,3 +262,41 @@ def test_srb_knot_gradient(terminal):
     # Reference forces: weight / stance count on stance feet, zero on swing feet.
     weight = factory.settings.parameters.mass * 9.81
     np.testing.assert_allclose(reference.forces.reshape(4, 3)[:, 2], [weight / 2, 0, 0, weight / 2])
+
+
+def test_srb_parameters_come_from_the_robot_model(robot):
+    """Legs lumped at the standing pose, rotors added: the Mini Cheetah's 8.252 kg of links + 12 x 0.055 kg
+    rotors = the authors' 8.912 kg; the inertia is the whole robot's composite inertia about its CoM."""
+    parameters = srb_parameters(robot)
+    assert robot.rotor_mass == pytest.approx(0.055)
+    assert parameters.mass == pytest.approx(8.912, abs=1e-9)
+    inertia = parameters.inertia_matrix
+    np.testing.assert_allclose(inertia, inertia.T)
+    assert np.all(np.linalg.eigvalsh(inertia) > 0)
+    # legs add to the trunk's own inertia (body diag(0.011253, 0.036203, 0.042673)) about every axis
+    assert np.all(np.diag(inertia) > [0.05, 0.2, 0.25])
+    assert abs(inertia[0, 1]) < 1e-9 and abs(inertia[1, 2]) < 1e-9  # left/right mirror symmetry
+    # independent check without rotors: parallel-axis sum over the bodies
+    bare = replace(robot, rotor_mass=0.0)
+    model, data = bare.model, bare.model.createData()
+    q = bare.q_standing.copy()
+    pin.forwardKinematics(model, data, q)
+    com = pin.centerOfMass(model, data, q)
+    expected = np.zeros((3, 3))
+    for joint in range(1, model.njoints):
+        body = model.inertias[joint]
+        rotation = data.oMi[joint].rotation
+        offset = data.oMi[joint].act(body.lever) - com
+        expected += rotation @ body.inertia @ rotation.T
+        expected += body.mass * (offset @ offset * np.eye(3) - np.outer(offset, offset))
+    np.testing.assert_allclose(srb_parameters(bare).inertia_matrix, expected, atol=1e-12)
+    assert srb_parameters(bare).mass == pytest.approx(bare.total_mass)
+
+
+def test_srb_parameters_of_go1_are_its_own():
+    go1 = load_robot("go1")
+    parameters = srb_parameters(go1)
+    assert go1.rotor_mass == 0.0  # Go1's URDF has its rotors as links
+    assert parameters.mass == pytest.approx(go1.total_mass)
+    assert parameters.mass > 12.0 and parameters.mass != pytest.approx(SRBParameters().mass)
+    assert not np.allclose(parameters.inertia_matrix, SRBParameters().inertia_matrix, atol=1e-2)

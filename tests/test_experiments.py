@@ -3,15 +3,22 @@
 No closed-loop gait runs here (those are in the MPC tests): every test is construction or arithmetic.
 """
 
+import logging
 import math
+import os
+import subprocess
+import sys
 
 import numpy as np
 import pytest
 
 from cafe_mpc.cli import main
 from cafe_mpc.config import ConfigError, available_presets, load_config
+from cafe_mpc.control.mpc_loop import CafeMpcController
+from cafe_mpc.core.measurement import Measurement
+from cafe_mpc.dynamics.srb import srb_parameters
 from cafe_mpc.experiments.controllers import LowLevelRecorder, build_controller, low_level_of
-from cafe_mpc.mpc.controller import CafeMpcController
+from cafe_mpc.experiments.run import run
 from cafe_mpc.reference.locomotion import VelocityCommand, quaternion_from_yaw
 from cafe_mpc.report.metrics import (
     foot_slip_max,
@@ -88,7 +95,7 @@ def test_gait_names_overrides_and_defaults():
     assert (schedule.whole_body_knots, schedule.srb_knots) == (20, 6)
     stand = load_config("stand")
     assert stand.wbc == "pd" and stand.gait is None
-    # the facts' regular weights are the cost defaults
+    # the authors' regular weights are the cost defaults
     assert tuple(stand.costs.running.base_position) == (0.0, 0.0, 10.0, 1.0, 2.0, 2.0)
     assert stand.costs.terminal.torque == 0.0
 
@@ -122,6 +129,24 @@ def test_gait_presets_match_the_issues():
     assert push.simulation.duration == 5.0
     assert (push.pushes[0].start, push.pushes[0].duration) == (2.0, 0.05)
     assert push.pushes[0].velocity_change == (1.5, 0.0, 0.0)
+
+
+def test_go1_plans_its_srb_tail_with_its_own_mass_and_inertia(robot):
+    go1 = load_robot("go1")
+    controller = build_controller(load_config("trot", ["robot=go1", "simulation.duration=1"]), go1)
+    own = srb_parameters(go1)
+    factory = controller.builder.srb
+    assert factory.settings.parameters == own
+    assert factory.weight == pytest.approx(go1.total_mass * 9.81)
+    built = controller.builder.build(0.0, go1.x_standing, controller.reference)
+    srb_phase = built.problem.phases[-1]
+    assert built.phases[-1].kind == "srb"
+    dynamics = srb_phase.running_models[0].dynamics
+    assert dynamics.mass == pytest.approx(own.mass) and dynamics.mass > 12.0
+    np.testing.assert_allclose(dynamics.inertia, own.inertia_matrix)
+    # and the Mini Cheetah's own: the authors' mass, its lumped inertia
+    mini = build_controller(load_config("trot"), robot).builder.srb.settings.parameters
+    assert mini.mass == pytest.approx(8.912) and mini == srb_parameters(robot)
 
 
 def test_overrides_reach_the_controller(robot):
@@ -158,7 +183,7 @@ def test_run_help_lists_presets(capsys):
 # ------------------------------------------------------------------------------------------ metrics
 def synthetic_log(robot, q: np.ndarray, v: np.ndarray, dt: float = 0.002, contacts=None) -> SimulationLog:
     ticks = len(q)
-    log = SimulationLog.allocate(ticks, robot.nq, robot.nv, robot.nu)
+    log = SimulationLog.allocate(ticks, robot.nq, robot.nv, robot.nu, robot.n_feet)
     log.time[:] = dt * np.arange(ticks)
     log.q[:] = q
     log.v[:] = v
@@ -237,8 +262,8 @@ def test_wbc_metrics_count_limit_and_cone_violations(robot):
         robot,
         log,
         "vwbc",
-        torque_limit_violations=0,
-        qp_statistics={
+        low_level_statistics={
+            "torque_limit_violations": 0,
             "friction_cone_violations": 4,
             "qp_iterations_histogram": {1: 10, 2: 3},
             "qp_solve_time_ms_median": 0.1,
@@ -254,29 +279,30 @@ def test_wbc_metrics_count_limit_and_cone_violations(robot):
 def test_recorder_keeps_the_unclamped_riccati_request(robot):
     plan = synthetic_plan(robot, stance=(True, False, False, True), kp=400.0)
     recorder = LowLevelRecorder(RiccatiController(robot))
-    recorder.set_plan(plan)
     q = robot.q_standing.copy()
     q[7:] += 0.2  # far from the plan: the feedback exceeds the limits
-    sent = recorder.compute(0.002, q, np.zeros(robot.nv)).copy()
+    sent = recorder.compute(0.002, Measurement.of_state(q, np.zeros(robot.nv), [True] * 4), plan).copy()
     requested, stance = recorder.traces(np.array([0.0, 0.002, 0.004]))
     assert np.all(np.abs(sent) <= robot.torque_limits + 1e-9)
     assert np.max(np.abs(requested[1]) - robot.torque_limits) > 0
     assert np.all(np.isnan(requested[[0, 2]]))
     assert stance[1].tolist() == [True, False, False, True] and not stance[0].any()
     assert recorder.inner.limit_violations == 1
+    assert recorder.statistics()["torque_limit_violations"] == 1  # the inner controller's statistics
+    recorder.reset()
+    assert len(recorder.times) == 0 and recorder.statistics()["torque_limit_violations"] == 0
 
 
 def test_recorder_preallocates_and_grows(robot):
     plan = synthetic_plan(robot, stance=(True, False, False, True))
     recorder = LowLevelRecorder(VWBCController(robot), capacity=3)
     buffers = (recorder._times, recorder._requested, recorder._stances)
-    q, v = robot.q_standing, np.zeros(robot.nv)
-    recorder.set_plan(plan)
-    sent = [recorder.compute(0.002 * i, q, v).copy() for i in (1, 2, 3)]
+    measurement = Measurement.of_state(robot.q_standing, np.zeros(robot.nv), [True] * 4)
+    sent = [recorder.compute(0.002 * i, measurement, plan).copy() for i in (1, 2, 3)]
     current = (recorder._times, recorder._requested, recorder._stances)
     assert all(a is b for a, b in zip(current, buffers, strict=True))  # written in place, no new arrays
     for i in range(4, 7):  # past the capacity: the buffers double
-        sent.append(recorder.compute(0.002 * i, q, v).copy())
+        sent.append(recorder.compute(0.002 * i, measurement, plan).copy())
     assert len(recorder._times) == 6 and len(recorder.times) == 6
     grid = 0.002 * np.arange(9)
     requested, stance = recorder.traces(grid)
@@ -286,3 +312,24 @@ def test_recorder_preallocates_and_grows(robot):
     # a run's recorder is sized for its ticks
     controller = build_controller(load_config("trot", ["simulation.duration=1.5"]), robot)
     assert len(controller.low_level._times) >= 750
+
+
+def test_imports_and_runs_leave_global_state_alone(tmp_path):
+    """No ``matplotlib.use`` at import (the plots draw on their own Agg canvases), and a run that logs to
+    its folder restores the package logger's level."""
+    code = (
+        "import matplotlib\n"
+        "import cafe_mpc.experiments.comparisons, cafe_mpc.report.plots, cafe_mpc.cli\n"
+        "print(matplotlib.get_backend())\n"
+    )
+    environment = {**os.environ, "MPLBACKEND": "svg"}
+    backend = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, env=environment, check=True
+    ).stdout.strip()
+    assert backend == "svg"
+    package_logger = logging.getLogger("cafe_mpc")
+    before = package_logger.level
+    config = load_config("stand", ["simulation.duration=0.05", "output.plots=true"])
+    result = run(config, tmp_path / "run")
+    assert (tmp_path / "run" / "base_height.png").is_file() and (tmp_path / "run" / "run.log").is_file()
+    assert package_logger.level == before and result.metrics["fell"] is False

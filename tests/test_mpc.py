@@ -3,7 +3,8 @@
 import numpy as np
 import pytest
 
-from cafe_mpc.mpc.controller import CafeMpcController, MpcSettings
+from cafe_mpc.control.mpc_loop import CafeMpcController, MpcSettings
+from cafe_mpc.dynamics.statics import static_stance_torques
 from cafe_mpc.mpc.problem import CafeProblemBuilder, ModelSchedule, WarmStart
 from cafe_mpc.ocp.contact_schedule import get_gait
 from cafe_mpc.ocp.knots import SRBModelFactory, WholeBodyModelFactory
@@ -11,7 +12,6 @@ from cafe_mpc.reference.locomotion import LocomotionReference, VelocityCommand
 from cafe_mpc.robots.robot import load_robot
 from cafe_mpc.sim.loop import simulate
 from cafe_mpc.solver import MSiLQRSolver
-from cafe_mpc.wbc.pd import static_stance_torques
 from cafe_mpc.wbc.riccati import RiccatiController
 
 
@@ -103,15 +103,13 @@ class _RecordingRiccati(RiccatiController):
     def __init__(self, robot):
         super().__init__(robot)
         self.activations: list[tuple[float, float]] = []  # (plan start time, tick time it took effect)
-        self.now = 0.0
+        self.contacts: list[np.ndarray] = []  # the measured contacts of every tick
 
-    def set_plan(self, plan):
-        self.activations.append((plan.start_time, self.now))
-        super().set_plan(plan)
-
-    def compute(self, t, q, v):
-        self.now = t
-        return super().compute(t, q, v)
+    def compute(self, t, measurement, plan):
+        if not self.activations or self.activations[-1][0] != plan.start_time:
+            self.activations.append((plan.start_time, t))
+        self.contacts.append(measurement.contacts.copy())
+        return super().compute(t, measurement, plan)
 
 
 @pytest.mark.parametrize("latency", [0.02, 0.05])
@@ -127,13 +125,6 @@ def test_plans_take_effect_after_their_latency(robot, latency):
         low_level,
         MpcSettings(period=0.02, latency="fixed", fixed_latency=latency),
     )
-    original = controller._activate_pending
-
-    def activate(t):
-        low_level.now = t
-        original(t)
-
-    controller._activate_pending = activate
     log = simulate(robot, controller, 0.16)
     assert not log.fell
     first, *later = low_level.activations
@@ -141,6 +132,9 @@ def test_plans_take_effect_after_their_latency(robot, latency):
     assert len(later) >= 3
     for start, applied in later:
         assert applied == pytest.approx(start + latency, abs=1e-9)
+    # the low-level controller sees the plant's measured contacts on every tick
+    assert len(low_level.contacts) == log.ticks
+    np.testing.assert_array_equal(np.array(low_level.contacts), log.contacts)
 
 
 def test_torque_and_force_targets_carry_the_gaits_average_stance_load(robot):

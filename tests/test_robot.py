@@ -4,8 +4,8 @@ import numpy as np
 import pinocchio as pin
 import pytest
 
-from cafe_mpc.robots.consistency import check_consistency
 from cafe_mpc.robots.robot import LEG_NAMES, RobotLoadError, load_robot
+from cafe_mpc.sim.consistency import check_consistency
 
 
 @pytest.fixture(scope="module")

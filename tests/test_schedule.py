@@ -4,19 +4,15 @@ from __future__ import annotations
 
 import pytest
 
-from cafe_mpc.ocp.contact_schedule import (
+from cafe_mpc.core.contacts import (
     ALL_STANCE,
     FLIGHT,
-    GAITS,
-    ContactPhase,
-    ContactSchedule,
-    GaitCycle,
     as_contact_flags,
     flags_to_string,
-    get_gait,
     takeoff_flags,
     touchdown_flags,
 )
+from cafe_mpc.ocp.contact_schedule import GAITS, ContactPhase, ContactSchedule, GaitCycle, get_gait
 
 
 def test_contact_flag_validation():

@@ -57,7 +57,7 @@ def test_fall_is_detected(robot):
 
 def test_controller_nan_is_a_clear_error(robot):
     class Broken:
-        def reset(self, state):
+        def reset(self):
             pass
 
         def compute(self, t, state):

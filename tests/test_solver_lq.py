@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from cafe_mpc.ocp.interfaces import MultiPhaseProblem, Phase
+from cafe_mpc.core.interfaces import MultiPhaseProblem, Phase
 from cafe_mpc.solver import MSiLQRSolver, SolverOptions, evaluate_trajectory
 from toy_models import AffineReset, LinearQuadraticModel
 

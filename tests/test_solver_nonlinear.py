@@ -6,8 +6,8 @@ import numpy as np
 import pinocchio as pin
 import pytest
 
+from cafe_mpc.core.interfaces import ActionModel, MultiPhaseProblem, Phase
 from cafe_mpc.ocp.barrier import RelaxedBarrier
-from cafe_mpc.ocp.interfaces import ActionModel, MultiPhaseProblem, Phase
 from cafe_mpc.solver import MSiLQRSolver, SolverOptions, evaluate_trajectory
 from toy_models import (
     BounceReset,

@@ -11,10 +11,11 @@ import numpy as np
 import pinocchio as pin
 import pytest
 
-from cafe_mpc.mpc.plan import Plan
+from cafe_mpc.control.plan_follower import PlanFollower
+from cafe_mpc.core.measurement import Measurement
+from cafe_mpc.core.plan import Plan
 from cafe_mpc.robots.robot import load_robot
 from cafe_mpc.sim.loop import simulate
-from cafe_mpc.sim.plant import PlantState
 from cafe_mpc.wbc.riccati import RiccatiController
 from cafe_mpc.wbc.synthetic import synthetic_plan
 from cafe_mpc.wbc.vwbc import (
@@ -35,6 +36,11 @@ GENEROUS = np.full(12, 1e3)
 @pytest.fixture(scope="module")
 def robot():
     return load_robot("mini_cheetah")
+
+
+def measured(q, v, contacts=FOUR):
+    """What the plant would report: state ``(q, v)`` and the feet in contact (default: all four)."""
+    return Measurement.of_state(q, v, contacts)
 
 
 def perturbed_state(robot, seed, dq_scale=0.005, v_scale=0.02):
@@ -83,17 +89,15 @@ def test_unconstrained_qp_equals_riccati_policy(robot, solver, stance):
     plan = synthetic_plan(robot, stance=stance, seed=3)
     settings = VWBCSettings(solver=solver, eps_abs=1e-10)
     vwbc = VWBCController(robot, settings, torque_limits=GENEROUS)
-    vwbc.set_plan(plan)
     riccati = RiccatiController(robot, clamp=False)
-    riccati.set_plan(plan)
     q, v = perturbed_state(robot, seed=1)
-    tau = vwbc.compute(0.0, q, v).copy()
+    tau = vwbc.compute(0.0, measured(q, v), plan).copy()
     assert vwbc.last_used_qp and vwbc.fallbacks == 0
     # no inequality is active, so the QP is the unconstrained policy (7) = Riccati (33) when Qu = 0
     forces = vwbc.last_forces[stance]
     assert np.all(forces[:, 2] > 1.0)
     assert np.all(np.abs(forces[:, :2]) < 0.6 * forces[:, 2:] - 0.1)
-    np.testing.assert_allclose(tau, riccati.torques_at(0.0, q, v), atol=1e-6)
+    np.testing.assert_allclose(tau, riccati.torques_at(0.0, q, v, plan), atol=1e-6)
     np.testing.assert_allclose(tau, unconstrained_policy(vwbc, plan, q, v), atol=1e-6)
 
 
@@ -101,16 +105,14 @@ def test_unconstrained_qp_equals_riccati_policy(robot, solver, stance):
 def test_unconstrained_qp_with_qu_adds_feedforward_increment(robot, solver):
     plan = synthetic_plan(robot, seed=4, qu_scale=0.5)
     vwbc = VWBCController(robot, VWBCSettings(solver=solver, eps_abs=1e-10), torque_limits=GENEROUS)
-    vwbc.set_plan(plan)
     riccati = RiccatiController(robot, clamp=False)
-    riccati.set_plan(plan)
     q, v = perturbed_state(robot, seed=2)
-    tau = vwbc.compute(0.0, q, v).copy()
+    tau = vwbc.compute(0.0, measured(q, v), plan).copy()
     expected = unconstrained_policy(vwbc, plan, q, v)
     np.testing.assert_allclose(tau, expected, atol=1e-6)
     increment = -np.linalg.solve(plan.Quu[0], plan.Qu[0])
     assert np.abs(increment).max() > 0.05  # the test distinguishes (7) with Qu from (33)
-    np.testing.assert_allclose(tau - riccati.torques_at(0.0, q, v), increment, atol=1e-6)
+    np.testing.assert_allclose(tau - riccati.torques_at(0.0, q, v, plan), increment, atol=1e-6)
 
 
 @pytest.mark.parametrize("solver", SOLVERS)
@@ -123,8 +125,7 @@ def test_torque_limit_is_respected_and_other_joints_redistribute(robot, solver):
     limits = GENEROUS.copy()
     limits[joint] = 0.5 * abs(free[joint])
     vwbc = VWBCController(robot, VWBCSettings(solver=solver, eps_abs=1e-10), torque_limits=limits)
-    vwbc.set_plan(plan)
-    tau = vwbc.compute(0.0, q, v).copy()
+    tau = vwbc.compute(0.0, measured(q, v), plan).copy()
     assert vwbc.last_used_qp
     assert np.all(np.abs(tau) <= limits + 1e-9)
     assert tau[joint] == pytest.approx(np.sign(free[joint]) * limits[joint], abs=1e-7)
@@ -147,14 +148,12 @@ def test_friction_pyramid_and_dynamics_hold(robot, solver, stance):
     plan = synthetic_plan(robot, stance=stance, seed=7)
     settings = VWBCSettings(solver=solver, mu=mu, eps_abs=1e-9)
     vwbc = VWBCController(robot, settings, torque_limits=GENEROUS)
-    vwbc.set_plan(plan)
     q, v = perturbed_state(robot, seed=8, dq_scale=0.02, v_scale=0.1)
     riccati = RiccatiController(robot, clamp=False)
-    riccati.set_plan(plan)
-    tau_riccati = riccati.torques_at(0.0, q, v).copy()
+    tau_riccati = riccati.torques_at(0.0, q, v, plan).copy()
     scorer = FrictionConeScorer(robot, mu=mu)
     assert scorer.score(q, v, tau_riccati, stance)  # the Riccati torque leaves the cone ...
-    tau = vwbc.compute(0.0, q, v).copy()
+    tau = vwbc.compute(0.0, measured(q, v), plan).copy()
     assert vwbc.last_used_qp
     forces = vwbc.last_forces.copy()
     assert friction_cone_violation(forces[stance], mu) < 1e-6  # ... the VWBC's does not
@@ -186,14 +185,12 @@ def test_infeasible_qp_falls_back_to_clamped_riccati(robot, solver):
         > 0.1
     )
     vwbc = VWBCController(robot, VWBCSettings(solver=solver, max_iter=50, mu=mu), torque_limits=limits)
-    vwbc.set_plan(plan)
     riccati = RiccatiController(robot, clamp=False)
-    riccati.set_plan(plan)
     q, v = perturbed_state(robot, seed=10)
-    tau = vwbc.compute(0.0, q, v).copy()
+    tau = vwbc.compute(0.0, measured(q, v), plan).copy()
     assert not vwbc.last_used_qp
     assert np.all(np.isfinite(tau))
-    np.testing.assert_allclose(tau, np.clip(riccati.torques_at(0.0, q, v), -limits, limits))
+    np.testing.assert_allclose(tau, np.clip(riccati.torques_at(0.0, q, v, plan), -limits, limits))
     stats = vwbc.statistics()
     assert stats["fallbacks"] == 1 and stats["ticks"] == 1
     assert sum(stats["fallback_reasons"].values()) == 1
@@ -203,11 +200,10 @@ def test_infeasible_qp_falls_back_to_clamped_riccati(robot, solver):
 def test_nan_state_never_returns_nan(robot):
     plan = synthetic_plan(robot, seed=11)
     vwbc = VWBCController(robot)
-    vwbc.set_plan(plan)
     q = robot.q_standing.copy()
     v = np.zeros(robot.nv)
     v[3] = np.nan
-    tau = vwbc.compute(0.0, q, v)
+    tau = vwbc.compute(0.0, measured(q, v), plan)
     assert np.all(np.isfinite(tau)) and vwbc.fallbacks == 1
     np.testing.assert_allclose(tau, np.clip(plan.us[0], -robot.torque_limits, robot.torque_limits))
 
@@ -215,14 +211,15 @@ def test_nan_state_never_returns_nan(robot):
 def run_sequence(robot, plan, settings, ticks=120, v_scale=0.3, seed=0, limits=None):
     """Nearby ticks: a slowly drifting configuration error and a noisy velocity."""
     vwbc = VWBCController(robot, settings, torque_limits=limits)
-    vwbc.set_plan(plan)
     rng = np.random.default_rng(seed)
     dq, v = np.zeros(robot.nv), np.zeros(robot.nv)
     torques = np.zeros((ticks, robot.nu))
     for i in range(ticks):
         dq = 0.98 * dq + 0.002 * rng.normal(size=robot.nv)
         v = 0.9 * v + v_scale * rng.normal(size=robot.nv)
-        torques[i] = vwbc.compute(0.002 * i, pin.integrate(robot.model, robot.q_standing, dq), v)
+        torques[i] = vwbc.compute(
+            0.002 * i, measured(pin.integrate(robot.model, robot.q_standing, dq), v), plan
+        )
     return vwbc.statistics(), torques
 
 
@@ -262,34 +259,56 @@ def test_statistics_interface_and_stance_sources(robot):
     plan = synthetic_plan(robot, seed=13)
     vwbc = VWBCController(robot)
     with pytest.raises(RuntimeError):
-        vwbc.compute(0.0, robot.q_standing, np.zeros(robot.nv))
-    vwbc.set_plan(plan)
-    measured = np.array([False, True, True, True])
-    state = PlantState(0.0, robot.q_standing.copy(), np.zeros(robot.nv), measured, np.zeros((4, 3)))
-    vwbc.compute(0.0, state)  # closed-loop call with a PlantState; stance from the plan
+        vwbc.compute(0.0, measured(robot.q_standing, np.zeros(robot.nv)), None)
+    contacts = np.array([False, True, True, True])
+    vwbc.compute(0.0, measured(robot.q_standing, np.zeros(robot.nv), contacts), plan)  # stance from the plan
     assert np.array_equal(vwbc.last_stance, FOUR)
     intersect = VWBCController(robot, VWBCSettings(stance_source="intersect"))
-    intersect.set_plan(plan)
-    intersect.compute(0.0, robot.q_standing, np.zeros(robot.nv), measured)
-    assert np.array_equal(intersect.last_stance, measured)
+    intersect.compute(0.0, measured(robot.q_standing, np.zeros(robot.nv), contacts), plan)
+    assert np.array_equal(intersect.last_stance, contacts)
     assert np.all(intersect.last_forces[0] == 0.0) and intersect.last_forces[1, 2] > 0
     for _ in range(3):
-        vwbc.compute(0.01, robot.q_standing, np.zeros(robot.nv))
+        vwbc.compute(0.01, measured(robot.q_standing, np.zeros(robot.nv)), plan)
     stats = vwbc.statistics()
     assert stats["ticks"] == 4 and sum(stats["qp_iterations_histogram"].values()) == 4
     assert stats["stance_mismatch_ticks"] == 1
     for key in ("qp_solve_time_ms_median", "qp_solve_time_ms_p99", "fallbacks", "friction_cone_violations"):
         assert key in stats
     assert np.isfinite(stats["qp_solve_time_ms_p99"])
+    vwbc.reset()
+    assert vwbc.statistics()["ticks"] == 0
     with pytest.raises(ValueError):
         VWBCSettings(warm_start="hot")
+
+
+def test_stance_source_decides_the_torque_when_a_planned_foot_is_not_in_contact(robot):
+    """The measured contacts reach the QP: with ``intersect`` a planned stance foot that the plant does not
+    measure in contact carries no force and, with the friction pyramid active, the torque differs from the
+    plan-stance QP's (without active inequalities both are the policy (7), whatever the stance)."""
+    plan = synthetic_plan(robot, seed=21)
+    q, v = perturbed_state(robot, seed=8, dq_scale=0.02, v_scale=0.1)
+    contacts = np.array([True, True, True, False])  # HR planned in stance, measured in the air
+    torques = {}
+    for source in ("plan", "intersect"):
+        vwbc = VWBCController(robot, VWBCSettings(stance_source=source, mu=0.05))
+        torques[source] = vwbc.compute(0.0, measured(q, v, contacts), plan).copy()
+        assert vwbc.last_used_qp
+        assert (vwbc.last_forces[3, 2] > 1.0) == (source == "plan")
+    assert np.abs(torques["plan"] - torques["intersect"]).max() > 0.1
+    # all feet measured in contact: the two sources agree
+    same = [
+        VWBCController(robot, VWBCSettings(stance_source=source, mu=0.05))
+        .compute(0.0, measured(q, v), plan)
+        .copy()
+        for source in ("plan", "intersect")
+    ]
+    np.testing.assert_allclose(same[0], same[1], atol=1e-9)
 
 
 def test_vwbc_holds_the_robot_standing_in_closed_loop(robot):
     plan = synthetic_plan(robot, knots=40, seed=14, base_gain_scale=0.0, kp=60.0, kd=1.5)
     vwbc = VWBCController(robot)
-    vwbc.set_plan(plan)
-    log = simulate(robot, vwbc, 0.6)
+    log = simulate(robot, PlanFollower(vwbc, plan), 0.6)
     stats = vwbc.statistics()
     assert not log.fell
     assert stats["fallbacks"] == 0 and stats["friction_cone_violations"] == 0
@@ -318,8 +337,7 @@ def multi_pattern_plan(robot, patterns, dt=0.02, seed=0):
 def cold_solution(robot, plan, settings, t, q, v, limits):
     """The tick solved by a fresh controller from a cold start (no state carried over)."""
     cold = VWBCController(robot, replace(settings, warm_start="none"), torque_limits=limits)
-    cold.set_plan(plan)
-    tau = cold.compute(t, q, v).copy()
+    tau = cold.compute(t, measured(q, v), plan).copy()
     assert cold.last_used_qp
     return tau
 
@@ -331,11 +349,10 @@ def test_all_flight_plan_over_several_ticks(robot, solver, warm_start):
     plan = synthetic_plan(robot, stance=FLIGHT, seed=15)
     settings = VWBCSettings(solver=solver, warm_start=warm_start, eps_abs=1e-10)
     vwbc = VWBCController(robot, settings, torque_limits=GENEROUS)
-    vwbc.set_plan(plan)
     for tick in range(6):
         q, v = perturbed_state(robot, seed=20 + tick)
         t = 0.01 * tick
-        tau = vwbc.compute(t, q, v).copy()
+        tau = vwbc.compute(t, measured(q, v), plan).copy()
         assert vwbc.last_used_qp, vwbc.last_status
         assert np.all(vwbc.last_forces == 0.0)
         k = plan.knot_at(t)
@@ -353,10 +370,9 @@ def test_all_flight_plan_with_active_torque_bounds(robot, solver, warm_start):
     limits = np.maximum(0.5 * np.abs(unconstrained_policy(probe, plan, q0, v0)), 0.05)
     settings = VWBCSettings(solver=solver, warm_start=warm_start, eps_abs=1e-10)
     vwbc = VWBCController(robot, settings, torque_limits=limits)
-    vwbc.set_plan(plan)
     for tick in range(5):
         q, v = perturbed_state(robot, seed=30 + tick, dq_scale=0.02)
-        tau = vwbc.compute(0.01 * tick, q, v).copy()
+        tau = vwbc.compute(0.01 * tick, measured(q, v), plan).copy()
         assert vwbc.last_used_qp, vwbc.last_status
         assert np.all(np.abs(tau) <= limits + 1e-9)
         assert np.any(np.abs(np.abs(tau) - limits) < 1e-7)  # some bound is active
@@ -372,12 +388,11 @@ def test_alternating_stance_and_flight_with_previous_warm_start(robot, solver):
     plan = multi_pattern_plan(robot, patterns, seed=40)
     settings = VWBCSettings(solver=solver, warm_start="previous", eps_abs=1e-10)
     vwbc = VWBCController(robot, settings, torque_limits=GENEROUS)
-    vwbc.set_plan(plan)
     seen = []
     for tick in range(2 * len(patterns)):  # two ticks per knot: same-pattern and changed-pattern ticks
         t = 0.01 * tick
         q, v = perturbed_state(robot, seed=50 + tick)
-        tau = vwbc.compute(t, q, v).copy()
+        tau = vwbc.compute(t, measured(q, v), plan).copy()
         assert vwbc.last_used_qp, (tick, vwbc.last_status)
         stance = plan.contacts[plan.knot_at(t)]
         assert np.array_equal(vwbc.last_stance, stance)
@@ -391,9 +406,9 @@ def test_alternating_stance_and_flight_with_previous_warm_start(robot, solver):
     flight_plan, stance_plan = synthetic_plan(robot, FLIGHT, seed=60), synthetic_plan(robot, FOUR, seed=61)
     vwbc = VWBCController(robot, settings)
     for tick in range(8):
-        vwbc.set_plan(flight_plan if tick % 2 else stance_plan)
+        vwbc_plan = flight_plan if tick % 2 else stance_plan
         q, v = perturbed_state(robot, seed=70 + tick)
-        vwbc.compute(0.002 * tick, q, v)
+        vwbc.compute(0.002 * tick, measured(q, v), vwbc_plan)
         assert vwbc.last_used_qp, (tick, vwbc.last_status)
     assert vwbc.statistics()["fallbacks"] == 0
 
@@ -405,11 +420,11 @@ def test_exception_in_qp_solver_falls_back_and_recovers(robot, solver, error, mo
     plan = synthetic_plan(robot, seed=17)
     limits = np.full(12, 5.0)
     vwbc = VWBCController(robot, VWBCSettings(solver=solver, warm_start="previous"), torque_limits=limits)
-    vwbc.set_plan(plan)
     riccati = RiccatiController(robot, clamp=False)
-    riccati.set_plan(plan)
     q, v = perturbed_state(robot, seed=18)
-    vwbc.compute(0.0, q, v)  # a solved tick first: the solver object exists and holds a solution
+    vwbc.compute(
+        0.0, measured(q, v), plan
+    )  # a solved tick first: the solver object exists and holds a solution
     assert vwbc.last_used_qp
     backend = type(vwbc._qps[tuple(FOUR)])
     original = backend.solve
@@ -418,15 +433,15 @@ def test_exception_in_qp_solver_falls_back_and_recovers(robot, solver, error, mo
         raise error("deep inside the solver")
 
     monkeypatch.setattr(backend, "solve", broken)
-    tau = vwbc.compute(0.002, q, v).copy()
+    tau = vwbc.compute(0.002, measured(q, v), plan).copy()
     assert not vwbc.last_used_qp and np.all(np.isfinite(tau))
-    np.testing.assert_allclose(tau, np.clip(riccati.torques_at(0.002, q, v), -limits, limits))
+    np.testing.assert_allclose(tau, np.clip(riccati.torques_at(0.002, q, v, plan), -limits, limits))
     stats = vwbc.statistics()
     assert stats["fallbacks"] == 1 and stats["fallback_reasons"] == {"exception": 1}
     assert stats["qp_exceptions"] == {error.__name__: 1}
     assert vwbc.last_error.startswith(error.__name__) and vwbc.last_status == f"exception:{error.__name__}"
     assert tuple(FOUR) not in vwbc._qps  # the possibly half-updated solver is dropped ...
     monkeypatch.setattr(backend, "solve", original)
-    tau = vwbc.compute(0.004, q, v).copy()  # ... and rebuilt on the next tick
+    tau = vwbc.compute(0.004, measured(q, v), plan).copy()  # ... and rebuilt on the next tick
     assert vwbc.last_used_qp and vwbc.statistics()["fallbacks"] == 1
     np.testing.assert_allclose(tau, cold_solution(robot, plan, vwbc.settings, 0.004, q, v, limits), atol=1e-4)

@@ -11,8 +11,7 @@ from __future__ import annotations
 import numpy as np
 import pinocchio as pin
 
-from cafe_mpc.ocp.barrier import RelaxedBarrier, constraint_violation
-from cafe_mpc.ocp.interfaces import (
+from cafe_mpc.core.interfaces import (
     ActionData,
     ActionModel,
     ConstraintData,
@@ -22,6 +21,7 @@ from cafe_mpc.ocp.interfaces import (
     StateManifold,
     SwitchingConstraint,
 )
+from cafe_mpc.ocp.barrier import RelaxedBarrier, constraint_violation
 
 
 # ------------------------------------------------------------------------------------ linear-quadratic

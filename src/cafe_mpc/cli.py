@@ -85,16 +85,27 @@ def _gait_summary(metrics: dict) -> str:
 
 
 def _command_robot(arguments: argparse.Namespace) -> int:
-    from cafe_mpc.robots.consistency import check_consistency
+    from cafe_mpc.dynamics.srb import lumped_inertia, srb_parameters
     from cafe_mpc.robots.robot import load_robot
+    from cafe_mpc.sim.consistency import check_consistency
 
     robot = load_robot(arguments.name)
     summary = robot.summary()
+    srb = srb_parameters(robot)
+    summary["srb_mass"] = srb.mass
+    summary["srb_inertia"] = srb.inertia_matrix.tolist()
+    summary["srb_center_of_mass"] = lumped_inertia(robot).lever.tolist()
     summary["consistency"] = check_consistency(robot, samples=arguments.samples)
     if arguments.json:
         print(json.dumps(summary, indent=2))
     else:
         print(f"{robot.name}: total mass {robot.total_mass:.3f} kg, feet {', '.join(robot.foot_frame_names)}")
+        inertia = srb.inertia_matrix
+        print(
+            f"SRB (legs lumped at the standing pose, rotors included): mass {srb.mass:.3f} kg, inertia "
+            f"diag({inertia[0, 0]:.4f}, {inertia[1, 1]:.4f}, {inertia[2, 2]:.4f}) kg m^2 "
+            f"(xz {inertia[0, 2]:.4f})"
+        )
         print(
             f"torque limits (plan) {robot.torque_limits[:3].tolist()} Nm, "
             f"motor {robot.plant.motor_torque_limits[:3].tolist()} Nm"

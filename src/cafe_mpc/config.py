@@ -95,6 +95,9 @@ class VWBCConfig(StrictModel):
     warm_start: Literal["previous", "plan", "equality", "none"] = Field(
         "previous", description="previous tick's solution, the plan's guess, or cold"
     )
+    stance_source: Literal["plan", "intersect"] = Field(
+        "plan", description="plan: the plan knot's stance (the paper); intersect: planned and in contact"
+    )
 
 
 class CommandConfig(StrictModel):
@@ -209,7 +212,7 @@ Weights = float | list[float]
 class WholeBodyWeightsConfig(StrictModel):
     """The main fields of ``cafe_mpc.ocp.costs.WholeBodyWeights`` (running cost ``0.5 dx' W dx dt``).
 
-    Base weights are in the facts file's order ``[x, y, z, yaw, pitch, roll]``.
+    Base weights are in the authors' order ``[x, y, z, yaw, pitch, roll]`` (docs/settings.md).
     """
 
     base_position: tuple[float, float, float, float, float, float]
@@ -256,9 +259,10 @@ def _regular_terminal() -> WholeBodyWeightsConfig:
 
 
 class CostsConfig(StrictModel):
-    """Whole-body cost weights; defaults are the authors' "regular" set (facts, ``WholeBodyWeights``).
+    """Whole-body cost weights; defaults are the authors' "regular" set (``WholeBodyWeights``; sources in
+    docs/settings.md).
 
-    The SRB tail uses the same base weights (paper Eq. (28)) with the facts' GRF regularisation.
+    The SRB tail uses the same base weights (paper Eq. (28)) with the authors' GRF regularisation.
     """
 
     running: WholeBodyWeightsConfig = Field(default_factory=_regular_running)

@@ -112,7 +112,7 @@ def crocoddyl_problem(
         previous = stance
     terminal_costs = _cost_sum(state, nu, x_ref, terminal_weights, 0.0)
     terminal = crocoddyl_contact_action(
-        robot, previous or [True] * 4, 0.0, terminal_costs, baumgarte_alpha, state
+        robot, previous or [True] * robot.n_feet, 0.0, terminal_costs, baumgarte_alpha, state
     )
     problem = crocoddyl.ShootingProblem(np.asarray(x0, dtype=float), running, terminal)
     problem.nthreads = 1  # one core, as ours (Crocoddyl defaults to all cores with OpenMP)

@@ -13,12 +13,12 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from cafe_mpc.core.interfaces import MultiPhaseProblem, Phase
+from cafe_mpc.dynamics.statics import static_stance_torques
 from cafe_mpc.ocp.constraints import WholeBodyConstraintSettings
 from cafe_mpc.ocp.costs import WholeBodyWeights
-from cafe_mpc.ocp.interfaces import MultiPhaseProblem, Phase
 from cafe_mpc.ocp.knots import WholeBodyModelFactory, WholeBodySettings
 from cafe_mpc.robots.robot import Robot
-from cafe_mpc.wbc.pd import static_stance_torques
 
 STAND = [((True, True, True, True), 25)]
 TROT_CYCLE = [((True, False, False, True), 12), ((False, True, True, False), 13)]

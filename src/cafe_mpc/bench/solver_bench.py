@@ -60,11 +60,11 @@ def _crocoddyl(robot: Robot, peer, iterations: int, repeats: int) -> dict:
 
 
 def _cafe(robot: Robot, iterations: int, repeats: int) -> dict:
+    from cafe_mpc.dynamics.statics import static_stance_torques
     from cafe_mpc.mpc.problem import CafeProblemBuilder, ModelSchedule, WarmStart
     from cafe_mpc.ocp.contact_schedule import get_gait
     from cafe_mpc.ocp.knots import SRBModelFactory, WholeBodyModelFactory, weight_split_forces
     from cafe_mpc.reference.locomotion import LocomotionReference, VelocityCommand
-    from cafe_mpc.wbc.pd import static_stance_torques
 
     reference = LocomotionReference(robot, get_gait("trot"), [VelocityCommand(0.0, 0.5)])
     srb = SRBModelFactory()

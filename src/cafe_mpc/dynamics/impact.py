@@ -21,10 +21,10 @@ from collections.abc import Sequence
 import numpy as np
 import pinocchio as pin
 
+from cafe_mpc.core.contacts import as_contact_flags, flags_to_string
+from cafe_mpc.core.interfaces import ResetData, ResetMap
 from cafe_mpc.dynamics.multibody_state import MultibodyState
 from cafe_mpc.dynamics.whole_body import ContactDynamicsError, foot_contact_models, proximal_settings
-from cafe_mpc.ocp.contact_schedule import as_contact_flags, flags_to_string
-from cafe_mpc.ocp.interfaces import ResetData, ResetMap
 from cafe_mpc.robots.robot import Robot
 
 

@@ -27,12 +27,12 @@ class FootKinematicsData:
     """Workspace of ``FootKinematics`` (arrays indexed by leg; only the requested legs are written)."""
 
     def __init__(self, kinematics: FootKinematics) -> None:
-        nv = kinematics.model.nv
+        nv, n_feet = kinematics.model.nv, len(kinematics.frame_ids)
         self.pinocchio = kinematics.model.createData()
-        self.positions = np.zeros((4, 3))
-        self.velocities = np.zeros((4, 3))
-        self.position_jacobians = np.zeros((4, 3, nv))
-        self.velocity_dq = np.zeros((4, 3, nv))
+        self.positions = np.zeros((n_feet, 3))
+        self.velocities = np.zeros((n_feet, 3))
+        self.position_jacobians = np.zeros((n_feet, 3, nv))
+        self.velocity_dq = np.zeros((n_feet, 3, nv))
         self._zero_acceleration = np.zeros(nv)
 
 
@@ -43,8 +43,8 @@ class FootKinematics:
         self, robot: Robot, position_legs: Sequence[int] = (), velocity_legs: Sequence[int] = ()
     ) -> None:
         for leg in (*position_legs, *velocity_legs):
-            if leg not in range(4):
-                raise ValueError(f"leg index must be in 0..3, got {leg}")
+            if leg not in range(robot.n_feet):
+                raise ValueError(f"leg index must be in 0..{robot.n_feet - 1}, got {leg}")
         self.model = robot.model
         self.frame_ids = robot.foot_frame_ids
         # Velocity Jacobians need the position Jacobians too (dv_foot/dv = J).

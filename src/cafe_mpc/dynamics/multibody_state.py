@@ -15,7 +15,7 @@ from __future__ import annotations
 import numpy as np
 import pinocchio as pin
 
-from cafe_mpc.ocp.interfaces import StateManifold
+from cafe_mpc.core.interfaces import StateManifold
 
 
 class MultibodyState(StateManifold):

@@ -5,9 +5,9 @@ State (``SRBState``, ``nx = 13``, ``ndx = 12``), without Euler angles:
     x = [c (world position, 3), quaternion (x, y, z, w), c_dot (world linear velocity, 3), omega (body, 3)]
     tangent = [dc (world), dtheta (body-frame rotation, R ⊕ dtheta = R exp(dtheta)), dc_dot, domega]
 
-Control: the four world-frame foot forces ``u = [f_FL, f_FR, f_HL, f_HR]`` (12). Foot positions ``p_j`` and
-contact flags ``s_j`` are per-knot parameters (from the reference, Raibert footholds), neither state nor
-control. Continuous dynamics (29):
+Control: the world-frame foot forces ``u = [f_FL, f_FR, f_HL, f_HR]`` (``3 n_feet``). Foot positions
+``p_j`` and contact flags ``s_j`` are per-knot parameters (from the reference, Raibert footholds), neither
+state nor control. Continuous dynamics (29):
 
     c_ddot    = sum_j s_j f_j / m - g
     omega_dot = I^-1 (-omega x I omega + R' sum_j s_j (p_j - c) x f_j)
@@ -18,6 +18,8 @@ and one explicit Euler step (30) on the manifold (everything evaluated at ``x_k`
 
 The SRB position ``c`` is the base-frame origin (the WB -> SRB map (31), (32) keeps the base pose), which
 for the Mini Cheetah is the trunk's centre of mass; the legs' mass is lumped into ``m`` and ``I``.
+``srb_parameters(robot)`` computes ``m`` and ``I`` from the robot's model (legs lumped at the standing pose,
+rotor masses added); ``SRBParameters(mass, inertia)`` sets them explicitly.
 """
 
 from __future__ import annotations
@@ -28,7 +30,9 @@ from dataclasses import dataclass, field
 import numpy as np
 import pinocchio as pin
 
-from cafe_mpc.ocp.interfaces import StateManifold
+from cafe_mpc.core.contacts import N_FEET
+from cafe_mpc.core.interfaces import StateManifold
+from cafe_mpc.robots.robot import Robot
 
 GRAVITY = 9.81
 
@@ -103,18 +107,25 @@ class SRBState(StateManifold):
 
 @dataclass(frozen=True)
 class SRBParameters:
-    """Mass and body-frame inertia of the single rigid body (authors' values: 8.912 kg with rotors,
-    diag(0.0616, 0.2207, 0.2726) kg m^2, legs lumped)."""
+    """Mass and body-frame inertia of the single rigid body.
+
+    The defaults are the CAFE-MPC authors' Mini Cheetah values (8.912 kg with rotors, diag(0.0616, 0.2207,
+    0.2726) kg m^2, legs lumped; docs/settings.md). A controller for a robot uses ``srb_parameters(robot)``,
+    computed from the robot's own model.
+    """
 
     mass: float = 8.912
     inertia: tuple[tuple[float, ...], ...] = field(
         default_factory=lambda: ((0.0616, 0.0, 0.0), (0.0, 0.2207, 0.0), (0.0, 0.0, 0.2726))
     )
     gravity: float = GRAVITY
+    n_feet: int = N_FEET
 
     def __post_init__(self) -> None:
         if not (math.isfinite(self.mass) and self.mass > 0):
             raise ValueError(f"SRB mass must be positive, got {self.mass}")
+        if self.n_feet < 1:
+            raise ValueError(f"the SRB needs at least one foot, got n_feet = {self.n_feet}")
         inertia = self.inertia_matrix
         if inertia.shape != (3, 3) or not np.allclose(inertia, inertia.T):
             raise ValueError("SRB inertia must be a symmetric 3 x 3 matrix")
@@ -127,20 +138,56 @@ class SRBParameters:
         return np.diag(inertia) if inertia.shape == (3,) else inertia
 
 
+def lumped_inertia(robot: Robot, q: np.ndarray | None = None) -> pin.Inertia:
+    """Every body of the planning model lumped at configuration ``q`` (default: the standing pose), plus a
+    point mass ``robot.rotor_mass`` at each actuated joint, as one ``pin.Inertia`` in the base frame (base at
+    the origin, level): ``.mass``, ``.lever`` (centre of mass) and ``.inertia`` (about the centre of mass).
+
+    The rotors' own rotational inertia (about 6e-5 kg m^2 each on the Mini Cheetah) is left out.
+    """
+    model = robot.model
+    q = np.array(robot.q_standing if q is None else q, dtype=float)
+    if q.shape != (model.nq,):
+        raise ValueError(f"configuration must have shape ({model.nq},), got {q.shape}")
+    q[:3] = 0.0
+    q[3:7] = (0.0, 0.0, 0.0, 1.0)  # world frame = base frame
+    data = model.createData()
+    pin.forwardKinematics(model, data, q)
+    pin.ccrba(model, data, q, np.zeros(model.nv))  # composite inertia about the centre of mass: data.Ig
+    lumped = pin.Inertia(data.Ig.mass, data.com[0].copy(), data.Ig.inertia.copy())
+    if robot.rotor_mass > 0:
+        for joint in range(2, model.njoints):  # 0: universe, 1: the floating base
+            rotor = pin.Inertia(robot.rotor_mass, data.oMi[joint].translation.copy(), np.zeros((3, 3)))
+            lumped = lumped + rotor
+    return lumped
+
+
+def srb_parameters(robot: Robot, q: np.ndarray | None = None) -> SRBParameters:
+    """SRB mass and inertia of ``robot`` (``lumped_inertia``): the model's total mass plus the rotors, and
+    the composite rigid-body inertia of the whole robot about its centre of mass, in the base frame."""
+    lumped = lumped_inertia(robot, q)
+    inertia = np.asarray(lumped.inertia, dtype=float)
+    inertia = 0.5 * (inertia + inertia.T)
+    return SRBParameters(
+        float(lumped.mass), tuple(tuple(float(v) for v in row) for row in inertia), n_feet=robot.n_feet
+    )
+
+
 class SRBDynamicsData:
     """Workspace of ``SRBDynamics`` (one per knot)."""
 
-    def __init__(self) -> None:
+    def __init__(self, n_feet: int = N_FEET) -> None:
+        nu = 3 * n_feet
         self.x_next = np.zeros(13)
         self.Fx = np.zeros((12, 12))
-        self.Fu = np.zeros((12, 12))
+        self.Fu = np.zeros((12, nu))
         self.linear_acceleration = np.zeros(3)
         self.angular_acceleration = np.zeros(3)
         self.rotation = np.eye(3)
-        self.contact_mask = np.zeros(12)  # contact flag of each force component
-        self.active_forces = np.zeros(12)  # s_j f_j
-        self.lever_arms = np.zeros((4, 3))  # p_j - c
-        self.moment_map = np.zeros((3, 12))  # [[p_1 - c]x ... [p_4 - c]x]: world moment = moment_map @ f
+        self.contact_mask = np.zeros(nu)  # contact flag of each force component
+        self.active_forces = np.zeros(nu)  # s_j f_j
+        self.lever_arms = np.zeros((n_feet, 3))  # p_j - c
+        self.moment_map = np.zeros((3, nu))  # [[p_1 - c]x ... [p_n - c]x]: world moment = moment_map @ f
         self.body_moment = np.zeros(3)
 
 
@@ -153,15 +200,16 @@ class SRBDynamics:
         self.parameters = parameters or SRBParameters()
         self.dt = float(dt)
         self.state = SRBState()
-        self.nu = 12
+        self.n_feet = self.parameters.n_feet
+        self.nu = 3 * self.n_feet
         self.mass = self.parameters.mass
         self.inertia = self.parameters.inertia_matrix
         self.inertia_inverse = np.linalg.inv(self.inertia)
         self.gravity_vector = np.array([0.0, 0.0, -self.parameters.gravity])
-        self._force_to_velocity = (self.dt / self.mass) * np.tile(np.eye(3), (1, 4))
+        self._force_to_velocity = (self.dt / self.mass) * np.tile(np.eye(3), (1, self.n_feet))
 
     def create_data(self) -> SRBDynamicsData:
-        data = SRBDynamicsData()
+        data = SRBDynamicsData(self.n_feet)
         data.Fx[:] = np.eye(12)
         data.Fx[0:3, 6:9] = self.dt * np.eye(3)
         return data
@@ -174,12 +222,13 @@ class SRBDynamics:
         foot_positions: np.ndarray,
         contacts: np.ndarray,
     ) -> None:
-        """Write ``data.x_next`` and the accelerations; ``contacts`` holds 4 flags in {0, 1} as floats."""
+        """Write ``data.x_next`` and the accelerations; ``contacts`` holds one flag per foot in {0, 1} as
+        floats."""
         dt = self.dt
         position, quaternion, velocity, omega = x[0:3], x[3:7], x[7:10], x[10:13]
         rotation = quaternion_to_rotation(quaternion)
         data.rotation = rotation
-        mask = data.contact_mask.reshape(4, 3)
+        mask = data.contact_mask.reshape(self.n_feet, 3)
         mask[:] = contacts[:, None]
         np.multiply(u, data.contact_mask, out=data.active_forces)
         lever = data.lever_arms
@@ -229,7 +278,7 @@ class SRBDynamics:
         Fx[3:6, 9:12] = dt * pin.Jexp3(step)
         # Angular velocity: omega+ = omega + dt I^-1 (R' sum_j (p_j - c) x s_j f_j - omega x I omega).
         body_map = (dt * self.inertia_inverse) @ data.rotation.T  # dt I^-1 R'
-        force_sum = data.active_forces.reshape(4, 3).sum(axis=0)
+        force_sum = data.active_forces.reshape(self.n_feet, 3).sum(axis=0)
         Fx[9:12, 0:3] = body_map @ pin.skew(force_sum)  # d/dc of (p - c) x f = [f]x
         Fx[9:12, 3:6] = dt * (self.inertia_inverse @ pin.skew(data.body_moment))  # R' m, R -> R exp(dtheta)
         gyroscopic = pin.skew(self.inertia @ omega) - pin.skew(omega) @ self.inertia

@@ -17,9 +17,27 @@ from __future__ import annotations
 import numpy as np
 import pinocchio as pin
 
+from cafe_mpc.core.interfaces import ResetData, ResetMap
 from cafe_mpc.dynamics.multibody_state import MultibodyState
 from cafe_mpc.dynamics.srb import SRBState, quaternion_to_rotation
-from cafe_mpc.ocp.interfaces import ResetData, ResetMap
+
+
+def whole_body_to_srb_state(
+    x: np.ndarray, nq: int | None = None, out: np.ndarray | None = None
+) -> np.ndarray:
+    """The projection (32): ``[q, v]`` (whole body) -> ``[c, quat, c_dot (world), omega (body)]``.
+
+    ``nq``: size of ``q`` (default: a free-flyer model with one-dof joints, ``nv = nq - 1``). ``out``: a
+    (13,) array to write into (a new one by default).
+    """
+    x = np.asarray(x, dtype=float)
+    nq = (len(x) + 1) // 2 if nq is None else int(nq)
+    out = np.empty(13) if out is None else out
+    rotation = quaternion_to_rotation(x[3:7])
+    out[0:7] = x[0:7]
+    out[7:10] = rotation @ x[nq : nq + 3]
+    out[10:13] = x[nq + 3 : nq + 6]
+    return out
 
 
 class WholeBodyToSRB(ResetMap):
@@ -38,11 +56,7 @@ class WholeBodyToSRB(ResetMap):
         return data
 
     def calc(self, data: ResetData, x: np.ndarray) -> None:
-        nq = self.nq
-        rotation = quaternion_to_rotation(x[3:7])
-        data.x_next[0:7] = x[0:7]
-        data.x_next[7:10] = rotation @ x[nq : nq + 3]
-        data.x_next[10:13] = x[nq + 3 : nq + 6]
+        whole_body_to_srb_state(x, self.nq, data.x_next)
 
     def calc_diff(self, data: ResetData, x: np.ndarray) -> None:
         nq, nv = self.nq, self.nv

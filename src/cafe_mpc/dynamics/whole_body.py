@@ -30,8 +30,8 @@ from typing import Literal
 import numpy as np
 import pinocchio as pin
 
+from cafe_mpc.core.contacts import as_contact_flags, flags_to_string
 from cafe_mpc.dynamics.multibody_state import MultibodyState
-from cafe_mpc.ocp.contact_schedule import as_contact_flags, flags_to_string
 from cafe_mpc.robots.robot import Robot
 
 IntegrationScheme = Literal["explicit", "semi_implicit"]
@@ -141,8 +141,8 @@ class WholeBodyDynamics:
         self.baumgarte_alpha = float(baumgarte_alpha)
         self.integration = integration
         self.damping = float(damping)
-        self.nu = robot.model.nv - 6
-        self.contact_legs = tuple(leg for leg in range(4) if self.stance[leg])
+        self.nu = robot.nu
+        self.contact_legs = tuple(leg for leg in range(robot.n_feet) if self.stance[leg])
         self.n_contacts = len(self.contact_legs)
         self.n_forces = 3 * self.n_contacts
         self.contact_models = foot_contact_models(robot, self.stance, self.baumgarte_alpha)

@@ -34,13 +34,13 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import matplotlib
-
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt
 import numpy as np
+from matplotlib.axes import Axes
+from matplotlib.figure import Figure
 
 from cafe_mpc.config import ConfigError, RunConfig, load_config, parse_override
 from cafe_mpc.experiments.run import RunResult, run
+from cafe_mpc.report.figures import new_figure, save_figure, subplots
 from cafe_mpc.report.metrics import METRICS_WINDOW_START_S, body_rates, roll_pitch_yaw
 
 COMPARISON_FILES = ("comparison.json", "comparison.md", "comparison.png")
@@ -336,11 +336,9 @@ def iteration_shares(histogram: dict | None) -> dict:
 
 def warm_start_summary(result: RunResult) -> dict:
     from cafe_mpc.experiments.controllers import low_level_of
-    from cafe_mpc.wbc.vwbc import VWBCController
 
     metrics, wbc = result.metrics, result.metrics.get("wbc") or {}
-    low_level = low_level_of(result.controller) if result.controller is not None else None
-    ticks = low_level.statistics() if isinstance(low_level, VWBCController) else {}
+    ticks = low_level_of(result.controller).statistics() if result.controller is not None else {}
 
     def finite(value: float | None) -> float | None:
         return float(value) if value is not None and np.isfinite(value) else None
@@ -522,18 +520,15 @@ def comparison_markdown(comparison: dict) -> str:
 
 # ------------------------------------------------------------------------------------------ plots
 def _colors(n: int) -> list:
-    cycle = plt.rcParams["axes.prop_cycle"].by_key()["color"]
+    cycle = matplotlib.rcParams["axes.prop_cycle"].by_key()["color"]
     return [cycle[i % len(cycle)] for i in range(n)]
 
 
-def _save(figure: plt.Figure, path: Path) -> Path:
-    figure.tight_layout()
-    figure.savefig(path, dpi=110)
-    plt.close(figure)
-    return path
+def _save(figure: Figure, path: Path) -> Path:
+    return save_figure(figure, path)
 
 
-def _shade_push(axis: plt.Axes, push: tuple[float, float] | None, label: bool = False) -> None:
+def _shade_push(axis: Axes, push: tuple[float, float] | None, label: bool = False) -> None:
     if push is not None:
         axis.axvspan(push[0], push[1], color="orange", alpha=0.3, lw=0, label="push" if label else None)
 
@@ -543,7 +538,7 @@ def plot_schedules(
 ) -> Path:
     """Left: pitch, pitch rate (the paper's Fig. 6 quantities) and forward speed vs time, one line per
     schedule (an x marks a fall). Right: their RMS (vx: RMS error against the command) per schedule."""
-    figure = plt.figure(figsize=(12, 7.5))
+    figure = new_figure((12, 7.5))
     grid = figure.add_gridspec(3, 2, width_ratios=(3, 1))
     axes = [figure.add_subplot(grid[0, 0])]
     axes += [figure.add_subplot(grid[i, 0], sharex=axes[0]) for i in (1, 2)]
@@ -614,7 +609,7 @@ def plot_push(results: dict[str, RunResult], labels: dict[str, str], path: Path)
     reached = window is not None and any(
         r.log.ticks and r.log.time[-1] >= window[0] for r in results.values()
     )
-    figure = plt.figure(figsize=(11, 9))
+    figure = new_figure((11, 9))
     grid = figure.add_gridspec(len(legs) + 1, 2)
     colors = dict(zip(results, _colors(len(results)), strict=True))
     torque_axes = []
@@ -685,7 +680,7 @@ MAX_HISTOGRAM_BIN = 10  # iterations >= this share one bar
 def plot_warm_start(rows: dict[str, dict], variants: Sequence[Variant], path: Path) -> Path:
     """Histograms of QP iterations per tick: one panel per gait, one bar per warm-start mode (Fig. 11)."""
     groups = list(dict.fromkeys(v.group for v in variants))
-    figure, axes = plt.subplots(1, len(groups), figsize=(5.5 * len(groups), 4), squeeze=False)
+    figure, axes = subplots(1, len(groups), figsize=(5.5 * len(groups), 4), squeeze=False)
     for axis, group in zip(axes[0], groups, strict=True):
         members = [v for v in variants if v.group == group]
         histograms = {}
@@ -841,7 +836,7 @@ def run_experiment(
     elif name == "warm-start":
         plot_warm_start(rows, variants, plot_path)
     if not plot_path.exists():  # every variant failed: an explicit empty figure, not a missing file
-        figure, axis = plt.subplots(figsize=(6, 2))
+        figure, axis = subplots(figsize=(6, 2))
         axis.text(0.5, 0.5, "no variant produced a log", ha="center", va="center")
         axis.set_axis_off()
         _save(figure, plot_path)

@@ -3,10 +3,11 @@
 ``build_controller(config, robot)`` is the one place that turns the config's ``gait``, ``mpc``, ``costs``
 and ``vwbc`` sections into objects: the heuristic locomotion reference (Sec. VI-A), the CAFE problem
 builder with its model schedule (Sec. IV-D), the MPC loop (Sec. VI-C) and the low-level controller
-(Riccati feedback (33) or VWBC (34)). The low-level controller is wrapped in a ``LowLevelRecorder`` so the
-run can report what it asked for before clamping (the Riccati controller clamps to the torque limits; the
-paper's Fig. 9 shows the unclamped request) and which stance the plan assumed at every tick (for the
-friction-cone score of controllers that do not check it themselves).
+(Riccati feedback (33) or VWBC (34)). The low-level controller is wrapped in a ``LowLevelRecorder`` (any
+``LowLevelController``: it reads ``last_request``) so the run can report what it asked for before clamping
+(the Riccati controller clamps to the torque limits; the paper's Fig. 9 shows the unclamped request) and
+which stance the plan assumed at every tick (for the friction-cone score of controllers that do not check
+it themselves). The SRB tail gets the robot's own mass and inertia (``dynamics.srb.srb_parameters``).
 """
 
 from __future__ import annotations
@@ -14,8 +15,12 @@ from __future__ import annotations
 import numpy as np
 
 from cafe_mpc.config import ConfigError, RunConfig, velocity_command
-from cafe_mpc.mpc.controller import CafeMpcController, LowLevelController, MpcSettings
-from cafe_mpc.mpc.plan import Plan
+from cafe_mpc.control.mpc_loop import CafeMpcController, MpcSettings
+from cafe_mpc.core.contacts import N_FEET
+from cafe_mpc.core.controller import LowLevelController
+from cafe_mpc.core.measurement import Measurement
+from cafe_mpc.core.plan import Plan
+from cafe_mpc.dynamics.srb import srb_parameters
 from cafe_mpc.mpc.problem import CafeProblemBuilder
 from cafe_mpc.ocp.contact_schedule import get_gait
 from cafe_mpc.ocp.costs import SRBWeights
@@ -29,29 +34,30 @@ from cafe_mpc.wbc.vwbc import VWBCController, VWBCSettings
 RunController = PDController | CafeMpcController
 
 
-class LowLevelRecorder:
-    """A plan-following low-level controller (same interface) that records every call it serves.
+class LowLevelRecorder(LowLevelController):
+    """A ``LowLevelController`` that wraps another and records every call it serves.
 
-    Per call: the time, the torque requested before any clamping (for the Riccati controller its
-    unclamped Eq. (33) torque; the VWBC's QP already respects the limits, so its output) and the stance
-    flags of the plan knot used. ``traces(times)`` aligns the records with the simulation's ticks.
+    Per call: the time, the torque requested before any clamping (the inner controller's
+    ``last_request``: for the Riccati controller its unclamped Eq. (33) torque, for the VWBC its QP torque)
+    and the stance flags of the plan knot used. ``traces(times)`` aligns the records with the simulation's
+    ticks. ``reset`` and ``statistics`` are the inner controller's (``reset`` also clears the records).
 
     The records live in preallocated arrays (``capacity`` rows, e.g. the run's tick count; doubled when
     full), so the control-rate path writes into them without allocating per tick. ``times``,
     ``requested`` and ``stances`` are views of the rows recorded so far.
     """
 
-    def __init__(self, inner: RiccatiController | VWBCController, capacity: int = 1024) -> None:
+    def __init__(self, inner: LowLevelController, capacity: int = 1024, n_feet: int = N_FEET) -> None:
         self.inner = inner
         capacity = max(int(capacity), 1)
         self._times = np.zeros(capacity)
-        self._requested = np.zeros((capacity, inner.robot.nu))
-        self._stances = np.zeros((capacity, 4), dtype=bool)
+        self._requested = np.zeros((capacity, len(inner.last_request)))
+        self._stances = np.zeros((capacity, n_feet), dtype=bool)
         self._count = 0
 
     @property
-    def plan(self) -> Plan | None:
-        return self.inner.plan
+    def last_request(self) -> np.ndarray:  # type: ignore[override]
+        return self.inner.last_request
 
     @property
     def times(self) -> np.ndarray:
@@ -65,8 +71,12 @@ class LowLevelRecorder:
     def stances(self) -> np.ndarray:
         return self._stances[: self._count]
 
-    def set_plan(self, plan: Plan) -> None:
-        self.inner.set_plan(plan)
+    def reset(self) -> None:
+        self.inner.reset()
+        self._count = 0
+
+    def statistics(self) -> dict:
+        return self.inner.statistics()
 
     def _grow(self) -> None:
         """Double the capacity (rare: only when the run outlasts the preallocated ticks)."""
@@ -80,14 +90,12 @@ class LowLevelRecorder:
         self._requested = doubled(self._requested)
         self._stances = doubled(self._stances)
 
-    def compute(self, t: float, q: np.ndarray, v: np.ndarray) -> np.ndarray:
+    def compute(self, t: float, measurement: Measurement, plan: Plan | None) -> np.ndarray:
         if self._count == len(self._times):
             self._grow()
         row = self._count
-        plan = self.inner.plan
-        torques = self.inner.compute(t, q, v)
-        riccati = isinstance(self.inner, RiccatiController) and plan is not None
-        self._requested[row] = self.inner.requested if riccati else torques
+        torques = self.inner.compute(t, measurement, plan)
+        self._requested[row] = self.inner.last_request
         self._times[row] = t
         if plan is not None:
             self._stances[row] = plan.contacts[plan.knot_at(t)]
@@ -98,10 +106,10 @@ class LowLevelRecorder:
 
     def traces(self, times: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Requested torques ``(ticks, nu)`` (NaN where this controller was not called, e.g. before the
-        first plan) and planned stance flags ``(ticks, 4)`` (False there), on the tick grid ``times``."""
+        first plan) and planned stance flags ``(ticks, n_feet)`` (False there), on the tick grid ``times``."""
         times = np.asarray(times, dtype=float)
         requested = np.full((len(times), self._requested.shape[1]), np.nan)
-        stance = np.zeros((len(times), 4), dtype=bool)
+        stance = np.zeros((len(times), self._stances.shape[1]), dtype=bool)
         if len(times) == 0 or self._count == 0:
             return requested, stance
         recorded = self.times
@@ -161,32 +169,49 @@ def build_controller(config: RunConfig, robot: Robot) -> RunController:
         WholeBodySettings(dt=schedule.whole_body_dt, running_weights=running, terminal_weights=terminal),
     )
     srb = SRBModelFactory(
-        SRBSettings(dt=schedule.srb_dt, running_weights=srb_running, terminal_weights=srb_terminal)
+        SRBSettings(
+            dt=schedule.srb_dt,
+            parameters=srb_parameters(robot),
+            running_weights=srb_running,
+            terminal_weights=srb_terminal,
+        )
     )
     builder = CafeProblemBuilder(whole_body, srb, schedule)
-    low_level: RiccatiController | VWBCController
-    if config.wbc == "riccati":
-        low_level = RiccatiController(robot)
-    else:
-        try:
-            vwbc_settings = VWBCSettings(solver=config.vwbc.solver, warm_start=config.vwbc.warm_start)
-        except ValueError as error:
-            raise ConfigError(f"vwbc: {error}") from error
-        low_level = VWBCController(robot, vwbc_settings)
+    low_level = build_low_level(config, robot)
     ticks = config.simulation.duration * config.simulation.control_rate_hz  # the run's low-level calls
-    recorder = LowLevelRecorder(low_level, capacity=int(np.ceil(ticks)) + 2)
+    recorder = LowLevelRecorder(low_level, capacity=int(np.ceil(ticks)) + 2, n_feet=robot.n_feet)
     return CafeMpcController(robot, reference, builder, recorder, settings)
 
 
-def low_level_of(controller: RunController) -> LowLevelController | None:
-    """The Riccati/VWBC controller under a CAFE-MPC controller (unwrapped), None for PD."""
-    if not isinstance(controller, CafeMpcController):
-        return None
-    low_level = controller.low_level
-    return low_level.inner if isinstance(low_level, LowLevelRecorder) else low_level
+def build_low_level(config: RunConfig, robot: Robot) -> LowLevelController:
+    """The low-level controller named by ``config.wbc`` (PD, Riccati (33) or VWBC (34))."""
+    if config.wbc == "pd":
+        return PDController(
+            robot, config.pd.kp, config.pd.kd, gravity_feedforward=config.pd.gravity_feedforward
+        )
+    if config.wbc == "riccati":
+        return RiccatiController(robot)
+    try:
+        vwbc_settings = VWBCSettings(
+            solver=config.vwbc.solver,
+            warm_start=config.vwbc.warm_start,
+            stance_source=config.vwbc.stance_source,
+        )
+    except ValueError as error:
+        raise ConfigError(f"vwbc: {error}") from error
+    return VWBCController(robot, vwbc_settings)
 
 
 def recorder_of(controller: RunController) -> LowLevelRecorder | None:
-    if isinstance(controller, CafeMpcController) and isinstance(controller.low_level, LowLevelRecorder):
-        return controller.low_level
-    return None
+    """The recorder around the low-level controller of a CAFE-MPC run (None for PD standing)."""
+    low_level = controller.low_level if isinstance(controller, CafeMpcController) else None
+    return low_level if isinstance(low_level, LowLevelRecorder) else None
+
+
+def low_level_of(controller: RunController) -> LowLevelController:
+    """The low-level controller that produced a run's torques: the plan follower under CAFE-MPC (unwrapped
+    from its recorder), or the PD controller itself."""
+    recorder = recorder_of(controller)
+    if recorder is not None:
+        return recorder.inner
+    return controller.low_level if isinstance(controller, CafeMpcController) else controller

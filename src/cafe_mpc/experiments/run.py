@@ -20,6 +20,7 @@ import numpy as np
 import yaml
 
 from cafe_mpc.config import RunConfig
+from cafe_mpc.control.mpc_loop import CafeMpcController
 from cafe_mpc.experiments.controllers import (
     RunController,
     build_controller,
@@ -27,11 +28,8 @@ from cafe_mpc.experiments.controllers import (
     recorder_of,
     reference_commands,
 )
-from cafe_mpc.mpc.controller import CafeMpcController
 from cafe_mpc.robots.robot import Robot, load_robot
 from cafe_mpc.sim.loop import FallCriteria, Push, SimulationLog, simulate
-from cafe_mpc.wbc.riccati import RiccatiController
-from cafe_mpc.wbc.vwbc import VWBCController
 
 logger = logging.getLogger(__name__)
 
@@ -78,7 +76,7 @@ def simulate_run(config: RunConfig, progress=None) -> tuple[Robot, RunController
     if isinstance(controller, CafeMpcController):
         reference = controller.reference
         stance = [reference.stance_at(float(t)) for t in log.time]
-        log.extra["gait_stance"] = np.array(stance, dtype=bool).reshape(-1, 4)
+        log.extra["gait_stance"] = np.array(stance, dtype=bool).reshape(-1, robot.n_feet)
     return robot, controller, log
 
 
@@ -99,15 +97,11 @@ def run_metrics(config: RunConfig, robot: Robot, controller: RunController, log:
     metrics.update(tracking_metrics(robot, log, reference_commands(config)))
     is_mpc = isinstance(controller, CafeMpcController)
     metrics["mpc"] = controller.statistics.summary() if is_mpc else None
-    low_level = low_level_of(controller)
     metrics["wbc"] = wbc_metrics(
         robot,
         log,
         config.wbc,
-        torque_limit_violations=(
-            low_level.limit_violations if isinstance(low_level, RiccatiController) else None
-        ),
-        qp_statistics=low_level.statistics() if isinstance(low_level, VWBCController) else None,
+        low_level_statistics=low_level_of(controller).statistics(),
         planned_stance=log.extra.get("planned_stance"),
     )
     return metrics
@@ -121,6 +115,8 @@ def run(config: RunConfig, out_dir: Path | None, show_progress: bool = False) ->
     """Run ``config``; when ``out_dir`` is given write config.yaml, metrics.json, log.npz, run.log, plots."""
     partial: Path | None = None
     handler: logging.Handler | None = None
+    package_logger = logging.getLogger("cafe_mpc")
+    previous_level = package_logger.level
     if out_dir is not None:
         out_dir = Path(out_dir)
         if out_dir.exists() and any(out_dir.iterdir()):
@@ -130,8 +126,10 @@ def run(config: RunConfig, out_dir: Path | None, show_progress: bool = False) ->
         partial.mkdir(parents=True)
         handler = logging.FileHandler(partial / "run.log")
         handler.setFormatter(logging.Formatter("%(asctime)s %(levelname)s %(name)s: %(message)s"))
-        logging.getLogger("cafe_mpc").addHandler(handler)
-        logging.getLogger("cafe_mpc").setLevel(logging.INFO)
+        handler.setLevel(logging.INFO)
+        package_logger.addHandler(handler)
+        if package_logger.getEffectiveLevel() > logging.INFO:  # restored in ``finally``
+            package_logger.setLevel(logging.INFO)
     bar = None
     try:
         logger.info(
@@ -197,9 +195,10 @@ def run(config: RunConfig, out_dir: Path | None, show_progress: bool = False) ->
             bar.close()
             bar = None
         if handler is not None:
-            logging.getLogger("cafe_mpc").removeHandler(handler)
+            package_logger.removeHandler(handler)
             handler.close()
             handler = None
+            package_logger.setLevel(previous_level)
         if partial is not None and out_dir is not None:
             if out_dir.exists():
                 out_dir.rmdir()
@@ -213,5 +212,6 @@ def run(config: RunConfig, out_dir: Path | None, show_progress: bool = False) ->
         if bar is not None:
             bar.close()
         if handler is not None:
-            logging.getLogger("cafe_mpc").removeHandler(handler)
+            package_logger.removeHandler(handler)
             handler.close()
+        package_logger.setLevel(previous_level)

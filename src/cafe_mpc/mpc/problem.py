@@ -25,15 +25,16 @@ from typing import Literal
 
 import numpy as np
 
+from cafe_mpc.core.contacts import touchdown_flags
+from cafe_mpc.core.interfaces import MultiPhaseProblem, Phase
 from cafe_mpc.dynamics.srb import SRBState
-from cafe_mpc.ocp.contact_schedule import touchdown_flags
+from cafe_mpc.dynamics.statics import static_stance_torques
+from cafe_mpc.dynamics.transition import whole_body_to_srb_state
 from cafe_mpc.ocp.costs import WholeBodyWeights
-from cafe_mpc.ocp.interfaces import MultiPhaseProblem, Phase
 from cafe_mpc.ocp.knots import SRBModelFactory, WholeBodyModelFactory, WholeBodyReference
 from cafe_mpc.reference.inverse_kinematics import LegInverseKinematics
 from cafe_mpc.reference.locomotion import LocomotionReference
 from cafe_mpc.solver.results import SolverResult
-from cafe_mpc.wbc.pd import static_stance_torques
 
 TIME_EPS = 1e-7
 
@@ -111,15 +112,6 @@ class BuiltProblem:
     @property
     def whole_body_phases(self) -> list[int]:
         return [i for i, info in enumerate(self.phases) if info.kind == "whole_body"]
-
-
-def whole_body_to_srb_state(x: np.ndarray) -> np.ndarray:
-    """``[q, v]`` (whole body) -> ``[c, quat, c_dot world, omega body]`` (Eq. (31), (32))."""
-    from cafe_mpc.dynamics.srb import quaternion_to_rotation
-
-    q, v = x[:19], x[19:]
-    rotation = quaternion_to_rotation(q[3:7])
-    return np.concatenate([q[:3], q[3:7], rotation @ v[:3], v[3:6]])
 
 
 class CafeProblemBuilder:
@@ -298,7 +290,8 @@ class InitialGuess:
     multipliers: list[np.ndarray | None] = field(default_factory=list)
     penalties: list[float | None] = field(default_factory=list)
     """Augmented-Lagrangian parameters of each phase's touchdown constraint, carried over from the previous
-    solve of the same switch (facts: "keep barrier and AL parameters"); ``None``: start afresh."""
+    solve of the same switch (authors' warm start, docs/settings.md: "keep barrier and AL parameters");
+    ``None``: start afresh."""
 
 
 @dataclass

@@ -8,7 +8,7 @@ violation is reported in ``ActionData.constraint_violation``:
   the forces are outputs of the KKT dynamics, so ``G = P dF/d(x, u)`` uses the dynamics derivatives;
 * torque limits (27a), joint position limits (27b), joint speed limits (27c), as boxes
   ``[upper - z, z - lower]``;
-* minimum base height ``z_base - h_min`` (settings facts).
+* minimum base height ``z_base - h_min`` (docs/settings.md).
 
 The touchdown condition (25), ``p_z - foot_radius - h_c = 0`` for the feet that touch down at the end of a
 phase, is an equality on the phase's last state (``SwitchingConstraint``) for the solver's augmented
@@ -29,10 +29,10 @@ from typing import TYPE_CHECKING
 import numpy as np
 import pinocchio as pin
 
+from cafe_mpc.core.contacts import as_contact_flags
+from cafe_mpc.core.interfaces import ConstraintData, SwitchingConstraint
 from cafe_mpc.dynamics.multibody_state import MultibodyState
 from cafe_mpc.ocp.barrier import RelaxedBarrier
-from cafe_mpc.ocp.contact_schedule import as_contact_flags
-from cafe_mpc.ocp.interfaces import ConstraintData, SwitchingConstraint
 from cafe_mpc.robots.robot import Robot
 
 if TYPE_CHECKING:
@@ -57,10 +57,10 @@ class BarrierParameters:
 
 @dataclass(frozen=True)
 class WholeBodyConstraintSettings:
-    """Which whole-body inequalities are on, their bounds and barrier parameters (settings facts).
+    """Which whole-body inequalities are on, their bounds and barrier parameters (docs/settings.md).
 
     Limits default to the robot's (``torque_limits``, ``position_lower/upper``, ``velocity_limits``); the
-    joint-speed barrier parameters are not in the facts and reuse the joint-limit ones.
+    joint-speed barrier parameters are not published and reuse the joint-limit ones.
     """
 
     friction_cone: bool = True
@@ -286,7 +286,7 @@ class BoxConstraint(WholeBodyInequality):
 
 
 class MinimumBaseHeight(WholeBodyInequality):
-    """``z_base - h_min >= 0`` (settings facts). ``d z / d(base linear tangent) = R[2, :]``."""
+    """``z_base - h_min >= 0`` (docs/settings.md). ``d z / d(base linear tangent) = R[2, :]``."""
 
     name = "base_height"
     dim = 1

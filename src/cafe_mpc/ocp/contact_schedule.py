@@ -1,9 +1,10 @@
-"""Contact flags, contact schedules and the gait library (paper Sec. IV-D; gaits from the settings facts).
+"""Contact schedules and the gait library (paper Sec. IV-D; gait timings in ``docs/settings.md``).
 
-A *contact flag tuple* has one bool per foot in the robot's leg order (``FL, FR, HL, HR``), ``True`` for
-stance. A ``ContactSchedule`` is an ordered, gap-free list of ``ContactPhase`` (stance flags and start/end
-times); the problem builder cuts it into whole-body phases over the prediction window (a new phase at every
-contact change, Sec. IV-D). Gaits are data (``GAITS``), periodic cycles of ``(flags, duration)``.
+Contact flags (``cafe_mpc.core.contacts``) have one bool per foot in the robot's leg order
+(``FL, FR, HL, HR``), ``True`` for stance. A ``ContactSchedule`` is an ordered, gap-free list of
+``ContactPhase`` (stance flags and start/end times); the problem builder cuts it into whole-body phases
+over the prediction window (a new phase at every contact change, Sec. IV-D). Gaits are data (``GAITS``),
+periodic cycles of ``(flags, duration)``.
 """
 
 from __future__ import annotations
@@ -14,53 +15,10 @@ import math
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 
-import numpy as np
+from cafe_mpc.core.contacts import ContactFlags, as_contact_flags, flags_to_string
 
-N_FEET = 4
-ContactFlags = tuple[bool, bool, bool, bool]
 TIME_TOLERANCE = 1e-9
 """Phases (or window slices) shorter than this are treated as empty; times closer than this are equal."""
-
-ALL_STANCE: ContactFlags = (True, True, True, True)
-FLIGHT: ContactFlags = (False, False, False, False)
-
-
-def as_contact_flags(flags: Iterable, name: str = "contact flags") -> ContactFlags:
-    """Validate and normalise contact flags: exactly 4 booleans (or 0/1) in leg order ``FL, FR, HL, HR``."""
-    try:
-        values = tuple(flags)
-    except TypeError as error:
-        raise ValueError(f"{name} must be a sequence of {N_FEET} booleans, got {flags!r}") from error
-    if len(values) != N_FEET:
-        raise ValueError(
-            f"{name} must have one flag per foot ({N_FEET}, order FL, FR, HL, HR), got {len(values)}"
-        )
-    normalised = []
-    for value in values:
-        is_boolean = isinstance(value, bool | np.bool_)
-        if is_boolean or (isinstance(value, int | float) and value in (0, 1)):
-            normalised.append(bool(value))
-        else:
-            raise ValueError(f"{name} must be booleans (or 0/1), got {flags!r}")
-    return tuple(normalised)  # type: ignore[return-value]
-
-
-def touchdown_flags(before: Sequence[bool], after: Sequence[bool]) -> ContactFlags:
-    """Feet that are in swing in ``before`` and in stance in ``after`` (they touch down at the switch)."""
-    before, after = as_contact_flags(before), as_contact_flags(after)
-    return tuple(a and not b for b, a in zip(before, after, strict=True))  # type: ignore[return-value]
-
-
-def takeoff_flags(before: Sequence[bool], after: Sequence[bool]) -> ContactFlags:
-    """Feet that are in stance in ``before`` and in swing in ``after`` (they lift off at the switch)."""
-    before, after = as_contact_flags(before), as_contact_flags(after)
-    return tuple(b and not a for b, a in zip(before, after, strict=True))  # type: ignore[return-value]
-
-
-def flags_to_string(flags: Sequence[bool]) -> str:
-    """``(True, False, False, True)`` -> ``"FL+HR"`` (``"flight"`` when no foot is in stance)."""
-    names = [leg for leg, on in zip(("FL", "FR", "HL", "HR"), as_contact_flags(flags), strict=True) if on]
-    return "+".join(names) if names else "flight"
 
 
 @dataclass(frozen=True)
@@ -275,7 +233,7 @@ def _gait(name: str, *cycle: tuple[str, float]) -> GaitCycle:
 
 
 GAITS: dict[str, GaitCycle] = {
-    # Settings facts, "Gaits" (order FL, FR, HL, HR; seconds).
+    # Authors' gait timings (docs/settings.md, "Gaits"; order FL, FR, HL, HR; seconds).
     "trot": _gait("trot", ("1001", 0.25), ("0110", 0.25)),
     "pace": _gait("pace", ("1010", 0.25), ("0101", 0.25)),
     "bound": _gait("bound", ("1100", 0.10), ("0000", 0.10), ("0011", 0.10), ("0000", 0.10)),

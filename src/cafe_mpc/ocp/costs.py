@@ -1,9 +1,9 @@
 """Cost terms of the whole-body and SRB knots (paper Eqs. (18) and (28)) as residual x weight.
 
 Every term is ``0.5 * r' W r`` with a residual ``r(x, u)`` and a diagonal weight ``W``; a running knot
-multiplies the sum by its time step (``0.5 * dx' W dx * dt``, settings facts). Derivatives are
+multiplies the sum by its time step (``0.5 * dx' W dx * dt``, docs/settings.md). Derivatives are
 Gauss-Newton: ``Lx = Rx' W r``, ``Lxx = Rx' W Rx`` (and the same for ``u``). Weight sets are data
-(``WholeBodyWeights``, ``SRBWeights``), written in the facts file's base order ``[x, y, z, yaw, pitch, roll]``
+(``WholeBodyWeights``, ``SRBWeights``), written in the authors' base order ``[x, y, z, yaw, pitch, roll]``
 and mapped here to the tangent order ``[lin x, y, z, ang x (roll), y (pitch), z (yaw)]``.
 
 Each term keeps its residual ``r`` and dense Jacobians ``Rx``, ``Ru`` in its data (tests compare them
@@ -25,7 +25,7 @@ if TYPE_CHECKING:
     from cafe_mpc.ocp.knots import WholeBodyKnotData, WholeBodyReference
 
 BASE_WEIGHT_ORDER = ("x", "y", "z", "yaw", "pitch", "roll")
-"""Order of the six base weights in the facts file and in ``WholeBodyWeights``/``SRBWeights``."""
+"""Order of the six base weights in the authors' code and in ``WholeBodyWeights``/``SRBWeights``."""
 
 BaseError = Literal["tangent", "world"]
 
@@ -62,7 +62,7 @@ def _leg_weights(value: float | Sequence[float], name: str) -> np.ndarray:
 
 @dataclass(frozen=True)
 class WholeBodyWeights:
-    """Weights of the whole-body cost (18) (facts: "Cost weights"; running cost is ``0.5 dx' W dx dt``).
+    """Weights of the whole-body cost (18) (docs/settings.md: "Cost"; running cost is ``0.5 dx' W dx dt``).
 
     ``base_position``/``base_velocity`` are in ``BASE_WEIGHT_ORDER``; joint and torque weights are scalars
     (all joints) or 12 values; foot weights are 3 (x, y, z, every leg) or 12 values and apply to swing feet.
@@ -105,7 +105,7 @@ class WholeBodyWeights:
 
     @classmethod
     def regular_running(cls) -> WholeBodyWeights:
-        """The authors' "regular" running set (facts)."""
+        """The authors' "regular" running set (docs/settings.md)."""
         return cls()
 
     @classmethod
@@ -137,7 +137,7 @@ class WholeBodyWeights:
 
     @classmethod
     def barrel_roll_running(cls) -> WholeBodyWeights:
-        """The barrel-roll set (facts): foot terms off."""
+        """The authors' barrel-roll set (docs/settings.md): foot terms off."""
         return cls(
             base_position=(0.0, 0.0, 15.0, 5.0, 5.0, 5.0),
             base_velocity=(2.0, 2.0, 10.0, 2.0, 2.0, 2.0),

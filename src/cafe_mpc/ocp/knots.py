@@ -24,6 +24,8 @@ from dataclasses import dataclass, field
 import numpy as np
 import pinocchio as pin
 
+from cafe_mpc.core.contacts import ContactFlags, as_contact_flags, flags_to_string, touchdown_flags
+from cafe_mpc.core.interfaces import ActionData, ActionModel, IdentityReset, ResetMap
 from cafe_mpc.dynamics.impact import ImpactReset
 from cafe_mpc.dynamics.kinematics import FootKinematics
 from cafe_mpc.dynamics.multibody_state import MultibodyState
@@ -37,7 +39,6 @@ from cafe_mpc.ocp.constraints import (
     WholeBodyInequality,
     whole_body_inequalities,
 )
-from cafe_mpc.ocp.contact_schedule import ContactFlags, as_contact_flags, flags_to_string, touchdown_flags
 from cafe_mpc.ocp.costs import (
     BaseError,
     SRBWeights,
@@ -45,7 +46,6 @@ from cafe_mpc.ocp.costs import (
     WholeBodyWeights,
     whole_body_cost_terms,
 )
-from cafe_mpc.ocp.interfaces import ActionData, ActionModel, IdentityReset, ResetMap
 from cafe_mpc.robots.robot import Robot
 
 
@@ -468,7 +468,7 @@ class SRBKnot(ActionModel):
 
 @dataclass(frozen=True)
 class WholeBodySettings:
-    """Everything that configures whole-body knots (settings facts defaults)."""
+    """Everything that configures whole-body knots (defaults and sources: docs/settings.md)."""
 
     dt: float = 0.01
     baumgarte_alpha: float = 10.0
@@ -582,7 +582,7 @@ class WholeBodyModelFactory:
 
 @dataclass(frozen=True)
 class SRBSettings:
-    """Configuration of SRB knots (settings facts defaults)."""
+    """Configuration of SRB knots (defaults and sources: docs/settings.md)."""
 
     dt: float = 0.05
     parameters: SRBParameters = field(default_factory=SRBParameters)

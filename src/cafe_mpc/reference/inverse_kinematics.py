@@ -73,7 +73,7 @@ class LegInverseKinematics:
             if error_max < self.tolerance:
                 break
         joints = q[7:].copy()
-        rates = np.zeros(12)
+        rates = np.zeros(self.robot.nu)
         if base_velocity is not None and foot_velocities is not None:
             pin.computeJointJacobians(model, data, q)
             for leg, frame_id in enumerate(self.frame_ids):

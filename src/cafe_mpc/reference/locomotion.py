@@ -186,7 +186,7 @@ class LocomotionReference:
         self.measured_velocity_xy = (rotation @ v[:3])[:2]
         feet = self.robot.foot_positions(q)
         stance = self.stance_at(t)
-        for foot in range(4):
+        for foot in range(self.robot.n_feet):
             if stance[foot]:
                 self.stance_positions[foot] = feet[foot]
                 self.stance_positions[foot, 2] = self.robot.foot_radius
@@ -270,19 +270,20 @@ class LocomotionReference:
         return swings
 
     def feet(self, times: Sequence[float]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Stance flags (n, 4), positions (n, 4, 3) and velocities (n, 4, 3) of the feet at ``times``."""
+        """Stance flags (n, n_feet), positions and velocities (n, n_feet, 3) of the feet at ``times``."""
         times = np.asarray(times, dtype=float)
         n = len(times)
-        stance = np.zeros((n, 4), dtype=bool)
-        positions = np.zeros((n, 4, 3))
-        velocities = np.zeros((n, 4, 3))
+        n_feet = self.robot.n_feet
+        stance = np.zeros((n, n_feet), dtype=bool)
+        positions = np.zeros((n, n_feet, 3))
+        velocities = np.zeros((n, n_feet, 3))
         if n == 0:
             return stance, positions, velocities
         # Swings between the anchor (the last measurement) and ``times[0]`` matter too: a foot that touches
         # down in between stands on that swing's foothold, not where it stood at the anchor (missing this put
         # the SRB tail's stance feet up to 0.4 m from where the whole-body plan had placed them).
         t0, t1 = min(float(times[0]), self.anchor_time), float(max(times[-1], times[0]))
-        for foot in range(4):
+        for foot in range(n_feet):
             start_position = self.stance_positions[foot].copy()
             swings = self._swings(foot, t0, t1)
             segments = []  # (liftoff, touchdown, p_liftoff, p_touchdown)
@@ -323,11 +324,11 @@ class LocomotionReference:
         """Vertical force of a stance foot at ``t`` in units of the weight, averaged over the gait cycle
         (``GaitCycle.support_factor``: 1/2 trotting, 1 bounding); 1/4 during the initial stand."""
         if t < self.start_stance - 1e-9:
-            return 0.25
+            return 1.0 / self.robot.n_feet
         return self.gait.support_factor
 
     def normal_forces(self, stance: np.ndarray, times: Sequence[float] | None = None) -> np.ndarray:
-        """GRF reference (n, 4, 3): vertical, ``support_factor * m g`` on each stance foot (the weight
+        """GRF reference (n, n_feet, 3): vertical, ``support_factor * m g`` on each stance foot (the weight
         shared by the stance feet when the gait has no flight), zero on swing feet.
 
         Without ``times`` the weight is split over the stance feet of each row (static balance).

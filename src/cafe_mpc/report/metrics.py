@@ -191,34 +191,38 @@ def wbc_metrics(
     robot: Robot,
     log: SimulationLog,
     controller: str,
-    torque_limit_violations: int | None = None,
-    qp_statistics: dict | None = None,
+    low_level_statistics: dict | None = None,
     planned_stance: np.ndarray | None = None,
     mu: float = 0.6,
 ) -> dict:
     """The low-level controller's block of ``metrics.json`` (issue 6).
 
-    * ``torque_limit_violations``: ticks where a commanded torque exceeds its (plan) limit. Pass the
-      Riccati controller's count of unclamped commands over the limit; otherwise counted on the logged
-      command (the VWBC and PD controllers respect the limits by construction, so this counts overshoot).
-    * ``friction_cone_violations``: the VWBC's own count (``qp_statistics``), else scored after the run
+    ``low_level_statistics``: the low-level controller's ``statistics()`` (any ``LowLevelController``).
+
+    * ``torque_limit_violations``: ticks where a commanded torque exceeds its (plan) limit: the controller's
+      own count (``torque_limit_violations``, the Riccati controller's unclamped commands over the limit)
+      when it keeps one; otherwise counted on the logged command (the VWBC and PD controllers respect the
+      limits by construction, so this counts overshoot).
+    * ``friction_cone_violations``: the controller's own count (the VWBC's), else scored after the run
       (``friction_cone_violations_post_hoc``) with the plan's stance (``planned_stance``) or, without a
       plan (PD), the plant's measured contacts.
     * ``foot_slip_max_m``: ``foot_slip_max`` over the plant's contacts.
-    * QP fields (``qp_iterations_histogram``, ``qp_solve_time_ms_median``/``_p99``, ``fallbacks``) from
-      ``VWBCController.statistics()``; None for the Riccati and PD controllers.
+    * QP fields (``qp_iterations_histogram``, ``qp_solve_time_ms_median``/``_p99``, ``fallbacks``) from a
+      controller that solves QPs (the VWBC); None for the others.
     """
+    statistics = low_level_statistics or {}
+    torque_limit_violations = statistics.get("torque_limit_violations")
     if torque_limit_violations is None:
         torque_limit_violations = int(
             np.sum(np.any(np.abs(log.torque_command) > robot.torque_limits + 1e-9, axis=1))
         )
-    if qp_statistics is not None:
-        cone = int(qp_statistics["friction_cone_violations"])
+    if "friction_cone_violations" in statistics:
+        cone = int(statistics["friction_cone_violations"])
     else:
         stance = log.contacts if planned_stance is None else planned_stance
         cone = friction_cone_violations_post_hoc(robot, log, np.asarray(stance, dtype=bool), mu)
+    solves_qps = "qp_iterations_histogram" in statistics
     feet = foot_trajectories(robot, log.q)
-    statistics = qp_statistics or {}
 
     def finite_or_none(value: float | None) -> float | None:
         return float(value) if value is not None and np.isfinite(value) else None
@@ -229,11 +233,9 @@ def wbc_metrics(
         "friction_cone_violations": cone,
         "foot_slip_max_m": foot_slip_max(feet, log.contacts),
         "qp_iterations_histogram": (
-            {str(k): int(n) for k, n in statistics["qp_iterations_histogram"].items()}
-            if qp_statistics is not None
-            else None
+            {str(k): int(n) for k, n in statistics["qp_iterations_histogram"].items()} if solves_qps else None
         ),
         "qp_solve_time_ms_median": finite_or_none(statistics.get("qp_solve_time_ms_median")),
         "qp_solve_time_ms_p99": finite_or_none(statistics.get("qp_solve_time_ms_p99")),
-        "fallbacks": int(statistics["fallbacks"]) if qp_statistics is not None else None,
+        "fallbacks": int(statistics["fallbacks"]) if solves_qps else None,
     }

@@ -8,13 +8,12 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-import matplotlib
-
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt
 import numpy as np
+from matplotlib.axes import Axes
+from matplotlib.figure import Figure
 
 from cafe_mpc.reference.locomotion import VelocityCommand
+from cafe_mpc.report.figures import save_figure, subplots
 from cafe_mpc.report.metrics import (
     METRICS_WINDOW_START_S,
     body_rates,
@@ -26,19 +25,16 @@ from cafe_mpc.robots.robot import Robot
 from cafe_mpc.sim.loop import SimulationLog
 
 if TYPE_CHECKING:
-    from cafe_mpc.mpc.controller import MpcStatistics
+    from cafe_mpc.control.mpc_loop import MpcStatistics
 
 JOINT_KINDS = ("abad", "hip", "knee")
 
 
-def _save(figure: plt.Figure, path: Path) -> Path:
-    figure.tight_layout()
-    figure.savefig(path, dpi=110)
-    plt.close(figure)
-    return path
+def _save(figure: Figure, path: Path) -> Path:
+    return save_figure(figure, path)
 
 
-def _mark_pushes(axis: plt.Axes, log: SimulationLog) -> None:
+def _mark_pushes(axis: Axes, log: SimulationLog) -> None:
     pushing = np.linalg.norm(log.external_force, axis=1) > 0
     if pushing.any():
         axis.fill_between(
@@ -71,7 +67,7 @@ def plot_run(
     t = log.time
     written = []
 
-    figure, axis = plt.subplots(figsize=(8, 3))
+    figure, axis = subplots(figsize=(8, 3))
     axis.plot(t, log.q[:, 2], label="base height")
     axis.axhline(robot.standing_height, color="k", ls="--", lw=0.8, label="standing height")
     _mark_pushes(axis, log)
@@ -81,7 +77,7 @@ def plot_run(
     written.append(_save(figure, out_dir / "base_height.png"))
 
     angles = roll_pitch_yaw(log.q[:, 3:7])
-    figure, axis = plt.subplots(figsize=(8, 3))
+    figure, axis = subplots(figsize=(8, 3))
     for i, label in enumerate(("roll", "pitch", "yaw")):
         axis.plot(t, angles[:, i], label=label)
     _mark_pushes(axis, log)
@@ -90,7 +86,7 @@ def plot_run(
     axis.legend(loc="best")
     written.append(_save(figure, out_dir / "orientation.png"))
 
-    figure, axes = plt.subplots(2, 1, figsize=(8, 5), sharex=True)
+    figure, axes = subplots(2, 1, figsize=(8, 5), sharex=True)
     for i, label in enumerate(("vx", "vy", "vz")):
         axes[0].plot(t, log.v[:, i], label=f"{label} (base frame)")
     for i, label in enumerate(("wx", "wy", "wz")):
@@ -103,10 +99,11 @@ def plot_run(
         axis.legend(loc="best", fontsize=8)
     written.append(_save(figure, out_dir / "velocities.png"))
 
-    figure, axes = plt.subplots(4, 3, figsize=(11, 8), sharex=True)
+    n_legs, n_kinds = robot.n_feet, len(JOINT_KINDS)
+    figure, axes = subplots(n_legs, n_kinds, figsize=(11, 2 * n_legs), sharex=True, squeeze=False)
     for leg_index, leg in enumerate(robot.leg_names):
         for kind_index, kind in enumerate(JOINT_KINDS):
-            j = 3 * leg_index + kind_index
+            j = n_kinds * leg_index + kind_index
             axis = axes[leg_index, kind_index]
             axis.plot(t, log.torque_command[:, j], lw=0.8, label="commanded")
             axis.plot(t, log.torque_applied[:, j], lw=0.8, ls="--", label="applied")
@@ -122,7 +119,8 @@ def plot_run(
     figure.suptitle("joint torques (red: plan limit, black: motor limit)", fontsize=10)
     written.append(_save(figure, out_dir / "joint_torques.png"))
 
-    figure, axes = plt.subplots(4, 1, figsize=(8, 7), sharex=True)
+    figure, axes = subplots(robot.n_feet, 1, figsize=(8, 1.75 * robot.n_feet), sharex=True, squeeze=False)
+    axes = axes[:, 0]
     for leg_index, leg in enumerate(robot.leg_names):
         axis = axes[leg_index]
         for i, label in enumerate(("fx", "fy", "fz")):
@@ -151,7 +149,7 @@ def plot_run(
     return written
 
 
-def _shade(axis: plt.Axes, t: np.ndarray, where: np.ndarray, color: str, alpha: float, label: str) -> None:
+def _shade(axis: Axes, t: np.ndarray, where: np.ndarray, color: str, alpha: float, label: str) -> None:
     axis.fill_between(
         t,
         0,
@@ -173,7 +171,7 @@ def plot_velocity_tracking(
     t = log.time
     heading, yaw_rate, _ = body_rates(log.q, log.v)
     commanded = commanded_at(t, commands, robot.standing_height)
-    figure, axes = plt.subplots(3, 1, figsize=(8, 6), sharex=True)
+    figure, axes = subplots(3, 1, figsize=(8, 6), sharex=True)
     actual = (heading[:, 0], heading[:, 1], yaw_rate)
     for axis, values, column, label in zip(
         axes, actual, range(3), ("vx [m/s]", "vy [m/s]", "yaw rate [rad/s]"), strict=True
@@ -201,7 +199,8 @@ def plot_foot_heights(robot: Robot, log: SimulationLog, path: Path) -> Path:
     t = log.time
     heights = foot_trajectories(robot, log.q)[:, :, 2] - robot.foot_radius
     schedule = log.extra.get("gait_stance")
-    figure, axes = plt.subplots(4, 1, figsize=(8, 7), sharex=True)
+    figure, axes = subplots(robot.n_feet, 1, figsize=(8, 1.75 * robot.n_feet), sharex=True, squeeze=False)
+    axes = axes[:, 0]
     for leg_index, leg in enumerate(robot.leg_names):
         axis = axes[leg_index]
         axis.plot(t, heights[:, leg_index], lw=0.8, label="foot height")
@@ -234,7 +233,7 @@ def plot_hip_knee_torques(robot: Robot, log: SimulationLog, path: Path) -> Path:
     t = log.time
     requested = log.extra.get("torque_requested")
     legs = [robot.leg_names.index(name) for name in ("FR", "HR") if name in robot.leg_names] or [1, 3]
-    figure, axes = plt.subplots(len(legs), 2, figsize=(10, 3 * len(legs)), sharex=True, squeeze=False)
+    figure, axes = subplots(len(legs), 2, figsize=(10, 3 * len(legs)), sharex=True, squeeze=False)
     for row, leg_index in enumerate(legs):
         for column, kind_index in enumerate((1, 2)):
             j = 3 * leg_index + kind_index
@@ -262,7 +261,7 @@ def plot_mpc_solve_times(statistics: MpcStatistics, period: float | None, path: 
     """Wall-clock time and iterations of every MPC solve, with the MPC period (the real-time budget)."""
     solve_ms = 1e3 * np.asarray(statistics.solve_times)
     index = np.arange(len(solve_ms))
-    figure, axes = plt.subplots(2, 1, figsize=(8, 5), sharex=True)
+    figure, axes = subplots(2, 1, figsize=(8, 5), sharex=True)
     axes[0].plot(index, solve_ms, ".", ms=3, label="solve")
     axes[0].axhline(float(np.median(solve_ms)), color="k", lw=0.8, label="median")
     axes[0].axhline(float(np.percentile(solve_ms, 99)), color="k", ls="--", lw=0.8, label="p99")

@@ -23,10 +23,11 @@ import numpy as np
 import pinocchio as pin
 import yaml
 
+from cafe_mpc.core.contacts import LEG_NAMES
 from cafe_mpc.robots.description import PlantParameters, mjcf_from_model, urdf_from_parameters
 
 DATA_DIR = Path(__file__).parent / "data"
-LEG_NAMES = ("FL", "FR", "HL", "HR")
+JOINTS_PER_LEG = 3  # abad, hip, knee
 
 
 class RobotLoadError(ValueError):
@@ -52,6 +53,9 @@ class Robot:
     standing_height: float
     foothold_offsets: np.ndarray
     plant: PlantParameters
+    rotor_mass: float = 0.0
+    """Mass (kg) of each joint's rotor when the planning model does not hold it as a body (Mini Cheetah:
+    the rotors sit at the joints; Go1's URDF has them as links, so 0 there). Counted in the SRB mass."""
 
     @property
     def nq(self) -> int:
@@ -66,7 +70,12 @@ class Robot:
         return self.model.nv - 6
 
     @property
+    def n_feet(self) -> int:
+        return len(self.foot_frame_ids)
+
+    @property
     def total_mass(self) -> float:
+        """Mass of the planning model's bodies (without ``rotor_mass``)."""
         return float(sum(inertia.mass for inertia in self.model.inertias))
 
     @property
@@ -92,13 +101,13 @@ class Robot:
         )
 
     def foot_positions(self, q: np.ndarray) -> np.ndarray:
-        """World positions of the feet (4 x 3, leg order) at configuration ``q`` (allocates; not hot path)."""
+        """World positions of the feet (n_feet x 3, leg order) at ``q`` (allocates; not hot path)."""
         data = self.model.createData()
         pin.framesForwardKinematics(self.model, data, q)
         return np.array([data.oMf[i].translation.copy() for i in self.foot_frame_ids])
 
     def hip_positions(self) -> np.ndarray:
-        """Positions of the first joint of each leg in the base frame (4 x 3, leg order)."""
+        """Positions of the first joint of each leg in the base frame (n_feet x 3, leg order)."""
         positions = []
         for frame_id in self.foot_frame_ids:
             joint_id = self.model.frames[frame_id].parentJoint
@@ -115,6 +124,7 @@ class Robot:
         return {
             "name": self.name,
             "total_mass": self.total_mass,
+            "rotor_mass": self.rotor_mass,
             "body_masses": bodies,
             "nq": self.nq,
             "nv": self.nv,
@@ -134,13 +144,17 @@ class Robot:
 
 
 def _per_leg(values: list[float] | None, default: np.ndarray, key: str) -> np.ndarray:
+    """Per-joint values from 3 (one per joint kind, every leg) or one per joint (``len(default)``)."""
     if values is None:
         return default.copy()
+    n_joints = len(default)
     array = np.asarray(values, dtype=float)
-    if array.shape == (3,):
-        array = np.tile(array, 4)
-    if array.shape != (12,) or not np.all(np.isfinite(array)) or np.any(array <= 0):
-        raise RobotLoadError(f"{key}: expected 3 (per joint kind) or 12 positive numbers, got {values}")
+    if array.shape == (JOINTS_PER_LEG,):
+        array = np.tile(array, n_joints // JOINTS_PER_LEG)
+    if array.shape != (n_joints,) or not np.all(np.isfinite(array)) or np.any(array <= 0):
+        raise RobotLoadError(
+            f"{key}: expected {JOINTS_PER_LEG} (per joint kind) or {n_joints} positive numbers, got {values}"
+        )
     return array
 
 
@@ -160,7 +174,7 @@ def _standing_configuration(
     q[2] = height
     q[7:] = joint_guess
     data = model.createData()
-    targets = np.column_stack([foot_xy, np.full(4, foot_radius)])
+    targets = np.column_stack([foot_xy, np.full(len(foot_frame_ids), foot_radius)])
     for _ in range(100):
         pin.computeJointJacobians(model, data, q)
         pin.updateFramePlacements(model, data)
@@ -248,8 +262,13 @@ def _build_robot(table: dict) -> Robot:
     except Exception as error:  # Pinocchio raises RuntimeError/ValueError on bad URDF
         raise RobotLoadError(f"robot {name!r}: Pinocchio cannot parse the URDF: {error}") from error
     model.name = name
-    if model.nq != 19 or model.nv != 18:
-        raise RobotLoadError(f"robot {name!r}: expected a quadruped with 12 joints, got nv = {model.nv}")
+    n_legs = len(leg_names)
+    n_joints = JOINTS_PER_LEG * n_legs
+    if model.nq != 7 + n_joints or model.nv != 6 + n_joints:
+        raise RobotLoadError(
+            f"robot {name!r}: expected a floating base and {n_joints} revolute joints "
+            f"({JOINTS_PER_LEG} per leg), got nv = {model.nv}"
+        )
     model_joint_names = tuple(model.names[j] for j in range(2, model.njoints))
     if model_joint_names != joint_names:
         raise RobotLoadError(
@@ -275,7 +294,7 @@ def _build_robot(table: dict) -> Robot:
         motor_torque_limits=_per_leg(
             plant_table.get("motor_torque_limits"), torque_limits, "plant.motor_torque_limits"
         ),
-        armature=_per_leg(plant_table["armature"], np.zeros(12), "plant.armature"),
+        armature=_per_leg(plant_table["armature"], np.zeros(n_joints), "plant.armature"),
         joint_damping=float(plant_table["joint_damping"]),
         joint_friction=float(plant_table["joint_friction"]),
         floor_friction=float(plant_table["floor_friction"]),
@@ -290,10 +309,13 @@ def _build_robot(table: dict) -> Robot:
     if bool(joints.get("rotor_inertia_in_model", False)):
         model.armature[6:] = plant.armature  # reflected rotor inertia, in CRBA/ABA and their derivatives
     offsets = np.asarray(standing["foothold_offsets"], dtype=float)
-    if offsets.shape != (4, 2):
-        raise RobotLoadError(f"robot {name!r}: standing.foothold_offsets must be 4 (x, y) pairs")
+    if offsets.shape != (n_legs, 2):
+        raise RobotLoadError(f"robot {name!r}: standing.foothold_offsets must be {n_legs} (x, y) pairs")
     height = float(standing["height"])
-    guess = np.tile(np.asarray(standing["joint_guess"], dtype=float), 4)
+    guess = np.tile(np.asarray(standing["joint_guess"], dtype=float), n_legs)
+    rotor_mass = float(table.get("inertia", {}).get("rotor_mass", 0.0))
+    if not (np.isfinite(rotor_mass) and rotor_mass >= 0):
+        raise RobotLoadError(f"robot {name!r}: inertia.rotor_mass must be a non-negative number")
     q_standing = _standing_configuration(model, tuple(foot_ids), height, plant.foot_radius, guess, offsets)
     # Keep position limits honest with the standing pose (it must be inside them).
     if np.any(q_standing[7:] < position_lower) or np.any(q_standing[7:] > position_upper):
@@ -314,4 +336,5 @@ def _build_robot(table: dict) -> Robot:
         standing_height=height,
         foothold_offsets=offsets,
         plant=plant,
+        rotor_mass=rotor_mass,
     )

@@ -1,6 +1,6 @@
 """Closed-loop simulation: a controller called at a fixed rate around the MuJoCo plant.
 
-The controller sees only ``PlantState`` (planning coordinates) and returns joint torques, which are held
+The controller sees only a ``Measurement`` (planning coordinates) and returns joint torques, which are held
 (zero-order hold) until its next call. Push disturbances are world-frame forces on the base over time
 intervals. Every control tick is logged into preallocated arrays.
 """
@@ -11,22 +11,14 @@ import logging
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
-from typing import Protocol
 
 import numpy as np
 
+from cafe_mpc.core.controller import Controller
 from cafe_mpc.robots.robot import Robot
-from cafe_mpc.sim.plant import MujocoPlant, PlantState
+from cafe_mpc.sim.plant import MujocoPlant
 
 logger = logging.getLogger(__name__)
-
-
-class Controller(Protocol):
-    """Low-level controller interface: ``reset`` once, then ``compute`` at the control rate."""
-
-    def reset(self, state: PlantState) -> None: ...
-
-    def compute(self, t: float, state: PlantState) -> np.ndarray: ...
 
 
 class ControllerError(RuntimeError):
@@ -65,15 +57,15 @@ class SimulationLog:
     extra: dict = field(default_factory=dict)
 
     @classmethod
-    def allocate(cls, ticks: int, nq: int, nv: int, nu: int) -> SimulationLog:
+    def allocate(cls, ticks: int, nq: int, nv: int, nu: int, n_feet: int) -> SimulationLog:
         return cls(
             time=np.zeros(ticks),
             q=np.zeros((ticks, nq)),
             v=np.zeros((ticks, nv)),
             torque_command=np.zeros((ticks, nu)),
             torque_applied=np.zeros((ticks, nu)),
-            foot_forces=np.zeros((ticks, 4, 3)),
-            contacts=np.zeros((ticks, 4), dtype=bool),
+            foot_forces=np.zeros((ticks, n_feet, 3)),
+            contacts=np.zeros((ticks, n_feet), dtype=bool),
             external_force=np.zeros((ticks, 3)),
         )
 
@@ -161,10 +153,9 @@ def simulate(
         if push.duration <= 0 or push.start < 0 or not np.all(np.isfinite(push.force)):
             raise ValueError(f"invalid push {push}: start >= 0, duration > 0 and a finite force required")
     plant.reset(robot.q_standing if q0 is None else q0, v0)
-    state = plant.read_state()
-    controller.reset(state)
+    controller.reset()
     ticks = round(duration * control_rate_hz)
-    log = SimulationLog.allocate(ticks, robot.nq, robot.nv, robot.nu)
+    log = SimulationLog.allocate(ticks, robot.nq, robot.nv, robot.nu, robot.n_feet)
     external = np.zeros(3)
     start_wall = time.perf_counter()
     for tick in range(ticks):

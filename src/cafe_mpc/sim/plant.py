@@ -5,8 +5,8 @@ armature, joint damping and friction, torque saturation, foot spheres and ellipt
 shares an object with a controller: it reads and writes plain arrays in the planning model's
 coordinates (Pinocchio's free-flyer convention):
 
-* ``q = [base position, base quaternion (x, y, z, w), 12 joint angles]``
-* ``v = [base linear velocity (base frame), base angular velocity (base frame), 12 joint rates]``
+* ``q = [base position, base quaternion (x, y, z, w), joint angles]``
+* ``v = [base linear velocity (base frame), base angular velocity (base frame), joint rates]``
 
 MuJoCo's free joint stores the quaternion as ``(w, x, y, z)`` and the linear velocity in the world frame;
 the conversion happens here and only here.
@@ -14,11 +14,10 @@ the conversion happens here and only here.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import mujoco
 import numpy as np
 
+from cafe_mpc.core.measurement import Measurement
 from cafe_mpc.robots.robot import Robot
 
 _DIVERGENCE_WARNINGS = (
@@ -30,17 +29,6 @@ _DIVERGENCE_WARNINGS = (
 
 class SimulationDiverged(RuntimeError):
     """The simulator produced a non-finite state."""
-
-
-@dataclass
-class PlantState:
-    """Measured state in planning coordinates (arrays are owned by the plant and overwritten each read)."""
-
-    time: float
-    q: np.ndarray
-    v: np.ndarray
-    contacts: np.ndarray  # 4 bools, leg order
-    foot_forces: np.ndarray  # 4 x 3 world-frame ground reaction forces on the feet
 
 
 class MujocoPlant:
@@ -63,9 +51,7 @@ class MujocoPlant:
         self.foot_geoms = np.array([self.model.geom(name).id for name in robot.foot_frame_names])
         self._foot_index = {int(g): i for i, g in enumerate(self.foot_geoms)}
         self.torque_limits = np.array(robot.plant.motor_torque_limits)
-        self._state = PlantState(
-            0.0, np.zeros(robot.nq), np.zeros(robot.nv), np.zeros(4, bool), np.zeros((4, 3))
-        )
+        self._state = Measurement.zeros(robot.nq, robot.nv, robot.n_feet)
         self._rotation = np.zeros(9)
         self._contact_wrench = np.zeros(6)
         self._contact_frame = np.zeros((3, 3))
@@ -122,8 +108,9 @@ class MujocoPlant:
         """Torques the motors actually apply (after saturation)."""
         return np.clip(self.data.ctrl, -self.torque_limits, self.torque_limits)
 
-    def read_state(self) -> PlantState:
-        """Current state in planning coordinates, feet contacts and ground reaction forces."""
+    def read_state(self) -> Measurement:
+        """Current state in planning coordinates, feet contacts and ground reaction forces (the arrays are
+        the plant's, overwritten on the next read)."""
         state = self._state
         qpos, qvel = self.data.qpos, self.data.qvel
         state.time = float(self.data.time)

@@ -1,6 +1,6 @@
 """Multi-phase multiple-shooting iLQR (MS-iLQR, paper Sec. III).
 
-The solver sees only the per-knot interface of ``cafe_mpc.ocp.interfaces``: phases of running models,
+The solver sees only the per-knot interface of ``cafe_mpc.core.interfaces``: phases of running models,
 terminal models, reset maps between phases and switching (phase-terminal) equality constraints. States live
 on manifolds; every perturbation, defect and value-function model is expressed in the tangent space at the
 nominal state, defects are ``d_{k+1} = f(x̄_k, ū_k) ⊖ x̄_{k+1}`` (Eq. (4)) and ``P(x̄_N) ⊖ x̄_0`` (Eq. (15)).
@@ -33,7 +33,7 @@ One inner iteration:
   cost change"): ``ΔJ(α) = c0 + α Σ Qu'k + ½ α² Σ k'Quu k`` with ``c0 = Σ (s'd + ½ d'S d)`` over all defects
   (value function at the knot receiving the defect). The model's defects after the step are zero, so the
   expected merit change is ``ΔJ(α) - ρ ||d̄||_1``, negative with
-  ``ρ = max(|ΔJ(0)|, |ΔJ(1)|) / ((1 - 0.2) ||d̄||_1) + 1`` (facts file). Armijo:
+  ``ρ = max(|ΔJ(0)|, |ΔJ(1)|) / ((1 - 0.2) ||d̄||_1) + 1`` (docs/settings.md). Armijo:
   ``φ(α) - φ(0) <= 0.1 (ΔJ(α) - ρ ||d̄||_1)``; steps are halved down to ``line_search_min_step``; a trial with
   a non-finite cost or defect is rejected; if every step fails, ``mu`` grows and the iteration is repeated.
 * **Augmented Lagrangian** outer loop (Sec. III-B-2) for the switching constraints ``g_i(x_N) = 0``
@@ -50,7 +50,7 @@ from collections.abc import Sequence
 import numpy as np
 from scipy.linalg.lapack import dpotrf, dpotrs
 
-from cafe_mpc.ocp.interfaces import MultiPhaseProblem
+from cafe_mpc.core.interfaces import MultiPhaseProblem
 from cafe_mpc.solver.options import SolverOptions
 from cafe_mpc.solver.results import PhaseSolution, SolverResult, SolverStatistics, TrajectoryEvaluation
 from cafe_mpc.solver.workspace import EMPTY_CONTROL, PhaseWorkspace, Workspace
@@ -611,7 +611,7 @@ class MSiLQRSolver:
 
     # -------------------------------------------------------------------------------- augmented Lagrangian
     def _update_augmented_lagrangian(self, workspace: Workspace) -> None:
-        """Outer update (facts: sigma x5 while ``|g| > threshold``, else ``lambda += sigma g``)."""
+        """Outer update (authors' rule: sigma x5 while ``|g| > threshold``, else ``lambda += sigma g``)."""
         options = self.options
         for work in workspace.phases:
             if work.constraint is None or work.switching_value.size == 0:

@@ -1,4 +1,4 @@
-"""Settings of the MS-iLQR solver (paper Sec. III; published values in ``shared/facts``, "Solver (MS-iLQR)").
+"""Settings of the MS-iLQR solver (paper Sec. III; published values and sources: docs/settings.md, "Solver").
 
 The defaults are tuned for *accurate* offline solves (tight tolerances, many iterations, no time budget),
 which is what the unit tests and trajectory optimisation need. ``SolverOptions.paper_mpc()`` and

@@ -13,7 +13,7 @@ from collections.abc import Iterable, Sequence
 
 import numpy as np
 
-from cafe_mpc.ocp.interfaces import (
+from cafe_mpc.core.interfaces import (
     ActionData,
     ConstraintData,
     EuclideanState,

@@ -11,14 +11,15 @@ from __future__ import annotations
 
 import numpy as np
 
-from cafe_mpc.mpc.plan import Plan
+from cafe_mpc.core.plan import Plan
+from cafe_mpc.dynamics.srb import GRAVITY
+from cafe_mpc.dynamics.statics import static_stance_torques
 from cafe_mpc.robots.robot import Robot
-from cafe_mpc.wbc.pd import static_stance_torques
 
 
 def synthetic_plan(
     robot: Robot,
-    stance: np.ndarray | tuple[bool, ...] = (True, True, True, True),
+    stance: np.ndarray | tuple[bool, ...] | None = None,
     knots: int = 8,
     dt: float = 0.02,
     seed: int = 0,
@@ -29,9 +30,10 @@ def synthetic_plan(
     q: np.ndarray | None = None,
     t0: float = 0.0,
 ) -> Plan:
-    """A ``Plan`` of ``knots`` identical knots holding ``q`` (default: standing), feet in ``stance``."""
+    """A ``Plan`` of ``knots`` identical knots holding ``q`` (default: standing), feet in ``stance`` (default:
+    all)."""
     rng = np.random.default_rng(seed)
-    stance = np.asarray(stance, dtype=bool)
+    stance = np.ones(robot.n_feet, dtype=bool) if stance is None else np.asarray(stance, dtype=bool)
     nu, nv = robot.nu, robot.nv
     q = robot.q_standing if q is None else np.asarray(q, dtype=float)
     x = np.concatenate([q, np.zeros(nv)])
@@ -43,14 +45,14 @@ def synthetic_plan(
         L = rng.normal(size=(nu, nu)) / np.sqrt(nu)
         Quu[k] = L @ L.T + 0.5 * np.eye(nu)
         gain = np.zeros((nu, 2 * nv))
-        gain[:, 6:nv] = -kp * np.eye(nu)
-        gain[:, nv + 6 :] = -kd * np.eye(nu)
-        gain[:, :6] = base_gain_scale * rng.normal(size=(nu, 6))
-        gain[:, nv : nv + 6] = 0.1 * base_gain_scale * rng.normal(size=(nu, 6))
+        gain[:, nv - nu : nv] = -kp * np.eye(nu)
+        gain[:, 2 * nv - nu :] = -kd * np.eye(nu)
+        gain[:, : nv - nu] = base_gain_scale * rng.normal(size=(nu, nv - nu))
+        gain[:, nv : 2 * nv - nu] = 0.1 * base_gain_scale * rng.normal(size=(nu, nv - nu))
         K[k] = gain
         Qux[k] = -Quu[k] @ gain
-    forces = np.zeros((knots, 4, 3))
-    forces[:, stance, 2] = robot.total_mass * 9.81 / max(int(stance.sum()), 1)
+    forces = np.zeros((knots, robot.n_feet, 3))
+    forces[:, stance, 2] = robot.total_mass * GRAVITY / max(int(stance.sum()), 1)
     return Plan(
         times=t0 + dt * np.arange(knots),
         xs=np.tile(x, (knots + 1, 1)),

@@ -21,7 +21,8 @@ if a solver ever needs it — it biases the solution away from (7)).
 Contacts: Jacobians and forces are expressed in ``LOCAL_WORLD_ALIGNED`` at the foot frames (forces are the
 world-frame ground reaction forces, as in ``Plan.forces``); ``Jcdot v`` is the classical foot acceleration
 at zero joint acceleration. The stance set ``C`` is the plan knot's contact flags (the paper's choice);
-``VWBCSettings.stance_source = "intersect"`` uses the feet that are planned *and* measured in contact.
+``VWBCSettings.stance_source = "intersect"`` uses the feet that are planned *and* measured in contact
+(``Measurement.contacts``).
 
 Solvers: one preallocated solver object and matrix set per stance pattern (sizes change with the number of
 stance feet). ProxQP (``proxsuite.proxqp.dense``, default) solves (34) as written; it is a proximal
@@ -54,8 +55,11 @@ import numpy as np
 import pinocchio as pin
 import proxsuite
 
-from cafe_mpc.mpc.plan import Plan
+from cafe_mpc.core.controller import LowLevelController
+from cafe_mpc.core.measurement import Measurement
+from cafe_mpc.core.plan import Plan
 from cafe_mpc.robots.robot import Robot
+from cafe_mpc.wbc.riccati import state_error
 
 WarmStart = Literal["plan", "previous", "equality", "none"]
 StanceSource = Literal["plan", "intersect"]
@@ -150,8 +154,8 @@ class ContactDynamicsTerms:
         nv = self.model.nv
         self.M = np.zeros((nv, nv))
         self.h = np.zeros(nv)
-        self._J_all = np.zeros((12, nv))
-        self._drift_all = np.zeros(12)
+        self._J_all = np.zeros((3 * robot.n_feet, nv))
+        self._drift_all = np.zeros(3 * robot.n_feet)
         self._zero_a = np.zeros(nv)
         self._lower = np.tril_indices(nv, -1)
         self.Jc = self._J_all[:0]
@@ -187,14 +191,14 @@ def contact_forces_for_torque(
     alpha: float = 10.0,
     terms: ContactDynamicsTerms | None = None,
 ) -> np.ndarray:
-    """World-frame contact forces (4 x 3, zero rows for swing feet) implied by joint torques ``tau``.
+    """World-frame contact forces (n_feet x 3, zero rows for swing feet) implied by joint torques ``tau``.
 
     Solves the KKT system of the contact dynamics (34b)-(34c) (``pin.forwardDynamics`` with the stance-foot
     Jacobian and drift ``Jcdot v + alpha Jc v``) — the forces the plant would need for the feet to follow the
     stabilised no-slip constraint. Used to score any controller's torque against the friction cone.
     """
     stance = np.asarray(stance, dtype=bool)
-    forces = np.zeros((4, 3))
+    forces = np.zeros((robot.n_feet, 3))
     if not stance.any():
         return forces
     terms = ContactDynamicsTerms(robot, alpha) if terms is None else terms
@@ -460,13 +464,12 @@ def _package_version(name: str) -> str:
         return "unknown"
 
 
-class VWBCController:
-    """VWBC (34) on the latest ``Plan``, with the Riccati fallback (33) and per-tick statistics.
+class VWBCController(LowLevelController):
+    """VWBC (34) on the plan passed to ``compute``, with the Riccati fallback (33) and per-tick statistics.
 
-    Same interface as ``RiccatiController``: ``set_plan(plan)`` then ``compute(t, q, v)`` (optionally the
-    measured ``contacts``); ``compute(t, state)`` with a ``PlantState`` also works, so the controller can be
-    passed to ``cafe_mpc.sim.loop.simulate``. The returned array is owned by the controller and overwritten
-    on the next call.
+    ``compute(t, measurement, plan)`` like every ``LowLevelController``; the measurement's contacts are used
+    by ``stance_source = "intersect"`` and counted in ``stance_mismatch_ticks``. The returned array is owned
+    by the controller and overwritten on the next call.
     """
 
     def __init__(
@@ -479,7 +482,7 @@ class VWBCController:
         if limits.shape != (robot.nu,) or np.any(limits < 0):
             raise ValueError(f"torque limits must be {robot.nu} non-negative numbers")
         self.limits = limits.copy()
-        self.plan: Plan | None = None
+        self._checked_plan: Plan | None = None  # the last plan whose sizes were checked
         if self.settings.solver == "daqp":
             try:
                 import daqp  # noqa: F401
@@ -494,7 +497,8 @@ class VWBCController:
         self._dx = np.zeros(2 * nv)
         self._g_tau = np.zeros(nu)
         self._torques = np.zeros(nu)
-        self._stance = np.zeros(4, dtype=bool)
+        self.last_request = self._torques  # the QP respects the limits: the request is the output
+        self._stance = np.zeros(robot.n_feet, dtype=bool)
         self._previous_pattern: tuple[bool, ...] | None = None
         # last tick's results (for tests, logging by the caller and the friction-cone score)
         self.last_knot = -1
@@ -502,50 +506,43 @@ class VWBCController:
         self.last_status = ""
         self.last_iterations = 0
         self.last_qdd = np.zeros(nv)
-        self.last_forces = np.zeros((4, 3))
-        self.last_stance = np.zeros(4, dtype=bool)
+        self.last_forces = np.zeros((robot.n_feet, 3))
+        self.last_stance = np.zeros(robot.n_feet, dtype=bool)
         self.last_error = ""  # the last exception raised inside the QP (type: message), '' if none
         self.reset_statistics()
 
     # ------------------------------------------------------------------ interface
-    def set_plan(self, plan: Plan) -> None:
-        if plan.us.shape[1] != self.robot.nu or plan.K.shape[2] != 2 * self.robot.nv:
-            raise ValueError("plan sizes do not match the robot")
-        self.plan = plan
-
-    def reset(self, state: object | None = None) -> None:
-        """Forget the previous tick's solution (closed-loop ``Controller`` protocol)."""
+    def reset(self) -> None:
+        """Forget the previous tick's solution and the statistics."""
         self._previous_pattern = None
+        self.reset_statistics()
+
+    def _check_plan(self, plan: Plan) -> None:
+        if plan is not self._checked_plan:
+            if plan.us.shape[1] != self.robot.nu or plan.K.shape[2] != 2 * self.robot.nv:
+                raise ValueError("plan sizes do not match the robot")
+            self._checked_plan = plan
 
     def state_error(self, q: np.ndarray, v: np.ndarray, x_plan: np.ndarray) -> np.ndarray:
-        """``x ⊖ x*`` in the tangent space at ``x*`` (the Riccati controller's convention)."""
-        nq, nv = self.model.nq, self.model.nv
-        self._dx[:nv] = pin.difference(self.model, x_plan[:nq], q)
-        np.subtract(v, x_plan[nq:], out=self._dx[nv:])
-        return self._dx
+        """``x ⊖ x*`` in the tangent space at ``x*`` (``wbc.riccati.state_error``) into a buffer."""
+        return state_error(self.model, q, v, x_plan, self._dx)
 
-    def compute(
-        self,
-        t: float,
-        q: np.ndarray | object,
-        v: np.ndarray | None = None,
-        contacts: np.ndarray | None = None,
-    ) -> np.ndarray:
-        """Joint torques for time ``t`` at the measured state (``(q, v)`` or a ``PlantState``)."""
-        if v is None:  # called by the closed loop with a PlantState
-            state = q
-            q, v, contacts = state.q, state.v, state.contacts  # type: ignore[attr-defined]
-        if self.plan is None:
-            raise RuntimeError("VWBCController has no plan yet")
+    def compute(self, t: float, measurement: Measurement, plan: Plan | None) -> np.ndarray:
+        """Joint torques for time ``t`` at the measured state, following ``plan``."""
+        if plan is None:
+            raise RuntimeError("VWBCController needs a plan")
+        self._check_plan(plan)
+        q, v, contacts = measurement.q, measurement.v, measurement.contacts
         start = time.perf_counter()
-        plan, s = self.plan, self.settings
+        s = self.settings
         k = plan.knot_at(t)
         self.last_knot = k
         dx = self.state_error(q, v, plan.xs[k])
         np.copyto(self._stance, plan.contacts[k])
-        if s.stance_source == "intersect" and contacts is not None:
-            self._stance &= np.asarray(contacts, dtype=bool)
-        if contacts is not None and np.any(np.asarray(contacts, bool) != plan.contacts[k]):
+        contacts = np.asarray(contacts, dtype=bool)
+        if s.stance_source == "intersect":
+            self._stance &= contacts
+        if np.any(contacts != plan.contacts[k]):
             self.stance_mismatch_ticks += 1
         self.last_stance[:] = self._stance
         self.last_status = ""
@@ -553,7 +550,7 @@ class VWBCController:
         self.ticks += 1
 
         try:
-            reason = self._solve_qp(k, q, v, dx)
+            reason = self._solve_qp(plan, k, q, v, dx)
         except Exception as error:  # any failure in the QP (solver, KKT, bindings): fall back, never raise
             reason = f"exception:{type(error).__name__}"
             self.last_error = f"{type(error).__name__}: {error}"
@@ -568,7 +565,7 @@ class VWBCController:
             reason = "time_budget"
         self.last_used_qp = not reason
         if reason:
-            self._fallback(k, dx, reason)
+            self._fallback(plan, k, dx, reason)
             try:  # score the fallback torque's implied forces like a Riccati controller's
                 self.last_forces[:] = contact_forces_for_torque(
                     self.robot, q, v, self._torques, self._stance, s.alpha, terms=self.terms
@@ -588,10 +585,9 @@ class VWBCController:
             self._qps[pattern] = qp
         return qp
 
-    def _solve_qp(self, k: int, q: np.ndarray, v: np.ndarray, dx: np.ndarray) -> str:
+    def _solve_qp(self, plan: Plan, k: int, q: np.ndarray, v: np.ndarray, dx: np.ndarray) -> str:
         """Assemble and solve (34); returns '' on success (torques set), else the failure reason."""
-        plan, s, nv, nq = self.plan, self.settings, self.robot.nv, self.robot.nq
-        assert plan is not None
+        s, nv, nq = self.settings, self.robot.nv, self.robot.nq
         pattern = tuple(bool(c) for c in self._stance)
         qp = self._qp_for(pattern)
         self.terms.compute(q, v, self._stance)
@@ -628,10 +624,8 @@ class VWBCController:
         self._previous_pattern = pattern
         return ""
 
-    def _fallback(self, k: int, dx: np.ndarray, reason: str) -> None:
+    def _fallback(self, plan: Plan, k: int, dx: np.ndarray, reason: str) -> None:
         """Clamped Riccati feedback (33); the plan torque alone if even that is not finite."""
-        plan = self.plan
-        assert plan is not None
         self.fallbacks += 1
         self.fallback_reasons[reason.split(":")[0]] += 1
         self.last_status = self.last_status or reason

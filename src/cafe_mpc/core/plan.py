@@ -24,8 +24,8 @@ class Plan:
     Qu: np.ndarray  # (n, nu)
     Quu: np.ndarray  # (n, nu, nu)
     Qux: np.ndarray  # (n, nu, ndx)
-    contacts: np.ndarray  # (n, 4) bool
-    forces: np.ndarray  # (n, 4, 3) world-frame planned ground reaction forces
+    contacts: np.ndarray  # (n, n_feet) bool, leg order
+    forces: np.ndarray  # (n, n_feet, 3) world-frame planned ground reaction forces
     dt: np.ndarray  # (n,) time step of each knot
 
     def __post_init__(self) -> None:

@@ -1,5 +1,7 @@
 """The CAFE-MPC loop: receding horizon, warm start, policy lag, and a low-level controller at 500 Hz.
 
+The closed-loop composition of the MPC (``cafe_mpc.mpc``) and a ``LowLevelController`` (``cafe_mpc.wbc``).
+
 Every ``period`` seconds of simulated time the controller builds the CAFE problem from the measured
 state, warm-starts MS-iLQR from the shifted previous solution and turns the whole-body part of the
 solution into a ``Plan``. The new plan takes effect only after the solve's latency (the measured wall-clock
@@ -9,6 +11,7 @@ VWBC (34)) at every control tick.
 
 A failed solve (exception, non-finite result, invalid policy) keeps the previous plan and is counted in
 ``failures``; with no plan at all the robot is held by the PD standing controller, and says so in the log.
+The low-level controller gets the whole ``Measurement`` (contacts included) and the active plan every tick.
 """
 
 from __future__ import annotations
@@ -17,30 +20,25 @@ import logging
 import time
 from collections import deque
 from dataclasses import dataclass, field, replace
-from typing import Literal, Protocol
+from typing import Literal
 
 import numpy as np
 
-from cafe_mpc.mpc.plan import Plan
+from cafe_mpc.core.controller import LowLevelController
+from cafe_mpc.core.measurement import Measurement
+from cafe_mpc.core.plan import Plan
 from cafe_mpc.mpc.problem import BuiltProblem, CafeProblemBuilder, WarmStart
 from cafe_mpc.reference.locomotion import LocomotionReference
 from cafe_mpc.robots.robot import Robot
-from cafe_mpc.sim.plant import PlantState
 from cafe_mpc.solver import MSiLQRSolver, SolverOptions, SolverResult
 from cafe_mpc.wbc.pd import PDController
 
 logger = logging.getLogger(__name__)
 
 
-class LowLevelController(Protocol):
-    def set_plan(self, plan: Plan) -> None: ...
-
-    def compute(self, t: float, q: np.ndarray, v: np.ndarray) -> np.ndarray: ...
-
-
 @dataclass
 class MpcSettings:
-    """Receding-horizon settings (facts: "Solver (MS-iLQR)", "Horizons and rates")."""
+    """Receding-horizon settings (docs/settings.md: "MPC loop" and "Solver (MS-iLQR)")."""
 
     period: float = 0.02
     latency: Literal["fixed", "measured"] = "fixed"
@@ -139,14 +137,15 @@ class CafeMpcController:
         self._x = np.zeros(robot.nq + robot.nv)
 
     # -------------------------------------------------------------------------------------- interface
-    def reset(self, state: PlantState) -> None:
+    def reset(self) -> None:
         self.plan, self.previous = None, None
         self.pending.clear()
         self.statistics = MpcStatistics()
         self.next_update = 0.0
-        self.fallback.reset(state)
+        self.fallback.reset()
+        self.low_level.reset()
 
-    def compute(self, t: float, state: PlantState) -> np.ndarray:
+    def compute(self, t: float, state: Measurement) -> np.ndarray:
         # A plan that comes due now takes effect before the next update starts (with a latency of one MPC
         # period the new update would otherwise replace it before it was ever used).
         self._activate_pending(t)
@@ -156,11 +155,11 @@ class CafeMpcController:
             self._activate_pending(t)
         if self.plan is None:
             self.statistics.fallback_ticks += 1
-            return self.fallback.compute(t, state)
-        torques = self.low_level.compute(t, state.q, state.v)
+            return self.fallback.compute(t, state, None)
+        torques = self.low_level.compute(t, state, self.plan)
         if not np.all(np.isfinite(torques)):
             self.statistics.fallback_ticks += 1
-            return self.fallback.compute(t, state)
+            return self.fallback.compute(t, state, None)
         return torques
 
     def _activate_pending(self, t: float) -> None:
@@ -169,10 +168,9 @@ class CafeMpcController:
             due = self.pending.popleft()[1]
         if due is not None:
             self.plan = due
-            self.low_level.set_plan(due)
 
     # ----------------------------------------------------------------------------------------- solves
-    def _update(self, t: float, state: PlantState) -> None:
+    def _update(self, t: float, state: Measurement) -> None:
         self._x[: self.robot.nq] = state.q
         self._x[self.robot.nq :] = state.v
         first = self.previous is None
@@ -220,7 +218,6 @@ class CafeMpcController:
         latency = elapsed if self.settings.latency == "measured" else self.settings.fixed_latency
         if self.plan is None or latency <= 0:
             self.plan = plan
-            self.low_level.set_plan(plan)
             self.pending.clear()
         else:
             self.pending.append((t + latency, plan))
@@ -247,7 +244,7 @@ class CafeMpcController:
                 qux.append(phase.Qux[k])
                 contacts.append(info.stance)
                 dts.append(info.times[k + 1] - info.times[k])
-                knot_forces = np.zeros((4, 3))
+                knot_forces = np.zeros((self.robot.n_feet, 3))
                 if data is not None:
                     # re-evaluate: after a rejected final line search the data hold a trial point
                     model = built.problem.phases[index].running_models[k]

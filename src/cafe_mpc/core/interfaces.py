@@ -1,6 +1,6 @@
 """The small per-knot interface between optimal-control problems and the MS-iLQR solver.
 
-The solver (``cafe_mpc.solver``) depends on nothing but this module. It follows Pinocchio's
+The solver (``cafe_mpc.solver``) depends on nothing but this module (and numpy). It follows Pinocchio's
 model/data split and Crocoddyl's action models:
 
 * a *model* (``ActionModel``, ``ResetMap``, ``SwitchingConstraint``) is immutable after construction and

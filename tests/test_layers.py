@@ -1,0 +1,235 @@
+"""The package's layering: every import points down, and no module imports itself through others.
+
+``LAYERS`` lists the subpackages (and top-level modules) of ``cafe_mpc`` from the bottom up. A module may
+import modules of its own layer or of a lower one, never of a higher one; the import graph between
+modules, and between the packages of one layer, has no cycle. Every ``import`` statement counts: at module
+level, inside functions and methods, in ``try`` blocks. Exempt: imports under ``if TYPE_CHECKING:`` (they
+never run; they only name types for annotations, which ``from __future__ import annotations`` keeps
+unevaluated). The check reads the sources with ``ast``; nothing is imported.
+"""
+
+from __future__ import annotations
+
+import ast
+from pathlib import Path
+
+import pytest
+
+PACKAGE = "cafe_mpc"
+SOURCE = Path(__file__).resolve().parents[1] / "src" / PACKAGE
+
+LAYERS: list[tuple[str, ...]] = [
+    ("core",),  # per-knot solver interface, contact flags, Measurement, Plan, controller interfaces
+    ("robots",),  # robot tables, URDF/MJCF generation, Robot
+    ("dynamics",),  # whole-body and SRB models, impact, transition, statics, SRB parameters of a robot
+    ("ocp",),  # costs, constraints, barriers, knots, contact schedules and gaits
+    ("solver",),  # MS-iLQR
+    ("reference", "mpc", "trajopt"),  # locomotion reference; CAFE problem + warm start; offline TO
+    ("wbc",),  # low-level controllers: PD, Riccati (33), VWBC (34)
+    ("control",),  # closed loops: the MPC loop over a low-level controller, a plan follower
+    ("sim",),  # MuJoCo plant, closed-loop simulation, Pinocchio-vs-MuJoCo consistency
+    ("experiments", "report", "bench", "config"),  # runs, comparisons, metrics, plots, benchmarks, configs
+    ("cli",),  # the cafe-mpc command
+]
+"""Layers from the bottom up; a name is a subpackage (``cafe_mpc/<name>/``) or a module (``<name>.py``)."""
+
+LAYER_OF = {name: index for index, names in enumerate(LAYERS) for name in names}
+
+
+def module_name(path: Path, root: Path) -> str:
+    parts = list(path.relative_to(root.parent).with_suffix("").parts)
+    if parts[-1] == "__init__":
+        parts = parts[:-1]
+    return ".".join(parts)
+
+
+def component(module: str) -> str:
+    """``cafe_mpc.ocp.knots`` -> ``ocp``; ``cafe_mpc.cli`` -> ``cli``; ``cafe_mpc`` -> ``""``."""
+    parts = module.split(".")
+    return parts[1] if len(parts) > 1 else ""
+
+
+def _is_type_checking(test: ast.expr) -> bool:
+    return (isinstance(test, ast.Name) and test.id == "TYPE_CHECKING") or (
+        isinstance(test, ast.Attribute) and test.attr == "TYPE_CHECKING"
+    )
+
+
+def imported_modules(source: str, module: str, is_package: bool, known: set[str]) -> set[str]:
+    """Modules of the package that ``source`` imports anywhere (functions included), except under
+    ``if TYPE_CHECKING:``. ``from a.b import c`` counts as ``a.b.c`` when that is a module, else ``a.b``."""
+    tree = ast.parse(source)
+    found: set[str] = set()
+
+    def resolve(node: ast.ImportFrom) -> str:
+        if node.level == 0:
+            return node.module or ""
+        base = module.split(".") if is_package else module.split(".")[:-1]
+        base = base[: len(base) - (node.level - 1)]
+        return ".".join([*base, node.module] if node.module else base)
+
+    def visit(node: ast.AST) -> None:
+        if isinstance(node, ast.If) and _is_type_checking(node.test):
+            for child in node.orelse:
+                visit(child)
+            return
+        if isinstance(node, ast.Import):
+            for alias in node.names:
+                found.add(alias.name)
+        elif isinstance(node, ast.ImportFrom):
+            target = resolve(node)
+            for alias in node.names:
+                candidate = f"{target}.{alias.name}"
+                found.add(candidate if candidate in known else target)
+        for child in ast.iter_child_nodes(node):
+            visit(child)
+
+    visit(tree)
+    own = set()
+    for name in found:
+        if name != PACKAGE and not name.startswith(PACKAGE + "."):
+            continue
+        while name not in known and "." in name:  # ``import cafe_mpc.x.y.Name``-style leftovers
+            name = name.rsplit(".", 1)[0]
+        if name in known and name != module:
+            own.add(name)
+    return own
+
+
+def import_graph(sources: dict[str, tuple[str, bool]]) -> dict[str, set[str]]:
+    """``{module: (source, is_package)}`` -> ``{module: modules of the package it imports}``."""
+    known = set(sources)
+    return {
+        module: imported_modules(source, module, is_package, known)
+        for module, (source, is_package) in sources.items()
+    }
+
+
+def package_sources(root: Path = SOURCE) -> dict[str, tuple[str, bool]]:
+    return {
+        module_name(path, root): (path.read_text(), path.name == "__init__.py") for path in root.rglob("*.py")
+    }
+
+
+def upward_imports(graph: dict[str, set[str]]) -> list[str]:
+    """Imports from a module to a module of a higher layer, as readable lines."""
+    problems = []
+    for module, targets in sorted(graph.items()):
+        source = component(module)
+        if source == "":
+            continue
+        for target in sorted(targets):
+            destination = component(target)
+            if destination == "" or destination == source:
+                continue
+            if LAYER_OF[destination] > LAYER_OF[source]:
+                problems.append(
+                    f"{module} (layer {LAYER_OF[source]}: {source}) imports {target} "
+                    f"(layer {LAYER_OF[destination]}: {destination})"
+                )
+    return problems
+
+
+def cycles(graph: dict[str, set[str]]) -> list[list[str]]:
+    """Strongly connected components with more than one node (Tarjan), each sorted."""
+    index: dict[str, int] = {}
+    low: dict[str, int] = {}
+    stack: list[str] = []
+    on_stack: set[str] = set()
+    found: list[list[str]] = []
+    counter = [0]
+
+    def connect(node: str) -> None:
+        index[node] = low[node] = counter[0]
+        counter[0] += 1
+        stack.append(node)
+        on_stack.add(node)
+        for target in graph.get(node, ()):
+            if target not in index:
+                connect(target)
+                low[node] = min(low[node], low[target])
+            elif target in on_stack:
+                low[node] = min(low[node], index[target])
+        if low[node] == index[node]:
+            members = []
+            while True:
+                member = stack.pop()
+                on_stack.discard(member)
+                members.append(member)
+                if member == node:
+                    break
+            if len(members) > 1:
+                found.append(sorted(members))
+
+    for node in sorted(graph):
+        if node not in index:
+            connect(node)
+    return found
+
+
+def component_graph(graph: dict[str, set[str]]) -> dict[str, set[str]]:
+    edges: dict[str, set[str]] = {}
+    for module, targets in graph.items():
+        source = component(module)
+        for target in targets:
+            destination = component(target)
+            if source and destination and destination != source:
+                edges.setdefault(source, set()).add(destination)
+    return edges
+
+
+@pytest.fixture(scope="module")
+def graph() -> dict[str, set[str]]:
+    return import_graph(package_sources())
+
+
+def test_every_package_has_a_layer(graph):
+    components = {component(module) for module in graph} - {""}
+    missing = sorted(components - set(LAYER_OF))
+    assert not missing, f"add these to LAYERS in tests/test_layers.py (and the README's layout): {missing}"
+
+
+def test_imports_point_down(graph):
+    problems = upward_imports(graph)
+    assert not problems, "upward imports:\n" + "\n".join(problems)
+
+
+def test_no_import_cycle_between_modules(graph):
+    found = cycles(graph)
+    assert not found, "import cycles:\n" + "\n".join(" <-> ".join(c) for c in found)
+
+
+def test_no_import_cycle_between_packages(graph):
+    found = cycles(component_graph(graph))
+    assert not found, "package cycles (within a layer):\n" + "\n".join(" <-> ".join(c) for c in found)
+
+
+def test_the_checker_catches_upward_imports_cycles_and_function_level_imports():
+    """The checks themselves, on a small made-up package."""
+    sources = {
+        "cafe_mpc": ("", True),
+        "cafe_mpc.core": ("", True),
+        "cafe_mpc.core.a": ("import numpy\n", False),
+        "cafe_mpc.ocp": ("", True),
+        "cafe_mpc.ocp.b": ("from cafe_mpc.core import a\n", False),
+        # an upward import inside a function, and a relative one at module level
+        "cafe_mpc.ocp.c": ("from .b import x\ndef f():\n    from cafe_mpc.wbc.d import y\n", False),
+        "cafe_mpc.wbc": ("", True),
+        "cafe_mpc.wbc.d": (
+            "from typing import TYPE_CHECKING\n"
+            "from cafe_mpc.ocp.b import z\n"
+            "if TYPE_CHECKING:\n    from cafe_mpc.cli import w\n",  # exempt
+            False,
+        ),
+        "cafe_mpc.wbc.e": ("import cafe_mpc.wbc.f\n", False),
+        "cafe_mpc.wbc.f": ("from cafe_mpc.wbc import e\n", False),
+        "cafe_mpc.cli": ("", False),
+    }
+    graph = import_graph(sources)
+    assert graph["cafe_mpc.ocp.c"] == {"cafe_mpc.ocp.b", "cafe_mpc.wbc.d"}
+    assert graph["cafe_mpc.wbc.d"] == {"cafe_mpc.ocp.b"}
+    assert upward_imports(graph) == [
+        "cafe_mpc.ocp.c (layer 3: ocp) imports cafe_mpc.wbc.d (layer 6: wbc)",
+    ]
+    assert cycles(graph) == [["cafe_mpc.wbc.e", "cafe_mpc.wbc.f"]]
+    assert cycles(component_graph(graph)) == [["ocp", "wbc"]]
