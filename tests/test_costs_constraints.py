@@ -1,5 +1,5 @@
-"""Cost terms (18), constraints (25)-(27), the barrier stack and whole-body knots against finite
-differences."""
+"""Cost terms (18), constraints (25)-(27), the relaxed barrier and whole-body knots against finite
+differences, and the fused whole-body knot against the term-by-term evaluation it replaced."""
 
 from __future__ import annotations
 
@@ -8,23 +8,19 @@ import pinocchio as pin
 import pytest
 
 from cafe_mpc.ocp.barrier import RelaxedBarrier
-from cafe_mpc.ocp.constraints import (
-    BarrierStack,
-    TouchdownFootHeight,
-    WholeBodyConstraintSettings,
-    friction_pyramid_matrix,
-)
-from cafe_mpc.ocp.costs import (
-    SRBWeights,
+from cafe_mpc.ocp.constraints import TouchdownFootHeight, WholeBodyConstraintSettings, friction_pyramid_matrix
+from cafe_mpc.ocp.costs import SRBWeights, WholeBodyWeights, base_weights_to_tangent
+from cafe_mpc.ocp.kernels import relaxed_barrier
+from cafe_mpc.ocp.knots import WholeBodyKnot, WholeBodyModelFactory, WholeBodyReference, WholeBodySettings
+from cafe_mpc.robots.robot import load_robot
+from term_reference import (
     StateTrackingCost,
     SwingFootPositionCost,
     SwingFootVelocityCost,
+    TermKnot,
     TorqueRegularisationCost,
-    WholeBodyWeights,
-    base_weights_to_tangent,
+    term_knot,
 )
-from cafe_mpc.ocp.knots import WholeBodyKnot, WholeBodyModelFactory, WholeBodyReference, WholeBodySettings
-from cafe_mpc.robots.robot import load_robot
 
 EPS = 1e-6
 
@@ -54,10 +50,21 @@ def random_reference(robot, rng):
 
 
 def knot_with_terms(robot, stance, costs=(), constraints=(), reference=None, running=True, factory=None):
+    """A term-by-term reference knot (``tests/term_reference.py``) with exactly these terms."""
     factory = factory or WholeBodyModelFactory(robot)
     dynamics = factory.dynamics(stance) if running else None
     reference = reference or factory.default_reference()
-    return WholeBodyKnot(robot, dynamics, costs, constraints, reference, stance=stance)
+    return TermKnot(robot, dynamics, costs, constraints, reference, stance=stance)
+
+
+def reference_knot(robot, stance, running=True, settings=None, reference=None):
+    """The term-by-term knot with the same content as a default factory's fused knot."""
+    settings = settings or WholeBodySettings()
+    reference = reference or WholeBodyModelFactory(robot).default_reference()
+    weights = settings.running_weights if running else settings.terminal_weights
+    return term_knot(
+        robot, stance, weights, settings.constraints, reference, settings.dt, settings.base_error, running
+    )
 
 
 def fd_of(function, x, u, state, nu):
@@ -213,12 +220,12 @@ def constraint_check(robot, knot, x, u):
 @pytest.mark.parametrize("stance", [(1, 1, 1, 1), (0, 1, 1, 0), (0, 0, 0, 0)])
 def test_inequality_jacobians(robot, factory, stance):
     rng = np.random.default_rng(5)
-    knot = factory.running_knot(stance)
+    knot = reference_knot(robot, stance)
     names = [c.name for c in knot.constraints]
     assert ("friction" in names) == any(stance)
     assert {"torque_limits", "joint_position_limits", "joint_velocity_limits", "base_height"} <= set(names)
     constraint_check(robot, knot, random_state(robot, rng), 5.0 * rng.standard_normal(12))
-    terminal = factory.terminal_knot(stance)
+    terminal = reference_knot(robot, stance, running=False)
     assert {c.name for c in terminal.constraints} == {
         "joint_position_limits",
         "joint_velocity_limits",
@@ -228,20 +235,20 @@ def test_inequality_jacobians(robot, factory, stance):
 
 
 def test_friction_pyramid_values(robot, factory):
-    """Eq. (26) rows per stance foot: [fz, mu fz - fx, mu fz + fx, mu fz - fy, mu fz + fy]."""
+    """Eq. (26) rows per stance foot: [fz, mu fz - fx, mu fz + fx, mu fz - fy, mu fz + fy] (fused knot: the
+    first rows of its stacked constraint values); the knot reports every foot's GRF (zero in swing)."""
     knot = factory.running_knot((1, 0, 0, 1))
     data = knot.create_data()
     rng = np.random.default_rng(6)
     x, u = random_state(robot, rng), rng.standard_normal(12)
     knot.calc(data, x, u)
-    index = [c.name for c in knot.constraints].index("friction")
-    forces = data.forces.reshape(2, 3)
+    forces = data.forces[[0, 3]]
+    np.testing.assert_array_equal(data.forces[[1, 2]], 0.0)
+    np.testing.assert_allclose(forces.ravel(), data.dynamics.forces)
     expected = np.concatenate([friction_pyramid_matrix(0.6) @ f for f in forces])
-    np.testing.assert_allclose(data.constraint_datas[index].g, expected)
+    np.testing.assert_allclose(data.g[:10], expected)
     fx, fy, fz = forces[0]
-    np.testing.assert_allclose(
-        data.constraint_datas[index].g[:5], [fz, 0.6 * fz - fx, 0.6 * fz + fx, 0.6 * fz - fy, 0.6 * fz + fy]
-    )
+    np.testing.assert_allclose(data.g[:5], [fz, 0.6 * fz - fx, 0.6 * fz + fx, 0.6 * fz - fy, 0.6 * fz + fy])
 
 
 def test_constraint_violation_is_reported(robot, factory):
@@ -251,40 +258,35 @@ def test_constraint_violation_is_reported(robot, factory):
     u = np.zeros(12)
     u[4] = 17.0 + 3.0  # 3 Nm beyond the hip torque limit
     knot.calc(data, x, u)
-    friction = data.constraint_datas[[c.name for c in knot.constraints].index("friction")].g
+    friction = data.g[:20]
     assert data.constraint_violation == pytest.approx(max(3.0, -friction.min()))
     x[2] = 0.15  # 5 cm below the minimum base height; zero torque to isolate it
     knot.calc(data, x, np.zeros(12))
-    friction = data.constraint_datas[[c.name for c in knot.constraints].index("friction")].g
+    friction = data.g[:20]
     assert data.constraint_violation == pytest.approx(max(0.05, -friction.min()))
     assert np.isfinite(data.cost)
 
 
-def test_barrier_stack_matches_relaxed_barrier():
+def test_compiled_barrier_matches_relaxed_barrier():
     rng = np.random.default_rng(7)
     deltas, eps = rng.uniform(0.05, 1.0, 40), rng.uniform(0.01, 0.2, 40)
-    stack = BarrierStack(deltas, eps)
-    data = stack.create_data()
-    data.g[:] = rng.uniform(-2.0, 3.0, 40)
-    data.g[:5] = deltas[:5]  # on the switch point
-    value = stack.evaluate(data)
-    reference_value, d1, d2 = RelaxedBarrier(deltas, eps).derivatives(data.g)
+    g = rng.uniform(-2.0, 3.0, 40)
+    g[:5] = deltas[:5]  # on the switch point
+    d1, d2 = np.zeros(40), np.zeros(40)
+    value = relaxed_barrier(g, deltas, eps, d1, d2)
+    reference_value, reference_d1, reference_d2 = RelaxedBarrier(deltas, eps).derivatives(g)
     assert value == pytest.approx(reference_value, rel=1e-12)
-    np.testing.assert_allclose(data.d1, d1, rtol=1e-12)
-    np.testing.assert_allclose(data.d2, d2, rtol=1e-12)
+    np.testing.assert_allclose(d1, reference_d1, rtol=1e-12)
+    np.testing.assert_allclose(d2, reference_d2, rtol=1e-12)
     # First derivative vs finite differences of the value.
-    g = data.g.copy()
+    scratch = np.zeros(40)
     for i in range(40):
-        data.g[:] = g
-        data.g[i] += EPS
-        plus = stack.evaluate(data)
-        data.g[i] -= 2 * EPS
-        minus = stack.evaluate(data)
-        assert (plus - minus) / (2 * EPS) == pytest.approx(d1[i], abs=1e-6)
-    assert (
-        BarrierStack(np.zeros(0), np.zeros(0)).evaluate(BarrierStack(np.zeros(0), np.zeros(0)).create_data())
-        == 0.0
-    )
+        step = np.zeros(40)
+        step[i] = EPS
+        plus = relaxed_barrier(g + step, deltas, eps, scratch, scratch.copy())
+        minus = relaxed_barrier(g - step, deltas, eps, scratch, scratch.copy())
+        assert (plus - minus) / (2 * EPS) == pytest.approx(reference_d1[i], abs=1e-6)
+    assert relaxed_barrier(np.zeros(0), np.zeros(0), np.zeros(0), np.zeros(0), np.zeros(0)) == 0.0
 
 
 def test_touchdown_constraint(robot):
@@ -345,27 +347,33 @@ def test_knot_gradient_matches_finite_differences(robot, base_error, stance, ter
         assert np.linalg.eigvalsh(hessian).min() > -1e-9  # Gauss-Newton: positive semi-definite
 
 
-def test_knot_hessian_is_gauss_newton_sum(robot, factory):
-    """Lxx/Luu/Lux = sum over cost terms of Rx' W Rx dt + sum over constraints of G' diag(eps B'') G dt."""
-    rng = np.random.default_rng(10)
-    knot = factory.running_knot((1, 0, 0, 1), random_reference(robot, rng))
-    data = knot.create_data()
-    x, u = random_state(robot, rng), rng.standard_normal(12)
-    knot.calc(data, x, u)
-    knot.calc_diff(data, x, u)
-    jacobian = np.zeros((0, 48))
-    weights = np.zeros(0)
-    for term, td in zip(knot.costs, data.cost_datas, strict=True):
-        rx, ru = term.residual_jacobians(td)
-        jacobian = np.vstack([jacobian, np.hstack([rx, ru])])
-        weights = np.concatenate([weights, term.weights])
-    for cd in data.constraint_datas:
-        jacobian = np.vstack([jacobian, np.hstack([cd.Gx, cd.Gu])])
-    weights = np.concatenate([weights, data.barrier.d2])
-    hessian = knot.cost_scale * jacobian.T @ (weights[:, None] * jacobian)
-    np.testing.assert_allclose(data.Lxx, hessian[:36, :36], atol=1e-9)
-    np.testing.assert_allclose(data.Luu, hessian[36:, 36:], atol=1e-9)
-    np.testing.assert_allclose(data.Lux, hessian[36:, :36], atol=1e-9)
+@pytest.mark.parametrize("base_error", ["tangent", "world"])
+@pytest.mark.parametrize("stance", [(1, 1, 1, 1), (1, 0, 0, 1), (0, 0, 1, 0), (0, 0, 0, 0)])
+@pytest.mark.parametrize("terminal", [False, True])
+def test_fused_knot_equals_term_by_term(robot, base_error, stance, terminal):
+    """The fused knot (one stacked residual and constraint vector, compiled Gauss-Newton) gives the same cost,
+    violation, gradient and Hessian as the term-by-term evaluation it replaced, and the same dynamics."""
+    rng = np.random.default_rng(12)
+    settings = WholeBodySettings(base_error=base_error)
+    factory = WholeBodyModelFactory(robot, settings)
+    reference = random_reference(robot, rng)
+    knot = factory.terminal_knot(stance, reference) if terminal else factory.running_knot(stance, reference)
+    terms = reference_knot(robot, stance, not terminal, settings, reference)
+    data, term_data = knot.create_data(), terms.create_data()
+    x = random_state(robot, rng, 0.1, 0.5)
+    u = 5.0 * rng.standard_normal(knot.nu)  # large enough to activate torque and friction barriers
+    for model, model_data in ((knot, data), (terms, term_data)):
+        model.calc(model_data, x, u)
+        model.calc_diff(model_data, x, u)
+    assert data.cost == pytest.approx(term_data.cost, rel=1e-12, abs=1e-12)
+    assert data.constraint_violation == pytest.approx(term_data.constraint_violation, abs=1e-12)
+    for name in ("Lx", "Lu", "Lxx", "Luu", "Lux"):
+        expected = getattr(term_data, name)
+        scale = max(1.0, float(np.abs(expected).max())) if expected.size else 1.0
+        np.testing.assert_allclose(getattr(data, name), expected, atol=1e-12 * scale, err_msg=name)
+    if not terminal:
+        np.testing.assert_allclose(data.x_next, term_data.x_next, atol=1e-14)
+        np.testing.assert_allclose(data.Fx, term_data.Fx, atol=1e-12)
 
 
 def test_running_cost_is_half_weighted_square_times_dt(robot):
@@ -417,14 +425,11 @@ def test_knot_size_validation(robot, factory):
     assert terminal.nu == 0
     with pytest.raises(ValueError):
         terminal.calc(terminal.create_data(), robot.x_standing, np.zeros(12))
+    with pytest.raises(ValueError):  # a terminal knot needs its phase's stance flags
+        WholeBodyKnot(robot, None, WholeBodyWeights(), None, factory.default_reference())
     with pytest.raises(ValueError):
         WholeBodyKnot(
-            robot,
-            None,
-            [TorqueRegularisationCost(np.ones(12))],
-            [],
-            factory.default_reference(),
-            (1, 1, 1, 1),
+            robot, None, WholeBodyWeights(), None, factory.default_reference(), (1, 1, 1, 1), "body"
         )
     with pytest.raises(ValueError):
         factory.running_knot((1, 0, 1))

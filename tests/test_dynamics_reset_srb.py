@@ -90,6 +90,27 @@ def test_impact_stops_touching_feet_and_jacobian(robot, feet):
     np.testing.assert_allclose(data.Px, fd_reset_jacobian(reset, x), atol=1e-6)
 
 
+def test_impact_jacobian_is_the_same_on_every_call(robot):
+    """Regression: Pinocchio 4.0.0's impulse-dynamics derivatives accumulate into ``Data.dvc_dq``, so a second
+    call on the same data returned a wrong ``d v+ / dq`` (order-1 errors) unless it is reset. A solver
+    evaluates every impact many times, and a persistent MPC reuses the data across updates."""
+    rng = np.random.default_rng(21)
+    reset = ImpactReset(robot, (1, 1, 1, 1))
+    data = reset.create_data()
+    x = random_wb_state(robot, rng)
+    for _ in range(3):  # other points first
+        y = random_wb_state(robot, rng)
+        reset.calc(data, y)
+        reset.calc_diff(data, y)
+    reset.calc(data, x)
+    reset.calc_diff(data, x)
+    first = data.Px.copy()
+    reset.calc(data, x)
+    reset.calc_diff(data, x)
+    np.testing.assert_array_equal(data.Px, first)
+    np.testing.assert_allclose(first, fd_reset_jacobian(reset, x), atol=1e-6)
+
+
 def test_impact_requires_a_foot(robot):
     with pytest.raises(ValueError):
         ImpactReset(robot, (0, 0, 0, 0))

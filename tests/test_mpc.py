@@ -59,15 +59,13 @@ def test_schedule_s0_has_no_tail_and_bad_schedules_are_rejected(robot):
 def test_warm_start_shifts_by_time_and_rolls_out_after_impacts(robot):
     builder = _builder(robot, ModelSchedule.named("S2"))
     reference = _reference(robot, "trot")
-    torque = static_stance_torques(robot, robot.q_standing)
     first = builder.build(0.0, robot.x_standing, reference)
-    forces = np.tile([0.0, 0.0, 20.0] * 4, (4, 1))
-    guess = WarmStart().guess(first, None, None, lambda stance: torque, forces)
+    guess = WarmStart().guess(first, None, None)
     solution = MSiLQRSolver(MpcSettings().update_solve).solve(
         first.problem, guess.xs, guess.us, guess.rollout
     )
     second = builder.build(0.02, solution.phases[0].xs[2], reference)
-    shifted = WarmStart().guess(second, first, solution, lambda stance: torque, forces)
+    shifted = WarmStart().guess(second, first, solution)
     # knot k of the new problem is knot k + 2 of the previous one
     assert np.allclose(shifted.xs[0][5], solution.phases[0].xs[7])
     assert np.allclose(shifted.us[0][5], solution.phases[0].us[7])
@@ -80,6 +78,67 @@ def test_warm_start_shifts_by_time_and_rolls_out_after_impacts(robot):
     np.testing.assert_array_equal(shifted.multipliers[0], solution.phases[0].multiplier)
     assert shifted.penalties[0] == solution.phases[0].penalty
     assert all(m is None for m in shifted.multipliers[2:])
+    # appended knots take the knot's torque reference (the static torques of that phase's stance)
+    appended = second.phases[1]
+    np.testing.assert_allclose(
+        shifted.us[1][-1], second.torque_reference[appended.first_knot + len(shifted.us[1]) - 1]
+    )
+
+
+def _mpc_updates(robot, builder_for, solver_for, updates=8, gait="trot"):
+    """Receding-horizon updates (S2, 0.02 s apart, each from the previous plan's state at the new time);
+    ``builder_for(i)``/``solver_for(i)`` choose the builder and solver of update ``i``."""
+    reference = _reference(robot, gait)
+    x, previous, results = robot.x_standing.copy(), None, []
+    settings = MpcSettings()
+    for i in range(updates):
+        built = builder_for(i).build(0.02 * i, x, reference)
+        guess = WarmStart().guess(built, *(previous or (None, None)))
+        options = settings.first_solve if i == 0 else settings.update_solve
+        result = solver_for(i, options).solve(
+            built.problem,
+            guess.xs,
+            guess.us,
+            guess.rollout,
+            initial_multipliers=guess.multipliers,
+            initial_penalties=guess.penalties,
+        )
+        results.append(result)
+        previous = (built, result)
+        x = result.phases[0].xs[2].copy()
+    return results
+
+
+@pytest.mark.parametrize("gait", ["trot", "bound"])
+def test_persistent_problem_equals_a_fresh_one_across_contact_changes(robot, gait):
+    """Knots, their data and the solver workspace persist between updates (references written in place); the
+    solutions equal those of problems and solvers built afresh at every update, across contact changes."""
+    persistent_builder = _builder(robot, ModelSchedule.named("S2"))
+    solvers = {}
+
+    def persistent_solver(i, options):
+        return solvers.setdefault(i == 0, MSiLQRSolver(options))
+
+    persistent = _mpc_updates(robot, lambda i: persistent_builder, persistent_solver, gait=gait)
+    fresh = _mpc_updates(
+        robot,
+        lambda i: _builder(robot, ModelSchedule.named("S2")),
+        lambda i, options: MSiLQRSolver(options),
+        gait=gait,
+    )
+    phase_counts = {len(result.phases) for result in persistent}
+    assert len(phase_counts) > 1 or gait == "trot"  # the phase structure changes along the way
+    for a, b in zip(persistent, fresh, strict=True):
+        assert len(a.phases) == len(b.phases)
+        for pa, pb in zip(a.phases, b.phases, strict=True):
+            np.testing.assert_allclose(pa.xs, pb.xs, atol=1e-9)
+            np.testing.assert_allclose(pa.us, pb.us, atol=1e-9)
+            np.testing.assert_allclose(pa.K, pb.K, atol=1e-9 * max(1.0, np.abs(pb.K).max()))
+        assert a.statistics.iterations == b.statistics.iterations
+    # persistent knots: the second update already reuses the first one's knot objects and data
+    built_a = persistent_builder.build(0.5, robot.x_standing, _reference(robot, gait))
+    built_b = persistent_builder.build(0.5, robot.x_standing, _reference(robot, gait))
+    assert built_a.problem.phases[0].running_models[0] is built_b.problem.phases[0].running_models[0]
 
 
 def test_mpc_closed_loop_stands(robot):

@@ -60,22 +60,17 @@ def _crocoddyl(robot: Robot, peer, iterations: int, repeats: int) -> dict:
 
 
 def _cafe(robot: Robot, iterations: int, repeats: int) -> dict:
-    from cafe_mpc.dynamics.statics import static_stance_torques
     from cafe_mpc.mpc.problem import CafeProblemBuilder, ModelSchedule, WarmStart
     from cafe_mpc.ocp.contact_schedule import get_gait
-    from cafe_mpc.ocp.knots import SRBModelFactory, WholeBodyModelFactory, weight_split_forces
+    from cafe_mpc.ocp.knots import SRBModelFactory, WholeBodyModelFactory
     from cafe_mpc.reference.locomotion import LocomotionReference, VelocityCommand
 
     reference = LocomotionReference(robot, get_gait("trot"), [VelocityCommand(0.0, 0.5)])
-    srb = SRBModelFactory()
-    builder = CafeProblemBuilder(WholeBodyModelFactory(robot), srb, ModelSchedule.named("S4"))
+    builder = CafeProblemBuilder(WholeBodyModelFactory(robot), SRBModelFactory(), ModelSchedule.named("S4"))
     x0 = robot.x_standing
     reference.update(0.0, x0[: robot.nq], x0[robot.nq :])
     built = builder.build(0.0, x0, reference)
-    forces = np.array([weight_split_forces(c.astype(float), srb.weight) for c in built.phases[-1].contacts])
-    guess = WarmStart().guess(
-        built, None, None, lambda stance: static_stance_torques(robot, robot.q_standing, stance), forces
-    )
+    guess = WarmStart().guess(built, None, None)
     result = _ours(built.problem, guess.xs, guess.us, iterations, repeats)
     result["knots"] = {"whole_body": builder.schedule.whole_body_knots, "srb": builder.schedule.srb_knots}
     return result

@@ -179,13 +179,7 @@ class CafeMpcController:
             self.reference.update(t, state.q, state.v)
             built = self.builder.build(t, self._x.copy(), self.reference)
             previous_built, previous_solution = self.previous if self.previous else (None, None)
-            guess = self.warm_start.guess(
-                built,
-                previous_built,
-                previous_solution,
-                lambda stance: self.builder.stance_torque(stance, self.reference.support_factor(t)),
-                built.srb_forces,
-            )
+            guess = self.warm_start.guess(built, previous_built, previous_solution)
             solver = self.first_solver if first else self.solver
             result = solver.solve(
                 built.problem,
@@ -228,11 +222,9 @@ class CafeMpcController:
 
     def _plan_from(self, built: BuiltProblem, result: SolverResult, solver: MSiLQRSolver) -> Plan | None:
         times, xs, us, gains, qu, quu, qux, contacts, forces, dts = [], [], [], [], [], [], [], [], [], []
-        workspace = solver.workspace
         for index in built.whole_body_phases:
             info = built.phases[index]
             phase = result.phases[index]
-            data = workspace.phases[index].running_data if workspace is not None else None
             n = len(phase.us)
             for k in range(n):
                 times.append(info.times[k])
@@ -244,16 +236,7 @@ class CafeMpcController:
                 qux.append(phase.Qux[k])
                 contacts.append(info.stance)
                 dts.append(info.times[k + 1] - info.times[k])
-                knot_forces = np.zeros((self.robot.n_feet, 3))
-                if data is not None:
-                    # re-evaluate: after a rejected final line search the data hold a trial point
-                    model = built.problem.phases[index].running_models[k]
-                    model.calc(data[k], phase.xs[k], phase.us[k])
-                    stacked = np.asarray(data[k].forces)
-                    feet = [i for i, s in enumerate(info.stance) if s]
-                    for j, foot in enumerate(feet):
-                        knot_forces[foot] = stacked[3 * j : 3 * j + 3]
-                forces.append(knot_forces)
+                forces.append(phase.forces[k])
             last_state = phase.xs[n]
         xs.append(last_state)
         return Plan(

@@ -61,6 +61,23 @@ class StateManifold(ABC):
     def jacobian_integrate(self, x: np.ndarray, dx: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Jacobians of ``integrate(x, dx)`` w.r.t. ``x`` and ``dx`` (each ``ndx x ndx``)."""
 
+    def difference_into(self, x0: np.ndarray, x1: np.ndarray, out: np.ndarray) -> None:
+        """``out = x1 ⊖ x0`` (in place; manifolds override it to skip the temporary)."""
+        out[:] = self.difference(x0, x1)
+
+    def integrate_into(self, x: np.ndarray, dx: np.ndarray, out: np.ndarray) -> None:
+        """``out = x ⊕ dx`` (in place)."""
+        out[:] = self.integrate(x, dx)
+
+    def difference_jacobian_product(
+        self, x0: np.ndarray, x1: np.ndarray, matrix: np.ndarray, out: np.ndarray
+    ) -> None:
+        """``out = ∂(x1 ⊖ x0)/∂x1 @ matrix`` (moves tangent vectors at ``x1`` to the tangent at ``x0``).
+
+        The solver calls this once per knot and iteration; manifolds override it to skip the identity
+        blocks (the default forms the full Jacobian)."""
+        np.matmul(self.jacobian_difference(x0, x1)[1], matrix, out=out)
+
 
 class EuclideanState(StateManifold):
     """``R^n`` with ``integrate = +`` and ``difference = -``."""
@@ -87,11 +104,18 @@ class EuclideanState(StateManifold):
     def jacobian_integrate(self, x: np.ndarray, dx: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         return self._eye.copy(), self._eye.copy()
 
+    def difference_jacobian_product(
+        self, x0: np.ndarray, x1: np.ndarray, matrix: np.ndarray, out: np.ndarray
+    ) -> None:
+        out[:] = matrix
+
 
 class ActionData:
     """Per-knot workspace written by ``ActionModel.calc`` / ``calc_diff``.
 
-    Models may subclass it to keep extra results (contact forces, foot positions, ...).
+    Models may subclass it to keep extra results (contact forces, foot positions, ...). The solver binds
+    ``Lx``, ``Lu``, ``Lxx``, ``Luu`` and ``Lux`` to rows of its stacked arrays (it replaces these attributes
+    with views), so models must write them in place and never keep other references to them.
     """
 
     def __init__(self, model: ActionModel) -> None:
@@ -107,6 +131,9 @@ class ActionData:
         self.Lxx = np.zeros((ndx, ndx))
         self.Luu = np.zeros((nu, nu))
         self.Lux = np.zeros((nu, ndx))
+        self.forces: np.ndarray | None = None
+        """Contact forces of the last ``calc`` in a model-defined layout, or ``None``; the solver returns them
+        per knot (``PhaseSolution.forces``)."""
 
 
 class ActionModel(ABC):

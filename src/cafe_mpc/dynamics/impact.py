@@ -99,6 +99,10 @@ class ImpactReset(ResetMap):
             self.calc(data, x)  # the derivatives reuse the forward pass of calc
         nv = self.model.nv
         pd = data.pinocchio
+        # Pinocchio 4.0.0 accumulates into ``dvc_dq`` instead of overwriting it: without this reset every
+        # call after the first on the same Data returned a wrong d v+ / dq (errors of order 1 in our tests;
+        # a solver evaluates each impact many times).
+        pd.dvc_dq[:] = 0.0
         pin.computeImpulseDynamicsDerivatives(
             self.model, pd, self.contact_models, data.contact_datas, 0.0, data.proximal
         )

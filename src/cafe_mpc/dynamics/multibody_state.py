@@ -27,6 +27,19 @@ class MultibodyState(StateManifold):
         self.nv = model.nv
         self.nx = model.nq + model.nv
         self.ndx = 2 * model.nv
+        # Velocity rows [0, _lie_rows) of joints whose configuration lives on a Lie group (nq != nv, e.g. the
+        # free-flyer); every later joint must be a vector-space joint (nq == nv), whose difference Jacobian
+        # is the identity. Otherwise the full Jacobian is used (_lie_rows = nv).
+        self._lie_rows = 0
+        for joint in model.joints[1:]:
+            if joint.nq != joint.nv:
+                self._lie_rows = joint.idx_v + joint.nv
+        if self._lie_rows:
+            later = [j for j in model.joints[1:] if j.idx_v >= self._lie_rows]
+            if any(j.nq != j.nv for j in later) or any(
+                j.idx_v < self._lie_rows and j.nq == j.nv for j in model.joints[1:] if j.idx_v > 0
+            ):
+                self._lie_rows = model.nv
 
     def zero(self) -> np.ndarray:
         return np.concatenate([pin.neutral(self.model), np.zeros(self.nv)])
@@ -64,6 +77,28 @@ class MultibodyState(StateManifold):
         j0[nv:, nv:] = -np.eye(nv)
         j1[nv:, nv:] = np.eye(nv)
         return j0, j1
+
+    def difference_into(self, x0: np.ndarray, x1: np.ndarray, out: np.ndarray) -> None:
+        nq, nv = self.nq, self.nv
+        out[:nv] = pin.difference(self.model, x0[:nq], x1[:nq])
+        np.subtract(x1[nq:], x0[nq:], out=out[nv:])
+
+    def integrate_into(self, x: np.ndarray, dx: np.ndarray, out: np.ndarray) -> None:
+        nq, nv = self.nq, self.nv
+        out[:nq] = pin.integrate(self.model, x[:nq], dx[:nv])
+        np.add(x[nq:], dx[nv:], out=out[nq:])
+
+    def difference_jacobian_product(
+        self, x0: np.ndarray, x1: np.ndarray, matrix: np.ndarray, out: np.ndarray
+    ) -> None:
+        """``∂(x1 ⊖ x0)/∂x1 @ matrix``: only the configuration rows of Lie-group joints (the free-flyer's 6)
+        differ from the identity, so only those rows are multiplied."""
+        nq = self.nq
+        out[:] = matrix
+        if self._lie_rows:
+            rows = self._lie_rows
+            jacobian = pin.dDifference(self.model, x0[:nq], x1[:nq], pin.ArgumentPosition.ARG1)
+            np.matmul(jacobian[:rows, :rows], matrix[:rows], out=out[:rows])
 
     def jacobian_integrate(self, x: np.ndarray, dx: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         nq, nv = self.nq, self.nv

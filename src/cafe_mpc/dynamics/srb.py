@@ -97,6 +97,14 @@ class SRBState(StateManifold):
         j1[3:6, 3:6] = jlog
         return j0, j1
 
+    def difference_jacobian_product(
+        self, x0: np.ndarray, x1: np.ndarray, matrix: np.ndarray, out: np.ndarray
+    ) -> None:
+        """Only the rotation rows differ from the identity: ``out[3:6] = Jlog3(R0' R1) @ matrix[3:6]``."""
+        error = quaternion_to_rotation(x0[3:7]).T @ quaternion_to_rotation(x1[3:7])
+        out[:] = matrix
+        np.matmul(pin.Jlog3(error), matrix[3:6], out=out[3:6])
+
     def jacobian_integrate(self, x: np.ndarray, dx: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         j0 = np.eye(12)
         j1 = np.eye(12)

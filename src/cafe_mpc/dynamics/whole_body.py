@@ -31,6 +31,7 @@ import numpy as np
 import pinocchio as pin
 
 from cafe_mpc.core.contacts import as_contact_flags, flags_to_string
+from cafe_mpc.dynamics.kernels import copy_force_derivatives, euler_step_jacobians, euler_velocity_step
 from cafe_mpc.dynamics.multibody_state import MultibodyState
 from cafe_mpc.robots.robot import Robot
 
@@ -140,6 +141,7 @@ class WholeBodyDynamics:
         self.dt = float(dt)
         self.baumgarte_alpha = float(baumgarte_alpha)
         self.integration = integration
+        self._explicit = integration == "explicit"
         self.damping = float(damping)
         self.nu = robot.nu
         self.contact_legs = tuple(leg for leg in range(robot.n_feet) if self.stance[leg])
@@ -174,54 +176,41 @@ class WholeBodyDynamics:
         else:
             # WORLD convention: what computeABADerivatives(model, data) reuses in calc_diff.
             acceleration = pin.aba(model, data.pinocchio, q, v, data.tau, pin.Convention.WORLD)
-        if not math.isfinite(float(np.dot(acceleration, acceleration))):
+        if not euler_velocity_step(
+            acceleration, v, dt, self._explicit, data.acceleration, data.x_next[nq:], data._step
+        ):
             self._raise_non_finite(x, u)
-        data.acceleration[:] = acceleration
-        v_next = data.x_next[nq:]
-        np.multiply(acceleration, dt, out=v_next)
-        v_next += v
-        if self.integration == "explicit":
-            np.multiply(v, dt, out=data._step)
-        else:
-            np.multiply(v_next, dt, out=data._step)
         data.x_next[:nq] = pin.integrate(model, q, data._step)
 
     def calc_diff(self, data: WholeBodyDynamicsData, x: np.ndarray, u: np.ndarray) -> None:
         """Write ``data.Fx``, ``data.Fu`` (tangent Jacobians of ``x_next``) and ``data.dforces_dx``,
         ``data.dforces_du``. Assumes ``calc(data, x, u)`` ran last on this data."""
-        model, nq, nv, dt = self.model, self.model.nq, self.model.nv, self.dt
-        q = x[:nq]
+        model, nq = self.model, self.model.nq
         pd = data.pinocchio
         if self.n_contacts:
             pin.computeConstraintDynamicsDerivatives(
                 model, pd, self.contact_models, data.contact_datas, data.proximal
             )
-            da_dq, da_dv, da_dtau = pd.ddq_dq, pd.ddq_dv, pd.ddq_dtau
-            data.dforces_dx[:, :nv] = pd.dlambda_dq
-            data.dforces_dx[:, nv:] = pd.dlambda_dv
-            data.dforces_du[:] = pd.dlambda_dtau[:, 6:]
+            da_dtau = pd.ddq_dtau
+            copy_force_derivatives(
+                pd.dlambda_dq, pd.dlambda_dv, pd.dlambda_dtau, data.dforces_dx, data.dforces_du
+            )
         else:
             pin.computeABADerivatives(model, pd)  # reuses the WORLD-convention ABA of calc
-            da_dq, da_dv = pd.ddq_dq, pd.ddq_dv
-            # Pinocchio fills only the upper triangle of Minv (= d qdd / d tau); symmetrise it.
-            da_dtau = pd.Minv
-            da_dtau[self._strict_lower] = da_dtau.T[self._strict_lower]
-        Fx, Fu = data.Fx, data.Fu
-        np.multiply(da_dq, dt, out=Fx[nv:, :nv])
-        np.multiply(da_dv, dt, out=Fx[nv:, nv:])
-        Fx[nv:, nv:] += self._eye_nv
-        np.multiply(da_dtau[:, 6:], dt, out=Fu[nv:])
-        dintegrate_dq, dintegrate_dstep = pin.dIntegrate(model, q, data._step)
-        if self.integration == "explicit":
-            Fx[:nv, :nv] = dintegrate_dq
-            np.multiply(dintegrate_dstep, dt, out=Fx[:nv, nv:])
-            # Fu[:nv] stays zero: tau acts on q only one step later.
-        else:
-            dintegrate_dstep *= dt  # d q+ / d v+
-            Fx[:nv, :nv] = dintegrate_dq
-            Fx[:nv, :nv] += dintegrate_dstep @ Fx[nv:, :nv]
-            np.matmul(dintegrate_dstep, Fx[nv:, nv:], out=Fx[:nv, nv:])
-            np.matmul(dintegrate_dstep, Fu[nv:], out=Fu[:nv])
+            da_dtau = pd.Minv  # d qdd / d tau; Pinocchio fills only its upper triangle
+        dintegrate_dq, dintegrate_dstep = pin.dIntegrate(model, x[:nq], data._step)
+        euler_step_jacobians(
+            pd.ddq_dq,
+            pd.ddq_dv,
+            da_dtau,
+            self.n_contacts == 0,
+            dintegrate_dq,
+            dintegrate_dstep,
+            self.dt,
+            self.integration == "explicit",
+            data.Fx,
+            data.Fu,
+        )
 
     def _raise_non_finite(self, x: np.ndarray, u: np.ndarray) -> None:
         if not (np.all(np.isfinite(x)) and np.all(np.isfinite(u))):

@@ -19,9 +19,7 @@ which case they become roll-out knots (the adaptive scheme of Fig. 5).
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
 from dataclasses import dataclass, field, replace
-from typing import Literal
 
 import numpy as np
 
@@ -31,9 +29,8 @@ from cafe_mpc.dynamics.srb import SRBState
 from cafe_mpc.dynamics.statics import static_stance_torques
 from cafe_mpc.dynamics.transition import whole_body_to_srb_state
 from cafe_mpc.ocp.costs import WholeBodyWeights
-from cafe_mpc.ocp.knots import SRBModelFactory, WholeBodyModelFactory, WholeBodyReference
-from cafe_mpc.reference.inverse_kinematics import LegInverseKinematics
-from cafe_mpc.reference.locomotion import LocomotionReference
+from cafe_mpc.ocp.knots import SRBKnot, SRBModelFactory, WholeBodyKnot, WholeBodyModelFactory
+from cafe_mpc.reference.base import Reference, ReferenceWindow
 from cafe_mpc.solver.results import SolverResult
 
 TIME_EPS = 1e-7
@@ -99,6 +96,8 @@ class PhaseInfo:
     times: np.ndarray
     contacts: np.ndarray  # (N, 4) stance flags per running knot
     entered_by_impact: bool = False
+    first_knot: int = 0
+    """Index of the phase's first knot among the whole-body (or SRB) knots of the horizon."""
 
 
 @dataclass
@@ -108,6 +107,8 @@ class BuiltProblem:
     start_time: float
     srb_forces: np.ndarray = field(default_factory=lambda: np.zeros((0, 12)))
     """GRF targets of the SRB knots (n_srb, 12): also their warm-start guess."""
+    torque_reference: np.ndarray = field(default_factory=lambda: np.zeros((0, 12)))
+    """Torque references of the whole-body knots (n_wb + 1, nu): the guess of appended knots."""
 
     @property
     def whole_body_phases(self) -> list[int]:
@@ -115,102 +116,184 @@ class BuiltProblem:
 
 
 class CafeProblemBuilder:
-    """Builds the multi-phase CAFE problem of one MPC update (Sec. IV-D)."""
+    """Builds the multi-phase CAFE problem of each MPC update (Sec. IV-D) from persistent parts.
+
+    Nothing heavy is rebuilt per update. The whole-body horizon has ``n_wb`` knot slots (slot ``k`` at
+    ``t0 + k dt_w``) and the SRB tail ``n_srb``; each slot keeps one knot object per (stance, weight set) it
+    has needed so far, each with its own mutable reference that the update overwrites in place; reset maps,
+    WB -> SRB transitions and touchdown constraints are kept per switch. So the same knot objects come back
+    every update and the solver reuses their data (Pinocchio ``Data`` included) and its workspace; what is
+    re-made per update is only the list structure (``Phase`` objects holding existing knots), because the
+    contact phases move through the fixed horizon.
+
+    ``weights``: the weight sets a reference may ask for by name (``Reference.weight_sets``), each a
+    ``(WholeBodyModelFactory, SRBModelFactory)`` pair; the default set is the given ``whole_body``/``srb``.
+    """
 
     def __init__(
         self,
         whole_body: WholeBodyModelFactory,
         srb: SRBModelFactory,
         schedule: ModelSchedule,
-        joint_reference: Literal["inverse_kinematics", "standing"] = "inverse_kinematics",
+        weights: dict[str, tuple[WholeBodyModelFactory, SRBModelFactory]] | None = None,
     ) -> None:
-        if joint_reference not in ("inverse_kinematics", "standing"):
-            raise ValueError(
-                f"joint_reference must be 'inverse_kinematics' or 'standing', got {joint_reference!r}"
-            )
-        self.joint_reference = joint_reference
-        self.inverse_kinematics = LegInverseKinematics(whole_body.robot)
         self.whole_body = whole_body
         self.srb = srb
         self.schedule = schedule
         self.robot = whole_body.robot
+        self.weight_factories: dict[str, tuple[WholeBodyModelFactory, SRBModelFactory]] = {
+            "regular": (whole_body, srb)
+        }
+        if weights:
+            self.weight_factories.update(weights)
         # Intermediate whole-body phases end with a cost-free terminal that keeps the state-only
         # constraints (joint limits and speeds, base height): without them the last torques of a phase
         # are free to whip the light legs (the end state is priced only by the phases after it).
         zero = WholeBodyWeights.zero()
-        self.intermediate = WholeBodyModelFactory(
-            whole_body.robot, replace(whole_body.settings, terminal_weights=zero)
-        )
-        self._stance_torques: dict[tuple[tuple[bool, ...], float | None], np.ndarray] = {}
+        self._intermediate = {
+            name: WholeBodyModelFactory(factory.robot, replace(factory.settings, terminal_weights=zero))
+            for name, (factory, _) in self.weight_factories.items()
+        }
+        robot = self.robot
+        n_wb, n_srb = schedule.whole_body_knots, schedule.srb_knots
+        self.window = ReferenceWindow(n_wb + 1 + (n_srb + 1 if n_srb else 0), robot.nq, robot.nv, robot.nu, 4)
+        self._wb_offsets = schedule.whole_body_dt * np.arange(n_wb + 1)
+        self._srb_offsets = schedule.srb_dt * np.arange(n_srb + 1)
+        self._times = np.zeros(len(self._wb_offsets) + (len(self._srb_offsets) if n_srb else 0))
+        self._running: dict[tuple, WholeBodyKnot] = {}
+        self._terminal: dict[tuple, WholeBodyKnot] = {}
+        self._srb_running: dict[tuple, SRBKnot] = {}
+        self._srb_terminal: dict[str, SRBKnot] = {}
+        self._switches: dict[tuple, tuple] = {}
+        self._names: tuple[str, ...] = ("regular",)
 
     def stance_torque(
         self, stance: tuple[bool, ...] | None, support_factor: float | None = None
     ) -> np.ndarray:
-        """Torques that hold the standing pose with ``support_factor * m g`` on each stance foot (default:
-        the weight split over the stance feet); zero in flight.
-
-        This is the torque regularisation target of every running knot: regularising toward zero biases
-        the plan toward straight legs (less knee torque), which in closed loop lifted the trotting base from
-        0.25 m to 0.32 m; regularising toward the static split biased bounding the same way (the stance legs
-        of a gait with flight phases carry more than their share of the weight on average, see
-        ``GaitCycle.support_factor``). It is also the torque guess of appended warm-start knots.
-        """
+        """Torques that hold the standing pose with ``support_factor * m g`` on each stance foot (default: the
+        weight split over the stance feet); zero in flight. The warm start's guess for appended knots."""
         key = tuple(bool(s) for s in stance) if stance is not None else (False,) * 4
-        factor = None if support_factor is None else round(float(support_factor), 6)
-        if (key, factor) not in self._stance_torques:
-            if any(key):
-                force = None if factor is None else factor * self.robot.total_mass * 9.81
-                torque = static_stance_torques(self.robot, self.robot.q_standing, key, force)
-            else:
-                torque = np.zeros(self.robot.nu)
-            torque.setflags(write=False)
-            self._stance_torques[(key, factor)] = torque
-        return self._stance_torques[(key, factor)]
+        if not any(key):
+            return np.zeros(self.robot.nu)
+        force = None if support_factor is None else support_factor * self.robot.total_mass * 9.81
+        return static_stance_torques(self.robot, self.robot.q_standing, key, force)
 
-    def build(self, t0: float, x0: np.ndarray, reference: LocomotionReference) -> BuiltProblem:
+    # ------------------------------------------------------------------------------------ persistent parts
+    def _factories(self, weight_set: int) -> tuple[str, WholeBodyModelFactory, SRBModelFactory]:
+        name = self._names[weight_set]
+        if name not in self.weight_factories:
+            raise ValueError(
+                f"the reference asks for weight set {name!r}; known: {', '.join(self.weight_factories)}"
+            )
+        whole_body, srb = self.weight_factories[name]
+        return name, whole_body, srb
+
+    def _running_knot(self, slot: int, stance: tuple[bool, ...], weight_set: int) -> WholeBodyKnot:
+        key = (slot, stance, weight_set)
+        knot = self._running.get(key)
+        if knot is None:
+            _, factory, _ = self._factories(weight_set)
+            knot = factory.running_knot(stance, factory.default_reference(), self.schedule.whole_body_dt)
+            self._running[key] = knot
+        return knot
+
+    def _terminal_knot(
+        self, slot: int, stance: tuple[bool, ...], weight_set: int, last: bool
+    ) -> WholeBodyKnot:
+        key = (slot, stance, weight_set, last)
+        knot = self._terminal.get(key)
+        if knot is None:
+            name, factory, _ = self._factories(weight_set)
+            source = factory if last else self._intermediate[name]
+            knot = source.terminal_knot(stance, source.default_reference())
+            self._terminal[key] = knot
+        return knot
+
+    def _switch(self, before: tuple[bool, ...], after: tuple[bool, ...], to_srb: bool):
+        """(reset map, touchdown constraint) of a switch, made once."""
+        key = (before, after, to_srb)
+        parts = self._switches.get(key)
+        if parts is None:
+            factory = self.whole_body
+            reset = (
+                factory.transition_to_srb(before, after, self.srb.state)
+                if to_srb
+                else factory.reset_map(before, after)
+            )
+            parts = (reset, factory.touchdown_constraint(before, after))
+            self._switches[key] = parts
+        return parts
+
+    def _srb_knot(self, slot: int, weight_set: int) -> SRBKnot:
+        key = (slot, weight_set)
+        knot = self._srb_running.get(key)
+        if knot is None:
+            _, _, srb = self._factories(weight_set)
+            reference = srb.reference(srb.state.zero(), np.zeros((4, 3)), (True, True, True, True))
+            knot = srb.running_knot(reference, self.schedule.srb_dt)
+            self._srb_running[key] = knot
+        return knot
+
+    def _srb_terminal_knot(self, weight_set: int) -> SRBKnot:
+        knot = self._srb_terminal.get(weight_set)
+        if knot is None:
+            _, _, srb = self._factories(weight_set)
+            knot = srb.terminal_knot(
+                srb.reference(srb.state.zero(), np.zeros((4, 3)), (True, True, True, True))
+            )
+            self._srb_terminal[weight_set] = knot
+        return knot
+
+    # ------------------------------------------------------------------------------------------- build
+    def build(self, t0: float, x0: np.ndarray, reference: Reference) -> BuiltProblem:
+        """The problem of an MPC update at ``t0`` from the measured ``x0`` (references written in place)."""
         schedule = self.schedule
-        n_wb = schedule.whole_body_knots
-        wb_times = t0 + schedule.whole_body_dt * np.arange(n_wb + 1)
-        stance_wb, feet_positions, feet_velocities = reference.feet(wb_times)
-        # stance of a knot = the schedule at the knot's start (sampled a hair after to break ties)
-        stance_wb = np.array([reference.stance_at(t + TIME_EPS) for t in wb_times], dtype=bool)
+        n_wb, n_srb = schedule.whole_body_knots, schedule.srb_knots
+        has_srb = n_srb > 0
+        times = self._times
+        times[: n_wb + 1] = t0 + self._wb_offsets
+        if has_srb:
+            times[n_wb + 1 :] = times[n_wb] + self._srb_offsets
+        window = self.window
+        window.set_times(times)
+        self._names = tuple(reference.weight_sets)
+        reference.sample(window)
+        window.check_finite(type(reference).__name__)
+        stance_rows = [tuple(bool(s) for s in row) for row in window.stance]
+        wb_times = times[: n_wb + 1]
         groups: list[tuple[tuple[bool, ...], int, int]] = []  # (stance, first knot, last knot + 1)
         start = 0
         for k in range(1, n_wb + 1):
-            if k == n_wb or tuple(stance_wb[k]) != tuple(stance_wb[start]):
-                groups.append((tuple(bool(s) for s in stance_wb[start]), start, k))
+            if k == n_wb or stance_rows[k] != stance_rows[start]:
+                groups.append((stance_rows[start], start, k))
                 start = k
-        states = self._whole_body_references(reference, wb_times, feet_positions, feet_velocities)
-        has_srb = schedule.srb_knots > 0
+        state, torque = window.state, window.torque
+        positions, velocities = window.foot_positions, window.foot_velocities
+        weight_set = window.weight_set
         phases: list[Phase] = []
         infos: list[PhaseInfo] = []
+        stance_array = np.asarray(window.stance[: n_wb + 1], dtype=bool)
         for index, (stance, first, last) in enumerate(groups):
             running = []
             for k in range(first, last):
-                ref = WholeBodyReference(
-                    states[k],
-                    feet_positions[k],
-                    feet_velocities[k],
-                    self.stance_torque(stance, reference.support_factor(float(wb_times[k]))),
-                )
-                running.append(self.whole_body.running_knot(stance, ref, schedule.whole_body_dt))
+                knot = self._running_knot(k, stance, int(weight_set[k]))
+                ref = knot.reference
+                ref.state[:] = state[k]
+                ref.foot_positions[:] = positions[k]
+                ref.foot_velocities[:] = velocities[k]
+                ref.torque[:] = torque[k]
+                running.append(knot)
             is_last = index == len(groups) - 1
-            next_stance = groups[index + 1][0] if not is_last else tuple(bool(s) for s in stance_wb[n_wb])
-            terminal_ref = WholeBodyReference(states[last], feet_positions[last], feet_velocities[last])
-            if is_last:
-                # the whole-body plan's terminal cost (also before the SRB tail, which drops the joints)
-                terminal = self.whole_body.terminal_knot(stance, terminal_ref)
-            else:
-                terminal = self.intermediate.terminal_knot(stance, terminal_ref)
+            next_stance = groups[index + 1][0] if not is_last else stance_rows[n_wb + 1 if has_srb else n_wb]
+            terminal = self._terminal_knot(last, stance, int(weight_set[last]), is_last)
+            ref = terminal.reference
+            ref.state[:] = state[last]
+            ref.foot_positions[:] = positions[last]
+            ref.foot_velocities[:] = velocities[last]
             if is_last and not has_srb:
-                reset = None
-                switching = None
+                reset, switching = None, None
             else:
-                if is_last:
-                    reset = self.whole_body.transition_to_srb(stance, next_stance, self.srb.state)
-                else:
-                    reset = self.whole_body.reset_map(stance, next_stance)
-                switching = self.whole_body.touchdown_constraint(stance, next_stance)
+                reset, switching = self._switch(stance, next_stance, to_srb=is_last)
             entered_by_impact = index > 0 and any(touchdown_flags(groups[index - 1][0], stance))
             phases.append(
                 Phase(running, terminal, reset, switching, dt=schedule.whole_body_dt, name=f"wb{index}")
@@ -220,66 +303,43 @@ class CafeProblemBuilder:
                     "whole_body",
                     stance,
                     wb_times[first : last + 1].copy(),
-                    stance_wb[first:last].copy(),
+                    stance_array[first:last].copy(),
                     entered_by_impact,
+                    first,
                 )
             )
         if has_srb:
-            n_srb = schedule.srb_knots
-            srb_times = wb_times[-1] + schedule.srb_dt * np.arange(n_srb + 1)
-            stance_srb = np.array([reference.stance_at(t + TIME_EPS) for t in srb_times], dtype=bool)
-            _, srb_feet, _ = reference.feet(srb_times)
+            offset = n_wb + 1
+            srb_times = times[offset:]
+            srb_stance = np.asarray(window.stance[offset:], dtype=bool)
             running = []
             srb_forces = np.zeros((n_srb, 12))
             for j in range(n_srb):
-                q_ref, v_ref = reference.base_state(srb_times[j])
-                state = whole_body_to_srb_state(np.concatenate([q_ref, v_ref]))
-                # GRF target (28): the gait's average stance force on each stance foot
-                srb_forces[j].reshape(4, 3)[:, 2] = (
-                    stance_srb[j] * reference.support_factor(float(srb_times[j])) * self.srb.weight
+                row = offset + j
+                knot = self._srb_knot(j, int(weight_set[row]))
+                srb_factory = self._factories(int(weight_set[row]))[2]
+                ref = knot.reference
+                ref.state[:] = whole_body_to_srb_state(state[row])
+                ref.foot_positions[:] = positions[row]
+                ref.contacts[:] = window.stance[row]
+                # GRF target (28): the reference's stance forces, for the SRB's own weight
+                srb_forces[j] = window.forces[row].reshape(-1) * (
+                    srb_factory.weight / (self.robot.total_mass * 9.81)
                 )
-                ref = self.srb.reference(state, srb_feet[j], tuple(bool(s) for s in stance_srb[j]))
-                ref.set(forces=srb_forces[j])
-                running.append(self.srb.running_knot(ref, schedule.srb_dt))
-            q_ref, v_ref = reference.base_state(srb_times[-1])
-            terminal_ref = self.srb.reference(
-                whole_body_to_srb_state(np.concatenate([q_ref, v_ref])),
-                srb_feet[-1],
-                tuple(bool(s) for s in stance_srb[-1]),
-            )
-            phases.append(
-                Phase(running, self.srb.terminal_knot(terminal_ref), dt=schedule.srb_dt, name="srb")
-            )
-            entered = any(touchdown_flags(groups[-1][0], tuple(bool(s) for s in stance_srb[0])))
-            infos.append(PhaseInfo("srb", None, srb_times, stance_srb[:-1].copy(), entered))
+                ref.forces[:] = srb_forces[j]
+                running.append(knot)
+            terminal = self._srb_terminal_knot(int(weight_set[-1]))
+            ref = terminal.reference
+            ref.state[:] = whole_body_to_srb_state(state[-1])
+            ref.foot_positions[:] = positions[-1]
+            ref.contacts[:] = window.stance[-1]
+            phases.append(Phase(running, terminal, dt=schedule.srb_dt, name="srb"))
+            entered = any(touchdown_flags(groups[-1][0], stance_rows[offset]))
+            infos.append(PhaseInfo("srb", None, srb_times.copy(), srb_stance[:-1].copy(), entered))
         else:
             srb_forces = np.zeros((0, 12))
         problem = MultiPhaseProblem(np.asarray(x0, dtype=float), phases)
-        return BuiltProblem(problem, infos, t0, srb_forces)
-
-    def _whole_body_references(
-        self,
-        reference: LocomotionReference,
-        times: np.ndarray,
-        feet_positions: np.ndarray,
-        feet_velocities: np.ndarray,
-    ) -> np.ndarray:
-        """Reference states ``[q, v]`` of the whole-body knots: base from the commands, joints and joint rates
-        from leg inverse kinematics of the reference feet (or the standing pose)."""
-        nq = self.robot.nq
-        states = np.empty((len(times), nq + self.robot.nv))
-        joints = None
-        for k, t in enumerate(times):
-            q_ref, v_ref = reference.base_state(float(t))
-            if self.joint_reference == "inverse_kinematics":
-                joints, rates, _ = self.inverse_kinematics.solve(
-                    q_ref[:7], feet_positions[k], joints, v_ref[:6], feet_velocities[k]
-                )
-                q_ref[7:] = joints
-                v_ref[6:] = rates
-            states[k, :nq] = q_ref
-            states[k, nq:] = v_ref
-        return states
+        return BuiltProblem(problem, infos, t0, srb_forces, torque[: n_wb + 1].copy())
 
 
 @dataclass
@@ -290,8 +350,7 @@ class InitialGuess:
     multipliers: list[np.ndarray | None] = field(default_factory=list)
     penalties: list[float | None] = field(default_factory=list)
     """Augmented-Lagrangian parameters of each phase's touchdown constraint, carried over from the previous
-    solve of the same switch (authors' warm start, docs/settings.md: "keep barrier and AL parameters");
-    ``None``: start afresh."""
+    solve of the same switch (facts: "keep barrier and AL parameters"); ``None``: start afresh."""
 
 
 @dataclass
@@ -301,51 +360,70 @@ class WarmStart:
     srb_state: SRBState = field(default_factory=SRBState)
 
     def guess(
-        self,
-        built: BuiltProblem,
-        previous: BuiltProblem | None,
-        solution: SolverResult | None,
-        stance_torque: Callable[[tuple[bool, ...]], np.ndarray],
-        srb_force_guess: np.ndarray,
+        self, built: BuiltProblem, previous: BuiltProblem | None, solution: SolverResult | None
     ) -> InitialGuess:
         """Initial states, controls and roll-out masks for ``built`` from the previous solution.
 
-        ``stance_torque(stance)`` gives the torque guess of appended knots (the static torques that carry
-        the weight on that phase's stance feet): copying the last planned torque into a phase with other
-        stance feet would swing the now-unloaded legs violently.
+        Knots that existed before keep their state and control (shooting knots). Appended whole-body knots
+        copy the last whole-body state and take the knot's torque reference (the static torques carrying
+        that phase's stance load: copying the last planned torque into a phase with other stance feet would
+        swing the now-unloaded legs violently); they are roll-out knots when they belong to a newly appended
+        phase entered through an impact (the adaptive scheme of Fig. 5), shooting knots otherwise.
         """
         x0 = built.problem.x0
+        dt_w = self._whole_body_dt(built)
         xs, us, rollout = [], [], []
-        previous_wb: list[tuple[float, np.ndarray, np.ndarray | None, bool]] = []
-        previous_srb: list[tuple[float, np.ndarray, np.ndarray | None]] = []
+        # previous whole-body knots by time index: (post-reset state of a phase start, state, control)
+        previous_wb: dict[int, list] = {}
+        previous_srb_times: list[float] = []
+        previous_srb: list[tuple[np.ndarray, np.ndarray | None]] = []
+        last_wb_state, previous_end = x0, -math.inf
         if previous is not None and solution is not None:
             for info, phase in zip(previous.phases, solution.phases, strict=True):
+                n = len(info.times) - 1
                 for k, t in enumerate(info.times):
-                    control = phase.us[k] if k < len(phase.us) else None
+                    control = phase.us[k] if k < n else None
                     if info.kind == "whole_body":
-                        previous_wb.append((float(t), phase.xs[k], control, k == 0))
+                        entry = previous_wb.setdefault(round(float(t) / dt_w), [None, None, None])
+                        if k == 0:
+                            entry[0] = phase.xs[k]
+                        else:
+                            entry[1] = phase.xs[k]
+                        if control is not None:
+                            entry[2] = control
+                        last_wb_state, previous_end = phase.xs[k], float(t)
                     else:
-                        previous_srb.append((float(t), phase.xs[k], control))
-        last_wb_state = previous_wb[-1][1] if previous_wb else x0
-        previous_end = previous_wb[-1][0] if previous_wb else -math.inf
+                        previous_srb_times.append(float(t))
+                        previous_srb.append((phase.xs[k], control))
+        srb_times = np.array(previous_srb_times)
+        torque_reference = built.torque_reference
         for info in built.phases:
             n = len(info.times) - 1
             if info.kind == "whole_body":
-                appended_torque = stance_torque(info.stance)
                 phase_x = np.empty((n + 1, len(x0)))
-                phase_u = np.empty((n, appended_torque.size))
+                phase_u = np.empty((n, torque_reference.shape[1]))
                 phase_rollout = np.zeros(n + 1, dtype=bool)
                 new_phase_after_impact = info.entered_by_impact and info.times[0] > previous_end - TIME_EPS
                 for k, t in enumerate(info.times):
-                    match = _lookup_whole_body(previous_wb, float(t), prefer_phase_start=(k == 0))
-                    if match is not None:
-                        phase_x[k] = match[0]
+                    entry = previous_wb.get(round(float(t) / dt_w))
+                    state = None
+                    if entry is not None:
+                        # a phase start takes the post-reset copy, a phase end the pre-reset one
+                        state = (
+                            (entry[0] if entry[0] is not None else entry[1])
+                            if k == 0
+                            else (entry[1] if entry[1] is not None else entry[0])
+                        )
+                    if state is not None:
+                        phase_x[k] = state
                         if k < n:
-                            phase_u[k] = match[1] if match[1] is not None else appended_torque
+                            phase_u[k] = (
+                                entry[2] if entry[2] is not None else torque_reference[info.first_knot + k]
+                            )
                     else:
                         phase_x[k] = last_wb_state
                         if k < n:
-                            phase_u[k] = appended_torque
+                            phase_u[k] = torque_reference[info.first_knot + k]
                         phase_rollout[k] = new_phase_after_impact and k > 0
                 xs.append(phase_x)
                 us.append(phase_u)
@@ -355,20 +433,27 @@ class WarmStart:
                 phase_u = np.empty((n, 12))
                 wb_end = xs[-1][-1] if xs else x0
                 for j, t in enumerate(info.times):
-                    match = _nearest_srb(previous_srb, float(t))
+                    match = _nearest_srb(srb_times, previous_srb, float(t))
                     if match is not None:
                         phase_x[j] = match[0]
                         if j < n:
-                            phase_u[j] = match[1] if match[1] is not None else srb_force_guess[j]
+                            phase_u[j] = match[1] if match[1] is not None else built.srb_forces[j]
                     else:
                         phase_x[j] = whole_body_to_srb_state(wb_end)
                         if j < n:
-                            phase_u[j] = srb_force_guess[j]
+                            phase_u[j] = built.srb_forces[j]
                 xs.append(phase_x)
                 us.append(phase_u)
                 rollout.append(np.zeros(n + 1, dtype=bool))
         multipliers, penalties = _augmented_lagrangian_guess(built, previous, solution)
         return InitialGuess(xs, us, rollout, multipliers, penalties)
+
+    @staticmethod
+    def _whole_body_dt(built: BuiltProblem) -> float:
+        for info in built.phases:
+            if info.kind == "whole_body" and len(info.times) > 1:
+                return float(info.times[1] - info.times[0])
+        return 0.01
 
 
 def _augmented_lagrangian_guess(
@@ -412,24 +497,10 @@ def _stance_after(built: BuiltProblem, index: int) -> tuple[bool, ...] | None:
     return tuple(bool(s) for s in following.contacts[0])
 
 
-def _lookup_whole_body(
-    records: list[tuple[float, np.ndarray, np.ndarray | None, bool]], t: float, prefer_phase_start: bool
-) -> tuple[np.ndarray, np.ndarray | None] | None:
-    """State/control of the previous whole-body knot at time ``t`` (post-reset copy for phase starts)."""
-    found = None
-    for time, state, control, is_start in records:
-        if abs(time - t) < 1e-6 and (found is None or is_start == prefer_phase_start):
-            found = (state, control)
-    return found
-
-
 def _nearest_srb(
-    records: list[tuple[float, np.ndarray, np.ndarray | None]], t: float
+    times: np.ndarray, records: list[tuple[np.ndarray, np.ndarray | None]], t: float
 ) -> tuple[np.ndarray, np.ndarray | None] | None:
     if not records:
         return None
-    times = np.array([r[0] for r in records])
     index = int(np.argmin(np.abs(times - t)))
-    if abs(times[index] - t) > 0.5 * 0.05 + 1e-6 and t > times[-1]:
-        index = len(records) - 1
-    return records[index][1], records[index][2]
+    return records[index]

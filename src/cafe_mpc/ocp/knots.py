@@ -26,26 +26,16 @@ import pinocchio as pin
 
 from cafe_mpc.core.contacts import ContactFlags, as_contact_flags, flags_to_string, touchdown_flags
 from cafe_mpc.core.interfaces import ActionData, ActionModel, IdentityReset, ResetMap
+from cafe_mpc.core.kernels import same_point
 from cafe_mpc.dynamics.impact import ImpactReset
 from cafe_mpc.dynamics.kinematics import FootKinematics
 from cafe_mpc.dynamics.multibody_state import MultibodyState
 from cafe_mpc.dynamics.srb import SRBDynamics, SRBParameters, SRBState, quaternion_to_rotation
 from cafe_mpc.dynamics.transition import ComposedReset, WholeBodyToSRB
 from cafe_mpc.dynamics.whole_body import IntegrationScheme, WholeBodyDynamics
-from cafe_mpc.ocp.constraints import (
-    BarrierStack,
-    TouchdownFootHeight,
-    WholeBodyConstraintSettings,
-    WholeBodyInequality,
-    whole_body_inequalities,
-)
-from cafe_mpc.ocp.costs import (
-    BaseError,
-    SRBWeights,
-    WholeBodyCostTerm,
-    WholeBodyWeights,
-    whole_body_cost_terms,
-)
+from cafe_mpc.ocp.constraints import BarrierParameters, TouchdownFootHeight, WholeBodyConstraintSettings
+from cafe_mpc.ocp.costs import BaseError, SRBWeights, WholeBodyWeights
+from cafe_mpc.ocp.kernels import whole_body_cost, whole_body_derivatives
 from cafe_mpc.robots.robot import Robot
 
 
@@ -111,8 +101,8 @@ class WholeBodyReference:
 
 
 class WholeBodyKnotData(ActionData):
-    """Per-knot workspace: dynamics data (its ``x_next``/``Fx``/``Fu`` are this data's), foot kinematics,
-    base rotation, cost/constraint term data and the stacked barrier."""
+    """Per-knot workspace: dynamics data (its ``x_next``/``Fx``/``Fu`` are this data's), foot kinematics, and
+    the stacked residual, constraint values and barrier derivatives of the fused evaluation."""
 
     def __init__(self, model: WholeBodyKnot) -> None:
         super().__init__(model)
@@ -122,48 +112,76 @@ class WholeBodyKnotData(ActionData):
             self.x_next = self.dynamics.x_next
             self.Fx = self.dynamics.Fx
             self.Fu = self.dynamics.Fu
+            self.dforces_dx = self.dynamics.dforces_dx
+            self.dforces_du = self.dynamics.dforces_du
+            self.stance_forces = self.dynamics.forces
+        else:
+            self.dforces_dx = np.zeros((0, ndx))
+            self.dforces_du = np.zeros((0, nu))
+            self.stance_forces = np.zeros(0)
         self.kinematics = model.kinematics.create_data()
+        self.forces = np.zeros((model.n_feet, 3))
+        """World-frame ground reaction force of every foot (zero on swing feet) at the last ``calc``."""
         self.base_rotation = np.eye(3)
-        self.cost_datas = [term.create_data(ndx, nu) for term in model.costs]
-        self.cost_values = np.zeros(len(model.costs))
-        """Unscaled ``0.5 r' W r`` of each cost term (diagnostics)."""
-        self.barrier = model.barrier.create_data()
-        self.constraint_datas = [
-            constraint.create_data(self.barrier.g[rows], ndx, nu)
-            for constraint, rows in zip(model.constraints, model.constraint_rows, strict=True)
-        ]
+        self.rotation_error = np.eye(3)
+        self.r = np.zeros(model.residual_dim)
+        """Stacked residual: state (``ndx``), swing-foot positions and velocities (3 each), torque."""
+        self.wr = np.zeros(model.residual_dim)
+        self.g = np.zeros(model.constraint_dim)
+        """Stacked constraint values ``g >= 0``: friction rows, box rows, base height."""
+        self.d1 = np.zeros(model.constraint_dim)
+        self.d2 = np.zeros(model.constraint_dim)
+        self.base_jacobian = np.zeros((len(model.base_rows), len(model.base_rows)))
+        if len(model.base_rows) == 12:
+            self.base_jacobian[9:12, 9:12] = np.eye(3)
+        # Derivatives over [x | u]; Lx, Lu, Lxx, Luu, Lux are views of these (the solver rebinds all of them
+        # to its stacked arrays, keeping the same relation).
+        self.gradient = np.zeros(ndx + nu)
+        self.hessian = np.zeros((ndx + nu, ndx + nu))
+        self.Lx = self.gradient[:ndx]
+        self.Lu = self.gradient[ndx:]
+        self.Lxx = self.hessian[:ndx, :ndx]
+        self.Luu = self.hessian[ndx:, ndx:]
+        self.Lux = self.hessian[ndx:, :ndx]
+        self.values = np.zeros(2)
         self.last_x = np.full(model.state.nx, np.nan)
         self.last_u = np.full(nu, np.nan)
         self.layout = model.layout
-
-    @property
-    def forces(self) -> np.ndarray:
-        """Stance-foot forces (world, 3 per stance foot in leg order) of the last ``calc``."""
-        return self.dynamics.forces if self.dynamics is not None else np.zeros(0)
 
 
 class WholeBodyKnot(ActionModel):
     """Whole-body knot: ``x+ = f(x, tau)`` (Eqs. (19)-(23)), cost (18) and barrier-penalised (26), (27).
 
+    One fused evaluation: one dynamics call, one set of foot-kinematics calls, then every cost residual and
+    constraint value stacked into ``r`` (weights ``w``) and ``g`` and priced in one compiled pass; the
+    derivatives are the Gauss-Newton ``J' W r`` and ``J' W J`` (plus the barrier's ``G' B'``, ``G' B'' G``)
+    formed in one compiled pass as well (``cafe_mpc.ocp.kernels``).
+
     Args:
         robot: the robot.
-        dynamics: the phase dynamics (sets ``nu = 12`` and the time step), or ``None`` for a terminal knot.
-        costs: cost terms (``cafe_mpc.ocp.costs``), summed and multiplied by ``dt`` on running knots.
-        constraints: inequality terms (``cafe_mpc.ocp.constraints``); ``eps B(g)``, times ``dt`` if running.
+        dynamics: the phase dynamics (sets ``nu`` and the time step), or ``None`` for a terminal knot.
+        weights: the cost weights of Eq. (18) (``WholeBodyWeights``); the torque term only on running knots.
+        constraints: which inequalities are priced (``None``: none). Terminal knots keep only the state ones
+            (joint position and speed limits, base height).
         reference: this knot's mutable reference.
         stance: stance flags of a terminal knot (a running knot takes the dynamics').
+        base_error: ``"tangent"`` or ``"world"`` base residual (see ``BaseError``).
     """
 
     def __init__(
         self,
         robot: Robot,
         dynamics: WholeBodyDynamics | None,
-        costs: Sequence[WholeBodyCostTerm],
-        constraints: Sequence[WholeBodyInequality],
+        weights: WholeBodyWeights,
+        constraints: WholeBodyConstraintSettings | None,
         reference: WholeBodyReference,
         stance: Sequence[bool] | None = None,
+        base_error: BaseError = "tangent",
     ) -> None:
+        if base_error not in ("tangent", "world"):
+            raise ValueError(f"base_error must be 'tangent' or 'world', got {base_error!r}")
         self.robot = robot
+        self.model = robot.model
         self.dynamics = dynamics
         self.state = dynamics.state if dynamics is not None else MultibodyState(robot.model)
         self.next_state = self.state
@@ -177,38 +195,118 @@ class WholeBodyKnot(ActionModel):
             if stance is None:
                 raise ValueError("a terminal whole-body knot needs its phase's stance flags")
             self.stance = as_contact_flags(stance)
-        self.costs = tuple(costs)
-        self.constraints = tuple(constraints)
-        for term in (*self.costs, *self.constraints):
-            if dynamics is None and (
-                getattr(term, "needs_control", False) or getattr(term, "needs_forces", False)
-            ):
-                raise ValueError(f"term {term.name!r} needs a control/forces: not allowed on a terminal knot")
-            if getattr(term, "needs_forces", False) and term.n_contacts != dynamics.n_contacts:
-                raise ValueError(
-                    f"term {term.name!r} expects {term.n_contacts} contacts, "
-                    f"the dynamics has {dynamics.n_contacts}"
-                )
-        self.kinematics = FootKinematics(
-            robot,
-            position_legs=sorted({leg for term in self.costs for leg in term.position_legs}),
-            velocity_legs=sorted({leg for term in self.costs for leg in term.velocity_legs}),
+        self.weights = weights
+        self.base_error = base_error
+        nq, nv = robot.model.nq, robot.model.nv
+        ndx = 2 * nv
+        self.n_feet = len(robot.foot_frame_ids)
+        running = dynamics is not None
+
+        # ---- stacked residual r (weights w): state | swing-foot positions | swing-foot velocities | torque
+        swing = [leg for leg in range(self.n_feet) if not self.stance[leg]]
+        position_weights = weights.foot_position_weights().reshape(self.n_feet, 3)
+        velocity_weights = weights.foot_velocity_weights().reshape(self.n_feet, 3)
+        self.position_legs = np.array(
+            [leg for leg in swing if np.any(position_weights[leg] > 0)], dtype=np.int64
         )
-        rows, start = [], 0
-        for constraint in self.constraints:
-            rows.append(slice(start, start + constraint.dim))
-            start += constraint.dim
-        self.constraint_rows = tuple(rows)
-        self.barrier = BarrierStack(
-            np.concatenate([np.full(c.dim, c.barrier.delta) for c in self.constraints] or [np.zeros(0)]),
-            np.concatenate([np.full(c.dim, c.barrier.eps) for c in self.constraints] or [np.zeros(0)]),
+        self.velocity_legs = np.array(
+            [leg for leg in swing if np.any(velocity_weights[leg] > 0)], dtype=np.int64
         )
+        torque_weights = weights.torque_weights()
+        with_torque = running and bool(np.any(torque_weights > 0))
+        state_weights = weights.state_weights()
+        self.tracks_state = bool(np.any(state_weights > 0))
+        pieces = [state_weights]
+        pieces += [position_weights[leg] for leg in self.position_legs]
+        pieces += [velocity_weights[leg] for leg in self.velocity_legs]
+        self.feet_row = ndx
+        self.torque_row = ndx + 3 * (len(self.position_legs) + len(self.velocity_legs)) if with_torque else -1
+        if with_torque:
+            pieces.append(torque_weights)
+        self.residual_weights = np.concatenate(pieces)
+        self.residual_dim = len(self.residual_weights)
+        self.nu_torque = self.nu if with_torque else 0
+        self.base_rows = np.r_[0:6] if base_error == "tangent" else np.r_[0:6, nv : nv + 6]
+        self.base_mask = np.zeros(ndx, dtype=bool)
+        self.base_mask[self.base_rows] = True
+        self.kinematics = FootKinematics(robot, self.position_legs.tolist(), self.velocity_legs.tolist())
+
+        # ---- stacked constraints g >= 0: friction rows | box rows | base height
+        settings = constraints
+        deltas: list[np.ndarray] = []
+        epsilons: list[np.ndarray] = []
+        self.n_friction = 0
+        self.friction_coefficient = 0.6
+        n_contacts = sum(self.stance)
+        if settings is not None and running and settings.friction_cone and n_contacts:
+            self.n_friction = n_contacts
+            self.friction_coefficient = float(settings.friction_coefficient)
+            deltas.append(np.full(5 * n_contacts, settings.friction_barrier.delta))
+            epsilons.append(np.full(5 * n_contacts, settings.friction_barrier.eps))
+        on_control, index, column, sign, offset = [], [], [], [], []
+
+        def box(lower, upper, control: bool, coordinates, columns, barrier: BarrierParameters) -> None:
+            lower, upper = np.asarray(lower, dtype=float), np.asarray(upper, dtype=float)
+            if lower.shape != upper.shape or np.any(lower >= upper):
+                raise ValueError("box constraint: need lower < upper element-wise")
+            for bound_sign, bounds in ((-1.0, upper), (1.0, lower)):
+                for i, (coordinate, tangent) in enumerate(zip(coordinates, columns, strict=True)):
+                    on_control.append(control)
+                    index.append(coordinate)
+                    column.append(tangent)
+                    sign.append(bound_sign)
+                    offset.append(bounds[i] if bound_sign < 0 else -bounds[i])
+            deltas.append(np.full(2 * len(lower), barrier.delta))
+            epsilons.append(np.full(2 * len(lower), barrier.eps))
+
+        joints = range(6, nv)
+        if settings is not None and running and settings.torque_limits:
+            limits = (
+                np.asarray(settings.torque_limit_values, dtype=float)
+                if settings.torque_limit_values is not None
+                else robot.torque_limits
+            )
+            box(-limits, limits, True, range(self.nu), range(ndx, ndx + self.nu), settings.torque_barrier)
+        if settings is not None and settings.joint_position_limits:
+            box(
+                robot.position_lower,
+                robot.position_upper,
+                False,
+                [j + 1 for j in joints],
+                list(joints),
+                settings.joint_position_barrier,
+            )
+        if settings is not None and settings.joint_velocity_limits:
+            box(
+                -robot.velocity_limits,
+                robot.velocity_limits,
+                False,
+                [nq + j for j in joints],
+                [nv + j for j in joints],
+                settings.joint_velocity_barrier,
+            )
+        self.box_on_control = np.array(on_control, dtype=np.bool_)
+        self.box_index = np.array(index, dtype=np.int64)
+        self.box_column = np.array(column, dtype=np.int64)
+        self.box_sign = np.array(sign, dtype=float)
+        self.box_offset = np.array(offset, dtype=float)
+        n_box = len(index)
+        self.minimum_height = 0.0
+        self.height_index = -1
+        if settings is not None and settings.minimum_base_height is not None:
+            self.minimum_height = float(settings.minimum_base_height)
+            self.height_index = 5 * self.n_friction + n_box
+            deltas.append(np.array([settings.base_height_barrier.delta]))
+            epsilons.append(np.array([settings.base_height_barrier.eps]))
+        self.barrier_delta = np.concatenate(deltas) if deltas else np.zeros(0)
+        self.barrier_eps = np.concatenate(epsilons) if epsilons else np.zeros(0)
+        self.constraint_dim = len(self.barrier_delta)
+        self._stance_legs = np.array([leg for leg in range(self.n_feet) if self.stance[leg]], dtype=np.int64)
+        self._velocity_rows_from = nv if base_error == "tangent" else nv + 3
+        self._needs_rotation = base_error == "world" or self.height_index >= 0
         self.layout = object()
         """Identity token shared by every knot made from this one with ``with_reference``: a data object
         created by one of them can be reused by any other (``data.layout is knot.layout``)."""
-        self._needs_rotation = any(
-            getattr(term, "base_error", "tangent") == "world" for term in self.costs
-        ) or any(constraint.name == "base_height" for constraint in self.constraints)
         self.reference = self._check_reference(reference)
 
     def _check_reference(self, reference: WholeBodyReference) -> WholeBodyReference:
@@ -243,57 +341,128 @@ class WholeBodyKnot(ActionModel):
         if u.shape != (self.nu,):
             raise ValueError(f"{self!r}: u must have shape ({self.nu},), got {u.shape}")
 
+    def _state_residual(self, data: WholeBodyKnotData, x: np.ndarray) -> None:
+        """Rows ``r[:ndx]``: ``x ⊖ x_ref`` (tangent) or the world-frame base error (see ``BaseError``)."""
+        model, r = self.model, data.r
+        nq, nv = model.nq, model.nv
+        x_ref = self.reference.state
+        if self.base_error == "tangent":
+            r[:nv] = pin.difference(model, x_ref[:nq], x[:nq])
+            return  # the velocity rows v - v_ref are set by the compiled cost
+        rotation = data.base_rotation
+        rotation_ref = quaternion_to_rotation(x_ref[3:7])
+        data.rotation_error = rotation_ref.T @ rotation
+        np.subtract(x[0:3], x_ref[0:3], out=r[0:3])
+        r[3:6] = pin.log3(data.rotation_error)
+        np.subtract(x[7:nq], x_ref[7:nq], out=r[6:nv])
+        r[nv : nv + 3] = rotation @ x[nq : nq + 3] - rotation_ref @ x_ref[nq : nq + 3]
+
     def calc(self, data: WholeBodyKnotData, x: np.ndarray, u: np.ndarray) -> None:
         self._check_sizes(x, u)
-        nq = self.state.nq
+        nq = self.model.nq
         if self.dynamics is not None:
             self.dynamics.calc(data.dynamics, x, u)
         if self._needs_rotation:
-            data.base_rotation = pin.Quaternion(x[3:7]).toRotationMatrix()
+            data.base_rotation = quaternion_to_rotation(x[3:7])
         if not self.kinematics.empty:
             self.kinematics.calc(data.kinematics, x[:nq], x[nq:])
-        reference = self.reference
-        cost = 0.0
-        for index, (term, term_data) in enumerate(zip(self.costs, data.cost_datas, strict=True)):
-            value = term.calc(term_data, data, x, u, reference)
-            data.cost_values[index] = value
-            cost += value
-        cost *= self.cost_scale
-        if self.constraints:
-            for constraint, constraint_data in zip(self.constraints, data.constraint_datas, strict=True):
-                constraint.calc(constraint_data, data, x, u)
-            cost += self.cost_scale * self.barrier.evaluate(data.barrier)
-            data.constraint_violation = max(0.0, -float(data.barrier.g.min()))
-        else:
-            data.constraint_violation = 0.0
-        data.cost = cost
-        data.last_x[:] = x
-        data.last_u[:] = u
+        if self.tracks_state:
+            self._state_residual(data, x)
+        reference, kin = self.reference, data.kinematics
+        whole_body_cost(
+            u,
+            x,
+            data.r,
+            self.residual_weights,
+            data.wr,
+            kin.positions,
+            kin.velocities,
+            reference.foot_positions,
+            reference.foot_velocities,
+            self.position_legs,
+            self.velocity_legs,
+            self.feet_row,
+            reference.torque,
+            self.torque_row,
+            data.stance_forces,
+            self.friction_coefficient,
+            self.n_friction,
+            self.box_on_control,
+            self.box_index,
+            self.box_sign,
+            self.box_offset,
+            self.height_index,
+            self.minimum_height,
+            data.g,
+            self.barrier_delta,
+            self.barrier_eps,
+            data.d1,
+            data.d2,
+            self.cost_scale,
+            data.values,
+            self._velocity_rows_from if self.tracks_state else 2 * nq,
+            reference.state,
+            nq,
+            self.model.nv,
+            self._stance_legs,
+            data.forces,
+            data.last_x,
+            data.last_u,
+        )
+        data.cost = float(data.values[0])
+        data.constraint_violation = float(data.values[1])
 
     def calc_diff(self, data: WholeBodyKnotData, x: np.ndarray, u: np.ndarray) -> None:
-        if not (np.array_equal(x, data.last_x) and np.array_equal(u, data.last_u)):
+        if not (same_point(x, data.last_x) and same_point(u, data.last_u)):
             self.calc(data, x, u)  # keep the forward pass consistent with (x, u)
-        nq = self.state.nq
+        model = self.model
+        nq, nv = model.nq, model.nv
         if self.dynamics is not None:
             self.dynamics.calc_diff(data.dynamics, x, u)
         if not self.kinematics.empty:
             self.kinematics.calc_diff(data.kinematics, x[:nq], x[nq:])
-        data.Lx.fill(0.0)
-        data.Lxx.fill(0.0)
-        if self.nu:
-            data.Lu.fill(0.0)
-            data.Luu.fill(0.0)
-            data.Lux.fill(0.0)
-        reference, scale = self.reference, self.cost_scale
-        for term, term_data in zip(self.costs, data.cost_datas, strict=True):
-            term.calc_diff(term_data, data, x, u, reference)
-            term.accumulate(term_data, data, scale)
-        barrier = data.barrier
-        for constraint, constraint_data, rows in zip(
-            self.constraints, data.constraint_datas, self.constraint_rows, strict=True
-        ):
-            constraint.calc_diff(constraint_data, data, x, u)
-            constraint.accumulate(constraint_data, data, barrier.d1[rows], barrier.d2[rows], scale)
+        jacobian = data.base_jacobian
+        if self.tracks_state:
+            if self.base_error == "tangent":
+                jacobian[:, :] = pin.dDifference(
+                    model, self.reference.state[:nq], x[:nq], pin.ArgumentPosition.ARG1
+                )[:6, :6]
+            else:
+                rotation = data.base_rotation
+                jacobian[0:3, 0:3] = rotation
+                jacobian[3:6, 3:6] = pin.Jlog3(data.rotation_error)
+                jacobian[6:9, 3:6] = -rotation @ pin.skew(x[nq : nq + 3])
+                jacobian[6:9, 6:9] = rotation
+        kin = data.kinematics
+        whole_body_derivatives(
+            data.gradient,
+            data.hessian,
+            self.cost_scale,
+            self.residual_weights,
+            data.wr,
+            2 * nv,
+            nv,
+            self.base_mask,
+            self.base_rows,
+            jacobian,
+            self.position_legs,
+            self.velocity_legs,
+            self.feet_row,
+            kin.position_jacobians,
+            kin.velocity_dq,
+            self.torque_row,
+            self.nu_torque,
+            self.n_friction,
+            self.friction_coefficient,
+            data.dforces_dx,
+            data.dforces_du,
+            self.box_column,
+            self.box_sign,
+            self.height_index,
+            data.base_rotation[2],
+            data.d1,
+            data.d2,
+        )
 
 
 # --------------------------------------------------------------------------------------------------
@@ -398,7 +567,7 @@ class SRBKnot(ActionModel):
         self.weights = weights
         self.state_weights = weights.state_weights()
         self.force_weights = weights.force_weights() if dynamics is not None else np.zeros(12)
-        self._flat_diagonal_x = np.arange(12) * 13
+        self._diagonal = np.arange(12)
         self.layout = object()
         """Shared by knots made with ``with_reference``; data with the same layout is interchangeable."""
         self.reference = self._check_reference(reference)
@@ -453,12 +622,13 @@ class SRBKnot(ActionModel):
         np.multiply(data.weighted_r, scale, out=data.Lx)
         data.Lx[3:6] = scale * (jlog.T @ data.weighted_r[3:6])
         data.Lxx.fill(0.0)
-        data.Lxx.reshape(-1)[self._flat_diagonal_x] = scale * self.state_weights
+        data.Lxx[self._diagonal, self._diagonal] = scale * self.state_weights
         data.Lxx[3:6, 3:6] = jlog.T @ ((scale * self.state_weights[3:6])[:, None] * jlog)
         if self.nu:
             np.multiply(self.force_weights * scale, data.force_residual, out=data.Lu)
             data.Luu.fill(0.0)
-            data.Luu.reshape(-1)[self._flat_diagonal_x] = scale * self.force_weights
+            data.Lux.fill(0.0)
+            data.Luu[self._diagonal, self._diagonal] = scale * self.force_weights
 
 
 # --------------------------------------------------------------------------------------------------
@@ -468,7 +638,7 @@ class SRBKnot(ActionModel):
 
 @dataclass(frozen=True)
 class WholeBodySettings:
-    """Everything that configures whole-body knots (defaults and sources: docs/settings.md)."""
+    """Everything that configures whole-body knots (settings facts defaults)."""
 
     dt: float = 0.01
     baumgarte_alpha: float = 10.0
@@ -522,16 +692,16 @@ class WholeBodyModelFactory:
         if key not in self._prototypes:
             settings = self.settings
             weights = settings.running_weights if running else settings.terminal_weights
-            costs = whole_body_cost_terms(
-                self.robot.model, stance, weights, with_torque=running, base_error=settings.base_error
-            )
-            if running or settings.terminal_constraints:
-                constraints = whole_body_inequalities(self.robot, stance, settings.constraints, running)
-            else:
-                constraints = []
+            constraints = settings.constraints if running or settings.terminal_constraints else None
             dynamics = self.dynamics(stance, dt) if running else None
             self._prototypes[key] = WholeBodyKnot(
-                self.robot, dynamics, costs, constraints, self.default_reference(), stance=stance
+                self.robot,
+                dynamics,
+                weights,
+                constraints,
+                self.default_reference(),
+                stance=stance,
+                base_error=settings.base_error,
             )
         return self._prototypes[key]
 
@@ -582,7 +752,7 @@ class WholeBodyModelFactory:
 
 @dataclass(frozen=True)
 class SRBSettings:
-    """Configuration of SRB knots (defaults and sources: docs/settings.md)."""
+    """Configuration of SRB knots (settings facts defaults)."""
 
     dt: float = 0.05
     parameters: SRBParameters = field(default_factory=SRBParameters)

@@ -48,9 +48,9 @@ import time
 from collections.abc import Sequence
 
 import numpy as np
-from scipy.linalg.lapack import dpotrf, dpotrs
 
 from cafe_mpc.core.interfaces import MultiPhaseProblem
+from cafe_mpc.solver.kernels import CHOLESKY_FAILED, backward_phase, linear_step, policy_step
 from cafe_mpc.solver.options import SolverOptions
 from cafe_mpc.solver.results import PhaseSolution, SolverResult, SolverStatistics, TrajectoryEvaluation
 from cafe_mpc.solver.workspace import EMPTY_CONTROL, PhaseWorkspace, Workspace
@@ -96,6 +96,7 @@ class MSiLQRSolver:
         self._expected_constant = 0.0
         self._expected_linear = 0.0
         self._expected_quadratic = 0.0
+        self._sums = np.zeros(3)  # per-phase sums of the compiled backward sweep
 
     # ---------------------------------------------------------------------------------------------- public
     def solve(
@@ -131,6 +132,7 @@ class MSiLQRSolver:
         self._initialize_augmented_lagrangian(workspace, initial_multipliers, initial_penalties)
 
         nominal = self._evaluate_nominal(workspace, problem.x0, seed_states)
+        data_at_nominal = True
         if not nominal.finite():
             raise ValueError("the initial guess has a non-finite cost or defect")
         self._linearize(workspace)
@@ -163,6 +165,7 @@ class MSiLQRSolver:
                     break
                 regularization = self._regularization
                 trial, alpha, n_trials, mode = self._line_search(workspace, problem.x0, nominal)
+                data_at_nominal = trial is not None  # a failed search leaves trial points in the data
                 cost_change = math.inf
                 if trial is not None:
                     cost_change = trial.augmented_cost - nominal.augmented_cost
@@ -203,6 +206,8 @@ class MSiLQRSolver:
         if status == "converged" and not converged:
             status = "max_iterations"
         stats.solve_time = time.perf_counter() - start
+        if not data_at_nominal:
+            self._recalc_running(workspace)
         return self._make_result(workspace, nominal, converged, status, stats, policy_valid)
 
     def evaluate(
@@ -233,9 +238,9 @@ class MSiLQRSolver:
 
     # ---------------------------------------------------------------------------------------------- set-up
     def _prepare_workspace(self, problem: MultiPhaseProblem) -> Workspace:
-        if self.workspace is None or not self.workspace.matches(problem):
-            self.workspace = Workspace(problem, previous=self.workspace)
-        self.workspace.problem = problem
+        if self.workspace is None:
+            self.workspace = Workspace()
+        self.workspace.setup(problem)
         return self.workspace
 
     def _initialize(
@@ -375,21 +380,17 @@ class MSiLQRSolver:
 
         ``A = J Fx`` and ``B = J Fu`` with ``J = ∂(y ⊖ x̄_{k+1})/∂y`` at ``y = f(x̄_k, ū_k)``: a perturbation
         of the knot then maps to a perturbation of the *next nominal state* (identity on Euclidean states).
-        The models'
-        ``calc`` ran last at the nominal trajectory (initial evaluation or accepted trial).
+        The cost derivatives land directly in the phase's stacked arrays (the data are bound to them).
+        The models' ``calc`` ran last at the nominal trajectory (initial evaluation or accepted trial).
         """
         phases = workspace.phases
         for i, work in enumerate(phases):
             xs, us, A, B = work.xs, work.us, work.A, work.B
+            transport = work.transport
             for k, (model, data) in enumerate(zip(work.models, work.running_data, strict=True)):
                 model.calc_diff(data, xs[k], us[k])
-                if work.euclidean:
-                    A[k] = data.Fx
-                    B[k] = data.Fu
-                else:
-                    _, jacobian = work.state.jacobian_difference(xs[k + 1], data.x_next)
-                    np.matmul(jacobian, data.Fx, out=A[k])
-                    np.matmul(jacobian, data.Fu, out=B[k])
+                transport(xs[k + 1], data.x_next, data.Fx, A[k])
+                transport(xs[k + 1], data.x_next, data.Fu, B[k])
             work.terminal_model.calc_diff(work.terminal_data, xs[-1], EMPTY_CONTROL)
             if work.constraint is not None:
                 work.constraint.calc_diff(work.constraint_data, xs[-1])
@@ -397,11 +398,7 @@ class MSiLQRSolver:
                 reset_data = work.reset_data
                 work.reset_map.calc_diff(reset_data, xs[-1])
                 following = phases[i + 1]
-                if following.euclidean:
-                    work.reset_jacobian[:] = reset_data.Px
-                else:
-                    _, jacobian = following.state.jacobian_difference(following.xs[0], reset_data.x_next)
-                    np.matmul(jacobian, reset_data.Px, out=work.reset_jacobian)
+                following.transport(following.xs[0], reset_data.x_next, reset_data.Px, work.reset_jacobian)
 
     # -------------------------------------------------------------------------------------- backward sweep
     def _backward_pass_with_regularization(self, workspace: Workspace, stats: SolverStatistics) -> str:
@@ -424,10 +421,12 @@ class MSiLQRSolver:
         Returns ``"ok"``, ``"cholesky"`` (``Quu + mu I`` not positive definite) or ``"non_finite"``.
         """
         mu = self._regularization
-        constant = linear = quadratic = 0.0
+        constant = 0.0
+        sums = self._sums
+        sums[:] = 0.0
         following: PhaseWorkspace | None = None
         for work in reversed(workspace.phases):
-            n_knots, nu = work.horizon, work.nu
+            n_knots = work.horizon
             S, s, defects, rollout = work.S, work.s, work.defects, work.rollout
             # Boundary condition (10), plus the augmented-Lagrangian terms of the switching constraint (2).
             S_end, s_end = S[n_knots], s[n_knots]
@@ -450,58 +449,37 @@ class MSiLQRSolver:
                 P = work.reset_jacobian
                 s_end += P.T @ s_hat
                 S_end += P.T @ (S0 @ P)
-            A, B, K, kff = work.A, work.B, work.K, work.k
-            Qu_all, Quu_all, Qux_all, rhs_all = work.Qu, work.Quu, work.Qux, work.rhs
-            for k in range(n_knots - 1, -1, -1):
-                data = work.running_data[k]
-                S_next, s_next = S[k + 1], s[k + 1]
-                if rollout[k + 1]:
-                    s_hat = s_next
-                else:
-                    defect = defects[k + 1]
-                    S_defect = S_next @ defect
-                    s_hat = s_next + S_defect  # Eq. (8a)
-                    constant += float(s_next @ defect) + 0.5 * float(defect @ S_defect)
-                A_k = A[k]
-                SA = S_next @ A_k
-                Qx = data.Lx + A_k.T @ s_hat  # Eq. (8b)
-                Qxx = data.Lxx + A_k.T @ SA  # Eq. (8d), Gauss-Newton
-                if nu:
-                    B_k = B[k]
-                    Qu, Quu, Qux, rhs = Qu_all[k], Quu_all[k], Qux_all[k], rhs_all[k]
-                    np.add(data.Lu, B_k.T @ s_hat, out=Qu)  # Eq. (8c)
-                    np.add(data.Lux, B_k.T @ SA, out=Qux)  # Eq. (8f)
-                    np.add(data.Luu, B_k.T @ (S_next @ B_k), out=Quu)  # Eq. (8e)
-                    if mu:
-                        Quu.ravel()[:: nu + 1] += mu
-                    factor, info = dpotrf(Quu, lower=1, clean=0)
-                    if info != 0:
-                        return "non_finite" if not np.isfinite(Quu).all() else "cholesky"
-                    rhs[:, 0] = Qu
-                    rhs[:, 1:] = Qux
-                    solution, info = dpotrs(factor, rhs, lower=1)
-                    k_ff, K_k = kff[k], K[k]
-                    np.negative(solution[:, 0], out=k_ff)  # Eq. (7): δũ = -Quu^-1 Qu
-                    np.negative(solution[:, 1:], out=K_k)  # Eq. (7): K = -Quu^-1 Qux
-                    K_T = K_k.T
-                    # Eq. (9) with the unregularised Quu (identical to (9) when mu = 0).
-                    s_k = Qx + K_T @ Qu
-                    S_k = Qxx + K_T @ Qux
-                    Qu_k = float(Qu @ k_ff)
-                    linear += Qu_k
-                    if mu:
-                        s_k -= mu * (K_T @ k_ff)
-                        S_k -= mu * (K_T @ K_k)
-                        quadratic += -Qu_k - mu * float(k_ff @ k_ff)
-                    else:
-                        quadratic -= Qu_k
-                else:
-                    s_k, S_k = Qx, Qxx
-                s[k] = s_k
-                np.add(S_k, S_k.T, out=S[k])
-                S[k] *= 0.5
+            status = backward_phase(
+                S,
+                s,
+                work.F,
+                work.G,
+                work.H,
+                defects,
+                rollout,
+                mu,
+                work.K,
+                work.k,
+                work.Qu,
+                work.Quu,
+                work.Qux,
+                sums,
+                work.rhs,
+                work.cholesky,
+                work.SF,
+                work.Q,
+                work.q,
+                work.s_hat,
+                work.gains,
+            )
+            if status == CHOLESKY_FAILED:
+                if not (np.isfinite(work.Quu).all() and np.isfinite(S[n_knots]).all()):
+                    return "non_finite"
+                return "cholesky"
             following = work
         first = workspace.phases[0]
+        constant += float(sums[0])
+        linear, quadratic = float(sums[1]), float(sums[2])
         check = constant + linear + quadratic + float(first.s[0].sum()) + float(first.S[0].sum())
         if not math.isfinite(check):
             return "non_finite"
@@ -573,7 +551,7 @@ class MSiLQRSolver:
             xs, us, defects = work.xs, work.us, work.defects
             xs_try, us_try, defects_try = work.xs_try, work.us_try, work.defects_try
             rollout = work.all_rollout if nonlinear else work.rollout
-            A, B, K, kff = work.A, work.B, work.K, work.k
+            K, kff = work.K, work.k
             if previous is None:
                 xs_try[0] = xs[0]
                 defects_try[0] = 0.0
@@ -585,10 +563,10 @@ class MSiLQRSolver:
                 else:
                     xs_try[0] = work.integrate(xs[0], previous.reset_jacobian @ dx_end + defects[0])
                     defects_try[0] = work.difference(xs_try[0], reset_state)
+            F, dx, du, step = work.F, work.dx, work.du, work.step
             for k, (model, data) in enumerate(zip(work.models, work.running_data, strict=True)):
-                dx = work.difference(xs[k], xs_try[k])
-                du = alpha * kff[k] + K[k] @ dx  # Eq. (11)
-                np.add(us[k], du, out=us_try[k])
+                work.difference_into(xs[k], xs_try[k], dx)
+                policy_step(us[k], kff[k], K[k], dx, alpha, us_try[k], du)  # Eq. (11)
                 model.calc(data, xs_try[k], us_try[k])
                 totals.cost += data.cost
                 if data.constraint_violation > totals.inequality_violation:
@@ -598,8 +576,9 @@ class MSiLQRSolver:
                     defects_try[k + 1] = 0.0
                 else:
                     # Eq. (12) in the tangent space at the next nominal state.
-                    xs_try[k + 1] = work.integrate(xs[k + 1], A[k] @ dx + B[k] @ du + defects[k + 1])
-                    defects_try[k + 1] = work.difference(xs_try[k + 1], data.x_next)
+                    linear_step(F[k], dx, du, defects[k + 1], step)
+                    work.integrate_into(xs[k + 1], step, xs_try[k + 1])
+                    work.difference_into(xs_try[k + 1], data.x_next, defects_try[k + 1])
             dx_end = work.difference(xs[-1], xs_try[-1])
             self._evaluate_phase_end(work, xs_try[-1], work.switching_value_try, totals)
             previous = work
@@ -664,6 +643,15 @@ class MSiLQRSolver:
         )
 
     @staticmethod
+    def _recalc_running(workspace: Workspace) -> None:
+        """Evaluate the running knots at the nominal again (their data then describe the returned plan,
+        e.g. its contact forces)."""
+        for work in workspace.phases:
+            xs, us = work.xs, work.us
+            for k, (model, data) in enumerate(zip(work.models, work.running_data, strict=True)):
+                model.calc(data, xs[k], us[k])
+
+    @staticmethod
     def _make_result(
         workspace: Workspace,
         nominal: _Totals,
@@ -692,6 +680,7 @@ class MSiLQRSolver:
                     multiplier=work.multiplier.copy() if has_constraint else None,
                     penalty=work.penalty if has_constraint else None,
                     name=work.phase.name,
+                    forces=_stacked_forces(work),
                 )
             )
         return SolverResult(
@@ -707,6 +696,19 @@ class MSiLQRSolver:
             statistics=stats,
             policy_valid=policy_valid,
         )
+
+
+def _stacked_forces(work: PhaseWorkspace) -> np.ndarray | None:
+    """``data.forces`` of every running knot (model-defined layout), stacked; ``None`` if the models have
+    none."""
+    datas = work.running_data
+    if not datas or getattr(datas[0], "forces", None) is None:
+        return None
+    first = np.asarray(datas[0].forces)
+    out = np.empty((len(datas), *first.shape))
+    for k, data in enumerate(datas):
+        out[k] = data.forces
+    return out
 
 
 def evaluate_trajectory(

@@ -42,6 +42,10 @@ class PhaseSolution:
     multiplier: np.ndarray | None = None
     penalty: float | None = None
     name: str = ""
+    forces: np.ndarray | None = None
+    """Contact forces of every running knot at the returned trajectory, ``(N, ...)`` in the layout of the
+    models' ``data.forces`` (whole-body knots: world-frame GRF per foot, ``(N, n_feet, 3)``, zero on swing
+    feet); ``None`` when the models have no forces (SRB knots: the controls are the forces)."""
 
 
 @dataclass

@@ -1,10 +1,21 @@
-"""Preallocated per-knot storage of the MS-iLQR solver.
+"""Preallocated, persistent storage of the MS-iLQR solver.
 
-A ``Workspace`` holds, for every phase of a ``MultiPhaseProblem``, the model data objects (created once per
-knot with ``create_data()``), the nominal and trial trajectories, the defects, the tangent-space linearisation
-and the backward-sweep results. The solver keeps its workspace between solves; a phase whose models are the
-same objects as before keeps its data objects and arrays, so repeated solves of one problem allocate nothing
-per knot.
+A ``Workspace`` lives as long as its solver. For every phase of the problem being solved it holds a
+``PhaseWorkspace``: the nominal and trial trajectories, the defects, the stacked linearisation (``A``, ``B``,
+``Lx``, ``Lu``, ``Lxx``, ``Luu``, ``Lux``) and the backward-sweep results, as views of arrays allocated once
+with some spare capacity. Between solves nothing is reallocated:
+
+* **data objects** (``model.create_data()``) are kept per model object and reused whenever that model object
+  appears again (a receding-horizon problem that keeps its knot objects never creates data after its first
+  solves); a model used twice in one problem gets one data object per occurrence;
+* **phase arrays** are drawn from a pool by dimensions and capacity, so phases that change length from one
+  MPC update to the next (the contact phases move through a fixed horizon) only re-slice views;
+* each running knot's cost derivatives are **bound** to the phase's stacked arrays over ``[x | u]``
+  (``data.Lx = G[k, :ndx]``, ``data.Lxx = H[k, :ndx, :ndx]``, ...; and ``data.gradient = G[k]``,
+  ``data.hessian = H[k]`` for data that keep the combined derivatives), so ``calc_diff`` writes straight into
+  what the compiled backward sweep reads. Models must therefore write ``Lx``, ``Lu``, ``Lxx``, ``Luu``,
+  ``Lux`` in place (never rebind them; note ``Lxx`` etc. are then strided views, so ``reshape(-1)`` makes a
+  copy: use index assignment).
 """
 
 from __future__ import annotations
@@ -22,9 +33,37 @@ from cafe_mpc.core.interfaces import (
     ResetData,
     StateManifold,
 )
+from cafe_mpc.core.kernels import same_point
 
 EMPTY_CONTROL = np.zeros(0)
-EMPTY_CONTROL.setflags(write=False)
+"""The control of terminal knots (size 0; writable so compiled kernels see one array type)."""
+
+
+class _Buffers:
+    """The arrays of one phase workspace at full capacity (``capacity`` running knots)."""
+
+    def __init__(self, nx: int, ndx: int, nu: int, capacity: int) -> None:
+        n = capacity
+        self.capacity = capacity
+        self.xs = np.zeros((n + 1, nx))
+        self.us = np.zeros((n, nu))
+        self.defects = np.zeros((n + 1, ndx))
+        self.xs_try = np.zeros((n + 1, nx))
+        self.us_try = np.zeros((n, nu))
+        self.defects_try = np.zeros((n + 1, ndx))
+        self.rollout = np.zeros(n + 1, dtype=bool)
+        self.all_rollout = np.ones(n + 1, dtype=bool)
+        # Stacked over [x | u]: F = [A | B], G = [Lx | Lu], H = [[Lxx, .], [Lux, Luu]] (views below).
+        self.F = np.zeros((n, ndx, ndx + nu))
+        self.G = np.zeros((n, ndx + nu))
+        self.H = np.zeros((n, ndx + nu, ndx + nu))
+        self.K = np.zeros((n, nu, ndx))
+        self.k = np.zeros((n, nu))
+        self.Qu = np.zeros((n, nu))
+        self.Quu = np.zeros((n, nu, nu))
+        self.Qux = np.zeros((n, nu, ndx))
+        self.S = np.zeros((n + 1, ndx, ndx))
+        self.s = np.zeros((n + 1, ndx))
 
 
 class PhaseWorkspace:
@@ -36,76 +75,93 @@ class PhaseWorkspace:
     with the Jacobian of ``difference``), ``reset_jacobian`` does the same for the reset map.
     """
 
-    def __init__(self, phase: Phase, has_next_phase: bool) -> None:
-        models = phase.running_models
+    def __init__(self, nx: int, ndx: int, nu: int, capacity: int) -> None:
+        self.nx, self.ndx, self.nu = nx, ndx, nu
+        self.buffers = _Buffers(nx, ndx, nu, capacity)
+        # scratch of the compiled backward sweep
+        self.rhs = np.zeros((nu, 1 + ndx))
+        self.cholesky = np.zeros((nu, nu))
+        self.SF = np.zeros((ndx, ndx + nu))
+        self.Q = np.zeros((ndx + nu, ndx + nu))
+        self.q = np.zeros(ndx + nu)
+        self.s_hat = np.zeros(ndx)
+        self.gains = np.zeros((nu, ndx))
+        # scratch of the forward roll-out
+        self.dx = np.zeros(ndx)
+        self.du = np.zeros(nu)
+        self.step = np.zeros(ndx)
+        self.phase: Phase | None = None
+        self.horizon = 0
+
+    @property
+    def capacity(self) -> int:
+        return self.buffers.capacity
+
+    def assign(
+        self,
+        phase: Phase,
+        has_next_phase: bool,
+        running_data: list[ActionData],
+        terminal_data: ActionData,
+        reset_data: ResetData | None,
+        constraint_data: ConstraintData | None,
+    ) -> None:
+        """Make this workspace the storage of ``phase``: views of length ``N``, data bound to the stacks."""
+        n_knots = len(phase.running_models)
+        buffers = self.buffers
         self.phase = phase
-        self.models = list(models)
+        self.models = phase.running_models
         self.terminal_model = phase.terminal_model
-        self.horizon = n_knots = len(models)
+        self.horizon = n_knots
         self.state: StateManifold = phase.state
         # Exact type: a subclass may override difference/integrate (e.g. angle wrapping).
         self.euclidean = type(self.state) is EuclideanState
-        nx, ndx = self.state.nx, self.state.ndx
-        nu = models[0].nu
-        for k, model in enumerate(models):
-            if model.nu != nu:
-                raise ValueError(
-                    f"phase {phase.name!r}: knot {k} has nu={model.nu}, knot 0 has nu={nu}; "
-                    "the solver needs one control dimension per phase"
-                )
-            if model.state.nx != nx or model.next_state.nx != nx:
-                raise ValueError(f"phase {phase.name!r}: knot {k} changes nx inside a phase")
-        self.nx, self.ndx, self.nu = nx, ndx, nu
-
-        self.running_data: list[ActionData] = [model.create_data() for model in models]
-        self.terminal_data: ActionData = phase.terminal_model.create_data()
+        self.running_data = running_data
+        self.terminal_data = terminal_data
         self.reset_map = phase.reset_map if has_next_phase else None
-        self.reset_data: ResetData | None = (
-            self.reset_map.create_data() if self.reset_map is not None else None
-        )
+        self.reset_data = reset_data
         self.constraint = phase.switching_constraint
-        self.constraint_data: ConstraintData | None = (
-            self.constraint.create_data() if self.constraint is not None else None
-        )
+        self.constraint_data = constraint_data
+        for name in ("xs", "defects", "xs_try", "defects_try", "rollout", "S", "s"):
+            setattr(self, name, getattr(buffers, name)[: n_knots + 1])
+        self.all_rollout = buffers.all_rollout[: n_knots + 1]
+        for name in ("us", "us_try", "F", "G", "H", "K", "k", "Qu", "Quu", "Qux"):
+            setattr(self, name, getattr(buffers, name)[:n_knots])
+        ndx = self.ndx
+        self.A = self.F[:, :, :ndx]
+        self.B = self.F[:, :, ndx:]
+        for k, data in enumerate(running_data):
+            gradient, hessian = self.G[k], self.H[k]
+            if hasattr(data, "gradient"):
+                data.gradient = gradient
+                data.hessian = hessian
+            data.Lx = gradient[:ndx]
+            data.Lu = gradient[ndx:]
+            data.Lxx = hessian[:ndx, :ndx]
+            data.Luu = hessian[ndx:, ndx:]
+            data.Lux = hessian[ndx:, :ndx]
         ndx_next = self.reset_map.next_state.ndx if self.reset_map is not None else 0
-
-        self.xs = np.zeros((n_knots + 1, nx))
-        self.us = np.zeros((n_knots, nu))
-        self.defects = np.zeros((n_knots + 1, ndx))
-        self.xs_try = np.zeros_like(self.xs)
-        self.us_try = np.zeros_like(self.us)
-        self.defects_try = np.zeros_like(self.defects)
-        self.rollout = np.zeros(n_knots + 1, dtype=bool)
-        self.all_rollout = np.ones(n_knots + 1, dtype=bool)
-
-        self.A = np.zeros((n_knots, ndx, ndx))
-        self.B = np.zeros((n_knots, ndx, nu))
-        self.reset_jacobian = np.zeros((ndx_next, ndx))
-
-        self.K = np.zeros((n_knots, nu, ndx))
-        self.k = np.zeros((n_knots, nu))
-        self.Qu = np.zeros((n_knots, nu))
-        self.Quu = np.zeros((n_knots, nu, nu))
-        self.Qux = np.zeros((n_knots, nu, ndx))
-        self.S = np.zeros((n_knots + 1, ndx, ndx))
-        self.s = np.zeros((n_knots + 1, ndx))
-        self.rhs = np.zeros((n_knots, nu, 1 + ndx))  # [Qu | Qux], solved with one Cholesky back-substitution
-
+        if getattr(self, "reset_jacobian", None) is None or self.reset_jacobian.shape != (ndx_next, self.ndx):
+            self.reset_jacobian = np.zeros((ndx_next, self.ndx))
         dim = self.constraint.dim if self.constraint is not None else 0
-        self.switching_value = np.zeros(dim)
-        self.switching_value_try = np.zeros(dim)
-        self.multiplier = np.zeros(dim)
+        if getattr(self, "multiplier", None) is None or self.multiplier.shape != (dim,):
+            self.switching_value = np.zeros(dim)
+            self.switching_value_try = np.zeros(dim)
+            self.multiplier = np.zeros(dim)
         self.penalty = 0.0
 
     def matches(self, phase: Phase, has_next_phase: bool) -> bool:
-        """Whether this workspace was built for exactly these model objects (so its data can be reused)."""
+        """Whether this workspace currently serves exactly these model objects."""
+        if self.phase is None:
+            return False
         reset_map = phase.reset_map if has_next_phase else None
+        models = phase.running_models
         return (
-            len(phase.running_models) == self.horizon
-            and all(a is b for a, b in zip(phase.running_models, self.models, strict=True))
+            len(models) == self.horizon
             and phase.terminal_model is self.terminal_model
             and reset_map is self.reset_map
             and phase.switching_constraint is self.constraint
+            and all(a is b for a, b in zip(models, self.models, strict=True))
         )
 
     def difference(self, x0: np.ndarray, x1: np.ndarray) -> np.ndarray:
@@ -120,6 +176,27 @@ class PhaseWorkspace:
             return x + dx
         return self.state.integrate(x, dx)
 
+    def difference_into(self, x0: np.ndarray, x1: np.ndarray, out: np.ndarray) -> None:
+        """``out = x1 ⊖ x0``."""
+        if self.euclidean:
+            np.subtract(x1, x0, out=out)
+        else:
+            self.state.difference_into(x0, x1, out)
+
+    def integrate_into(self, x: np.ndarray, dx: np.ndarray, out: np.ndarray) -> None:
+        """``out = x ⊕ dx``."""
+        if self.euclidean:
+            np.add(x, dx, out=out)
+        else:
+            self.state.integrate_into(x, dx, out)
+
+    def transport(self, x_nominal: np.ndarray, y: np.ndarray, matrix: np.ndarray, out: np.ndarray) -> None:
+        """``out = ∂(y ⊖ x̄)/∂y @ matrix`` (tangent at ``y`` -> tangent at the nominal ``x̄``)."""
+        if self.euclidean or same_point(x_nominal, y):
+            out[:] = matrix  # the Jacobian of the difference is the identity at y == x̄ (no defect)
+        else:
+            self.state.difference_jacobian_product(x_nominal, y, matrix, out)
+
     def swap_trial(self) -> None:
         """Make the trial trajectory the nominal one (no copies)."""
         self.xs, self.xs_try = self.xs_try, self.xs
@@ -128,22 +205,46 @@ class PhaseWorkspace:
         self.switching_value, self.switching_value_try = self.switching_value_try, self.switching_value
 
 
-class Workspace:
-    """Per-phase workspaces of one ``MultiPhaseProblem``."""
+class _DataPool:
+    """Data objects kept per (model object, occurrence in the problem), least recently used dropped."""
 
-    def __init__(self, problem: MultiPhaseProblem, previous: Workspace | None = None) -> None:
-        self.problem = problem
-        n_phases = len(problem.phases)
-        reusable = list(previous.phases) if previous is not None else []
+    def __init__(self) -> None:
+        self._entries: dict[tuple[int, int], tuple[object, object, int]] = {}
+        self._generation = 0
+
+    def start(self) -> None:
+        self._generation += 1
+        self._seen: dict[int, int] = {}
+
+    def get(self, owner, create):
+        """The data of ``owner``'s next occurrence in the current problem (created on first use)."""
+        occurrence = self._seen.get(id(owner), 0)
+        self._seen[id(owner)] = occurrence + 1
+        key = (id(owner), occurrence)
+        entry = self._entries.get(key)
+        data = create() if entry is None or entry[0] is not owner else entry[1]
+        self._entries[key] = (owner, data, self._generation)
+        return data
+
+    def trim(self, in_use: int) -> None:
+        """Keep at most ``max(4 * in_use, 64)`` entries: the most recently used ones."""
+        limit = max(4 * in_use, 64)
+        if len(self._entries) <= limit:
+            return
+        ordered = sorted(self._entries.items(), key=lambda item: item[1][2], reverse=True)
+        self._entries = dict(ordered[: max(2 * in_use, 32)])
+
+
+class Workspace:
+    """Per-phase workspaces of the problem being solved, with pools that persist across problems."""
+
+    def __init__(self, problem: MultiPhaseProblem | None = None) -> None:
+        self.problem: MultiPhaseProblem | None = None
         self.phases: list[PhaseWorkspace] = []
-        for i, phase in enumerate(problem.phases):
-            has_next = i < n_phases - 1
-            found = None
-            for j, candidate in enumerate(reusable):
-                if candidate.matches(phase, has_next):
-                    found = reusable.pop(j)
-                    break
-            self.phases.append(found if found is not None else PhaseWorkspace(phase, has_next))
+        self._data = _DataPool()
+        self._free: list[PhaseWorkspace] = []
+        if problem is not None:
+            self.setup(problem)
 
     def matches(self, problem: MultiPhaseProblem) -> bool:
         n_phases = len(problem.phases)
@@ -151,6 +252,53 @@ class Workspace:
             work.matches(phase, i < n_phases - 1)
             for i, (work, phase) in enumerate(zip(self.phases, problem.phases, strict=True))
         )
+
+    def setup(self, problem: MultiPhaseProblem) -> None:
+        """Serve ``problem``: reuse what matches, draw the rest from the pools (allocation only on growth)."""
+        if self.problem is problem or (self.phases and self.matches(problem)):
+            self.problem = problem
+            return
+        self.problem = problem
+        self._free.extend(self.phases)
+        self.phases = []
+        pool = self._data
+        pool.start()
+        n_phases = len(problem.phases)
+        in_use = 0
+        for i, phase in enumerate(problem.phases):
+            has_next = i < n_phases - 1
+            models = phase.running_models
+            nu = models[0].nu
+            state = phase.state
+            for k, model in enumerate(models):
+                if model.nu != nu:
+                    raise ValueError(
+                        f"phase {phase.name!r}: knot {k} has nu={model.nu}, knot 0 has nu={nu}; "
+                        "the solver needs one control dimension per phase"
+                    )
+                if model.state.nx != state.nx or model.next_state.nx != state.nx:
+                    raise ValueError(f"phase {phase.name!r}: knot {k} changes nx inside a phase")
+            work = self._take(state.nx, state.ndx, nu, len(models))
+            running = [pool.get(model, model.create_data) for model in models]
+            terminal = pool.get(phase.terminal_model, phase.terminal_model.create_data)
+            reset_map = phase.reset_map if has_next else None
+            reset = pool.get(reset_map, reset_map.create_data) if reset_map is not None else None
+            constraint = phase.switching_constraint
+            constraint_data = pool.get(constraint, constraint.create_data) if constraint is not None else None
+            work.assign(phase, has_next, running, terminal, reset, constraint_data)
+            self.phases.append(work)
+            in_use += len(models) + 3
+        pool.trim(in_use)
+
+    def _take(self, nx: int, ndx: int, nu: int, horizon: int) -> PhaseWorkspace:
+        best = None
+        for index, work in enumerate(self._free):
+            fits = (work.nx, work.ndx, work.nu) == (nx, ndx, nu) and work.capacity >= horizon
+            if fits and (best is None or work.capacity < self._free[best].capacity):
+                best = index
+        if best is not None:
+            return self._free.pop(best)
+        return PhaseWorkspace(nx, ndx, nu, max(horizon, 8))
 
     def set_rollout_knots(self, rollout_knots: Sequence[object] | None, default: bool) -> None:
         """Mark roll-out knots (set ``M~`` of Sec. III-A); accepted forms: see ``MSiLQRSolver.solve``."""

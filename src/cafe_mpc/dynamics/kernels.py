@@ -1,0 +1,114 @@
+"""Compiled (numba) glue of the whole-body dynamics derivatives: Euler-step Jacobians from Pinocchio's.
+
+Pinocchio returns ``d qdd / d(q, v, tau)`` (and ``d F / d(q, v, tau)`` with contacts); turning them into the
+tangent Jacobians ``Fx``, ``Fu`` of the discrete step (23) takes a dozen small array operations, which in
+Python cost about as much as the Pinocchio call itself. Here they are one compiled call per knot.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+
+@njit(cache=True, nogil=True)
+def euler_step_jacobians(
+    da_dq: np.ndarray,
+    da_dv: np.ndarray,
+    da_dtau: np.ndarray,
+    symmetric_upper: bool,
+    dintegrate_dq: np.ndarray,
+    dintegrate_dstep: np.ndarray,
+    dt: float,
+    explicit: bool,
+    Fx: np.ndarray,
+    Fu: np.ndarray,
+) -> None:
+    """Tangent Jacobians of one Euler step (Eq. (23)) from the acceleration derivatives.
+
+    ``v+ = v + qdd dt``; explicit: ``q+ = q ⊕ v dt``; semi-implicit: ``q+ = q ⊕ v+ dt``. ``da_dtau`` is
+    ``nv x nv`` (its actuated columns ``6:`` are used); with ``symmetric_upper`` only its upper triangle is
+    valid (Pinocchio's ``Minv`` after ABA derivatives) and it is read symmetrically.
+    """
+    nv = da_dq.shape[0]
+    nu = Fu.shape[1]
+    first_actuated = nv - nu
+    # velocity rows
+    for i in range(nv):
+        for j in range(nv):
+            Fx[nv + i, j] = dt * da_dq[i, j]
+            Fx[nv + i, nv + j] = dt * da_dv[i, j]
+        Fx[nv + i, nv + i] += 1.0
+        for j in range(nu):
+            c = first_actuated + j
+            if symmetric_upper and c < i:
+                Fu[nv + i, j] = dt * da_dtau[c, i]
+            else:
+                Fu[nv + i, j] = dt * da_dtau[i, c]
+    # configuration rows
+    if explicit:
+        for i in range(nv):
+            for j in range(nv):
+                Fx[i, j] = dintegrate_dq[i, j]
+                Fx[i, nv + j] = dt * dintegrate_dstep[i, j]
+            for j in range(nu):
+                Fu[i, j] = 0.0
+    else:
+        # q+ = q ⊕ (v+ dt): d q+ = Dq dq + (Dstep dt) d v+
+        for i in range(nv):
+            for j in range(nv):
+                total_q = dintegrate_dq[i, j]
+                total_v = 0.0
+                for p in range(nv):
+                    coefficient = dt * dintegrate_dstep[i, p]
+                    if coefficient != 0.0:
+                        total_q += coefficient * Fx[nv + p, j]
+                        total_v += coefficient * Fx[nv + p, nv + j]
+                Fx[i, j] = total_q
+                Fx[i, nv + j] = total_v
+            for j in range(nu):
+                total = 0.0
+                for p in range(nv):
+                    total += dt * dintegrate_dstep[i, p] * Fu[nv + p, j]
+                Fu[i, j] = total
+
+
+@njit(cache=True, nogil=True)
+def copy_force_derivatives(
+    dlambda_dq: np.ndarray,
+    dlambda_dv: np.ndarray,
+    dlambda_dtau: np.ndarray,
+    dforces_dx: np.ndarray,
+    dforces_du: np.ndarray,
+) -> None:
+    """``dF/dx = [dF/dq | dF/dv]`` and ``dF/du = dF/dtau[:, actuated]``."""
+    nf, nv = dlambda_dq.shape
+    nu = dforces_du.shape[1]
+    for i in range(nf):
+        for j in range(nv):
+            dforces_dx[i, j] = dlambda_dq[i, j]
+            dforces_dx[i, nv + j] = dlambda_dv[i, j]
+        for j in range(nu):
+            dforces_du[i, j] = dlambda_dtau[i, nv - nu + j]
+
+
+@njit(cache=True, nogil=True)
+def euler_velocity_step(
+    acceleration: np.ndarray,
+    v: np.ndarray,
+    dt: float,
+    explicit: bool,
+    acceleration_out: np.ndarray,
+    v_next: np.ndarray,
+    step: np.ndarray,
+) -> bool:
+    """``v+ = v + qdd dt`` and the configuration step of Eq. (23) (``v dt`` explicit, ``v+ dt``
+    semi-implicit); ``False`` if the acceleration is not finite."""
+    for i in range(v.shape[0]):
+        a = acceleration[i]
+        if not np.isfinite(a):
+            return False
+        acceleration_out[i] = a
+        v_next[i] = v[i] + a * dt
+        step[i] = (v[i] if explicit else v_next[i]) * dt
+    return True

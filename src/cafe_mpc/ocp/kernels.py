@@ -1,0 +1,306 @@
+"""Compiled (numba) evaluation of a whole-body knot's cost and its Gauss-Newton derivatives.
+
+A whole-body knot (``cafe_mpc.ocp.knots.WholeBodyKnot``) stacks everything it prices into two vectors:
+
+* the **weighted residual** ``r`` (weights ``w``) of the cost (18): state tracking (``ndx`` rows), swing-foot
+  positions and velocities (3 rows per swing foot), torque regularisation (``nu`` rows); the cost is
+  ``0.5 r' diag(w) r`` (times ``dt`` on running knots);
+* the **constraint values** ``g >= 0`` of (26), (27) and the minimum base height, each priced by the relaxed
+  barrier ``eps B(g)`` (Sec. III-B-2): friction pyramid rows ``[fz, mu fz -+ fx, mu fz -+ fy]`` per stance
+  foot, box rows ``sign * z + offset`` on one coordinate of ``x`` or ``u`` (torque, joint-position and
+  joint-speed limits), and the base-height row.
+
+``whole_body_cost`` fills the residual rows that need no Pinocchio call (feet, torque), the constraint values,
+and returns cost and worst violation; ``whole_body_derivatives`` forms the gradient ``J' (w r) + G' B'`` and
+the Gauss-Newton Hessian ``J' diag(w) J + G' diag(B'') G`` in one pass, exploiting which rows have an
+identity Jacobian (most of them) and which are dense (the base block, the feet, the friction rows).
+Doing this in one compiled call replaces about forty small numpy calls per knot.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+
+@njit(cache=True, nogil=True)
+def relaxed_barrier(
+    g: np.ndarray, delta: np.ndarray, eps: np.ndarray, d1: np.ndarray, d2: np.ndarray
+) -> float:
+    """``sum eps B(g)`` with ``B = -ln g`` above ``delta`` and its quadratic extension below; writes
+    ``d1 = eps B'(g)``, ``d2 = eps B''(g)``."""
+    total = 0.0
+    for i in range(g.shape[0]):
+        gi, de, ep = g[i], delta[i], eps[i]
+        if gi > de:
+            total += -ep * math.log(gi)
+            d1[i] = -ep / gi
+            d2[i] = ep / (gi * gi)
+        else:
+            z = (gi - 2.0 * de) / de
+            total += ep * (0.5 * (z * z - 1.0) - math.log(de))
+            d1[i] = ep * z / de
+            d2[i] = ep / (de * de)
+    return total
+
+
+@njit(cache=True, nogil=True)
+def whole_body_cost(
+    u: np.ndarray,
+    x: np.ndarray,
+    r: np.ndarray,
+    w: np.ndarray,
+    wr: np.ndarray,
+    foot_positions: np.ndarray,
+    foot_velocities: np.ndarray,
+    ref_positions: np.ndarray,
+    ref_velocities: np.ndarray,
+    position_legs: np.ndarray,
+    velocity_legs: np.ndarray,
+    feet_row: int,
+    ref_torque: np.ndarray,
+    torque_row: int,
+    forces: np.ndarray,
+    mu: float,
+    n_friction: int,
+    box_on_control: np.ndarray,
+    box_index: np.ndarray,
+    box_sign: np.ndarray,
+    box_offset: np.ndarray,
+    height_index: int,
+    minimum_height: float,
+    g: np.ndarray,
+    delta: np.ndarray,
+    eps: np.ndarray,
+    d1: np.ndarray,
+    d2: np.ndarray,
+    scale: float,
+    out: np.ndarray,
+    velocity_rows_from: int,
+    x_reference: np.ndarray,
+    nq: int,
+    nv: int,
+    stance_legs: np.ndarray,
+    foot_forces: np.ndarray,
+    last_x: np.ndarray,
+    last_u: np.ndarray,
+) -> None:
+    """Cost of one knot. The caller sets the state rows ``r[:velocity_rows_from]`` (the base needs Lie-group
+    maths); the plain velocity rows ``r[velocity_rows_from:2 nv] = v - v_ref``, the feet and torque rows and
+    ``g`` are set here. Also scatters the stance forces into ``foot_forces`` (n_feet x 3, zero on swing feet)
+    and remembers the evaluation point in ``last_x``/``last_u``.
+
+    ``out[0]`` = ``scale * (0.5 r' W r + sum eps B(g))``, ``out[1]`` = worst violation ``max(0, -min g)``.
+    """
+    for i in range(velocity_rows_from, 2 * nv):
+        r[i] = x[nq + i - nv] - x_reference[nq + i - nv]
+    for i in range(foot_forces.shape[0]):
+        for a in range(3):
+            foot_forces[i, a] = 0.0
+    for c in range(stance_legs.shape[0]):
+        for a in range(3):
+            foot_forces[stance_legs[c], a] = forces[3 * c + a]
+    for i in range(x.shape[0]):
+        last_x[i] = x[i]
+    for i in range(u.shape[0]):
+        last_u[i] = u[i]
+    row = feet_row
+    for i in range(position_legs.shape[0]):
+        leg = position_legs[i]
+        for a in range(3):
+            r[row + a] = foot_positions[leg, a] - ref_positions[leg, a]
+        row += 3
+    for i in range(velocity_legs.shape[0]):
+        leg = velocity_legs[i]
+        for a in range(3):
+            r[row + a] = foot_velocities[leg, a] - ref_velocities[leg, a]
+        row += 3
+    if torque_row >= 0:
+        for j in range(u.shape[0]):
+            r[torque_row + j] = u[j] - ref_torque[j]
+    cost = 0.0
+    for i in range(r.shape[0]):
+        wr[i] = w[i] * r[i]
+        cost += wr[i] * r[i]
+    cost *= 0.5
+    # constraint values
+    for c in range(n_friction):
+        fx, fy, fz = forces[3 * c], forces[3 * c + 1], forces[3 * c + 2]
+        g[5 * c] = fz
+        g[5 * c + 1] = mu * fz - fx
+        g[5 * c + 2] = mu * fz + fx
+        g[5 * c + 3] = mu * fz - fy
+        g[5 * c + 4] = mu * fz + fy
+    first_box = 5 * n_friction
+    for i in range(box_index.shape[0]):
+        value = u[box_index[i]] if box_on_control[i] else x[box_index[i]]
+        g[first_box + i] = box_sign[i] * value + box_offset[i]
+    if height_index >= 0:
+        g[height_index] = x[2] - minimum_height
+    violation = 0.0
+    barrier = 0.0
+    if g.shape[0] > 0:
+        barrier = relaxed_barrier(g, delta, eps, d1, d2)
+        for i in range(g.shape[0]):
+            if -g[i] > violation:
+                violation = -g[i]
+    out[0] = scale * (cost + barrier)
+    out[1] = violation
+
+
+@njit(cache=True, nogil=True)
+def whole_body_derivatives(
+    gradient: np.ndarray,
+    hessian: np.ndarray,
+    scale: float,
+    w: np.ndarray,
+    wr: np.ndarray,
+    ndx: int,
+    nv: int,
+    base_mask: np.ndarray,
+    base_rows: np.ndarray,
+    base_jacobian: np.ndarray,
+    position_legs: np.ndarray,
+    velocity_legs: np.ndarray,
+    feet_row: int,
+    position_jacobians: np.ndarray,
+    velocity_dq: np.ndarray,
+    torque_row: int,
+    nu_torque: int,
+    n_friction: int,
+    mu: float,
+    dforces_dx: np.ndarray,
+    dforces_du: np.ndarray,
+    box_column: np.ndarray,
+    box_sign: np.ndarray,
+    height_index: int,
+    height_gradient: np.ndarray,
+    d1: np.ndarray,
+    d2: np.ndarray,
+) -> None:
+    """Gradient (``ndx + nu``) and Gauss-Newton Hessian of one knot over ``[tangent x | u]``.
+
+    ``base_mask[i]``: state row ``i`` has a non-identity Jacobian, given by ``base_jacobian`` on the rows and
+    columns ``base_rows`` (the floating base). Foot rows use the Pinocchio foot Jacobians (velocity rows:
+    ``[d v_foot / dq | J]``). Friction rows: ``G = P dF/d(x, u)``; box rows: one column with a sign; the
+    height row: ``height_gradient`` on the three base-position columns. ``d1``/``d2``: the barrier
+    derivatives of the last ``whole_body_cost``.
+    """
+    n = gradient.shape[0]
+    for i in range(n):
+        gradient[i] = 0.0
+        for j in range(n):
+            hessian[i, j] = 0.0
+    # state tracking: identity rows
+    for i in range(ndx):
+        if not base_mask[i]:
+            gradient[i] += scale * wr[i]
+            hessian[i, i] += scale * w[i]
+    # state tracking: the base block
+    nb = base_rows.shape[0]
+    for a in range(nb):
+        col_a = base_rows[a]
+        total = 0.0
+        for b in range(nb):
+            total += base_jacobian[b, a] * wr[base_rows[b]]
+        gradient[col_a] += scale * total
+        for c in range(nb):
+            col_c = base_rows[c]
+            total = 0.0
+            for b in range(nb):
+                total += base_jacobian[b, a] * w[base_rows[b]] * base_jacobian[b, c]
+            hessian[col_a, col_c] += scale * total
+    # swing-foot positions: J (3 x nv) on the configuration tangent
+    row = feet_row
+    for i in range(position_legs.shape[0]):
+        leg = position_legs[i]
+        jac = position_jacobians[leg]
+        for a in range(3):
+            weight = scale * w[row + a]
+            if weight == 0.0:
+                continue
+            residual = scale * wr[row + a]
+            for p in range(nv):
+                jp = jac[a, p]
+                if jp == 0.0:
+                    continue
+                gradient[p] += jp * residual
+                coefficient = weight * jp
+                for q in range(nv):
+                    hessian[p, q] += coefficient * jac[a, q]
+        row += 3
+    # swing-foot velocities: [d v / dq | J] (3 x 2 nv)
+    for i in range(velocity_legs.shape[0]):
+        leg = velocity_legs[i]
+        jq = velocity_dq[leg]
+        jv = position_jacobians[leg]
+        for a in range(3):
+            weight = scale * w[row + a]
+            if weight == 0.0:
+                continue
+            residual = scale * wr[row + a]
+            for p in range(2 * nv):
+                jp = jq[a, p] if p < nv else jv[a, p - nv]
+                if jp == 0.0:
+                    continue
+                gradient[p] += jp * residual
+                coefficient = weight * jp
+                for q in range(nv):
+                    hessian[p, q] += coefficient * jq[a, q]
+                    hessian[p, nv + q] += coefficient * jv[a, q]
+        row += 3
+    # torque regularisation
+    for j in range(nu_torque):
+        gradient[ndx + j] += scale * wr[torque_row + j]
+        hessian[ndx + j, ndx + j] += scale * w[torque_row + j]
+    # friction pyramid: G_c = P F_c with F_c = d f_c / d(x, u) (3 x n)
+    nu = n - ndx
+    for c in range(n_friction):
+        e0, e1, e2, e3, e4 = d1[5 * c], d1[5 * c + 1], d1[5 * c + 2], d1[5 * c + 3], d1[5 * c + 4]
+        h0, h1, h2, h3, h4 = d2[5 * c], d2[5 * c + 1], d2[5 * c + 2], d2[5 * c + 3], d2[5 * c + 4]
+        # P' d1 and P' diag(d2) P (3 x 3), P rows: [0,0,1], [-1,0,mu], [1,0,mu], [0,-1,mu], [0,1,mu]
+        v0 = -e1 + e2
+        v1 = -e3 + e4
+        v2 = e0 + mu * (e1 + e2 + e3 + e4)
+        m00 = h1 + h2
+        m11 = h3 + h4
+        m22 = h0 + mu * mu * (h1 + h2 + h3 + h4)
+        m02 = mu * (h2 - h1)
+        m12 = mu * (h4 - h3)
+        for p in range(n):
+            f0 = dforces_dx[3 * c, p] if p < ndx else dforces_du[3 * c, p - ndx]
+            f1 = dforces_dx[3 * c + 1, p] if p < ndx else dforces_du[3 * c + 1, p - ndx]
+            f2 = dforces_dx[3 * c + 2, p] if p < ndx else dforces_du[3 * c + 2, p - ndx]
+            gradient[p] += scale * (v0 * f0 + v1 * f1 + v2 * f2)
+            t0 = scale * (m00 * f0 + m02 * f2)
+            t1 = scale * (m11 * f1 + m12 * f2)
+            t2 = scale * (m02 * f0 + m12 * f1 + m22 * f2)
+            if t0 == 0.0 and t1 == 0.0 and t2 == 0.0:
+                continue
+            for q in range(ndx):
+                hessian[p, q] += (
+                    t0 * dforces_dx[3 * c, q]
+                    + t1 * dforces_dx[3 * c + 1, q]
+                    + t2 * (dforces_dx[3 * c + 2, q])
+                )
+            for q in range(nu):
+                hessian[p, ndx + q] += (
+                    t0 * dforces_du[3 * c, q]
+                    + t1 * dforces_du[3 * c + 1, q]
+                    + t2 * (dforces_du[3 * c + 2, q])
+                )
+    # box rows
+    first_box = 5 * n_friction
+    for i in range(box_column.shape[0]):
+        col = box_column[i]
+        gradient[col] += scale * box_sign[i] * d1[first_box + i]
+        hessian[col, col] += scale * d2[first_box + i]
+    # base height
+    if height_index >= 0:
+        e, h = scale * d1[height_index], scale * d2[height_index]
+        for a in range(3):
+            gradient[a] += e * height_gradient[a]
+            for b in range(3):
+                hessian[a, b] += h * height_gradient[a] * height_gradient[b]

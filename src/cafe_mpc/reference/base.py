@@ -1,0 +1,94 @@
+"""The reference interface the CAFE problem builder consumes (paper Fig. 2: "reference trajectory in").
+
+A reference answers, for any window of times: the contact schedule (stance flags of the interval that
+starts at each time), the whole-body state to track (base pose with a quaternion, joint angles, base-frame
+velocities, joint rates), the torque and ground-reaction-force references, the foot references (world
+positions and velocities), and which weight set prices each knot. Implementations:
+
+* ``LocomotionReference`` (``reference/locomotion.py``): the heuristic gait reference of Sec. VI-A;
+* ``TrajectoryReference`` (``reference/trajectory.py``): a stored whole-body trajectory (e.g. the offline
+  barrel roll of Sec. VI-B), sampled by time;
+* ``ComposedReference`` (``reference/composition.py``): references joined in time with x, y, yaw offsets.
+
+``sample(window)`` writes into a preallocated ``ReferenceWindow`` (the MPC calls it 50 times a second, so it
+allocates nothing per knot); ``update(t, q, v)`` lets a reference re-anchor on the measured state before
+each MPC update (the locomotion reference does; a stored trajectory does not).
+"""
+
+from __future__ import annotations
+
+from abc import ABC, abstractmethod
+
+import numpy as np
+
+STANCE_TIME_EPS = 1e-7
+"""Stance flags of a knot are the schedule's a hair after the knot time (the interval the knot starts)."""
+
+
+class ReferenceWindow:
+    """Preallocated reference samples at ``n`` times (filled in place by ``Reference.sample``).
+
+    ``stance`` (n, n_feet) bool: contact flags of the interval starting at each time; ``state`` (n, nq + nv):
+    whole-body ``[q, v]``; ``torque`` (n, nu); ``forces`` (n, n_feet, 3): world GRF reference (zero on swing
+    feet); ``foot_positions``/``foot_velocities`` (n, n_feet, 3): world foot references (stance feet at their
+    footholds, swing feet on their swing curves); ``weight_set`` (n,) int: index into the reference's
+    ``weight_sets``.
+    """
+
+    def __init__(self, capacity: int, nq: int, nv: int, nu: int, n_feet: int) -> None:
+        self.capacity = capacity
+        self.nq, self.nv, self.nu, self.n_feet = nq, nv, nu, n_feet
+        self._times = np.zeros(capacity)
+        self._stance = np.zeros((capacity, n_feet), dtype=bool)
+        self._state = np.zeros((capacity, nq + nv))
+        self._torque = np.zeros((capacity, nu))
+        self._forces = np.zeros((capacity, n_feet, 3))
+        self._foot_positions = np.zeros((capacity, n_feet, 3))
+        self._foot_velocities = np.zeros((capacity, n_feet, 3))
+        self._weight_set = np.zeros(capacity, dtype=np.int64)
+        self.set_times(np.zeros(0))
+
+    def set_times(self, times: np.ndarray) -> None:
+        """Use the first ``len(times)`` rows for these times (views; no allocation)."""
+        n = len(times)
+        if n > self.capacity:
+            raise ValueError(f"reference window holds {self.capacity} times, asked for {n}")
+        self.n = n
+        self.times = self._times[:n]
+        self.times[:] = times
+        self.stance = self._stance[:n]
+        self.state = self._state[:n]
+        self.torque = self._torque[:n]
+        self.forces = self._forces[:n]
+        self.foot_positions = self._foot_positions[:n]
+        self.foot_velocities = self._foot_velocities[:n]
+        self.weight_set = self._weight_set[:n]
+
+    def check_finite(self, source: str) -> None:
+        """One clear error if a reference produced a NaN/inf (instead of a NaN torque later)."""
+        for name in ("state", "torque", "forces", "foot_positions", "foot_velocities"):
+            if not np.all(np.isfinite(getattr(self, name))):
+                raise ValueError(f"{source}: reference field {name!r} is not finite over the window")
+
+
+class Reference(ABC):
+    """What the CAFE problem builder needs from a reference (see the module docstring)."""
+
+    weight_sets: tuple[str, ...] = ("regular",)
+    """Names of the weight sets this reference uses (``ReferenceWindow.weight_set`` indexes them)."""
+
+    def update(self, t: float, q: np.ndarray, v: np.ndarray) -> None:  # noqa: B027 - optional hook
+        """Re-anchor on the measured state before an MPC update (default: nothing)."""
+
+    @abstractmethod
+    def stance_at(self, t: float) -> tuple[bool, ...]:
+        """Contact flags at time ``t``."""
+
+    @abstractmethod
+    def sample(self, window: ReferenceWindow) -> None:
+        """Fill every field of ``window`` at ``window.times`` (in place)."""
+
+    @property
+    def end_time(self) -> float:
+        """Time after which the reference only holds its last state (``inf`` for periodic gaits)."""
+        return float("inf")

@@ -1,0 +1,198 @@
+"""Compiled inner loops of MS-iLQR (numba): the backward sweep of one phase over stacked arrays.
+
+The per-knot algebra of the backward sweep (Eqs. (8), (9)) is a dozen products of 36 x 36 and 36 x 12
+matrices and one 12 x 12 Cholesky factorisation. In Python each of them is a separate numpy call with its
+own dispatch overhead, which costs as much as the arithmetic; here the whole phase is one compiled call over
+the phase's preallocated stacked arrays (``A[k]``, ``B[k]``, ``Lx[k]``, ...), with no allocation.
+
+The maths is the textbook sweep (tests compare it with a plain numpy version and with closed-form LQ
+solutions): Gauss-Newton (no second-order dynamics terms), defects through ``ŝ = s + S d`` (8a),
+``mu I`` added to ``Quu`` (8e), the gains of Eq. (7) and the value-function update of Eq. (9) written with
+the unregularised ``Quu`` so that the expected cost change of the quadratic model stays exact for
+``mu > 0``.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+CHOLESKY_FAILED = 1
+"""Status of ``backward_phase`` when ``Quu + mu I`` is not positive definite (or not finite)."""
+
+
+@njit(cache=True, fastmath=True, nogil=True)
+def cholesky_solve(matrix: np.ndarray, rhs: np.ndarray, lower: np.ndarray) -> bool:
+    """Solve ``matrix @ X = rhs`` in place (``rhs`` becomes ``X``) by Cholesky; ``False`` if not PD.
+
+    ``lower`` is scratch (``n x n``) for the factor. Small dense systems (``n = nu = 12``, 37 right-hand
+    sides): a hand-written factorisation with row-wise substitutions beats a LAPACK call from compiled code,
+    and it reports failure instead of raising.
+    """
+    n = matrix.shape[0]
+    columns = rhs.shape[1]
+    for j in range(n):
+        total = matrix[j, j]
+        for p in range(j):
+            total -= lower[j, p] * lower[j, p]
+        if not (total > 0.0) or not np.isfinite(total):
+            return False
+        diagonal = np.sqrt(total)
+        lower[j, j] = diagonal
+        for i in range(j + 1, n):
+            value = matrix[i, j]
+            for p in range(j):
+                value -= lower[i, p] * lower[j, p]
+            lower[i, j] = value / diagonal
+    for i in range(n):
+        for p in range(i):
+            factor = lower[i, p]
+            for c in range(columns):
+                rhs[i, c] -= factor * rhs[p, c]
+        inverse = 1.0 / lower[i, i]
+        for c in range(columns):
+            rhs[i, c] *= inverse
+    for i in range(n - 1, -1, -1):
+        for p in range(i + 1, n):
+            factor = lower[p, i]
+            for c in range(columns):
+                rhs[i, c] -= factor * rhs[p, c]
+        inverse = 1.0 / lower[i, i]
+        for c in range(columns):
+            rhs[i, c] *= inverse
+    return True
+
+
+@njit(cache=True, nogil=True)
+def backward_phase(
+    S: np.ndarray,
+    s: np.ndarray,
+    F: np.ndarray,
+    G: np.ndarray,
+    H: np.ndarray,
+    defects: np.ndarray,
+    rollout: np.ndarray,
+    mu: float,
+    K: np.ndarray,
+    kff: np.ndarray,
+    Qu: np.ndarray,
+    Quu: np.ndarray,
+    Qux: np.ndarray,
+    sums: np.ndarray,
+    rhs: np.ndarray,
+    lower: np.ndarray,
+    SF: np.ndarray,
+    Q: np.ndarray,
+    q: np.ndarray,
+    s_hat: np.ndarray,
+    gains: np.ndarray,
+) -> int:
+    """Backward sweep over the ``N`` running knots of one phase (Eqs. (8), (9)); ``S[N]``, ``s[N]`` are set.
+
+    Stacked inputs over ``[x | u]`` (``n = ndx + nu``): ``F[k] = [A_k | B_k]`` (``ndx x n``), the cost
+    gradient ``G[k] = [Lx | Lu]`` and Gauss-Newton Hessian ``H[k]`` (its ``Lxx``, ``Lux``, ``Luu`` blocks; the
+    upper-right block is not read). Then ``Q = H + F' S F`` and ``q = G + F' ŝ`` hold all of Eq. (8b)-(8f) in
+    two matrix products. Writes ``S[0..N-1]``, ``s[0..N-1]``, the gains ``K``, ``kff`` (Eq. (7)) and ``Qu``,
+    ``Quu`` (regularised), ``Qux``. Adds to ``sums`` the terms of the expected cost change
+    ``ΔJ(α) = c0 + α g + ½ α² h``: ``sums[0] += Σ (s'd + ½ d'S d)``, ``sums[1] += Σ Qu'k``,
+    ``sums[2] += Σ (-Qu'k - mu k'k)``. ``rhs``, ``lower``, ``SF``, ``Q``, ``q``, ``s_hat``, ``gains`` are
+    scratch. Returns 0, or ``CHOLESKY_FAILED`` (the caller raises ``mu`` and restarts the sweep).
+    """
+    n_knots = F.shape[0]
+    ndx = F.shape[1]
+    n = F.shape[2]
+    nu = n - ndx
+    constant = 0.0
+    linear = 0.0
+    quadratic = 0.0
+    for k in range(n_knots - 1, -1, -1):
+        S_next = S[k + 1]
+        s_hat[:] = s[k + 1]
+        if not rollout[k + 1]:
+            defect = defects[k + 1]
+            S_defect = S_next @ defect
+            s_hat += S_defect  # Eq. (8a)
+            constant += s[k + 1] @ defect + 0.5 * (defect @ S_defect)
+        F_k = F[k]
+        np.dot(S_next, F_k, SF)
+        np.dot(F_k.T, SF, Q)  # F' S F: Eqs. (8d)-(8f), Gauss-Newton
+        Q += H[k]
+        np.dot(F_k.T, s_hat, q)  # F' ŝ: Eqs. (8b), (8c)
+        q += G[k]
+        for i in range(nu):
+            Q[ndx + i, ndx + i] += mu
+            rhs[i, 0] = q[ndx + i]
+            for j in range(ndx):
+                rhs[i, j + 1] = Q[ndx + i, j]
+        Qu[k] = q[ndx:]
+        Quu[k] = Q[ndx:, ndx:]
+        Qux[k] = Q[ndx:, :ndx]
+        if not cholesky_solve(Quu[k], rhs, lower):
+            return CHOLESKY_FAILED
+        K_k = K[k]
+        k_ff = kff[k]
+        qu_k = 0.0
+        kk = 0.0
+        for i in range(nu):
+            k_ff[i] = -rhs[i, 0]  # Eq. (7): δũ = -Quu^-1 Qu
+            qu_k += q[ndx + i] * k_ff[i]
+            kk += k_ff[i] * k_ff[i]
+            for j in range(ndx):
+                K_k[i, j] = -rhs[i, j + 1]  # Eq. (7): K = -Quu^-1 Qux
+        # Eq. (9) with the unregularised Quu (identical to (9) when mu = 0):
+        # s = Qx + K'(Qu - mu k), S = Qxx + K'(Qux - mu K)
+        for i in range(nu):
+            rhs[i, 0] = q[ndx + i] - mu * k_ff[i]
+            for j in range(ndx):
+                gains[i, j] = Q[ndx + i, j] - mu * K_k[i, j]
+        S_k = S[k]
+        np.dot(K_k.T, gains, S_k)
+        s_k = s[k]
+        for i in range(ndx):
+            total = q[i]
+            for j in range(nu):
+                total += K_k[j, i] * rhs[j, 0]
+            s_k[i] = total
+        for i in range(ndx):
+            for j in range(i, ndx):
+                value = 0.5 * (S_k[i, j] + S_k[j, i] + Q[i, j] + Q[j, i])
+                S_k[i, j] = value
+                S_k[j, i] = value
+        linear += qu_k
+        quadratic += -qu_k - mu * kk
+    sums[0] += constant
+    sums[1] += linear
+    sums[2] += quadratic
+    return 0
+
+
+@njit(cache=True, nogil=True)
+def policy_step(
+    u: np.ndarray,
+    k_ff: np.ndarray,
+    K: np.ndarray,
+    dx: np.ndarray,
+    alpha: float,
+    u_out: np.ndarray,
+    du_out: np.ndarray,
+) -> None:
+    """Eq. (11): ``u' = ū + α k + K (x' ⊖ x̄)``; also writes ``δu = u' - ū``."""
+    for i in range(u.shape[0]):
+        total = alpha * k_ff[i]
+        for j in range(dx.shape[0]):
+            total += K[i, j] * dx[j]
+        du_out[i] = total
+        u_out[i] = u[i] + total
+
+
+@njit(cache=True, nogil=True)
+def linear_step(F: np.ndarray, dx: np.ndarray, du: np.ndarray, defect: np.ndarray, out: np.ndarray) -> None:
+    """Eq. (12) in tangent form: ``out = A δx + B δu + d̄`` with ``F = [A | B]``."""
+    ndx = dx.shape[0]
+    for i in range(F.shape[0]):
+        total = defect[i]
+        for j in range(ndx):
+            total += F[i, j] * dx[j]
+        for j in range(du.shape[0]):
+            total += F[i, ndx + j] * du[j]
+        out[i] = total
