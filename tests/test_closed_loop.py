@@ -21,7 +21,10 @@ DURATION = 1.5
     [("trot", "riccati"), ("trot", "vwbc"), ("bound", "vwbc")],
 )
 def test_gait_stays_up_and_moves_forward(preset, wbc):
-    config = load_config(preset, [f"simulation.duration={DURATION}", f"wbc={wbc}", "output.plots=false"])
+    config = load_config(
+        preset,
+        [f"simulation.duration={DURATION}", f"wbc={wbc}", "output.plots=false", "mpc.latency=fixed"],
+    )
     robot, controller, log = simulate_run(config)
     metrics = run_metrics(config, robot, controller, log)
     assert not log.fell, log.fall_reason

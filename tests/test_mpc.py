@@ -1,5 +1,7 @@
 """CAFE problem construction (Sec. IV-D), warm start (Fig. 5) and a short MPC closed loop."""
 
+import itertools
+
 import numpy as np
 import pytest
 
@@ -61,7 +63,7 @@ def test_warm_start_shifts_by_time_and_rolls_out_after_impacts(robot):
     reference = _reference(robot, "trot")
     first = builder.build(0.0, robot.x_standing, reference)
     guess = WarmStart().guess(first, None, None)
-    solution = MSiLQRSolver(MpcSettings().update_solve).solve(
+    solution = MSiLQRSolver(MpcSettings(latency="fixed").update_solve).solve(
         first.problem, guess.xs, guess.us, guess.rollout
     )
     second = builder.build(0.02, solution.phases[0].xs[2], reference)
@@ -90,7 +92,7 @@ def _mpc_updates(robot, builder_for, solver_for, updates=8, gait="trot"):
     ``builder_for(i)``/``solver_for(i)`` choose the builder and solver of update ``i``."""
     reference = _reference(robot, gait)
     x, previous, results = robot.x_standing.copy(), None, []
-    settings = MpcSettings()
+    settings = MpcSettings(latency="fixed")  # no wall-clock budget: deterministic
     for i in range(updates):
         built = builder_for(i).build(0.02 * i, x, reference)
         guess = WarmStart().guess(built, *(previous or (None, None)))
@@ -173,8 +175,8 @@ class _RecordingRiccati(RiccatiController):
 
 @pytest.mark.parametrize("latency", [0.02, 0.05])
 def test_plans_take_effect_after_their_latency(robot, latency):
-    """Policy lag: each plan drives the robot from ``start + latency`` on, also when the latency equals or
-    exceeds the MPC period (several plans in flight)."""
+    """Policy lag with one MPC worker: each plan drives the robot from ``start + latency`` on; the next update
+    starts when the worker is free, at most once per period (0.05 s latency: updates 0.05 s apart)."""
     reference = LocomotionReference(robot, get_gait("stand"), [VelocityCommand()])
     low_level = _RecordingRiccati(robot)
     controller = CafeMpcController(
@@ -184,16 +186,47 @@ def test_plans_take_effect_after_their_latency(robot, latency):
         low_level,
         MpcSettings(period=0.02, latency="fixed", fixed_latency=latency),
     )
-    log = simulate(robot, controller, 0.16)
+    log = simulate(robot, controller, 0.2)
     assert not log.fell
     first, *later = low_level.activations
-    assert first[0] == pytest.approx(0.0)  # the very first plan acts at once (nothing else to follow)
+    assert first == (pytest.approx(0.0), pytest.approx(0.0))  # the cold solve runs before the clock starts
     assert len(later) >= 3
     for start, applied in later:
         assert applied == pytest.approx(start + latency, abs=1e-9)
+    starts = [start for start, _ in low_level.activations]
+    np.testing.assert_allclose(np.diff(starts[1:]), max(latency, 0.02), atol=1e-9)
+    assert starts[1] == pytest.approx(0.02)
+    # latencies are recorded, one per plan that took effect
+    np.testing.assert_allclose(controller.statistics.latencies, [0.0] + [latency] * len(later), atol=1e-9)
     # the low-level controller sees the plant's measured contacts on every tick
     assert len(low_level.contacts) == log.ticks
     np.testing.assert_array_equal(np.array(low_level.contacts), log.contacts)
+
+
+def test_measured_latency_never_uses_a_plan_before_it_exists(robot):
+    """Measured mode: a plan takes effect at the first control tick after its update's real wall time, never
+    earlier; while the worker is busy no other update starts; the latencies are recorded."""
+    reference = LocomotionReference(robot, get_gait("stand"), [VelocityCommand()])
+    low_level = _RecordingRiccati(robot)
+    controller = CafeMpcController(
+        robot,
+        reference,
+        _builder(robot, ModelSchedule.named("S0")),
+        low_level,
+        MpcSettings(period=0.02, latency="measured"),
+    )
+    log = simulate(robot, controller, 0.3)
+    assert not log.fell
+    statistics = controller.statistics
+    update_times = dict(zip(statistics.start_times, statistics.update_times, strict=True))
+    for start, applied in low_level.activations[1:]:
+        assert applied >= start + update_times[start] - 1e-12
+        assert applied - (start + update_times[start]) < 0.002 + 1e-9  # the next 500 Hz tick
+    starts = statistics.start_times
+    for earlier, later in itertools.pairwise(starts[1:]):
+        assert later >= earlier + max(0.02, update_times[earlier]) - 1e-9
+    assert len(statistics.latencies) == len(low_level.activations)
+    assert controller.settings.update_solve.time_budget == pytest.approx(0.018)
 
 
 def test_torque_and_force_targets_carry_the_gaits_average_stance_load(robot):

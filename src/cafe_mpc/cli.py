@@ -1,4 +1,4 @@
-"""Command line: ``cafe-mpc run | experiment | robot | bench``.
+"""Command line: ``cafe-mpc run | experiment | robot | bench | optimize``.
 
 Every user error (bad preset, key, value, robot file, NaN state) ends with one line ``cafe-mpc: error: ...``
 on stderr and a non-zero exit code, never a traceback.
@@ -25,6 +25,8 @@ def _command_run(arguments: argparse.Namespace) -> int:
         overrides.append(f"simulation.duration={arguments.duration}")
     if arguments.render:
         overrides.append("output.render=true")
+    if arguments.realtime:
+        overrides.append("simulation.realtime=true")
     config = load_config(arguments.config, overrides)
     out_dir = Path(arguments.out) if arguments.out else default_out_dir(config)
     result = run(config, out_dir, show_progress=True)
@@ -76,8 +78,10 @@ def _gait_summary(metrics: dict) -> str:
         f"vx_mean={_number(metrics.get('vx_mean'))} m/s (window from {metrics['metrics_window_start_s']} s) "
         f"vx_rms_error={_number(metrics.get('vx_rms_error'))} "
         f"pitch_rms={_number(metrics.get('pitch_rms'))} rad; "
-        f"mpc solves={mpc.get('solves')} failures={mpc.get('failures')} "
-        f"solve median {_number(mpc.get('solve_time_ms_median'), 1)} ms; "
+        f"mpc ({(metrics.get('timing') or {}).get('mode')} latency) solves={mpc.get('solves')} "
+        f"failures={mpc.get('failures')} update median {_number(mpc.get('update_ms_median'), 1)} ms "
+        f"latency median {_number(mpc.get('latency_ms_median'), 1)} ms "
+        f"rate {_number(mpc.get('rate_hz'), 1)} Hz; "
         f"{wbc.get('controller')}: torque limit violations {wbc.get('torque_limit_violations')}, "
         f"friction cone violations {wbc.get('friction_cone_violations')}, "
         f"foot slip max {_number(wbc.get('foot_slip_max_m'), 4)} m"
@@ -130,6 +134,48 @@ def _command_bench(arguments: argparse.Namespace) -> int:
     return 0
 
 
+def _command_optimize(arguments: argparse.Namespace) -> int:
+    import time
+
+    from cafe_mpc.robots.robot import load_robot
+    from cafe_mpc.trajopt.multiphase import solve_task
+    from cafe_mpc.trajopt.outputs import write_outputs
+    from cafe_mpc.trajopt.presets import load_task
+
+    task = load_task(arguments.task, list(arguments.set or []))
+    out_dir = (
+        Path(arguments.out)
+        if arguments.out
+        else Path("runs") / f"{time.strftime('%Y%m%d-%H%M%S')}-{task.name}"
+    )
+    if out_dir.exists() and any(out_dir.iterdir()):
+        raise FileExistsError(f"output folder {out_dir} exists and is not empty; choose another --out")
+    robot = load_robot(task.robot)
+    print(f"{task.name}: {len(task.phases)} phases, {sum(task.knots_per_phase)} knots at dt = {task.dt} s")
+    result = solve_task(robot, task, verbose=arguments.verbose_solver, echo=print)
+    command = " ".join(
+        ["cafe-mpc optimize", arguments.task]
+        + [f"--set {item!r}" for item in arguments.set or []]
+        + [f"--out {out_dir}"]
+        + (["--no-video"] if arguments.no_video else [])
+    )
+    summary = write_outputs(robot, result, out_dir, render=not arguments.no_video, command=command)
+    roll = summary["roll_at_landing_rad"]
+    print(
+        f"converged={summary['converged']} ({summary['status']}) "
+        f"roll_at_landing={'n/a' if roll is None else f'{roll:.4f}'} rad "
+        f"max_defect={summary['max_defect']:.2e} max_abs_torque={summary['max_abs_torque']:.2f} Nm "
+        f"iterations={summary['iterations']} wall_time={summary['wall_time_s']:.2f} s"
+    )
+    if summary.get("render_error"):
+        print(f"no video: {summary['render_error']}")
+    print(f"results in {out_dir}")
+    if not summary["converged"]:
+        print(f"cafe-mpc: error: the optimisation did not converge ({summary['status']})", file=sys.stderr)
+        return EXIT_FAILED
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="cafe-mpc", description="CAFE-MPC on a simulated quadruped")
     parser.add_argument("-v", "--verbose", action="store_true", help="log at INFO level to stderr")
@@ -161,6 +207,11 @@ def build_parser() -> argparse.ArgumentParser:
         help="override a config key by its dotted path; repeatable",
     )
     run_parser.add_argument("--render", action="store_true", help="write a video (needs off-screen GL)")
+    run_parser.add_argument(
+        "--realtime",
+        action="store_true",
+        help="against the wall clock: plant + low-level controller at 500 Hz, the MPC in its own process",
+    )
     run_parser.set_defaults(handler=_command_run)
 
     from cafe_mpc.experiments.comparisons import EXPERIMENTS
@@ -220,6 +271,40 @@ def build_parser() -> argparse.ArgumentParser:
     bench_parser.add_argument("--iterations", type=int, default=10, help="iterations per solve")
     bench_parser.add_argument("--repeats", type=int, default=5, help="solves per problem")
     bench_parser.set_defaults(handler=_command_bench)
+
+    from cafe_mpc.trajopt.presets import TASKS
+
+    optimize_parser = commands.add_parser(
+        "optimize",
+        help=f"offline whole-body trajectory optimisation ({', '.join(TASKS)})",
+        description=(
+            "Offline multi-phase whole-body trajectory optimisation with the MS-iLQR (paper Sec. VI-B,\n"
+            "Appendix). Writes <task>.npz (the trajectory), <task>.yaml (its settings; re-run it with\n"
+            "cafe-mpc optimize <task>.yaml), roll.png, height.png, lateral_position.png, torques.png,\n"
+            "grfs.png, video.mp4 (kinematic replay, needs off-screen GL) and summary.json."
+        ),
+        epilog=(
+            "examples:\n"
+            "  cafe-mpc optimize barrel-roll                       # the in-place barrel roll\n"
+            "  cafe-mpc optimize barrel-roll --set solver.max_al_iterations=40 --out out/br\n"
+            "  cafe-mpc optimize barrel-roll --set phases.2.terminal.base_position.5=5  # authors' weight\n"
+            "  cafe-mpc optimize out/br/barrel_roll.yaml           # re-run a written settings file"
+        ),
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    optimize_parser.add_argument("task", help=f"task preset ({', '.join(TASKS)}) or a task YAML file")
+    optimize_parser.add_argument(
+        "--set",
+        action="append",
+        metavar="KEY=VALUE",
+        help="override a task key by its dotted path; repeatable",
+    )
+    optimize_parser.add_argument("--out", help="output folder (default runs/<time>-<task>/)")
+    optimize_parser.add_argument("--no-video", action="store_true", help="skip the video")
+    optimize_parser.add_argument(
+        "--verbose-solver", action="store_true", help="print one line per MS-iLQR iteration"
+    )
+    optimize_parser.set_defaults(handler=_command_optimize)
     return parser
 
 
@@ -231,6 +316,7 @@ def main(argv: list[str] | None = None) -> int:
     console.setFormatter(logging.Formatter("%(levelname)s %(name)s: %(message)s"))
     logging.getLogger().addHandler(console)
     from cafe_mpc.config import ConfigError
+    from cafe_mpc.control.realtime import MpcProcessError
     from cafe_mpc.robots.robot import RobotLoadError
     from cafe_mpc.sim.loop import ControllerError
     from cafe_mpc.sim.plant import SimulationDiverged
@@ -240,7 +326,7 @@ def main(argv: list[str] | None = None) -> int:
     except (ConfigError, RobotLoadError, FileExistsError) as error:
         print(f"cafe-mpc: error: {error}", file=sys.stderr)
         return EXIT_USAGE
-    except (SimulationDiverged, ControllerError, ValueError) as error:
+    except (SimulationDiverged, ControllerError, MpcProcessError, ValueError) as error:
         print(f"cafe-mpc: error: {error}", file=sys.stderr)
         return EXIT_FAILED
     except KeyboardInterrupt:

@@ -46,6 +46,11 @@ class SimulationConfig(StrictModel):
     plant_timestep: float = Field(0.001, gt=0.0, le=0.01, description="MuJoCo step, s")
     initial_height_offset: float = Field(0.0, ge=-0.05, le=1.0, description="start this far above standing")
     stop_on_fall: bool = True
+    realtime: bool = Field(
+        False,
+        description="run against the wall clock: plant + low level at control_rate_hz in this process, "
+        "the MPC in its own process (cafe-mpc run --realtime)",
+    )
     fall: FallConfig = FallConfig()
 
     @model_validator(mode="after")
@@ -158,12 +163,17 @@ class MpcConfig(StrictModel):
     srb_horizon: float | None = Field(None, ge=0.0, le=5.0, description="Ts, s (schedule: null)")
     whole_body_dt: float = Field(0.01, gt=0.0, le=0.1, description="dt_w, s")
     srb_dt: float = Field(0.05, gt=0.0, le=0.5, description="dt_s, s")
-    period: float = Field(0.02, gt=0.0, le=0.5, description="s of simulated time between MPC updates")
+    period: float = Field(0.02, gt=0.0, le=0.5, description="s between MPC update starts (at most)")
     latency: Literal["fixed", "measured"] = Field(
-        "fixed",
-        description="plan takes effect after fixed_latency (deterministic) or the measured solve time",
+        "measured",
+        description="a plan takes effect after the measured wall time of its update (what a robot sees) "
+        "or after fixed_latency (deterministic test mode)",
     )
-    fixed_latency: float = Field(0.0, ge=0.0, le=0.5, description="s, with latency: fixed")
+    fixed_latency: float = Field(0.02, ge=0.0, le=0.5, description="s, with latency: fixed")
+    time_budget: float | None = Field(
+        None, gt=0.0, le=0.5, description="wall-clock cap of a solve, s (null: 0.9 x period; measured only)"
+    )
+    max_iterations: int = Field(4, ge=1, le=50, description="MS-iLQR iterations per update (1: RTI)")
 
     @field_validator("schedule")
     @classmethod

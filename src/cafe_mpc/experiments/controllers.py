@@ -12,26 +12,30 @@ it themselves). The SRB tail gets the robot's own mass and inertia (``dynamics.s
 
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 
 from cafe_mpc.config import ConfigError, RunConfig, velocity_command
 from cafe_mpc.control.mpc_loop import CafeMpcController, MpcSettings
+from cafe_mpc.control.realtime import RealtimeMpcController
 from cafe_mpc.core.contacts import N_FEET
 from cafe_mpc.core.controller import LowLevelController
 from cafe_mpc.core.measurement import Measurement
 from cafe_mpc.core.plan import Plan
 from cafe_mpc.dynamics.srb import srb_parameters
 from cafe_mpc.mpc.problem import CafeProblemBuilder
+from cafe_mpc.mpc.receding_horizon import RecedingHorizonMpc
 from cafe_mpc.ocp.contact_schedule import get_gait
 from cafe_mpc.ocp.costs import SRBWeights
 from cafe_mpc.ocp.knots import SRBModelFactory, SRBSettings, WholeBodyModelFactory, WholeBodySettings
 from cafe_mpc.reference.locomotion import LocomotionReference, VelocityCommand
-from cafe_mpc.robots.robot import Robot
+from cafe_mpc.robots.robot import Robot, load_robot
 from cafe_mpc.wbc.pd import PDController
 from cafe_mpc.wbc.riccati import RiccatiController
 from cafe_mpc.wbc.vwbc import VWBCController, VWBCSettings
 
-RunController = PDController | CafeMpcController
+RunController = PDController | CafeMpcController | RealtimeMpcController
 
 
 class LowLevelRecorder(LowLevelController):
@@ -128,7 +132,8 @@ def reference_commands(config: RunConfig) -> list[VelocityCommand]:
 
 
 def build_controller(config: RunConfig, robot: Robot) -> RunController:
-    """The closed-loop controller named by ``config.wbc`` (``pd``, or CAFE-MPC over ``riccati``/``vwbc``).
+    """The closed-loop controller named by ``config.wbc`` (``pd``, or CAFE-MPC over ``riccati``/``vwbc``) in
+    simulated time (fixed or measured latency).
 
     Raises ``ConfigError`` (one line, naming the section) when a setting is rejected by the library.
     """
@@ -136,6 +141,34 @@ def build_controller(config: RunConfig, robot: Robot) -> RunController:
         return PDController(
             robot, config.pd.kp, config.pd.kd, gravity_feedforward=config.pd.gravity_feedforward
         )
+    mpc = build_mpc(config, robot)
+    return CafeMpcController(robot, mpc.reference, mpc.builder, build_recorder(config, robot), mpc=mpc)
+
+
+def build_recorder(config: RunConfig, robot: Robot) -> LowLevelRecorder:
+    """The run's low-level controller wrapped in a recorder sized for the run's ticks."""
+    ticks = config.simulation.duration * config.simulation.control_rate_hz  # the run's low-level calls
+    return LowLevelRecorder(
+        build_low_level(config, robot), capacity=int(np.ceil(ticks)) + 2, n_feet=robot.n_feet
+    )
+
+
+def mpc_settings(config: RunConfig) -> MpcSettings:
+    try:
+        return MpcSettings(
+            period=config.mpc.period,
+            latency=config.mpc.latency,
+            fixed_latency=config.mpc.fixed_latency,
+            time_budget=config.mpc.time_budget,
+            max_iterations=config.mpc.max_iterations,
+        )
+    except ValueError as error:
+        raise ConfigError(f"mpc: {error}") from error
+
+
+def build_mpc(config: RunConfig, robot: Robot) -> RecedingHorizonMpc:
+    """The MPC side of a run: reference (Sec. VI-A), CAFE problem builder with its model schedule (Sec. IV-D),
+    receding-horizon settings."""
     gait = config.gait
     if gait is None:  # RunConfig rejects this; kept for configs built with model_construct
         raise ConfigError(f"wbc: {config.wbc!r} needs a gait section")
@@ -152,11 +185,9 @@ def build_controller(config: RunConfig, robot: Robot) -> RunController:
         raise ConfigError(f"gait: {error}") from error
     try:
         schedule = config.mpc.model_schedule()
-        settings = MpcSettings(
-            period=config.mpc.period, latency=config.mpc.latency, fixed_latency=config.mpc.fixed_latency
-        )
     except ValueError as error:
         raise ConfigError(f"mpc: {error}") from error
+    settings = mpc_settings(config)
     try:
         running = config.costs.running.to_weights()
         terminal = config.costs.terminal.to_weights()
@@ -177,10 +208,30 @@ def build_controller(config: RunConfig, robot: Robot) -> RunController:
         )
     )
     builder = CafeProblemBuilder(whole_body, srb, schedule)
-    low_level = build_low_level(config, robot)
-    ticks = config.simulation.duration * config.simulation.control_rate_hz  # the run's low-level calls
-    recorder = LowLevelRecorder(low_level, capacity=int(np.ceil(ticks)) + 2, n_feet=robot.n_feet)
-    return CafeMpcController(robot, reference, builder, recorder, settings)
+    return RecedingHorizonMpc(robot, reference, builder, settings)
+
+
+def realtime_mpc(config_data: dict) -> RecedingHorizonMpc:
+    """Builds the MPC inside the real-time mode's MPC process, from the run config as plain data (picklable):
+    its own robot model, reference and solver; measured latency, so the solve keeps the wall-clock budget."""
+    config = RunConfig.model_validate(config_data)
+    robot = load_robot(config.robot)
+    config = config.model_copy(update={"mpc": config.mpc.model_copy(update={"latency": "measured"})})
+    return build_mpc(config, robot)
+
+
+def build_realtime_controller(config: RunConfig, robot: Robot) -> RealtimeMpcController:
+    """CAFE-MPC against the wall clock: the MPC in its own process (``control.realtime``), the recorded
+    low-level controller here. Close it (``with``) to stop the process."""
+    if config.wbc == "pd":
+        raise ConfigError("simulation.realtime needs an MPC run (wbc: vwbc or riccati), not wbc: pd")
+    schedule = config.mpc.model_schedule()
+    factory = functools.partial(realtime_mpc, config.model_dump(mode="json"))
+    controller = RealtimeMpcController(
+        robot, factory, build_recorder(config, robot), config.mpc.period, schedule.whole_body_knots
+    )
+    controller.reference = build_mpc(config, robot).reference  # for the run's report (gait stance)
+    return controller
 
 
 def build_low_level(config: RunConfig, robot: Robot) -> LowLevelController:
@@ -202,9 +253,68 @@ def build_low_level(config: RunConfig, robot: Robot) -> LowLevelController:
     return VWBCController(robot, vwbc_settings)
 
 
+def reference_of(controller: RunController):
+    """The reference a CAFE-MPC run tracked (None for PD standing)."""
+    return getattr(controller, "reference", None) if is_mpc(controller) else None
+
+
+def timing_of(config: RunConfig, controller: RunController) -> dict:
+    """How time was modelled in a run (recorded in ``metrics.json``): ``realtime`` (wall clock, MPC process),
+    ``measured`` (simulated time, plans act after their measured update time) or ``fixed``."""
+    if not is_mpc(controller):
+        return {"mode": "none (PD standing)"}
+    mode = "realtime" if config.simulation.realtime else config.mpc.latency
+    if mode == "realtime":  # the MPC process always runs with its wall-clock budget
+        config = config.model_copy(update={"mpc": config.mpc.model_copy(update={"latency": "measured"})})
+    settings = mpc_settings(config)
+    return {
+        "mode": mode,
+        "period_s": config.mpc.period,
+        "fixed_latency_s": config.mpc.fixed_latency if mode == "fixed" else None,
+        "time_budget_ms": settings.budget * 1e3 if settings.budget is not None else None,
+        "max_iterations": settings.max_iterations,
+    }
+
+
+def mpc_summary(controller: RunController, log) -> dict | None:
+    """The ``mpc`` block of ``metrics.json``: update-time breakdown, iterations, latency, achieved rate."""
+    if isinstance(controller, CafeMpcController):
+        summary = controller.statistics.summary()
+        duration = float(log.time[-1]) if len(log.time) else 0.0
+        summary["rate_hz"] = (len(controller.statistics.latencies) - 1) / duration if duration > 0 else None
+        return summary
+    if isinstance(controller, RealtimeMpcController):
+        worker = controller.worker_statistics
+        summary = worker.summary() if worker is not None else {}
+        main = controller.statistics
+        duration = float(log.time[-1]) if len(log.time) else 0.0
+        summary["latency_ms_median"] = float(np.median(main.latencies)) * 1e3 if main.latencies else None
+        summary["latency_ms_p99"] = float(np.percentile(main.latencies, 99)) * 1e3 if main.latencies else None
+        summary["plans_received"] = len(main.latencies)
+        summary["rate_hz"] = len(main.latencies) / duration if duration > 0 else None
+        summary["pd_fallback_ticks"] = main.fallback_ticks
+        summary["worker_error"] = controller.worker_error
+        return summary
+    return None
+
+
+def mpc_statistics_of(controller: RunController):
+    """The MPC's per-update records (the worker's in real-time runs), None for PD standing."""
+    if isinstance(controller, CafeMpcController):
+        return controller.statistics
+    if isinstance(controller, RealtimeMpcController):
+        return controller.worker_statistics
+    return None
+
+
+def is_mpc(controller: RunController) -> bool:
+    """Whether the run is a CAFE-MPC run (simulated time or real time), not PD standing."""
+    return isinstance(controller, CafeMpcController | RealtimeMpcController)
+
+
 def recorder_of(controller: RunController) -> LowLevelRecorder | None:
     """The recorder around the low-level controller of a CAFE-MPC run (None for PD standing)."""
-    low_level = controller.low_level if isinstance(controller, CafeMpcController) else None
+    low_level = controller.low_level if is_mpc(controller) else None
     return low_level if isinstance(low_level, LowLevelRecorder) else None
 
 
@@ -214,4 +324,4 @@ def low_level_of(controller: RunController) -> LowLevelController:
     recorder = recorder_of(controller)
     if recorder is not None:
         return recorder.inner
-    return controller.low_level if isinstance(controller, CafeMpcController) else controller
+    return controller.low_level if is_mpc(controller) else controller

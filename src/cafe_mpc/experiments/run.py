@@ -20,16 +20,22 @@ import numpy as np
 import yaml
 
 from cafe_mpc.config import RunConfig
-from cafe_mpc.control.mpc_loop import CafeMpcController
+from cafe_mpc.control.realtime import MpcProcessError
+from cafe_mpc.core.measurement import Measurement
 from cafe_mpc.experiments.controllers import (
     RunController,
     build_controller,
+    build_realtime_controller,
     low_level_of,
+    mpc_statistics_of,
+    mpc_summary,
     recorder_of,
     reference_commands,
+    reference_of,
+    timing_of,
 )
 from cafe_mpc.robots.robot import Robot, load_robot
-from cafe_mpc.sim.loop import FallCriteria, Push, SimulationLog, simulate
+from cafe_mpc.sim.loop import FallCriteria, Push, SimulationLog, WallClockPacer, simulate
 
 logger = logging.getLogger(__name__)
 
@@ -47,34 +53,53 @@ class RunResult:
 def simulate_run(config: RunConfig, progress=None) -> tuple[Robot, RunController, SimulationLog]:
     """Build robot and controller from ``config`` and run the closed loop (no files written).
 
-    For CAFE-MPC runs the log's ``extra`` holds per-tick ``torque_requested`` (before clamping),
-    ``planned_stance`` (the plan knot's stance used by the low-level controller) and ``gait_stance`` (the
-    reference's contact schedule); they are saved in ``log.npz`` as ``extra_<name>``.
+    ``config.simulation.realtime``: against the wall clock with the MPC in its own process (the process is
+    stopped before this returns, also on errors). For CAFE-MPC runs the log's ``extra`` holds per-tick
+    ``torque_requested`` (before clamping), ``planned_stance`` (the plan knot's stance used by the low-level
+    controller) and ``gait_stance`` (the reference's contact schedule); they are saved in ``log.npz`` as
+    ``extra_<name>``. Raises ``MpcProcessError`` when the real-time MPC process died or stalled (the robot
+    was held in a damped stance once the last plan ran out).
     """
     robot = load_robot(config.robot)
-    controller = build_controller(config, robot)
     q0 = robot.q_standing.copy()
     q0[2] += config.simulation.initial_height_offset
     pushes = [Push(p.start, p.duration, p.force_on(robot.total_mass)) for p in config.pushes]
-    log = simulate(
-        robot,
-        controller,
-        config.simulation.duration,
-        control_rate_hz=config.simulation.control_rate_hz,
-        q0=q0,
-        pushes=pushes,
-        plant_timestep=config.simulation.plant_timestep,
-        fall=FallCriteria(config.simulation.fall.min_base_height, config.simulation.fall.max_tilt_rad),
-        stop_on_fall=config.simulation.stop_on_fall,
-        progress=progress,
-    )
+    options = {
+        "control_rate_hz": config.simulation.control_rate_hz,
+        "q0": q0,
+        "pushes": pushes,
+        "plant_timestep": config.simulation.plant_timestep,
+        "fall": FallCriteria(config.simulation.fall.min_base_height, config.simulation.fall.max_tilt_rad),
+        "stop_on_fall": config.simulation.stop_on_fall,
+        "progress": progress,
+    }
+    if config.simulation.realtime:
+        with build_realtime_controller(config, robot) as controller:
+            standing = Measurement.of_state(q0, np.zeros(robot.nv), np.ones(robot.n_feet, dtype=bool))
+            controller.wait_ready(standing)
+            log = simulate(
+                robot,
+                controller,
+                config.simulation.duration,
+                pacer=WallClockPacer(),
+                stop=controller.should_stop,
+                **options,
+            )
+        if controller.failure is not None:
+            raise MpcProcessError(
+                f"{controller.failure}; the robot was held in a damped stance once the last plan ran out "
+                f"(at t = {log.time[-1]:.2f} s)"
+            )
+    else:
+        controller = build_controller(config, robot)
+        log = simulate(robot, controller, config.simulation.duration, **options)
     recorder = recorder_of(controller)
     if recorder is not None:
         requested, planned = recorder.traces(log.time)
         log.extra["torque_requested"] = requested
         log.extra["planned_stance"] = planned
-    if isinstance(controller, CafeMpcController):
-        reference = controller.reference
+    reference = reference_of(controller)
+    if reference is not None:
         stance = [reference.stance_at(float(t)) for t in log.time]
         log.extra["gait_stance"] = np.array(stance, dtype=bool).reshape(-1, robot.n_feet)
     return robot, controller, log
@@ -95,8 +120,10 @@ def run_metrics(config: RunConfig, robot: Robot, controller: RunController, log:
     metrics["controller"] = config.wbc
     metrics["gait"] = config.gait.name if config.gait is not None else None
     metrics.update(tracking_metrics(robot, log, reference_commands(config)))
-    is_mpc = isinstance(controller, CafeMpcController)
-    metrics["mpc"] = controller.statistics.summary() if is_mpc else None
+    metrics["timing"] = timing_of(config, controller)
+    metrics["mpc"] = mpc_summary(controller, log)
+    if "realtime" in log.extra:
+        metrics["realtime"] = log.extra["realtime"]
     metrics["wbc"] = wbc_metrics(
         robot,
         log,
@@ -140,7 +167,7 @@ def run(config: RunConfig, out_dir: Path | None, show_progress: bool = False) ->
             config.simulation.duration,
         )
         progress = None
-        if show_progress and config.simulation.duration >= 3.0:
+        if show_progress and config.simulation.duration >= 3.0 and not config.simulation.realtime:
             from tqdm import tqdm
 
             bar = tqdm(
@@ -175,9 +202,7 @@ def run(config: RunConfig, out_dir: Path | None, show_progress: bool = False) ->
                     log,
                     partial,
                     commands=reference_commands(config),
-                    mpc_statistics=controller.statistics
-                    if isinstance(controller, CafeMpcController)
-                    else None,
+                    mpc_statistics=mpc_statistics_of(controller),
                     mpc_period=config.mpc.period,
                 )
             if config.output.render:

@@ -8,23 +8,378 @@ at 0.5 m/s is pulled forward by its joint cost. In closed loop that lifted the t
 the reference feet (stance feet at their footholds, swing feet on their Bezier curves) about the reference
 base pose, and joint-rate references from the same Jacobians.
 
-Each leg is a 3-joint chain, so per leg this is a 3 x 3 damped Newton iteration on Pinocchio's frame
-Jacobians (any quadruped, no closed form per robot); warm-started from the previous knot it converges in
-two or three iterations.
+Each leg is a 3-joint chain, so per leg this is a 3 x 3 damped Newton iteration on the foot Jacobian (any
+quadruped, no closed form per robot); warm-started from the previous knot it converges in two or three
+iterations.
+
+The MPC asks for ~26 knots per update. Done per knot through Pinocchio that costs milliseconds, nearly all
+of it Python overhead, so the chains are read once from the Pinocchio model (joint placements, joint axes,
+foot placement) and all knots are solved in one compiled call (``solve_batch``, numba). The iteration is the
+same as the Pinocchio one (``_solve_pinocchio``, kept as the reference and as the fallback for models whose
+legs are not three revolute joints on the free-flyer, or when numba is missing): same iteration count,
+tolerance, damping, clipping and warm start, so the results agree to rounding.
 """
 
 from __future__ import annotations
+
+import warnings
 
 import numpy as np
 import pinocchio as pin
 
 from cafe_mpc.robots.robot import Robot
 
+try:
+    import numba
+except ImportError:  # pragma: no cover - numba is optional; the Pinocchio path needs nothing extra
+    numba = None
+
 LWA = pin.ReferenceFrame.LOCAL_WORLD_ALIGNED
 
+JOINTS_PER_LEG = 3
+LEG_COUNT = 4
+# One row block per joint in ``LegChains.joints``: rows 0-2 placement rotation (in the parent joint frame),
+# row 3 placement translation, row 4 the unit joint axis (in the joint frame).
+_PLACEMENT_TRANSLATION = 3
+_AXIS = 4
+_AXIS_OF_TYPE = {
+    "JointModelRX": (1.0, 0.0, 0.0),
+    "JointModelRY": (0.0, 1.0, 0.0),
+    "JointModelRZ": (0.0, 0.0, 1.0),
+}
+# Tolerance of the construction-time comparison of the extracted chains with Pinocchio's kinematics.
+_SELF_CHECK_TOLERANCE = 1e-9
 
+
+def _jit(function):
+    """``numba.njit(cache=True)`` when numba is installed, the plain function otherwise (then unused)."""
+    return function if numba is None else numba.njit(cache=True)(function)
+
+
+# ------------------------------------------------------------------------------------ compiled kernels
+@_jit
+def _quaternion_rotation(quaternion: np.ndarray, rotation: np.ndarray) -> None:
+    """Rotation matrix of a unit quaternion ``(x, y, z, w)`` into ``rotation`` (Eigen's formula, which
+    Pinocchio's free-flyer uses too: no normalisation)."""
+    x, y, z, w = quaternion[0], quaternion[1], quaternion[2], quaternion[3]
+    tx, ty, tz = 2.0 * x, 2.0 * y, 2.0 * z
+    twx, twy, twz = tx * w, ty * w, tz * w
+    txx, txy, txz = tx * x, ty * x, tz * x
+    tyy, tyz, tzz = ty * y, tz * y, tz * z
+    rotation[0, 0] = 1.0 - (tyy + tzz)
+    rotation[0, 1] = txy - twz
+    rotation[0, 2] = txz + twy
+    rotation[1, 0] = txy + twz
+    rotation[1, 1] = 1.0 - (txx + tzz)
+    rotation[1, 2] = tyz - twx
+    rotation[2, 0] = txz - twy
+    rotation[2, 1] = tyz + twx
+    rotation[2, 2] = 1.0 - (txx + tyy)
+
+
+@_jit
+def _leg_kinematics(
+    joints: np.ndarray,
+    foot: np.ndarray,
+    angles: np.ndarray,
+    first: int,
+    position: np.ndarray,
+    jacobian: np.ndarray,
+    work: np.ndarray,
+) -> None:
+    """Foot position and 3 x 3 translational Jacobian of one leg, both in the base (free-flyer) frame.
+
+    ``joints`` (3, 5, 3) is the leg's chain (see ``LegChains``), ``foot`` (3) the foot in the last joint's
+    frame, ``angles[first : first + 3]`` the joint angles. Forward kinematics composes, joint by joint, the
+    constant placement with the rotation about the joint axis (Rodrigues); column ``k`` of the Jacobian is
+    ``axis_k x (foot - origin_k)`` with the axis and origin of joint ``k`` in the base frame.
+    ``work`` (3, 3, 3) is scratch (frame, product, joint origins; preallocated by the caller, as numba
+    would otherwise allocate per call); the axes are kept in ``jacobian``'s columns until the foot is known.
+    """
+    frame, product, origins = work[0], work[1], work[2]
+    origin_x = origin_y = origin_z = 0.0
+    for r in range(3):
+        for c in range(3):
+            frame[r, c] = 1.0 if r == c else 0.0
+    for k in range(3):
+        placement = joints[k]
+        # origin of joint k: previous origin + previous frame @ placement translation
+        tx = placement[_PLACEMENT_TRANSLATION, 0]
+        ty = placement[_PLACEMENT_TRANSLATION, 1]
+        tz = placement[_PLACEMENT_TRANSLATION, 2]
+        origin_x, origin_y, origin_z = (
+            origin_x + frame[0, 0] * tx + frame[0, 1] * ty + frame[0, 2] * tz,
+            origin_y + frame[1, 0] * tx + frame[1, 1] * ty + frame[1, 2] * tz,
+            origin_z + frame[2, 0] * tx + frame[2, 1] * ty + frame[2, 2] * tz,
+        )
+        # frame <- frame @ placement rotation
+        for r in range(3):
+            for c in range(3):
+                product[r, c] = (
+                    frame[r, 0] * placement[0, c]
+                    + frame[r, 1] * placement[1, c]
+                    + frame[r, 2] * placement[2, c]
+                )
+        ax, ay, az = placement[_AXIS, 0], placement[_AXIS, 1], placement[_AXIS, 2]
+        origins[k, 0], origins[k, 1], origins[k, 2] = origin_x, origin_y, origin_z
+        # joint axis in the base frame (unchanged by the joint's own rotation), parked in the Jacobian column
+        for r in range(3):
+            jacobian[r, k] = product[r, 0] * ax + product[r, 1] * ay + product[r, 2] * az
+        # frame <- frame @ Rot(axis, angle)
+        angle = angles[first + k]
+        c, s = np.cos(angle), np.sin(angle)
+        t = 1.0 - c
+        r00, r01, r02 = t * ax * ax + c, t * ax * ay - s * az, t * ax * az + s * ay
+        r10, r11, r12 = t * ax * ay + s * az, t * ay * ay + c, t * ay * az - s * ax
+        r20, r21, r22 = t * ax * az - s * ay, t * ay * az + s * ax, t * az * az + c
+        for r in range(3):
+            p0, p1, p2 = product[r, 0], product[r, 1], product[r, 2]
+            frame[r, 0] = p0 * r00 + p1 * r10 + p2 * r20
+            frame[r, 1] = p0 * r01 + p1 * r11 + p2 * r21
+            frame[r, 2] = p0 * r02 + p1 * r12 + p2 * r22
+    for r in range(3):
+        position[r] = origins[2, r] + frame[r, 0] * foot[0] + frame[r, 1] * foot[1] + frame[r, 2] * foot[2]
+    for k in range(3):
+        wx, wy, wz = jacobian[0, k], jacobian[1, k], jacobian[2, k]
+        dx = position[0] - origins[k, 0]
+        dy = position[1] - origins[k, 1]
+        dz = position[2] - origins[k, 2]
+        jacobian[0, k] = wy * dz - wz * dy
+        jacobian[1, k] = wz * dx - wx * dz
+        jacobian[2, k] = wx * dy - wy * dx
+
+
+@_jit
+def _damped_solve(jacobian: np.ndarray, rhs: np.ndarray, damping: float, out: np.ndarray) -> None:
+    """``out = (J^T J + damping I)^-1 J^T rhs`` for a 3 x 3 ``J`` (Cholesky of the symmetric 3 x 3)."""
+    a00 = a01 = a02 = a11 = a12 = a22 = 0.0
+    b0 = b1 = b2 = 0.0
+    for r in range(3):
+        j0, j1, j2, e = jacobian[r, 0], jacobian[r, 1], jacobian[r, 2], rhs[r]
+        a00 += j0 * j0
+        a01 += j0 * j1
+        a02 += j0 * j2
+        a11 += j1 * j1
+        a12 += j1 * j2
+        a22 += j2 * j2
+        b0 += j0 * e
+        b1 += j1 * e
+        b2 += j2 * e
+    a00 += damping
+    a11 += damping
+    a22 += damping
+    l00 = np.sqrt(a00)
+    l10 = a01 / l00
+    l20 = a02 / l00
+    l11 = np.sqrt(a11 - l10 * l10)
+    l21 = (a12 - l20 * l10) / l11
+    l22 = np.sqrt(a22 - l20 * l20 - l21 * l21)
+    y0 = b0 / l00
+    y1 = (b1 - l10 * y0) / l11
+    y2 = (b2 - l20 * y0 - l21 * y1) / l22
+    out[2] = y2 / l22
+    out[1] = (y1 - l21 * out[2]) / l11
+    out[0] = (y0 - l10 * out[1] - l20 * out[2]) / l00
+
+
+@_jit
+def _chain_kinematics(
+    joints: np.ndarray, feet: np.ndarray, angles: np.ndarray, positions: np.ndarray, jacobians: np.ndarray
+) -> None:
+    """Base-frame foot positions (4, 3) and leg Jacobians (4, 3, 3) at the 12 joint ``angles``."""
+    work = np.empty((3, 3, 3))
+    for leg in range(joints.shape[0]):
+        _leg_kinematics(joints[leg], feet[leg], angles, 3 * leg, positions[leg], jacobians[leg], work)
+
+
+@_jit
+def _solve_knots(
+    base_configurations: np.ndarray,
+    foot_positions: np.ndarray,
+    base_velocities: np.ndarray,
+    foot_velocities: np.ndarray,
+    joint_guess: np.ndarray,
+    joints: np.ndarray,
+    feet: np.ndarray,
+    limits: np.ndarray,
+    iterations: int,
+    tolerance: float,
+    damping: float,
+    joints_out: np.ndarray,
+    rates_out: np.ndarray,
+    errors_out: np.ndarray,
+) -> None:
+    """Leg inverse kinematics of ``n`` knots, each warm-started from the previous knot's solution.
+
+    Per knot: the foot targets are brought into the base frame once, then up to ``iterations`` damped Newton
+    sweeps over the four legs; each sweep measures the largest world-frame foot error of all legs, steps
+    every leg, clips to ``limits`` (2, 12) and stops once that error (measured before the step) is below
+    ``tolerance`` (the Pinocchio iteration exactly). Rates: ``(J^T J + damping I)^-1 J^T (v_foot - v_base
+    part)`` at the solution, in the base frame (the rotation cancels in ``J^T J``); skipped (zero) when
+    ``base_velocities`` has no rows.
+    """
+    n = base_configurations.shape[0]
+    legs = joints.shape[0]
+    with_rates = base_velocities.shape[0] > 0
+    rotation = np.empty((3, 3))
+    work = np.empty((3, 3, 3))
+    targets = np.empty((legs, 3))
+    position = np.empty(3)
+    jacobian = np.empty((3, 3))
+    error = np.empty(3)
+    step = np.empty(3)
+    q = joint_guess.copy()
+    for i in range(n):
+        base = base_configurations[i]
+        _quaternion_rotation(base[3:7], rotation)
+        for leg in range(legs):
+            dx = foot_positions[i, leg, 0] - base[0]
+            dy = foot_positions[i, leg, 1] - base[1]
+            dz = foot_positions[i, leg, 2] - base[2]
+            for r in range(3):
+                targets[leg, r] = rotation[0, r] * dx + rotation[1, r] * dy + rotation[2, r] * dz
+        error_max = np.inf
+        for _ in range(iterations):
+            error_max = 0.0
+            for leg in range(legs):
+                first = 3 * leg
+                _leg_kinematics(joints[leg], feet[leg], q, first, position, jacobian, work)
+                for r in range(3):
+                    error[r] = targets[leg, r] - position[r]
+                for r in range(3):  # the tolerance is on the world-frame error, as in the Pinocchio path
+                    world = rotation[r, 0] * error[0] + rotation[r, 1] * error[1] + rotation[r, 2] * error[2]
+                    if abs(world) > error_max:
+                        error_max = abs(world)
+                _damped_solve(jacobian, error, damping, step)
+                for k in range(3):
+                    value = q[first + k] + step[k]
+                    q[first + k] = min(max(value, limits[0, first + k]), limits[1, first + k])
+            if error_max < tolerance:
+                break
+        joints_out[i] = q
+        errors_out[i] = error_max
+        if not with_rates:
+            rates_out[i] = 0.0
+            continue
+        v = base_velocities[i]
+        for leg in range(legs):
+            first = 3 * leg
+            _leg_kinematics(joints[leg], feet[leg], q, first, position, jacobian, work)
+            wx, wy, wz = v[3], v[4], v[5]
+            px, py, pz = position[0], position[1], position[2]
+            base_part_x = v[0] + wy * pz - wz * py
+            base_part_y = v[1] + wz * px - wx * pz
+            base_part_z = v[2] + wx * py - wy * px
+            fx, fy, fz = foot_velocities[i, leg, 0], foot_velocities[i, leg, 1], foot_velocities[i, leg, 2]
+            error[0] = rotation[0, 0] * fx + rotation[1, 0] * fy + rotation[2, 0] * fz - base_part_x
+            error[1] = rotation[0, 1] * fx + rotation[1, 1] * fy + rotation[2, 1] * fz - base_part_y
+            error[2] = rotation[0, 2] * fx + rotation[1, 2] * fy + rotation[2, 2] * fz - base_part_z
+            _damped_solve(jacobian, error, damping, step)
+            for k in range(3):
+                rates_out[i, first + k] = step[k]
+
+
+# ------------------------------------------------------------------------------------ chain extraction
+class LegChainError(ValueError):
+    """The legs are not three revolute joints each on the free-flyer: the compiled path does not apply."""
+
+
+def extract_leg_chains(model: pin.Model, foot_frame_ids: tuple[int, ...]) -> tuple[np.ndarray, np.ndarray]:
+    """The legs' kinematic chains from the free-flyer to the feet, for the compiled solver.
+
+    Returns ``joints`` (4, 3, 5, 3): per leg and joint, the placement rotation in the parent joint frame
+    (rows 0-2), the placement translation (row 3) and the unit axis in the joint frame (row 4); and ``feet``
+    (4, 3): each foot frame's position in its parent (the leg's last) joint frame. Raises ``LegChainError``
+    unless joint 1 is the root free-flyer at the identity and each foot's chain is exactly three one-DoF
+    revolute joints whose velocity indices are ``6 + 3 leg .. 8 + 3 leg`` (configuration ``7 + 3 leg ..``),
+    in leg order.
+    """
+    if len(foot_frame_ids) != LEG_COUNT:
+        raise LegChainError(f"expected {LEG_COUNT} feet, got {len(foot_frame_ids)}")
+    if model.njoints < 2 or model.joints[1].shortname() != "JointModelFreeFlyer" or model.parents[1] != 0:
+        raise LegChainError("joint 1 is not a free-flyer on the universe")
+    if not model.jointPlacements[1].isIdentity():
+        raise LegChainError("the free-flyer's placement is not the identity")
+    joints = np.zeros((LEG_COUNT, JOINTS_PER_LEG, 5, 3))
+    feet = np.zeros((LEG_COUNT, 3))
+    for leg, frame_id in enumerate(foot_frame_ids):
+        frame = model.frames[frame_id]
+        chain = []
+        joint_id = frame.parentJoint
+        while joint_id > 1:
+            chain.append(joint_id)
+            joint_id = model.parents[joint_id]
+        chain.reverse()
+        if joint_id != 1 or len(chain) != JOINTS_PER_LEG:
+            raise LegChainError(f"foot {frame.name}: {len(chain)} joints below the free-flyer, expected 3")
+        for k, joint_id in enumerate(chain):
+            joint = model.joints[joint_id]
+            kind = joint.shortname()
+            if kind in _AXIS_OF_TYPE:
+                axis = np.array(_AXIS_OF_TYPE[kind])
+            elif kind == "JointModelRevoluteUnaligned":
+                axis = np.array(joint.extract().axis, dtype=float)
+            else:
+                raise LegChainError(
+                    f"joint {model.names[joint_id]}: type {kind} is not a 1-DoF revolute joint"
+                )
+            index = 6 + 3 * leg + k
+            if model.nvs[joint_id] != 1 or model.nqs[joint_id] != 1:
+                raise LegChainError(f"joint {model.names[joint_id]}: not one degree of freedom")
+            if model.idx_vs[joint_id] != index or model.idx_qs[joint_id] != index + 1:
+                raise LegChainError(
+                    f"joint {model.names[joint_id]}: velocity index {model.idx_vs[joint_id]} "
+                    f"(configuration {model.idx_qs[joint_id]}), expected {index} ({index + 1})"
+                )
+            norm = np.linalg.norm(axis)
+            if not np.isfinite(norm) or abs(norm - 1.0) > 1e-9:
+                raise LegChainError(f"joint {model.names[joint_id]}: axis {axis} is not a unit vector")
+            placement = model.jointPlacements[joint_id]
+            joints[leg, k, :3] = placement.rotation
+            joints[leg, k, _PLACEMENT_TRANSLATION] = placement.translation
+            joints[leg, k, _AXIS] = axis
+        feet[leg] = frame.placement.translation
+    return joints, feet
+
+
+def _check_chains(robot: Robot, joints: np.ndarray, feet: np.ndarray) -> None:
+    """Compare the compiled forward kinematics and Jacobians with Pinocchio's at a few configurations.
+
+    A guard against joint semantics the extraction does not know: any mismatch raises ``LegChainError``.
+    """
+    model = robot.model
+    data = model.createData()
+    rng = np.random.default_rng(0)
+    positions = np.empty((LEG_COUNT, 3))
+    jacobians = np.empty((LEG_COUNT, 3, 3))
+    span = np.minimum(robot.position_upper - robot.position_lower, 2.0 * np.pi)
+    for trial in range(3):
+        q = pin.neutral(model)
+        q[7:] = (
+            robot.q_standing[7:] if trial == 0 else robot.position_lower + rng.uniform(0.1, 0.9, 12) * span
+        )
+        q[7:] = np.clip(q[7:], robot.position_lower, robot.position_upper)
+        pin.computeJointJacobians(model, data, q)
+        pin.updateFramePlacements(model, data)
+        _chain_kinematics(joints, feet, np.ascontiguousarray(q[7:]), positions, jacobians)
+        for leg, frame_id in enumerate(robot.foot_frame_ids):
+            expected = pin.getFrameJacobian(model, data, frame_id, LWA)[:3, 6 + 3 * leg : 9 + 3 * leg]
+            if not (
+                np.allclose(
+                    positions[leg], data.oMf[frame_id].translation, rtol=0, atol=_SELF_CHECK_TOLERANCE
+                )
+                and np.allclose(jacobians[leg], expected, rtol=0, atol=_SELF_CHECK_TOLERANCE)
+            ):
+                raise LegChainError(f"leg {leg}: extracted kinematics disagree with Pinocchio")
+
+
+# ------------------------------------------------------------------------------------ public solver
 class LegInverseKinematics:
-    """Joint angles and rates that put the four feet at given world positions/velocities for a base pose."""
+    """Joint angles and rates that put the four feet at given world positions/velocities for a base pose.
+
+    ``fast`` tells whether the compiled path is in use; ``fallback_reason`` says why not (then every call
+    goes through Pinocchio, per knot, with the same results but ~80x slower).
+    """
 
     def __init__(self, robot: Robot, iterations: int = 8, tolerance: float = 1e-5, damping: float = 1e-6):
         self.robot = robot
@@ -38,6 +393,42 @@ class LegInverseKinematics:
         self.lower = robot.position_lower
         self.upper = robot.position_upper
         self._q = robot.q_standing.copy()
+        self._standing_joints = np.ascontiguousarray(robot.q_standing[7:], dtype=np.float64)
+        self._limits = np.ascontiguousarray(np.vstack([self.lower, self.upper]), dtype=np.float64)
+        self._no_base_velocity = np.zeros((0, 6))
+        self._no_foot_velocity = np.zeros((0, LEG_COUNT, 3))
+        self.fast = False
+        self.fallback_reason: str | None = None
+        self._joints = np.zeros((LEG_COUNT, JOINTS_PER_LEG, 5, 3))
+        self._feet = np.zeros((LEG_COUNT, 3))
+        if numba is None:
+            self.fallback_reason = "numba is not installed"
+        else:
+            try:
+                self._joints, self._feet = extract_leg_chains(self.model, self.frame_ids)
+                if self.lower.shape != (12,) or self.upper.shape != (12,):
+                    raise LegChainError("joint limits are not 12 numbers")
+                _check_chains(robot, self._joints, self._feet)
+                self.fast = True
+            except LegChainError as error:
+                self.fallback_reason = str(error)
+        if self.fast:
+            # Compile (or load from numba's cache) now, not in the first MPC update: one standing knot.
+            standing = robot.q_standing[None, :7]
+            self.solve_batch(
+                standing,
+                robot.foot_positions(robot.q_standing)[None],
+                None,
+                np.zeros((1, 6)),
+                np.zeros((1, LEG_COUNT, 3)),
+            )
+        else:
+            warnings.warn(
+                f"leg inverse kinematics of {robot.name}: {self.fallback_reason}; "
+                "using the (slow) Pinocchio path",
+                RuntimeWarning,
+                stacklevel=2,
+            )
 
     def solve(
         self,
@@ -52,7 +443,124 @@ class LegInverseKinematics:
         ``base_configuration``: base position and quaternion (7); ``foot_positions``: world (4, 3);
         ``base_velocity``: base-frame linear and angular velocity (6); ``foot_velocities``: world (4, 3).
         Feet out of reach end as close as the joint limits allow (the error is returned, not raised).
+        The rates are zero unless both velocities are given.
         """
+        if not self.fast:
+            return self._solve_pinocchio(
+                base_configuration, foot_positions, joint_guess, base_velocity, foot_velocities
+            )
+        with_rates = base_velocity is not None and foot_velocities is not None
+        joints, rates, errors = self.solve_batch(
+            np.reshape(base_configuration, (1, 7)),
+            np.reshape(foot_positions, (1, LEG_COUNT, 3)),
+            joint_guess,
+            np.reshape(base_velocity, (1, 6)) if with_rates else None,
+            np.reshape(foot_velocities, (1, LEG_COUNT, 3)) if with_rates else None,
+        )
+        return joints[0], rates[0], float(errors[0])
+
+    def solve_batch(
+        self,
+        base_configurations: np.ndarray,
+        foot_positions: np.ndarray,
+        joint_guess: np.ndarray | None = None,
+        base_velocities: np.ndarray | None = None,
+        foot_velocities: np.ndarray | None = None,
+        out: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Joint angles (n, 12), joint rates (n, 12) and largest foot errors (n) of ``n`` knots in one call.
+
+        ``base_configurations`` (n, 7): base positions and unit quaternions ``(x, y, z, w)``;
+        ``foot_positions`` (n, 4, 3) world; ``joint_guess`` (12) warm-starts the first knot (standing
+        joints when None), every later knot starts from the previous knot's solution (as a per-knot loop
+        over ``solve`` would); ``base_velocities`` (n, 6) base frame, ``foot_velocities`` (n, 4, 3) world
+        (zero rates unless both are given). ``out``: C-contiguous float64 arrays (n, 12), (n, 12), (n)
+        to write into and return; fresh arrays otherwise.
+        """
+        base = np.ascontiguousarray(base_configurations, dtype=np.float64)
+        feet = np.ascontiguousarray(foot_positions, dtype=np.float64)
+        n = base.shape[0]
+        if base.shape != (n, 7) or feet.shape != (n, LEG_COUNT, 3):
+            raise ValueError(f"expected (n, 7) and (n, 4, 3) arrays, got {base.shape} and {feet.shape}")
+        if base_velocities is None or foot_velocities is None:
+            base_velocity, foot_velocity = self._no_base_velocity, self._no_foot_velocity
+        else:
+            base_velocity = np.ascontiguousarray(base_velocities, dtype=np.float64)
+            foot_velocity = np.ascontiguousarray(foot_velocities, dtype=np.float64)
+            if base_velocity.shape != (n, 6) or foot_velocity.shape != (n, LEG_COUNT, 3):
+                raise ValueError(
+                    f"expected (n, 6) and (n, 4, 3) velocities, got {base_velocity.shape} and "
+                    f"{foot_velocity.shape}"
+                )
+        if out is None:
+            joints, rates, errors = np.empty((n, 12)), np.empty((n, 12)), np.empty(n)
+        else:
+            joints, rates, errors = out
+            for array, shape in ((joints, (n, 12)), (rates, (n, 12)), (errors, (n,))):
+                if array.shape != shape or array.dtype != np.float64 or not array.flags.c_contiguous:
+                    raise ValueError(f"out: expected C-contiguous float64 arrays of shape {shape}")
+        if not self.fast:
+            self._solve_batch_pinocchio(
+                base, feet, joint_guess, base_velocity, foot_velocity, joints, rates, errors
+            )
+            return joints, rates, errors
+        guess = (
+            self._standing_joints
+            if joint_guess is None
+            else np.ascontiguousarray(joint_guess, dtype=np.float64).reshape(12)
+        )
+        _solve_knots(
+            base,
+            feet,
+            base_velocity,
+            foot_velocity,
+            guess,
+            self._joints,
+            self._feet,
+            self._limits,
+            self.iterations,
+            self.tolerance,
+            self.damping,
+            joints,
+            rates,
+            errors,
+        )
+        return joints, rates, errors
+
+    def _solve_batch_pinocchio(
+        self,
+        base: np.ndarray,
+        feet: np.ndarray,
+        joint_guess: np.ndarray | None,
+        base_velocity: np.ndarray,
+        foot_velocity: np.ndarray,
+        joints: np.ndarray,
+        rates: np.ndarray,
+        errors: np.ndarray,
+    ) -> None:
+        """``solve_batch`` through Pinocchio, knot by knot (the fallback when the compiled path is off)."""
+        with_rates = base_velocity.shape[0] > 0
+        guess = joint_guess
+        for i in range(base.shape[0]):
+            joints[i], rates[i], errors[i] = self._solve_pinocchio(
+                base[i],
+                feet[i],
+                guess,
+                base_velocity[i] if with_rates else None,
+                foot_velocity[i] if with_rates else None,
+            )
+            guess = joints[i]
+
+    def _solve_pinocchio(
+        self,
+        base_configuration: np.ndarray,
+        foot_positions: np.ndarray,
+        joint_guess: np.ndarray | None = None,
+        base_velocity: np.ndarray | None = None,
+        foot_velocities: np.ndarray | None = None,
+    ) -> tuple[np.ndarray, np.ndarray, float]:
+        """``solve`` on Pinocchio's kinematics, one knot: the reference for the compiled path and its
+        fallback for models it does not fit."""
         model, data, q = self.model, self.data, self._q
         q[:7] = base_configuration
         q[7:] = self.robot.q_standing[7:] if joint_guess is None else joint_guess

@@ -362,17 +362,9 @@ class LocomotionReference(Reference):
             q, v = self.base_state(t)
             state[i, :nq] = q
             state[i, nq:] = v
-        solve_batch = getattr(self.inverse_kinematics, "solve_batch", None)  # TEMP until the batch IK lands
-        if solve_batch is not None:
-            joints, rates, _ = solve_batch(state[:, :7], positions, None, state[:, nq : nq + 6], velocities)
-        else:
-            joints, rates = np.zeros((len(times), 12)), np.zeros((len(times), 12))
-            guess = None
-            for i in range(len(times)):
-                joints[i], rates[i], _ = self.inverse_kinematics.solve(
-                    state[i, :7], positions[i], guess, state[i, nq : nq + 6], velocities[i]
-                )
-                guess = joints[i]
+        joints, rates, _ = self.inverse_kinematics.solve_batch(
+            state[:, :7], positions, None, state[:, nq : nq + 6], velocities
+        )
         state[:, 7:nq] = joints
         state[:, nq + 6 :] = rates
         for i, t in enumerate(times):

@@ -136,8 +136,15 @@ def simulate(
     fall: FallCriteria | None = FallCriteria(),
     stop_on_fall: bool = True,
     progress: Callable[[float], None] | None = None,
+    pacer: WallClockPacer | None = None,
+    stop: Callable[[float], bool] | None = None,
 ) -> SimulationLog:
-    """Run ``controller`` on the MuJoCo plant for ``duration`` seconds of simulated time."""
+    """Run ``controller`` on the MuJoCo plant for ``duration`` seconds of simulated time.
+
+    ``pacer``: run against the wall clock (tick ``k`` starts at ``k / control_rate_hz`` seconds after the
+    clock starts; see ``WallClockPacer``), the real-time mode; without it the simulation runs as fast as it
+    can. ``stop(t)``: end the run early when it returns true (checked after each tick).
+    """
     if not duration > 0:
         raise ValueError(f"duration must be positive, got {duration}")
     if not control_rate_hz > 0:
@@ -157,9 +164,13 @@ def simulate(
     ticks = round(duration * control_rate_hz)
     log = SimulationLog.allocate(ticks, robot.nq, robot.nv, robot.nu, robot.n_feet)
     external = np.zeros(3)
+    if pacer is not None:
+        pacer.start(control_period, ticks)
     start_wall = time.perf_counter()
     for tick in range(ticks):
         t = tick * control_period
+        if pacer is not None:
+            pacer.wait(tick)
         state = plant.read_state()
         torques = np.asarray(controller.compute(t, state), dtype=float)
         if torques.shape != (robot.nu,) or not np.all(np.isfinite(torques)):
@@ -194,5 +205,64 @@ def simulate(
         plant.step(torques, substeps)
         if progress is not None:
             progress(control_period)
+        if stop is not None and stop(t):
+            break
     log.wall_time = time.perf_counter() - start_wall
+    if pacer is not None:
+        log.extra["realtime"] = pacer.summary(log.ticks)
     return log.trimmed()
+
+
+class WallClockPacer:
+    """Starts each control tick at its wall-clock time and records how late each tick started.
+
+    Sleeps until shortly before the tick, then spins for the last fraction of a millisecond (``time.sleep``
+    alone overshoots by up to a millisecond). A tick that starts more than ``miss_threshold`` after its slot
+    counts as missed; the simulation still advances one control period per tick (the plant is not slowed
+    down to hide it). Python's garbage collector is paused during the run (``gc.freeze`` keeps the objects
+    made during set-up out of later collections).
+    """
+
+    def __init__(self, miss_threshold: float = 0.001, spin: float = 0.0004) -> None:
+        self.miss_threshold = miss_threshold
+        self.spin = spin
+        self.lateness = np.zeros(0)
+        self._period = 0.0
+        self._start = 0.0
+        self._gc_was_enabled = False
+
+    def start(self, period: float, ticks: int) -> None:
+        import gc
+
+        self._period = period
+        self.lateness = np.zeros(ticks)
+        self._gc_was_enabled = gc.isenabled()
+        gc.collect()
+        gc.freeze()
+        gc.disable()
+        self._start = time.perf_counter()
+
+    def wait(self, tick: int) -> None:
+        target = self._start + tick * self._period
+        remaining = target - time.perf_counter()
+        if remaining > self.spin:
+            time.sleep(remaining - self.spin)
+        while time.perf_counter() < target:
+            pass
+        self.lateness[tick] = time.perf_counter() - target
+
+    def summary(self, ticks: int) -> dict:
+        import gc
+
+        if self._gc_was_enabled:
+            gc.enable()
+        gc.unfreeze()
+        lateness = self.lateness[:ticks]
+        return {
+            "control_rate_hz": 1.0 / self._period if self._period else None,
+            "ticks": int(ticks),
+            "missed_ticks": int(np.sum(lateness > self.miss_threshold)),
+            "tick_lateness_ms_median": float(np.median(lateness)) * 1e3 if ticks else None,
+            "tick_lateness_ms_p99": float(np.percentile(lateness, 99)) * 1e3 if ticks else None,
+            "tick_lateness_ms_max": float(np.max(lateness)) * 1e3 if ticks else None,
+        }

@@ -135,9 +135,11 @@ class MSiLQRSolver:
         data_at_nominal = True
         if not nominal.finite():
             raise ValueError("the initial guess has a non-finite cost or defect")
-        self._linearize(workspace)
-
         stats = SolverStatistics()
+        clock = time.perf_counter()
+        stats.setup_time = clock - start
+        self._linearize(workspace)
+        stats.linearize_time += time.perf_counter() - clock
         self._regularization = options.regularization_initial
         status, inner_converged, policy_valid = "max_iterations", False, False
         last_iteration_time = 0.0
@@ -151,7 +153,9 @@ class MSiLQRSolver:
                     status = "time_budget"
                     break
                 iteration_start = time.perf_counter()
+                clock = time.perf_counter()
                 outcome = self._backward_pass_with_regularization(workspace, stats)
+                stats.backward_time += time.perf_counter() - clock
                 policy_valid = outcome == "ok"
                 if not policy_valid:
                     status = outcome
@@ -164,7 +168,9 @@ class MSiLQRSolver:
                     inner_converged, status = True, "converged"
                     break
                 regularization = self._regularization
+                clock = time.perf_counter()
                 trial, alpha, n_trials, mode = self._line_search(workspace, problem.x0, nominal)
+                stats.line_search_time += time.perf_counter() - clock
                 data_at_nominal = trial is not None  # a failed search leaves trial points in the data
                 cost_change = math.inf
                 if trial is not None:
@@ -172,7 +178,9 @@ class MSiLQRSolver:
                     for work in workspace.phases:
                         work.swap_trial()
                     nominal = trial
+                    clock = time.perf_counter()
                     self._linearize(workspace)
+                    stats.linearize_time += time.perf_counter() - clock
                     policy_valid = False
                     self._regularization = max(
                         regularization / options.regularization_decrease, options.regularization_min
@@ -201,7 +209,9 @@ class MSiLQRSolver:
             policy_valid = False
 
         if options.final_backward_pass and not policy_valid and status != "non_finite":
+            clock = time.perf_counter()
             policy_valid = self._backward_pass_with_regularization(workspace, stats) == "ok"
+            stats.backward_time += time.perf_counter() - clock
         converged = inner_converged and nominal.switching_violation <= options.switching_tolerance
         if status == "converged" and not converged:
             status = "max_iterations"

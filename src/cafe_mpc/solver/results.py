@@ -77,6 +77,14 @@ class SolverStatistics:
     predicted_cost_changes: list[float] = field(default_factory=list)
     iteration_times: list[float] = field(default_factory=list)
     solve_time: float = 0.0
+    setup_time: float = 0.0
+    """Workspace set-up, initial guess and its evaluation (s)."""
+    linearize_time: float = 0.0
+    """Derivatives of every knot along the accepted trajectories (s)."""
+    backward_time: float = 0.0
+    """Backward sweeps, the final one included (s)."""
+    line_search_time: float = 0.0
+    """Forward roll-outs of the line searches (s)."""
 
 
 @dataclass

@@ -1,0 +1,343 @@
+"""A trajectory-optimisation task as data: contact sequence, keyframes, weights, constraints, solver settings.
+
+The offline TO of the paper's Appendix (Sec. VI-B) is a multi-phase problem whose phases come from a contact
+sequence with switching times; each phase tracks one *keyframe* (the desired state at the end of the phase)
+with its own running and terminal weights; touchdowns are constraints (Eq. (25)); minimum base height,
+torque, joint-position, joint-speed and friction limits are inequality constraints. ``TrajOptTask`` holds all
+of it as plain values so that a task is a YAML file (``cafe-mpc optimize TASK_OR_FILE --set key=value``)
+and every written trajectory comes with the YAML that made it.
+
+Conventions: contact codes as in ``cafe_mpc.reference.trajectory_file`` (``"FS"``, ``"FT"``, ``"FR-HR"``);
+base weights in the order ``[x, y, z, yaw, pitch, roll]`` (``cafe_mpc.ocp.costs``); keyframe orientations as
+roll, pitch, yaw (``R = Rz(yaw) Ry(pitch) Rx(roll)``) where the roll is *cumulative* (``2 pi`` = one full
+turn), and orientation rates as roll, pitch, yaw rates; joint vectors as 3 values (abad, hip, knee; every
+leg) or 12 (leg order FL, FR, HL, HR).
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+from typing import Any, Literal
+
+import numpy as np
+import yaml
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
+
+from cafe_mpc.ocp.constraints import BarrierParameters, WholeBodyConstraintSettings
+from cafe_mpc.ocp.costs import WholeBodyWeights
+from cafe_mpc.reference.trajectory_file import parse_contact_code
+from cafe_mpc.solver.options import SolverOptions
+
+Vector3 = tuple[float, float, float]
+Vector6 = tuple[float, float, float, float, float, float]
+TIME_TOLERANCE = 1e-9
+
+
+class TrajOptTaskError(ValueError):
+    """A task (preset, YAML file or override) that cannot be used; the message names the key."""
+
+
+class StrictModel(BaseModel):
+    model_config = ConfigDict(extra="forbid", validate_assignment=True)
+
+
+def _joint_vector(values: list[float], name: str) -> list[float]:
+    if len(values) not in (3, 12):
+        raise ValueError(f"{name}: give 3 values (abad, hip, knee; every leg) or 12, got {len(values)}")
+    if not all(math.isfinite(v) for v in values):
+        raise ValueError(f"{name}: values must be finite")
+    return values
+
+
+def joints12(values: list[float] | tuple[float, ...]) -> np.ndarray:
+    """3 values (every leg) or 12 -> 12 values in leg order."""
+    array = np.asarray(values, dtype=float)
+    return np.tile(array, 4) if array.shape == (3,) else array
+
+
+class KeyframeSpec(StrictModel):
+    """A desired whole-body state (the end of a phase, or the initial state)."""
+
+    position: Vector3 = Field(description="base position, world (m)")
+    rpy: Vector3 = Field((0.0, 0.0, 0.0), description="roll, pitch, yaw (rad); roll cumulative")
+    linear_velocity: Vector3 = Field((0.0, 0.0, 0.0), description="base linear velocity, world (m/s)")
+    rpy_rates: Vector3 = Field((0.0, 0.0, 0.0), description="roll, pitch, yaw rates (rad/s)")
+    joint_positions: list[float] = Field(description="3 (every leg) or 12 joint angles (rad)")
+    joint_velocities: list[float] = Field([0.0, 0.0, 0.0], description="3 or 12 joint rates (rad/s)")
+
+    @field_validator("joint_positions", "joint_velocities")
+    @classmethod
+    def _joints(cls, values: list[float], info) -> list[float]:
+        return _joint_vector(values, info.field_name)
+
+    @field_validator("position", "rpy", "linear_velocity", "rpy_rates")
+    @classmethod
+    def _finite(cls, values: Vector3, info) -> Vector3:
+        if not all(math.isfinite(v) for v in values):
+            raise ValueError(f"{info.field_name}: values must be finite")
+        return values
+
+
+class WeightsSpec(StrictModel):
+    """Diagonal weights of one phase's running or terminal cost (Eq. (18); running cost times dt)."""
+
+    base_position: Vector6 = Field(description="x, y, z, yaw, pitch, roll")
+    base_velocity: Vector6 = Field(description="vx, vy, vz (world), yaw, pitch, roll rates")
+    joint_position: list[float] = Field(description="3 (abad, hip, knee; every leg) or 12")
+    joint_velocity: list[float] = Field(description="3 or 12")
+    torque: float = Field(0.0, ge=0.0, description="torque regularisation (running knots only)")
+
+    @field_validator("joint_position", "joint_velocity")
+    @classmethod
+    def _joints(cls, values: list[float], info) -> list[float]:
+        _joint_vector(values, info.field_name)
+        if any(v < 0 for v in values):
+            raise ValueError(f"{info.field_name}: weights must be non-negative")
+        return values
+
+    @field_validator("base_position", "base_velocity")
+    @classmethod
+    def _non_negative(cls, values: Vector6, info) -> Vector6:
+        if not all(math.isfinite(v) and v >= 0 for v in values):
+            raise ValueError(f"{info.field_name}: weights must be finite and non-negative")
+        return values
+
+    def weights(self) -> WholeBodyWeights:
+        """The knot weights (foot terms off: the TO tracks keyframes only, paper Appendix)."""
+        return WholeBodyWeights(
+            base_position=tuple(self.base_position),
+            base_velocity=tuple(self.base_velocity),
+            joint_position=tuple(joints12(self.joint_position)),
+            joint_velocity=tuple(joints12(self.joint_velocity)),
+            torque=self.torque,
+            swing_foot_position=0.0,
+            swing_foot_velocity=0.0,
+        )
+
+
+class PhaseSpec(StrictModel):
+    """One phase: its contacts, the keyframe it ends on, its weights and its minimum base height."""
+
+    name: str
+    contacts: str = Field(description="contact code: FS, FT or stance legs joined by '-' (FR-HR)")
+    keyframe: KeyframeSpec
+    running: WeightsSpec
+    terminal: WeightsSpec
+    minimum_height: float | None = Field(None, ge=0.0, le=1.0, description="minimum base height (m)")
+
+    @field_validator("contacts")
+    @classmethod
+    def _code(cls, code: str) -> str:
+        parse_contact_code(code)
+        return code.strip().upper()
+
+    @property
+    def stance(self) -> tuple[bool, bool, bool, bool]:
+        return parse_contact_code(self.contacts)
+
+
+class BarrierSpec(StrictModel):
+    """Relaxed barrier ``eps * B(g)`` with threshold ``delta`` (Sec. III-B-2)."""
+
+    delta: float = Field(gt=0.0)
+    eps: float = Field(ge=0.0)
+
+    def parameters(self) -> BarrierParameters:
+        return BarrierParameters(self.delta, self.eps)
+
+
+class BarrierSetSpec(StrictModel):
+    """Barrier parameters of every inequality (GRF in N, torque in Nm, joints in rad, rad/s, height in m)."""
+
+    friction: BarrierSpec
+    torque: BarrierSpec
+    joint_position: BarrierSpec
+    joint_speed: BarrierSpec
+    height: BarrierSpec
+
+
+def _authors_to_barriers() -> BarrierSetSpec:
+    """Authors' barrel-roll TO barriers (ROAM-Lab-ND/CAFE-MPC,
+    ``MHPC/MHPC-Trajopt/BarrelRoll/setting/br_constraint_params.info``)."""
+    return BarrierSetSpec(
+        friction=BarrierSpec(delta=0.02, eps=0.1),
+        torque=BarrierSpec(delta=0.01, eps=0.1),
+        joint_position=BarrierSpec(delta=0.01, eps=0.1),
+        joint_speed=BarrierSpec(delta=0.1, eps=0.1),
+        height=BarrierSpec(delta=0.01, eps=0.1),
+    )
+
+
+def _mpc_barriers() -> BarrierSetSpec:
+    """This package's MPC defaults (``WholeBodyConstraintSettings``): much softer."""
+    defaults = WholeBodyConstraintSettings()
+    return BarrierSetSpec(
+        friction=BarrierSpec(delta=defaults.friction_barrier.delta, eps=defaults.friction_barrier.eps),
+        torque=BarrierSpec(delta=defaults.torque_barrier.delta, eps=defaults.torque_barrier.eps),
+        joint_position=BarrierSpec(
+            delta=defaults.joint_position_barrier.delta, eps=defaults.joint_position_barrier.eps
+        ),
+        joint_speed=BarrierSpec(
+            delta=defaults.joint_velocity_barrier.delta, eps=defaults.joint_velocity_barrier.eps
+        ),
+        height=BarrierSpec(delta=defaults.base_height_barrier.delta, eps=defaults.base_height_barrier.eps),
+    )
+
+
+class ConstraintSpec(StrictModel):
+    """Limits and barrier parameters.
+
+    ``barriers`` are used by the final solve; ``warm_up_barriers`` (or ``null``) by a first solve from the
+    keyframe guess (a barrier continuation: the stiff barriers, far outside their ``delta`` at the guess,
+    stall the line search when they are used from the start).
+    """
+
+    torque_limit: float = Field(17.0, gt=0.0, description="|tau| limit (Nm)")
+    joint_speed_limit: float = Field(20.0, gt=0.0, description="|qdot| limit (rad/s)")
+    friction_coefficient: float = Field(0.6, gt=0.0)
+    barriers: BarrierSetSpec = Field(default_factory=_authors_to_barriers)
+    warm_up_barriers: BarrierSetSpec | None = Field(default_factory=_mpc_barriers)
+
+    def settings(self, minimum_height: float | None, barriers: BarrierSetSpec) -> WholeBodyConstraintSettings:
+        """Knot constraint settings (joint speed limits come from the planning robot, see ``multiphase``)."""
+        return WholeBodyConstraintSettings(
+            friction_coefficient=self.friction_coefficient,
+            minimum_base_height=minimum_height,
+            friction_barrier=barriers.friction.parameters(),
+            torque_barrier=barriers.torque.parameters(),
+            joint_position_barrier=barriers.joint_position.parameters(),
+            joint_velocity_barrier=barriers.joint_speed.parameters(),
+            base_height_barrier=barriers.height.parameters(),
+            torque_limit_values=(self.torque_limit,) * 12,
+        )
+
+
+class SolverSpec(StrictModel):
+    """MS-iLQR settings of each solve (``SolverOptions``; paper Sec. III, offline values)."""
+
+    max_iterations: int = Field(10, ge=1, le=10000, description="inner iterations per AL iteration")
+    max_al_iterations: int = Field(30, ge=1, le=1000)
+    cost_change_tolerance: float = Field(1e-2, gt=0.0)
+    expected_decrease_tolerance: float = Field(1e-3, gt=0.0)
+    defect_tolerance: float = Field(1e-3, gt=0.0)
+    switching_tolerance: float = Field(1e-3, gt=0.0)
+    regularization_initial: float = Field(1e-3, ge=0.0)
+    regularization_min: float = Field(1e-6, ge=0.0)
+
+    def options(self, verbose: bool = False) -> SolverOptions:
+        return SolverOptions(
+            max_iterations=self.max_iterations,
+            max_al_iterations=self.max_al_iterations,
+            cost_change_tolerance=self.cost_change_tolerance,
+            expected_decrease_tolerance=self.expected_decrease_tolerance,
+            defect_tolerance=self.defect_tolerance,
+            switching_tolerance=self.switching_tolerance,
+            regularization_initial=self.regularization_initial,
+            regularization_min=self.regularization_min,
+            verbose=verbose,
+        )
+
+
+class TrajOptTask(StrictModel):
+    """A multi-phase whole-body TO task (see the module docstring)."""
+
+    name: str
+    robot: str = "mini_cheetah"
+    dt: float = Field(0.01, gt=0.0, le=0.1, description="knot spacing (s)")
+    surface_height: float = Field(0.0, description="ground height for touchdowns (m)")
+    switching_times: list[float] = Field(description="phase boundaries (s), one more than phases")
+    initial: KeyframeSpec = Field(description="initial state (velocities are used as given)")
+    phases: list[PhaseSpec]
+    constraints: ConstraintSpec = Field(default_factory=ConstraintSpec)
+    solver: SolverSpec = Field(default_factory=SolverSpec)
+    initial_controls: Literal["static", "zero"] = Field(
+        "static", description="torque guess: static stance torques (zero in flight), or zero"
+    )
+
+    @model_validator(mode="after")
+    def _timing(self) -> TrajOptTask:
+        times, phases = self.switching_times, self.phases
+        if not phases:
+            raise ValueError("phases: a task needs at least one phase")
+        if len(times) != len(phases) + 1:
+            raise ValueError(
+                f"switching_times: need {len(phases) + 1} times for {len(phases)} phases, got {len(times)}"
+            )
+        for index, (start, end) in enumerate(itertools.pairwise(times)):
+            if not (math.isfinite(start) and math.isfinite(end)) or end - start <= TIME_TOLERANCE:
+                raise ValueError(f"switching_times: phase {index} has no duration ({start} -> {end})")
+            knots = (end - start) / self.dt
+            if abs(knots - round(knots)) > 1e-6:
+                raise ValueError(
+                    f"switching_times: phase {index} lasts {end - start:g} s, not a multiple of dt {self.dt}"
+                )
+        return self
+
+    @property
+    def knots_per_phase(self) -> list[int]:
+        return [round((end - start) / self.dt) for start, end in itertools.pairwise(self.switching_times)]
+
+    def to_yaml(self, header: str = "") -> str:
+        text = yaml.safe_dump(
+            self.model_dump(mode="json"), sort_keys=False, default_flow_style=None, width=110
+        )
+        lines = "".join(f"# {line}\n" if line else "#\n" for line in header.splitlines())
+        return lines + text
+
+
+def format_validation_error(error: ValidationError) -> str:
+    """One line naming each bad key: ``key.path: message (got value)``."""
+    parts = []
+    for problem in error.errors():
+        location = ".".join(str(part) for part in problem["loc"]) or "task"
+        message = problem["msg"].removeprefix("Value error, ")
+        if problem["type"] == "extra_forbidden":
+            message = "unknown key"
+        got = problem.get("input")
+        parts.append(
+            f"{location}: {message}" if isinstance(got, dict) else f"{location}: {message} (got {got!r})"
+        )
+    return "; ".join(parts)
+
+
+def validate_task(raw: dict[str, Any], source: str) -> TrajOptTask:
+    try:
+        return TrajOptTask.model_validate(raw)
+    except ValidationError as error:
+        raise TrajOptTaskError(f"invalid task {source}: {format_validation_error(error)}") from error
+
+
+def set_dotted(raw: dict[str, Any], dotted: str, value: Any) -> None:
+    """``raw[a][b][0]... = value`` for an existing key path (list indices allowed); names the bad key."""
+    parts = dotted.split(".")
+    node: Any = raw
+    for depth, part in enumerate(parts):
+        where = ".".join(parts[:depth]) or "top level"
+        if isinstance(node, list):
+            if not part.isdigit() or int(part) >= len(node):
+                raise TrajOptTaskError(
+                    f"task key {dotted!r}: {where} is a list of {len(node)}, not index {part}"
+                )
+            key: Any = int(part)
+        elif isinstance(node, dict):
+            if part not in node:
+                raise TrajOptTaskError(f"unknown task key {dotted!r}: {where} allows {', '.join(node)}")
+            key = part
+        else:
+            raise TrajOptTaskError(f"unknown task key {dotted!r}: {where} has no sub-keys")
+        if depth == len(parts) - 1:
+            node[key] = value
+            return
+        node = node[key]
+
+
+def parse_override(item: str) -> tuple[str, Any]:
+    """``key=value`` -> (key, YAML-parsed value)."""
+    key, separator, text = item.partition("=")
+    if not separator or not key.strip():
+        raise TrajOptTaskError(f"--set expects key=value, got {item!r}")
+    try:
+        return key.strip(), yaml.safe_load(text)
+    except yaml.YAMLError as error:
+        raise TrajOptTaskError(f"--set {key}: cannot parse value {text!r}: {error}") from error

@@ -1,0 +1,369 @@
+"""The compiled batch leg IK (``LegInverseKinematics.solve_batch``) against the Pinocchio implementation.
+
+The batch path reimplements the leg kinematics (chains read from the Pinocchio model, forward kinematics
+and Jacobians in numba), so these tests pin it to Pinocchio: same joints, rates and errors as the per-knot
+Pinocchio solver (``_solve_pinocchio``) on the Mini Cheetah, on Go1 and on a synthetic quadruped with rotated
+joint placements and all revolute joint kinds; Pinocchio's forward kinematics and frame Jacobians of the
+solution reproduce the targets; unreachable targets end at the joint limits; models that do not fit fall
+back to Pinocchio instead of failing.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import warnings
+
+import numpy as np
+import pinocchio as pin
+import pytest
+
+from cafe_mpc.reference.inverse_kinematics import (
+    LegChainError,
+    LegInverseKinematics,
+    _chain_kinematics,
+    extract_leg_chains,
+)
+from cafe_mpc.robots.robot import Robot, load_robot
+
+KNOTS = 26
+MATCH = 1e-8  # batch vs Pinocchio path (same iteration, different rounding)
+LWA = pin.ReferenceFrame.LOCAL_WORLD_ALIGNED
+
+
+# ------------------------------------------------------------------------------------ helpers
+def _random_quaternion(rng: np.random.Generator, tilt: float) -> np.ndarray:
+    """Unit quaternion ``(x, y, z, w)`` of a random yaw and a roll/pitch up to ``tilt`` rad."""
+    rotation = pin.rpy.rpyToMatrix(*rng.uniform(-tilt, tilt, 2), rng.uniform(-np.pi, np.pi))
+    return pin.Quaternion(rotation).coeffs().copy()
+
+
+def _feet_and_jacobians(robot: Robot, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """World foot positions (4, 3) and LOCAL_WORLD_ALIGNED translational frame Jacobians (4, 3, nv)."""
+    data = robot.model.createData()
+    pin.framesForwardKinematics(robot.model, data, q)
+    positions = np.array([data.oMf[f].translation.copy() for f in robot.foot_frame_ids])
+    pin.computeJointJacobians(robot.model, data, q)
+    jacobians = np.array(
+        [pin.getFrameJacobian(robot.model, data, f, LWA)[:3].copy() for f in robot.foot_frame_ids]
+    )
+    return positions, jacobians
+
+
+def _trajectory(
+    robot: Robot, rng: np.random.Generator, n: int = KNOTS, smooth: bool = True
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Reachable knots: configurations (n, 19), foot targets (n, 4, 3), base velocities (n, 6), foot
+    velocities (n, 4, 3) consistent with joint rates (n, 12) (targets from Pinocchio's kinematics).
+
+    Joints stay within 0.4 rad of standing (away from the straight-knee singularity) and 0.05 rad inside the
+    limits; ``smooth`` knots follow a sine per joint (as the MPC's), otherwise each knot is independent.
+    """
+    lower, upper = robot.position_lower + 0.05, robot.position_upper - 0.05
+    times = np.linspace(0.0, 0.5, n)
+    if smooth:
+        amplitude, frequency, phase = (
+            rng.uniform(0.1, 0.4, 12),
+            rng.uniform(0.5, 2.0, 12),
+            rng.uniform(0, 6, 12),
+        )
+        joints = robot.q_standing[7:] + amplitude * np.sin(frequency * times[:, None] + phase)
+    else:
+        joints = robot.q_standing[7:] + rng.uniform(-0.4, 0.4, (n, 12))
+    joints = np.clip(joints, lower, upper)
+    configurations = np.zeros((n, robot.nq))
+    configurations[:, :3] = rng.uniform(-1.0, 1.0, 3) + rng.uniform(-0.2, 0.2, (n, 3))
+    configurations[:, 3:7] = [_random_quaternion(rng, 0.4) for _ in range(n)]
+    configurations[:, 7:] = joints
+    base_velocities = rng.uniform(-1.0, 1.0, (n, 6))
+    rates = rng.uniform(-3.0, 3.0, (n, 12))
+    targets = np.zeros((n, 4, 3))
+    foot_velocities = np.zeros((n, 4, 3))
+    for i in range(n):
+        targets[i], jacobians = _feet_and_jacobians(robot, configurations[i])
+        foot_velocities[i] = jacobians @ np.concatenate([base_velocities[i], rates[i]])
+    return configurations, targets, base_velocities, foot_velocities, rates
+
+
+def _pinocchio_knots(
+    ik: LegInverseKinematics,
+    bases: np.ndarray,
+    targets: np.ndarray,
+    guess: np.ndarray | None,
+    base_velocities: np.ndarray | None,
+    foot_velocities: np.ndarray | None,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The reference: Pinocchio path knot by knot, each warm-started from the previous knot."""
+    n = len(bases)
+    joints, rates, errors = np.zeros((n, 12)), np.zeros((n, 12)), np.zeros(n)
+    for i in range(n):
+        joints[i], rates[i], errors[i] = ik._solve_pinocchio(
+            bases[i],
+            targets[i],
+            guess,
+            None if base_velocities is None else base_velocities[i],
+            None if foot_velocities is None else foot_velocities[i],
+        )
+        guess = joints[i]
+    return joints, rates, errors
+
+
+def _assert_matches_pinocchio(ik: LegInverseKinematics, bases, targets, guess, base_velocities, velocities):
+    """Batch result equals the per-knot Pinocchio result (joints, rates, errors) to ``MATCH``."""
+    joints, rates, errors = ik.solve_batch(bases, targets, guess, base_velocities, velocities)
+    expected = _pinocchio_knots(ik, bases, targets, guess, base_velocities, velocities)
+    np.testing.assert_allclose(joints, expected[0], rtol=0, atol=MATCH)
+    np.testing.assert_allclose(rates, expected[1], rtol=0, atol=MATCH)
+    np.testing.assert_allclose(errors, expected[2], rtol=0, atol=MATCH)
+    return joints, rates, errors
+
+
+def _synthetic_robot(base: Robot, seed: int) -> Robot:
+    """A quadruped with rotated joint placements, a rotated foot frame and every revolute joint kind.
+
+    The real robots' placements are all unrotated and use only RX/RY/unaligned-y axes, so a mistake in
+    composing placement rotations, or in the RZ axis, would pass their tests; this model exercises both.
+    """
+    rng = np.random.default_rng(seed)
+    model = pin.Model()
+    root = model.addJoint(0, pin.JointModelFreeFlyer(), pin.SE3.Identity(), "root_joint")
+    kinds = [pin.JointModelRX, pin.JointModelRY, pin.JointModelRZ, None]
+    frame_ids = []
+    for leg, name in enumerate(("FL", "FR", "HL", "HR")):
+        parent = root
+        hip = np.array([0.2 if leg < 2 else -0.2, 0.05 if leg % 2 == 0 else -0.05, 0.0])
+        offsets = [hip, np.array([0.0, 0.06, 0.0]), np.array([0.0, 0.0, -0.21])]
+        for k in range(3):
+            kind = kinds[rng.integers(len(kinds))]
+            if kind is None:
+                axis = rng.normal(size=3)
+                joint = pin.JointModelRevoluteUnaligned(axis / np.linalg.norm(axis))
+            else:
+                joint = kind()
+            rotation = pin.rpy.rpyToMatrix(*rng.uniform(-0.6, 0.6, 3))
+            parent = model.addJoint(parent, joint, pin.SE3(rotation, offsets[k]), f"{name}_{k}")
+        foot = pin.SE3(pin.rpy.rpyToMatrix(*rng.uniform(-1.0, 1.0, 3)), np.array([0.01, -0.02, -0.2]))
+        frame_ids.append(model.addFrame(pin.Frame(f"{name}_foot", parent, foot, pin.FrameType.OP_FRAME)))
+    q_standing = pin.neutral(model)
+    q_standing[2] = 0.3
+    q_standing[7:] = np.tile([0.1, 0.7, -1.4], 4)
+    return dataclasses.replace(
+        base,
+        name=f"synthetic_{seed}",
+        model=model,
+        foot_frame_ids=tuple(frame_ids),
+        position_lower=np.full(12, -2.5),
+        position_upper=np.full(12, 2.5),
+        q_standing=q_standing,
+    )
+
+
+# ------------------------------------------------------------------------------------ fixtures
+@pytest.fixture(scope="module", params=["mini_cheetah", "go1"])
+def robot(request) -> Robot:
+    return load_robot(request.param)
+
+
+@pytest.fixture(scope="module")
+def ik(robot: Robot) -> LegInverseKinematics:
+    return LegInverseKinematics(robot)
+
+
+@pytest.fixture(scope="module")
+def mini_cheetah() -> Robot:
+    return load_robot("mini_cheetah")
+
+
+# ------------------------------------------------------------------------------------ tests
+def test_compiled_path_is_used(ik):
+    """Both robots fit the compiled path (otherwise the comparisons below would compare Pinocchio with
+    itself): a kinematics extraction that disagrees with Pinocchio switches it off and fails here."""
+    assert ik.fast, ik.fallback_reason
+    assert ik.fallback_reason is None
+
+
+def test_chain_kinematics_equal_pinocchio(robot, ik):
+    """Foot positions and leg Jacobians of the extracted chains equal Pinocchio's (base at the origin)."""
+    rng = np.random.default_rng(1)
+    positions, jacobians = np.empty((4, 3)), np.empty((4, 3, 3))
+    for _ in range(20):
+        q = pin.neutral(robot.model)
+        q[7:] = rng.uniform(robot.position_lower, robot.position_upper)
+        _chain_kinematics(ik._joints, ik._feet, np.ascontiguousarray(q[7:]), positions, jacobians)
+        expected_positions, expected_jacobians = _feet_and_jacobians(robot, q)
+        np.testing.assert_allclose(positions, expected_positions, rtol=0, atol=1e-12)
+        for leg in range(4):
+            leg_columns = expected_jacobians[leg, :, 6 + 3 * leg : 9 + 3 * leg]
+            np.testing.assert_allclose(jacobians[leg], leg_columns, rtol=0, atol=1e-12)
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_batch_equals_pinocchio_on_reachable_trajectories(robot, ik, seed):
+    """Smooth reachable knots, warm start near the first knot: same joints, rates and errors as the
+    per-knot Pinocchio solver, and Pinocchio's kinematics of the solution reproduce the targets."""
+    rng = np.random.default_rng(seed)
+    configurations, targets, base_velocities, velocities, _ = _trajectory(robot, rng)
+    guess = configurations[0, 7:] + rng.uniform(-0.05, 0.05, 12)
+    bases = configurations[:, :7]
+    joints, rates, errors = _assert_matches_pinocchio(ik, bases, targets, guess, base_velocities, velocities)
+    assert np.all(errors < ik.tolerance)
+    for i in range(KNOTS):
+        q = np.concatenate([bases[i], joints[i]])
+        positions, jacobians = _feet_and_jacobians(robot, q)
+        np.testing.assert_allclose(positions, targets[i], rtol=0, atol=1e-6)
+        # rates: base motion plus leg Jacobian times rates gives the foot velocities (up to the damping)
+        np.testing.assert_allclose(
+            jacobians @ np.concatenate([base_velocities[i], rates[i]]), velocities[i], rtol=0, atol=1e-3
+        )
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_batch_equals_pinocchio_on_independent_random_targets(robot, ik, seed):
+    """Unrelated reachable targets per knot from the standing guess (Newton may take all iterations)."""
+    rng = np.random.default_rng(100 + seed)
+    configurations, targets, base_velocities, velocities, _ = _trajectory(robot, rng, smooth=False)
+    _assert_matches_pinocchio(ik, configurations[:, :7], targets, None, base_velocities, velocities)
+
+
+def test_rates_are_the_derivative_of_the_foot_motion(robot, ik):
+    """Finite-difference check with Pinocchio: moving ``q`` along ``[base velocity, rates]`` moves the feet
+    with the requested velocities; and the rates equal the undamped inverse up to the damping."""
+    rng = np.random.default_rng(7)
+    configurations, targets, base_velocities, velocities, true_rates = _trajectory(robot, rng, n=8)
+    joints, rates, _ = ik.solve_batch(
+        configurations[:, :7], targets, configurations[0, 7:], base_velocities, velocities
+    )
+    dt = 1e-7
+    data = robot.model.createData()
+    for i in range(len(joints)):
+        q = np.concatenate([configurations[i, :7], joints[i]])
+        v = np.concatenate([base_velocities[i], rates[i]])
+        pin.framesForwardKinematics(robot.model, data, pin.integrate(robot.model, q, dt * v))
+        moved = np.array([data.oMf[f].translation for f in robot.foot_frame_ids])
+        np.testing.assert_allclose((moved - targets[i]) / dt, velocities[i], rtol=0, atol=1e-3)
+    np.testing.assert_allclose(rates, true_rates, rtol=1e-3, atol=1e-3)
+
+
+def test_unreachable_targets_end_at_the_joint_limits(robot, ik):
+    """Feet 1-10 m away: finite joints and rates, joints inside the limits, each leg against at least one
+    limit, a large error.
+
+    Not compared with the Pinocchio path: out of reach the Newton steps (damping 1e-6 on a nearly singular
+    Jacobian) jump between limit corners, a sensitive iteration in which rounding differences of 1e-16
+    can end at another corner (the Mini Cheetah's wide hip and knee ranges do; Go1 mostly agrees).
+    """
+    rng = np.random.default_rng(3)
+    n = 12
+    bases = np.tile(robot.q_standing[:7], (n, 1))
+    directions = rng.normal(size=(n, 4, 3))
+    distances = rng.uniform(1.0, 10.0, (n, 4, 1))
+    targets = robot.foot_positions(robot.q_standing)[None] + distances * directions / np.linalg.norm(
+        directions, axis=2, keepdims=True
+    )
+    velocities = rng.normal(size=(n, 4, 3))
+    base_velocities = rng.normal(size=(n, 6))
+    joints, rates, errors = ik.solve_batch(bases, targets, None, base_velocities, velocities)
+    assert np.all(np.isfinite(joints)) and np.all(np.isfinite(rates)) and np.all(np.isfinite(errors))
+    assert np.all(joints >= robot.position_lower) and np.all(joints <= robot.position_upper)
+    at_limit = np.isclose(joints, robot.position_lower, rtol=0, atol=1e-12) | np.isclose(
+        joints, robot.position_upper, rtol=0, atol=1e-12
+    )
+    assert np.all(at_limit.reshape(n, 4, 3).any(axis=2))
+    assert np.all(errors > 0.3)
+
+
+def test_solve_matches_pinocchio_and_batch(robot, ik):
+    """``solve`` (one knot) equals the Pinocchio path, defaults included (standing guess, zero rates
+    without velocities), and equals row ``i`` of the batch when chained the same way."""
+    rng = np.random.default_rng(11)
+    configurations, targets, base_velocities, velocities, _ = _trajectory(robot, rng, n=5)
+    bases = configurations[:, :7]
+    for args in (
+        (bases[0], targets[0]),
+        (bases[1], targets[1], configurations[1, 7:] + 0.1),
+        (bases[2], targets[2], None, base_velocities[2], velocities[2]),
+        (bases[3], targets[3], None, base_velocities[3], None),
+    ):
+        joints, rates, error = ik.solve(*args)
+        expected = ik._solve_pinocchio(*args)
+        np.testing.assert_allclose(joints, expected[0], rtol=0, atol=MATCH)
+        np.testing.assert_allclose(rates, expected[1], rtol=0, atol=MATCH)
+        assert isinstance(error, float) and error == pytest.approx(expected[2], abs=MATCH)
+    assert not np.any(ik.solve(bases[3], targets[3], None, base_velocities[3], None)[1])
+    batch = ik.solve_batch(bases, targets, None, base_velocities, velocities)
+    guess = None
+    for i in range(5):
+        joints, rates, error = ik.solve(bases[i], targets[i], guess, base_velocities[i], velocities[i])
+        np.testing.assert_array_equal(joints, batch[0][i])
+        np.testing.assert_array_equal(rates, batch[1][i])
+        assert error == batch[2][i]
+        guess = joints
+
+
+def test_batch_accepts_views_and_writes_into_out(ik, robot):
+    """Strided views of a state array (as the reference passes) and ``out=`` arrays give the same result;
+    ``out`` is filled and returned; bad shapes raise."""
+    rng = np.random.default_rng(5)
+    configurations, targets, base_velocities, velocities, _ = _trajectory(robot, rng, n=6)
+    state = np.zeros((6, robot.nq + robot.nv))
+    state[:, :7] = configurations[:, :7]
+    state[:, robot.nq : robot.nq + 6] = base_velocities
+    expected = ik.solve_batch(configurations[:, :7].copy(), targets, None, base_velocities, velocities)
+    out = (np.full((6, 12), np.nan), np.full((6, 12), np.nan), np.full(6, np.nan))
+    result = ik.solve_batch(
+        state[:, :7], targets, None, state[:, robot.nq : robot.nq + 6], velocities, out=out
+    )
+    assert all(a is b for a, b in zip(result, out, strict=True))
+    for a, b in zip(result, expected, strict=True):
+        np.testing.assert_array_equal(a, b)
+    no_rates = ik.solve_batch(state[:, :7], targets, None, None, velocities)
+    np.testing.assert_array_equal(no_rates[0], expected[0])
+    assert not np.any(no_rates[1])
+    with pytest.raises(ValueError):
+        ik.solve_batch(state[:, :7], targets[:5])
+    with pytest.raises(ValueError):
+        ik.solve_batch(state[:, :7], targets, out=(np.zeros((6, 12)), np.zeros((6, 12)), np.zeros(5)))
+    empty = ik.solve_batch(np.zeros((0, 7)), np.zeros((0, 4, 3)))
+    assert [a.shape for a in empty] == [(0, 12), (0, 12), (0,)]
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_synthetic_robot_with_rotated_placements(mini_cheetah, seed):
+    """Rotated placements and RX/RY/RZ/unaligned joints: compiled kinematics and IK equal Pinocchio's."""
+    robot = _synthetic_robot(mini_cheetah, seed)
+    ik = LegInverseKinematics(robot)
+    assert ik.fast, ik.fallback_reason
+    rng = np.random.default_rng(seed)
+    configurations, targets, base_velocities, velocities, _ = _trajectory(robot, rng, n=10)
+    guess = configurations[0, 7:] + 0.03
+    _assert_matches_pinocchio(ik, configurations[:, :7], targets, guess, base_velocities, velocities)
+    _assert_matches_pinocchio(ik, configurations[:, :7], targets, None, None, None)
+
+
+def test_models_that_do_not_fit_fall_back_to_pinocchio(mini_cheetah):
+    """Feet out of leg order, or a prismatic joint in a leg: a warning, the Pinocchio path, no crash."""
+    swapped = dataclasses.replace(mini_cheetah, foot_frame_ids=tuple(reversed(mini_cheetah.foot_frame_ids)))
+    with pytest.raises(LegChainError, match="velocity index"):
+        extract_leg_chains(swapped.model, swapped.foot_frame_ids)
+    with pytest.warns(RuntimeWarning, match="Pinocchio path"):
+        ik = LegInverseKinematics(swapped)
+    assert not ik.fast and "velocity index" in ik.fallback_reason
+    bases = np.tile(swapped.q_standing[:7], (3, 1))
+    targets = np.tile(swapped.foot_positions(swapped.q_standing), (3, 1, 1))
+    joints, rates, errors = ik.solve_batch(bases, targets, None, np.zeros((3, 6)), np.zeros((3, 4, 3)))
+    expected = _pinocchio_knots(ik, bases, targets, None, np.zeros((3, 6)), np.zeros((3, 4, 3)))
+    for a, b in zip((joints, rates, errors), expected, strict=True):
+        np.testing.assert_array_equal(a, b)
+    assert np.all(np.isfinite(joints))
+
+    model = pin.Model(mini_cheetah.model)
+    knee = model.getJointId("FL_knee")
+    model.joints[knee] = pin.JointModel(pin.JointModelPZ())
+    model.joints[knee].setIndexes(knee, mini_cheetah.model.idx_qs[knee], mini_cheetah.model.idx_vs[knee])
+    with pytest.raises(LegChainError, match="not a 1-DoF revolute"):
+        extract_leg_chains(model, mini_cheetah.foot_frame_ids)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        prismatic = LegInverseKinematics(dataclasses.replace(mini_cheetah, model=model))
+    assert not prismatic.fast and caught
+    joints, _, _ = prismatic.solve(mini_cheetah.q_standing[:7], targets[0])
+    assert np.all(np.isfinite(joints))
