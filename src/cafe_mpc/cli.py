@@ -125,6 +125,20 @@ def _command_robot(arguments: argparse.Namespace) -> int:
 
 
 def _command_bench(arguments: argparse.Namespace) -> int:
+    if arguments.what == "mpc":
+        from cafe_mpc.bench.mpc_bench import format_report, run_mpc_benchmark
+        from cafe_mpc.config import load_config
+
+        gaits = tuple(gait.strip() for gait in arguments.gaits.split(",") if gait.strip())
+        if not gaits:
+            raise ValueError("--gaits needs at least one preset, e.g. --gaits trot,bound")
+        if not arguments.duration > 0:
+            raise ValueError(f"--duration must be positive, got {arguments.duration}")
+        for gait in gaits:  # bad names and overrides fail before anything runs
+            load_config(gait, list(arguments.set or []))
+        result = run_mpc_benchmark(gaits, arguments.duration, tuple(arguments.set or []))
+        print(json.dumps(result["gaits"], indent=2) if arguments.json else format_report(result))
+        return 0
     from cafe_mpc.bench.solver_bench import format_report, run_solver_benchmark
 
     if arguments.iterations < 1 or arguments.repeats < 1:
@@ -265,8 +279,15 @@ def build_parser() -> argparse.ArgumentParser:
     robot_parser.add_argument("--samples", type=int, default=5, help="random configurations to compare")
     robot_parser.set_defaults(handler=_command_robot)
 
-    bench_parser = commands.add_parser("bench", help="benchmarks (solver: MS-iLQR vs Crocoddyl FDDP)")
-    bench_parser.add_argument("what", choices=["solver"], help="what to benchmark")
+    bench_parser = commands.add_parser(
+        "bench", help="benchmarks (solver: MS-iLQR vs Crocoddyl FDDP; mpc: closed-loop update times per gait)"
+    )
+    bench_parser.add_argument("what", choices=["solver", "mpc"], help="what to benchmark")
+    bench_parser.add_argument("--gaits", default="trot,bound", help="mpc: comma-separated gait presets")
+    bench_parser.add_argument("--duration", type=float, default=4.0, help="mpc: simulated seconds per gait")
+    bench_parser.add_argument(
+        "--set", action="append", metavar="KEY=VALUE", help="mpc: config override for every gait; repeatable"
+    )
     bench_parser.add_argument("--json", action="store_true", help="print one JSON object")
     bench_parser.add_argument("--iterations", type=int, default=10, help="iterations per solve")
     bench_parser.add_argument("--repeats", type=int, default=5, help="solves per problem")

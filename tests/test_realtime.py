@@ -1,0 +1,182 @@
+"""Real-time mode (``--realtime``): the MPC in its own process, faults, and that nothing is left behind.
+
+Nothing here asserts timing (machines differ); the tests check that the run starts, delivers plans through
+the shared-memory channels, records its real-time metrics, falls back to a damped stance when the MPC
+process dies or stalls, ends with one clear error, and stops its process and frees its shared memory on
+success, on errors and on Ctrl-C.
+"""
+
+from __future__ import annotations
+
+import multiprocessing
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from cafe_mpc.config import load_config
+from cafe_mpc.control.realtime import RealtimeMpcController
+from cafe_mpc.core.measurement import Measurement
+from cafe_mpc.experiments.controllers import build_recorder, realtime_mpc
+from cafe_mpc.experiments.run import run
+from cafe_mpc.robots.robot import load_robot
+from cafe_mpc.sim.loop import WallClockPacer, simulate
+
+SHM = Path("/dev/shm")
+
+
+def _shared_memory_blocks() -> set[str]:
+    return {path.name for path in SHM.glob("psm_*")} if SHM.exists() else set()
+
+
+def _children(pid: int) -> set[int]:
+    """Live child processes of ``pid`` (from /proc)."""
+    children = set()
+    for entry in Path("/proc").iterdir():
+        if not entry.name.isdigit():
+            continue
+        try:
+            fields = (entry / "stat").read_text().rsplit(")", 1)[1].split()
+        except OSError:
+            continue
+        if int(fields[1]) == pid and fields[0] != "Z":
+            children.add(int(entry.name))
+    return children
+
+
+def test_realtime_run_starts_records_and_cleans_up(tmp_path):
+    before = _shared_memory_blocks()
+    config = load_config(
+        "trot", ["simulation.duration=1.0", "output.plots=false", "simulation.realtime=true"]
+    )
+    result = run(config, tmp_path / "run")
+    metrics = result.metrics
+    assert metrics["timing"]["mode"] == "realtime"
+    assert metrics["realtime"]["ticks"] == 500
+    assert {"missed_ticks", "tick_lateness_ms_p99"} <= set(metrics["realtime"])
+    mpc = metrics["mpc"]
+    assert mpc["plans_received"] > 5 and mpc["rate_hz"] > 0
+    assert mpc["latency_ms_median"] is not None and mpc["update_ms_median"] is not None
+    assert mpc["worker_error"] is None
+    assert np.all(np.isfinite(result.log.torque_command))
+    assert not multiprocessing.active_children()
+    assert _shared_memory_blocks() <= before
+
+
+# ------------------------------------------------------------------------------------------ faults
+class CrashingMpc:
+    """Delegates to the real MPC, then dies (``os._exit``) or stalls after ``after`` updates."""
+
+    def __init__(self, inner, after: int, mode: str) -> None:
+        self.inner, self.after, self.mode, self.count = inner, after, mode, 0
+        self.statistics = inner.statistics
+
+    def update(self, t, q, v):
+        self.count += 1
+        if self.count > self.after:
+            if self.mode == "crash":
+                os._exit(3)
+            while True:  # stall: never deliver again
+                time.sleep(1.0)
+        return self.inner.update(t, q, v)
+
+
+def crashing_mpc(config_data: dict, after: int, mode: str) -> CrashingMpc:
+    return CrashingMpc(realtime_mpc(config_data), after, mode)
+
+
+@pytest.mark.parametrize("mode", ["crash", "stall"])
+def test_a_dead_or_stalled_mpc_process_holds_a_stance_and_ends_with_one_error(mode):
+    import functools
+
+    before = _shared_memory_blocks()
+    config = load_config("trot", ["simulation.duration=3.0", "output.plots=false"])
+    robot = load_robot("mini_cheetah")
+    factory = functools.partial(crashing_mpc, config.model_dump(mode="json"), 5, mode)
+    controller = RealtimeMpcController(
+        robot, factory, build_recorder(config, robot), 0.02, 25, stall_timeout=0.3
+    )
+    with controller:
+        controller.wait_ready(Measurement.of_state(robot.q_standing, np.zeros(robot.nv), np.ones(4, bool)))
+        log = simulate(robot, controller, 3.0, pacer=WallClockPacer(), stop=controller.should_stop)
+    assert controller.failure is not None
+    assert ("exited" in controller.failure) if mode == "crash" else ("no plan" in controller.failure)
+    assert controller.statistics.fallback_ticks > 0  # the damped stance held the robot after the plan ran out
+    assert log.time[-1] < 2.9  # the run ended early, soon after the failure
+    assert not log.fell
+    assert not controller.process.is_alive()
+    assert not multiprocessing.active_children()
+    assert _shared_memory_blocks() <= before
+
+
+def test_the_command_line_reports_a_dead_mpc_process(monkeypatch, tmp_path, capsys):
+    """``cafe-mpc run --realtime`` ends with one line and a non-zero status when the MPC process dies."""
+    import cafe_mpc.experiments.controllers as controllers
+    from cafe_mpc.cli import main
+
+    original = controllers.realtime_mpc
+    monkeypatch.setattr(controllers, "realtime_mpc", _crashing_realtime_mpc)
+    try:
+        status = main(["run", "trot", "--realtime", "--duration", "2", "--out", str(tmp_path / "out")])
+    finally:
+        monkeypatch.setattr(controllers, "realtime_mpc", original)
+    assert status == 1
+    error = capsys.readouterr().err.strip().splitlines()
+    assert len(error) == 1 and error[0].startswith("cafe-mpc: error:") and "MPC process" in error[0]
+    assert not (tmp_path / "out").exists()  # a failed run leaves no result folder
+    assert not multiprocessing.active_children()
+
+
+def _crashing_realtime_mpc(config_data: dict) -> CrashingMpc:
+    return crashing_mpc(config_data, 5, "crash")
+
+
+def test_ctrl_c_stops_the_run_and_leaves_no_process(tmp_path):
+    """SIGINT (Ctrl-C) during a real-time run: exit status 130 and no MPC process left behind."""
+    command = [sys.executable, "-m", "cafe_mpc.cli", "run", "trot", "--realtime", "--duration", "30"]
+    process = subprocess.Popen(
+        [*command, "--out", str(tmp_path / "out")], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
+    )
+    children: set[int] = set()
+    deadline = time.time() + 60
+    while time.time() < deadline and process.poll() is None and not children:
+        children |= _children(process.pid)
+        time.sleep(0.2)
+    assert children, "the real-time run started no MPC process"
+    time.sleep(3.0)  # cold solve, then the run itself
+    process.send_signal(signal.SIGINT)
+    _, stderr = process.communicate(timeout=30)
+    assert process.returncode == 130, stderr
+    deadline = time.time() + 5.0  # the resource tracker exits once it has seen its parent go
+    while time.time() < deadline and any(Path(f"/proc/{pid}").exists() for pid in children):
+        time.sleep(0.1)
+    alive = {pid: _command_line(pid) for pid in children if Path(f"/proc/{pid}").exists()}
+    assert not alive, f"processes left behind: {alive}"
+
+
+def _command_line(pid: int) -> str:
+    try:
+        return Path(f"/proc/{pid}/cmdline").read_bytes().replace(b"\0", b" ").decode()
+    except OSError:
+        return "?"
+
+
+def test_bench_mpc_reports_each_gait_as_json(capsys):
+    """``cafe-mpc bench mpc --json``: one object per gait with the fields BENCHMARKS.md is made from (no
+    timing is asserted)."""
+    import json
+
+    from cafe_mpc.cli import main
+
+    assert main(["bench", "mpc", "--gaits", "trot", "--duration", "0.4", "--json"]) == 0
+    rows = json.loads(capsys.readouterr().out)
+    assert [row["gait"] for row in rows] == ["trot"]
+    for key in ("update_ms_median", "update_ms_p99", "iteration_ms_median", "fell", "vx_mean", "timing_mode"):
+        assert key in rows[0]
+    assert rows[0]["timing_mode"] == "measured"
+    assert main(["bench", "mpc", "--gaits", "walk"]) == 2  # unknown preset: one clear error
