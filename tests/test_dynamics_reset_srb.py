@@ -321,3 +321,34 @@ def test_srb_parameters_of_go1_are_its_own():
     assert parameters.mass == pytest.approx(go1.total_mass)
     assert parameters.mass > 12.0 and parameters.mass != pytest.approx(SRBParameters().mass)
     assert not np.allclose(parameters.inertia_matrix, SRBParameters().inertia_matrix, atol=1e-2)
+
+
+def test_compiled_so3_maths_matches_pinocchio():
+    """The compiled SO(3) functions of the SRB kernels equal Pinocchio's, also near 0 and near pi."""
+    from cafe_mpc.dynamics import srb_kernels as k
+
+    rng = np.random.default_rng(31)
+    vectors = [rng.standard_normal(3) * scale for scale in (1e-9, 1e-5, 0.3, 1.0, 2.5) for _ in range(4)]
+    axis = rng.standard_normal(3)
+    axis /= np.linalg.norm(axis)
+    vectors += [axis * (np.pi - eps) for eps in (1e-2, 1e-4, 1e-7)] + [axis * np.pi]
+    out3, out33 = np.zeros(3), np.zeros((3, 3))
+    for w in vectors:
+        k.exp3(w, out33)
+        np.testing.assert_allclose(out33, pin.exp3(w), atol=1e-12)
+        rotation = pin.exp3(w)
+        theta = k.log3(rotation, out3)
+        np.testing.assert_allclose(pin.exp3(out3), rotation, atol=1e-9)  # the log is a log of R
+        if np.linalg.norm(w) < np.pi - 1e-6:
+            np.testing.assert_allclose(out3, pin.log3(rotation), atol=1e-9)
+            k.jlog3(theta, out3, out33)
+            np.testing.assert_allclose(out33, pin.Jlog3(rotation), atol=1e-7)
+        k.jexp3(w, out33)
+        np.testing.assert_allclose(out33, pin.Jexp3(w), atol=1e-10)
+        quaternion = pin.Quaternion(pin.exp3(rng.standard_normal(3))).coeffs()
+        k.quaternion_to_rotation(quaternion, out33)
+        np.testing.assert_allclose(out33, pin.Quaternion(quaternion).toRotationMatrix(), atol=1e-14)
+        stepped = np.zeros(4)
+        k.quaternion_step(quaternion, w, stepped)
+        expected = pin.Quaternion(quaternion).toRotationMatrix() @ pin.exp3(w)
+        np.testing.assert_allclose(pin.Quaternion(stepped).toRotationMatrix(), expected, atol=1e-12)

@@ -32,6 +32,13 @@ import pinocchio as pin
 
 from cafe_mpc.core.contacts import N_FEET
 from cafe_mpc.core.interfaces import StateManifold
+from cafe_mpc.dynamics.srb_kernels import (
+    srb_difference,
+    srb_difference_jacobian_product,
+    srb_integrate,
+    srb_step,
+    srb_step_jacobians,
+)
 from cafe_mpc.robots.robot import Robot
 
 GRAVITY = 9.81
@@ -75,18 +82,19 @@ class SRBState(StateManifold):
 
     def integrate(self, x: np.ndarray, dx: np.ndarray) -> np.ndarray:
         out = np.empty(13)
-        out[0:3] = x[0:3] + dx[0:3]
-        quaternion = quaternion_multiply(x[3:7], pin.exp3_quat(dx[3:6]))
-        out[3:7] = quaternion / np.linalg.norm(quaternion)
-        out[7:13] = x[7:13] + dx[6:12]
+        srb_integrate(x, dx, out)
         return out
+
+    def integrate_into(self, x: np.ndarray, dx: np.ndarray, out: np.ndarray) -> None:
+        srb_integrate(x, dx, out)
 
     def difference(self, x0: np.ndarray, x1: np.ndarray) -> np.ndarray:
         out = np.empty(12)
-        out[0:3] = x1[0:3] - x0[0:3]
-        out[3:6] = pin.log3(quaternion_to_rotation(x0[3:7]).T @ quaternion_to_rotation(x1[3:7]))
-        out[6:12] = x1[7:13] - x0[7:13]
+        srb_difference(x0, x1, out)
         return out
+
+    def difference_into(self, x0: np.ndarray, x1: np.ndarray, out: np.ndarray) -> None:
+        srb_difference(x0, x1, out)
 
     def jacobian_difference(self, x0: np.ndarray, x1: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         error = quaternion_to_rotation(x0[3:7]).T @ quaternion_to_rotation(x1[3:7])
@@ -101,9 +109,7 @@ class SRBState(StateManifold):
         self, x0: np.ndarray, x1: np.ndarray, matrix: np.ndarray, out: np.ndarray
     ) -> None:
         """Only the rotation rows differ from the identity: ``out[3:6] = Jlog3(R0' R1) @ matrix[3:6]``."""
-        error = quaternion_to_rotation(x0[3:7]).T @ quaternion_to_rotation(x1[3:7])
-        out[:] = matrix
-        np.matmul(pin.Jlog3(error), matrix[3:6], out=out[3:6])
+        srb_difference_jacobian_product(x0, x1, matrix, out)
 
     def jacobian_integrate(self, x: np.ndarray, dx: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         j0 = np.eye(12)
@@ -231,42 +237,27 @@ class SRBDynamics:
         contacts: np.ndarray,
     ) -> None:
         """Write ``data.x_next`` and the accelerations; ``contacts`` holds one flag per foot in {0, 1} as
-        floats."""
-        dt = self.dt
-        position, quaternion, velocity, omega = x[0:3], x[3:7], x[7:10], x[10:13]
-        rotation = quaternion_to_rotation(quaternion)
-        data.rotation = rotation
-        mask = data.contact_mask.reshape(self.n_feet, 3)
-        mask[:] = contacts[:, None]
-        np.multiply(u, data.contact_mask, out=data.active_forces)
-        lever = data.lever_arms
-        np.subtract(foot_positions, position, out=lever)
-        moment_map = data.moment_map  # rows of [l]x for each foot, side by side
-        moment_map[0, 1::3] = -lever[:, 2]
-        moment_map[0, 2::3] = lever[:, 1]
-        moment_map[1, 0::3] = lever[:, 2]
-        moment_map[1, 2::3] = -lever[:, 0]
-        moment_map[2, 0::3] = -lever[:, 1]
-        moment_map[2, 1::3] = lever[:, 0]
-        np.matmul(rotation.T, moment_map @ data.active_forces, out=data.body_moment)
-        np.matmul(self._force_to_velocity, data.active_forces, out=data.linear_acceleration)
-        data.linear_acceleration *= 1.0 / dt
-        data.linear_acceleration += self.gravity_vector
-        gyroscopic = pin.skew(omega) @ (
-            self.inertia @ omega
-        )  # omega x I omega (np.cross is slow on 3-vectors)
-        np.matmul(self.inertia_inverse, data.body_moment - gyroscopic, out=data.angular_acceleration)
-        x_next = data.x_next
-        np.multiply(velocity, dt, out=x_next[0:3])
-        x_next[0:3] += position
-        next_quaternion = quaternion_multiply(quaternion, pin.exp3_quat(dt * omega))
-        np.multiply(
-            next_quaternion, 1.0 / math.sqrt(float(np.dot(next_quaternion, next_quaternion))), out=x_next[3:7]
+        floats (one compiled call: ``dynamics/srb_kernels.srb_step``)."""
+        finite = srb_step(
+            x,
+            u,
+            foot_positions,
+            contacts,
+            self.mass,
+            self.inertia,
+            self.inertia_inverse,
+            self.parameters.gravity,
+            self.dt,
+            data.x_next,
+            data.rotation,
+            data.active_forces,
+            data.moment_map,
+            data.body_moment,
+            data.linear_acceleration,
+            data.angular_acceleration,
         )
-        np.multiply(data.linear_acceleration, dt, out=x_next[7:10])
-        x_next[7:10] += velocity
-        np.multiply(data.angular_acceleration, dt, out=x_next[10:13])
-        x_next[10:13] += omega
+        if not finite:
+            raise FloatingPointError("SRB dynamics: non-finite state, forces or footholds")
 
     def calc_diff(
         self,
@@ -277,21 +268,17 @@ class SRBDynamics:
         contacts: np.ndarray,
     ) -> None:
         """Write ``data.Fx``, ``data.Fu`` (tangent Jacobians). Assumes ``calc`` ran with these arguments."""
-        dt = self.dt
-        omega = x[10:13]
-        Fx, Fu = data.Fx, data.Fu
-        step = dt * omega
-        # Orientation: R+ = R exp(omega dt).
-        Fx[3:6, 3:6] = pin.exp3(step).T
-        Fx[3:6, 9:12] = dt * pin.Jexp3(step)
-        # Angular velocity: omega+ = omega + dt I^-1 (R' sum_j (p_j - c) x s_j f_j - omega x I omega).
-        body_map = (dt * self.inertia_inverse) @ data.rotation.T  # dt I^-1 R'
-        force_sum = data.active_forces.reshape(self.n_feet, 3).sum(axis=0)
-        Fx[9:12, 0:3] = body_map @ pin.skew(force_sum)  # d/dc of (p - c) x f = [f]x
-        Fx[9:12, 3:6] = dt * (self.inertia_inverse @ pin.skew(data.body_moment))  # R' m, R -> R exp(dtheta)
-        gyroscopic = pin.skew(self.inertia @ omega) - pin.skew(omega) @ self.inertia
-        Fx[9:12, 9:12] = dt * (self.inertia_inverse @ gyroscopic)
-        Fx[9:12, 9:12] += np.eye(3)
-        # Controls: only stance-foot forces act.
-        np.multiply(self._force_to_velocity, data.contact_mask, out=Fu[6:9])
-        np.multiply(body_map @ data.moment_map, data.contact_mask, out=Fu[9:12])
+        srb_step_jacobians(
+            x,
+            contacts,
+            self.mass,
+            self.inertia,
+            self.inertia_inverse,
+            self.dt,
+            data.rotation,
+            data.active_forces,
+            data.moment_map,
+            data.body_moment,
+            data.Fx,
+            data.Fu,
+        )

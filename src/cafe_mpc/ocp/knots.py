@@ -31,6 +31,7 @@ from cafe_mpc.dynamics.impact import ImpactReset
 from cafe_mpc.dynamics.kinematics import FootKinematics
 from cafe_mpc.dynamics.multibody_state import MultibodyState
 from cafe_mpc.dynamics.srb import SRBDynamics, SRBParameters, SRBState, quaternion_to_rotation
+from cafe_mpc.dynamics.srb_kernels import srb_cost, srb_cost_derivatives
 from cafe_mpc.dynamics.transition import ComposedReset, WholeBodyToSRB
 from cafe_mpc.dynamics.whole_body import IntegrationScheme, WholeBodyDynamics
 from cafe_mpc.ocp.constraints import BarrierParameters, TouchdownFootHeight, WholeBodyConstraintSettings
@@ -544,7 +545,8 @@ class SRBKnotData(ActionData):
         self.r = np.zeros(12)
         self.weighted_r = np.zeros(12)
         self.rotation_error = np.eye(3)
-        self.force_residual = np.zeros(12)
+        self.force_residual = np.zeros(model.nu)
+        self.rotation_angle = np.zeros(1)
         self.last_x = np.full(13, np.nan)
         self.last_u = np.full(model.nu, np.nan)
         self.layout = model.layout
@@ -597,38 +599,43 @@ class SRBKnot(ActionModel):
         reference = self.reference
         if self.dynamics is not None:
             self.dynamics.calc(data.dynamics, x, u, reference.foot_positions, reference.contacts)
-        x_ref, r = reference.state, data.r
-        np.subtract(x[0:3], x_ref[0:3], out=r[0:3])
-        data.rotation_error = quaternion_to_rotation(x_ref[3:7]).T @ quaternion_to_rotation(x[3:7])
-        r[3:6] = pin.log3(data.rotation_error)
-        np.subtract(x[7:13], x_ref[7:13], out=r[6:12])
-        np.multiply(self.state_weights, r, out=data.weighted_r)
-        cost = 0.5 * float(np.dot(data.weighted_r, r))
-        if self.nu:
-            np.subtract(u, reference.forces, out=data.force_residual)
-            cost += 0.5 * float(np.dot(self.force_weights * data.force_residual, data.force_residual))
-        data.cost = self.cost_scale * cost
+        data.cost = srb_cost(
+            x,
+            u,
+            reference.state,
+            reference.forces,
+            self.state_weights,
+            self.force_weights,
+            self.cost_scale,
+            data.r,
+            data.weighted_r,
+            data.force_residual,
+            data.rotation_angle,
+        )
         data.constraint_violation = 0.0
         data.last_x[:] = x
         data.last_u[:] = u
 
     def calc_diff(self, data: SRBKnotData, x: np.ndarray, u: np.ndarray) -> None:
-        if not (np.array_equal(x, data.last_x) and np.array_equal(u, data.last_u)):
+        if not (same_point(x, data.last_x) and same_point(u, data.last_u)):
             self.calc(data, x, u)
-        reference, scale = self.reference, self.cost_scale
+        reference = self.reference
         if self.dynamics is not None:
             self.dynamics.calc_diff(data.dynamics, x, u, reference.foot_positions, reference.contacts)
-        jlog = pin.Jlog3(data.rotation_error)
-        np.multiply(data.weighted_r, scale, out=data.Lx)
-        data.Lx[3:6] = scale * (jlog.T @ data.weighted_r[3:6])
-        data.Lxx.fill(0.0)
-        data.Lxx[self._diagonal, self._diagonal] = scale * self.state_weights
-        data.Lxx[3:6, 3:6] = jlog.T @ ((scale * self.state_weights[3:6])[:, None] * jlog)
-        if self.nu:
-            np.multiply(self.force_weights * scale, data.force_residual, out=data.Lu)
-            data.Luu.fill(0.0)
-            data.Lux.fill(0.0)
-            data.Luu[self._diagonal, self._diagonal] = scale * self.force_weights
+        srb_cost_derivatives(
+            data.r,
+            data.weighted_r,
+            data.force_residual,
+            self.state_weights,
+            self.force_weights,
+            float(data.rotation_angle[0]),
+            self.cost_scale,
+            data.Lx,
+            data.Lu,
+            data.Lxx,
+            data.Luu,
+            data.Lux,
+        )
 
 
 # --------------------------------------------------------------------------------------------------
