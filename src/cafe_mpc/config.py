@@ -173,7 +173,9 @@ class MpcConfig(StrictModel):
     time_budget: float | None = Field(
         None, gt=0.0, le=0.5, description="wall-clock cap of a solve, s (null: 0.9 x period; measured only)"
     )
-    max_iterations: int = Field(4, ge=1, le=50, description="MS-iLQR iterations per update (1: RTI)")
+    max_iterations: int = Field(
+        1, ge=1, le=50, description="MS-iLQR iterations per update (1: real-time iteration; the paper: 4)"
+    )
 
     @field_validator("schedule")
     @classmethod

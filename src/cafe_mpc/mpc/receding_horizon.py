@@ -39,14 +39,16 @@ class MpcSettings:
     free; ``"fixed"``: the same with a constant ``fixed_latency`` (deterministic, for tests and for the
     paper's C++ budget). ``time_budget``: wall-clock cap of one solve (the paper's 0.9 x period), applied in
     measured mode only so that fixed-latency runs do not depend on the machine's load. ``max_iterations``:
-    MS-iLQR iterations per update (paper: 4; 1 is the real-time iteration scheme).
+    MS-iLQR iterations per update: 1, the real-time iteration scheme (the paper uses 4 with ~5 ms C++
+    iterations; in Python, with measured latency, 4 iterations made 20-32 ms updates and the pace and bound
+    presets fell, while 1 iteration keeps the latency near 12 ms and all five gaits stay up: BENCHMARKS.md).
     """
 
     period: float = 0.02
     latency: LatencyMode = "measured"
     fixed_latency: float = 0.02
     time_budget: float | None = None
-    max_iterations: int = 4
+    max_iterations: int = 1
     # The paper's first-solve settings with a tighter tolerance: the first (cold) solve seeds every later
     # warm start. It runs before the clock starts (the robot stands while the first plan is computed).
     first_solve: SolverOptions = field(
