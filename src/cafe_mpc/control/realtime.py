@@ -149,6 +149,15 @@ class PlanLayout:
         return Plan(**fields), float(buffer[1]), float(buffer[2])
 
 
+def _pin_to_cpu(index: int) -> None:
+    """Pin this process to one of the CPUs it may use (``index`` into them), when there are at least two: the
+    500 Hz loop and the MPC then do not migrate between cores or share one. No-op where unsupported."""
+    with contextlib.suppress(AttributeError, OSError):
+        cpus = sorted(os.sched_getaffinity(0))
+        if len(cpus) >= 2:
+            os.sched_setaffinity(0, {cpus[index]})
+
+
 # ------------------------------------------------------------------------------------- worker process
 def _worker_main(
     factory: MpcFactory,
@@ -165,6 +174,7 @@ def _worker_main(
 ) -> None:
     """The MPC process: newest measurement -> update -> plan, at most once per period, until told to stop."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # the main process owns Ctrl-C and stops us
+    _pin_to_cpu(-1)  # the last CPU; the 500 Hz loop keeps the first (see RealtimeMpcController)
     measurement = _SeqLockArray(measurement_size, measurement_name)
     plan_channel = _SeqLockArray(layout.size, plan_name)
     control = _SeqLockArray(2, control_name)  # [stop flag, ready flag]
@@ -275,6 +285,10 @@ class RealtimeMpcController:
         )
         self.process.start()
         child_end.close()
+        self._affinity = None
+        with contextlib.suppress(AttributeError, OSError):
+            self._affinity = os.sched_getaffinity(0)
+        _pin_to_cpu(0)
         self._closed = False
 
     # ------------------------------------------------------------------------------------- lifecycle
@@ -325,6 +339,9 @@ class RealtimeMpcController:
             self.process.kill()
             self.process.join(timeout=2.0)
         self._results.close()
+        if self._affinity is not None:
+            with contextlib.suppress(OSError):
+                os.sched_setaffinity(0, self._affinity)
         for channel in (self._measurement, self._plan_channel, self._control):
             channel.close(unlink=True)
 
