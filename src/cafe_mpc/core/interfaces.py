@@ -61,6 +61,14 @@ class StateManifold(ABC):
     def jacobian_integrate(self, x: np.ndarray, dx: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Jacobians of ``integrate(x, dx)`` w.r.t. ``x`` and ``dx`` (each ``ndx x ndx``)."""
 
+    def difference_jacobian_product_stacked(
+        self, x0: np.ndarray, x1: np.ndarray, left: np.ndarray, right: np.ndarray, out: np.ndarray
+    ) -> None:
+        """``out = ∂(x1 ⊖ x0)/∂x1 @ [left | right]`` (the solver's ``[A | B]`` in one call)."""
+        n_left = left.shape[1]
+        self.difference_jacobian_product(x0, x1, left, out[:, :n_left])
+        self.difference_jacobian_product(x0, x1, right, out[:, n_left:])
+
     def difference_into(self, x0: np.ndarray, x1: np.ndarray, out: np.ndarray) -> None:
         """``out = x1 ⊖ x0`` (in place; manifolds override it to skip the temporary)."""
         out[:] = self.difference(x0, x1)

@@ -16,6 +16,7 @@ import numpy as np
 import pinocchio as pin
 
 from cafe_mpc.core.interfaces import StateManifold
+from cafe_mpc.core.kernels import stack_columns_left_multiplied
 
 
 class MultibodyState(StateManifold):
@@ -87,6 +88,14 @@ class MultibodyState(StateManifold):
         nq, nv = self.nq, self.nv
         out[:nq] = pin.integrate(self.model, x[:nq], dx[:nv])
         np.add(x[nq:], dx[nv:], out=out[nq:])
+
+    def difference_jacobian_product_stacked(
+        self, x0: np.ndarray, x1: np.ndarray, left: np.ndarray, right: np.ndarray, out: np.ndarray
+    ) -> None:
+        rows = self._lie_rows or self.nv
+        nq = self.nq
+        jacobian = pin.dDifference(self.model, x0[:nq], x1[:nq], pin.ArgumentPosition.ARG1)
+        stack_columns_left_multiplied(jacobian[:rows, :rows], rows, left, right, out)
 
     def difference_jacobian_product(
         self, x0: np.ndarray, x1: np.ndarray, matrix: np.ndarray, out: np.ndarray

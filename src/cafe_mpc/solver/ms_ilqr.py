@@ -395,12 +395,11 @@ class MSiLQRSolver:
         """
         phases = workspace.phases
         for i, work in enumerate(phases):
-            xs, us, A, B = work.xs, work.us, work.A, work.B
-            transport = work.transport
+            xs, us, F = work.xs, work.us, work.F
+            transport = work.transport_stacked
             for k, (model, data) in enumerate(zip(work.models, work.running_data, strict=True)):
                 model.calc_diff(data, xs[k], us[k])
-                transport(xs[k + 1], data.x_next, data.Fx, A[k])
-                transport(xs[k + 1], data.x_next, data.Fu, B[k])
+                transport(xs[k + 1], data.x_next, data.Fx, data.Fu, F[k])  # [A_k | B_k]
             work.terminal_model.calc_diff(work.terminal_data, xs[-1], EMPTY_CONTROL)
             if work.constraint is not None:
                 work.constraint.calc_diff(work.constraint_data, xs[-1])

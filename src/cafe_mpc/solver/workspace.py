@@ -33,7 +33,7 @@ from cafe_mpc.core.interfaces import (
     ResetData,
     StateManifold,
 )
-from cafe_mpc.core.kernels import same_point
+from cafe_mpc.core.kernels import same_point, stack_columns
 
 EMPTY_CONTROL = np.zeros(0)
 """The control of terminal knots (size 0; writable so compiled kernels see one array type)."""
@@ -189,6 +189,15 @@ class PhaseWorkspace:
             np.add(x, dx, out=out)
         else:
             self.state.integrate_into(x, dx, out)
+
+    def transport_stacked(
+        self, x_nominal: np.ndarray, y: np.ndarray, Fx: np.ndarray, Fu: np.ndarray, out: np.ndarray
+    ) -> None:
+        """``out = ∂(y ⊖ x̄)/∂y @ [Fx | Fu]``: the knot's ``[A | B]`` (the identity map without a defect)."""
+        if self.euclidean or same_point(x_nominal, y):
+            stack_columns(Fx, Fu, out)
+        else:
+            self.state.difference_jacobian_product_stacked(x_nominal, y, Fx, Fu, out)
 
     def transport(self, x_nominal: np.ndarray, y: np.ndarray, matrix: np.ndarray, out: np.ndarray) -> None:
         """``out = ∂(y ⊖ x̄)/∂y @ matrix`` (tangent at ``y`` -> tangent at the nominal ``x̄``)."""
