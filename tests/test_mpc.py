@@ -23,7 +23,7 @@ def robot():
 
 
 def _builder(robot, schedule):
-    return CafeProblemBuilder(WholeBodyModelFactory(robot), SRBModelFactory(), schedule)
+    return CafeProblemBuilder(WholeBodyModelFactory(robot), SRBModelFactory(robot=robot), schedule)
 
 
 def _reference(robot, gait, vx=0.5):

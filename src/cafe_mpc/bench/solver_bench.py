@@ -66,7 +66,9 @@ def _cafe(robot: Robot, iterations: int, repeats: int) -> dict:
     from cafe_mpc.reference.locomotion import LocomotionReference, VelocityCommand
 
     reference = LocomotionReference(robot, get_gait("trot"), [VelocityCommand(0.0, 0.5)])
-    builder = CafeProblemBuilder(WholeBodyModelFactory(robot), SRBModelFactory(), ModelSchedule.named("S4"))
+    builder = CafeProblemBuilder(
+        WholeBodyModelFactory(robot), SRBModelFactory(robot=robot), ModelSchedule.named("S4")
+    )
     x0 = robot.x_standing
     reference.update(0.0, x0[: robot.nq], x0[robot.nq :])
     built = builder.build(0.0, x0, reference)

@@ -156,7 +156,9 @@ class CafeProblemBuilder:
         }
         robot = self.robot
         n_wb, n_srb = schedule.whole_body_knots, schedule.srb_knots
-        self.window = ReferenceWindow(n_wb + 1 + (n_srb + 1 if n_srb else 0), robot.nq, robot.nv, robot.nu, 4)
+        self.window = ReferenceWindow(
+            n_wb + 1 + (n_srb + 1 if n_srb else 0), robot.nq, robot.nv, robot.nu, robot.n_feet
+        )
         self._wb_offsets = schedule.whole_body_dt * np.arange(n_wb + 1)
         self._srb_offsets = schedule.srb_dt * np.arange(n_srb + 1)
         self._times = np.zeros(len(self._wb_offsets) + (len(self._srb_offsets) if n_srb else 0))
@@ -172,7 +174,7 @@ class CafeProblemBuilder:
     ) -> np.ndarray:
         """Torques that hold the standing pose with ``support_factor * m g`` on each stance foot (default: the
         weight split over the stance feet); zero in flight. The warm start's guess for appended knots."""
-        key = tuple(bool(s) for s in stance) if stance is not None else (False,) * 4
+        key = tuple(bool(s) for s in stance) if stance is not None else (False,) * self.robot.n_feet
         if not any(key):
             return np.zeros(self.robot.nu)
         force = None if support_factor is None else support_factor * self.robot.total_mass * 9.81
@@ -229,7 +231,8 @@ class CafeProblemBuilder:
         knot = self._srb_running.get(key)
         if knot is None:
             _, _, srb = self._factories(weight_set)
-            reference = srb.reference(srb.state.zero(), np.zeros((4, 3)), (True, True, True, True))
+            n_feet = self.robot.n_feet
+            reference = srb.reference(srb.state.zero(), np.zeros((n_feet, 3)), (True,) * n_feet)
             knot = srb.running_knot(reference, self.schedule.srb_dt)
             self._srb_running[key] = knot
         return knot
@@ -238,9 +241,8 @@ class CafeProblemBuilder:
         knot = self._srb_terminal.get(weight_set)
         if knot is None:
             _, _, srb = self._factories(weight_set)
-            knot = srb.terminal_knot(
-                srb.reference(srb.state.zero(), np.zeros((4, 3)), (True, True, True, True))
-            )
+            n_feet = self.robot.n_feet
+            knot = srb.terminal_knot(srb.reference(srb.state.zero(), np.zeros((n_feet, 3)), (True,) * n_feet))
             self._srb_terminal[weight_set] = knot
         return knot
 
@@ -429,8 +431,8 @@ class WarmStart:
                 us.append(phase_u)
                 rollout.append(phase_rollout)
             else:
-                phase_x = np.empty((n + 1, 13))
-                phase_u = np.empty((n, 12))
+                phase_x = np.empty((n + 1, self.srb_state.nx))
+                phase_u = np.empty((n, built.srb_forces.shape[1]))
                 wb_end = xs[-1][-1] if xs else x0
                 for j, t in enumerate(info.times):
                     match = _nearest_srb(srb_times, previous_srb, float(t))

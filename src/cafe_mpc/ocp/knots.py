@@ -19,7 +19,7 @@ from __future__ import annotations
 import copy
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 import pinocchio as pin
@@ -30,7 +30,7 @@ from cafe_mpc.core.kernels import same_point
 from cafe_mpc.dynamics.impact import ImpactReset
 from cafe_mpc.dynamics.kinematics import FootKinematics
 from cafe_mpc.dynamics.multibody_state import MultibodyState
-from cafe_mpc.dynamics.srb import SRBDynamics, SRBParameters, SRBState, quaternion_to_rotation
+from cafe_mpc.dynamics.srb import SRBDynamics, SRBParameters, SRBState, quaternion_to_rotation, srb_parameters
 from cafe_mpc.dynamics.srb_kernels import srb_cost, srb_cost_derivatives
 from cafe_mpc.dynamics.transition import ComposedReset, WholeBodyToSRB
 from cafe_mpc.dynamics.whole_body import IntegrationScheme, WholeBodyDynamics
@@ -759,10 +759,12 @@ class WholeBodyModelFactory:
 
 @dataclass(frozen=True)
 class SRBSettings:
-    """Configuration of SRB knots (settings facts defaults)."""
+    """Configuration of SRB knots (docs/settings.md). ``parameters``: the SRB's mass and inertia; ``None``:
+    from the robot given to ``SRBModelFactory`` (``dynamics.srb.srb_parameters``: legs lumped, rotors
+    included), or the authors' Mini Cheetah values when no robot is given."""
 
     dt: float = 0.05
-    parameters: SRBParameters = field(default_factory=SRBParameters)
+    parameters: SRBParameters | None = None
     running_weights: SRBWeights = field(default_factory=SRBWeights.regular_running)
     terminal_weights: SRBWeights = field(default_factory=SRBWeights.regular_terminal)
 
@@ -771,8 +773,13 @@ class SRBModelFactory:
     """Builds SRB knots sharing one ``SRBDynamics`` per time step (one prototype per running/terminal and
     ``dt``; knots differ only by their reference)."""
 
-    def __init__(self, settings: SRBSettings | None = None) -> None:
-        self.settings = settings or SRBSettings()
+    def __init__(self, settings: SRBSettings | None = None, robot: Robot | None = None) -> None:
+        settings = settings or SRBSettings()
+        if settings.parameters is None:
+            parameters = srb_parameters(robot) if robot is not None else SRBParameters()
+            settings = replace(settings, parameters=parameters)
+        self.settings = settings
+        self.n_feet = robot.n_feet if robot is not None else 4
         self.state = SRBState()
         self._dynamics: dict[float, SRBDynamics] = {}
         self._prototypes: dict[tuple, SRBKnot] = {}
@@ -791,7 +798,7 @@ class SRBModelFactory:
         return SRBReference(state, foot_positions, contacts, self.weight)
 
     def _default_reference(self) -> SRBReference:
-        return SRBReference(self.state.zero(), np.zeros((4, 3)), (True, True, True, True), self.weight)
+        return SRBReference(self.state.zero(), np.zeros((self.n_feet, 3)), (True,) * self.n_feet, self.weight)
 
     def running_knot(self, reference: SRBReference, dt: float | None = None) -> SRBKnot:
         dt = self.settings.dt if dt is None else float(dt)
