@@ -4,7 +4,6 @@ the trajectory (kinematic replay in the MuJoCo model of the robot) and ``summary
 from __future__ import annotations
 
 import json
-import os
 from pathlib import Path
 
 import numpy as np
@@ -13,16 +12,13 @@ from matplotlib.figure import Figure
 
 from cafe_mpc.core.contacts import LEG_NAMES
 from cafe_mpc.reference.trajectory_file import WholeBodyTrajectory, save_trajectory
+from cafe_mpc.robots.rendering import RenderUnavailable, render_configurations
 from cafe_mpc.robots.robot import Robot
 from cafe_mpc.trajopt.multiphase import TrajOptResult
 from cafe_mpc.trajopt.task import TrajOptTask
 
 VIDEO_SLOWDOWN = 4.0
 """The video plays the trajectory this many times slower than real time."""
-
-
-class RenderUnavailable(RuntimeError):
-    """Off-screen rendering cannot run on this machine."""
 
 
 def file_stem(task: TrajOptTask) -> str:
@@ -197,90 +193,17 @@ def _save(figure, path: Path) -> Path:
 # --------------------------------------------------------------------------------------------------
 
 
-class _ExplicitContextRenderer:
-    """Like ``mujoco.Renderer``, with an explicitly created OSMesa (or, with ``MUJOCO_GL=egl``, EGL) context.
-
-    ``mujoco.Renderer`` takes its back-end from ``MUJOCO_GL`` when MuJoCo is *imported*; the CLI imports the
-    simulator (and MuJoCo) to build its parser, so without the variable it tried GLFW, failed without a
-    display and then aborted the process. Creating the context here works whatever was imported before."""
-
-    def __init__(self, model, height: int, width: int) -> None:
-        import mujoco
-
-        backend = os.environ.get("MUJOCO_GL", "osmesa").lower()
-        if backend == "egl":
-            from mujoco.egl import GLContext
-        else:
-            from mujoco.osmesa import GLContext
-        self._mujoco = mujoco
-        self._context = GLContext(width, height)
-        self._context.make_current()
-        model.vis.global_.offwidth = max(model.vis.global_.offwidth, width)
-        model.vis.global_.offheight = max(model.vis.global_.offheight, height)
-        self._model = model
-        self._render_context = mujoco.MjrContext(model, mujoco.mjtFontScale.mjFONTSCALE_150)
-        mujoco.mjr_setBuffer(mujoco.mjtFramebuffer.mjFB_OFFSCREEN, self._render_context)
-        self._scene = mujoco.MjvScene(model, maxgeom=1000)
-        self._option = mujoco.MjvOption()
-        self._viewport = mujoco.MjrRect(0, 0, width, height)
-        self._pixels = np.empty((height, width, 3), dtype=np.uint8)
-
-    def update_scene(self, data, camera) -> None:
-        mujoco = self._mujoco
-        mujoco.mjv_updateScene(
-            self._model, data, self._option, None, camera, mujoco.mjtCatBit.mjCAT_ALL, self._scene
-        )
-
-    def render(self) -> np.ndarray:
-        self._mujoco.mjr_render(self._viewport, self._scene, self._render_context)
-        self._mujoco.mjr_readPixels(self._pixels, None, self._viewport, self._render_context)
-        return np.flipud(self._pixels)
-
-    def close(self) -> None:
-        self._render_context.free()
-        self._context.free()
-
-
 def render_trajectory(
     robot: Robot, trajectory: WholeBodyTrajectory, path: Path, fps: int = 30, slowdown: float = VIDEO_SLOWDOWN
 ) -> Path:
     """Kinematic replay (no simulation) of the trajectory in the robot's MuJoCo model, viewed from the front,
     ``slowdown`` times slower than real time. Needs off-screen OpenGL (``libosmesa6``; ``MUJOCO_GL=egl``
     selects EGL instead); raises ``RenderUnavailable`` with the reason otherwise."""
-    os.environ.setdefault("MUJOCO_GL", "osmesa")
-    try:
-        import imageio.v2 as imageio
-        import mujoco
-
-        model = mujoco.MjModel.from_xml_string(robot.mjcf)
-        data = mujoco.MjData(model)
-        renderer = _ExplicitContextRenderer(model, height=368, width=640)
-    except Exception as error:  # GL back-ends fail with many exception types
-        raise RenderUnavailable(
-            f"off-screen rendering is not available ({type(error).__name__}: {error}); "
-            "install libosmesa6 (and set MUJOCO_GL=osmesa)"
-        ) from error
-    camera = mujoco.MjvCamera()
-    camera.distance, camera.elevation, camera.azimuth = 1.5, -10.0, 180.0
     times = trajectory.times
     frame_times = np.arange(times[0], times[-1] + 1e-9, 1.0 / (fps * slowdown))
     indices = np.searchsorted(times, frame_times).clip(0, len(times) - 1)
     indices = np.concatenate([np.zeros(fps // 2, dtype=int), indices, np.full(fps, len(times) - 1)])
-    frames = []
-    q = trajectory.xs[:, : robot.nq]
-    for index in indices:
-        data.qpos[:3] = q[index, :3]
-        data.qpos[3:7] = [q[index, 6], *q[index, 3:6]]  # Pinocchio (x, y, z, w) -> MuJoCo (w, x, y, z)
-        data.qpos[7:] = q[index, 7:]
-        mujoco.mj_forward(model, data)
-        camera.lookat[:] = [q[index, 0], q[index, 1], 0.25]
-        renderer.update_scene(data, camera)
-        frames.append(renderer.render().copy())
-    renderer.close()
-    path = Path(path)
-    try:
-        imageio.mimsave(path, frames, fps=fps)
-    except Exception:  # no ffmpeg: fall back to GIF
-        path = path.with_suffix(".gif")
-        imageio.mimsave(path, frames, duration=1.0 / fps)
-    return path
+    configurations = trajectory.xs[indices, : robot.nq]
+    return render_configurations(
+        robot, configurations, path, fps, camera=(1.5, -10.0, 180.0), look_at_height=0.25
+    )
