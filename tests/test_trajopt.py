@@ -190,7 +190,7 @@ def test_plots_of_the_shipped_trajectory(tmp_path, robot, task, shipped):
 
 
 def test_cli_optimize_bad_input(tmp_path, capsys):
-    assert main(["optimize", "barrel-roll", "--set", "solver.bogus=1", "--out", str(tmp_path / "x")]) != 0
+    assert main(["optimize", "barrel-roll", "--set", "solver.bogus=1", "--out", str(tmp_path / "x")]) == 2
     error = capsys.readouterr().err.strip()
     assert error.startswith("cafe-mpc: error:") and "solver.bogus" in error and "\n" not in error
     occupied = tmp_path / "occupied"

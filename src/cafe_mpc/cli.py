@@ -341,10 +341,11 @@ def main(argv: list[str] | None = None) -> int:
     from cafe_mpc.robots.robot import RobotLoadError
     from cafe_mpc.sim.loop import ControllerError
     from cafe_mpc.sim.plant import SimulationDiverged
+    from cafe_mpc.trajopt.task import TrajOptTaskError
 
     try:
         return int(arguments.handler(arguments))
-    except (ConfigError, RobotLoadError, FileExistsError) as error:
+    except (ConfigError, RobotLoadError, TrajOptTaskError, FileExistsError) as error:
         print(f"cafe-mpc: error: {error}", file=sys.stderr)
         return EXIT_USAGE
     except (SimulationDiverged, ControllerError, MpcProcessError, ValueError) as error:
