@@ -1,7 +1,8 @@
-"""``cafe-mpc experiment``: the comparison experiments run their variants and write the comparison files.
+"""``cafe-mpc experiment``: the paper's experiments plan their runs, run them and write the comparison files.
 
-Tiny durations (0.2 s): these check the plumbing (folders, files, variants, command line, errors), not the
-results; the full-length experiments are in README.md / BENCHMARKS.md.
+Tiny durations (0.2 s), every run in this process (``scheduler="synchronous"``): these check the plumbing
+(folders, files, variants, command line, errors), not the results; the full-length experiments are in
+README.md / BENCHMARKS.md. The Dask side (clusters, incremental results, resume) is tests/test_sweep.py.
 """
 
 from __future__ import annotations
@@ -12,20 +13,17 @@ import pytest
 
 from cafe_mpc.cli import main
 from cafe_mpc.config import ConfigError
-from cafe_mpc.experiments.comparisons import (
-    COMPARISON_FILES,
-    experiment_names,
-    iteration_shares,
-    plan_variants,
-    run_experiment,
-)
+from cafe_mpc.experiments.registry import PlanContext, experiment_names, get_experiment
+from cafe_mpc.experiments.sweep import COMPARISON_FILES, RESULTS_FILE, ResultsTable, run_experiment
+from cafe_mpc.experiments.warm_start import iteration_shares
 
 RUN_FILES = ("config.yaml", "metrics.json", "log.npz", "run.log")
 NO_PLOTS = ["output.plots=false"]  # per-variant plots cost more than the 0.2 s runs; one test keeps them
+INLINE = "synchronous"
 
 
 def check_layout(out, variants, plots: bool) -> dict:
-    for name in COMPARISON_FILES:
+    for name in (*COMPARISON_FILES, RESULTS_FILE):
         assert (out / name).is_file() and (out / name).stat().st_size > 0, name
     comparison = json.loads((out / "comparison.json").read_text())
     assert list(comparison["variants"]) == variants
@@ -34,32 +32,85 @@ def check_layout(out, variants, plots: bool) -> dict:
             assert (out / variant / name).is_file(), (variant, name)
         assert (out / variant / "hip_knee_torques.png").is_file() == plots
         row = comparison["variants"][variant]
-        assert row["error"] is None and row["fell"] is False
+        assert row["error"] is None and row["fell"] is False and row["status"] == "ok"
         assert row["run_command"].startswith("cafe-mpc run ")
     table = (out / "comparison.md").read_text()
     assert comparison["command"] in table
     assert sum(line.startswith("| ") for line in table.splitlines()) == 1 + len(variants)
+    rows = ResultsTable.load(out / RESULTS_FILE).rows
+    assert [row["run"] for row in rows] == variants  # one row per run, in order here (one at a time)
     return comparison
 
 
 def test_schedules_experiment_writes_runs_and_comparison(tmp_path):
     out = tmp_path / "schedules"
-    result = run_experiment("schedules", out, duration=0.2)
-    comparison = check_layout(out, ["S0", "S4"], plots=True)
+    result = run_experiment(
+        "schedules", out, duration=0.2, schedules="S0,S4", srb_dts="0.05", scheduler=INLINE
+    )
+    comparison = check_layout(out, ["S0-dt0.05", "S4-dt0.05"], plots=True)
     assert result.out_dir == out and not result.errors
-    assert comparison["command"] == "cafe-mpc experiment schedules --duration 0.2 --schedules S0,S4"
-    s0, s4 = comparison["variants"]["S0"], comparison["variants"]["S4"]
+    assert comparison["command"] == (
+        "cafe-mpc experiment schedules --duration 0.2 --schedules S0,S4 --srb-dts 0.05"
+    )
+    s0, s4 = comparison["variants"]["S0-dt0.05"], comparison["variants"]["S4-dt0.05"]
     assert (s0["srb_horizon_s"], s4["srb_horizon_s"]) == (0.0, 0.4)
+    assert s4["srb_dt"] == 0.05 and s4["schedule"] == "S4"
     for key in ("vx_mean", "vx_rms_error", "pitch_rms", "pitch_rate_rms", "height_rms_error"):
         assert isinstance(s4[key], float), key
-    assert s4["mpc_solve_time_ms_median"] > 0
-    assert "| S0 | 0.00 | no |" in (out / "comparison.md").read_text()
+    assert s4["iteration_ms_mean"] > 0 and s4["line_search_steps_per_update"] >= 1
+    assert s4["timing_mode"] == "measured" and s4["mpc_solve_time_ms_median"] > 0
+    assert "| S0 | 0.00 | 0.05 | no |" in (out / "comparison.md").read_text()
+    assert (
+        "per-worker" in (out / "comparison.md").read_text()
+        or "worker process" in (out / "comparison.md").read_text()
+    )
+    assert (out / "traces.png").is_file()
+
+
+def test_the_paper_defaults_of_the_new_experiments():
+    context = PlanContext()
+    schedules = get_experiment("schedules").plan({}, context)
+    assert len(schedules.variants) == 18  # Table I (9 schedules) x dts in {0.01, 0.05}
+    assert schedules.variants[0].name == "S0-dt0.01" and schedules.variants[-1].name == "S20-dt0.05"
+    solve = get_experiment("solve-times").plan({}, context)
+    assert [v.name for v in solve.variants[:5]] == [f"pace-S{i}" for i in range(5)]
+    assert {v.preset for v in solve.variants} == {"pace", "flying-trot", "pronk"}
+    assert all("mpc.srb_dt=0.05" in v.overrides for v in solve.variants)
+    trot = get_experiment("trot-schedules").plan({}, context)
+    assert [v.name for v in trot.variants] == ["S0", "S1", "S2", "S3", "S4"]
+    assert {v.preset for v in trot.variants} == {"trot"}
+
+
+def test_solve_times_and_trot_schedules_run(tmp_path):
+    out = tmp_path / "solve"
+    result = run_experiment(
+        "solve-times",
+        out,
+        duration=0.2,
+        overrides=NO_PLOTS,
+        gaits="pronk",
+        schedules="S0,S2",
+        scheduler=INLINE,
+    )
+    assert not result.errors
+    rows = result.comparison["variants"]
+    assert rows["pronk-S2"]["paper_iteration_ms"] == pytest.approx(5.0574)
+    assert rows["pronk-S2"]["iteration_ms_mean"] > 0
+    table = (out / "comparison.md").read_text()
+    assert "| Pronk | " in table and "/ 5.23 |" in table  # ours / paper for S0
+    out = tmp_path / "trot"
+    result = run_experiment("trot-schedules", out, duration=0.2, schedules="S0,S1", scheduler=INLINE)
+    assert not result.errors
+    row = result.comparison["variants"]["S1"]
+    assert row["vx_desired"] == pytest.approx(0.5) and row["height_desired"] > 0.2
+    assert row["height_mean"] == pytest.approx(row["height_desired"], abs=0.05)
+    assert (out / "comparison.png").stat().st_size > 10_000  # Fig. 8 traces drawn from the run logs
 
 
 def test_push_experiment_from_the_command_line(tmp_path, capsys):
     out = tmp_path / "push"
     argv = ["experiment", "push", "--duration", "0.2", "--out", str(out), "--set", "pushes.0.start=0.1"]
-    assert main([*argv, "--set", NO_PLOTS[0]]) == 0
+    assert main([*argv, "--set", NO_PLOTS[0], "--scheduler", INLINE]) == 0
     assert "results in" in capsys.readouterr().out
     comparison = check_layout(out, ["vwbc", "riccati"], plots=False)
     assert comparison["command"] == (
@@ -76,12 +127,19 @@ def test_push_experiment_from_the_command_line(tmp_path, capsys):
 
 
 def test_warm_start_experiment(tmp_path):
-    assert [v.name for v in plan_variants("warm-start")] == [
+    plan = get_experiment("warm-start").plan({}, PlanContext())
+    assert [v.name for v in plan.variants] == [
         f"{gait}-{mode}" for gait in ("bound", "pace") for mode in ("previous", "plan", "none")
     ]
     out = tmp_path / "warm"
     run_experiment(
-        "warm-start", out, duration=0.2, overrides=NO_PLOTS, gaits="pace", warm_starts="previous,none"
+        "warm-start",
+        out,
+        duration=0.2,
+        overrides=NO_PLOTS,
+        gaits="pace",
+        warm_starts="previous,none",
+        scheduler=INLINE,
     )
     comparison = check_layout(out, ["pace-previous", "pace-none"], plots=False)
     assert "--gaits pace --warm-starts previous,none" in comparison["command"]
@@ -106,33 +164,57 @@ def test_iteration_shares():
     assert iteration_shares(None)["one_iteration_share"] is None
 
 
-def test_experiment_help_lists_the_experiments(capsys):
-    for argv in (["--help"], ["experiment", "--help"]):
-        with pytest.raises(SystemExit):
-            main(argv)
-        out = capsys.readouterr().out
-        for name in experiment_names():
-            assert name in out
-    assert experiment_names() == ["schedules", "push", "warm-start"]
+def test_experiment_help_and_list_show_the_registry(capsys):
+    names = ["schedules", "solve-times", "trot-schedules", "push", "warm-start", "reliability"]
+    assert experiment_names() == names
+    with pytest.raises(SystemExit):
+        main(["experiment", "--help"])
+    out = capsys.readouterr().out
+    for name in names:
+        assert name in out
+    assert main(["experiment", "--list"]) == 0
+    listing = capsys.readouterr().out
+    assert all(name in listing for name in names) and "--srb-dts" in listing and "--trials" in listing
 
 
 @pytest.mark.parametrize(
     ("argv", "message"),
     [
-        (["gallop"], "unknown experiment 'gallop'; experiments: schedules, push, warm-start"),
+        (
+            ["gallop"],
+            "unknown experiment 'gallop'; experiments: schedules, solve-times, trot-schedules, push, "
+            "warm-start, reliability",
+        ),
+        ([], "give an experiment (cafe-mpc experiment --list shows them)"),
         (["schedules", "--schedules", "S0,S7"], "--schedules: unknown value 'S7'"),
+        (["schedules", "--srb-dts", "0.05,fast"], "--srb-dts: 'fast' is not a number"),
         (["push", "--schedules", "S0"], "--schedules does not apply to experiment 'push'"),
+        (["push", "--trials", "3"], "--trials does not apply to experiment 'push'"),
         (["push", "--set", "wbc=pd"], "--set wbc: not allowed in experiment 'push'"),
+        (["push", "--set", "simulation.realtime=true"], "--set simulation.realtime: not allowed"),
         (["schedules", "--set", "simulation.duration=3"], "use --duration"),
         (["warm-start", "--warm-starts", "hot"], "--warm-starts: unknown value 'hot'"),
-        (["warm-start", "--gaits", "gallop"], "--gaits: unknown value 'gallop'; known: bound, bound-push"),
+        (
+            ["warm-start", "--gaits", "gallop"],
+            "--gaits: unknown value 'gallop'; known: bound, bound-push, flying-trot",
+        ),
         (["schedules", "--duration", "-1"], "simulation.duration"),
         (["schedules", "--set", "gait.commands.0.vx=10"], "gait.commands.0"),
+        (["reliability"], "--task PRESET is required"),
+        (["reliability", "--task", "gallop"], "unknown preset 'gallop'"),
+        (["reliability", "--task", "bound", "--trials", "0"], "--trials: 0 is outside [1, 1000000]"),
+        (["reliability", "--task", "bound", "--seeds", "1", "--trials", "2"], "--seeds replaces --trials"),
+        (["reliability", "--task", "bound", "--max-push", "-1"], "--max-push: -1 is outside [0, 5]"),
+        (["reliability", "--task", "bound", "--set", "plant.seed=3"], "--set plant.seed: not allowed"),
+        (["push", "--workers", "0"], "--workers must be at least 1"),
+        (["push", "--scheduler", "localhost:8786"], "--scheduler: expected tcp://HOST:PORT"),
+        (["push", "--resume"], "--resume needs --out"),
     ],
 )
 def test_bad_experiments_are_one_line_errors(tmp_path, capsys, argv, message):
     out = tmp_path / "out"
-    assert main(["experiment", *argv, "--out", str(out)]) == 2
+    with_out = [] if "--resume" in argv else ["--out", str(out)]
+    assert main(["experiment", *argv, *with_out]) == 2
     error = capsys.readouterr().err.strip().splitlines()
     assert len(error) == 1 and error[0].startswith("cafe-mpc: error:"), error
     assert message in error[0]
@@ -142,26 +224,28 @@ def test_bad_experiments_are_one_line_errors(tmp_path, capsys, argv, message):
 def test_experiment_refuses_a_used_folder(tmp_path):
     (tmp_path / "keep.txt").write_text("x")
     with pytest.raises(FileExistsError):
-        run_experiment("push", tmp_path, duration=0.2)
+        run_experiment("push", tmp_path, duration=0.2, scheduler=INLINE)
     with pytest.raises(ConfigError, match="give at least one value"):
-        run_experiment("schedules", tmp_path / "new", schedules="")
+        run_experiment("schedules", tmp_path / "new", schedules="", scheduler=INLINE)
 
 
 def test_a_variant_that_errors_is_recorded_and_the_others_still_run(tmp_path, capsys, monkeypatch):
-    from cafe_mpc.experiments import comparisons
+    from cafe_mpc.experiments import sweep
     from cafe_mpc.sim.plant import SimulationDiverged
 
     def diverging(config, out_dir, show_progress=False):
         raise SimulationDiverged("non-finite state at t = 0.1 s")
 
-    monkeypatch.setattr(comparisons, "run", diverging)
+    monkeypatch.setattr(sweep, "run", diverging)
     out = tmp_path / "push"
-    assert main(["experiment", "push", "--duration", "0.2", "--out", str(out)]) == 1
+    assert main(["experiment", "push", "--duration", "0.2", "--out", str(out), "--scheduler", INLINE]) == 1
     captured = capsys.readouterr()
     assert captured.err.strip().splitlines() == [
-        "cafe-mpc: error: variants ended in an error: vwbc, riccati (see comparison.json)"
+        "cafe-mpc: error: runs ended in an error: vwbc, riccati (see comparison.json)"
     ]
     comparison = json.loads((out / "comparison.json").read_text())
     assert comparison["variants"]["vwbc"]["error"] == "SimulationDiverged: non-finite state at t = 0.1 s"
+    assert comparison["variants"]["vwbc"]["status"] == "error"
     assert "error: SimulationDiverged" in (out / "comparison.md").read_text()
     assert (out / "comparison.png").is_file()
+    assert not (out / "vwbc").exists()  # an errored run has a row, no folder

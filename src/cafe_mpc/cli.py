@@ -44,27 +44,115 @@ def _command_run(arguments: argparse.Namespace) -> int:
     return 0
 
 
-def _command_experiment(arguments: argparse.Namespace) -> int:
-    from cafe_mpc.experiments.comparisons import run_experiment
+def _experiment_listing() -> str:
+    from cafe_mpc.experiments.registry import experiments
 
+    lines = []
+    for cls in experiments().values():
+        duration = f"{cls.default_duration:g} s per run" if cls.default_duration else "each preset's duration"
+        flags = " ".join(option.flag for option in cls.options)
+        lines.append(
+            f"  {cls.name:<15} {cls.title} ({cls.paper}; {duration})"
+            + (f"\n{'':17} {flags}" if flags else "")
+        )
+    return "\n".join(lines)
+
+
+def _command_experiment(arguments: argparse.Namespace) -> int:
+    from cafe_mpc.config import ConfigError
+    from cafe_mpc.experiments.registry import all_options, get_experiment
+    from cafe_mpc.experiments.sweep import RESULTS_FILE, run_experiment
+
+    if arguments.list:
+        print(_experiment_listing())
+        return 0
+    if arguments.name is None:
+        raise ConfigError("give an experiment (cafe-mpc experiment --list shows them)")
+    options = {dest: getattr(arguments, dest, None) for dest in all_options()}
     result = run_experiment(
         arguments.name,
         out_dir=Path(arguments.out) if arguments.out else None,
         duration=arguments.duration,
         overrides=list(arguments.set or []),
-        schedules=arguments.schedules,
-        gaits=arguments.gaits,
-        warm_starts=arguments.warm_starts,
+        scheduler=arguments.scheduler,
+        workers=arguments.workers,
+        resume=arguments.resume,
         show_progress=True,
         echo=print,
+        **options,
     )
     print((result.out_dir / "comparison.md").read_text().rstrip())
-    print(f"results in {result.out_dir} (comparison.json, .md, .png; one folder per variant)")
+    line = get_experiment(arguments.name).summary_line(result.comparison)
+    if line:
+        print(line)
+    print(f"results in {result.out_dir} ({RESULTS_FILE}, comparison.json, .md, .png; one folder per run)")
     if result.errors:
-        failed = ", ".join(result.errors)
-        print(f"cafe-mpc: error: variants ended in an error: {failed} (see comparison.json)", file=sys.stderr)
+        failed = ", ".join(list(result.errors)[:10]) + (", ..." if len(result.errors) > 10 else "")
+        print(f"cafe-mpc: error: runs ended in an error: {failed} (see comparison.json)", file=sys.stderr)
         return EXIT_FAILED
     return 0
+
+
+def _add_experiment_parser(commands: argparse._SubParsersAction) -> None:
+    from cafe_mpc.experiments.registry import all_options, experiment_names
+
+    names = experiment_names()
+    parser = commands.add_parser(
+        "experiment",
+        help=f"the paper's experiments, in parallel on Dask ({', '.join(names)})",
+        description=(
+            "Run an experiment of the paper's Sec. VII: its runs in parallel on Dask (by default a local\n"
+            "cluster, one worker process per core; --scheduler for a running cluster), each run in its own\n"
+            "folder, one row per run in results.csv as it completes, then comparison.json, comparison.md\n"
+            "(a markdown table) and comparison.png. An interrupted sweep keeps its finished runs: re-run\n"
+            "the same command with --resume --out DIR.\n\n"
+            f"experiments:\n{_experiment_listing()}"
+        ),
+        epilog=(
+            "examples:\n"
+            "  cafe-mpc experiment --list\n"
+            "  cafe-mpc experiment schedules                    # bound: Table I x dts 10/50 ms (Fig. 6, 7)\n"
+            "  cafe-mpc experiment schedules --schedules S0,S4 --srb-dts 0.05 --duration 5\n"
+            "  cafe-mpc experiment solve-times                  # Table II: 3 gaits x S0..S4\n"
+            "  cafe-mpc experiment reliability --task bound --trials 100 --max-push 0.8\n"
+            "  cafe-mpc experiment reliability --task bound --seeds 17     # trial 17 alone\n"
+            "  cafe-mpc experiment schedules --out runs/s --resume         # continue an interrupted sweep\n"
+            "  cafe-mpc experiment push --scheduler tcp://HOST:8786        # on a running Dask cluster\n"
+            "\n"
+            "timing: presets use measured latency; with more workers than cores use --set mpc.latency=fixed"
+        ),
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    parser.add_argument("name", nargs="?", help=f"experiment: {', '.join(names)}")
+    parser.add_argument("--list", action="store_true", help="list the registered experiments and exit")
+    parser.add_argument("--duration", type=float, help="simulated seconds per run")
+    parser.add_argument("--out", help="output folder (default runs/<time>-experiment-<name>/)")
+    parser.add_argument(
+        "--set",
+        action="append",
+        metavar="KEY=VALUE",
+        help="override a config key in every run (not the keys the experiment varies); repeatable",
+    )
+    parser.add_argument(
+        "--scheduler",
+        metavar="tcp://HOST:PORT",
+        help="a running Dask scheduler (dask scheduler; dask worker ADDRESS --nthreads 1); "
+        "'synchronous': every run in this process, one after the other",
+    )
+    parser.add_argument(
+        "--workers", type=int, help="worker processes of the local cluster (default: one per core)"
+    )
+    parser.add_argument(
+        "--resume", action="store_true", help="continue the sweep in --out: skip the runs already finished"
+    )
+    for dest, owners in all_options().items():
+        option = owners[0][1]
+        text = "; ".join(f"{name}: {owner.help}" for name, owner in owners)
+        if option.kind == "flag":
+            parser.add_argument(option.flag, dest=dest, action="store_true", help=text)
+        else:
+            parser.add_argument(option.flag, dest=dest, metavar=option.metavar or None, help=text)
+    parser.set_defaults(handler=_command_experiment)
 
 
 def _number(value: float | None, digits: int = 3) -> str:
@@ -228,50 +316,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     run_parser.set_defaults(handler=_command_run)
 
-    from cafe_mpc.experiments.comparisons import EXPERIMENTS
-
-    listing = "\n".join(
-        f"  {e.name:<11} {e.title} ({e.paper}); default {e.default_duration:g} s"
-        for e in EXPERIMENTS.values()
-    )
-    experiment_parser = commands.add_parser(
-        "experiment",
-        help=f"compare variants ({', '.join(EXPERIMENTS)})",
-        description=(
-            "Run several variants of a preset side by side (each in its own subfolder with its usual\n"
-            "files) and write comparison.json, comparison.md (a markdown table) and comparison.png.\n\n"
-            f"experiments:\n{listing}"
-        ),
-        epilog=(
-            "examples:\n"
-            "  cafe-mpc experiment schedules                    # bound: S0 (no SRB tail) vs S4, 10 s each\n"
-            "  cafe-mpc experiment schedules --schedules S0,S1,S2,S4\n"
-            "  cafe-mpc experiment push                         # bound-push: VWBC vs Riccati, 5 s each\n"
-            "  cafe-mpc experiment warm-start --duration 2      # QP iterations: bound and pace x 3 modes"
-        ),
-        formatter_class=argparse.RawDescriptionHelpFormatter,
-    )
-    experiment_parser.add_argument("name", help=f"experiment: {', '.join(EXPERIMENTS)}")
-    experiment_parser.add_argument("--duration", type=float, help="simulated seconds per variant")
-    experiment_parser.add_argument("--out", help="output folder (default runs/<time>-experiment-<name>/)")
-    experiment_parser.add_argument(
-        "--set",
-        action="append",
-        metavar="KEY=VALUE",
-        help="override a config key in every variant (not the keys the experiment varies); repeatable",
-    )
-    experiment_parser.add_argument(
-        "--schedules", metavar="S0,S4,...", help="schedules: the model schedules to compare (default S0,S4)"
-    )
-    experiment_parser.add_argument(
-        "--gaits", metavar="bound,pace", help="warm-start: gait presets (default bound,pace)"
-    )
-    experiment_parser.add_argument(
-        "--warm-starts",
-        metavar="previous,plan,none",
-        help="warm-start: VWBC warm-start modes (default previous,plan,none; also equality)",
-    )
-    experiment_parser.set_defaults(handler=_command_experiment)
+    _add_experiment_parser(commands)
 
     robot_parser = commands.add_parser("robot", help="robot summary and Pinocchio/MuJoCo consistency check")
     robot_parser.add_argument("name", help="robot name (mini_cheetah, go1) or robot YAML file")
@@ -338,6 +383,7 @@ def main(argv: list[str] | None = None) -> int:
     logging.getLogger().addHandler(console)
     from cafe_mpc.config import ConfigError
     from cafe_mpc.control.realtime import MpcProcessError
+    from cafe_mpc.experiments.registry import SweepError
     from cafe_mpc.robots.robot import RobotLoadError
     from cafe_mpc.sim.loop import ControllerError
     from cafe_mpc.sim.plant import SimulationDiverged
@@ -348,7 +394,7 @@ def main(argv: list[str] | None = None) -> int:
     except (ConfigError, RobotLoadError, TrajOptTaskError, FileExistsError) as error:
         print(f"cafe-mpc: error: {error}", file=sys.stderr)
         return EXIT_USAGE
-    except (SimulationDiverged, ControllerError, MpcProcessError, ValueError) as error:
+    except (SimulationDiverged, ControllerError, MpcProcessError, SweepError, ValueError) as error:
         print(f"cafe-mpc: error: {error}", file=sys.stderr)
         return EXIT_FAILED
     except KeyboardInterrupt:

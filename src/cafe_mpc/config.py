@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import functools
 import itertools
+import math
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Literal
 
@@ -23,6 +24,7 @@ if TYPE_CHECKING:  # heavy modules (Pinocchio) are imported only where a value i
     from cafe_mpc.ocp.costs import WholeBodyWeights
     from cafe_mpc.reference.locomotion import VelocityCommand
     from cafe_mpc.robots.robot import Robot
+    from cafe_mpc.sim.randomization import PlantVariation, SensorModel
 
 PRESET_DIR = Path(__file__).parent / "configs"
 
@@ -176,6 +178,12 @@ class MpcConfig(StrictModel):
     max_iterations: int = Field(
         1, ge=1, le=50, description="MS-iLQR iterations per update (1: real-time iteration; the paper: 4)"
     )
+    touchdown_max_penalty: float | None = Field(
+        None,
+        gt=0.0,
+        le=1e6,
+        description="cap of the touchdown constraint's AL penalty (null: 1e4, the authors'; starts at 20)",
+    )
 
     @field_validator("schedule")
     @classmethod
@@ -281,10 +289,169 @@ class CostsConfig(StrictModel):
     terminal: WholeBodyWeightsConfig = Field(default_factory=_regular_terminal)
 
 
+def _barrel_roll_running() -> WholeBodyWeightsConfig:
+    from cafe_mpc.ocp.costs import WholeBodyWeights
+
+    return WholeBodyWeightsConfig.from_weights(WholeBodyWeights.barrel_roll_running())
+
+
+def _barrel_roll_terminal() -> WholeBodyWeightsConfig:
+    from cafe_mpc.ocp.costs import WholeBodyWeights
+
+    return WholeBodyWeightsConfig.from_weights(WholeBodyWeights.barrel_roll_terminal())
+
+
+class TrajectoryCostsConfig(StrictModel):
+    """Weight set ``barrel_roll`` of the knots inside a stored trajectory (default: the authors' barrel-roll
+    set, ``WholeBodyWeights.barrel_roll_running/terminal``; docs/settings.md). The SRB tail uses the same base
+    weights (Eq. (28))."""
+
+    running: WholeBodyWeightsConfig = Field(default_factory=_barrel_roll_running)
+    terminal: WholeBodyWeightsConfig = Field(default_factory=_barrel_roll_terminal)
+
+
+class ReferenceSegmentConfig(StrictModel):
+    """One piece of a composed reference (``reference.composition.ComposedReference``)."""
+
+    kind: Literal["stand", "trajectory"] = Field(
+        description="stand: the locomotion reference with gait stand; trajectory: a stored whole-body "
+        "trajectory sampled by time (reference.trajectory.TrajectoryReference)"
+    )
+    duration: float | None = Field(
+        None,
+        gt=0.0,
+        le=3600.0,
+        description="s; null: a trajectory's own length, or a last stand until the end of the run",
+    )
+    trajectory: str | None = Field(
+        None, description="kind trajectory: a packaged trajectory (barrel-roll) or the path of a .npz file"
+    )
+    height: float | None = Field(None, description="kind stand: body height, m (null: standing height)")
+    offset: tuple[float, float, float] | None = Field(
+        None, description="x (m), y (m), yaw (rad) placement; null: start where the previous segment ends"
+    )
+
+    @model_validator(mode="after")
+    def _kind_fields(self) -> ReferenceSegmentConfig:
+        if self.kind == "trajectory" and self.trajectory is None:
+            raise ValueError("a trajectory segment needs 'trajectory' (e.g. barrel-roll or a .npz path)")
+        if self.kind == "stand" and self.trajectory is not None:
+            raise ValueError("'trajectory' belongs to segments of kind trajectory, not stand")
+        if self.kind == "trajectory" and self.height is not None:
+            raise ValueError("'height' belongs to segments of kind stand, not trajectory")
+        if self.offset is not None and not all(math.isfinite(value) for value in self.offset):
+            raise ValueError(f"offset must be finite, got {self.offset}")
+        return self
+
+
+class ReferenceConfig(StrictModel):
+    """A reference composed of segments joined in time (paper Sec. VII-C): e.g. stand, the barrel-roll
+    trajectory, stand. Replaces ``gait`` for CAFE-MPC runs. Knots inside a trajectory use the weight set
+    ``barrel_roll`` (``costs`` below and the whole-body ``base_error``; the constraints are the regular ones);
+    stand segments use the run's ``costs`` (the regular set)."""
+
+    segments: list[ReferenceSegmentConfig] = Field(min_length=1)
+    costs: TrajectoryCostsConfig = Field(default_factory=TrajectoryCostsConfig)
+    base_error: Literal["tangent", "world"] = Field(
+        "world",
+        description="whole-body base residual of the barrel_roll set: world-frame position, log3(R_ref' R) "
+        "and world-frame linear velocity (world), or the tangent-space difference (tangent)",
+    )
+
+    @model_validator(mode="after")
+    def _segments_valid(self) -> ReferenceConfig:
+        for index, segment in enumerate(self.segments[:-1]):
+            if segment.kind == "stand" and segment.duration is None:
+                raise ValueError(f"segments.{index}: a stand needs a duration unless it is the last segment")
+        return self
+
+
 class OutputConfig(StrictModel):
     plots: bool = True
     render: bool = False
     render_fps: int = Field(30, ge=1, le=120)
+
+
+class SensorNoiseConfig(StrictModel):
+    """Standard deviations of zero-mean Gaussian noise on the measured state (``sim.randomization``)."""
+
+    base_position: float = Field(0.0, ge=0.0, le=0.1, description="m")
+    base_orientation: float = Field(0.0, ge=0.0, le=0.5, description="rad, per axis of a rotation vector")
+    base_linear_velocity: float = Field(0.0, ge=0.0, le=2.0, description="m/s, base frame")
+    base_angular_velocity: float = Field(0.0, ge=0.0, le=5.0, description="rad/s, base frame")
+    joint_position: float = Field(0.0, ge=0.0, le=0.2, description="rad")
+    joint_velocity: float = Field(0.0, ge=0.0, le=10.0, description="rad/s")
+
+
+PlantScales = float | list[float]
+"""One factor for every joint, or one per actuated joint (robot joint order)."""
+
+
+class PlantConfig(StrictModel):
+    """The simulated robot's deviations from its robot table, and what its sensors do (domain randomisation,
+    paper Sec. VII-C3). Only the MuJoCo plant and the controller's measurements change; the controller's model
+    never does (``sim.randomization``). The defaults change nothing."""
+
+    floor_friction: float | None = Field(
+        None, gt=0.0, le=2.0, description="floor and foot sliding friction (null: the robot table's)"
+    )
+    body_mass_scale: float = Field(1.0, ge=0.5, le=1.5, description="trunk mass and inertia factor")
+    link_mass_scales: PlantScales = Field(1.0, description="leg-link mass and inertia factors (0.5-1.5)")
+    motor_strength_scales: PlantScales = Field(1.0, description="torque per commanded torque (0.5-1.5)")
+    sensor_noise: SensorNoiseConfig = SensorNoiseConfig()
+    measurement_delay_max: float = Field(
+        0.0, ge=0.0, le=0.05, description="s; latency jitter: each tick sees a state up to this old"
+    )
+    seed: int = Field(0, ge=0, description="random stream of the sensor noise and delays")
+
+    @field_validator("link_mass_scales", "motor_strength_scales")
+    @classmethod
+    def _scales_in_range(cls, value: PlantScales) -> PlantScales:
+        for item in value if isinstance(value, list) else [value]:
+            if not 0.5 <= item <= 1.5:
+                raise ValueError(f"factors must be in [0.5, 1.5], got {item}")
+        return value
+
+    def variation(self) -> PlantVariation:
+        """The plant's ``PlantVariation``."""
+        from cafe_mpc.sim.randomization import PlantVariation
+
+        def scales(value: PlantScales) -> float | tuple[float, ...]:
+            return tuple(value) if isinstance(value, list) else value
+
+        return PlantVariation(
+            self.floor_friction,
+            self.body_mass_scale,
+            scales(self.link_mass_scales),
+            scales(self.motor_strength_scales),
+        )
+
+    def sensor_model(self, control_rate_hz: float) -> SensorModel:
+        """The controller's ``SensorModel`` (delays in whole control ticks, rounded down)."""
+        from cafe_mpc.sim.randomization import SensorModel, SensorNoise
+
+        ticks = math.floor(self.measurement_delay_max * control_rate_hz + 1e-9)
+        return SensorModel(SensorNoise(**self.sensor_noise.model_dump()), ticks, self.seed)
+
+
+class TemplateConfig(StrictModel):
+    """The template-MPC baseline (``planner: template``; ``mpc.template``, ``wbc.template_low_level``): the
+    SRB plan's horizon and knot spacing, and the swing legs' joint PD gains. Period, latency and iterations
+    per update are ``mpc``'s; the weights and GRF constraints are ``mpc.template.TemplateSettings``'."""
+
+    horizon: float = Field(0.5, gt=0.0, le=2.0, description="s planned with the SRB model")
+    dt: float = Field(0.01, ge=0.001, le=0.1, description="s between SRB knots (whole milliseconds)")
+    swing_kp: float = Field(40.0, ge=0.0, le=500.0, description="Nm/rad, swing-leg joint PD")
+    swing_kd: float = Field(1.0, ge=0.0, le=50.0, description="Nm s/rad, swing-leg joint PD")
+    leg_torque_limits: bool = Field(True, description="bound the stance legs' J' f by the torque limits")
+
+    @model_validator(mode="after")
+    def _knots(self) -> TemplateConfig:
+        if abs(self.dt * 1000.0 - round(self.dt * 1000.0)) > 1e-6:
+            raise ValueError(f"template.dt must be a whole number of milliseconds, got {self.dt}")
+        if self.horizon < 2 * self.dt - 1e-12:
+            raise ValueError(f"template.horizon must cover at least two knots of {self.dt} s")
+        return self
 
 
 class RunConfig(StrictModel):
@@ -298,10 +465,27 @@ class RunConfig(StrictModel):
     pd: PDConfig = PDConfig()
     vwbc: VWBCConfig = VWBCConfig()
     gait: GaitConfig | None = Field(None, description="gait and commands (MPC controllers); null for pd")
+    reference: ReferenceConfig | None = Field(
+        None, description="a composed reference (stand, stored trajectory, ...) instead of a gait; null: gait"
+    )
+    torque_limits: Literal["plan", "motor"] = Field(
+        "plan",
+        description="limits the MPC plan and the low-level controller respect: plan (the robot table's "
+        "joints.torque_limits, 17 Nm for the Mini Cheetah) or motor (the plant's saturation, 17/17/26 Nm)",
+    )
     mpc: MpcConfig = MpcConfig()
+    planner: Literal["cafe", "template"] = Field(
+        "cafe",
+        description="cafe: CAFE-MPC (whole body + SRB tail) over wbc; template: the SRB-only baseline "
+        "(paper Sec. VII-C) with its own stance/swing low level (wbc is not used)",
+    )
+    template: TemplateConfig = TemplateConfig()
     costs: CostsConfig = Field(default_factory=CostsConfig)
     simulation: SimulationConfig = SimulationConfig()
     pushes: list[PushConfig] = Field(default_factory=list)
+    plant: PlantConfig = Field(
+        default_factory=PlantConfig, description="simulated plant and sensors (the controller never sees it)"
+    )
     output: OutputConfig = OutputConfig()
 
     @field_validator("robot")
@@ -322,10 +506,23 @@ class RunConfig(StrictModel):
                 f"wbc: 'pd' stands in place and cannot follow gait {self.gait.name!r}; use wbc=riccati or "
                 "wbc=vwbc (or gait=null to stand)"
             )
-        if self.wbc != "pd" and self.gait is None:
+        if self.wbc == "pd" and self.reference is not None:
             raise ValueError(
-                f"wbc: {self.wbc!r} runs CAFE-MPC and needs a gait section (e.g. --set gait.name=trot)"
+                "wbc: 'pd' stands in place and cannot follow a reference; use wbc=vwbc or riccati"
             )
+        if self.gait is not None and self.reference is not None:
+            raise ValueError("give either a gait section or a reference section, not both (set gait=null)")
+        if self.wbc != "pd" and self.gait is None and self.reference is None:
+            raise ValueError(
+                f"wbc: {self.wbc!r} runs CAFE-MPC and needs a gait section (e.g. --set gait.name=trot) "
+                "or a reference section"
+            )
+        if self.reference is not None:
+            _check_reference(self.robot, self.reference)
+        if self.planner == "template" and self.gait is None:
+            raise ValueError("planner: 'template' needs a gait section (e.g. --set gait.name=trot)")
+        if self.planner == "template" and self.simulation.realtime:
+            raise ValueError("planner: 'template' runs in simulated time only (simulation.realtime: false)")
         if self.mpc.period < 1.0 / self.simulation.control_rate_hz - 1e-12:
             raise ValueError(
                 f"mpc.period: {self.mpc.period} s is shorter than the control period "
@@ -333,6 +530,13 @@ class RunConfig(StrictModel):
             )
         if self.gait is not None:
             _check_commands(self.robot, self.gait.commands)
+        for key in ("link_mass_scales", "motor_strength_scales"):
+            value = getattr(self.plant, key)
+            if isinstance(value, list) and len(value) != _cached_robot(self.robot).nu:
+                raise ValueError(
+                    f"plant.{key}: one factor or {_cached_robot(self.robot).nu} (one per joint), "
+                    f"got {len(value)}"
+                )
         return self
 
 
@@ -346,6 +550,46 @@ def _check_commands(robot_name: str, commands: list[CommandConfig]) -> None:
             validate_command(velocity_command(command), robot)
         except ValueError as error:
             raise ValueError(f"gait.commands.{index}: {error}") from error
+
+
+def _check_reference(robot_name: str, reference: ReferenceConfig) -> None:
+    """Each trajectory segment names a readable, valid trajectory for the robot; stand heights in range."""
+    from cafe_mpc.reference.locomotion import VelocityCommand, validate_command
+
+    robot = _cached_robot(robot_name)
+    for index, segment in enumerate(reference.segments):
+        try:
+            if segment.kind == "trajectory":
+                assert segment.trajectory is not None
+                _cached_trajectory(robot_name, segment.trajectory)
+            else:
+                validate_command(VelocityCommand(height=segment.height), robot)
+        except ValueError as error:
+            raise ValueError(f"reference.segments.{index}: {error}") from error
+
+
+@functools.lru_cache(maxsize=8)
+def _cached_trajectory(robot_name: str, name_or_path: str):
+    """A packaged trajectory (by name) or a trajectory file, loaded and validated once."""
+    from cafe_mpc.reference.trajectory_file import (
+        PACKAGED_TRAJECTORIES,
+        load_packaged_trajectory,
+        load_trajectory,
+    )
+
+    robot = _cached_robot(robot_name)
+    if name_or_path in PACKAGED_TRAJECTORIES:
+        return load_packaged_trajectory(name_or_path, robot)
+    if not name_or_path.endswith(".npz"):
+        raise ValueError(
+            f"unknown trajectory {name_or_path!r}: packaged {', '.join(PACKAGED_TRAJECTORIES)} or a .npz file"
+        )
+    return load_trajectory(name_or_path, robot)
+
+
+def load_reference_trajectory(robot_name: str, name_or_path: str):
+    """The ``WholeBodyTrajectory`` a trajectory segment names (``ValueError`` if it cannot be used)."""
+    return _cached_trajectory(robot_name, name_or_path)
 
 
 @functools.lru_cache(maxsize=4)

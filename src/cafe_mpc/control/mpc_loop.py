@@ -14,7 +14,8 @@ The closed-loop composition of the MPC (``cafe_mpc.mpc.RecedingHorizonMpc``) and
 The low-level controller follows the newest plan at every tick (the knot closest in time). A failed update
 keeps the previous plan; with no plan, or once the plan's horizon has run out, the robot is held by the PD
 standing controller (damped stance), counted in ``pd_fallback_ticks``. The wall-clock real-time mode with
-the MPC in its own process is ``cafe_mpc.control.realtime``.
+the MPC in its own process is ``cafe_mpc.control.realtime``. The same loop runs the template-MPC baseline
+(``mpc.template.TemplateMpc``, whose ``TemplatePlan`` its own low level ``wbc.template_low_level`` follows).
 """
 
 from __future__ import annotations
@@ -26,8 +27,10 @@ import numpy as np
 from cafe_mpc.core.controller import LowLevelController
 from cafe_mpc.core.measurement import Measurement
 from cafe_mpc.core.plan import Plan
+from cafe_mpc.core.template_plan import TemplatePlan
 from cafe_mpc.mpc.problem import CafeProblemBuilder
 from cafe_mpc.mpc.receding_horizon import MpcSettings, MpcStatistics, RecedingHorizonMpc
+from cafe_mpc.mpc.template import TemplateMpc, TemplateProblemBuilder
 from cafe_mpc.reference.base import Reference
 from cafe_mpc.robots.robot import Robot
 from cafe_mpc.wbc.pd import PDController
@@ -44,18 +47,18 @@ class CafeMpcController:
         self,
         robot: Robot,
         reference: Reference,
-        builder: CafeProblemBuilder,
+        builder: CafeProblemBuilder | TemplateProblemBuilder,
         low_level: LowLevelController,
         settings: MpcSettings | None = None,
-        mpc: RecedingHorizonMpc | None = None,
+        mpc: RecedingHorizonMpc | TemplateMpc | None = None,
     ) -> None:
         self.robot = robot
         self.mpc = mpc if mpc is not None else RecedingHorizonMpc(robot, reference, builder, settings)
         self.settings = self.mpc.settings
         self.low_level = low_level
         self.fallback = PDController(robot)
-        self.plan: Plan | None = None
-        self.pending: tuple[float, float, Plan] | None = None
+        self.plan: Plan | TemplatePlan | None = None
+        self.pending: tuple[float, float, Plan | TemplatePlan | None] | None = None
         """(time it takes effect, its measurement time, plan) of the update the worker is busy with."""
         self.next_update = 0.0
 
@@ -64,7 +67,7 @@ class CafeMpcController:
         return self.mpc.reference
 
     @property
-    def builder(self) -> CafeProblemBuilder:
+    def builder(self) -> CafeProblemBuilder | TemplateProblemBuilder:
         return self.mpc.builder
 
     @property

@@ -24,8 +24,11 @@ from cafe_mpc.core.controller import LowLevelController
 from cafe_mpc.core.measurement import Measurement
 from cafe_mpc.core.plan import Plan
 from cafe_mpc.dynamics.srb import srb_parameters
+from cafe_mpc.experiments.tasks import task_reference, task_weight_sets, torque_limits_of
 from cafe_mpc.mpc.problem import CafeProblemBuilder
 from cafe_mpc.mpc.receding_horizon import RecedingHorizonMpc
+from cafe_mpc.mpc.template import TemplateMpc, TemplateProblemBuilder, TemplateSettings, template_srb
+from cafe_mpc.ocp.constraints import WholeBodyConstraintSettings
 from cafe_mpc.ocp.contact_schedule import get_gait
 from cafe_mpc.ocp.costs import SRBWeights
 from cafe_mpc.ocp.knots import SRBModelFactory, SRBSettings, WholeBodyModelFactory, WholeBodySettings
@@ -33,6 +36,7 @@ from cafe_mpc.reference.locomotion import LocomotionReference, VelocityCommand
 from cafe_mpc.robots.robot import Robot, load_robot
 from cafe_mpc.wbc.pd import PDController
 from cafe_mpc.wbc.riccati import RiccatiController
+from cafe_mpc.wbc.template_low_level import TemplateLowLevelController, TemplateLowLevelSettings
 from cafe_mpc.wbc.vwbc import VWBCController, VWBCSettings
 
 RunController = PDController | CafeMpcController | RealtimeMpcController
@@ -141,8 +145,36 @@ def build_controller(config: RunConfig, robot: Robot) -> RunController:
         return PDController(
             robot, config.pd.kp, config.pd.kd, gravity_feedforward=config.pd.gravity_feedforward
         )
+    if config.planner == "template":
+        return build_template_controller(config, robot)
     mpc = build_mpc(config, robot)
     return CafeMpcController(robot, mpc.reference, mpc.builder, build_recorder(config, robot), mpc=mpc)
+
+
+def build_template_controller(config: RunConfig, robot: Robot) -> CafeMpcController:
+    """The template-MPC baseline (``planner: template``, paper Sec. VII-C): the SRB-only plan
+    (``mpc.template``) over its stance ``J' F`` / swing PD low level (``wbc.template_low_level``), with the
+    CAFE run's reference (``build_mpc``'s) and receding-horizon settings (period, latency, iterations)."""
+    reference = build_mpc(config, robot).reference
+    parameters, com_offset = template_srb(robot)
+    section = config.template
+    try:
+        settings = TemplateSettings(
+            horizon=section.horizon,
+            dt=section.dt,
+            parameters=parameters,
+            leg_torque_limits=section.leg_torque_limits,
+        )
+        low_level = TemplateLowLevelController(
+            robot, TemplateLowLevelSettings(section.swing_kp, section.swing_kd)
+        )
+    except ValueError as error:
+        raise ConfigError(f"template: {error}") from error
+    builder = TemplateProblemBuilder(robot, settings, com_offset)
+    mpc = TemplateMpc(robot, reference, builder, mpc_settings(config))
+    ticks = config.simulation.duration * config.simulation.control_rate_hz
+    recorder = LowLevelRecorder(low_level, capacity=int(np.ceil(ticks)) + 2, n_feet=robot.n_feet)
+    return CafeMpcController(robot, reference, builder, recorder, mpc=mpc)
 
 
 def build_recorder(config: RunConfig, robot: Robot) -> LowLevelRecorder:
@@ -161,6 +193,7 @@ def mpc_settings(config: RunConfig) -> MpcSettings:
             fixed_latency=config.mpc.fixed_latency,
             time_budget=config.mpc.time_budget,
             max_iterations=config.mpc.max_iterations,
+            touchdown_max_penalty=config.mpc.touchdown_max_penalty,
         )
     except ValueError as error:
         raise ConfigError(f"mpc: {error}") from error
@@ -170,19 +203,22 @@ def build_mpc(config: RunConfig, robot: Robot) -> RecedingHorizonMpc:
     """The MPC side of a run: reference (Sec. VI-A), CAFE problem builder with its model schedule (Sec. IV-D),
     receding-horizon settings."""
     gait = config.gait
-    if gait is None:  # RunConfig rejects this; kept for configs built with model_construct
+    if config.reference is not None:  # a composed reference (stand, stored trajectory, ...): Sec. VII-C
+        reference = task_reference(config.reference, robot)
+    elif gait is None:  # RunConfig rejects this; kept for configs built with model_construct
         raise ConfigError(f"wbc: {config.wbc!r} needs a gait section")
-    try:
-        reference = LocomotionReference(
-            robot,
-            get_gait(gait.name),
-            reference_commands(config),
-            swing_height=gait.swing_height,
-            raibert_gain=gait.raibert_gain,
-            start_stance=gait.start_stance,
-        )
-    except ValueError as error:
-        raise ConfigError(f"gait: {error}") from error
+    else:
+        try:
+            reference = LocomotionReference(
+                robot,
+                get_gait(gait.name),
+                reference_commands(config),
+                swing_height=gait.swing_height,
+                raibert_gain=gait.raibert_gain,
+                start_stance=gait.start_stance,
+            )
+        except ValueError as error:
+            raise ConfigError(f"gait: {error}") from error
     try:
         schedule = config.mpc.model_schedule()
     except ValueError as error:
@@ -195,9 +231,15 @@ def build_mpc(config: RunConfig, robot: Robot) -> RecedingHorizonMpc:
         srb_terminal = SRBWeights.from_whole_body(terminal, force=SRBWeights.regular_terminal().force)
     except ValueError as error:
         raise ConfigError(f"costs: {error}") from error
+    limits = None if config.torque_limits == "plan" else tuple(torque_limits_of(config, robot).tolist())
     whole_body = WholeBodyModelFactory(
         robot,
-        WholeBodySettings(dt=schedule.whole_body_dt, running_weights=running, terminal_weights=terminal),
+        WholeBodySettings(
+            dt=schedule.whole_body_dt,
+            running_weights=running,
+            terminal_weights=terminal,
+            constraints=WholeBodyConstraintSettings(torque_limit_values=limits),
+        ),
     )
     srb = SRBModelFactory(
         SRBSettings(
@@ -207,7 +249,7 @@ def build_mpc(config: RunConfig, robot: Robot) -> RecedingHorizonMpc:
             terminal_weights=srb_terminal,
         )
     )
-    builder = CafeProblemBuilder(whole_body, srb, schedule)
+    builder = CafeProblemBuilder(whole_body, srb, schedule, weights=task_weight_sets(config, robot, schedule))
     return RecedingHorizonMpc(robot, reference, builder, settings)
 
 
@@ -241,7 +283,9 @@ def build_low_level(config: RunConfig, robot: Robot) -> LowLevelController:
             robot, config.pd.kp, config.pd.kd, gravity_feedforward=config.pd.gravity_feedforward
         )
     if config.wbc == "riccati":
-        return RiccatiController(robot)
+        riccati = RiccatiController(robot)
+        riccati.limits = torque_limits_of(config, robot)
+        return riccati
     try:
         vwbc_settings = VWBCSettings(
             solver=config.vwbc.solver,
@@ -250,7 +294,7 @@ def build_low_level(config: RunConfig, robot: Robot) -> LowLevelController:
         )
     except ValueError as error:
         raise ConfigError(f"vwbc: {error}") from error
-    return VWBCController(robot, vwbc_settings)
+    return VWBCController(robot, vwbc_settings, torque_limits=torque_limits_of(config, robot))
 
 
 def reference_of(controller: RunController):

@@ -34,6 +34,7 @@ from cafe_mpc.experiments.controllers import (
     reference_of,
     timing_of,
 )
+from cafe_mpc.experiments.tasks import torque_limits_of
 from cafe_mpc.robots.robot import Robot, load_robot
 from cafe_mpc.sim.loop import FallCriteria, Push, SimulationLog, WallClockPacer, simulate
 
@@ -58,7 +59,8 @@ def simulate_run(config: RunConfig, progress=None) -> tuple[Robot, RunController
     ``torque_requested`` (before clamping), ``planned_stance`` (the plan knot's stance used by the low-level
     controller) and ``gait_stance`` (the reference's contact schedule); they are saved in ``log.npz`` as
     ``extra_<name>``. Raises ``MpcProcessError`` when the real-time MPC process died or stalled (the robot
-    was held in a damped stance once the last plan ran out).
+    was held in a damped stance once the last plan ran out). ``config.plant`` varies the simulated robot and
+    its sensors only (``sim.randomization``); the controller is built from the nominal robot.
     """
     robot = load_robot(config.robot)
     q0 = robot.q_standing.copy()
@@ -72,6 +74,9 @@ def simulate_run(config: RunConfig, progress=None) -> tuple[Robot, RunController
         "fall": FallCriteria(config.simulation.fall.min_base_height, config.simulation.fall.max_tilt_rad),
         "stop_on_fall": config.simulation.stop_on_fall,
         "progress": progress,
+        # the plant's deviations and the sensors (domain randomisation): the controller's robot stays nominal
+        "variation": config.plant.variation(),
+        "sensor": config.plant.sensor_model(config.simulation.control_rate_hz),
     }
     if config.simulation.realtime:
         with build_realtime_controller(config, robot) as controller:
@@ -117,20 +122,28 @@ def run_metrics(config: RunConfig, robot: Robot, controller: RunController, log:
 
     metrics = base_metrics(robot, log, 1.0 / config.simulation.control_rate_hz)
     metrics["robot"] = robot.name
-    metrics["controller"] = config.wbc
+    metrics["controller"] = config.wbc if config.planner == "cafe" else "template"
+    metrics["planner"] = config.planner
     metrics["gait"] = config.gait.name if config.gait is not None else None
     metrics.update(tracking_metrics(robot, log, reference_commands(config)))
     metrics["timing"] = timing_of(config, controller)
     metrics["mpc"] = mpc_summary(controller, log)
     if "realtime" in log.extra:
         metrics["realtime"] = log.extra["realtime"]
+    if "sensor" in log.extra:
+        metrics["sensor"] = log.extra["sensor"]
     metrics["wbc"] = wbc_metrics(
         robot,
         log,
-        config.wbc,
+        metrics["controller"],
         low_level_statistics=low_level_of(controller).statistics(),
         planned_stance=log.extra.get("planned_stance"),
+        torque_limits=torque_limits_of(config, robot),
     )
+    if config.reference is not None:  # acrobatic task (stored trajectory with a flight): report.task_metrics
+        from cafe_mpc.experiments.tasks import task_block
+
+        metrics["task"] = task_block(config, robot, log, reference_of(controller))
     return metrics
 
 
@@ -205,12 +218,32 @@ def run(config: RunConfig, out_dir: Path | None, show_progress: bool = False) ->
                     mpc_statistics=mpc_statistics_of(controller),
                     mpc_period=config.mpc.period,
                 )
+                if metrics.get("task"):
+                    from cafe_mpc.report.task_metrics import task_from_reference
+                    from cafe_mpc.report.task_plots import plot_task
+
+                    reference = reference_of(controller)
+                    task = task_from_reference(reference)
+                    if reference is not None and task is not None:
+                        plot_task(
+                            robot,
+                            log,
+                            reference,
+                            task,
+                            partial / "task.png",
+                            metrics["task"],
+                            1.0 / config.simulation.control_rate_hz,
+                        )
             if config.output.render:
                 from cafe_mpc.report.video import RenderUnavailable, render_run
 
                 try:
                     video = render_run(robot, log, partial / "run.mp4", config.output.render_fps)
                     logger.info("video written to %s", video.name)
+                    if metrics.get("task"):  # acrobatic task: a strip of frames across the roll
+                        from cafe_mpc.report.task_plots import render_task_frames
+
+                        render_task_frames(robot, log, metrics["task"], partial / "frames.png")
                 except RenderUnavailable as error:
                     logger.warning("no video: %s", error)
                     metrics["render_error"] = str(error)

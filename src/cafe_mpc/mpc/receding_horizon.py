@@ -42,6 +42,10 @@ class MpcSettings:
     MS-iLQR iterations per update: 1, the real-time iteration scheme (the paper uses 4 with ~5 ms C++
     iterations; in Python, with measured latency, 4 iterations made 20-32 ms updates and the pace and bound
     presets fell, while 1 iteration keeps the latency near 12 ms and all five gaits stay up: BENCHMARKS.md).
+    ``touchdown_max_penalty``: cap of the augmented-Lagrangian penalty of the touchdown constraint (25)
+    (``SolverOptions.al_max_penalty``; ``None``: the authors' 1e4). The penalty starts at 20 and grows x5 per
+    update while a planned foot misses the floor by more than 5 mm (the AL parameters carry over between
+    updates); the barrel-roll preset caps it at 20 (docs/settings.md).
     """
 
     period: float = 0.02
@@ -49,6 +53,7 @@ class MpcSettings:
     fixed_latency: float = 0.02
     time_budget: float | None = None
     max_iterations: int = 1
+    touchdown_max_penalty: float | None = None
     # The paper's first-solve settings with a tighter tolerance: the first (cold) solve seeds every later
     # warm start. It runs before the clock starts (the robot stands while the first plan is computed).
     first_solve: SolverOptions = field(
@@ -75,6 +80,8 @@ class MpcSettings:
             raise ValueError("MPC time budget must be positive (or null)")
         if self.max_iterations < 1:
             raise ValueError("MPC max_iterations must be >= 1")
+        if self.touchdown_max_penalty is not None and not self.touchdown_max_penalty > 0:
+            raise ValueError("MPC touchdown_max_penalty must be positive (or null)")
 
     @property
     def budget(self) -> float | None:
@@ -86,13 +93,16 @@ class MpcSettings:
     @property
     def update_solve(self) -> SolverOptions:
         """In-loop solver settings (the paper's: ``max_iterations`` iterations, one AL update, the budget)."""
-        return replace(
+        options = replace(
             SolverOptions.paper_mpc(self.period),
             max_iterations=self.max_iterations,
             time_budget=self.budget,
             regularization_initial=1e-6,
             regularization_min=1e-6,
         )
+        if self.touchdown_max_penalty is not None:
+            options = replace(options, al_max_penalty=self.touchdown_max_penalty)
+        return options
 
 
 @dataclass

@@ -194,6 +194,7 @@ def wbc_metrics(
     low_level_statistics: dict | None = None,
     planned_stance: np.ndarray | None = None,
     mu: float = 0.6,
+    torque_limits: np.ndarray | None = None,
 ) -> dict:
     """The low-level controller's block of ``metrics.json`` (issue 6).
 
@@ -202,7 +203,8 @@ def wbc_metrics(
     * ``torque_limit_violations``: ticks where a commanded torque exceeds its (plan) limit: the controller's
       own count (``torque_limit_violations``, the Riccati controller's unclamped commands over the limit)
       when it keeps one; otherwise counted on the logged command (the VWBC and PD controllers respect the
-      limits by construction, so this counts overshoot).
+      limits by construction, so this counts overshoot) against ``torque_limits`` (default: the robot
+      table's plan limits; a run with ``torque_limits: motor`` passes the motor limits).
     * ``friction_cone_violations``: the controller's own count (the VWBC's), else scored after the run
       (``friction_cone_violations_post_hoc``) with the plan's stance (``planned_stance``) or, without a
       plan (PD), the plant's measured contacts.
@@ -211,11 +213,10 @@ def wbc_metrics(
       controller that solves QPs (the VWBC); None for the others.
     """
     statistics = low_level_statistics or {}
+    limits = robot.torque_limits if torque_limits is None else np.asarray(torque_limits, dtype=float)
     torque_limit_violations = statistics.get("torque_limit_violations")
     if torque_limit_violations is None:
-        torque_limit_violations = int(
-            np.sum(np.any(np.abs(log.torque_command) > robot.torque_limits + 1e-9, axis=1))
-        )
+        torque_limit_violations = int(np.sum(np.any(np.abs(log.torque_command) > limits + 1e-9, axis=1)))
     if "friction_cone_violations" in statistics:
         cone = int(statistics["friction_cone_violations"])
     else:

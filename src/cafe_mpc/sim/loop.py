@@ -2,7 +2,9 @@
 
 The controller sees only a ``Measurement`` (planning coordinates) and returns joint torques, which are held
 (zero-order hold) until its next call. Push disturbances are world-frame forces on the base over time
-intervals. Every control tick is logged into preallocated arrays.
+intervals. Every control tick is logged into preallocated arrays. A ``PlantVariation`` changes the plant
+(friction, masses, motor strengths) and a ``SensorModel`` what the controller measures (noise, latency
+jitter); the log records the plant's true state (``sim.randomization``).
 """
 
 from __future__ import annotations
@@ -17,6 +19,7 @@ import numpy as np
 from cafe_mpc.core.controller import Controller
 from cafe_mpc.robots.robot import Robot
 from cafe_mpc.sim.plant import MujocoPlant
+from cafe_mpc.sim.randomization import PlantVariation, SensorModel
 
 logger = logging.getLogger(__name__)
 
@@ -138,18 +141,21 @@ def simulate(
     progress: Callable[[float], None] | None = None,
     pacer: WallClockPacer | None = None,
     stop: Callable[[float], bool] | None = None,
+    variation: PlantVariation | None = None,
+    sensor: SensorModel | None = None,
 ) -> SimulationLog:
     """Run ``controller`` on the MuJoCo plant for ``duration`` seconds of simulated time.
 
     ``pacer``: run against the wall clock (tick ``k`` starts at ``k / control_rate_hz`` seconds after the
     clock starts; see ``WallClockPacer``), the real-time mode; without it the simulation runs as fast as it
-    can. ``stop(t)``: end the run early when it returns true (checked after each tick).
+    can. ``stop(t)``: end the run early when it returns true (checked after each tick). ``variation``: the
+    plant's deviations from the robot table; ``sensor``: the controller measures through it (noise, delay).
     """
     if not duration > 0:
         raise ValueError(f"duration must be positive, got {duration}")
     if not control_rate_hz > 0:
         raise ValueError(f"control rate must be positive, got {control_rate_hz}")
-    plant = MujocoPlant(robot, plant_timestep)
+    plant = MujocoPlant(robot, plant_timestep, variation)
     control_period = 1.0 / control_rate_hz
     substeps = round(control_period / plant.timestep)
     if substeps < 1 or abs(substeps * plant.timestep - control_period) > 1e-9:
@@ -161,6 +167,8 @@ def simulate(
             raise ValueError(f"invalid push {push}: start >= 0, duration > 0 and a finite force required")
     plant.reset(robot.q_standing if q0 is None else q0, v0)
     controller.reset()
+    if sensor is not None:
+        sensor.reset()
     ticks = round(duration * control_rate_hz)
     log = SimulationLog.allocate(ticks, robot.nq, robot.nv, robot.nu, robot.n_feet)
     external = np.zeros(3)
@@ -172,7 +180,8 @@ def simulate(
         if pacer is not None:
             pacer.wait(tick)
         state = plant.read_state()
-        torques = np.asarray(controller.compute(t, state), dtype=float)
+        measured = state if sensor is None else sensor.observe(tick, state)
+        torques = np.asarray(controller.compute(t, measured), dtype=float)
         if torques.shape != (robot.nu,) or not np.all(np.isfinite(torques)):
             raise ControllerError(f"controller returned invalid torques at t = {t:.3f} s: {torques}")
         external[:] = 0.0
@@ -186,7 +195,7 @@ def simulate(
         log.contacts[tick] = state.contacts
         log.foot_forces[tick] = state.foot_forces
         log.torque_command[tick] = torques
-        log.torque_applied[tick] = np.clip(torques, -plant.torque_limits, plant.torque_limits)
+        log.torque_applied[tick] = plant.applied(torques)
         log.external_force[tick] = external
         log.ticks = tick + 1
         if fall is not None and not log.fell:
@@ -210,6 +219,8 @@ def simulate(
     log.wall_time = time.perf_counter() - start_wall
     if pacer is not None:
         log.extra["realtime"] = pacer.summary(log.ticks)
+    if sensor is not None and not sensor.is_identity:
+        log.extra["sensor"] = sensor.summary()
     return log.trimmed()
 
 

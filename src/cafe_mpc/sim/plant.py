@@ -10,6 +10,9 @@ coordinates (Pinocchio's free-flyer convention):
 
 MuJoCo's free joint stores the quaternion as ``(w, x, y, z)`` and the linear velocity in the world frame;
 the conversion happens here and only here.
+
+A ``PlantVariation`` (``sim.randomization``) changes the plant's friction, masses and motor strengths
+after the model is loaded (domain randomisation); the ``Robot``, and so every controller, stays nominal.
 """
 
 from __future__ import annotations
@@ -19,6 +22,7 @@ import numpy as np
 
 from cafe_mpc.core.measurement import Measurement
 from cafe_mpc.robots.robot import Robot
+from cafe_mpc.sim.randomization import PlantVariation, apply_variation
 
 _DIVERGENCE_WARNINGS = (
     mujoco.mjtWarning.mjWARN_BADQPOS,
@@ -34,13 +38,22 @@ class SimulationDiverged(RuntimeError):
 class MujocoPlant:
     """MuJoCo simulation of a ``Robot`` with torque inputs and planning-coordinate read-out."""
 
-    def __init__(self, robot: Robot, timestep: float | None = None) -> None:
+    def __init__(
+        self, robot: Robot, timestep: float | None = None, variation: PlantVariation | None = None
+    ) -> None:
         self.robot = robot
         self.model = mujoco.MjModel.from_xml_string(robot.mjcf)
         if timestep is not None:
             if not timestep > 0:
                 raise ValueError(f"plant timestep must be positive, got {timestep}")
             self.model.opt.timestep = timestep
+        self.variation = variation or PlantVariation()
+        self.motor_strength = np.ones(robot.nu)
+        """Torque the motor applies per unit commanded (the actuator gear; 1 unless varied)."""
+        if variation is not None:
+            variation.check(robot)
+            if not variation.is_nominal:
+                self.motor_strength = apply_variation(self.model, robot, variation)
         self.data = mujoco.MjData(self.model)
         names = [self.model.joint(i).name for i in range(1, self.model.njnt)]
         if tuple(names) != robot.joint_names:
@@ -106,7 +119,12 @@ class MujocoPlant:
 
     def applied_torques(self) -> np.ndarray:
         """Torques the motors actually apply (after saturation)."""
-        return np.clip(self.data.ctrl, -self.torque_limits, self.torque_limits)
+        return self.applied(self.data.ctrl)
+
+    def applied(self, torques: np.ndarray) -> np.ndarray:
+        """Torques the motors apply for commanded ``torques``: saturated at the command limits
+        (``ctrlrange``), times each motor's strength."""
+        return self.motor_strength * np.clip(torques, -self.torque_limits, self.torque_limits)
 
     def read_state(self) -> Measurement:
         """Current state in planning coordinates, feet contacts and ground reaction forces (the arrays are

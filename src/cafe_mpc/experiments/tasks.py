@@ -1,0 +1,122 @@
+"""Acrobatic task runs (paper Sec. VII-C): the composed reference of a run config and its weight sets.
+
+``task_reference(config, robot)`` turns the config's ``reference`` section into a ``ComposedReference``
+(``reference.composition``): ``stand`` segments are locomotion references with the gait ``stand`` (Sec. VI-A)
+and weight set ``regular``; ``trajectory`` segments are stored whole-body trajectories sampled by time
+(``reference.trajectory``, Sec. VI-B) with weight set ``barrel_roll``. ``task_weight_sets`` builds that weight
+set's whole-body and SRB knot factories (``CafeProblemBuilder(weights=...)``), and ``task_block`` the ``task``
+block of ``metrics.json`` (``report.task_metrics``).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from cafe_mpc.config import ConfigError, ReferenceConfig, RunConfig, load_reference_trajectory
+from cafe_mpc.dynamics.srb import srb_parameters
+from cafe_mpc.mpc.problem import ModelSchedule
+from cafe_mpc.ocp.constraints import WholeBodyConstraintSettings
+from cafe_mpc.ocp.contact_schedule import get_gait
+from cafe_mpc.ocp.costs import SRBWeights
+from cafe_mpc.ocp.knots import SRBModelFactory, SRBSettings, WholeBodyModelFactory, WholeBodySettings
+from cafe_mpc.reference.base import Reference
+from cafe_mpc.reference.composition import ComposedReference
+from cafe_mpc.reference.locomotion import LocomotionReference, VelocityCommand
+from cafe_mpc.reference.trajectory import TrajectoryReference
+from cafe_mpc.report.task_metrics import task_from_reference, task_metrics
+from cafe_mpc.robots.robot import Robot
+from cafe_mpc.sim.loop import SimulationLog
+
+TRAJECTORY_WEIGHT_SET = "barrel_roll"
+"""Weight set of the knots inside stored trajectories (``WholeBodyWeights.barrel_roll_*`` by default)."""
+
+
+def torque_limits_of(config: RunConfig, robot: Robot) -> np.ndarray:
+    """The torque limits the plan and the low-level controller respect (``config.torque_limits``)."""
+    if config.torque_limits == "motor":
+        return np.asarray(robot.plant.motor_torque_limits, dtype=float).copy()
+    return np.asarray(robot.torque_limits, dtype=float).copy()
+
+
+def task_reference(section: ReferenceConfig, robot: Robot) -> ComposedReference:
+    """The composed reference of a ``reference`` config section (see the module docstring)."""
+    pieces: list[tuple[Reference, float | None]] = []
+    offsets = []
+    try:
+        for segment in section.segments:
+            if segment.kind == "trajectory":
+                assert segment.trajectory is not None
+                trajectory = load_reference_trajectory(robot.name, segment.trajectory)
+                reference: Reference = TrajectoryReference(
+                    robot, trajectory, weight_set=TRAJECTORY_WEIGHT_SET, hold_weight_set=TRAJECTORY_WEIGHT_SET
+                )
+                duration = segment.duration if segment.duration is not None else reference.end_time
+            else:
+                reference = LocomotionReference(
+                    robot, get_gait("stand"), [VelocityCommand(height=segment.height)]
+                )
+                duration = segment.duration
+            pieces.append((reference, duration))
+            offsets.append(segment.offset)
+        return ComposedReference(pieces, robot.nq, robot.nv, robot.nu, robot.n_feet, offsets=offsets)
+    except ValueError as error:
+        raise ConfigError(f"reference: {error}") from error
+
+
+def task_weight_sets(
+    config: RunConfig, robot: Robot, schedule: ModelSchedule
+) -> dict[str, tuple[WholeBodyModelFactory, SRBModelFactory]]:
+    """The ``barrel_roll`` weight set's knot factories: the section's weights and base error, the regular
+    constraints (minimum base height 0.20 m, ...) with the run's torque limits; the SRB tail with the same
+    base weights."""
+    section = config.reference
+    if section is None:
+        return {}
+    try:
+        running = section.costs.running.to_weights()
+        terminal = section.costs.terminal.to_weights()
+        srb_running = SRBWeights.from_whole_body(running, force=SRBWeights.regular_running().force)
+        srb_terminal = SRBWeights.from_whole_body(terminal, force=0.0)
+        constraints = WholeBodyConstraintSettings(
+            torque_limit_values=tuple(float(limit) for limit in torque_limits_of(config, robot))
+        )
+    except ValueError as error:
+        raise ConfigError(f"reference: {error}") from error
+    whole_body = WholeBodyModelFactory(
+        robot,
+        WholeBodySettings(
+            dt=schedule.whole_body_dt,
+            running_weights=running,
+            terminal_weights=terminal,
+            constraints=constraints,
+            base_error=section.base_error,
+        ),
+    )
+    srb = SRBModelFactory(
+        SRBSettings(
+            dt=schedule.srb_dt,
+            parameters=srb_parameters(robot),
+            running_weights=srb_running,
+            terminal_weights=srb_terminal,
+        )
+    )
+    return {TRAJECTORY_WEIGHT_SET: (whole_body, srb)}
+
+
+def task_block(
+    config: RunConfig, robot: Robot, log: SimulationLog, reference: Reference | None
+) -> dict | None:
+    """The ``task`` block of ``metrics.json`` for a run whose reference holds a stored trajectory with a
+    flight phase (``report.task_metrics``); ``None`` otherwise."""
+    task = task_from_reference(reference)
+    if task is None:
+        return None
+    return task_metrics(
+        robot,
+        log,
+        task,
+        1.0 / config.simulation.control_rate_hz,
+        requested=log.extra.get("torque_requested"),
+        planned_stance=log.extra.get("planned_stance"),
+        limits=torque_limits_of(config, robot),
+    )

@@ -1,0 +1,585 @@
+"""Template-MPC baseline: the HKD-MPC structure of paper Sec. VII-C (Fig. 12), planning over the SRB only.
+
+The paper compares CAFE-MPC with the authors' Hybrid Kinodynamic MPC (HKD-MPC, their ref. [79]): single
+rigid-body (SRB) dynamics over the whole horizon with the legs as kinematics only, the planned ground
+reaction forces (GRFs) applied directly by the stance legs, and a separate swing-leg controller. This module
+is the planning half of such a baseline, built from the same parts as CAFE-MPC:
+
+* the SRB model (29), (30) with the SRB cost (28) (``ocp.knots.SRBKnot``) on *every* knot of the horizon;
+  stance flags and footholds (stance-foot positions) from the same ``Reference`` as CAFE-MPC (Raibert
+  footholds of the locomotion reference): foot placement is not optimised;
+* relaxed-barrier GRF constraints (``ConstrainedSRBKnot``): the friction pyramid with unilateral normal
+  force, and the stance legs' joint-torque limits through the leg kinematics (``tau = -J(q)' f`` at the
+  configuration expected at each knot: inverse kinematics of the footholds about the warm start's base
+  pose). The GRFs are applied as planned, so they must be admissible; the torque rows are the "kinematics"
+  part of the kinodynamic model (without them the bound's plans asked the hind legs for 150-190 N per foot,
+  twice what 17 Nm knees give at that posture);
+* MS-iLQR, warm-started from the previous solution shifted by time, with the same iteration budget per
+  update as CAFE-MPC; the result is a ``core.template_plan.TemplatePlan`` (SRB states, GRFs, stance,
+  reference feet) for ``wbc.template_low_level``.
+
+The SRB's position is the robot's centre of mass and its mass and inertia are the planning model's own,
+without the rotor point masses of the CAFE tail (``template_srb``: the plant has none).
+
+Knot grid (design choice). The authors' HKD-MPC plans 0.6 s at 0.01 s. Here: ``horizon`` 0.5 s (the CAFE
+tail's Ts of S5) at ``dt`` 0.01 s, with the knots on the absolute time grid ``k * dt`` after the first one
+(``t0``, the measurement time): every contact switch of the gaits (and of the barrel roll's schedule) lies
+on that grid, so no knot interval straddles a switch, and knots persist between updates (the warm start
+maps them by time). The first interval ``[t0, next grid time)`` is 1 ms to ``dt`` long; its duration is
+rounded to 1 ms so the SRB dynamics objects (one per duration) stay few. One update (50 knots, one
+MS-iLQR iteration) takes about 5 ms.
+
+Weights: ``hkd_running_weights`` (the authors' HKD tracking weights, a lighter GRF regularisation) and
+``terminal_weights`` (5 x the running ones); each deviation and the measurement behind it is in its
+docstring.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import time
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+import pinocchio as pin
+from numba import njit
+
+from cafe_mpc.core.interfaces import MultiPhaseProblem, Phase
+from cafe_mpc.core.template_plan import TemplatePlan
+from cafe_mpc.dynamics.srb import (
+    GRAVITY,
+    SRBDynamics,
+    SRBParameters,
+    lumped_inertia,
+    quaternion_to_rotation,
+)
+from cafe_mpc.dynamics.transition import whole_body_to_srb_state
+from cafe_mpc.mpc.receding_horizon import MpcSettings, MpcStatistics
+from cafe_mpc.ocp.constraints import BarrierParameters
+from cafe_mpc.ocp.costs import SRBWeights
+from cafe_mpc.ocp.knots import SRBKnot, SRBKnotData, SRBReference
+from cafe_mpc.reference.base import Reference, ReferenceWindow
+from cafe_mpc.reference.inverse_kinematics import LegInverseKinematics
+from cafe_mpc.robots.robot import Robot
+from cafe_mpc.solver import MSiLQRSolver, SolverResult
+
+logger = logging.getLogger(__name__)
+
+LWA = pin.ReferenceFrame.LOCAL_WORLD_ALIGNED
+TIME_QUANTUM = 1e-3
+"""Knot interval durations are rounded to this (s): one SRB dynamics object per duration."""
+
+
+# --------------------------------------------------------------------------------------------------
+# GRF constraints: friction pyramid and joint-torque limits (relaxed barrier, Sec. III-B-2)
+# --------------------------------------------------------------------------------------------------
+
+FRICTION_ROWS = 5
+TORQUE_ROWS = 6
+
+
+@njit(cache=True, nogil=True)
+def _force_barrier(
+    u: np.ndarray,
+    contacts: np.ndarray,
+    rows: np.ndarray,
+    offsets: np.ndarray,
+    deltas: np.ndarray,
+    weights: np.ndarray,
+    scale: float,
+    with_derivatives: bool,
+    Lu: np.ndarray,
+    Luu: np.ndarray,
+) -> tuple[float, float]:
+    """``scale * sum eps_r B_r(g)`` over the rows ``g = offsets[j, r] + rows[j, r] . f_j >= 0`` of each
+    stance foot ``j`` (relaxed barrier ``B`` with per-row ``delta``, ``ocp.barrier``); adds the gradient and
+    the Gauss-Newton Hessian to ``Lu``, ``Luu`` when ``with_derivatives``. Returns (cost, worst violation
+    ``max(0, -g)``)."""
+    cost = 0.0
+    violation = 0.0
+    for foot in range(contacts.shape[0]):
+        if contacts[foot] < 0.5:
+            continue
+        base = 3 * foot
+        for row in range(rows.shape[1]):
+            a = rows[foot, row]
+            delta, eps = deltas[row], weights[row]
+            g = offsets[foot, row] + a[0] * u[base] + a[1] * u[base + 1] + a[2] * u[base + 2]
+            if -g > violation:
+                violation = -g
+            if g > delta:
+                b, db, ddb = -math.log(g), -1.0 / g, 1.0 / (g * g)
+            else:
+                z = (g - 2.0 * delta) / delta
+                b, db, ddb = 0.5 * (z * z - 1.0) - math.log(delta), z / delta, 1.0 / (delta * delta)
+            cost += eps * b
+            if with_derivatives:
+                for i in range(3):
+                    Lu[base + i] += scale * eps * db * a[i]
+                    for j in range(3):
+                        Luu[base + i, base + j] += scale * eps * ddb * a[i] * a[j]
+    return scale * cost, violation
+
+
+class ConstrainedSRBKnot(SRBKnot):
+    """``SRBKnot`` (dynamics (29), (30), cost (28)) plus, on each stance foot's GRF ``f``, relaxed-barrier
+    costs (times the time step, like the whole-body knots' constraints (26), (27)) for
+
+    * the friction pyramid with unilateral normal force ``[fz, mu fz -+ fx, mu fz -+ fy] >= 0`` (26);
+    * the joint-torque limits of that leg, ``|tau_j| <= tau_max`` with ``tau = -J(q)' f`` (27a through the
+      stance torque map of the low level): ``torque_map`` (n_feet, 3, 3), rows ``d tau_leg / d f``, is set
+      per update (``set_torque_map``) from the leg kinematics at the knot's expected configuration; zero
+      (no torque rows in effect beyond a constant) until set.
+
+    Terminal knots (no forces) are plain ``SRBKnot`` s.
+    """
+
+    def __init__(
+        self,
+        dynamics: SRBDynamics,
+        weights: SRBWeights,
+        reference: SRBReference,
+        friction_coefficient: float,
+        friction_barrier: BarrierParameters,
+        torque_limits: np.ndarray,
+        torque_barrier: BarrierParameters,
+    ) -> None:
+        super().__init__(dynamics, weights, reference)
+        if not friction_coefficient > 0:
+            raise ValueError(f"friction coefficient must be positive, got {friction_coefficient}")
+        mu = float(friction_coefficient)
+        n_feet = len(reference.contacts)
+        limits = np.asarray(torque_limits, dtype=float).reshape(n_feet, 3)
+        self.friction_coefficient = mu
+        self.rows = np.zeros((n_feet, FRICTION_ROWS + TORQUE_ROWS, 3))
+        self.offsets = np.zeros((n_feet, FRICTION_ROWS + TORQUE_ROWS))
+        pyramid = np.array([[0, 0, 1], [-1, 0, mu], [1, 0, mu], [0, -1, mu], [0, 1, mu]], dtype=float)
+        self.rows[:, :FRICTION_ROWS] = pyramid
+        self.offsets[:, FRICTION_ROWS : FRICTION_ROWS + 3] = limits
+        self.offsets[:, FRICTION_ROWS + 3 :] = limits
+        self.deltas = np.r_[
+            np.full(FRICTION_ROWS, friction_barrier.delta), np.full(TORQUE_ROWS, torque_barrier.delta)
+        ]
+        self.barrier_weights = np.r_[
+            np.full(FRICTION_ROWS, friction_barrier.eps), np.full(TORQUE_ROWS, torque_barrier.eps)
+        ]
+
+    def set_torque_map(self, torque_map: np.ndarray) -> None:
+        """Rows ``d tau / d f`` (n_feet, 3 joints, 3 force components) of each leg at this knot: the torque
+        rows become ``tau_max -+ torque_map f >= 0``."""
+        self.rows[:, FRICTION_ROWS : FRICTION_ROWS + 3] = -torque_map
+        self.rows[:, FRICTION_ROWS + 3 :] = torque_map
+
+    def calc(self, data: SRBKnotData, x: np.ndarray, u: np.ndarray) -> None:
+        super().calc(data, x, u)
+        cost, violation = _force_barrier(
+            u,
+            self.reference.contacts,
+            self.rows,
+            self.offsets,
+            self.deltas,
+            self.barrier_weights,
+            self.cost_scale,
+            False,
+            data.Lu,
+            data.Luu,
+        )
+        data.cost += cost
+        data.constraint_violation = violation
+
+    def calc_diff(self, data: SRBKnotData, x: np.ndarray, u: np.ndarray) -> None:
+        super().calc_diff(data, x, u)
+        _force_barrier(
+            u,
+            self.reference.contacts,
+            self.rows,
+            self.offsets,
+            self.deltas,
+            self.barrier_weights,
+            self.cost_scale,
+            True,
+            data.Lu,
+            data.Luu,
+        )
+
+
+# --------------------------------------------------------------------------------------------------
+# Settings and problem
+# --------------------------------------------------------------------------------------------------
+
+
+def hkd_running_weights(force: float = 1e-3) -> SRBWeights:
+    """Running weights of the SRB cost (28): the authors' HKD-MPC tracking weights (public CAFE-MPC code,
+    ``HKDMPC/HKD-TrajOpt/HKDCost.h``; base order here ``[x, y, z, yaw, pitch, roll]``): position
+    (1, 1, 30), Euler angles (yaw 1, pitch 4, roll 4), linear velocity (1, 1, 1), body rates (yaw 0.2,
+    pitch 0.5, roll 1.0). GRF regularisation ``force`` (default 1e-3, toward the reference's stance forces),
+    not their 0.1: measured in closed loop, 0.1 (and 0.01) kept the trotting body pitched by 0.3-0.45 rad
+    (pitch RMS 0.46 and 0.19 rad), because the equal per-foot force targets do not balance the moments
+    about the centre of mass and a heavy pull toward them wins over the pitch cost; 1e-3 gives 0.02-0.04 rad
+    and 1e-4 fell (GRFs chattering between updates)."""
+    return SRBWeights(
+        base_position=(1.0, 1.0, 30.0, 1.0, 4.0, 4.0),
+        base_velocity=(1.0, 1.0, 1.0, 0.2, 0.5, 1.0),
+        force=force,
+    )
+
+
+TERMINAL_SCALE = 5.0
+"""Terminal weights = this x the running state weights (``terminal_weights``)."""
+
+
+def terminal_weights(running: SRBWeights | None = None) -> SRBWeights:
+    """Terminal weights: ``TERMINAL_SCALE`` (5) x the running state weights, no force term. The HKD code's
+    ``Qf = 20 diag(scale) Q`` (z weight 12000, 400 x the running z weight) made the plans aim only at the
+    horizon's end: in a pronk the first plan let the body fall from 0.24 m to 0.02 m and launched it back to
+    hit the terminal height. The CAFE tail's regular terminal set (base (0, 0, 1, 1, 1, 1), velocities 1)
+    let the trotting body roll away slowly (1.2 rad at 6.2 s, then the fall); 1 x and 5 x the running
+    weights both trot for 10 s (measured with fixed latency)."""
+    running = running or hkd_running_weights()
+    return SRBWeights(
+        base_position=tuple(TERMINAL_SCALE * w for w in running.base_position),
+        base_velocity=tuple(TERMINAL_SCALE * w for w in running.base_velocity),
+        force=0.0,
+    )
+
+
+@dataclass(frozen=True)
+class TemplateSettings:
+    """The template MPC's horizon, knot spacing, SRB model, weights and GRF constraints (module docstring).
+
+    ``horizon``/``dt``: planned time and nominal knot spacing (s). ``parameters``: SRB mass and inertia
+    (``template_srb(robot)`` in a run). ``running_weights``/``terminal_weights``: the SRB cost (28).
+    ``friction_coefficient``, ``friction_barrier``: the GRF pyramid (the authors' HKD-MPC ReB delta 0.1,
+    eps 0.01). ``leg_torque_limits``: also bound the leg torques ``-J' f`` of the stance legs
+    (``torque_limits``, default the robot's, with ``torque_barrier``: the whole-body knots' delta 1,
+    eps 0.01).
+    """
+
+    horizon: float = 0.5
+    dt: float = 0.01
+    parameters: SRBParameters = field(default_factory=SRBParameters)
+    running_weights: SRBWeights = field(default_factory=hkd_running_weights)
+    terminal_weights: SRBWeights = field(default_factory=terminal_weights)
+    friction_coefficient: float = 0.6
+    friction_barrier: BarrierParameters = field(default_factory=lambda: BarrierParameters(0.1, 0.01))
+    leg_torque_limits: bool = True
+    torque_limits: tuple[float, ...] | None = None
+    torque_barrier: BarrierParameters = field(default_factory=lambda: BarrierParameters(1.0, 0.01))
+
+    def __post_init__(self) -> None:
+        if not (math.isfinite(self.dt) and self.dt >= TIME_QUANTUM - 1e-12):
+            raise ValueError(f"template dt must be at least {TIME_QUANTUM} s, got {self.dt}")
+        if abs(self.dt / TIME_QUANTUM - round(self.dt / TIME_QUANTUM)) > 1e-6:
+            raise ValueError(f"template dt must be a whole number of milliseconds, got {self.dt}")
+        if not (math.isfinite(self.horizon) and self.horizon >= 2 * self.dt - 1e-12):
+            raise ValueError(
+                f"template horizon must be at least two knots ({2 * self.dt} s), got {self.horizon}"
+            )
+        if not self.friction_coefficient > 0:
+            raise ValueError(f"friction coefficient must be positive, got {self.friction_coefficient}")
+
+    @property
+    def knots(self) -> int:
+        """Running knots per problem."""
+        return max(2, round(self.horizon / self.dt))
+
+
+def template_srb(robot: Robot) -> tuple[SRBParameters, np.ndarray]:
+    """SRB mass, inertia (about the centre of mass, base frame) and centre of mass (base frame) of the
+    template model: every body of the robot's model lumped at the standing pose, *without* the rotor point
+    masses that ``dynamics.srb.srb_parameters`` adds for the CAFE tail (the simulated plant's mass is the
+    model's: with the rotors the plan asked for 8 % more vertical force than the 8.25 kg Mini Cheetah needs
+    and the trotting base rose by 2 cm). The SRB position is the centre of mass, not the base origin: the
+    template plans with the SRB alone, and the 8 mm / 12 mm offset of the Mini Cheetah's centre of mass
+    behind / below the base origin otherwise leaves a standing pitch error of 0.08 rad."""
+    lumped = lumped_inertia(replace(robot, rotor_mass=0.0))
+    inertia = np.asarray(lumped.inertia, dtype=float)
+    inertia = 0.5 * (inertia + inertia.T)
+    parameters = SRBParameters(
+        float(lumped.mass), tuple(tuple(float(v) for v in row) for row in inertia), n_feet=robot.n_feet
+    )
+    return parameters, np.asarray(lumped.lever, dtype=float).copy()
+
+
+@dataclass
+class TemplateProblem:
+    """One update's problem and what the plan needs besides the solution."""
+
+    problem: MultiPhaseProblem
+    times: np.ndarray  # (n + 1,) knot times
+    contacts: np.ndarray  # (n, n_feet) bool
+    foot_positions: np.ndarray  # (n + 1, n_feet, 3)
+    foot_velocities: np.ndarray  # (n + 1, n_feet, 3)
+    force_targets: np.ndarray  # (n, 12) GRF regularisation targets (also the guess of new knots)
+    reference_states: np.ndarray  # (n + 1, 13) SRB reference states
+    knots: list[ConstrainedSRBKnot]  # the running knots (their torque maps are set per update)
+
+
+def base_to_com(state: np.ndarray, offset: np.ndarray) -> np.ndarray:
+    """Move an SRB state of the base frame (``[c, quat, c_dot, omega]``, ``dynamics.transition``) to the
+    centre of mass at ``offset`` in the base frame (in place): ``c += R offset``, ``c_dot += R (omega x
+    offset)``."""
+    rotation = quaternion_to_rotation(state[3:7])
+    state[0:3] += rotation @ offset
+    state[7:10] += rotation @ np.cross(state[10:13], offset)
+    return state
+
+
+class TemplateProblemBuilder:
+    """Builds the SRB-only problem of each update from persistent knots (references written in place).
+
+    Knot slot ``k`` keeps one knot per interval duration it has needed (in ms), so the same knot objects,
+    and the solver's data for them, come back every update.
+    """
+
+    def __init__(
+        self, robot: Robot, settings: TemplateSettings | None = None, com_offset: np.ndarray | None = None
+    ) -> None:
+        self.robot = robot
+        self.settings = settings or TemplateSettings()
+        self.com_offset = np.zeros(3) if com_offset is None else np.asarray(com_offset, dtype=float).copy()
+        """Centre of mass in the base frame: the SRB's position ``c`` is the CoM (``template_srb``)."""
+        self.weight = self.settings.parameters.mass * self.settings.parameters.gravity
+        n = self.settings.knots
+        self.window = ReferenceWindow(n + 1, robot.nq, robot.nv, robot.nu, robot.n_feet)
+        self._dynamics: dict[int, SRBDynamics] = {}
+        self._running: dict[tuple[int, int], ConstrainedSRBKnot] = {}
+        limits = self.settings.torque_limits
+        self.torque_limits = np.asarray(robot.torque_limits if limits is None else limits, dtype=float)
+        if self.torque_limits.shape != (robot.nu,) or np.any(self.torque_limits <= 0):
+            raise ValueError(f"template torque limits need {robot.nu} positive values")
+        self.inverse_kinematics = LegInverseKinematics(robot)
+        self._data = robot.model.createData()
+        zero = np.zeros(13)
+        zero[6] = 1.0
+        self._terminal = SRBKnot(
+            None,
+            self.settings.terminal_weights,
+            SRBReference(zero, np.zeros((4, 3)), (True,) * 4, self.weight),
+        )
+
+    def knot_times(self, t0: float) -> np.ndarray:
+        """``t0``, then the absolute grid ``k * dt`` after it (``n + 1`` times; module docstring)."""
+        dt = self.settings.dt
+        n = self.settings.knots
+        first = math.floor(t0 / dt + 1e-6) + 1
+        times = np.empty(n + 1)
+        times[0] = t0
+        times[1:] = (first + np.arange(n)) * dt
+        return times
+
+    def _knot(self, slot: int, milliseconds: int) -> ConstrainedSRBKnot:
+        key = (slot, milliseconds)
+        knot = self._running.get(key)
+        if knot is None:
+            dynamics = self._dynamics.get(milliseconds)
+            if dynamics is None:
+                dynamics = SRBDynamics(self.settings.parameters, milliseconds * TIME_QUANTUM)
+                self._dynamics[milliseconds] = dynamics
+            zero = np.zeros(13)
+            zero[6] = 1.0
+            knot = ConstrainedSRBKnot(
+                dynamics,
+                self.settings.running_weights,
+                SRBReference(zero, np.zeros((4, 3)), (True,) * 4, self.weight),
+                self.settings.friction_coefficient,
+                self.settings.friction_barrier,
+                self.torque_limits,
+                self.settings.torque_barrier,
+            )
+            self._running[key] = knot
+        return knot
+
+    def build(self, t0: float, x0: np.ndarray, reference: Reference) -> TemplateProblem:
+        """The problem of an update at ``t0`` from the measured whole-body state ``x0 = [q, v]``."""
+        robot = self.robot
+        times = self.knot_times(t0)
+        n = len(times) - 1
+        window = self.window
+        window.set_times(times)
+        reference.sample(window)
+        window.check_finite(type(reference).__name__)
+        durations = np.maximum(np.rint(np.diff(times) / TIME_QUANTUM).astype(int), 1)
+        contacts = np.asarray(window.stance[:n], dtype=bool).copy()
+        # GRF targets (28): the reference's stance forces scaled to the SRB's own weight
+        force_targets = window.forces[:n].reshape(n, -1) * (self.weight / (robot.total_mass * GRAVITY))
+        reference_states = np.empty((n + 1, 13))
+        for k in range(n + 1):
+            whole_body_to_srb_state(window.state[k], robot.nq, reference_states[k])
+            base_to_com(reference_states[k], self.com_offset)
+        running = []
+        for k in range(n):
+            knot = self._knot(k, int(durations[k]))
+            ref = knot.reference
+            ref.state[:] = reference_states[k]
+            ref.foot_positions[:] = window.foot_positions[k]
+            ref.contacts[:] = contacts[k]
+            ref.forces[:] = force_targets[k]
+            running.append(knot)
+        terminal = self._terminal
+        terminal.reference.state[:] = reference_states[n]
+        terminal.reference.foot_positions[:] = window.foot_positions[n]
+        terminal.reference.contacts[:] = window.stance[n]
+        srb_x0 = base_to_com(whole_body_to_srb_state(np.asarray(x0, dtype=float), robot.nq), self.com_offset)
+        phase = Phase(running, terminal, dt=self.settings.dt, name="template")
+        return TemplateProblem(
+            MultiPhaseProblem(srb_x0, [phase]),
+            times.copy(),
+            contacts,
+            window.foot_positions.copy(),
+            window.foot_velocities.copy(),
+            force_targets,
+            reference_states,
+            running,
+        )
+
+    def update_torque_maps(self, built: TemplateProblem, states: np.ndarray) -> None:
+        """Set each running knot's torque map ``d tau / d f = -J_leg(q)'`` (world-frame foot Jacobian of each
+        leg) at the configuration expected at that knot: the base pose of ``states`` (SRB states of the warm
+        start, centre of mass moved back to the base origin) with the legs solved by inverse kinematics for
+        the knot's foot positions (footholds for stance feet)."""
+        robot = self.robot
+        n = len(built.knots)
+        base = np.empty((n, 7))
+        for k in range(n):
+            rotation = quaternion_to_rotation(states[k, 3:7])
+            base[k, :3] = states[k, :3] - rotation @ self.com_offset
+            base[k, 3:7] = states[k, 3:7]
+        joints, _, _ = self.inverse_kinematics.solve_batch(base, built.foot_positions[:n])
+        model, data = robot.model, self._data
+        q = np.empty(robot.nq)
+        torque_map = np.zeros((robot.n_feet, 3, 3))
+        for k, knot in enumerate(built.knots):
+            stance = built.contacts[k]
+            if not stance.any():
+                continue
+            q[:7] = base[k]
+            q[7:] = joints[k]
+            pin.computeJointJacobians(model, data, q)
+            pin.updateFramePlacements(model, data)
+            for foot, frame_id in enumerate(robot.foot_frame_ids):
+                if stance[foot]:
+                    jacobian = pin.getFrameJacobian(model, data, frame_id, LWA)
+                    torque_map[foot] = -jacobian[:3, 6 + 3 * foot : 9 + 3 * foot].T
+            knot.set_torque_map(torque_map)
+
+
+# --------------------------------------------------------------------------------------------------
+# Receding horizon
+# --------------------------------------------------------------------------------------------------
+
+
+class TemplateMpc:
+    """Template-MPC updates: SRB problem -> warm start -> MS-iLQR -> ``TemplatePlan``.
+
+    The same interface as ``mpc.receding_horizon.RecedingHorizonMpc`` (``update``, ``reset``, ``started``,
+    ``settings``, ``statistics``, ``reference``, ``builder``), so the policy side
+    (``control.mpc_loop.CafeMpcController``: fixed or measured latency) runs it unchanged. ``settings``:
+    the same receding-horizon settings as CAFE-MPC (period, latency, iterations per update, first solve).
+    """
+
+    def __init__(
+        self,
+        robot: Robot,
+        reference: Reference,
+        builder: TemplateProblemBuilder,
+        settings: MpcSettings | None = None,
+    ) -> None:
+        self.robot = robot
+        self.reference = reference
+        self.builder = builder
+        self.settings = settings or MpcSettings()
+        self.first_solver = MSiLQRSolver(self.settings.first_solve)
+        self.solver = MSiLQRSolver(self.settings.update_solve)
+        self.statistics = MpcStatistics()
+        self.previous: tuple[TemplateProblem, SolverResult] | None = None
+        self._x = np.zeros(robot.nq + robot.nv)
+
+    def reset(self) -> None:
+        self.previous = None
+        self.statistics = MpcStatistics()
+
+    @property
+    def started(self) -> bool:
+        """Whether a first (cold) solve has succeeded."""
+        return self.previous is not None
+
+    def update(self, t: float, q: np.ndarray, v: np.ndarray) -> TemplatePlan | None:
+        """One update from the state measured at ``t``; ``None`` (counted and logged) if it failed."""
+        robot = self.robot
+        self._x[: robot.nq] = q
+        self._x[robot.nq :] = v
+        first = self.previous is None
+        start = time.perf_counter()
+        try:
+            self.reference.update(t, q, v)
+            built = self.builder.build(t, self._x, self.reference)
+            xs, us = self._guess(built)
+            if self.builder.settings.leg_torque_limits:
+                self.builder.update_torque_maps(built, xs)
+            problem_time = time.perf_counter() - start
+            solver = self.first_solver if first else self.solver
+            result = solver.solve(built.problem, [xs], [us], None)
+            plan = template_plan(built, result)
+        except (ValueError, FloatingPointError, np.linalg.LinAlgError, RuntimeError) as error:
+            self.statistics.failures += 1
+            logger.warning(
+                "template MPC update at t = %.3f s failed (%s); keeping the previous plan", t, error
+            )
+            return None
+        elapsed = time.perf_counter() - start
+        self.statistics.record(t, result, elapsed, problem_time)
+        if first:
+            self.statistics.first_solve_time = elapsed
+        if result.status == "non_finite" or not result.policy_valid:
+            self.statistics.failures += 1
+            logger.warning("template MPC update at t = %.3f s returned %s", t, result.status)
+            return None
+        self.previous = (built, result)
+        return plan
+
+    def _guess(self, built: TemplateProblem) -> tuple[np.ndarray, np.ndarray]:
+        """Warm start by knot time: grid knots solved before keep their state and GRFs (shooting knots);
+        the first knot takes the GRFs of the previous interval containing ``t0``; knots new at the end
+        copy the last previous state and take the GRF targets. Cold start: the reference states and GRF
+        targets (multiple shooting from the reference)."""
+        n = len(built.times) - 1
+        xs = built.reference_states.copy()
+        us = built.force_targets.copy()
+        xs[0] = built.problem.x0
+        if self.previous is None:
+            return xs, us
+        previous, solution = self.previous
+        old_xs, old_us = solution.phases[0].xs, solution.phases[0].us
+        old_keys = {round(float(t) / TIME_QUANTUM): i for i, t in enumerate(previous.times)}
+        last = len(previous.times) - 1
+        t0 = float(built.times[0])
+        interval = int(np.searchsorted(previous.times, t0 + 1e-9, side="right")) - 1
+        if 0 <= interval < last:
+            us[0] = old_us[interval]
+        for k in range(1, n + 1):
+            i = old_keys.get(round(float(built.times[k]) / TIME_QUANTUM))
+            if i is None:
+                xs[k] = old_xs[last]
+                continue
+            xs[k] = old_xs[i]
+            if k < n and i < last:
+                us[k] = old_us[i]
+        return xs, us
+
+
+def template_plan(built: TemplateProblem, result: SolverResult) -> TemplatePlan:
+    """The solution as the low level's ``TemplatePlan`` (swing-foot GRFs are zeroed: they act on nothing)."""
+    phase = result.phases[0]
+    n = len(built.times) - 1
+    forces = phase.us.reshape(n, -1, 3) * built.contacts[:, :, None]
+    return TemplatePlan(
+        times=built.times[:-1].copy(),
+        dt=np.diff(built.times),
+        base_states=phase.xs.copy(),
+        forces=forces,
+        contacts=built.contacts.copy(),
+        foot_positions=built.foot_positions,
+        foot_velocities=built.foot_velocities,
+    )

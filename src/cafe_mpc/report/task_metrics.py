@@ -1,0 +1,315 @@
+"""Metrics of acrobatic tasks (the in-place barrel roll of paper Sec. VII-C, Fig. 1): the ``task`` block.
+
+A task run follows a reference that contains a stored trajectory (``reference.trajectory``), possibly
+inside a composition (``reference.composition``). ``task_from_reference`` reads the planned windows off
+it: when the trajectory starts, its first flight phase (take-off and touchdown) and its end. The metrics
+are then judged on the logged closed loop alone:
+
+* ``roll_turned_rad``: the body roll rate ``omega_x`` (base frame) integrated over the run (rectangle rule at
+  the control period); it counts full turns, which no Euler angle or quaternion read-out does;
+* ``max_base_height_m``;
+* landing: the measured touchdown is the first tick, after all four feet were off the ground for at least
+  ``MIN_FLIGHT_S`` inside the planned flight window, at which a foot touches the floor. ``landed``: all four
+  feet are on the floor at some tick within ``LANDING_WINDOW_S`` after the touchdown, the run did not fall,
+  and neither the trunk nor a knee or thigh touched the floor during the run. The plant's legs do not
+  collide with the floor (only the feet and the trunk do), so body and knee contact is judged geometrically
+  from the logged states (``body_floor_clearance``: the lowest point of the trunk box, of each thigh capsule
+  and of each knee, i.e. the upper end of the shank capsule, must stay above ``CONTACT_TOLERANCE_M``;
+  negative means it went through the floor);
+* ``upright_after``: the base tilt (angle between body z and world z) stays below ``UPRIGHT_TILT_RAD`` at
+  every tick of the ``UPRIGHT_WINDOW_S`` after the landing, the first tick with all four feet down (the
+  first foot lands while the body still rolls; ``tilt_at_touchdown_rad`` reports that moment);
+* ``stayed_up_s``: time from the touchdown to the end of the run without a fall; ``stayed_up`` needs
+  ``STAY_UP_S``;
+* during the roll (from the trajectory's start to its end): ticks whose commanded torque exceeds the motor
+  limits (what the plant saturates at), ticks whose request before clamping exceeds the plan limits (the
+  Riccati controller clamps), and friction-cone violations (the contact forces that the commanded torque
+  implies with the plan's stance feet held, ``friction_cone_violations_post_hoc``);
+* ``success``: roll turned >= target - ``ROLL_TOLERANCE_RAD``, landed, upright after, stayed up, and no
+  torque-limit violation at the motors during the roll.
+
+The block states these thresholds in ``criteria`` so that a reader of ``metrics.json`` sees how success was
+judged.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import mujoco
+import numpy as np
+
+from cafe_mpc.reference.base import Reference, ReferenceWindow
+from cafe_mpc.reference.composition import ComposedReference
+from cafe_mpc.reference.trajectory import TrajectoryReference
+from cafe_mpc.robots.robot import Robot
+from cafe_mpc.sim.loop import SimulationLog, base_tilt
+
+ROLL_TOLERANCE_RAD = 0.3
+UPRIGHT_TILT_RAD = 0.3
+UPRIGHT_WINDOW_S = 1.0
+STAY_UP_S = 2.0
+LANDING_WINDOW_S = 0.3
+MIN_FLIGHT_S = 0.02
+CONTACT_TOLERANCE_M = 0.002
+FLIGHT_SEARCH_MARGIN_S = 0.1
+"""The measured flight is searched in the planned flight window widened by this much on each side."""
+
+
+@dataclass(frozen=True)
+class AcrobaticTask:
+    """The planned windows of a task (reference time, s) and its roll target (rad)."""
+
+    name: str
+    start: float
+    takeoff: float
+    touchdown: float
+    end: float
+    roll_target: float = 2.0 * math.pi
+
+
+def _trajectory_segment(reference: Reference) -> tuple[TrajectoryReference, float] | None:
+    """The first stored-trajectory reference inside ``reference`` and the time its segment starts."""
+    if isinstance(reference, TrajectoryReference):
+        return reference, 0.0
+    if isinstance(reference, ComposedReference):
+        for segment in reference.segments:
+            found = _trajectory_segment(segment.reference)
+            if found is not None:
+                return found[0], segment.start + found[1]
+    return None
+
+
+def task_from_reference(
+    reference: Reference | None, roll_target: float = 2.0 * math.pi
+) -> AcrobaticTask | None:
+    """The task of a reference that contains a stored trajectory with a flight phase (``None`` otherwise)."""
+    found = _trajectory_segment(reference) if reference is not None else None
+    if found is None:
+        return None
+    trajectory_reference, offset = found
+    trajectory = trajectory_reference.trajectory
+    start = offset + trajectory_reference.start
+    origin = float(trajectory.times[0])
+    for index, code in enumerate(trajectory.phase_contacts):
+        if code == "FT":
+            takeoff = start + float(trajectory.switching_times[index]) - origin
+            touchdown = start + float(trajectory.switching_times[index + 1]) - origin
+            return AcrobaticTask(
+                trajectory.name, start, takeoff, touchdown, start + trajectory_reference.duration, roll_target
+            )
+    return None
+
+
+# --------------------------------------------------------------------------------------------------
+# Geometry: body and knee clearance above the floor
+# --------------------------------------------------------------------------------------------------
+
+
+def body_floor_clearance(robot: Robot, q: np.ndarray) -> dict[str, np.ndarray]:
+    """Lowest height (m) above the floor of the trunk box, the thighs and the knees at each row of ``q``
+    (planning coordinates), from the plant's own geometry (``Robot.mjcf``). Keys ``trunk``, ``thigh``,
+    ``knee`` (the minimum over the legs)."""
+    model = mujoco.MjModel.from_xml_string(robot.mjcf)
+    data = mujoco.MjData(model)
+    trunk = model.geom("trunk").id
+    leg_geoms = {"thigh": [], "knee": []}
+    for index in range(model.ngeom):
+        body_name = model.body(int(model.geom_bodyid[index])).name
+        if model.geom_type[index] != mujoco.mjtGeom.mjGEOM_CAPSULE:
+            continue
+        if body_name.endswith("_hip_body"):
+            leg_geoms["thigh"].append(index)
+        elif body_name.endswith("_knee_body"):
+            leg_geoms["knee"].append(index)
+    out = {name: np.full(len(q), np.inf) for name in ("trunk", "thigh", "knee")}
+    half = model.geom_size[trunk]
+    for row, configuration in enumerate(np.asarray(q, dtype=float)):
+        data.qpos[:3] = configuration[:3]
+        data.qpos[3] = configuration[6]
+        data.qpos[4:7] = configuration[3:6]
+        data.qpos[7:] = configuration[7:]
+        mujoco.mj_kinematics(model, data)
+        rotation = data.geom_xmat[trunk].reshape(3, 3)
+        out["trunk"][row] = data.geom_xpos[trunk][2] - float(np.abs(rotation[2]) @ half)
+        for name, geoms in leg_geoms.items():
+            for geom in geoms:
+                radius, half_length = model.geom_size[geom][0], model.geom_size[geom][1]
+                centre = data.geom_xpos[geom]
+                axis_z = data.geom_xmat[geom].reshape(3, 3)[2, 2]
+                ends = (centre[2] + half_length * axis_z, centre[2] - half_length * axis_z)
+                # the knee is the shank capsule's upper end (the joint with the thigh)
+                z = min(ends) if name == "thigh" else _shank_top(model, data, geom, half_length)
+                out[name][row] = min(out[name][row], z - radius)
+    return out
+
+
+def _shank_top(model: mujoco.MjModel, data: mujoco.MjData, geom: int, half_length: float) -> float:
+    """Height of the end of a shank capsule nearer to its body's origin (the knee joint)."""
+    centre = data.geom_xpos[geom]
+    axis = data.geom_xmat[geom].reshape(3, 3)[:, 2]
+    origin = data.xpos[int(model.geom_bodyid[geom])]
+    ends = (centre + half_length * axis, centre - half_length * axis)
+    top = min(ends, key=lambda end: float(np.linalg.norm(end - origin)))
+    return float(top[2])
+
+
+# --------------------------------------------------------------------------------------------------
+# The task block
+# --------------------------------------------------------------------------------------------------
+
+
+def measured_touchdown(log: SimulationLog, task: AcrobaticTask, control_period: float) -> float | None:
+    """Time of the first foot contact after the measured flight (see the module docstring)."""
+    times, contacts = log.time, log.contacts
+    window = (times >= task.takeoff - FLIGHT_SEARCH_MARGIN_S) & (
+        times <= task.touchdown + FLIGHT_SEARCH_MARGIN_S + LANDING_WINDOW_S
+    )
+    airborne = ~contacts.any(axis=1)
+    needed = max(1, round(MIN_FLIGHT_S / control_period))
+    run = 0
+    for tick in np.flatnonzero(window):
+        if airborne[tick]:
+            run += 1
+        elif run >= needed:
+            return float(times[tick])
+        else:
+            run = 0
+    return None
+
+
+def task_metrics(
+    robot: Robot,
+    log: SimulationLog,
+    task: AcrobaticTask,
+    control_period: float,
+    requested: np.ndarray | None = None,
+    planned_stance: np.ndarray | None = None,
+    mu: float = 0.6,
+    limits: np.ndarray | None = None,
+) -> dict:
+    """The ``task`` block of ``metrics.json`` (see the module docstring). ``requested``: the low-level
+    controller's torques before clamping (ticks, nu), ``planned_stance``: the plan knot's stance per tick,
+    ``limits``: the torque limits the controller enforces (default: the robot table's plan limits)."""
+    from cafe_mpc.report.metrics import friction_cone_violations_post_hoc
+
+    times = log.time
+    roll_turned = float(np.sum(log.v[:, 3]) * control_period) if log.ticks else 0.0
+    touchdown = measured_touchdown(log, task, control_period)
+    clearance = body_floor_clearance(robot, log.q) if log.ticks else {}
+    lowest = {name: float(np.min(values)) for name, values in clearance.items()}
+    body_contact = any(value < CONTACT_TOLERANCE_M for value in lowest.values())
+    tilt = np.array([base_tilt(q) for q in log.q])
+    landed, upright, all_feet_time, tilt_max_window = False, False, None, None
+    roll_at_touchdown, stayed_up_s = None, 0.0
+    if touchdown is not None:
+        after = times >= touchdown - 1e-9
+        landing = after & (times <= touchdown + LANDING_WINDOW_S)
+        all_down = np.flatnonzero(landing & log.contacts.all(axis=1))
+        if len(all_down):
+            all_feet_time = float(times[all_down[0]])
+        landed = all_feet_time is not None and not body_contact and not log.fell
+        roll_at_touchdown = float(np.sum(log.v[times < touchdown - 1e-9, 3]) * control_period)
+        end = float(times[-1]) + control_period
+        stayed_up_s = (log.fall_time if log.fell else end) - touchdown
+        landing = all_feet_time if all_feet_time is not None else touchdown
+        window = (times >= landing - 1e-9) & (times < landing + UPRIGHT_WINDOW_S - 1e-9)
+        if window.any():
+            tilt_max_window = float(np.max(tilt[window]))
+        upright = (
+            tilt_max_window is not None
+            and tilt_max_window < UPRIGHT_TILT_RAD
+            and end >= landing + UPRIGHT_WINDOW_S - 1e-9
+            and not log.fell
+        )
+    stayed_up = touchdown is not None and stayed_up_s >= STAY_UP_S - 1e-9 and not log.fell
+    roll = (times >= task.start - 1e-9) & (times <= task.end + 1e-9)
+    motor_limits = robot.plant.motor_torque_limits
+    motor_violations = int(np.sum(np.any(np.abs(log.torque_command[roll]) > motor_limits + 1e-9, axis=1)))
+    request_violations = None
+    if requested is not None:
+        request = np.nan_to_num(np.asarray(requested)[roll], nan=0.0)
+        enforced = robot.torque_limits if limits is None else np.asarray(limits, dtype=float)
+        request_violations = int(np.sum(np.any(np.abs(request) > enforced + 1e-9, axis=1)))
+    cone = None
+    if log.ticks and roll.any():
+        stance = log.contacts if planned_stance is None else np.asarray(planned_stance, dtype=bool)
+        ticks = np.flatnonzero(roll)
+        cone = friction_cone_violations_post_hoc(robot, _rows(log, ticks), stance[ticks], mu)
+    roll_ok = roll_turned >= task.roll_target - ROLL_TOLERANCE_RAD
+    success = bool(roll_ok and landed and upright and stayed_up and motor_violations == 0)
+    return {
+        "name": task.name,
+        "success": success,
+        "roll_turned_rad": roll_turned,
+        "roll_target_rad": task.roll_target,
+        "roll_turned_at_touchdown_rad": roll_at_touchdown,
+        "max_base_height_m": float(np.max(log.q[:, 2])) if log.ticks else None,
+        "landed": bool(landed),
+        "upright_after": bool(upright),
+        "stayed_up": bool(stayed_up),
+        "stayed_up_s": float(stayed_up_s),
+        "planned_start_s": task.start,
+        "planned_takeoff_s": task.takeoff,
+        "planned_touchdown_s": task.touchdown,
+        "touchdown_s": touchdown,
+        "all_feet_down_s": all_feet_time,
+        "tilt_max_first_second_after_landing_rad": tilt_max_window,
+        "tilt_at_touchdown_rad": float(tilt[times >= touchdown - 1e-9][0]) if touchdown is not None else None,
+        "tilt_final_rad": float(tilt[-1]) if len(tilt) else None,
+        "lowest_trunk_m": lowest.get("trunk"),
+        "lowest_thigh_m": lowest.get("thigh"),
+        "lowest_knee_m": lowest.get("knee"),
+        "roll_motor_torque_limit_violations": motor_violations,
+        "roll_requested_torque_limit_violations": request_violations,
+        "roll_friction_cone_violations": cone,
+        "criteria": {
+            "roll_turned": f"integral of the body roll rate over the run >= {task.roll_target:.4f} - "
+            f"{ROLL_TOLERANCE_RAD} rad",
+            "touchdown": f"first foot contact after >= {MIN_FLIGHT_S} s with all feet off the floor, within "
+            f"{FLIGHT_SEARCH_MARGIN_S} s of the planned flight",
+            "landed": f"all four feet on the floor within {LANDING_WINDOW_S} s of the touchdown; no fall; "
+            f"trunk, thighs and knees never below {CONTACT_TOLERANCE_M} m (geometric: the plant's legs do "
+            "not collide)",
+            "upright_after": f"base tilt < {UPRIGHT_TILT_RAD} rad at every tick of the {UPRIGHT_WINDOW_S} s "
+            "after the landing (the first tick with all four feet down; the touchdown if they never are)",
+            "stayed_up": f"no fall for >= {STAY_UP_S} s after the touchdown",
+            "violations": "during the roll (trajectory start to end): commanded torque above the motor "
+            "limits; request before clamping above the limits the controller enforces; friction cone of "
+            "the forces the commanded torque implies with the plan's stance feet held",
+            "success": "roll_turned and landed and upright_after and stayed_up and no motor torque-limit "
+            "violation during the roll",
+        },
+    }
+
+
+def _rows(log: SimulationLog, ticks: np.ndarray) -> SimulationLog:
+    """The log restricted to ``ticks`` (for the post-hoc scorers)."""
+    return SimulationLog(
+        log.time[ticks],
+        log.q[ticks],
+        log.v[ticks],
+        log.torque_command[ticks],
+        log.torque_applied[ticks],
+        log.foot_forces[ticks],
+        log.contacts[ticks],
+        log.external_force[ticks],
+        len(ticks),
+    )
+
+
+def reference_trace(
+    reference: Reference, times: np.ndarray, nq: int, nv: int, nu: int, n_feet: int
+) -> np.ndarray:
+    """The reference configuration ``q`` (len(times), nq) at ``times`` (for plots; references that re-anchor
+    on the measurement are sampled at their last anchor)."""
+    out = np.zeros((len(times), nq))
+    chunk = 256
+    window = ReferenceWindow(chunk, nq, nv, nu, n_feet)
+    for begin in range(0, len(times), chunk):
+        part = times[begin : begin + chunk]
+        window.set_times(part)
+        reference.sample(window)
+        out[begin : begin + len(part)] = window.state[:, :nq]
+    return out
