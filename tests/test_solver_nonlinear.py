@@ -137,6 +137,24 @@ def test_hybrid_bounce_meets_switching_constraint() -> None:
     assert again.switching_violation < 1e-3
 
 
+def test_a_time_budget_stop_still_updates_the_augmented_lagrangian() -> None:
+    """The MPC's wall-clock stop must not freeze the touchdown multipliers and penalties: they warm-start the
+    next update (a budget stop that skipped the AL update left them at their initial values forever)."""
+    dt = 0.02
+    flight = Phase([PointMassFlight(dt)] * 20, PointMassFlight(None), name="flight")
+    flight.switching_constraint = TouchdownConstraint()
+    flight.reset_map = BounceReset(restitution=0.7)
+    rebound = Phase([PointMassFlight(dt)] * 20, PointMassFlight(None, target_height=0.4), name="rebound")
+    problem = MultiPhaseProblem(x0=np.array([1.0, 0.0]), phases=[flight, rebound])
+    options = SolverOptions(time_budget=1e-6, max_al_iterations=1, al_initial_penalty=20.0)
+    result = MSiLQRSolver(options).solve(problem)
+    assert result.status == "time_budget"
+    phase = result.phases[0]
+    assert result.switching_violation > options.al_update_threshold
+    assert phase.penalty == pytest.approx(20.0 * options.al_penalty_growth)  # updated after the stop
+    assert result.policy_valid  # the final backward sweep priced the updated AL terms
+
+
 def test_torque_limit_through_relaxed_barrier() -> None:
     barrier = RelaxedBarrier(delta=0.01, eps=0.1)
     weights = {"torque_weight": 0.01, "terminal_weight": 10.0}

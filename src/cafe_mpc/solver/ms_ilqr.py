@@ -199,14 +199,17 @@ class MSiLQRSolver:
                 ):
                     inner_converged, status = True, "converged"
                     break
-            if status in ("regularization_limit", "non_finite", "time_budget"):
+            if status in ("regularization_limit", "non_finite"):
                 break
             if nominal.switching_violation <= options.switching_tolerance:
                 break
-            # Also after the last AL iteration: the parameters warm-start the next (MPC) solve.
+            # Also after the last AL iteration and when the wall-clock budget ran out: the parameters
+            # warm-start the next (MPC) solve (skipping it on a budget stop froze the touchdown multipliers).
             self._update_augmented_lagrangian(workspace)
             nominal = self._totals_from_nominal(workspace, nominal)
             policy_valid = False
+            if status == "time_budget":
+                break
 
         if options.final_backward_pass and not policy_valid and status != "non_finite":
             clock = time.perf_counter()
