@@ -220,7 +220,11 @@ class RecedingHorizonMpc:
         return self.previous is not None
 
     def update(self, t: float, q: np.ndarray, v: np.ndarray) -> Plan | None:
-        """One MPC update from the state measured at ``t``; ``None`` (counted and logged) if it failed."""
+        """One MPC update from the state measured at ``t``; ``None`` (counted and logged) if it failed.
+
+        The steps are ``_build`` (reference update + problem with references written in place), ``_solve``
+        (warm start + MS-iLQR) and ``_plan`` (the message to the low level); another planner over the same
+        loop (the template baseline, ``mpc/template.py``) overrides them."""
         robot = self.robot
         self._x[: robot.nq] = q
         self._x[robot.nq :] = v
@@ -228,23 +232,15 @@ class RecedingHorizonMpc:
         start = time.perf_counter()
         try:
             self.reference.update(t, q, v)
-            built = self.builder.build(t, self._x.copy(), self.reference)
-            previous_built, previous_solution = self.previous if self.previous else (None, None)
-            guess = self.warm_start.guess(built, previous_built, previous_solution)
+            built = self._build(t)
             problem_time = time.perf_counter() - start
-            solver = self.first_solver if first else self.solver
-            result = solver.solve(
-                built.problem,
-                guess.xs,
-                guess.us,
-                guess.rollout,
-                initial_multipliers=guess.multipliers,
-                initial_penalties=guess.penalties,
-            )
-            plan = plan_from_solution(built, result)
+            result = self._solve(built, self.first_solver if first else self.solver)
+            plan = self._plan(built, result)
         except (ValueError, FloatingPointError, np.linalg.LinAlgError, RuntimeError) as error:
             self.statistics.failures += 1
-            logger.warning("MPC update at t = %.3f s failed (%s); keeping the previous plan", t, error)
+            logger.warning(
+                "%s update at t = %.3f s failed (%s); keeping the previous plan", self.name, t, error
+            )
             return None
         elapsed = time.perf_counter() - start
         self.statistics.record(t, result, elapsed, problem_time)
@@ -253,11 +249,32 @@ class RecedingHorizonMpc:
         if result.status == "non_finite" or not result.policy_valid:
             self.statistics.failures += 1
             logger.warning(
-                "MPC update at t = %.3f s returned %s; keeping the previous plan", t, result.status
+                "%s update at t = %.3f s returned %s; keeping the previous plan", self.name, t, result.status
             )
             return None
         self.previous = (built, result)
         return plan
+
+    name = "MPC"
+    """How log messages name this planner."""
+
+    def _build(self, t: float):
+        return self.builder.build(t, self._x.copy(), self.reference)
+
+    def _solve(self, built, solver: MSiLQRSolver) -> SolverResult:
+        previous_built, previous_solution = self.previous if self.previous else (None, None)
+        guess = self.warm_start.guess(built, previous_built, previous_solution)
+        return solver.solve(
+            built.problem,
+            guess.xs,
+            guess.us,
+            guess.rollout,
+            initial_multipliers=guess.multipliers,
+            initial_penalties=guess.penalties,
+        )
+
+    def _plan(self, built, result: SolverResult) -> Plan:
+        return plan_from_solution(built, result)
 
 
 def plan_from_solution(built: BuiltProblem, result: SolverResult) -> Plan:

@@ -38,7 +38,6 @@ from __future__ import annotations
 
 import logging
 import math
-import time
 from dataclasses import dataclass, field, replace
 
 import numpy as np
@@ -55,7 +54,7 @@ from cafe_mpc.dynamics.srb import (
     quaternion_to_rotation,
 )
 from cafe_mpc.dynamics.transition import whole_body_to_srb_state
-from cafe_mpc.mpc.receding_horizon import MpcSettings, MpcStatistics
+from cafe_mpc.mpc.receding_horizon import MpcSettings, RecedingHorizonMpc
 from cafe_mpc.ocp.constraints import BarrierParameters
 from cafe_mpc.ocp.costs import SRBWeights
 from cafe_mpc.ocp.knots import SRBKnot, SRBKnotData, SRBReference
@@ -470,14 +469,16 @@ class TemplateProblemBuilder:
 # --------------------------------------------------------------------------------------------------
 
 
-class TemplateMpc:
+class TemplateMpc(RecedingHorizonMpc):
     """Template-MPC updates: SRB problem -> warm start -> MS-iLQR -> ``TemplatePlan``.
 
-    The same interface as ``mpc.receding_horizon.RecedingHorizonMpc`` (``update``, ``reset``, ``started``,
-    ``settings``, ``statistics``, ``reference``, ``builder``), so the policy side
-    (``control.mpc_loop.CafeMpcController``: fixed or measured latency) runs it unchanged. ``settings``:
-    the same receding-horizon settings as CAFE-MPC (period, latency, iterations per update, first solve).
+    The update loop (timing, statistics, failure handling) is ``RecedingHorizonMpc``'s; this class supplies
+    the template's problem, warm start and plan, so the policy side (``control.mpc_loop.CafeMpcController``:
+    fixed or measured latency) runs it unchanged. ``settings``: the same receding-horizon settings as
+    CAFE-MPC (period, latency, iterations per update, first solve).
     """
+
+    name = "template MPC"
 
     def __init__(
         self,
@@ -486,58 +487,19 @@ class TemplateMpc:
         builder: TemplateProblemBuilder,
         settings: MpcSettings | None = None,
     ) -> None:
-        self.robot = robot
-        self.reference = reference
-        self.builder = builder
-        self.settings = settings or MpcSettings()
-        self.first_solver = MSiLQRSolver(self.settings.first_solve)
-        self.solver = MSiLQRSolver(self.settings.update_solve)
-        self.statistics = MpcStatistics()
-        self.previous: tuple[TemplateProblem, SolverResult] | None = None
-        self._x = np.zeros(robot.nq + robot.nv)
+        super().__init__(robot, reference, builder, settings)  # type: ignore[arg-type]
 
-    def reset(self) -> None:
-        self.previous = None
-        self.statistics = MpcStatistics()
+    def _build(self, t: float) -> TemplateProblem:
+        return self.builder.build(t, self._x, self.reference)
 
-    @property
-    def started(self) -> bool:
-        """Whether a first (cold) solve has succeeded."""
-        return self.previous is not None
+    def _solve(self, built: TemplateProblem, solver: MSiLQRSolver) -> SolverResult:
+        xs, us = self._guess(built)
+        if self.builder.settings.leg_torque_limits:
+            self.builder.update_torque_maps(built, xs)
+        return solver.solve(built.problem, [xs], [us], None)
 
-    def update(self, t: float, q: np.ndarray, v: np.ndarray) -> TemplatePlan | None:
-        """One update from the state measured at ``t``; ``None`` (counted and logged) if it failed."""
-        robot = self.robot
-        self._x[: robot.nq] = q
-        self._x[robot.nq :] = v
-        first = self.previous is None
-        start = time.perf_counter()
-        try:
-            self.reference.update(t, q, v)
-            built = self.builder.build(t, self._x, self.reference)
-            xs, us = self._guess(built)
-            if self.builder.settings.leg_torque_limits:
-                self.builder.update_torque_maps(built, xs)
-            problem_time = time.perf_counter() - start
-            solver = self.first_solver if first else self.solver
-            result = solver.solve(built.problem, [xs], [us], None)
-            plan = template_plan(built, result)
-        except (ValueError, FloatingPointError, np.linalg.LinAlgError, RuntimeError) as error:
-            self.statistics.failures += 1
-            logger.warning(
-                "template MPC update at t = %.3f s failed (%s); keeping the previous plan", t, error
-            )
-            return None
-        elapsed = time.perf_counter() - start
-        self.statistics.record(t, result, elapsed, problem_time)
-        if first:
-            self.statistics.first_solve_time = elapsed
-        if result.status == "non_finite" or not result.policy_valid:
-            self.statistics.failures += 1
-            logger.warning("template MPC update at t = %.3f s returned %s", t, result.status)
-            return None
-        self.previous = (built, result)
-        return plan
+    def _plan(self, built: TemplateProblem, result: SolverResult) -> TemplatePlan:
+        return template_plan(built, result)
 
     def _guess(self, built: TemplateProblem) -> tuple[np.ndarray, np.ndarray]:
         """Warm start by knot time: grid knots solved before keep their state and GRFs (shooting knots);
