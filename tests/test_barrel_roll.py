@@ -32,12 +32,15 @@ def test_preset_loads_with_its_reference_section():
         ),
         (["reference.segments.1.trajectory=missing.npz"], "missing.npz: does not exist"),
         (["reference.segments.1.trajectory=null"], "a trajectory segment needs 'trajectory'"),
-        (["reference.segments.0.duration=null"], "segments.0: a stand needs a duration"),
+        (
+            ["reference.segments.0.duration=null"],
+            "segments.0: a stand segment needs a duration unless it is the last one",
+        ),
         (["reference.segments.0.height=0.9"], "reference.segments.0: command height = 0.9 m is outside"),
         (["reference.segments=[]"], "reference.segments: List should have at least 1 item"),
         (
             ["reference.segments.1.kind=flip"],
-            "reference.segments.1.kind: Input should be 'stand' or 'trajectory'",
+            "reference.segments.1.kind: Input should be 'stand', 'trajectory' or 'gait'",
         ),
         (["gait={name: trot}"], "give either a gait section or a reference section"),
         (["wbc=pd"], "wbc: 'pd' stands in place and cannot follow a reference"),

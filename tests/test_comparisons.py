@@ -165,7 +165,15 @@ def test_iteration_shares():
 
 
 def test_experiment_help_and_list_show_the_registry(capsys):
-    names = ["schedules", "solve-times", "trot-schedules", "push", "warm-start", "reliability"]
+    names = [
+        "schedules",
+        "solve-times",
+        "trot-schedules",
+        "push",
+        "warm-start",
+        "reliability",
+        "template-vs-cafe",
+    ]
     assert experiment_names() == names
     with pytest.raises(SystemExit):
         main(["experiment", "--help"])

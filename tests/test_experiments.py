@@ -21,6 +21,7 @@ from cafe_mpc.experiments.controllers import LowLevelRecorder, build_controller,
 from cafe_mpc.experiments.run import run
 from cafe_mpc.reference.locomotion import VelocityCommand, quaternion_from_yaw
 from cafe_mpc.report.metrics import (
+    METRICS_WINDOW_START_S,
     foot_slip_max,
     foot_trajectories,
     tracking_metrics,
@@ -162,15 +163,17 @@ def test_overrides_reach_the_controller(robot):
 
 
 def test_start_stance_reaches_the_reference(robot):
-    for preset in ("bound", "bound-push", "pronk", "flying-trot"):  # dynamic gaits start from a short stand
+    gait_presets = ("trot", "pace", "bound", "bound-push", "pronk", "flying-trot", "trot-commands")
+    for preset in gait_presets:  # every gait starts from a short stand, then ramps in its commands
         assert load_config(preset).gait.start_stance == 0.2
-    assert load_config("trot").gait.start_stance == 0.0
+        assert load_config(preset).gait.command_ramp == 0.5
     assert load_config("stand", ["wbc=riccati", "gait.name=pace"]).gait.start_stance == 0.0  # the default
+    assert load_config("stand", ["wbc=riccati", "gait.name=pace"]).gait.command_ramp == 0.0
     config = load_config("trot", ["gait.start_stance=0.35"])
     assert config.gait.start_stance == 0.35
     reference = build_controller(config, robot).reference
     assert reference.start_stance == 0.35 and reference.cycle_start == 0.35
-    assert build_controller(load_config("trot"), robot).reference.start_stance == 0.0
+    assert build_controller(load_config("trot", ["gait.start_stance=0"]), robot).reference.start_stance == 0.0
 
 
 def test_run_help_lists_presets(capsys):
@@ -208,8 +211,11 @@ def straight_line(robot, speed: float, yaw: float, seconds: float = 1.0, dt: flo
 @pytest.mark.parametrize("yaw", [0.0, 1.2])
 def test_tracking_of_a_constant_velocity_log_is_exact(robot, yaw):
     q, v = straight_line(robot, 0.5, yaw)
-    metrics = tracking_metrics(robot, synthetic_log(robot, q, v), [VelocityCommand(0.0, 0.5)])
+    log = synthetic_log(robot, q, v)
+    metrics = tracking_metrics(robot, log, [VelocityCommand(0.0, 0.5)], window_start=METRICS_WINDOW_START_S)
     assert metrics["metrics_window_start_s"] == 0.5
+    whole = tracking_metrics(robot, log, [VelocityCommand(0.0, 0.5)])  # the default: the whole run
+    assert whole["metrics_window_start_s"] == 0.0 and whole["vx_rms_error"] == pytest.approx(0.0, abs=1e-9)
     assert metrics["vx_mean"] == pytest.approx(0.5)
     for key in ("vx_rms_error", "vy_rms_error", "yaw_rate_rms_error", "height_rms_error"):
         assert metrics[key] == pytest.approx(0.0, abs=1e-9), key
@@ -221,13 +227,21 @@ def test_tracking_errors_against_changing_commands(robot):
     q, v = straight_line(robot, 0.5, 0.0, seconds=2.0)
     v[:, 5] = 0.2  # yaw rate about the (level) body z axis
     commands = [VelocityCommand(0.0, 0.5), VelocityCommand(1.0, 0.8, yaw_rate=0.2, height=0.27)]
-    metrics = tracking_metrics(robot, synthetic_log(robot, q, v), commands)
+    metrics = tracking_metrics(
+        robot, synthetic_log(robot, q, v), commands, window_start=METRICS_WINDOW_START_S
+    )
     # from 0.5 s: 0.5 s at zero error, 1 s at 0.3 m/s error -> RMS 0.3 sqrt(2/3)
     assert metrics["vx_rms_error"] == pytest.approx(0.3 * math.sqrt(2.0 / 3.0), rel=1e-2)
     assert metrics["yaw_rate_rms_error"] == pytest.approx(0.2 * math.sqrt(1.0 / 3.0), rel=1e-2)
     assert metrics["height_rms_error"] == pytest.approx(0.02 * math.sqrt(2.0 / 3.0), rel=1e-2)
-    short = tracking_metrics(robot, synthetic_log(robot, q[:100], v[:100]), commands)
+    short = tracking_metrics(
+        robot, synthetic_log(robot, q[:100], v[:100]), commands, window_start=METRICS_WINDOW_START_S
+    )
     assert short["metrics_window_start_s"] == 0.0 and short["vx_mean"] == pytest.approx(0.5)
+    # the whole run: 1 s at zero error, 1 s at 0.3 m/s -> RMS 0.3 sqrt(1/2); the largest yaw-rate error 0.2
+    whole = tracking_metrics(robot, synthetic_log(robot, q, v), commands)
+    assert whole["vx_rms_error"] == pytest.approx(0.3 * math.sqrt(0.5), rel=1e-2)
+    assert whole["yaw_rate_error_abs_max"] == pytest.approx(0.2, rel=1e-6)
 
 
 def test_foot_slip_is_the_largest_slide_within_one_contact(robot):

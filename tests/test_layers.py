@@ -28,7 +28,7 @@ LAYERS: list[tuple[str, ...]] = [
     ("wbc",),  # low-level controllers: PD, Riccati (33), VWBC (34)
     ("control",),  # closed loops: the MPC loop over a low-level controller, a plan follower
     ("sim",),  # MuJoCo plant, closed-loop simulation, Pinocchio-vs-MuJoCo consistency
-    ("experiments", "report", "bench", "config"),  # runs, comparisons, metrics, plots, benchmarks, configs
+    ("experiments", "report", "bench", "config", "api"),  # runs, metrics, plots, benchmarks, configs, library
     ("cli",),  # the cafe-mpc command
 ]
 """Layers from the bottom up; a name is a subpackage (``cafe_mpc/<name>/``) or a module (``<name>.py``)."""

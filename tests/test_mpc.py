@@ -150,7 +150,7 @@ def test_mpc_closed_loop_stands(robot):
         reference,
         _builder(robot, ModelSchedule.named("S1")),
         RiccatiController(robot),
-        MpcSettings(period=0.02),
+        MpcSettings(period=0.02, latency="fixed"),  # deterministic: 15 updates in 0.3 s
     )
     log = simulate(robot, controller, 0.3)
     assert not log.fell

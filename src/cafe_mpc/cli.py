@@ -1,4 +1,4 @@
-"""Command line: ``cafe-mpc run | experiment | robot | bench | optimize``.
+"""Command line: ``cafe-mpc run | experiment | report | robot | bench | optimize``.
 
 Every user error (bad preset, key, value, robot file, NaN state) ends with one line ``cafe-mpc: error: ...``
 on stderr and a non-zero exit code, never a traceback.
@@ -29,7 +29,7 @@ def _command_run(arguments: argparse.Namespace) -> int:
         overrides.append("simulation.realtime=true")
     config = load_config(arguments.config, overrides)
     out_dir = Path(arguments.out) if arguments.out else default_out_dir(config)
-    result = run(config, out_dir, show_progress=True)
+    result = run(config, out_dir, show_progress=True, viewer=arguments.viewer)
     metrics = result.metrics
     print(
         f"{config.name}: fell={metrics['fell']} base_height_mean={metrics['base_height_mean']:.3f} m "
@@ -163,7 +163,9 @@ def _gait_summary(metrics: dict) -> str:
     """One line of tracking, MPC and low-level numbers for a gait run."""
     mpc, wbc = metrics.get("mpc") or {}, metrics.get("wbc") or {}
     return (
-        f"vx_mean={_number(metrics.get('vx_mean'))} m/s (window from {metrics['metrics_window_start_s']} s) "
+        f"vx_mean={_number(metrics.get('vx_mean'))} m/s (whole run; "
+        f"{_number((metrics.get('steady_state') or {}).get('vx_mean'))} from "
+        f"{(metrics.get('steady_state') or {}).get('metrics_window_start_s')} s) "
         f"vx_rms_error={_number(metrics.get('vx_rms_error'))} "
         f"pitch_rms={_number(metrics.get('pitch_rms'))} rad; "
         f"mpc ({(metrics.get('timing') or {}).get('mode')} latency) solves={mpc.get('solves')} "
@@ -174,6 +176,14 @@ def _gait_summary(metrics: dict) -> str:
         f"friction cone violations {wbc.get('friction_cone_violations')}, "
         f"foot slip max {_number(wbc.get('foot_slip_max_m'), 4)} m"
     )
+
+
+def _command_report(arguments: argparse.Namespace) -> int:
+    from cafe_mpc.report.html import write_report
+
+    path = write_report(Path(arguments.folder))
+    print(f"report written to {path} (self-contained: open it in a browser, or share the file)")
+    return 0
 
 
 def _command_robot(arguments: argparse.Namespace) -> int:
@@ -295,7 +305,10 @@ def build_parser() -> argparse.ArgumentParser:
             "  cafe-mpc run bound                      # bound forward at 0.5 m/s (CAFE-MPC + VWBC), 10 s\n"
             "  cafe-mpc run bound --duration 2 --set wbc=riccati --set mpc.schedule=S0\n"
             "  cafe-mpc run trot --set gait.commands.0.vx=0.8 --set mpc.period=0.03\n"
-            "  cafe-mpc run bound-push --set wbc=riccati   # the paper's push test, Riccati controller"
+            "  cafe-mpc run bound-push --set wbc=riccati   # the paper's push test, Riccati controller\n"
+            "  cafe-mpc run trot --viewer                  # watch it live, with the plan drawn\n"
+            "  cafe-mpc run trot --set plant.floor_friction=0.3 --set mpc.friction=0.6   # slippery floor\n"
+            "  cafe-mpc run trot --set 'scene.terrain=[{kind: steps, rise: 0.02}]'"
         ),
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
@@ -308,7 +321,14 @@ def build_parser() -> argparse.ArgumentParser:
         metavar="KEY=VALUE",
         help="override a config key by its dotted path; repeatable",
     )
-    run_parser.add_argument("--render", action="store_true", help="write a video (needs off-screen GL)")
+    run_parser.add_argument(
+        "--render", action="store_true", help="write a video with the plan drawn in it (needs off-screen GL)"
+    )
+    run_parser.add_argument(
+        "--viewer",
+        action="store_true",
+        help="watch the run live in MuJoCo's viewer with the current plan drawn (needs a display)",
+    )
     run_parser.add_argument(
         "--realtime",
         action="store_true",
@@ -317,6 +337,21 @@ def build_parser() -> argparse.ArgumentParser:
     run_parser.set_defaults(handler=_command_run)
 
     _add_experiment_parser(commands)
+
+    report_parser = commands.add_parser(
+        "report",
+        help="write index.html for a run or an experiment folder (metrics, plots, video; self-contained)",
+        description=(
+            "Write DIR/index.html: for a run folder the metrics tables, plots, video and config; for an\n"
+            "experiment folder the comparison table, its figures and one row per variant with a link to the\n"
+            "variant's own index.html (written too). Images and video are embedded: the file opens from the\n"
+            "file system and can be shared alone."
+        ),
+        epilog="examples:\n  cafe-mpc report runs/20261123-120000-trot\n  cafe-mpc report runs/fig6",
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    report_parser.add_argument("folder", help="a run folder (metrics.json) or an experiment folder")
+    report_parser.set_defaults(handler=_command_report)
 
     robot_parser = commands.add_parser("robot", help="robot summary and Pinocchio/MuJoCo consistency check")
     robot_parser.add_argument("name", help="robot name (mini_cheetah, go1) or robot YAML file")
@@ -384,14 +419,23 @@ def main(argv: list[str] | None = None) -> int:
     from cafe_mpc.config import ConfigError
     from cafe_mpc.control.realtime import MpcProcessError
     from cafe_mpc.experiments.registry import SweepError
+    from cafe_mpc.report.html import ReportError
     from cafe_mpc.robots.robot import RobotLoadError
     from cafe_mpc.sim.loop import ControllerError
     from cafe_mpc.sim.plant import SimulationDiverged
+    from cafe_mpc.sim.viewer import ViewerUnavailable
     from cafe_mpc.trajopt.task import TrajOptTaskError
 
     try:
         return int(arguments.handler(arguments))
-    except (ConfigError, RobotLoadError, TrajOptTaskError, FileExistsError) as error:
+    except (
+        ConfigError,
+        RobotLoadError,
+        TrajOptTaskError,
+        FileExistsError,
+        ViewerUnavailable,
+        ReportError,
+    ) as error:
         print(f"cafe-mpc: error: {error}", file=sys.stderr)
         return EXIT_USAGE
     except (SimulationDiverged, ControllerError, MpcProcessError, SweepError, ValueError) as error:

@@ -25,6 +25,7 @@ if TYPE_CHECKING:  # heavy modules (Pinocchio) are imported only where a value i
     from cafe_mpc.reference.locomotion import VelocityCommand
     from cafe_mpc.robots.robot import Robot
     from cafe_mpc.sim.randomization import PlantVariation, SensorModel
+    from cafe_mpc.sim.terrain import Terrain
 
 PRESET_DIR = Path(__file__).parent / "configs"
 
@@ -130,6 +131,13 @@ class GaitConfig(StrictModel):
     start_stance: float = Field(
         0.0, ge=0.0, le=3600.0, description="s of all-feet stand before the gait's first cycle starts"
     )
+    command_ramp: float = Field(
+        0.0,
+        ge=0.0,
+        le=60.0,
+        description="s over which the reference moves linearly to each new command (0: steps); the robot is "
+        "at rest until the gait starts (start_stance), then ramps to the first command",
+    )
     commands: list[CommandConfig] = Field(default_factory=_default_commands, min_length=1)
 
     @field_validator("name")
@@ -183,6 +191,13 @@ class MpcConfig(StrictModel):
         gt=0.0,
         le=1e6,
         description="cap of the touchdown constraint's AL penalty (null: 1e4, the authors'; starts at 20)",
+    )
+    friction: float = Field(
+        0.6,
+        gt=0.0,
+        le=2.0,
+        description="friction coefficient the controller assumes (plan's pyramid, VWBC's cone); the plant's "
+        "own is plant.floor_friction, so a mismatch between the two is explicit",
     )
 
     @field_validator("schedule")
@@ -313,9 +328,10 @@ class TrajectoryCostsConfig(StrictModel):
 class ReferenceSegmentConfig(StrictModel):
     """One piece of a composed reference (``reference.composition.ComposedReference``)."""
 
-    kind: Literal["stand", "trajectory"] = Field(
+    kind: Literal["stand", "trajectory", "gait"] = Field(
         description="stand: the locomotion reference with gait stand; trajectory: a stored whole-body "
-        "trajectory sampled by time (reference.trajectory.TrajectoryReference)"
+        "trajectory sampled by time (reference.trajectory.TrajectoryReference); gait: the locomotion "
+        "reference of a gait section (segment time: its commands start at the segment's start)"
     )
     duration: float | None = Field(
         None,
@@ -326,7 +342,11 @@ class ReferenceSegmentConfig(StrictModel):
     trajectory: str | None = Field(
         None, description="kind trajectory: a packaged trajectory (barrel-roll) or the path of a .npz file"
     )
+    from_phase: int = Field(
+        0, ge=0, description="kind trajectory: the first phase played (0: all; 1: skip the first phase)"
+    )
     height: float | None = Field(None, description="kind stand: body height, m (null: standing height)")
+    gait: GaitConfig | None = Field(None, description="kind gait: the gait section (name, commands, ...)")
     offset: tuple[float, float, float] | None = Field(
         None, description="x (m), y (m), yaw (rad) placement; null: start where the previous segment ends"
     )
@@ -337,8 +357,14 @@ class ReferenceSegmentConfig(StrictModel):
             raise ValueError("a trajectory segment needs 'trajectory' (e.g. barrel-roll or a .npz path)")
         if self.kind == "stand" and self.trajectory is not None:
             raise ValueError("'trajectory' belongs to segments of kind trajectory, not stand")
-        if self.kind == "trajectory" and self.height is not None:
-            raise ValueError("'height' belongs to segments of kind stand, not trajectory")
+        if self.kind != "stand" and self.height is not None:
+            raise ValueError(f"'height' belongs to segments of kind stand, not {self.kind}")
+        if self.kind == "gait" and self.gait is None:
+            raise ValueError("a gait segment needs 'gait' (e.g. {name: flying_pace, commands: [{vx: 0.8}]})")
+        if self.kind != "gait" and self.gait is not None:
+            raise ValueError(f"'gait' belongs to segments of kind gait, not {self.kind}")
+        if self.kind != "trajectory" and self.from_phase:
+            raise ValueError(f"'from_phase' belongs to segments of kind trajectory, not {self.kind}")
         if self.offset is not None and not all(math.isfinite(value) for value in self.offset):
             raise ValueError(f"offset must be finite, got {self.offset}")
         return self
@@ -358,12 +384,115 @@ class ReferenceConfig(StrictModel):
         "and world-frame linear velocity (world), or the tangent-space difference (tangent)",
     )
 
+    join: Literal["fixed", "measured"] = Field(
+        "fixed",
+        description="where a segment without an offset starts: fixed, where the previous one ends as planned "
+        "at the start; measured, re-joined at every MPC update to the end the active segment predicts from "
+        "the measurement (a locomotion segment re-anchors on it), until the segment starts",
+    )
+
     @model_validator(mode="after")
     def _segments_valid(self) -> ReferenceConfig:
         for index, segment in enumerate(self.segments[:-1]):
-            if segment.kind == "stand" and segment.duration is None:
-                raise ValueError(f"segments.{index}: a stand needs a duration unless it is the last segment")
+            if segment.kind in ("stand", "gait") and segment.duration is None:
+                raise ValueError(
+                    f"segments.{index}: a {segment.kind} segment needs a duration unless it is the last one"
+                )
         return self
+
+
+class TerrainConfig(StrictModel):
+    """A piece of terrain in the plant's scene (``sim.terrain``: static MuJoCo boxes on the floor along the
+    world x axis). The controller still plans on flat ground: terrain tests its robustness.
+
+    ``slope``: an incline rising at ``angle_deg`` over ``length`` m (horizontal), a flat top of ``top_length``
+    m, then (``descend``) the same incline down. ``steps``: ``count`` steps of ``rise`` m up, each ``run`` m
+    deep, the top, then (``descend``) the same steps down."""
+
+    kind: Literal["slope", "steps"] = Field(description="slope or steps")
+    start: float = Field(1.0, ge=-50.0, le=500.0, description="m, world x where the terrain begins")
+    width: float = Field(2.0, gt=0.0, le=50.0, description="m across (world y), centred on center_y")
+    center_y: float = Field(0.0, ge=-50.0, le=50.0, description="m, world y of the centre line")
+    top_length: float = Field(1.0, ge=0.0, le=100.0, description="m of flat top")
+    descend: bool = Field(True, description="go down again after the top")
+    angle_deg: float | None = Field(None, gt=0.0, le=30.0, description="slope: incline, degrees")
+    length: float | None = Field(None, gt=0.0, le=100.0, description="slope: horizontal length, m")
+    count: int | None = Field(None, ge=1, le=50, description="steps: number of steps up")
+    rise: float | None = Field(None, gt=0.0, le=0.2, description="steps: m per step")
+    run: float | None = Field(None, ge=0.05, le=5.0, description="steps: m of tread per step")
+
+    @model_validator(mode="before")
+    @classmethod
+    def _kind_fields(cls, data: Any) -> Any:
+        """Fill the kind's own keys with their defaults; reject the other kind's keys."""
+        if not isinstance(data, dict) or data.get("kind") not in _TERRAIN_KEYS:
+            return data
+        data = dict(data)
+        for kind, defaults in _TERRAIN_KEYS.items():
+            for key, default in defaults.items():
+                if kind == data["kind"] and data.get(key) is None:
+                    data[key] = default
+                elif kind != data["kind"] and data.get(key) is not None:
+                    raise ValueError(f"'{key}' belongs to terrain of kind {kind}, not {data['kind']}")
+        return data
+
+
+_TERRAIN_KEYS: dict[str, dict[str, float]] = {
+    "slope": {"angle_deg": 5.0, "length": 1.0},
+    "steps": {"count": 3, "rise": 0.03, "run": 0.3},
+}
+"""Each terrain kind's own keys and their defaults."""
+
+
+class SceneConfig(StrictModel):
+    """What the plant stands on besides its robot: terrain pieces (``sim.terrain``) and a bar to jump over
+    (``sim.bar``). The floor's friction is ``plant.floor_friction``."""
+
+    terrain: list[TerrainConfig] = Field(
+        default_factory=list, description="slopes and steps on the floor (empty: flat floor)"
+    )
+
+    def terrain_pieces(self) -> list[Terrain]:
+        """The plant's ``sim.terrain`` pieces."""
+        from cafe_mpc.sim.terrain import Slope, Steps
+
+        pieces: list[Terrain] = []
+        for item in self.terrain:
+            common = {
+                "start": item.start,
+                "width": item.width,
+                "center_y": item.center_y,
+                "top_length": item.top_length,
+                "descend": item.descend,
+            }
+            if item.kind == "slope":
+                assert item.angle_deg is not None and item.length is not None
+                pieces.append(Slope(angle_deg=item.angle_deg, length=item.length, **common))
+            else:
+                assert item.count is not None and item.rise is not None and item.run is not None
+                pieces.append(Steps(count=item.count, rise=item.rise, run=item.run, **common))
+        return pieces
+
+    bar_height: float | None = Field(
+        None,
+        ge=0.0,
+        le=2.0,
+        description="m, height of a thin horizontal bar's axis above the floor (sim.bar; the running barrel "
+        "roll's 0.4 m cable); 0 or null: no bar",
+    )
+    bar_position: tuple[float, float] = Field((0.0, 0.0), description="m, world (x, y) of the bar's centre")
+    bar_yaw: float = Field(
+        0.0, ge=-math.pi, le=math.pi, description="rad, direction of the bar's axis from the world x axis"
+    )
+    bar_length: float = Field(2.0, gt=0.0, le=20.0, description="m, length of the bar")
+    bar_radius: float = Field(0.005, gt=0.0, le=0.1, description="m, radius of the bar (a capsule)")
+
+    @field_validator("bar_position")
+    @classmethod
+    def _bar_position_finite(cls, value: tuple[float, float]) -> tuple[float, float]:
+        if not all(math.isfinite(item) and abs(item) <= 500.0 for item in value):
+            raise ValueError(f"bar_position must be finite, within 500 m, got {value}")
+        return value
 
 
 class OutputConfig(StrictModel):
@@ -395,6 +524,9 @@ class PlantConfig(StrictModel):
     floor_friction: float | None = Field(
         None, gt=0.0, le=2.0, description="floor and foot sliding friction (null: the robot table's)"
     )
+    mass_scale: float = Field(
+        1.0, ge=0.5, le=1.5, description="every body's mass and inertia (whole robot); times those below"
+    )
     body_mass_scale: float = Field(1.0, ge=0.5, le=1.5, description="trunk mass and inertia factor")
     link_mass_scales: PlantScales = Field(1.0, description="leg-link mass and inertia factors (0.5-1.5)")
     motor_strength_scales: PlantScales = Field(1.0, description="torque per commanded torque (0.5-1.5)")
@@ -424,6 +556,7 @@ class PlantConfig(StrictModel):
             self.body_mass_scale,
             scales(self.link_mass_scales),
             scales(self.motor_strength_scales),
+            mass_scale=self.mass_scale,
         )
 
     def sensor_model(self, control_rate_hz: float) -> SensorModel:
@@ -486,6 +619,9 @@ class RunConfig(StrictModel):
     plant: PlantConfig = Field(
         default_factory=PlantConfig, description="simulated plant and sensors (the controller never sees it)"
     )
+    scene: SceneConfig = Field(
+        default_factory=SceneConfig, description="terrain in the plant's scene (the controller plans flat)"
+    )
     output: OutputConfig = OutputConfig()
 
     @field_validator("robot")
@@ -519,8 +655,10 @@ class RunConfig(StrictModel):
             )
         if self.reference is not None:
             _check_reference(self.robot, self.reference)
-        if self.planner == "template" and self.gait is None:
-            raise ValueError("planner: 'template' needs a gait section (e.g. --set gait.name=trot)")
+        if self.planner == "template" and self.gait is None and self.reference is None:
+            raise ValueError(
+                "planner: 'template' needs a gait section (e.g. --set gait.name=trot) or a reference section"
+            )
         if self.planner == "template" and self.simulation.realtime:
             raise ValueError("planner: 'template' runs in simulated time only (simulation.realtime: false)")
         if self.mpc.period < 1.0 / self.simulation.control_rate_hz - 1e-12:
@@ -561,7 +699,15 @@ def _check_reference(robot_name: str, reference: ReferenceConfig) -> None:
         try:
             if segment.kind == "trajectory":
                 assert segment.trajectory is not None
-                _cached_trajectory(robot_name, segment.trajectory)
+                trajectory = _cached_trajectory(robot_name, segment.trajectory)
+                if segment.from_phase >= trajectory.n_phases:
+                    raise ValueError(
+                        f"from_phase {segment.from_phase}: the trajectory has {trajectory.n_phases} phases"
+                    )
+            elif segment.kind == "gait":
+                assert segment.gait is not None
+                for command in segment.gait.commands:
+                    validate_command(velocity_command(command), robot)
             else:
                 validate_command(VelocityCommand(height=segment.height), robot)
         except ValueError as error:

@@ -82,6 +82,12 @@ class CafeMpcController:
         self.fallback.reset()
         self.low_level.reset()
 
+    def start(self, t: float, state: Measurement) -> None:
+        """Run the cold first solve now, from ``state`` at time ``t`` (before the clock starts, as on the
+        robot); without it the first ``compute`` does. A no-op once the MPC has started."""
+        if not self.mpc.started:
+            self._update(t, state)
+
     def compute(self, t: float, state: Measurement) -> np.ndarray:
         # A plan that comes due now takes effect before the worker starts the next update.
         self._activate_pending(t)

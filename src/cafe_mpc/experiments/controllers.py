@@ -13,6 +13,7 @@ it themselves). The SRB tail gets the robot's own mass and inertia (``dynamics.s
 from __future__ import annotations
 
 import functools
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -32,7 +33,7 @@ from cafe_mpc.ocp.constraints import WholeBodyConstraintSettings
 from cafe_mpc.ocp.contact_schedule import get_gait
 from cafe_mpc.ocp.costs import SRBWeights
 from cafe_mpc.ocp.knots import SRBModelFactory, SRBSettings, WholeBodyModelFactory, WholeBodySettings
-from cafe_mpc.reference.locomotion import LocomotionReference, VelocityCommand
+from cafe_mpc.reference.locomotion import CommandProfile, LocomotionReference, VelocityCommand
 from cafe_mpc.robots.robot import Robot, load_robot
 from cafe_mpc.wbc.pd import PDController
 from cafe_mpc.wbc.riccati import RiccatiController
@@ -40,6 +41,18 @@ from cafe_mpc.wbc.template_low_level import TemplateLowLevelController, Template
 from cafe_mpc.wbc.vwbc import VWBCController, VWBCSettings
 
 RunController = PDController | CafeMpcController | RealtimeMpcController
+
+
+@dataclass(frozen=True)
+class RecordedPlan:
+    """A plan as the run video draws it: first used at ``t``; knot times, configurations (n + 1, nq),
+    stance flags and planned forces."""
+
+    t: float
+    times: np.ndarray
+    configurations: np.ndarray
+    contacts: np.ndarray
+    forces: np.ndarray
 
 
 class LowLevelRecorder(LowLevelController):
@@ -53,10 +66,23 @@ class LowLevelRecorder(LowLevelController):
     The records live in preallocated arrays (``capacity`` rows, e.g. the run's tick count; doubled when
     full), so the control-rate path writes into them without allocating per tick. ``times``,
     ``requested`` and ``stances`` are views of the rows recorded so far.
+
+    ``record_plans``: also keep every plan the controller followed (``plans``: the time it was first used
+    and its knot times, configurations, stance flags and forces), for the run video's plan overlay
+    (``robots.plan_overlay``); a few kB per MPC update, so only when a video is made.
     """
 
-    def __init__(self, inner: LowLevelController, capacity: int = 1024, n_feet: int = N_FEET) -> None:
+    def __init__(
+        self,
+        inner: LowLevelController,
+        capacity: int = 1024,
+        n_feet: int = N_FEET,
+        record_plans: bool = False,
+    ) -> None:
         self.inner = inner
+        self.record_plans = record_plans
+        self.plans: list[RecordedPlan] = []
+        self._last_plan: object | None = None
         capacity = max(int(capacity), 1)
         self._times = np.zeros(capacity)
         self._requested = np.zeros((capacity, len(inner.last_request)))
@@ -82,6 +108,8 @@ class LowLevelRecorder(LowLevelController):
     def reset(self) -> None:
         self.inner.reset()
         self._count = 0
+        self.plans.clear()
+        self._last_plan = None
 
     def statistics(self) -> dict:
         return self.inner.statistics()
@@ -107,6 +135,14 @@ class LowLevelRecorder(LowLevelController):
         self._times[row] = t
         if plan is not None:
             self._stances[row] = plan.contacts[plan.knot_at(t)]
+            if self.record_plans and plan is not self._last_plan and isinstance(plan, Plan):
+                self._last_plan = plan
+                nq = len(measurement.q)
+                self.plans.append(
+                    RecordedPlan(
+                        t, plan.times.copy(), plan.xs[:, :nq].copy(), plan.contacts.copy(), plan.forces.copy()
+                    )
+                )
         else:
             self._stances[row] = False
         self._count = row + 1
@@ -133,6 +169,17 @@ def reference_commands(config: RunConfig) -> list[VelocityCommand]:
     if config.gait is None:
         return [VelocityCommand()]
     return [velocity_command(command) for command in config.gait.commands]
+
+
+def reference_profile(config: RunConfig, robot: Robot) -> CommandProfile:
+    """What the run commands over time (``CommandProfile``): the gait's commands, ramped from rest after the
+    start stance when ``gait.command_ramp`` > 0; standing still for PD and composed references."""
+    gait = config.gait
+    if gait is None:
+        return CommandProfile(reference_commands(config), robot.standing_height)
+    return CommandProfile(
+        reference_commands(config), robot.standing_height, gait.command_ramp, gait.start_stance
+    )
 
 
 def build_controller(config: RunConfig, robot: Robot) -> RunController:
@@ -164,6 +211,7 @@ def build_template_controller(config: RunConfig, robot: Robot) -> CafeMpcControl
             dt=section.dt,
             parameters=parameters,
             leg_torque_limits=section.leg_torque_limits,
+            friction_coefficient=config.mpc.friction,
         )
         low_level = TemplateLowLevelController(
             robot, TemplateLowLevelSettings(section.swing_kp, section.swing_kd)
@@ -181,7 +229,10 @@ def build_recorder(config: RunConfig, robot: Robot) -> LowLevelRecorder:
     """The run's low-level controller wrapped in a recorder sized for the run's ticks."""
     ticks = config.simulation.duration * config.simulation.control_rate_hz  # the run's low-level calls
     return LowLevelRecorder(
-        build_low_level(config, robot), capacity=int(np.ceil(ticks)) + 2, n_feet=robot.n_feet
+        build_low_level(config, robot),
+        capacity=int(np.ceil(ticks)) + 2,
+        n_feet=robot.n_feet,
+        record_plans=config.output.render,  # the video draws the plan in effect at every frame
     )
 
 
@@ -216,6 +267,7 @@ def build_mpc(config: RunConfig, robot: Robot) -> RecedingHorizonMpc:
                 swing_height=gait.swing_height,
                 raibert_gain=gait.raibert_gain,
                 start_stance=gait.start_stance,
+                command_ramp=gait.command_ramp,
             )
         except ValueError as error:
             raise ConfigError(f"gait: {error}") from error
@@ -238,7 +290,9 @@ def build_mpc(config: RunConfig, robot: Robot) -> RecedingHorizonMpc:
             dt=schedule.whole_body_dt,
             running_weights=running,
             terminal_weights=terminal,
-            constraints=WholeBodyConstraintSettings(torque_limit_values=limits),
+            constraints=WholeBodyConstraintSettings(
+                friction_coefficient=config.mpc.friction, torque_limit_values=limits
+            ),
         ),
     )
     srb = SRBModelFactory(
@@ -262,15 +316,19 @@ def realtime_mpc(config_data: dict) -> RecedingHorizonMpc:
     return build_mpc(config, robot)
 
 
-def build_realtime_controller(config: RunConfig, robot: Robot) -> RealtimeMpcController:
+def build_realtime_controller(
+    config: RunConfig, robot: Robot, low_level: LowLevelController | None = None
+) -> RealtimeMpcController:
     """CAFE-MPC against the wall clock: the MPC in its own process (``control.realtime``), the recorded
-    low-level controller here. Close it (``with``) to stop the process."""
+    low-level controller here (or ``low_level``). Close it (``with``) to stop the process."""
     if config.wbc == "pd":
         raise ConfigError("simulation.realtime needs an MPC run (wbc: vwbc or riccati), not wbc: pd")
     schedule = config.mpc.model_schedule()
     factory = functools.partial(realtime_mpc, config.model_dump(mode="json"))
+    if low_level is None:
+        low_level = build_recorder(config, robot)
     controller = RealtimeMpcController(
-        robot, factory, build_recorder(config, robot), config.mpc.period, schedule.whole_body_knots
+        robot, factory, low_level, config.mpc.period, schedule.whole_body_knots
     )
     controller.reference = build_mpc(config, robot).reference  # for the run's report (gait stance)
     return controller
@@ -291,6 +349,7 @@ def build_low_level(config: RunConfig, robot: Robot) -> LowLevelController:
             solver=config.vwbc.solver,
             warm_start=config.vwbc.warm_start,
             stance_source=config.vwbc.stance_source,
+            mu=config.mpc.friction,
         )
     except ValueError as error:
         raise ConfigError(f"vwbc: {error}") from error

@@ -176,7 +176,15 @@ def _discover() -> None:
     _DISCOVERED = True
 
 
-ORDER = ("schedules", "solve-times", "trot-schedules", "push", "warm-start", "reliability")
+ORDER = (
+    "schedules",
+    "solve-times",
+    "trot-schedules",
+    "push",
+    "warm-start",
+    "reliability",
+    "template-vs-cafe",
+)
 """Listing order of the built-in experiments (others follow by name)."""
 
 

@@ -30,12 +30,13 @@ from cafe_mpc.experiments.controllers import (
     mpc_statistics_of,
     mpc_summary,
     recorder_of,
-    reference_commands,
     reference_of,
+    reference_profile,
     timing_of,
 )
 from cafe_mpc.experiments.tasks import torque_limits_of
 from cafe_mpc.robots.robot import Robot, load_robot
+from cafe_mpc.sim.bar import bar_of
 from cafe_mpc.sim.loop import FallCriteria, Push, SimulationLog, WallClockPacer, simulate
 
 logger = logging.getLogger(__name__)
@@ -51,7 +52,9 @@ class RunResult:
     controller: RunController | None = None
 
 
-def simulate_run(config: RunConfig, progress=None) -> tuple[Robot, RunController, SimulationLog]:
+def simulate_run(
+    config: RunConfig, progress=None, viewer: bool = False
+) -> tuple[Robot, RunController, SimulationLog]:
     """Build robot and controller from ``config`` and run the closed loop (no files written).
 
     ``config.simulation.realtime``: against the wall clock with the MPC in its own process (the process is
@@ -61,7 +64,16 @@ def simulate_run(config: RunConfig, progress=None) -> tuple[Robot, RunController
     ``extra_<name>``. Raises ``MpcProcessError`` when the real-time MPC process died or stalled (the robot
     was held in a damped stance once the last plan ran out). ``config.plant`` varies the simulated robot and
     its sensors only (``sim.randomization``); the controller is built from the nominal robot.
+
+    ``viewer``: watch the run in MuJoCo's viewer with the current plan drawn (``sim.viewer.LiveViewer``;
+    ``ViewerUnavailable`` without a display, before anything is built); ``log.extra["viewer"]`` then says
+    what it showed.
     """
+    live = None
+    if viewer:
+        from cafe_mpc.sim.viewer import check_display
+
+        check_display()
     robot = load_robot(config.robot)
     q0 = robot.q_standing.copy()
     q0[2] += config.simulation.initial_height_offset
@@ -77,19 +89,27 @@ def simulate_run(config: RunConfig, progress=None) -> tuple[Robot, RunController
         # the plant's deviations and the sensors (domain randomisation): the controller's robot stays nominal
         "variation": config.plant.variation(),
         "sensor": config.plant.sensor_model(config.simulation.control_rate_hz),
+        "terrain": config.scene.terrain_pieces(),  # slopes and steps: the plant's scene only
+        "bar": bar_of(config.scene),  # the bar to jump over (sim.bar): the plant's scene only
     }
     if config.simulation.realtime:
         with build_realtime_controller(config, robot) as controller:
             standing = Measurement.of_state(q0, np.zeros(robot.nv), np.ones(robot.n_feet, dtype=bool))
             controller.wait_ready(standing)
-            log = simulate(
-                robot,
-                controller,
-                config.simulation.duration,
-                pacer=WallClockPacer(),
-                stop=controller.should_stop,
-                **options,
-            )
+            if viewer:  # the pacer holds the wall clock already
+                live = options["observer"] = _live_viewer(robot, controller, realtime=False)
+            try:
+                log = simulate(
+                    robot,
+                    controller,
+                    config.simulation.duration,
+                    pacer=WallClockPacer(),
+                    stop=controller.should_stop,
+                    **options,
+                )
+            finally:
+                if live is not None:
+                    live.close()
         if controller.failure is not None:
             raise MpcProcessError(
                 f"{controller.failure}; the robot was held in a damped stance once the last plan ran out "
@@ -97,7 +117,15 @@ def simulate_run(config: RunConfig, progress=None) -> tuple[Robot, RunController
             )
     else:
         controller = build_controller(config, robot)
-        log = simulate(robot, controller, config.simulation.duration, **options)
+        if viewer:
+            live = options["observer"] = _live_viewer(robot, controller, realtime=True)
+        try:
+            log = simulate(robot, controller, config.simulation.duration, **options)
+        finally:
+            if live is not None:
+                live.close()
+    if live is not None:
+        log.extra["viewer"] = live.summary()
     recorder = recorder_of(controller)
     if recorder is not None:
         requested, planned = recorder.traces(log.time)
@@ -110,6 +138,13 @@ def simulate_run(config: RunConfig, progress=None) -> tuple[Robot, RunController
     return robot, controller, log
 
 
+def _live_viewer(robot: Robot, controller: RunController, realtime: bool):
+    """MuJoCo's passive viewer following the run, drawing the plan the controller follows now."""
+    from cafe_mpc.sim.viewer import LiveViewer
+
+    return LiveViewer(robot, lambda: getattr(controller, "plan", None), realtime=realtime)
+
+
 def simulate_config(config: RunConfig, progress=None) -> tuple[Robot, SimulationLog]:
     """Build robot and controller from ``config`` and run the closed loop (no files written)."""
     robot, _, log = simulate_run(config, progress)
@@ -118,20 +153,25 @@ def simulate_config(config: RunConfig, progress=None) -> tuple[Robot, Simulation
 
 def run_metrics(config: RunConfig, robot: Robot, controller: RunController, log: SimulationLog) -> dict:
     """Everything ``metrics.json`` reports: base metrics, tracking, the ``mpc`` and ``wbc`` blocks."""
-    from cafe_mpc.report.metrics import base_metrics, tracking_metrics, wbc_metrics
+    from cafe_mpc.report.metrics import METRICS_WINDOW_START_S, base_metrics, tracking_metrics, wbc_metrics
 
     metrics = base_metrics(robot, log, 1.0 / config.simulation.control_rate_hz)
     metrics["robot"] = robot.name
     metrics["controller"] = config.wbc if config.planner == "cafe" else "template"
     metrics["planner"] = config.planner
     metrics["gait"] = config.gait.name if config.gait is not None else None
-    metrics.update(tracking_metrics(robot, log, reference_commands(config)))
+    profile = reference_profile(config, robot)
+    metrics.update(tracking_metrics(robot, log, profile))  # the whole run, start included
+    steady = tracking_metrics(robot, log, profile, window_start=METRICS_WINDOW_START_S)
+    metrics["steady_state"] = steady  # the paper's steady-state window (the start from rest skipped)
     metrics["timing"] = timing_of(config, controller)
     metrics["mpc"] = mpc_summary(controller, log)
     if "realtime" in log.extra:
         metrics["realtime"] = log.extra["realtime"]
     if "sensor" in log.extra:
         metrics["sensor"] = log.extra["sensor"]
+    if "viewer" in log.extra:
+        metrics["viewer"] = log.extra["viewer"]
     metrics["wbc"] = wbc_metrics(
         robot,
         log,
@@ -139,6 +179,7 @@ def run_metrics(config: RunConfig, robot: Robot, controller: RunController, log:
         low_level_statistics=low_level_of(controller).statistics(),
         planned_stance=log.extra.get("planned_stance"),
         torque_limits=torque_limits_of(config, robot),
+        mu=config.mpc.friction,
     )
     if config.reference is not None:  # acrobatic task (stored trajectory with a flight): report.task_metrics
         from cafe_mpc.experiments.tasks import task_block
@@ -151,8 +192,11 @@ def default_out_dir(config: RunConfig, root: Path = Path("runs")) -> Path:
     return root / f"{time.strftime('%Y%m%d-%H%M%S')}-{config.name}"
 
 
-def run(config: RunConfig, out_dir: Path | None, show_progress: bool = False) -> RunResult:
-    """Run ``config``; when ``out_dir`` is given write config.yaml, metrics.json, log.npz, run.log, plots."""
+def run(
+    config: RunConfig, out_dir: Path | None, show_progress: bool = False, viewer: bool = False
+) -> RunResult:
+    """Run ``config``; when ``out_dir`` is given write config.yaml, metrics.json, log.npz, run.log, plots.
+    ``viewer``: watch it live in MuJoCo's viewer (``simulate_run``)."""
     partial: Path | None = None
     handler: logging.Handler | None = None
     package_logger = logging.getLogger("cafe_mpc")
@@ -188,8 +232,12 @@ def run(config: RunConfig, out_dir: Path | None, show_progress: bool = False) ->
                 unit="sim s",
                 bar_format="{l_bar}{bar}| {n:.2f}/{total:.2f} sim s [{elapsed}<{remaining}]",
             )
-            progress = bar.update
-        robot, controller, log = simulate_run(config, progress)
+
+            def progress(dt: float, bar=bar) -> None:
+                # float steps add up past the total by rounding: tqdm warned "clamping frac to range [0, 1]"
+                bar.update(min(dt, max(bar.total - bar.n, 0.0)))
+
+        robot, controller, log = simulate_run(config, progress, viewer=viewer)
         metrics = run_metrics(config, robot, controller, log)
         logger.info(
             "metrics: fell=%s, base height mean %.3f m, vx mean %.3f m/s, real-time factor %.2f",
@@ -214,13 +262,13 @@ def run(config: RunConfig, out_dir: Path | None, show_progress: bool = False) ->
                     robot,
                     log,
                     partial,
-                    commands=reference_commands(config),
+                    commands=reference_profile(config, robot),
                     mpc_statistics=mpc_statistics_of(controller),
                     mpc_period=config.mpc.period,
                 )
                 if metrics.get("task"):
                     from cafe_mpc.report.task_metrics import task_from_reference
-                    from cafe_mpc.report.task_plots import plot_task
+                    from cafe_mpc.report.task_plots import plot_task, plot_task_torques
 
                     reference = reference_of(controller)
                     task = task_from_reference(reference)
@@ -234,16 +282,34 @@ def run(config: RunConfig, out_dir: Path | None, show_progress: bool = False) ->
                             metrics["task"],
                             1.0 / config.simulation.control_rate_hz,
                         )
+                        plot_task_torques(
+                            robot, log, task, partial / "task_torques.png", torque_limits_of(config, robot)
+                        )
             if config.output.render:
                 from cafe_mpc.report.video import RenderUnavailable, render_run
+                from cafe_mpc.sim.plant import scene_mjcf
 
                 try:
-                    video = render_run(robot, log, partial / "run.mp4", config.output.render_fps)
+                    recorder = recorder_of(controller)
+                    video = render_run(
+                        robot,
+                        log,
+                        partial / "run.mp4",
+                        config.output.render_fps,
+                        plans=recorder.plans if recorder is not None else None,
+                        mjcf=scene_mjcf(robot, config.scene.terrain_pieces(), bar_of(config.scene)),
+                    )
                     logger.info("video written to %s", video.name)
                     if metrics.get("task"):  # acrobatic task: a strip of frames across the roll
                         from cafe_mpc.report.task_plots import render_task_frames
 
-                        render_task_frames(robot, log, metrics["task"], partial / "frames.png")
+                        render_task_frames(
+                            robot,
+                            log,
+                            metrics["task"],
+                            partial / "frames.png",
+                            mjcf=scene_mjcf(robot, config.scene.terrain_pieces(), bar_of(config.scene)),
+                        )
                 except RenderUnavailable as error:
                     logger.warning("no video: %s", error)
                     metrics["render_error"] = str(error)

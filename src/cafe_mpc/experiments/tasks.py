@@ -3,7 +3,9 @@
 ``task_reference(config, robot)`` turns the config's ``reference`` section into a ``ComposedReference``
 (``reference.composition``): ``stand`` segments are locomotion references with the gait ``stand`` (Sec. VI-A)
 and weight set ``regular``; ``trajectory`` segments are stored whole-body trajectories sampled by time
-(``reference.trajectory``, Sec. VI-B) with weight set ``barrel_roll``. ``task_weight_sets`` builds that weight
+(``reference.trajectory``, Sec. VI-B) with weight set ``barrel_roll``, optionally from a later phase on;
+``gait`` segments are locomotion references of a gait section (weight set ``regular``), e.g. the flying pace
+before and after the running barrel roll. ``task_weight_sets`` builds that weight
 set's whole-body and SRB knot factories (``CafeProblemBuilder(weights=...)``), and ``task_block`` the ``task``
 block of ``metrics.json`` (``report.task_metrics``).
 """
@@ -12,7 +14,13 @@ from __future__ import annotations
 
 import numpy as np
 
-from cafe_mpc.config import ConfigError, ReferenceConfig, RunConfig, load_reference_trajectory
+from cafe_mpc.config import (
+    ConfigError,
+    ReferenceConfig,
+    RunConfig,
+    load_reference_trajectory,
+    velocity_command,
+)
 from cafe_mpc.dynamics.srb import srb_parameters
 from cafe_mpc.mpc.problem import ModelSchedule
 from cafe_mpc.ocp.constraints import WholeBodyConstraintSettings
@@ -25,6 +33,7 @@ from cafe_mpc.reference.locomotion import LocomotionReference, VelocityCommand
 from cafe_mpc.reference.trajectory import TrajectoryReference
 from cafe_mpc.report.task_metrics import task_from_reference, task_metrics
 from cafe_mpc.robots.robot import Robot
+from cafe_mpc.sim.bar import bar_of
 from cafe_mpc.sim.loop import SimulationLog
 
 TRAJECTORY_WEIGHT_SET = "barrel_roll"
@@ -47,10 +56,24 @@ def task_reference(section: ReferenceConfig, robot: Robot) -> ComposedReference:
             if segment.kind == "trajectory":
                 assert segment.trajectory is not None
                 trajectory = load_reference_trajectory(robot.name, segment.trajectory)
+                trajectory = trajectory.from_phase(segment.from_phase)
                 reference: Reference = TrajectoryReference(
                     robot, trajectory, weight_set=TRAJECTORY_WEIGHT_SET, hold_weight_set=TRAJECTORY_WEIGHT_SET
                 )
                 duration = segment.duration if segment.duration is not None else reference.end_time
+            elif segment.kind == "gait":
+                gait = segment.gait
+                assert gait is not None
+                reference = LocomotionReference(
+                    robot,
+                    get_gait(gait.name),
+                    [velocity_command(command) for command in gait.commands],
+                    swing_height=gait.swing_height,
+                    raibert_gain=gait.raibert_gain,
+                    start_stance=gait.start_stance,
+                    command_ramp=gait.command_ramp,
+                )
+                duration = segment.duration
             else:
                 reference = LocomotionReference(
                     robot, get_gait("stand"), [VelocityCommand(height=segment.height)]
@@ -58,7 +81,15 @@ def task_reference(section: ReferenceConfig, robot: Robot) -> ComposedReference:
                 duration = segment.duration
             pieces.append((reference, duration))
             offsets.append(segment.offset)
-        return ComposedReference(pieces, robot.nq, robot.nv, robot.nu, robot.n_feet, offsets=offsets)
+        return ComposedReference(
+            pieces,
+            robot.nq,
+            robot.nv,
+            robot.nu,
+            robot.n_feet,
+            offsets=offsets,
+            rejoin=section.join == "measured",
+        )
     except ValueError as error:
         raise ConfigError(f"reference: {error}") from error
 
@@ -78,7 +109,8 @@ def task_weight_sets(
         srb_running = SRBWeights.from_whole_body(running, force=SRBWeights.regular_running().force)
         srb_terminal = SRBWeights.from_whole_body(terminal, force=0.0)
         constraints = WholeBodyConstraintSettings(
-            torque_limit_values=tuple(float(limit) for limit in torque_limits_of(config, robot))
+            friction_coefficient=config.mpc.friction,
+            torque_limit_values=tuple(float(limit) for limit in torque_limits_of(config, robot)),
         )
     except ValueError as error:
         raise ConfigError(f"reference: {error}") from error
@@ -119,4 +151,5 @@ def task_block(
         requested=log.extra.get("torque_requested"),
         planned_stance=log.extra.get("planned_stance"),
         limits=torque_limits_of(config, robot),
+        bar=bar_of(config.scene),
     )

@@ -101,6 +101,10 @@ class ComposedReference(Reference):
             segment ends; the first segment's ``None`` means no offset).
         weight_sets: one weight-set name or ``None`` per segment: ``None`` keeps the segment's own.
         nq, nv, nu, n_feet: dimensions of the robot (for the segments' sampling windows).
+        rejoin: re-join the segments without an explicit offset at every ``update``: each one that has not
+            started yet is placed where the segment before it now ends (the active segment's end as
+            predicted after its own update, e.g. a locomotion reference re-anchored on the measurement).
+            Without it (default) the joins are fixed at construction, from the segments' initial anchors.
     """
 
     def __init__(
@@ -112,6 +116,7 @@ class ComposedReference(Reference):
         n_feet: int,
         offsets: Sequence[Offset | None] | None = None,
         weight_sets: Sequence[str | None] | None = None,
+        rejoin: bool = False,
     ) -> None:
         if not segments:
             raise ValueError("a composed reference needs at least one segment")
@@ -123,7 +128,9 @@ class ComposedReference(Reference):
                 f"{len(overrides)} weight sets"
             )
         self.nq, self.nv, self.nu, self.n_feet = nq, nv, nu, n_feet
+        self.rejoin = bool(rejoin)
         self.segments: list[Segment] = []
+        self._auto: list[bool] = []  # segments placed by joining (no explicit offset)
         start = 0.0
         for index, ((reference, duration), offset, override) in enumerate(
             zip(segments, offsets, overrides, strict=True)
@@ -143,6 +150,7 @@ class ComposedReference(Reference):
                 if len(offset) != 3 or not all(math.isfinite(value) for value in offset):
                     raise ValueError(f"composed reference: segment {index} offset must be finite (x, y, yaw)")
             self.segments.append(Segment(reference, start, float(duration), offset, override))
+            self._auto.append(offset is None)
             start += duration
         names: list[str] = []
         for segment in self.segments:
@@ -156,20 +164,32 @@ class ComposedReference(Reference):
 
     # -------------------------------------------------------------------------------------- placement
     def _pose_of(self, segment: Segment, local_time: float) -> np.ndarray:
-        """The segment's reference configuration at its own time ``local_time``, placed in the world."""
-        probe = self._probe
-        probe.set_times(np.array([local_time]))
-        segment.reference.sample(probe)
-        q = probe.state[0, : self.nq].copy()
+        """The segment's reference configuration at its own time ``local_time``, placed in the world (only its
+        base pose matters to the joins: a reference with a closed-form ``base_state(t)``, the locomotion
+        reference, is asked for that instead of a full sample with leg inverse kinematics)."""
+        base_state = getattr(segment.reference, "base_state", None)
+        if base_state is not None:
+            q = np.array(base_state(local_time)[0], dtype=float)
+        else:
+            probe = self._probe
+            probe.set_times(np.array([local_time]))
+            segment.reference.sample(probe)
+            q = probe.state[0, : self.nq].copy()
         self._place_configuration(segment, q[None, :])
         return q
 
-    def _resolve_offsets(self) -> None:
-        """Offsets of the ``None`` segments (continuous join) and every segment's quaternion sign."""
+    def _resolve_offsets(self, first: int = 0) -> None:
+        """Offsets of the joined segments (continuous join) and the quaternion signs of the segments from
+        ``first + 1`` on (``first`` itself keeps its placement when ``first > 0``)."""
         previous_end: np.ndarray | None = None  # the previous segment's last configuration, placed
         for index, segment in enumerate(self.segments):
+            if index < first:
+                continue
+            if index == first and first > 0:
+                previous_end = self._pose_of(segment, segment.duration)
+                continue
             segment.sign = 1.0
-            if segment.offset is None:
+            if self._auto[index]:
                 segment.offset = (0.0, 0.0, 0.0)
                 if previous_end is not None:  # map this segment's start pose onto the previous end pose
                     start = self._pose_of(segment, 0.0)
@@ -231,6 +251,9 @@ class ComposedReference(Reference):
         if segment.sign < 0:
             local[3:7] *= -1.0
         segment.reference.update(t - segment.start, local, v)
+        index = self.segments.index(segment)
+        if self.rejoin and index < len(self.segments) - 1:
+            self._resolve_offsets(index)
 
     # ------------------------------------------------------------------------------------------ sample
     def _window(self, capacity: int) -> ReferenceWindow:

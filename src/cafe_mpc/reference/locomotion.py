@@ -13,6 +13,7 @@ should be) and on the measured stance-foot positions.
 
 from __future__ import annotations
 
+import bisect
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -62,6 +63,152 @@ def validate_command(command: VelocityCommand, robot: Robot) -> None:
             f"command height = {command.height} m is outside [0.12, {highest:.3f}] m "
             f"(leg length {leg_length:.3f} m)"
         )
+
+
+class CommandProfile:
+    """The commanded ``[vx, vy, yaw_rate, height]`` over time, piecewise linear.
+
+    With ``ramp`` = 0 the commands are steps (each holds from its ``start`` until the next one; the first also
+    before its start). With ``ramp`` > 0 the robot is commanded to rest (standing height) until ``rest_until``
+    (the gait's start, after its initial stance), and every change of command is approached linearly over
+    ``ramp`` seconds from the value at the moment it starts (a change that comes before the previous ramp
+    has finished starts from where that ramp had got to). ``breakpoints`` are the times where the slope
+    changes; between two of them the profile is linear, after the last one constant.
+    """
+
+    def __init__(
+        self,
+        commands: Sequence[VelocityCommand],
+        standing_height: float,
+        ramp: float = 0.0,
+        rest_until: float = 0.0,
+    ) -> None:
+        if not (math.isfinite(ramp) and ramp >= 0.0):
+            raise ValueError(f"command ramp must be >= 0 s, got {ramp}")
+        if not (math.isfinite(rest_until) and rest_until >= 0.0):
+            raise ValueError(f"rest_until must be >= 0 s, got {rest_until}")
+        ordered = sorted(commands, key=lambda command: command.start) or [VelocityCommand()]
+        self.commands = list(ordered)
+        self.standing_height = float(standing_height)
+        self.ramp = float(ramp)
+        self.rest_until = float(rest_until) if ramp > 0 else 0.0
+
+        def target(command: VelocityCommand) -> np.ndarray:
+            height = self.standing_height if command.height is None else command.height
+            return np.array([command.vx, command.vy, command.yaw_rate, height], dtype=float)
+
+        if self.ramp == 0.0:
+            times = [0.0]
+            values = [target(ordered[0])]
+            for command in ordered[1:]:  # a step: the old value up to the start, the new one from it
+                times += [command.start, command.start]
+                values += [values[-1], target(command)]
+        else:
+            times = [0.0]
+            values = [np.array([0.0, 0.0, 0.0, self.standing_height])]
+            events = [(max(command.start, self.rest_until), target(command)) for command in ordered]
+            for index, (start, goal) in enumerate(events):
+                if start > times[-1]:
+                    times.append(start)
+                    values.append(values[-1].copy())
+                end = start + self.ramp
+                following = events[index + 1][0] if index + 1 < len(events) else math.inf
+                if following < end:  # interrupted: stop where the ramp has got to
+                    fraction = (following - start) / self.ramp
+                    times.append(following)
+                    values.append(values[-1] + fraction * (goal - values[-1]))
+                else:
+                    times.append(end)
+                    values.append(goal)
+        self.times = np.array(times)
+        self.values = np.array(values)
+        # the same as plain floats, per segment [times[i], times[i + 1]): start value and slope (the hot path,
+        # a few hundred calls per MPC update, stays out of numpy)
+        self._times = [float(t) for t in times]
+        self._starts = [tuple(float(x) for x in value) for value in values]
+        self._slopes = []
+        for index in range(len(times)):
+            if index + 1 < len(times) and times[index + 1] - times[index] > 1e-12:
+                span = times[index + 1] - times[index]
+                self._slopes.append(tuple(float(x) for x in (values[index + 1] - values[index]) / span))
+            else:
+                self._slopes.append((0.0, 0.0, 0.0, 0.0))
+
+    @property
+    def breakpoints(self) -> np.ndarray:
+        return self.times
+
+    def _segment(self, t: float) -> int:
+        """Index of the segment holding ``t`` (a step's new value from its start on)."""
+        return max(bisect.bisect_right(self._times, t + 1e-12) - 1, 0)
+
+    def values_at(self, t: float) -> tuple[float, float, float, float]:
+        """``(vx, vy, yaw_rate, height)`` at ``t`` as plain floats."""
+        index = self._segment(t)
+        dt = max(t - self._times[index], 0.0)
+        start, slope = self._starts[index], self._slopes[index]
+        return (
+            start[0] + slope[0] * dt,
+            start[1] + slope[1] * dt,
+            start[2] + slope[2] * dt,
+            start[3] + slope[3] * dt,
+        )
+
+    def at(self, t: float) -> np.ndarray:
+        """``[vx, vy, yaw_rate, height]`` at ``t`` (a step takes its new value at its start)."""
+        return np.array(self.values_at(t))
+
+    def table(self, times: Sequence[float]) -> np.ndarray:
+        """``at`` for every time (N x 4)."""
+        return np.array([self.values_at(float(t)) for t in times]).reshape(-1, 4)
+
+    def command_at(self, t: float) -> VelocityCommand:
+        vx, vy, yaw_rate, height = self.values_at(t)
+        return VelocityCommand(float(t) if t > 0 else 0.0, vx, vy, yaw_rate, height)
+
+    def heading_displacement(self, t0: float, t1: float) -> tuple[np.ndarray, float]:
+        """Position (x, y) and yaw change from ``t0`` to ``t1`` in the heading frame at ``t0``: the commands'
+        velocities integrated (closed form where they are constant, Gauss-Legendre quadrature on ramps)."""
+        x = y = yaw = 0.0
+        time = t0
+        index = self._segment(t0)
+        while time < t1 - 1e-15:
+            following = self._times[index + 1] if index + 1 < len(self._times) else math.inf
+            boundary = min(following, t1)
+            dt = boundary - time
+            if dt > 1e-15:
+                start, slope = self._starts[index], self._slopes[index]
+                offset = max(time - self._times[index], 0.0)
+                vx, vy, w = (
+                    start[0] + slope[0] * offset,
+                    start[1] + slope[1] * offset,
+                    start[2] + slope[2] * offset,
+                )
+                if slope[0] == 0.0 and slope[1] == 0.0 and slope[2] == 0.0:
+                    c0, s0 = math.cos(yaw), math.sin(yaw)
+                    if abs(w) < 1e-9:
+                        x += (c0 * vx - s0 * vy) * dt
+                        y += (s0 * vx + c0 * vy) * dt
+                    else:  # integral of R(yaw + w s) ds, applied to the heading-frame velocity
+                        c1, s1 = math.cos(yaw + w * dt), math.sin(yaw + w * dt)
+                        x += ((s1 - s0) * vx + (c1 - c0) * vy) / w
+                        y += (-(c1 - c0) * vx + (s1 - s0) * vy) / w
+                        yaw += w * dt
+                else:  # linear velocities and yaw rate: yaw is quadratic in time
+                    for node, weight in zip(_GAUSS_NODES, _GAUSS_WEIGHTS, strict=True):
+                        s = 0.5 * dt * (node + 1.0)
+                        heading = yaw + w * s + 0.5 * slope[2] * s * s
+                        ux, uy = vx + slope[0] * s, vy + slope[1] * s
+                        c, si = math.cos(heading), math.sin(heading)
+                        x += 0.5 * dt * weight * (c * ux - si * uy)
+                        y += 0.5 * dt * weight * (si * ux + c * uy)
+                    yaw += w * dt + 0.5 * slope[2] * dt * dt
+            time = boundary
+            index += 1
+        return np.array([x, y]), yaw
+
+
+_GAUSS_NODES, _GAUSS_WEIGHTS = (values.tolist() for values in np.polynomial.legendre.leggauss(8))
 
 
 def _yaw_rotation(yaw: float) -> np.ndarray:
@@ -114,6 +261,7 @@ class LocomotionReference(Reference):
         foothold_box: tuple[float, float] = (0.10, 0.06),
         cycle_start: float = 0.0,
         start_stance: float = 0.0,
+        command_ramp: float = 0.0,
     ) -> None:
         if not commands:
             commands = [VelocityCommand()]
@@ -135,6 +283,9 @@ class LocomotionReference(Reference):
         (``cycle_start`` is then ignored). Dynamic gaits such as bounding cannot start from rest in their
         first phase: a short stand lets the first plans load the legs and lean into the gait."""
         self.cycle_start = self.start_stance if self.start_stance > 0 else cycle_start
+        self.profile = CommandProfile(self.commands, robot.standing_height, command_ramp, self.start_stance)
+        """The commanded velocities and height over time: steps, or (``command_ramp`` > 0) rest until the
+        gait starts, then linear ramps to each command."""
         self.offsets = robot.foothold_offsets.copy()
         self.mass = robot.total_mass
         self.nominal_joints = robot.q_standing[7:].copy()
@@ -152,15 +303,11 @@ class LocomotionReference(Reference):
 
     # ----------------------------------------------------------------------------------------- commands
     def command_at(self, t: float) -> VelocityCommand:
-        active = self.commands[0]
-        for command in self.commands:
-            if command.start <= t + 1e-12:
-                active = command
-        return active
+        """The command in effect at ``t`` (ramped: ``profile``); its ``height`` is never None."""
+        return self.profile.command_at(t)
 
     def height_at(self, t: float) -> float:
-        command = self.command_at(t)
-        return self.robot.standing_height if command.height is None else command.height
+        return self.profile.values_at(t)[3]
 
     # --------------------------------------------------------------------------------------- schedule
     def schedule(self, t0: float, t1: float) -> ContactSchedule:
@@ -206,34 +353,19 @@ class LocomotionReference(Reference):
 
     # ------------------------------------------------------------------------------------------- base
     def base_pose(self, t: float) -> tuple[np.ndarray, float]:
-        """Reference base (x, y) and yaw at ``t >= anchor_time``, integrating the commands (closed form)."""
-        xy, yaw, time = self.anchor_xy.copy(), self.anchor_yaw, self.anchor_time
-        t = max(t, time)
-        boundaries = [c.start for c in self.commands if time < c.start < t] + [t]
-        for boundary in boundaries:
-            command = self.command_at(time)
-            dt = boundary - time
-            velocity = np.array([command.vx, command.vy])
-            if abs(command.yaw_rate) < 1e-9:
-                xy = xy + _yaw_rotation(yaw) @ velocity * dt
-            else:
-                w = command.yaw_rate
-                # integral of R(yaw + w s) ds from 0 to dt, applied to the body-frame velocity
-                s0, c0 = math.sin(yaw), math.cos(yaw)
-                s1, c1 = math.sin(yaw + w * dt), math.cos(yaw + w * dt)
-                integral = np.array([[s1 - s0, c1 - c0], [-(c1 - c0), s1 - s0]]) / w
-                xy = xy + integral @ velocity
-                yaw = yaw + w * dt
-            time = boundary
-        return xy, yaw
+        """Reference base (x, y) and yaw at ``t >= anchor_time``, integrating the commands from the anchor
+        (``CommandProfile.heading_displacement``: closed form on constant commands)."""
+        t = max(t, self.anchor_time)
+        displacement, turn = self.profile.heading_displacement(self.anchor_time, t)
+        return self.anchor_xy + _yaw_rotation(self.anchor_yaw) @ displacement, self.anchor_yaw + turn
 
     def base_state(self, t: float) -> tuple[np.ndarray, np.ndarray]:
         """Reference configuration ``q`` (19) and velocity ``v`` (18, base frame) at ``t``."""
         xy, yaw = self.base_pose(t)
-        command = self.command_at(t)
-        q = np.concatenate([[xy[0], xy[1], self.height_at(t)], quaternion_from_yaw(yaw), self.nominal_joints])
+        vx, vy, yaw_rate, height = self.profile.values_at(t)
+        q = np.concatenate([[xy[0], xy[1], height], quaternion_from_yaw(yaw), self.nominal_joints])
         v = np.zeros(self.robot.nv)
-        v[0], v[1], v[5] = command.vx, command.vy, command.yaw_rate
+        v[0], v[1], v[5] = vx, vy, yaw_rate
         return q, v
 
     # ------------------------------------------------------------------------------------------- feet
@@ -246,9 +378,9 @@ class LocomotionReference(Reference):
         """Raibert foothold (Sec. VI-A): the hip at mid-stance plus velocity feedback, clamped to a box."""
         nominal = self.hip_xy(touchdown_time, foot)
         mid_stance = self.hip_xy(touchdown_time + 0.5 * stance_duration, foot)
-        command = self.command_at(touchdown_time)
+        vx, vy, _, _ = self.profile.values_at(touchdown_time)
         _, yaw = self.base_pose(touchdown_time)
-        commanded_world = _yaw_rotation(yaw) @ np.array([command.vx, command.vy])
+        commanded_world = _yaw_rotation(yaw) @ np.array([vx, vy])
         feedback = self.raibert_gain * (self.measured_velocity_xy - commanded_world)
         target = mid_stance + feedback
         step = _yaw_rotation(-yaw) @ (target - nominal)

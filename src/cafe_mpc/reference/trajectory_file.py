@@ -57,7 +57,10 @@ if TYPE_CHECKING:
 
 FORMAT_VERSION = 1
 DATA_DIR = Path(__file__).parent / "data"
-PACKAGED_TRAJECTORIES: dict[str, str] = {"barrel-roll": "barrel_roll.npz"}
+PACKAGED_TRAJECTORIES: dict[str, str] = {
+    "barrel-roll": "barrel_roll.npz",
+    "running-barrel-roll": "running_barrel_roll.npz",
+}
 """Trajectories shipped with the package (``reference/data/``), by name."""
 
 FULL_STANCE_CODE = "FS"
@@ -166,6 +169,29 @@ class WholeBodyTrajectory:
         """Knot indices (intervals) of each phase."""
         boundaries = np.rint((self.switching_times - self.times[0]) / self.dt).astype(int)
         return [range(int(a), int(b)) for a, b in itertools.pairwise(boundaries)]
+
+    def from_phase(self, index: int) -> WholeBodyTrajectory:
+        """The trajectory from the start of phase ``index`` on (its knots, times and phases; the earlier
+        phases dropped). The running barrel roll plays the in-place roll from its right-stance phase
+        (paper Sec. VII-C: "starting the barrel roll reference with right legs at stance")."""
+        if not 0 <= index < self.n_phases:
+            raise ValueError(f"phase {index} does not exist: the trajectory has {self.n_phases} phases")
+        if index == 0:
+            return self
+        first = self.phase_knots()[index].start
+        return WholeBodyTrajectory(
+            name=self.name,
+            robot=self.robot,
+            dt=self.dt,
+            times=self.times[first:].copy(),
+            xs=self.xs[first:].copy(),
+            us=self.us[first:].copy(),
+            contacts=self.contacts[first:].copy(),
+            forces=self.forces[first:].copy(),
+            phase_contacts=tuple(self.phase_contacts[index:]),
+            switching_times=self.switching_times[index:].copy(),
+            phase_names=tuple(self.phase_names[index:]),
+        )
 
     def validate(self, nq: int, nv: int, nu: int, source: str | Path = "<memory>") -> None:
         """Raise ``TrajectoryFileError`` (naming ``source`` and the field) unless everything is consistent."""

@@ -12,7 +12,7 @@ import numpy as np
 from matplotlib.axes import Axes
 from matplotlib.figure import Figure
 
-from cafe_mpc.reference.locomotion import VelocityCommand
+from cafe_mpc.reference.locomotion import CommandProfile, VelocityCommand
 from cafe_mpc.report.figures import save_figure, subplots
 from cafe_mpc.report.metrics import (
     METRICS_WINDOW_START_S,
@@ -53,7 +53,7 @@ def plot_run(
     robot: Robot,
     log: SimulationLog,
     out_dir: Path,
-    commands: Sequence[VelocityCommand] | None = None,
+    commands: Sequence[VelocityCommand] | CommandProfile | None = None,
     mpc_statistics: MpcStatistics | None = None,
     mpc_period: float | None = None,
 ) -> list[Path]:
@@ -164,7 +164,7 @@ def _shade(axis: Axes, t: np.ndarray, where: np.ndarray, color: str, alpha: floa
 
 
 def plot_velocity_tracking(
-    robot: Robot, log: SimulationLog, commands: Sequence[VelocityCommand], path: Path
+    robot: Robot, log: SimulationLog, commands: Sequence[VelocityCommand] | CommandProfile, path: Path
 ) -> Path:
     """Commanded (dashed) vs actual heading-frame vx, vy and yaw rate; the metrics window starts at the
     dotted line."""

@@ -25,8 +25,17 @@ are then judged on the logged closed loop alone:
   limits (what the plant saturates at), ticks whose request before clamping exceeds the plan limits (the
   Riccati controller clamps), and friction-cone violations (the contact forces that the commanded torque
   implies with the plan's stance feet held, ``friction_cone_violations_post_hoc``);
-* ``success``: roll turned >= target - ``ROLL_TOLERANCE_RAD``, landed, upright after, stayed up, and no
-  torque-limit violation at the motors during the roll.
+* running tasks (a gait segment before and after the trajectory in the composition, e.g. the running barrel
+  roll): ``speed_before_roll_mps``, the mean forward speed (heading frame) over the ``SPEED_WINDOW_S`` before
+  the trajectory starts, and ``speed_after_roll_mps``, the mean over the last ``SPEED_WINDOW_S`` of the run;
+  ``pace_resumed``: the latter is at least ``RESUME_FRACTION`` of the final gait's commanded speed (0.6 m/s
+  for 0.8 m/s);
+* a bar in the scene (``sim.bar``): ``bar_contact``, any robot geom touched it during the run (the plant's
+  contacts; legs included), which geoms, and ``bar_clearance_min_m``, the smallest distance between the bar
+  and the robot's geoms over the roll from the logged states (geometric; negative: penetration);
+* ``success``: roll turned >= target - ``ROLL_TOLERANCE_RAD``, landed, upright after, stayed up, no
+  torque-limit violation at the motors during the roll, and, where they apply, no bar contact and the pace
+  resumed.
 
 The block states these thresholds in ``criteria`` so that a reader of ``metrics.json`` sees how success was
 judged.
@@ -44,6 +53,7 @@ from cafe_mpc.reference.base import Reference, ReferenceWindow
 from cafe_mpc.reference.composition import ComposedReference
 from cafe_mpc.reference.trajectory import TrajectoryReference
 from cafe_mpc.robots.robot import Robot
+from cafe_mpc.sim.bar import Bar, bar_clearance
 from cafe_mpc.sim.loop import SimulationLog, base_tilt
 
 ROLL_TOLERANCE_RAD = 0.3
@@ -55,6 +65,9 @@ MIN_FLIGHT_S = 0.02
 CONTACT_TOLERANCE_M = 0.002
 FLIGHT_SEARCH_MARGIN_S = 0.1
 """The measured flight is searched in the planned flight window widened by this much on each side."""
+SPEED_WINDOW_S = 1.0
+RESUME_FRACTION = 0.75
+"""The gait after the roll has resumed when the last second's mean speed reaches this share of its command."""
 
 
 @dataclass(frozen=True)
@@ -67,6 +80,10 @@ class AcrobaticTask:
     touchdown: float
     end: float
     roll_target: float = 2.0 * math.pi
+    approach_speed: float | None = None
+    """Commanded forward speed of the gait segment before the trajectory (None: no gait before it)."""
+    resume_speed: float | None = None
+    """Commanded forward speed of the gait segment after the trajectory (None: no moving gait after it)."""
 
 
 def _trajectory_segment(reference: Reference) -> tuple[TrajectoryReference, float] | None:
@@ -81,6 +98,28 @@ def _trajectory_segment(reference: Reference) -> tuple[TrajectoryReference, floa
     return None
 
 
+def _gait_speeds(reference: Reference, trajectory: TrajectoryReference) -> tuple[float | None, float | None]:
+    """Commanded forward speeds of the moving gait segments (locomotion references that are not a stand)
+    right before and right after the trajectory in a composition (``None`` where there is none)."""
+    from cafe_mpc.reference.locomotion import LocomotionReference
+
+    if not isinstance(reference, ComposedReference):
+        return None, None
+    pieces = [segment.reference for segment in reference.segments]
+    index = next((i for i, piece in enumerate(pieces) if piece is trajectory), None)
+    if index is None:
+        return None, None
+
+    def speed(piece: Reference) -> float | None:
+        if not isinstance(piece, LocomotionReference) or piece.gait.name == "stand":
+            return None
+        return float(piece.commands[-1].vx)
+
+    before = speed(pieces[index - 1]) if index > 0 else None
+    after = speed(pieces[index + 1]) if index + 1 < len(pieces) else None
+    return before, after
+
+
 def task_from_reference(
     reference: Reference | None, roll_target: float = 2.0 * math.pi
 ) -> AcrobaticTask | None:
@@ -89,6 +128,7 @@ def task_from_reference(
     if found is None:
         return None
     trajectory_reference, offset = found
+    approach, resume = _gait_speeds(reference, trajectory_reference)
     trajectory = trajectory_reference.trajectory
     start = offset + trajectory_reference.start
     origin = float(trajectory.times[0])
@@ -97,7 +137,14 @@ def task_from_reference(
             takeoff = start + float(trajectory.switching_times[index]) - origin
             touchdown = start + float(trajectory.switching_times[index + 1]) - origin
             return AcrobaticTask(
-                trajectory.name, start, takeoff, touchdown, start + trajectory_reference.duration, roll_target
+                trajectory.name,
+                start,
+                takeoff,
+                touchdown,
+                start + trajectory_reference.duration,
+                roll_target,
+                approach,
+                resume,
             )
     return None
 
@@ -188,10 +235,12 @@ def task_metrics(
     planned_stance: np.ndarray | None = None,
     mu: float = 0.6,
     limits: np.ndarray | None = None,
+    bar: Bar | None = None,
 ) -> dict:
     """The ``task`` block of ``metrics.json`` (see the module docstring). ``requested``: the low-level
     controller's torques before clamping (ticks, nu), ``planned_stance``: the plan knot's stance per tick,
-    ``limits``: the torque limits the controller enforces (default: the robot table's plan limits)."""
+    ``limits``: the torque limits the controller enforces (default: the robot table's plan limits); ``bar``:
+    the scene's bar (its contacts are the log's ``extra["bar_contact"]``)."""
     from cafe_mpc.report.metrics import friction_cone_violations_post_hoc
 
     times = log.time
@@ -238,7 +287,30 @@ def task_metrics(
         ticks = np.flatnonzero(roll)
         cone = friction_cone_violations_post_hoc(robot, _rows(log, ticks), stance[ticks], mu)
     roll_ok = roll_turned >= task.roll_target - ROLL_TOLERANCE_RAD
-    success = bool(roll_ok and landed and upright and stayed_up and motor_violations == 0)
+    speeds = forward_speed(log.q, log.v)
+    end_time = float(times[-1]) if log.ticks else 0.0
+    before = (times >= task.start - SPEED_WINDOW_S - 1e-9) & (times < task.start - 1e-9)
+    last = times > end_time - SPEED_WINDOW_S + 1e-9
+    speed_before = float(np.mean(speeds[before])) if before.any() else None
+    speed_after = float(np.mean(speeds[last])) if last.any() else None
+    pace_resumed = None
+    if task.resume_speed is not None:
+        pace_resumed = bool(
+            speed_after is not None
+            and end_time >= task.end + SPEED_WINDOW_S
+            and abs(speed_after) >= RESUME_FRACTION * abs(task.resume_speed)
+            and speed_after * task.resume_speed > 0
+        )
+    bar_block = bar_metrics(robot, log, task, bar)
+    success = bool(
+        roll_ok
+        and landed
+        and upright
+        and stayed_up
+        and motor_violations == 0
+        and bar_block.get("bar_contact") is not True
+        and pace_resumed is not False
+    )
     return {
         "name": task.name,
         "success": success,
@@ -264,6 +336,12 @@ def task_metrics(
         "roll_motor_torque_limit_violations": motor_violations,
         "roll_requested_torque_limit_violations": request_violations,
         "roll_friction_cone_violations": cone,
+        "approach_speed_command_mps": task.approach_speed,
+        "resume_speed_command_mps": task.resume_speed,
+        "speed_before_roll_mps": speed_before,
+        "speed_after_roll_mps": speed_after,
+        "pace_resumed": pace_resumed,
+        **bar_block,
         "criteria": {
             "roll_turned": f"integral of the body roll rate over the run >= {task.roll_target:.4f} - "
             f"{ROLL_TOLERANCE_RAD} rad",
@@ -278,10 +356,71 @@ def task_metrics(
             "violations": "during the roll (trajectory start to end): commanded torque above the motor "
             "limits; request before clamping above the limits the controller enforces; friction cone of "
             "the forces the commanded torque implies with the plan's stance feet held",
+            "speeds": f"mean forward speed (heading frame) over the {SPEED_WINDOW_S} s before the trajectory "
+            f"starts and over the last {SPEED_WINDOW_S} s of the run",
+            "pace_resumed": f"a moving gait segment follows the trajectory: last {SPEED_WINDOW_S} s mean "
+            f"forward speed >= {RESUME_FRACTION} x its command (null: no such segment)",
+            "bar_contact": "a bar in the scene: any robot geom (trunk, legs, feet) in contact with it at any "
+            "tick of the run (null: no bar); bar_clearance_min_m: smallest bar-to-robot distance over the "
+            "roll (trajectory start - 0.3 s to its end), from the logged states",
             "success": "roll_turned and landed and upright_after and stayed_up and no motor torque-limit "
-            "violation during the roll",
+            "violation during the roll; with a bar, no bar contact; with a gait after the roll, pace_resumed",
         },
     }
+
+
+def forward_speed(q: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """Base forward speed in the heading frame (m/s) at each row: the world-frame linear velocity projected
+    on the heading (``reference.composition.heading``, which a roll does not flip)."""
+    from cafe_mpc.reference.composition import heading
+
+    out = np.zeros(len(q))
+    for row, (configuration, velocity) in enumerate(zip(q, v, strict=True)):
+        x, y, z, w = configuration[3:7]
+        rotation = np.array(
+            [
+                [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+                [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+                [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
+            ]
+        )
+        world = rotation @ velocity[:3]
+        angle = heading(configuration[3:7])
+        out[row] = math.cos(angle) * world[0] + math.sin(angle) * world[1]
+    return out
+
+
+BAR_WINDOW_BEFORE_S = 0.3
+"""The bar clearance is measured from this long before the trajectory starts to its end."""
+
+
+def bar_metrics(robot: Robot, log: SimulationLog, task: AcrobaticTask, bar: Bar | None) -> dict:
+    """The bar entries of the task block (empty without a bar): contact from the plant, clearance from the
+    logged states over the roll."""
+    if bar is None:
+        return {"bar_contact": None}
+    contact = log.extra.get("bar_contact")
+    touched = np.asarray(contact, dtype=bool)[: log.ticks] if contact is not None else np.zeros(0, bool)
+    block: dict = {
+        "bar_contact": bool(touched.any()),
+        "bar_contact_ticks": int(touched.sum()),
+        "bar_first_contact_s": float(log.time[np.argmax(touched)]) if touched.any() else None,
+        "bar_touched_by": list(log.extra.get("bar", {}).get("touched_by", [])),
+        "bar_height_m": bar.height,
+        "bar_position_m": [float(bar.position[0]), float(bar.position[1])],
+        "bar_yaw_rad": bar.yaw,
+        "bar_radius_m": bar.radius,
+    }
+    window = (log.time >= task.start - BAR_WINDOW_BEFORE_S - 1e-9) & (log.time <= task.end + 1e-9)
+    clearance, closest, when = None, None, None
+    if window.any():
+        distances, names = bar_clearance(robot.mjcf, bar, log.q[window])
+        row = int(np.argmin(distances))
+        clearance, closest, when = float(distances[row]), names[row], float(log.time[window][row])
+    block.update(
+        {"bar_clearance_min_m": clearance, "bar_clearance_geom": closest, "bar_clearance_time_s": when}
+    )
+    return block
 
 
 def _rows(log: SimulationLog, ticks: np.ndarray) -> SimulationLog:

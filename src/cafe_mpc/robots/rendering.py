@@ -13,12 +13,16 @@ Creating the context here works whatever was imported before. Needs ``libosmesa6
 from __future__ import annotations
 
 import os
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from cafe_mpc.robots.robot import Robot
+
+if TYPE_CHECKING:
+    import mujoco
 
 
 class RenderUnavailable(RuntimeError):
@@ -55,6 +59,11 @@ class OffscreenRenderer:
             self._model, data, self._option, None, camera, mujoco.mjtCatBit.mjCAT_ALL, self._scene
         )
 
+    @property
+    def scene(self):
+        """The ``MjvScene`` of the last ``update_scene`` (user geoms may be appended before ``render``)."""
+        return self._scene
+
     def render(self) -> np.ndarray:
         self._mujoco.mjr_render(self._viewport, self._scene, self._render_context)
         self._mujoco.mjr_readPixels(self._pixels, None, self._viewport, self._render_context)
@@ -73,19 +82,24 @@ def render_configurations(
     camera: Sequence[float] = (1.2, -15.0, 120.0),
     look_at_height: float = 0.2,
     size: tuple[int, int] = (368, 640),
+    mjcf: str | None = None,
+    decorate: Callable[[int, mujoco.MjvScene], None] | None = None,
 ) -> Path:
     """Write a video of ``configurations`` (frames x nq, planning coordinates: quaternion (x, y, z, w)), one
     frame each, the camera (``distance, elevation, azimuth``) following the base. Returns the file written
-    (``.gif`` instead of ``.mp4`` when ffmpeg is missing). Raises ``RenderUnavailable``."""
+    (``.gif`` instead of ``.mp4`` when ffmpeg is missing). Raises ``RenderUnavailable``.
+
+    ``mjcf``: the scene to render (default the robot's own; e.g. the plant's with terrain). ``decorate(frame,
+    scene)``: adds user geoms to each frame's scene after MuJoCo's own (the plan overlay,
+    ``robots.plan_overlay.draw_plan``)."""
     configurations = np.asarray(configurations, dtype=float)
     if configurations.ndim != 2 or len(configurations) == 0:
         raise RenderUnavailable("nothing to render: no configurations")
-    os.environ.setdefault("MUJOCO_GL", "osmesa")
     try:
         import imageio.v2 as imageio
         import mujoco
 
-        model = mujoco.MjModel.from_xml_string(robot.mjcf)
+        model = mujoco.MjModel.from_xml_string(robot.mjcf if mjcf is None else mjcf)
         data = mujoco.MjData(model)
         renderer = OffscreenRenderer(model, height=size[0], width=size[1])
     except Exception as error:  # GL back-ends fail with many exception types
@@ -97,13 +111,15 @@ def render_configurations(
     view.distance, view.elevation, view.azimuth = camera
     frames = []
     try:
-        for q in configurations:
+        for frame, q in enumerate(configurations):
             data.qpos[:3] = q[:3]
             data.qpos[3:7] = [q[6], q[3], q[4], q[5]]  # (x, y, z, w) -> MuJoCo's (w, x, y, z)
             data.qpos[7:] = q[7:]
             mujoco.mj_forward(model, data)
             view.lookat[:] = [q[0], q[1], look_at_height]
             renderer.update_scene(data, view)
+            if decorate is not None:
+                decorate(frame, renderer.scene)
             frames.append(renderer.render())
     finally:
         renderer.close()

@@ -13,19 +13,34 @@ import logging
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
+from typing import Protocol
 
 import numpy as np
 
 from cafe_mpc.core.controller import Controller
 from cafe_mpc.robots.robot import Robot
+from cafe_mpc.sim.bar import Bar, geom_label
 from cafe_mpc.sim.plant import MujocoPlant
 from cafe_mpc.sim.randomization import PlantVariation, SensorModel
+from cafe_mpc.sim.terrain import Terrain
 
 logger = logging.getLogger(__name__)
 
 
 class ControllerError(RuntimeError):
     """A controller returned something that cannot be sent to the motors (wrong size, NaN)."""
+
+
+class Observer(Protocol):
+    """Watches the plant during a run (``sim.viewer.LiveViewer``): ``start(plant)`` once before the first
+    tick, ``update(t, plant)`` after every control tick; ``update`` returning False ends the run early
+    (``stop_reason`` says why, e.g. the viewer window was closed)."""
+
+    stop_reason: str
+
+    def start(self, plant: MujocoPlant) -> None: ...
+
+    def update(self, t: float, plant: MujocoPlant) -> bool: ...
 
 
 @dataclass(frozen=True)
@@ -143,6 +158,9 @@ def simulate(
     stop: Callable[[float], bool] | None = None,
     variation: PlantVariation | None = None,
     sensor: SensorModel | None = None,
+    terrain: Sequence[Terrain] = (),
+    observer: Observer | None = None,
+    bar: Bar | None = None,
 ) -> SimulationLog:
     """Run ``controller`` on the MuJoCo plant for ``duration`` seconds of simulated time.
 
@@ -150,12 +168,16 @@ def simulate(
     clock starts; see ``WallClockPacer``), the real-time mode; without it the simulation runs as fast as it
     can. ``stop(t)``: end the run early when it returns true (checked after each tick). ``variation``: the
     plant's deviations from the robot table; ``sensor``: the controller measures through it (noise, delay).
+    ``bar``: a bar in the scene (``sim.bar``); the log's ``extra`` then holds ``bar_contact`` (per tick: a
+    robot geom touched it) and ``bar`` (``touched_by``: those geoms).
+    ``terrain``: slopes and steps in the scene (``sim.terrain``). ``observer``: watches the plant after every
+    tick (the live viewer) and may end the run early.
     """
     if not duration > 0:
         raise ValueError(f"duration must be positive, got {duration}")
     if not control_rate_hz > 0:
         raise ValueError(f"control rate must be positive, got {control_rate_hz}")
-    plant = MujocoPlant(robot, plant_timestep, variation)
+    plant = MujocoPlant(robot, plant_timestep, variation, terrain, bar)
     control_period = 1.0 / control_rate_hz
     substeps = round(control_period / plant.timestep)
     if substeps < 1 or abs(substeps * plant.timestep - control_period) > 1e-9:
@@ -166,11 +188,16 @@ def simulate(
         if push.duration <= 0 or push.start < 0 or not np.all(np.isfinite(push.force)):
             raise ValueError(f"invalid push {push}: start >= 0, duration > 0 and a finite force required")
     plant.reset(robot.q_standing if q0 is None else q0, v0)
+    if observer is not None:
+        observer.start(plant)
     controller.reset()
     if sensor is not None:
         sensor.reset()
     ticks = round(duration * control_rate_hz)
     log = SimulationLog.allocate(ticks, robot.nq, robot.nv, robot.nu, robot.n_feet)
+    bar_contact = np.zeros(ticks, dtype=bool)
+    if bar is not None:  # sim.bar: which ticks a robot geom touched the bar (log.npz extra_bar_contact)
+        log.extra["bar_contact"] = bar_contact
     external = np.zeros(3)
     if pacer is not None:
         pacer.start(control_period, ticks)
@@ -197,6 +224,8 @@ def simulate(
         log.torque_command[tick] = torques
         log.torque_applied[tick] = plant.applied(torques)
         log.external_force[tick] = external
+        if bar is not None:
+            bar_contact[tick] = plant.bar_in_contact
         log.ticks = tick + 1
         if fall is not None and not log.fell:
             reason = ""
@@ -216,11 +245,17 @@ def simulate(
             progress(control_period)
         if stop is not None and stop(t):
             break
+        if observer is not None and not observer.update(t + control_period, plant):
+            logger.warning("run stopped at t = %.3f s: %s", t + control_period, observer.stop_reason)
+            break
     log.wall_time = time.perf_counter() - start_wall
     if pacer is not None:
         log.extra["realtime"] = pacer.summary(log.ticks)
     if sensor is not None and not sensor.is_identity:
         log.extra["sensor"] = sensor.summary()
+    if bar is not None:
+        geoms = sorted(plant.bar_contact_geoms)
+        log.extra["bar"] = {"touched_by": [geom_label(plant.model, geom) for geom in geoms]}
     return log.trimmed()
 
 

@@ -12,23 +12,50 @@ MuJoCo's free joint stores the quaternion as ``(w, x, y, z)`` and the linear vel
 the conversion happens here and only here.
 
 A ``PlantVariation`` (``sim.randomization``) changes the plant's friction, masses and motor strengths
-after the model is loaded (domain randomisation); the ``Robot``, and so every controller, stays nominal.
+after the model is loaded (domain randomisation), and terrain (``sim.terrain``) adds slopes and steps to the
+scene; the ``Robot``, and so every controller, stays nominal (it plans on flat ground).
 """
 
 from __future__ import annotations
+
+from collections.abc import Sequence
 
 import mujoco
 import numpy as np
 
 from cafe_mpc.core.measurement import Measurement
 from cafe_mpc.robots.robot import Robot
+from cafe_mpc.sim.bar import BAR_NAME, Bar, with_bar
 from cafe_mpc.sim.randomization import PlantVariation, apply_variation
+from cafe_mpc.sim.terrain import Terrain, with_terrain
 
 _DIVERGENCE_WARNINGS = (
     mujoco.mjtWarning.mjWARN_BADQPOS,
     mujoco.mjtWarning.mjWARN_BADQVEL,
     mujoco.mjtWarning.mjWARN_BADQACC,
 )
+
+
+def scene_mjcf(robot: Robot, terrain: Sequence[Terrain] = (), bar: Bar | None = None) -> str:
+    """The plant's MJCF: the robot's, with the scene's terrain (``sim.terrain``) on the floor and the bar
+    (``sim.bar``), if any."""
+    return with_bar(with_terrain(robot.mjcf, terrain, robot.plant.floor_friction), bar)
+
+
+def planning_state(
+    qpos: np.ndarray, qvel: np.ndarray, q: np.ndarray, v: np.ndarray, scratch: np.ndarray | None = None
+) -> None:
+    """MuJoCo's free-joint ``(qpos, qvel)`` -> planning coordinates ``(q, v)``, written into ``q`` and ``v``:
+    quaternion (w, x, y, z) -> (x, y, z, w), world-frame -> base-frame linear velocity. ``scratch``: 9 floats
+    to reuse for the rotation matrix (allocated when None)."""
+    rotation = np.zeros(9) if scratch is None else scratch
+    mujoco.mju_quat2Mat(rotation, qpos[3:7])
+    q[:3] = qpos[:3]
+    q[3:6] = qpos[4:7]
+    q[6] = qpos[3]
+    q[7:] = qpos[7:]
+    v[:3] = rotation.reshape(3, 3).T @ qvel[:3]
+    v[3:] = qvel[3:]
 
 
 class SimulationDiverged(RuntimeError):
@@ -39,10 +66,17 @@ class MujocoPlant:
     """MuJoCo simulation of a ``Robot`` with torque inputs and planning-coordinate read-out."""
 
     def __init__(
-        self, robot: Robot, timestep: float | None = None, variation: PlantVariation | None = None
+        self,
+        robot: Robot,
+        timestep: float | None = None,
+        variation: PlantVariation | None = None,
+        terrain: Sequence[Terrain] = (),
+        bar: Bar | None = None,
     ) -> None:
         self.robot = robot
-        self.model = mujoco.MjModel.from_xml_string(robot.mjcf)
+        self.terrain = tuple(terrain)
+        self.bar = bar
+        self.model = mujoco.MjModel.from_xml_string(scene_mjcf(robot, self.terrain, bar))
         if timestep is not None:
             if not timestep > 0:
                 raise ValueError(f"plant timestep must be positive, got {timestep}")
@@ -69,6 +103,11 @@ class MujocoPlant:
         self._contact_wrench = np.zeros(6)
         self._contact_frame = np.zeros((3, 3))
         self.trunk_touched_floor = False
+        self.bar_geom = self.model.geom(BAR_NAME).id if bar is not None else -1
+        self.bar_in_contact = False
+        """A robot geom touched the bar at the last ``read_state`` (``sim.bar``)."""
+        self.bar_contact_geoms: set[int] = set()
+        """Every robot geom that touched the bar since ``reset``."""
 
     @property
     def timestep(self) -> float:
@@ -96,6 +135,8 @@ class MujocoPlant:
         self.data.qvel[3:] = v[3:]
         self.data.ctrl[:] = 0.0
         self.trunk_touched_floor = False
+        self.bar_in_contact = False
+        self.bar_contact_geoms.clear()
         mujoco.mj_forward(self.model, self.data)
 
     def set_external_force(self, force_world: np.ndarray) -> None:
@@ -130,20 +171,18 @@ class MujocoPlant:
         """Current state in planning coordinates, feet contacts and ground reaction forces (the arrays are
         the plant's, overwritten on the next read)."""
         state = self._state
-        qpos, qvel = self.data.qpos, self.data.qvel
         state.time = float(self.data.time)
-        state.q[:3] = qpos[:3]
-        state.q[3:6] = qpos[4:7]
-        state.q[6] = qpos[3]
-        state.q[7:] = qpos[7:]
-        mujoco.mju_quat2Mat(self._rotation, qpos[3:7])
-        state.v[:3] = self._rotation.reshape(3, 3).T @ qvel[:3]
-        state.v[3:] = qvel[3:]
+        planning_state(self.data.qpos, self.data.qvel, state.q, state.v, self._rotation)
         state.contacts[:] = False
         state.foot_forces[:] = 0.0
+        self.bar_in_contact = False
         for i in range(self.data.ncon):
             contact = self.data.contact[i]
             geom1, geom2 = int(contact.geom1), int(contact.geom2)
+            if self.bar_geom in (geom1, geom2):  # the bar is neither floor nor foothold
+                self.bar_in_contact = True
+                self.bar_contact_geoms.add(geom2 if geom1 == self.bar_geom else geom1)
+                continue
             if self.trunk_geom in (geom1, geom2):
                 self.trunk_touched_floor = True
             foot = self._foot_index.get(geom1, self._foot_index.get(geom2, -1))

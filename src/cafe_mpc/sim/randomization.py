@@ -7,9 +7,10 @@ model's). Everything here changes only the MuJoCo model of ``sim.plant.MujocoPla
 ``Measurement`` handed to the controller; the controller's ``Robot`` (Pinocchio model, SRB parameters,
 torque limits) is never touched, because the mismatch between the two is the point.
 
-* ``PlantVariation``: floor and foot friction, trunk mass, the mass of every leg link, the strength of every
-  motor. Masses scale with their inertia tensors (same shape, different density); motor strength scales the
-  actuator gear, so a motor at 0.9 delivers 0.9 x the commanded torque and saturates at 0.9 x its limit.
+* ``PlantVariation``: floor (and terrain) and foot friction, the whole robot's mass, trunk mass, the mass
+  of every leg link, the strength of every motor. Masses scale with their inertia tensors (same shape,
+  different density); motor strength scales the actuator gear, so a motor at 0.9 delivers 0.9 x the
+  commanded torque and saturates at 0.9 x its limit.
 * ``SensorModel``: zero-mean Gaussian noise on the measured base pose, base twist, joint angles and rates,
   and a latency jitter: at each control tick the controller sees the state of a random earlier tick, at most
   ``delay_max`` seconds old and never older than what it saw at the previous tick (measurements arrive in
@@ -44,6 +45,8 @@ class PlantVariation:
     body_mass_scale: float = 1.0
     link_mass_scales: float | tuple[float, ...] = 1.0
     motor_strength_scales: float | tuple[float, ...] = 1.0
+    mass_scale: float = 1.0
+    """Every body's mass and inertia (the whole robot), on top of the trunk and link factors."""
 
     def per_joint(self, values: float | tuple[float, ...], n: int, name: str) -> np.ndarray:
         array = np.full(n, float(values)) if np.isscalar(values) else np.asarray(values, dtype=float)
@@ -57,6 +60,8 @@ class PlantVariation:
             raise ValueError(f"floor_friction must be in (0, 10], got {self.floor_friction}")
         if not 0.0 < self.body_mass_scale <= 10.0:
             raise ValueError(f"body_mass_scale must be in (0, 10], got {self.body_mass_scale}")
+        if not 0.0 < self.mass_scale <= 10.0:
+            raise ValueError(f"mass_scale must be in (0, 10], got {self.mass_scale}")
         self.per_joint(self.link_mass_scales, robot.nu, "link_mass_scales")
         self.per_joint(self.motor_strength_scales, robot.nu, "motor_strength_scales")
 
@@ -65,6 +70,7 @@ class PlantVariation:
         return (
             self.floor_friction is None
             and self.body_mass_scale == 1.0
+            and self.mass_scale == 1.0
             and np.all(np.asarray(self.link_mass_scales) == 1.0)
             and np.all(np.asarray(self.motor_strength_scales) == 1.0)
         )
@@ -79,8 +85,12 @@ def apply_variation(model: mujoco.MjModel, robot: Robot, variation: PlantVariati
     variation.check(robot)
     if variation.floor_friction is not None:
         geoms = [model.geom("floor").id, *(model.geom(name).id for name in robot.foot_frame_names)]
+        geoms += terrain_geoms(model)  # sim.terrain's slopes and steps are floor too
         for geom in geoms:  # MuJoCo takes the larger friction of the two geoms in contact: set both
             model.geom_friction[geom, 0] = variation.floor_friction
+    if variation.mass_scale != 1.0:
+        model.body_mass[1:] *= variation.mass_scale  # body 0 is the world
+        model.body_inertia[1:] *= variation.mass_scale
     base = model.body("base").id
     model.body_mass[base] *= variation.body_mass_scale
     model.body_inertia[base] *= variation.body_mass_scale
@@ -96,6 +106,15 @@ def apply_variation(model: mujoco.MjModel, robot: Robot, variation: PlantVariati
     data = mujoco.MjData(model)
     mujoco.mj_setConst(model, data)  # subtree masses and constraint scalings follow the new inertias
     return strength
+
+
+TERRAIN_PREFIX = "terrain_"
+"""Name prefix of the terrain geoms (``sim.terrain``)."""
+
+
+def terrain_geoms(model: mujoco.MjModel) -> list[int]:
+    """Ids of the scene's terrain geoms (named ``terrain_*``)."""
+    return [i for i in range(model.ngeom) if (model.geom(i).name or "").startswith(TERRAIN_PREFIX)]
 
 
 @dataclass(frozen=True)

@@ -7,10 +7,13 @@ from pathlib import Path
 
 import yaml
 
-from cafe_mpc.trajopt.barrel_roll import barrel_roll_task
+from cafe_mpc.trajopt.barrel_roll import barrel_roll_task, running_barrel_roll_task
 from cafe_mpc.trajopt.task import TrajOptTask, TrajOptTaskError, parse_override, set_dotted, validate_task
 
-TASKS: dict[str, Callable[[], TrajOptTask]] = {"barrel-roll": barrel_roll_task}
+TASKS: dict[str, Callable[[], TrajOptTask]] = {
+    "barrel-roll": barrel_roll_task,
+    "running-barrel-roll": running_barrel_roll_task,
+}
 """Task presets by name."""
 
 

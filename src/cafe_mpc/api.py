@@ -1,0 +1,212 @@
+"""CAFE-MPC as a library: ``cafe_mpc.Controller`` for your own simulator or robot loop.
+
+The same controller as ``cafe-mpc run`` (reference, CAFE-MPC, VWBC or Riccati low level), built from a run
+config (a preset name, a YAML file or a ``RunConfig``), without the simulation around it::
+
+    import cafe_mpc
+
+    with cafe_mpc.Controller("trot", ["gait.commands.0.vx=0.3"]) as controller:
+        controller.reset(controller.measurement(qpos, qvel, time=0.0))   # the cold solve, robot standing
+        while running:
+            torques = controller.compute(t, controller.measurement(qpos, qvel, time=t))
+            ...                                                          # send them, advance your loop
+
+``compute`` is meant to be called at the config's control rate (``simulation.control_rate_hz``, 500 Hz in the
+presets) with the newest measurement; it returns the 12 joint torques in the robot's joint order
+(``controller.robot.joint_names``), which hold until the next call. Times are seconds on your clock;
+``reset`` sets time zero of the reference (the gait's commands, its start stance and ramp).
+
+Two ways to run the MPC (``mode``):
+
+* ``"inline"`` (default): in the calling thread, as ``cafe-mpc run`` does in simulated time
+  (``control.mpc_loop.CafeMpcController``): every ``mpc.period`` of *your* time one ``compute`` call also runs
+  an MPC update (about 10 ms of wall time); with ``mpc.latency: measured`` its plan takes effect once that
+  wall time has passed on your clock, with ``fixed`` after ``mpc.fixed_latency``. Deterministic with
+  ``fixed``; right for a simulator that waits for the controller.
+* ``"process"``: in its own process, against the wall clock (``control.realtime.RealtimeMpcController``,
+  ``cafe-mpc run --realtime``): ``compute`` never waits for a solve, it follows the newest plan. For a loop
+  that runs in real time (a robot, or a simulator paced by the wall clock); ``close()`` (or ``with``) stops
+  the process. If the MPC process dies or stalls the robot is held in a damped stance and ``failure`` says
+  why.
+
+Measurements are in the planning model's coordinates (``core.measurement.Measurement``: Pinocchio's
+free-flyer ``q``, ``v`` with the base linear velocity in the base frame); ``measurement(qpos, qvel, ...)``
+converts MuJoCo's free-joint state. ``plan`` is the plan the low level follows now (``core.plan.Plan``), e.g.
+to draw it (``robots.plan_overlay``). ``examples/mujoco_loop.py`` runs it against a MuJoCo loop.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Literal
+
+import numpy as np
+
+from cafe_mpc.config import ConfigError, RunConfig, load_config
+from cafe_mpc.control.mpc_loop import CafeMpcController
+from cafe_mpc.control.realtime import RealtimeMpcController
+from cafe_mpc.core.measurement import Measurement
+from cafe_mpc.core.plan import Plan
+from cafe_mpc.experiments.controllers import (
+    build_low_level,
+    build_mpc,
+    build_realtime_controller,
+    build_template_controller,
+)
+from cafe_mpc.robots.robot import Robot, load_robot
+from cafe_mpc.sim.plant import planning_state
+
+__all__ = ["Controller"]
+
+Mode = Literal["inline", "process"]
+
+
+class Controller:
+    """CAFE-MPC over its low-level controller, for a loop you own (see the module docstring).
+
+    ``config``: a preset name (``trot``, ``bound``, ...), a YAML file, or a ``RunConfig``; ``overrides``:
+    ``key=value`` strings as ``cafe-mpc run --set`` takes them (not with a ``RunConfig``). ``mode``:
+    ``inline`` or ``process``. Raises ``ConfigError`` (one line naming the key) for a config that cannot
+    drive the robot (e.g. ``wbc: pd``, which has no MPC).
+    """
+
+    def __init__(
+        self,
+        config: RunConfig | str | Path = "trot",
+        overrides: Sequence[str] = (),
+        mode: Mode = "inline",
+    ) -> None:
+        if isinstance(config, RunConfig):
+            if overrides:
+                raise ConfigError("overrides apply to a preset or a YAML file, not to a RunConfig")
+        else:
+            config = load_config(str(config), list(overrides))
+        if mode not in ("inline", "process"):
+            raise ConfigError(f"mode must be 'inline' or 'process', got {mode!r}")
+        if config.wbc == "pd":
+            raise ConfigError(
+                "the Controller runs CAFE-MPC: use a gait config (wbc: vwbc or riccati), not wbc: pd"
+            )
+        if mode == "process" and config.planner == "template":
+            raise ConfigError("planner: 'template' runs inline only (mode='inline')")
+        self.config = config
+        self.mode: Mode = mode
+        self.robot: Robot = load_robot(config.robot)
+        self._inner: CafeMpcController | RealtimeMpcController | None = None
+        self._t0 = 0.0
+        self._closed = False
+        if mode == "inline":
+            self._inner = self._build_inline()
+
+    # ------------------------------------------------------------------------------------ lifecycle
+    def __enter__(self) -> Controller:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    def close(self) -> None:
+        """Stop the MPC process (``process`` mode) and free its shared memory; idempotent."""
+        if isinstance(self._inner, RealtimeMpcController):
+            self._inner.close()
+        self._closed = True
+
+    def _build_inline(self) -> CafeMpcController:
+        config, robot = self.config, self.robot
+        if config.planner == "template":
+            return build_template_controller(config, robot)
+        mpc = build_mpc(config, robot)
+        # the low level without a run recorder: a loop of unknown length keeps no per-tick records
+        return CafeMpcController(
+            robot, mpc.reference, mpc.builder, build_low_level(self.config, robot), mpc=mpc
+        )
+
+    # -------------------------------------------------------------------------------------- control
+    @property
+    def control_period(self) -> float:
+        """Seconds between ``compute`` calls the config is tuned for (1 / ``simulation.control_rate_hz``)."""
+        return 1.0 / self.config.simulation.control_rate_hz
+
+    def reset(self, measurement: Measurement, t: float | None = None) -> None:
+        """Start (again) from ``measurement``: forget plans and warm starts, make ``t`` (default
+        ``measurement.time``) time zero of the reference, and run the first (cold) MPC solve now, before your
+        loop's clock starts, as on the robot (in ``process`` mode: start the MPC process and wait for its
+        first plan)."""
+        if self._closed:
+            raise RuntimeError("this Controller is closed; create a new one")
+        self._t0 = float(measurement.time if t is None else t)
+        start = self._relative(measurement, 0.0)
+        if self.mode == "inline":
+            assert isinstance(self._inner, CafeMpcController)
+            self._inner.reset()
+            self._inner.start(0.0, start)
+        else:
+            if self._inner is not None:  # a new process: the old one's reference and warm starts are stale
+                self._inner.close()
+            low_level = build_low_level(self.config, self.robot)  # no per-tick records (see _build_inline)
+            self._inner = build_realtime_controller(self.config, self.robot, low_level)
+            self._inner.reset()
+            self._inner.wait_ready(start)
+
+    def compute(self, t: float, measurement: Measurement) -> np.ndarray:
+        """Joint torques (nu,) for time ``t`` (your clock) from ``measurement``; call at the control rate."""
+        inner = self._inner
+        if inner is None or (self.mode == "inline" and not inner.mpc.started):
+            raise RuntimeError("call reset(measurement) before compute")
+        torques = inner.compute(t - self._t0, self._relative(measurement, t - self._t0))
+        return np.array(torques, dtype=float)
+
+    def _relative(self, measurement: Measurement, t: float) -> Measurement:
+        """The measurement on the controller's clock (time zero at ``reset``)."""
+        return Measurement(t, measurement.q, measurement.v, measurement.contacts, measurement.foot_forces)
+
+    # ---------------------------------------------------------------------------------- inspection
+    @property
+    def plan(self) -> Plan | None:
+        """The plan the low-level controller follows now (None before the first solve). Its times are on the
+        controller's clock (zero at ``reset``)."""
+        return getattr(self._inner, "plan", None) if self._inner is not None else None
+
+    @property
+    def failure(self) -> str | None:
+        """``process`` mode: why the MPC process stopped delivering plans (None while all is well)."""
+        return getattr(self._inner, "failure", None)
+
+    def statistics(self) -> dict:
+        """The MPC's update statistics so far (``MpcStatistics.summary``: solves, failures, update and
+        latency medians, ...); in ``process`` mode the plan latencies seen here."""
+        inner = self._inner
+        if isinstance(inner, CafeMpcController):
+            return inner.statistics.summary()
+        if isinstance(inner, RealtimeMpcController):
+            latencies = inner.statistics.latencies
+            return {
+                "plans_received": len(latencies),
+                "latency_ms_median": float(np.median(latencies)) * 1e3 if latencies else None,
+                "pd_fallback_ticks": inner.statistics.fallback_ticks,
+            }
+        return {}
+
+    # ------------------------------------------------------------------------------- MuJoCo helpers
+    def measurement(
+        self,
+        qpos: np.ndarray,
+        qvel: np.ndarray,
+        time: float = 0.0,
+        contacts: Sequence[bool] | None = None,
+    ) -> Measurement:
+        """A ``Measurement`` from MuJoCo's free-joint state (``qpos``: position, quaternion w x y z, joints;
+        ``qvel``: world-frame linear velocity, base-frame angular velocity, joint rates), joints in the
+        robot's order. ``contacts``: feet in contact (leg order; only ``vwbc.stance_source: intersect`` uses
+        them; default none)."""
+        robot = self.robot
+        q, v = np.zeros(robot.nq), np.zeros(robot.nv)
+        planning_state(np.asarray(qpos, dtype=float), np.asarray(qvel, dtype=float), q, v)
+        flags = np.zeros(robot.n_feet, dtype=bool) if contacts is None else np.asarray(contacts, dtype=bool)
+        return Measurement(float(time), q, v, flags, np.zeros((robot.n_feet, 3)))
+
+    def standing_qpos(self) -> np.ndarray:
+        """MuJoCo ``qpos`` of the robot standing (where the presets start), for ``robot.mjcf``'s model."""
+        q = self.robot.q_standing
+        return np.concatenate([q[:3], [q[6], q[3], q[4], q[5]], q[7:]])

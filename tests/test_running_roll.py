@@ -1,0 +1,140 @@
+"""The running barrel roll (paper Sec. VII-C, Fig. 13-16): the composed reference (flying pace -> roll from
+its right stance -> hop -> flying pace), the bar in the plant's scene, and the template-vs-CAFE comparison."""
+
+import json
+
+import mujoco
+import numpy as np
+import pytest
+
+from cafe_mpc.config import ConfigError, load_config
+from cafe_mpc.experiments.sweep import run_experiment
+from cafe_mpc.experiments.tasks import task_reference
+from cafe_mpc.report.metrics import roll_pitch_yaw
+from cafe_mpc.report.task_metrics import reference_trace, task_from_reference
+from cafe_mpc.robots.robot import load_robot
+from cafe_mpc.sim.bar import Bar, bar_of
+from cafe_mpc.sim.plant import scene_mjcf
+
+DT = 0.005
+
+
+@pytest.fixture(scope="module")
+def robot():
+    return load_robot("mini_cheetah")
+
+
+@pytest.fixture(scope="module")
+def composed(robot):
+    config = load_config("running-barrel-roll")
+    return config, task_reference(config.reference, robot)
+
+
+def _trace(reference, robot, end: float):
+    times = np.arange(0.0, end, DT)
+    q = reference_trace(reference, times, robot.nq, robot.nv, robot.nu, robot.n_feet)
+    return times, q
+
+
+def test_running_roll_reference_follows_the_recipe(robot, composed):
+    """Pace until the left legs end a stance, the roll from its right stance (FR, HR), a flight, a landing on
+    all four, a hop, and the pace again; no full stance between the pace's start and the roll's take-off."""
+    config, reference = composed
+    roll_start = reference.segments[1].start
+    task = task_from_reference(reference)
+    assert task is not None and task.start == pytest.approx(roll_start)
+    stance = {name: i for i, name in enumerate(robot.leg_names)}
+    left = (stance["FL"], stance["HL"])
+    right = (stance["FR"], stance["HR"])
+    before = reference.stance_at(roll_start - 0.01)
+    # the pace ends on the left legs, the roll starts on its right legs
+    assert all(before[i] for i in left) and not any(before[i] for i in right)
+    first = reference.stance_at(roll_start + 0.01)
+    assert all(first[i] for i in right) and not any(first[i] for i in left)
+    assert not any(reference.stance_at(0.5 * (task.takeoff + task.touchdown)))  # the roll's flight
+    assert all(reference.stance_at(task.touchdown + 0.01))  # the landing on all four
+    pace_start = config.reference.segments[0].gait.start_stance
+    for t in np.arange(pace_start + 0.01, task.takeoff, DT):
+        assert not all(reference.stance_at(float(t))), f"full stance at {t:.3f} s before the roll"
+    # the hop: a flight after the landing, then the pace's side stances again
+    after = [reference.stance_at(float(t)) for t in np.arange(task.touchdown + 0.05, task.end, DT)]
+    assert any(not any(flags) for flags in after)
+    later = [reference.stance_at(float(t)) for t in np.arange(task.end + 0.5, task.end + 1.5, DT)]
+    assert any(flags == (True, False, True, False) for flags in later)
+    assert any(flags == (False, True, False, True) for flags in later)
+
+
+def test_running_roll_reference_is_continuous_and_turns_once(robot, composed):
+    _, reference = composed
+    times, q = _trace(reference, robot, 6.0)
+    step = np.linalg.norm(np.diff(q[:, :2], axis=0), axis=1)  # the joins map (x, y, yaw): no jump
+    assert step.max() < 0.01, f"base jumps {step.max():.3f} m at {times[np.argmax(step)]:.3f} s"
+    # heights are absolute: the roll's stand (0.235 m) and the pace's (0.25 m) differ by a couple of cm
+    assert np.abs(np.diff(q[:, 2])).max() < 0.03
+    # sign-continuous across the 2 pi roll; one step in orientation where the roll starts: its right-stance
+    # phase begins already rolled by the skipped first stance (the recipe starts the roll there)
+    quaternion_dot = np.sum(q[1:, 3:7] * q[:-1, 3:7], axis=1)
+    task = task_from_reference(reference)
+    steps = times[1:][quaternion_dot < 0.999]
+    assert np.all(np.abs(steps - task.start) <= DT), steps
+    assert quaternion_dot.min() > np.cos(0.5 / 2.0)  # that step is below 0.5 rad
+    roll = roll_pitch_yaw(q[:, 3:7])[:, 0]
+    assert roll[0] == pytest.approx(0.0, abs=1e-6)
+    assert roll[-1] == pytest.approx(2.0 * np.pi, abs=0.05)
+    forward = np.diff(q[:, 0]) / DT  # the pace moves at its 0.8 m/s before and after the roll
+    assert np.median(forward[(times[1:] > 1.0) & (times[1:] < task.start)]) == pytest.approx(0.8, abs=0.05)
+    assert np.median(forward[times[1:] > task.end + 1.0]) == pytest.approx(0.8, abs=0.05)
+
+
+def test_measured_join_places_the_roll_where_the_pace_now_ends(robot):
+    """``join: measured``: the pace re-anchors on the measurement, and the roll (not started yet) is placed at
+    the pace's new end; the trace stays continuous across the join."""
+    config = load_config("running-barrel-roll")
+    reference = task_reference(config.reference, robot)
+    before = reference.offset_of(1)
+    q = robot.q_standing.copy()
+    q[:2] = [0.35, 0.04]  # the robot is somewhere other than the plan's start
+    v = np.zeros(robot.nv)
+    reference.update(0.4, q, v)
+    after = reference.offset_of(1)
+    assert np.linalg.norm(np.subtract(after[:2], before[:2])) > 0.02
+    roll_start = reference.segments[1].start
+    times = np.array([roll_start - 1e-4, roll_start + 1e-4])
+    ends = reference_trace(reference, times, robot.nq, robot.nv, robot.nu, robot.n_feet)
+    assert np.linalg.norm(ends[1, :2] - ends[0, :2]) < 0.01
+
+
+def test_bar_in_the_scene_collides_with_legs_only_where_it_is(robot):
+    config = load_config("running-barrel-roll")
+    bar = bar_of(config.scene)
+    assert bar == Bar(0.4, (2.0, -0.265), 0.0, 2.0, 0.005)
+    assert bar_of(load_config("running-barrel-roll", ["scene.bar_height=0"]).scene) is None
+    model = mujoco.MjModel.from_xml_string(scene_mjcf(robot, (), bar))
+    geom = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_GEOM, "bar")
+    assert geom >= 0 and model.geom_pos[geom][2] == pytest.approx(0.4)
+    with pytest.raises(ConfigError, match="bar"):
+        load_config("running-barrel-roll", ["scene.bar_radius=-1"])
+
+
+def test_template_vs_cafe_compares_both_planners(tmp_path):
+    """A short comparison (the roll's first 0.6 s, fixed latency, no video): both planners run the same
+    reference and the comparison files name both."""
+    out = tmp_path / "comparison"
+    run_experiment(
+        "template-vs-cafe",
+        out,
+        duration=0.6,
+        overrides=["mpc.latency=fixed", "output.render=false"],
+        scheduler="synchronous",
+    )
+    comparison = json.loads((out / "comparison.json").read_text())
+    assert set(comparison["variants"]) == {"cafe", "template"}
+    for name, row in comparison["variants"].items():
+        assert row["status"] == "ok", name
+        assert row["timing_mode"] == "fixed"
+        assert row["fell"] is False, name  # 0.6 s: the stand and the start of the roll's stance
+    text = (out / "comparison.md").read_text()
+    assert "CAFE-MPC + VWBC" in text and "template MPC" in text
+    assert (out / "comparison.png").is_file()
+    with pytest.raises(ConfigError, match="not an acrobatic task"):
+        run_experiment("template-vs-cafe", tmp_path / "x", duration=0.1, scheduler="synchronous", task="trot")

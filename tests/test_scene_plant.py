@@ -1,0 +1,128 @@
+"""Plant and scene overrides from the run config (issue 15): floor friction, mass scale, terrain, and the
+controller's own friction coefficient (``mpc.friction``), each validated at the boundary."""
+
+from __future__ import annotations
+
+import mujoco
+import numpy as np
+import pytest
+
+from cafe_mpc.config import ConfigError, load_config
+from cafe_mpc.experiments.controllers import build_controller, build_low_level, build_mpc
+from cafe_mpc.robots.robot import load_robot
+from cafe_mpc.sim.plant import MujocoPlant, scene_mjcf
+from cafe_mpc.sim.randomization import PlantVariation, terrain_geoms
+from cafe_mpc.sim.terrain import Slope, Steps, terrain_height
+
+
+@pytest.fixture(scope="module")
+def robot():
+    return load_robot("mini_cheetah")
+
+
+def _ray_height(plant: MujocoPlant, x: float, y: float = 0.0) -> float:
+    mujoco.mj_forward(plant.model, plant.data)
+    geom = np.zeros(1, dtype=np.int32)
+    distance = mujoco.mj_ray(
+        plant.model, plant.data, np.array([x, y, 2.0]), np.array([0.0, 0.0, -1.0]), None, 1, -1, geom
+    )
+    return 2.0 - distance
+
+
+@pytest.mark.parametrize(
+    ("override", "message"),
+    [
+        ("plant.floor_friction=0", "plant.floor_friction"),
+        ("plant.floor_friction=3", "plant.floor_friction"),
+        ("plant.mass_scale=2", "plant.mass_scale"),
+        ("plant.mass_scale=.nan", "plant.mass_scale"),
+        ("mpc.friction=0", "mpc.friction"),
+        ("mpc.friction=-0.5", "mpc.friction"),
+        ("scene.terrain=[{kind: hill}]", "scene.terrain.0.kind"),
+        ("scene.terrain=[{kind: slope, angle_deg: 45}]", "scene.terrain.0.angle_deg"),
+        ("scene.terrain=[{kind: steps, rise: 0.5}]", "scene.terrain.0.rise"),
+        ("scene.terrain=[{kind: slope, rise: 0.02}]", "'rise' belongs to terrain of kind steps"),
+        ("scene.terrain=[{kind: steps, width: 0}]", "scene.terrain.0.width"),
+        ("scene.terrain=[{kind: steps, typo: 1}]", "scene.terrain.0.typo: unknown key"),
+        ("scene.terrain=[{start: 1}]", "scene.terrain.0.kind"),
+    ],
+)
+def test_bad_plant_and_scene_values_are_rejected_naming_the_key(override, message):
+    with pytest.raises(ConfigError, match="invalid config") as error:
+        load_config("trot", [override])
+    assert message in str(error.value)
+    assert "\n" not in str(error.value)
+
+
+def test_terrain_defaults_fill_the_kind_and_reach_the_plant(robot):
+    config = load_config(
+        "trot",
+        ["scene.terrain=[{kind: slope, start: 1.0, angle_deg: 10}, {kind: steps, start: 5.0, rise: 0.05}]"],
+    )
+    slope, steps = config.scene.terrain
+    assert (slope.length, slope.count) == (1.0, None) and (steps.count, steps.run, steps.angle_deg) == (
+        3,
+        0.3,
+        None,
+    )
+    pieces = config.scene.terrain_pieces()
+    assert pieces == [Slope(start=1.0, angle_deg=10.0), Steps(start=5.0, rise=0.05)]
+    plant = MujocoPlant(robot, terrain=pieces)
+    names = [plant.model.geom(i).name for i in terrain_geoms(plant.model)]
+    assert names[:3] == ["terrain_0_slope_up", "terrain_0_slope_top", "terrain_0_slope_down"]
+    # the geoms' surfaces are where the pieces say (rays from above)
+    for x in (0.5, 1.01, 1.5, 1.99, 2.5, 3.5, 4.5, 5.1, 5.4, 5.7, 6.5, 7.2, 8.0):
+        assert _ray_height(plant, x) == pytest.approx(terrain_height(pieces, x), abs=1e-6), x
+    assert _ray_height(plant, 2.5, y=1.5) == pytest.approx(0.0, abs=1e-9)  # off the 2 m width
+    assert scene_mjcf(robot) == robot.mjcf  # no terrain: the robot's own model
+
+
+def test_floor_friction_and_mass_scale_change_the_plant_only(robot):
+    pieces = [Steps(start=0.5)]
+    plant = MujocoPlant(robot, variation=PlantVariation(floor_friction=0.3, mass_scale=1.2), terrain=pieces)
+    friction = plant.model.geom_friction[:, 0]
+    floor = plant.model.geom("floor").id
+    assert friction[floor] == 0.3
+    assert np.all(friction[terrain_geoms(plant.model)] == 0.3)  # terrain is floor too
+    assert float(np.sum(plant.model.body_mass)) == pytest.approx(1.2 * robot.total_mass)
+    nominal = MujocoPlant(robot, terrain=pieces)
+    assert float(np.sum(nominal.model.body_mass)) == pytest.approx(robot.total_mass)
+    assert np.all(nominal.model.geom_friction[terrain_geoms(nominal.model), 0] == robot.plant.floor_friction)
+    with pytest.raises(ValueError, match="mass_scale"):
+        MujocoPlant(robot, variation=PlantVariation(mass_scale=0.0))
+    config = load_config("trot", ["plant.mass_scale=1.2", "plant.floor_friction=0.3"])
+    variation = config.plant.variation()
+    assert (variation.mass_scale, variation.floor_friction) == (1.2, 0.3)
+
+
+def test_mpc_friction_is_the_controllers_own_and_independent_of_the_plant(robot):
+    config = load_config("trot", ["mpc.friction=0.35", "plant.floor_friction=0.9"])
+    mpc = build_mpc(config, robot)
+    assert mpc.builder.whole_body.settings.constraints.friction_coefficient == 0.35
+    assert build_low_level(config, robot).settings.mu == 0.35
+    template = build_controller(load_config("trot", ["mpc.friction=0.35", "planner=template"]), robot)
+    assert template.builder.settings.friction_coefficient == 0.35
+    default = load_config("trot")
+    assert default.mpc.friction == 0.6 and default.plant.floor_friction is None  # the robot table's 0.6
+    assert build_low_level(default, robot).settings.mu == 0.6
+
+
+def test_a_trot_climbs_low_steps(tmp_path):
+    """Terrain in a closed loop: 2 cm steps under a flat-ground plan; the feet stand on them, nobody falls."""
+    from cafe_mpc.experiments.run import simulate_run
+
+    config = load_config(
+        "trot",
+        [
+            "simulation.duration=2.5",
+            "mpc.latency=fixed",
+            "scene.terrain=[{kind: steps, start: 0.3, count: 2, rise: 0.02, run: 0.3, top_length: 1.0}]",
+        ],
+    )
+    robot, _, log = simulate_run(config)
+    assert not log.fell
+    feet = np.array([robot.foot_positions(q) for q in log.q[::25]])
+    contacts = log.contacts[::25]
+    on_step = feet[..., 2][contacts] > robot.foot_radius + 0.015  # a stance foot on a 2 or 4 cm tread
+    assert on_step.sum() > 10
+    assert log.q[-1, 0] > 0.7  # it got onto the top (from 0.9 m on)
