@@ -316,3 +316,37 @@ def test_toy_model_derivatives() -> None:
     pendulum = PendulumModel(0.05, torque_limit=1.0, barrier=barrier)
     _check_model_derivatives(pendulum, np.array([0.4, -0.3]), np.array([0.5]))
     _check_model_derivatives(pendulum, np.array([0.4, -0.3]), np.array([1.01]))
+
+
+def test_shift_policy_matches_the_relinearized_one_to_first_order() -> None:
+    """``final_policy="shift"`` returns the same trajectory as ``"relinearize"`` with one linearisation less;
+    its Q-function gradient, moved to the new plan to first order, agrees with the one linearised there."""
+    problem = pendulum_problem(np.array([0.3, 0.0]))
+    start = MSiLQRSolver(SolverOptions(max_iterations=2, max_al_iterations=1)).solve(problem)
+    results, calls = {}, {}
+    for policy in ("relinearize", "shift"):
+        solver = MSiLQRSolver(SolverOptions(max_iterations=1, max_al_iterations=1, final_policy=policy))
+        count = [0]
+        linearize = solver._linearize
+
+        def counted(workspace, count=count, linearize=linearize):
+            count[0] += 1
+            linearize(workspace)
+
+        solver._linearize = counted
+        results[policy] = solver.solve(problem, start.xs, start.us)
+        calls[policy] = count[0]
+    relinearized, shifted = results["relinearize"], results["shift"]
+    assert calls == {"relinearize": 2, "shift": 1}
+    assert shifted.policy_valid and relinearized.policy_valid
+    np.testing.assert_allclose(shifted.xs[0], relinearized.xs[0], atol=1e-12)
+    # the shifted gradient is much closer to the one linearised at the new plan than the unshifted one
+    unshifted = np.abs(start.phases[0].Qu - relinearized.phases[0].Qu).max()
+    gap = np.abs(shifted.phases[0].Qu - relinearized.phases[0].Qu).max()
+    assert gap < 0.5 * unshifted
+    np.testing.assert_allclose(shifted.phases[0].Quu, relinearized.phases[0].Quu, rtol=0.05, atol=1e-6)
+
+
+def test_bad_final_policy_is_rejected() -> None:
+    with pytest.raises(ValueError, match="final_policy"):
+        SolverOptions(final_policy="sometimes")

@@ -157,6 +157,20 @@ def test_shipped_trajectory_matches_the_preset(task):
     assert shipped_task == task
 
 
+def test_shipped_running_roll_trajectory_is_feasible_and_current(robot):
+    """The running barrel roll's trajectory (the in-place roll's optimisation with the running-roll phase
+    durations): feasible under the planning model, 2 pi at landing, and made by the current preset."""
+    shipped_running = load_packaged_trajectory("running-barrel-roll", robot)
+    check = check_trajectory(robot, shipped_running)
+    assert check.max_defect <= 1e-3
+    assert check.max_abs_torque <= 17.0 + 1e-9
+    assert [t for t, _ in check.touchdown_heights] == pytest.approx([0.83, 1.18])
+    assert check.max_touchdown_height_error <= 1e-3
+    assert check.roll_at_landing == pytest.approx(TWO_PI, abs=0.05)
+    preset = load_task("running-barrel-roll")
+    assert load_task(str(packaged_trajectory_path("running-barrel-roll").with_suffix(".yaml"))) == preset
+
+
 def test_task_yaml_round_trip_and_overrides(tmp_path, task):
     path = tmp_path / "task.yaml"
     path.write_text(task.to_yaml("header\nline"))

@@ -192,6 +192,11 @@ class MpcConfig(StrictModel):
         le=1e6,
         description="cap of the touchdown constraint's AL penalty (null: 1e4, the authors'; starts at 20)",
     )
+    final_policy: Literal["shift", "relinearize"] = Field(
+        "shift",
+        description="policy an update returns: shift (the last sweep moved to the new plan, the real-time "
+        "iteration's; one linearisation less) or relinearize (linearise and sweep again at the new plan)",
+    )
     friction: float = Field(
         0.6,
         gt=0.0,

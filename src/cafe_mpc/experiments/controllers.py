@@ -245,6 +245,7 @@ def mpc_settings(config: RunConfig) -> MpcSettings:
             time_budget=config.mpc.time_budget,
             max_iterations=config.mpc.max_iterations,
             touchdown_max_penalty=config.mpc.touchdown_max_penalty,
+            final_policy=config.mpc.final_policy,
         )
     except ValueError as error:
         raise ConfigError(f"mpc: {error}") from error

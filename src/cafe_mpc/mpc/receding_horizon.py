@@ -29,6 +29,12 @@ logger = logging.getLogger(__name__)
 
 LatencyMode = Literal["fixed", "measured"]
 
+UPDATE_LINE_SEARCH_MIN_STEP = 0.125
+"""Smallest line-search step of an in-loop update (steps 1, 1/2, 1/4, 1/8; the offline solver goes down to
+1e-3). Every trial is a full roll-out of the horizon: a search that fails on all ten steps of the offline
+setting made 20 roll-outs (hybrid and nonlinear per step), and at the running barrel roll's touchdown that
+update took 229 ms instead of ~50 ms (measured). A failed search keeps the previous plan and its policy."""
+
 
 @dataclass
 class MpcSettings:
@@ -46,6 +52,10 @@ class MpcSettings:
     (``SolverOptions.al_max_penalty``; ``None``: the authors' 1e4). The penalty starts at 20 and grows x5 per
     update while a planned foot misses the floor by more than 5 mm (the AL parameters carry over between
     updates); the barrel-roll preset caps it at 20 (docs/settings.md).
+    ``final_policy``: the policy an update returns (``SolverOptions.final_policy``): ``"shift"`` (default)
+    keeps the sweep the step was taken from, moved to the new plan to first order (the real-time
+    iteration's policy, one linearisation and one sweep less per update); ``"relinearize"`` linearises and
+    sweeps again at the new plan.
     """
 
     period: float = 0.02
@@ -54,6 +64,7 @@ class MpcSettings:
     time_budget: float | None = None
     max_iterations: int = 1
     touchdown_max_penalty: float | None = None
+    final_policy: Literal["relinearize", "shift"] = "shift"
     # The paper's first-solve settings with a tighter tolerance: the first (cold) solve seeds every later
     # warm start. It runs before the clock starts (the robot stands while the first plan is computed).
     first_solve: SolverOptions = field(
@@ -99,6 +110,8 @@ class MpcSettings:
             time_budget=self.budget,
             regularization_initial=1e-6,
             regularization_min=1e-6,
+            line_search_min_step=UPDATE_LINE_SEARCH_MIN_STEP,
+            final_policy=self.final_policy,
         )
         if self.touchdown_max_penalty is not None:
             options = replace(options, al_max_penalty=self.touchdown_max_penalty)

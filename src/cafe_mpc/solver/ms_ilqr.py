@@ -143,6 +143,9 @@ class MSiLQRSolver:
         self._regularization = options.regularization_initial
         status, inner_converged, policy_valid = "max_iterations", False, False
         last_iteration_time = 0.0
+        # step of the last accepted iteration while the data are not yet linearised at its result (the
+        # linearisation is deferred to the next iteration, or replaced by a shift: ``final_policy``)
+        pending_step: float | None = None
         for al_iteration in range(options.max_al_iterations):
             stats.al_iterations = al_iteration + 1
             inner_converged, status = False, "max_iterations"
@@ -153,6 +156,11 @@ class MSiLQRSolver:
                     status = "time_budget"
                     break
                 iteration_start = time.perf_counter()
+                if pending_step is not None:
+                    clock = time.perf_counter()
+                    self._linearize(workspace)
+                    stats.linearize_time += time.perf_counter() - clock
+                    pending_step = None
                 clock = time.perf_counter()
                 outcome = self._backward_pass_with_regularization(workspace, stats)
                 stats.backward_time += time.perf_counter() - clock
@@ -178,9 +186,7 @@ class MSiLQRSolver:
                     for work in workspace.phases:
                         work.swap_trial()
                     nominal = trial
-                    clock = time.perf_counter()
-                    self._linearize(workspace)
-                    stats.linearize_time += time.perf_counter() - clock
+                    pending_step = alpha
                     policy_valid = False
                     self._regularization = max(
                         regularization / options.regularization_decrease, options.regularization_min
@@ -212,9 +218,20 @@ class MSiLQRSolver:
                 break
 
         if options.final_backward_pass and not policy_valid and status != "non_finite":
-            clock = time.perf_counter()
-            policy_valid = self._backward_pass_with_regularization(workspace, stats) == "ok"
-            stats.backward_time += time.perf_counter() - clock
+            if pending_step is not None and options.final_policy == "shift":
+                # first-order move of the last sweep's expansion point to the accepted step's result
+                for work in workspace.phases:
+                    work.Qu *= 1.0 - pending_step
+                    work.k *= 1.0 - pending_step
+                policy_valid = True
+            else:
+                if pending_step is not None:
+                    clock = time.perf_counter()
+                    self._linearize(workspace)
+                    stats.linearize_time += time.perf_counter() - clock
+                clock = time.perf_counter()
+                policy_valid = self._backward_pass_with_regularization(workspace, stats) == "ok"
+                stats.backward_time += time.perf_counter() - clock
         converged = inner_converged and nominal.switching_violation <= options.switching_tolerance
         if status == "converged" and not converged:
             status = "max_iterations"

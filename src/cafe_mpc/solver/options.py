@@ -8,6 +8,7 @@ which is what the unit tests and trajectory optimisation need. ``SolverOptions.p
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
+from typing import Literal
 
 
 @dataclass
@@ -29,6 +30,15 @@ class SolverOptions:
         counts as feasible (from then on the forward sweep rolls the nonlinear dynamics out on every knot).
         ``final_backward_pass``: after the last accepted step, run one more backward sweep so that the
         returned gains and Q-function partials belong to the returned trajectory (needed by the VWBC).
+        ``final_policy``: how that policy is made. ``"relinearize"`` (default): linearise at the returned
+        trajectory and sweep again. ``"shift"``: keep the sweep of the last iteration (``K``, ``Quu``,
+        ``Qux``, ``S``, ``s`` of the linearisation the step was taken from) and move its expansion point to
+        the returned trajectory to first order: the accepted step was ``du = alpha k + K dx``, so
+        ``Qu + Quu du + Qux dx = (1 - alpha) Qu`` and the remaining feed-forward is ``(1 - alpha) k``. That is
+        the real-time iteration's policy: it saves one linearisation and one sweep per solve (about a
+        quarter of an MPC update); the augmented-Lagrangian update after the last iteration then reaches the
+        policy only at the next solve. A linearisation deferred this way is done at the start of the next
+        iteration, so multi-iteration solves do the same work as before.
 
     Regularisation (``mu * I`` added to ``Quu``, Eq. (8e))
         Starts at ``regularization_initial`` every solve. On a failed Cholesky factorisation or a failed
@@ -75,6 +85,7 @@ class SolverOptions:
     al_update_threshold: float = 5e-3
 
     final_backward_pass: bool = True
+    final_policy: Literal["relinearize", "shift"] = "relinearize"
     verbose: bool = False
 
     def __post_init__(self) -> None:
@@ -92,6 +103,8 @@ class SolverOptions:
             raise ValueError("regularisation values must be non-negative")
         if self.regularization_increase <= 1.0 or self.regularization_decrease <= 1.0:
             raise ValueError("regularisation increase/decrease factors must be > 1")
+        if self.final_policy not in ("relinearize", "shift"):
+            raise ValueError(f"final_policy must be 'relinearize' or 'shift', got {self.final_policy!r}")
         if self.time_budget is not None and self.time_budget <= 0:
             raise ValueError("time_budget must be positive (or None)")
 
