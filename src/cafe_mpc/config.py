@@ -192,10 +192,10 @@ class MpcConfig(StrictModel):
         le=1e6,
         description="cap of the touchdown constraint's AL penalty (null: 1e4, the authors'; starts at 20)",
     )
-    final_policy: Literal["shift", "relinearize"] = Field(
-        "shift",
-        description="policy an update returns: shift (the last sweep moved to the new plan, the real-time "
-        "iteration's; one linearisation less) or relinearize (linearise and sweep again at the new plan)",
+    final_policy: Literal["relinearize", "shift"] = Field(
+        "relinearize",
+        description="policy an update returns: relinearize (linearise and sweep again at the new plan) or "
+        "shift (the last sweep moved to the new plan: one linearisation less, less tolerant of latency)",
     )
     friction: float = Field(
         0.6,

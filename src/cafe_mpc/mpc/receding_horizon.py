@@ -52,10 +52,11 @@ class MpcSettings:
     (``SolverOptions.al_max_penalty``; ``None``: the authors' 1e4). The penalty starts at 20 and grows x5 per
     update while a planned foot misses the floor by more than 5 mm (the AL parameters carry over between
     updates); the barrel-roll preset caps it at 20 (docs/settings.md).
-    ``final_policy``: the policy an update returns (``SolverOptions.final_policy``): ``"shift"`` (default)
-    keeps the sweep the step was taken from, moved to the new plan to first order (the real-time
-    iteration's policy, one linearisation and one sweep less per update); ``"relinearize"`` linearises and
-    sweeps again at the new plan.
+    ``final_policy``: the policy an update returns (``SolverOptions.final_policy``): ``"relinearize"``
+    (default) linearises and sweeps again at the new plan; ``"shift"`` keeps the sweep the step was taken
+    from, moved to the new plan to first order (the real-time iteration's policy: one linearisation and one
+    sweep less, a fifth to a quarter of an update; but the bound fell with it at fixed 40 and 50 ms latency,
+    where it stands with ``"relinearize"``: BENCHMARKS.md).
     """
 
     period: float = 0.02
@@ -64,7 +65,7 @@ class MpcSettings:
     time_budget: float | None = None
     max_iterations: int = 1
     touchdown_max_penalty: float | None = None
-    final_policy: Literal["relinearize", "shift"] = "shift"
+    final_policy: Literal["relinearize", "shift"] = "relinearize"
     # The paper's first-solve settings with a tighter tolerance: the first (cold) solve seeds every later
     # warm start. It runs before the clock starts (the robot stands while the first plan is computed).
     first_solve: SolverOptions = field(
