@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from cafe_mpc.control.mpc_loop import CafeMpcController, MpcSettings
+from cafe_mpc.core.measurement import Measurement
 from cafe_mpc.dynamics.statics import static_stance_torques
 from cafe_mpc.mpc.problem import CafeProblemBuilder, ModelSchedule, WarmStart
 from cafe_mpc.ocp.contact_schedule import get_gait
@@ -244,3 +245,27 @@ def test_torque_and_force_targets_carry_the_gaits_average_stance_load(robot):
         vertical = built.srb_forces.reshape(len(built.srb_forces), 4, 3)[:, :, 2]
         stance_forces = vertical[vertical > 0]
         np.testing.assert_allclose(stance_forces, factor * builder.srb.weight)
+
+
+@pytest.mark.parametrize("warm_up", [0.0, 1.0])
+def test_warm_up_creates_the_solver_data_of_the_next_updates(robot, warm_up):
+    """After the cold solve, ``warm_up`` seconds of updates find every knot's data already made: the updates
+    of a trot start (new stance patterns entering the horizon) create none; without it they do."""
+    reference = LocomotionReference(robot, get_gait("trot"), [VelocityCommand(vx=0.5)], start_stance=0.2)
+    settings = MpcSettings(period=0.02, latency="fixed", warm_up=warm_up)
+    controller = CafeMpcController(
+        robot, reference, _builder(robot, ModelSchedule.named("S4")), RiccatiController(robot), settings
+    )
+    state = Measurement.of_state(robot.q_standing, np.zeros(robot.nv), np.ones(robot.n_feet, dtype=bool))
+    controller.start(0.0, state)
+    pool = controller.mpc.solver.workspace._data
+    after_cold = len(pool)
+    assert controller.mpc.solver.workspace is controller.mpc.first_solver.workspace
+    for step in range(1, 26):  # 0.5 s of updates from the measured standing state
+        controller.mpc.update(0.02 * step, robot.q_standing, np.zeros(robot.nv))
+    created = len(pool) - after_cold
+    if warm_up > 0:
+        assert controller.statistics.warm_up_time is not None
+        assert created == 0
+    else:
+        assert created > 0

@@ -13,6 +13,7 @@ import select
 import shutil
 import subprocess
 import sys
+import time
 
 import mujoco
 import numpy as np
@@ -85,6 +86,18 @@ def _start_xvfb() -> tuple[subprocess.Popen, str]:
         process.kill()
         process.wait()
         pytest.skip("Xvfb did not start")
+    # The display number can come before clients are accepted (seen on a loaded VM): wait until a client
+    # that initialises GLFW, as the viewer does, gets through (at most 20 s).
+    probe = [sys.executable, "-c", "import glfw, sys; sys.exit(0 if glfw.init() else 1)"]
+    environment = {**os.environ, "DISPLAY": f":{number}"}
+    environment.pop("WAYLAND_DISPLAY", None)
+    deadline = time.monotonic() + 20.0
+    while subprocess.run(probe, env=environment, capture_output=True).returncode != 0:
+        if time.monotonic() > deadline:
+            process.kill()
+            process.wait()
+            pytest.fail(f"Xvfb display :{number} accepts no client")
+        time.sleep(0.2)
     return process, f":{number}"
 
 

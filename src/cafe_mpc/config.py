@@ -192,6 +192,13 @@ class MpcConfig(StrictModel):
         le=1e6,
         description="cap of the touchdown constraint's AL penalty (null: 1e4, the authors'; starts at 20)",
     )
+    warm_up: float = Field(
+        1.0,
+        ge=0.0,
+        le=20.0,
+        description="s of future updates whose solver data are created after the cold solve, before the "
+        "clock starts (0: none; each first use inside an update cost 25-60 ms)",
+    )
     final_policy: Literal["relinearize", "shift"] = Field(
         "relinearize",
         description="policy an update returns: relinearize (linearise and sweep again at the new plan) or "

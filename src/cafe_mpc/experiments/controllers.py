@@ -246,6 +246,7 @@ def mpc_settings(config: RunConfig) -> MpcSettings:
             max_iterations=config.mpc.max_iterations,
             touchdown_max_penalty=config.mpc.touchdown_max_penalty,
             final_policy=config.mpc.final_policy,
+            warm_up=config.mpc.warm_up,
         )
     except ValueError as error:
         raise ConfigError(f"mpc: {error}") from error

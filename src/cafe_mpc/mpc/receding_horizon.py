@@ -13,6 +13,7 @@ against the wall clock). It is what the MPC process of the real-time mode runs (
 from __future__ import annotations
 
 import logging
+import math
 import time
 from dataclasses import dataclass, field, replace
 from typing import Literal
@@ -24,6 +25,7 @@ from cafe_mpc.mpc.problem import BuiltProblem, CafeProblemBuilder, WarmStart
 from cafe_mpc.reference.base import Reference
 from cafe_mpc.robots.robot import Robot
 from cafe_mpc.solver import MSiLQRSolver, SolverOptions, SolverResult
+from cafe_mpc.solver.workspace import Workspace
 
 logger = logging.getLogger(__name__)
 
@@ -57,6 +59,10 @@ class MpcSettings:
     from, moved to the new plan to first order (the real-time iteration's policy: one linearisation and one
     sweep less, a fifth to a quarter of an update; but the bound fell with it at fixed 40 and 50 ms latency,
     where it stands with ``"relinearize"``: BENCHMARKS.md).
+    ``warm_up``: seconds of future updates whose solver data (one per knot object: Pinocchio ``Data``,
+    kinematics, buffers) are created right after the cold first solve, before the clock starts, instead of
+    inside the first update that meets each knot object (which took 25-60 ms extra at the start of a gait
+    and when the barrel roll entered the horizon). 0: no warm-up.
     """
 
     period: float = 0.02
@@ -66,6 +72,7 @@ class MpcSettings:
     max_iterations: int = 1
     touchdown_max_penalty: float | None = None
     final_policy: Literal["relinearize", "shift"] = "relinearize"
+    warm_up: float = 1.0
     # The paper's first-solve settings with a tighter tolerance: the first (cold) solve seeds every later
     # warm start. It runs before the clock starts (the robot stands while the first plan is computed).
     first_solve: SolverOptions = field(
@@ -144,6 +151,8 @@ class MpcStatistics:
     defects: list[float] = field(default_factory=list)
     statuses: list[str] = field(default_factory=list)
     first_solve_time: float | None = None
+    warm_up_time: float | None = None
+    """Wall time of the warm-up after the first solve (``MpcSettings.warm_up``), before the clock starts."""
     fallback_ticks: int = 0
 
     def record(self, t: float, result: SolverResult, update_time: float, problem_time: float) -> None:
@@ -219,6 +228,8 @@ class RecedingHorizonMpc:
         self.settings = settings or MpcSettings()
         self.first_solver = MSiLQRSolver(self.settings.first_solve)
         self.solver = MSiLQRSolver(self.settings.update_solve)
+        # one workspace and data pool for the cold solve and the updates (the updates reuse its data)
+        self.solver.workspace = self.first_solver.workspace = Workspace()
         self.warm_start = WarmStart()
         self.statistics = MpcStatistics()
         self.previous: tuple[BuiltProblem, SolverResult] | None = None
@@ -267,7 +278,24 @@ class RecedingHorizonMpc:
             )
             return None
         self.previous = (built, result)
+        if first and self.settings.warm_up > 0.0:
+            self._warm_up(t)
         return plan
+
+    def _warm_up(self, t0: float) -> None:
+        """Create the solver data of every knot object the updates of ``settings.warm_up`` seconds after
+        ``t0`` will use (``MpcSettings.warm_up``): the problems of updates one period apart are built and
+        served by the solver's workspace, nothing is solved; the next update rewrites every reference."""
+        start = time.perf_counter()
+        period = self.settings.period
+        steps = math.ceil(self.settings.warm_up / period)
+        workspace = self.solver.workspace
+        for step in range(1, steps + 1):
+            built = self._build(t0 + step * period)
+            if not isinstance(built, BuiltProblem):  # another planner's problem (the template's): no warm-up
+                return
+            workspace.setup(built.problem)
+        self.statistics.warm_up_time = time.perf_counter() - start
 
     name = "MPC"
     """How log messages name this planner."""

@@ -236,12 +236,17 @@ class _DataPool:
         return data
 
     def trim(self, in_use: int) -> None:
-        """Keep at most ``max(4 * in_use, 64)`` entries: the most recently used ones."""
-        limit = max(4 * in_use, 64)
+        """Keep at most ``max(16 * in_use, 1024)`` entries, dropping down to half of that, the least recently
+        used first (an MPC's warm-up creates the data of every knot object its next seconds will use, a few
+        hundred for the running barrel roll; a whole-body knot's data is a few tens of kB)."""
+        limit = max(16 * in_use, 1024)
         if len(self._entries) <= limit:
             return
         ordered = sorted(self._entries.items(), key=lambda item: item[1][2], reverse=True)
-        self._entries = dict(ordered[: max(2 * in_use, 32)])
+        self._entries = dict(ordered[: limit // 2])
+
+    def __len__(self) -> int:
+        return len(self._entries)
 
 
 class Workspace:
