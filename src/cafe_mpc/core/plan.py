@@ -13,6 +13,16 @@ from dataclasses import dataclass
 import numpy as np
 
 
+def nearest_knot(times: np.ndarray, t: float) -> int:
+    """Index of the entry of the sorted ``times`` closest to ``t`` (clamped to the first and last)."""
+    index = int(np.searchsorted(times, t))
+    if index <= 0:
+        return 0
+    if index >= len(times):
+        return len(times) - 1
+    return index if times[index] - t < t - times[index - 1] else index - 1
+
+
 @dataclass
 class Plan:
     """Arrays over the ``n`` whole-body running knots of one MPC solution."""
@@ -61,9 +71,4 @@ class Plan:
 
     def knot_at(self, t: float) -> int:
         """Index of the knot whose time is closest to ``t`` (clamped to the plan)."""
-        index = int(np.searchsorted(self.times, t))
-        if index <= 0:
-            return 0
-        if index >= len(self.times):
-            return len(self.times) - 1
-        return index if self.times[index] - t < t - self.times[index - 1] else index - 1
+        return nearest_knot(self.times, t)

@@ -23,7 +23,7 @@ from dataclasses import dataclass
 import mujoco
 import numpy as np
 
-from cafe_mpc.core.plan import Plan
+from cafe_mpc.core.plan import Plan, nearest_knot
 from cafe_mpc.robots.robot import Robot
 
 BASE_RGBA = np.array([0.15, 0.45, 0.95, 0.9], dtype=np.float32)
@@ -79,12 +79,7 @@ class PlanOverlay:
 
     def knot_at(self, t: float) -> int:
         """The knot closest in time to ``t`` (clamped), as ``Plan.knot_at``."""
-        index = int(np.searchsorted(self.times, t))
-        if index <= 0:
-            return 0
-        if index >= len(self.times):
-            return len(self.times) - 1
-        return index if self.times[index] - t < t - self.times[index - 1] else index - 1
+        return nearest_knot(self.times, t)
 
 
 def _add(scene: mujoco.MjvScene) -> mujoco.MjvGeom | None:
