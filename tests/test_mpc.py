@@ -144,18 +144,25 @@ def test_persistent_problem_equals_a_fresh_one_across_contact_changes(robot, gai
     assert built_a.problem.phases[0].running_models[0] is built_b.problem.phases[0].running_models[0]
 
 
-def test_mpc_closed_loop_stands(robot):
+@pytest.mark.parametrize("scheme", ["one_phase", "rti"])
+def test_mpc_closed_loop_stands(robot, scheme):
     reference = LocomotionReference(robot, get_gait("stand"), [VelocityCommand()])
     controller = CafeMpcController(
         robot,
         reference,
         _builder(robot, ModelSchedule.named("S1")),
         RiccatiController(robot),
-        MpcSettings(period=0.02, latency="fixed"),  # deterministic: 15 updates in 0.3 s
+        MpcSettings(period=0.02, latency="fixed", scheme=scheme),  # deterministic: 15 updates in 0.3 s
     )
     log = simulate(robot, controller, 0.3)
     assert not log.fell
-    assert controller.statistics.solves == 15 and controller.statistics.failures == 0
+    statistics = controller.statistics
+    assert len(statistics.latencies) == 14 and statistics.failures == 0  # the last plan acts at 0.3 s
+    if scheme == "rti":  # the cold solve, then one preparation per update (the last one for t = 0.3 s)
+        assert statistics.solves == 16 and len(statistics.prepare_times) == 15
+        assert len(statistics.feedback_times) == 14
+    else:
+        assert statistics.solves == 15 and not statistics.prepare_times
     assert controller.statistics.fallback_ticks == 0
     assert np.all(np.isfinite(log.torque_command))
     assert abs(log.q[-1, 2] - robot.standing_height) < 0.02
@@ -174,10 +181,13 @@ class _RecordingRiccati(RiccatiController):
         return super().compute(t, measurement, plan)
 
 
+@pytest.mark.parametrize("scheme", ["one_phase", "rti"])
 @pytest.mark.parametrize("latency", [0.02, 0.05])
-def test_plans_take_effect_after_their_latency(robot, latency):
-    """Policy lag with one MPC worker: each plan drives the robot from ``start + latency`` on; the next update
-    starts when the worker is free, at most once per period (0.05 s latency: updates 0.05 s apart)."""
+def test_plans_take_effect_after_their_latency(robot, latency, scheme):
+    """Policy lag: each plan drives the robot from ``start + latency`` on. One-phase (one worker busy until
+    its plan acts): the next update starts when the worker is free, at most once per period (0.05 s latency:
+    updates 0.05 s apart). Real-time iteration: a fixed latency is a transport delay, updates stay one period
+    apart and several plans may be in flight."""
     reference = LocomotionReference(robot, get_gait("stand"), [VelocityCommand()])
     low_level = _RecordingRiccati(robot)
     controller = CafeMpcController(
@@ -185,7 +195,7 @@ def test_plans_take_effect_after_their_latency(robot, latency):
         reference,
         _builder(robot, ModelSchedule.named("S0")),
         low_level,
-        MpcSettings(period=0.02, latency="fixed", fixed_latency=latency),
+        MpcSettings(period=0.02, latency="fixed", fixed_latency=latency, scheme=scheme),
     )
     log = simulate(robot, controller, 0.2)
     assert not log.fell
@@ -195,7 +205,8 @@ def test_plans_take_effect_after_their_latency(robot, latency):
     for start, applied in later:
         assert applied == pytest.approx(start + latency, abs=1e-9)
     starts = [start for start, _ in low_level.activations]
-    np.testing.assert_allclose(np.diff(starts[1:]), max(latency, 0.02), atol=1e-9)
+    spacing = max(latency, 0.02) if scheme == "one_phase" else 0.02
+    np.testing.assert_allclose(np.diff(starts[1:]), spacing, atol=1e-9)
     assert starts[1] == pytest.approx(0.02)
     # latencies are recorded, one per plan that took effect
     np.testing.assert_allclose(controller.statistics.latencies, [0.0] + [latency] * len(later), atol=1e-9)
@@ -205,8 +216,8 @@ def test_plans_take_effect_after_their_latency(robot, latency):
 
 
 def test_measured_latency_never_uses_a_plan_before_it_exists(robot):
-    """Measured mode: a plan takes effect at the first control tick after its update's real wall time, never
-    earlier; while the worker is busy no other update starts; the latencies are recorded."""
+    """Measured mode, one-phase: a plan takes effect at the first control tick after its update's real wall
+    time, never earlier; while the worker is busy no other update starts; the latencies are recorded."""
     reference = LocomotionReference(robot, get_gait("stand"), [VelocityCommand()])
     low_level = _RecordingRiccati(robot)
     controller = CafeMpcController(
@@ -214,7 +225,7 @@ def test_measured_latency_never_uses_a_plan_before_it_exists(robot):
         reference,
         _builder(robot, ModelSchedule.named("S0")),
         low_level,
-        MpcSettings(period=0.02, latency="measured"),
+        MpcSettings(period=0.02, latency="measured", scheme="one_phase"),
     )
     log = simulate(robot, controller, 0.3)
     assert not log.fell
@@ -228,6 +239,37 @@ def test_measured_latency_never_uses_a_plan_before_it_exists(robot):
         assert later >= earlier + max(0.02, update_times[earlier]) - 1e-9
     assert len(statistics.latencies) == len(low_level.activations)
     assert controller.settings.update_solve.time_budget == pytest.approx(0.018)
+
+
+@pytest.mark.parametrize("compute_scale", [1.0, 3.0])
+def test_measured_real_time_iteration_pays_its_feedback_and_its_preparations(robot, compute_scale):
+    """Measured mode, real-time iteration: a plan takes effect at the first tick after its update time plus
+    its feedback phase's wall time (times ``compute_scale``), later only when the worker was still preparing;
+    the next update is prepared for a control tick at least one period later and at least the preparation's
+    time after the plan (never for a time it cannot be ready by, so its measurement is never stale when the
+    preparations take the same time each)."""
+    reference = LocomotionReference(robot, get_gait("stand"), [VelocityCommand()])
+    low_level = _RecordingRiccati(robot)
+    controller = CafeMpcController(
+        robot,
+        reference,
+        _builder(robot, ModelSchedule.named("S0")),
+        low_level,
+        MpcSettings(period=0.02, latency="measured", compute_scale=compute_scale),
+    )
+    log = simulate(robot, controller, 0.3)
+    assert not log.fell
+    statistics = controller.statistics
+    feedbacks = statistics.feedback_times
+    activations = low_level.activations[1:]
+    assert len(feedbacks) >= len(activations) >= 5
+    for (start, applied), feedback in zip(activations, feedbacks, strict=False):
+        assert applied >= start + compute_scale * feedback - 1e-12
+    starts = [start for start, _ in activations]
+    assert np.all(np.diff(starts) >= 0.02 - 1e-9)
+    ticks = np.asarray(starts) / 0.002
+    np.testing.assert_allclose(ticks, np.round(ticks), atol=1e-6)  # updates on control ticks
+    assert controller.scheme == "rti"
 
 
 def test_torque_and_force_targets_carry_the_gaits_average_stance_load(robot):

@@ -70,20 +70,30 @@ def test_realtime_run_starts_records_and_cleans_up(tmp_path):
 
 # ------------------------------------------------------------------------------------------ faults
 class CrashingMpc:
-    """Delegates to the real MPC, then dies (``os._exit``) or stalls after ``after`` updates."""
+    """Delegates to the real MPC, then dies (``os._exit``) or stalls after ``after`` updates (one-phase
+    updates or real-time-iteration feedbacks)."""
 
     def __init__(self, inner, after: int, mode: str) -> None:
         self.inner, self.after, self.mode, self.count = inner, after, mode, 0
-        self.statistics = inner.statistics
 
-    def update(self, t, q, v):
+    def __getattr__(self, name):
+        return getattr(self.inner, name)
+
+    def _count(self) -> None:
         self.count += 1
         if self.count > self.after:
             if self.mode == "crash":
                 os._exit(3)
             while True:  # stall: never deliver again
                 time.sleep(1.0)
+
+    def update(self, t, q, v):
+        self._count()
         return self.inner.update(t, q, v)
+
+    def feedback(self, t, q, v):
+        self._count()
+        return self.inner.feedback(t, q, v)
 
 
 def crashing_mpc(config_data: dict, after: int, mode: str) -> CrashingMpc:

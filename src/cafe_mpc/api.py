@@ -20,9 +20,11 @@ Two ways to run the MPC (``mode``):
 
 * ``"inline"`` (default): in the calling thread, as ``cafe-mpc run`` does in simulated time
   (``control.mpc_loop.CafeMpcController``): every ``mpc.period`` of *your* time one ``compute`` call also runs
-  an MPC update (about 10 ms of wall time); with ``mpc.latency: measured`` its plan takes effect once that
-  wall time has passed on your clock, with ``fixed`` after ``mpc.fixed_latency``. Deterministic with
-  ``fixed``; right for a simulator that waits for the controller.
+  an MPC update: with the real-time iteration (``mpc.scheme: rti``, default) the feedback phase of the update
+  prepared for that call's time and the preparation of the next one (which expects its call on a multiple
+  of the control period, else it falls back to a one-phase update); with ``mpc.latency: measured`` a plan
+  takes effect once its wall time has passed on your clock, with ``fixed`` after ``mpc.fixed_latency``.
+  Deterministic with ``fixed``; right for a simulator that waits for the controller.
 * ``"process"``: in its own process, against the wall clock (``control.realtime.RealtimeMpcController``,
   ``cafe-mpc run --realtime``): ``compute`` never waits for a solve, it follows the newest plan. For a loop
   that runs in real time (a robot, or a simulator paced by the wall clock); ``close()`` (or ``with``) stops
@@ -119,7 +121,12 @@ class Controller:
         mpc = build_mpc(config, robot)
         # the low level without a run recorder: a loop of unknown length keeps no per-tick records
         return CafeMpcController(
-            robot, mpc.reference, mpc.builder, build_low_level(self.config, robot), mpc=mpc
+            robot,
+            mpc.reference,
+            mpc.builder,
+            build_low_level(self.config, robot),
+            mpc=mpc,
+            control_period=self.control_period,
         )
 
     # -------------------------------------------------------------------------------------- control

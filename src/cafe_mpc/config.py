@@ -204,6 +204,28 @@ class MpcConfig(StrictModel):
         description="policy an update returns: relinearize (linearise and sweep again at the new plan) or "
         "shift (the last sweep moved to the new plan: one linearisation less, less tolerant of latency)",
     )
+    scheme: Literal["rti", "one_phase"] = Field(
+        "rti",
+        description="rti: real-time iteration (the update prepared from the predicted state before the "
+        "measurement, only the feedback phase after it) | one_phase: the whole update after the measurement",
+    )
+    rti_line_search: bool = Field(
+        True,
+        description="rti: the preparation takes its line search on the predicted state (false: it stops "
+        "after the backward sweep and the feedback takes the full step)",
+    )
+    rti_feedback: Literal["linear", "nonlinear"] = Field(
+        "linear",
+        description="rti: the measured state carried through the prepared policy by the linearised dynamics "
+        "or by the dynamics themselves",
+    )
+    compute_scale: float = Field(
+        1.0,
+        gt=0.0,
+        le=100.0,
+        description="measured latency: every measured compute time is multiplied by this (a computer that "
+        "many times slower)",
+    )
     friction: float = Field(
         0.6,
         gt=0.0,

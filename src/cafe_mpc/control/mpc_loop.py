@@ -1,26 +1,40 @@
-"""The policy side of CAFE-MPC in simulated time: when MPC updates start and when their plans take effect.
+"""The policy side of CAFE-MPC in simulated time: when MPC updates happen and when their plans take effect.
 
 The closed-loop composition of the MPC (``cafe_mpc.mpc.RecedingHorizonMpc``) and a ``LowLevelController``
-(``cafe_mpc.wbc``: Riccati (33), VWBC (34), PD) at the control rate, with one MPC worker:
+(``cafe_mpc.wbc``: Riccati (33), VWBC (34), PD) at the control rate, with one MPC worker. Two schemes
+(``MpcSettings.scheme``):
 
-* an update starts from the newest measurement when the worker is free and at least one MPC period has
-  passed since the previous start (the paper's 33-50 Hz);
-* its plan takes effect after its latency: the **measured** wall-clock time of the update (default; what a
-  robot sees when the MPC runs beside it) or a **fixed** constant (deterministic; the paper's C++ budget);
-  the worker is busy until then, so a slow update delays the next one (nothing runs in parallel);
-* the very first (cold) solve runs before the clock starts, as on the robot, where the MPC is started while
-  the robot stands; its plan is active from t = 0.
+* **real-time iteration** (``rti``, default): an update at time ``t`` takes the measurement of ``t`` and runs
+  only the *feedback* phase (``RecedingHorizonMpc.feedback``); its plan takes effect after the feedback's
+  time. Right after it, the worker *prepares* the next update, for the time ``t_next`` at which the
+  measurement will be taken, from the state the new plan predicts there (``predict``), while the plan drives
+  the robot. ``t_next`` is one MPC period later, or later still when the preparation is expected to take
+  longer (the median of the last ten preparations): then the rate drops, not the latency. A preparation that
+  runs past ``t_next`` anyway delays that update's feedback (its measurement is then older: the delay counts
+  in its latency).
+* **one-phase** (``one_phase``): an update starts from the newest measurement when the worker is free and at
+  least one period has passed since the previous start; the whole update runs after the measurement, and
+  the worker is busy until its plan takes effect (a slow update delays the next one).
 
-The low-level controller follows the newest plan at every tick (the knot closest in time). A failed update
-keeps the previous plan; with no plan, or once the plan's horizon has run out, the robot is held by the PD
-standing controller (damped stance), counted in ``pd_fallback_ticks``. The wall-clock real-time mode with
-the MPC in its own process is ``cafe_mpc.control.realtime``. The same loop runs the template-MPC baseline
-(``mpc.template.TemplateMpc``, whose ``TemplatePlan`` its own low level ``wbc.template_low_level`` follows).
+Latency: **measured** (default): each phase takes its measured wall-clock time in simulated time
+(times ``compute_scale``: a computer that much slower), what a robot sees when the MPC runs beside it; or
+**fixed**: a plan takes effect ``fixed_latency`` after its measurement (deterministic; in the real-time
+iteration a transport delay: updates still start every period, several plans may be in flight). The very
+first (cold) solve runs before the clock starts, as on the robot, where the MPC is started while the robot
+stands; its plan is active from t = 0 (and the first preparation is made then too).
+
+The low-level controller follows the newest plan at every tick. A failed update keeps the previous plan;
+with no plan, or once the plan's horizon has run out, the robot is held by the PD standing controller
+(damped stance), counted in ``pd_fallback_ticks``. The wall-clock real-time mode with the MPC in its own
+process is ``cafe_mpc.control.realtime``. The same loop runs the template-MPC baseline (one-phase updates:
+``mpc.template.TemplateMpc``, whose ``TemplatePlan`` its own low level ``wbc.template_low_level`` follows).
 """
 
 from __future__ import annotations
 
 import logging
+import math
+from collections import deque
 
 import numpy as np
 
@@ -41,7 +55,11 @@ logger = logging.getLogger(__name__)
 
 
 class CafeMpcController:
-    """Closed-loop CAFE-MPC in simulated time (the simulation's ``Controller``); see the module docstring."""
+    """Closed-loop CAFE-MPC in simulated time (the simulation's ``Controller``); see the module docstring.
+
+    ``control_period``: the period of the ticks ``compute`` is called at (updates happen on ticks: a
+    preparation is made for the tick its measurement will come from).
+    """
 
     def __init__(
         self,
@@ -51,16 +69,25 @@ class CafeMpcController:
         low_level: LowLevelController,
         settings: MpcSettings | None = None,
         mpc: RecedingHorizonMpc | TemplateMpc | None = None,
+        control_period: float = 0.002,
     ) -> None:
+        if not control_period > 0:
+            raise ValueError(f"control period must be positive, got {control_period}")
         self.robot = robot
         self.mpc = mpc if mpc is not None else RecedingHorizonMpc(robot, reference, builder, settings)
         self.settings = self.mpc.settings
+        self.scheme = self.settings.scheme if self.mpc.supports_rti else "one_phase"
+        """The scheme this run uses (the template baseline has only one-phase updates)."""
         self.low_level = low_level
+        self.control_period = float(control_period)
         self.fallback = PDController(robot)
         self.plan: Plan | TemplatePlan | None = None
-        self.pending: tuple[float, float, Plan | TemplatePlan | None] | None = None
-        """(time it takes effect, its measurement time, plan) of the update the worker is busy with."""
+        self.pending: list[tuple[float, float, Plan | TemplatePlan | None]] = []
+        """(time it takes effect, its measurement time, plan) of the updates not yet in effect."""
         self.next_update = 0.0
+        self.worker_free = 0.0
+        """Simulated time at which the MPC worker finishes what it is doing (real-time iteration)."""
+        self._recent_prepares: deque[float] = deque(maxlen=10)
 
     @property
     def reference(self) -> Reference:
@@ -74,11 +101,18 @@ class CafeMpcController:
     def statistics(self) -> MpcStatistics:
         return self.mpc.statistics
 
+    @property
+    def _scale(self) -> float:
+        """Factor from measured wall time to simulated time (``compute_scale`` in measured mode)."""
+        return self.settings.compute_scale
+
     # -------------------------------------------------------------------------------------- interface
     def reset(self) -> None:
-        self.plan, self.pending = None, None
+        self.plan, self.pending = None, []
         self.mpc.reset()
         self.next_update = 0.0
+        self.worker_free = 0.0
+        self._recent_prepares.clear()
         self.fallback.reset()
         self.low_level.reset()
 
@@ -91,7 +125,8 @@ class CafeMpcController:
     def compute(self, t: float, state: Measurement) -> np.ndarray:
         # A plan that comes due now takes effect before the worker starts the next update.
         self._activate_pending(t)
-        if self.pending is None and t + 1e-9 >= self.next_update:
+        idle = self.scheme == "rti" or not self.pending
+        if idle and t + 1e-9 >= self.next_update:
             self._update(t, state)
             self._activate_pending(t)
         plan = self.plan
@@ -105,9 +140,8 @@ class CafeMpcController:
         return torques
 
     def _activate_pending(self, t: float) -> None:
-        if self.pending is not None and t + 1e-9 >= self.pending[0]:
-            _, start, plan = self.pending
-            self.pending = None
+        while self.pending and t + 1e-9 >= self.pending[0][0]:
+            _, start, plan = self.pending.pop(0)
             if plan is not None:
                 self.plan = plan
                 self.statistics.latencies.append(t - start)
@@ -115,19 +149,72 @@ class CafeMpcController:
     # ----------------------------------------------------------------------------------------- updates
     def _update(self, t: float, state: Measurement) -> None:
         before_clock = not self.mpc.started
-        plan = self.mpc.update(t, state.q, state.v)
-        statistics = self.statistics
-        settings = self.settings
         if before_clock:
             # The cold solve runs before the clock starts: its plan acts at once, the next update follows
             # one period later (a failed cold solve is retried next period, the PD stance holds meanwhile).
+            plan = self.mpc.update(t, state.q, state.v)
             if plan is not None:
                 self.plan = plan
-                statistics.latencies.append(0.0)
-            self.next_update = t + settings.period
+                self.statistics.latencies.append(0.0)
+                if self.scheme == "rti":
+                    self._prepare(self._tick_at_or_after(t + self.settings.period))
+            self.next_update = t + self.settings.period
             return
+        if self.scheme == "rti":
+            self._update_rti(t, state)
+        else:
+            self._update_one_phase(t, state)
+
+    def _update_one_phase(self, t: float, state: Measurement) -> None:
+        plan = self.mpc.update(t, state.q, state.v)
+        statistics = self.statistics
+        settings = self.settings
         elapsed = statistics.update_times[-1] if statistics.update_times else 0.0
-        latency = elapsed if settings.latency == "measured" else settings.fixed_latency
+        latency = elapsed * self._scale if settings.latency == "measured" else settings.fixed_latency
         # The worker is busy until the plan takes effect; it starts again then, at most once per period.
-        self.pending = (t + latency, t, plan)
+        self.pending.append((t + latency, t, plan))
         self.next_update = t + max(settings.period, latency)
+
+    def _update_rti(self, t: float, state: Measurement) -> None:
+        """Feedback for the measurement of ``t`` (or a one-phase update when no preparation waits for it),
+        then the preparation of the next update (module docstring)."""
+        mpc, settings, statistics = self.mpc, self.settings, self.statistics
+        measured = settings.latency == "measured"
+        prepared = mpc.prepared is not None and abs(mpc.prepared[0] - t) <= 1e-9
+        if prepared:
+            plan = mpc.feedback(t, state.q, state.v)
+            work = statistics.feedback_times[-1] if plan is not None else 0.0
+        else:
+            plan = mpc.update(t, state.q, state.v)
+            work = statistics.update_times[-1] if statistics.update_times else 0.0
+        if measured:
+            begin = max(t, self.worker_free)
+            effective = begin + work * self._scale
+        else:
+            effective = t + settings.fixed_latency
+        self.pending.append((effective, t, plan))
+        self.pending.sort(key=lambda entry: entry[0])
+        following = t + settings.period
+        if measured and self._recent_prepares:
+            following = max(following, effective + float(np.median(self._recent_prepares)))
+        following = self._tick_at_or_after(following)
+        self.worker_free = effective
+        self._prepare(following)
+        self.next_update = following
+
+    def _prepare(self, t_next: float) -> None:
+        """Prepare the update at ``t_next`` from the newest plan's prediction (the worker is busy then)."""
+        predicted = self.mpc.predict(t_next)
+        if predicted is None:
+            return
+        nq = self.robot.nq
+        if self.mpc.prepare(t_next, predicted[:nq], predicted[nq:]):
+            elapsed = self.statistics.prepare_times[-1] * self._scale
+            self._recent_prepares.append(elapsed)
+            if self.settings.latency == "measured":
+                self.worker_free += elapsed
+
+    def _tick_at_or_after(self, t: float) -> float:
+        """The first control tick at or after ``t``."""
+        period = self.control_period
+        return math.ceil(t / period - 1e-6) * period

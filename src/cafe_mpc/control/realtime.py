@@ -5,12 +5,21 @@ The shape of a deployment (paper Sec. VI-C and Fig. 2; OCS2's MPC/MRT split): th
 as fast as the period allows, always from the newest measurement. The two exchange data asynchronously
 through shared memory:
 
-* **measurement channel** (main -> MPC): time, ``q``, ``v``, contacts, written every control tick;
+* **measurement ring** (main -> MPC): time, ``q``, ``v``, contacts of the last ``RING_TICKS`` control ticks,
+  one slot per tick, so the MPC can read the measurement of the tick it prepared for even after newer ones
+  arrived;
 * **plan channel** (MPC -> main): the newest ``Plan`` (fixed capacity), the time of the measurement it was
   solved from and its update's wall time.
 
-Each channel is a seqlock (a counter that is odd while the writer writes): readers copy and retry or skip
-when the counter moved, so neither side ever blocks the other. A process (not a thread) because the solver
+Each slot and channel is a seqlock (a counter that is odd while the writer writes): readers copy and retry
+or skip when the counter moved, so neither side ever blocks the other.
+
+The MPC process runs the scheme of its settings (``MpcSettings.scheme``). Real-time iteration: after
+publishing a plan it picks the next update time ``t_next`` (one period later, or later when its
+preparations take longer: the median of the last ten), prepares that update from the state the new plan
+predicts there, waits for the measurement of the tick at ``t_next`` and runs only the feedback phase on it
+before publishing (the latency the robot sees). One-phase: it takes the newest measurement, at most once
+per period, and runs the whole update. A process (not a thread) because the solver
 would otherwise hold Python's global interpreter lock against the 500 Hz loop.
 
 ``RealtimeMpcController`` is the main-process side (the simulation's ``Controller``): it publishes each
@@ -25,10 +34,12 @@ from __future__ import annotations
 
 import contextlib
 import logging
+import math
 import multiprocessing
 import os
 import signal
 import time
+from collections import deque
 from collections.abc import Callable
 from multiprocessing import shared_memory
 
@@ -89,6 +100,70 @@ class _SeqLockArray:
 
     def close(self, unlink: bool) -> None:
         self.payload = None  # type: ignore[assignment]
+        self.array = None  # type: ignore[assignment]
+        with contextlib.suppress(Exception):
+            self.memory.close()
+        if unlink:
+            with contextlib.suppress(FileNotFoundError):
+                self.memory.unlink()
+
+
+RING_TICKS = 256
+"""Control ticks the measurement ring keeps (0.5 s at 500 Hz)."""
+
+
+class MeasurementRing:
+    """The last ``RING_TICKS`` measurements in shared memory, one seqlock slot per control tick.
+
+    Element 0 holds the newest tick index written (-1 before the first); slot ``i`` (from element 1) holds
+    ``[sequence, tick, t, q, v, contacts]`` of a tick ``k`` with ``k % RING_TICKS == i``.
+    """
+
+    def __init__(self, nq: int, nv: int, n_feet: int, name: str | None = None) -> None:
+        self.nq, self.nv, self.n_feet = nq, nv, n_feet
+        self.slot = 3 + nq + nv + n_feet
+        create = name is None
+        size = 8 * (1 + RING_TICKS * self.slot)
+        self.memory = shared_memory.SharedMemory(name=name, create=create, size=size)
+        self.array = np.ndarray((1 + RING_TICKS * self.slot,), dtype=np.float64, buffer=self.memory.buf)
+        if create:
+            self.array[:] = 0.0
+            self.array[0] = -1.0
+        self.slots = self.array[1:].reshape(RING_TICKS, self.slot)
+
+    @property
+    def name(self) -> str:
+        return self.memory.name
+
+    @property
+    def newest(self) -> int:
+        """Index of the newest tick written (-1 before the first)."""
+        return int(self.array[0])
+
+    def write(self, tick: int, t: float, q: np.ndarray, v: np.ndarray, contacts: np.ndarray) -> None:
+        slot = self.slots[tick % RING_TICKS]
+        nq, nv = self.nq, self.nv
+        slot[0] += 1.0  # odd: writing
+        slot[1] = tick
+        slot[2] = t
+        slot[3 : 3 + nq] = q
+        slot[3 + nq : 3 + nq + nv] = v
+        slot[3 + nq + nv :] = contacts
+        slot[0] += 1.0  # even: consistent
+        self.array[0] = tick
+
+    def read(self, tick: int, out: np.ndarray) -> bool:
+        """Copy ``[t, q, v, contacts]`` of ``tick`` into ``out``; ``False`` if that tick is not (or no longer)
+        in the ring or was being written."""
+        slot = self.slots[tick % RING_TICKS]
+        before = float(slot[0])
+        if int(before) % 2 or int(slot[1]) != tick:
+            return False
+        np.copyto(out, slot[2:])
+        return float(slot[0]) == before and int(slot[1]) == tick
+
+    def close(self, unlink: bool) -> None:
+        self.slots = None  # type: ignore[assignment]
         self.array = None  # type: ignore[assignment]
         with contextlib.suppress(Exception):
             self.memory.close()
@@ -162,53 +237,28 @@ def _pin_to_cpu(index: int) -> None:
 def _worker_main(
     factory: MpcFactory,
     measurement_name: str,
-    measurement_size: int,
+    dimensions: tuple[int, int, int],
     plan_name: str,
     layout: PlanLayout,
     control_name: str,
-    nq: int,
-    nv: int,
+    control_period: float,
     period: float,
     parent_pid: int,
     results,
 ) -> None:
-    """The MPC process: newest measurement -> update -> plan, at most once per period, until told to stop."""
+    """The MPC process: measurements -> updates -> plans (module docstring), until told to stop."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # the main process owns Ctrl-C and stops us
     _pin_to_cpu(-1)  # the last CPU; the 500 Hz loop keeps the first (see RealtimeMpcController)
-    measurement = _SeqLockArray(measurement_size, measurement_name)
+    nq, nv, n_feet = dimensions
+    ring = MeasurementRing(nq, nv, n_feet, measurement_name)
     plan_channel = _SeqLockArray(layout.size, plan_name)
     control = _SeqLockArray(2, control_name)  # [stop flag, ready flag]
     statistics = None
     try:
         mpc = factory()
         control.array[2] = 1.0  # ready (built; numba kernels loaded)
-        buffer = np.zeros(measurement_size)
-        last_sequence = -1.0
-        last_start = -np.inf
-        while control.array[1] == 0.0:
-            if os.getppid() != parent_pid:
-                break  # the main process is gone: do not outlive it
-            sequence = measurement.read_into(buffer)
-            wait = last_start + period - time.perf_counter()
-            fresh = sequence is not None and sequence > 0.0 and sequence != last_sequence  # 0: never written
-            if not fresh or wait > 0.0:
-                time.sleep(min(max(wait, 0.0), 0.0005) if wait > 0.0 else 0.0002)
-                continue
-            last_sequence = sequence
-            last_start = time.perf_counter()
-            t = float(buffer[0])
-            plan = mpc.update(t, buffer[1 : 1 + nq], buffer[1 + nq : 1 + nq + nv])
-            if plan is None:
-                continue
-            stats = mpc.statistics
-            plan_channel.begin_write()
-            layout.write(
-                plan_channel.payload,
-                plan,
-                t,
-                (stats.update_times[-1], stats.iterations[-1], stats.solves, stats.failures),
-            )
-            plan_channel.end_write()
+        worker = _Worker(mpc, ring, plan_channel, layout, control, control_period, period, parent_pid)
+        worker.run()
         statistics = mpc.statistics
     except BaseException as error:  # report, then exit: the main process turns it into MpcProcessError
         results.send(("error", f"{type(error).__name__}: {error}"))
@@ -217,8 +267,116 @@ def _worker_main(
         if statistics is not None:
             with contextlib.suppress(Exception):
                 results.send(("statistics", statistics))
-        for channel in (measurement, plan_channel, control):
+        ring.close(unlink=False)
+        for channel in (plan_channel, control):
             channel.close(unlink=False)
+
+
+class _Worker:
+    """The loop of the MPC process (``_worker_main``): one-phase or real-time-iteration updates."""
+
+    def __init__(
+        self,
+        mpc: RecedingHorizonMpc,
+        ring: MeasurementRing,
+        plan_channel: _SeqLockArray,
+        layout: PlanLayout,
+        control: _SeqLockArray,
+        control_period: float,
+        period: float,
+        parent_pid: int,
+    ) -> None:
+        self.mpc, self.ring, self.plan_channel, self.layout = mpc, ring, plan_channel, layout
+        self.control = control
+        self.control_period = control_period
+        self.period = period
+        self.parent_pid = parent_pid
+        self.buffer = np.zeros(ring.slot - 2)
+        self.nq, self.nv = ring.nq, ring.nv
+        self.recent_prepares: deque[float] = deque(maxlen=10)
+
+    def running(self) -> bool:
+        """Until the stop flag is set or the main process is gone (do not outlive it)."""
+        return self.control.array[1] == 0.0 and os.getppid() == self.parent_pid
+
+    def run(self) -> None:
+        mpc = self.mpc
+        rti = mpc.settings.scheme == "rti" and mpc.supports_rti
+        last_tick = -1
+        while self.running():
+            newest = self.ring.newest
+            if newest < 0 or newest == last_tick:
+                time.sleep(0.0002)
+                continue
+            if not mpc.started:  # the cold solve, on the first measurement
+                if self.ring.read(newest, self.buffer):
+                    last_tick = newest
+                    self._publish(self._state_update(newest), newest)
+                continue
+            last_tick = self._rti_update(last_tick) if rti else self._one_phase_update(last_tick, newest)
+
+    def _state_update(self, tick: int) -> Plan | None:
+        """A one-phase update from the measurement of ``tick`` (in ``buffer``)."""
+        nq, nv = self.nq, self.nv
+        return self.mpc.update(
+            float(self.buffer[0]), self.buffer[1 : 1 + nq], self.buffer[1 + nq : 1 + nq + nv]
+        )
+
+    def _one_phase_update(self, last_tick: int, newest: int) -> int:
+        """The newest measurement, at most once per period."""
+        ticks_per_period = max(round(self.period / self.control_period), 1)
+        if newest < last_tick + ticks_per_period:
+            time.sleep(0.0002)
+            return last_tick
+        if not self.ring.read(newest, self.buffer):
+            return last_tick
+        self._publish(self._state_update(newest), newest)
+        return newest
+
+    def _rti_update(self, last_tick: int) -> int:
+        """Prepare the update at the next tick ``t_next``, wait for its measurement, feed it back."""
+        mpc, control_period = self.mpc, self.control_period
+        newest = self.ring.newest
+        following = last_tick * control_period + self.period
+        if self.recent_prepares:
+            following = max(following, newest * control_period + float(np.median(self.recent_prepares)))
+        tick = max(math.ceil(following / control_period - 1e-6), last_tick + 1)
+        t_next = tick * control_period
+        predicted = mpc.predict(t_next)
+        prepared = False
+        if predicted is not None:
+            prepared = mpc.prepare(t_next, predicted[: self.nq], predicted[self.nq :])
+            if prepared:
+                self.recent_prepares.append(mpc.statistics.prepare_times[-1])
+        while self.ring.newest < tick:
+            if not self.running():
+                return last_tick
+            time.sleep(0.0001)
+        nq, nv = self.nq, self.nv
+        if not self.ring.read(tick, self.buffer):  # overwritten (the prepare outlasted the ring): newest
+            tick = self.ring.newest
+            if not self.ring.read(tick, self.buffer):
+                return last_tick
+            prepared = False
+        t = float(self.buffer[0])
+        q, v = self.buffer[1 : 1 + nq], self.buffer[1 + nq : 1 + nq + nv]
+        plan = mpc.feedback(t, q, v) if prepared else mpc.update(t, q, v)
+        self._publish(plan, tick)
+        return tick
+
+    def _publish(self, plan: Plan | None, tick: int) -> None:
+        if plan is None:
+            return
+        stats = self.mpc.statistics
+        channel = self.plan_channel
+        channel.begin_write()
+        self.layout.write(
+            channel.payload,
+            plan,
+            tick * self.control_period,
+            (stats.update_times[-1], stats.iterations[-1], stats.solves, stats.failures),
+        )
+        channel.end_write()
 
 
 # ------------------------------------------------------------------------------------ policy side
@@ -237,6 +395,8 @@ class RealtimeMpcController:
         plan_capacity: int,
         startup_timeout: float = 120.0,
         stall_timeout: float | None = None,
+        control_period: float = 0.002,
+        scheme: str = "rti",
     ) -> None:
         self.robot = robot
         self.low_level = low_level
@@ -244,14 +404,17 @@ class RealtimeMpcController:
         self.period = period
         self.startup_timeout = startup_timeout
         self.stall_timeout = stall_timeout if stall_timeout is not None else max(0.5, 10 * period)
+        if not control_period > 0:
+            raise ValueError(f"control period must be positive, got {control_period}")
+        self.control_period = float(control_period)
+        self.scheme = scheme
+        """The MPC process's scheme (``MpcSettings.scheme``), for the run's records."""
         nq, nv, nu, n_feet = robot.nq, robot.nv, robot.nu, robot.n_feet
         self.layout = PlanLayout(plan_capacity, nq + nv, nu, 2 * nv, n_feet)
-        self._measurement_size = 1 + nq + nv + n_feet
-        self._measurement = _SeqLockArray(self._measurement_size)
+        self._measurement = MeasurementRing(nq, nv, n_feet)
         self._plan_channel = _SeqLockArray(self.layout.size)
         self._control = _SeqLockArray(2)
         self._plan_buffer = np.zeros(self.layout.size)
-        self._outgoing = np.zeros(self._measurement_size)
         self._plan_sequence = 0.0
         self.plan: Plan | None = None
         self.statistics = MpcStatistics()
@@ -270,12 +433,11 @@ class RealtimeMpcController:
             args=(
                 factory,
                 self._measurement.name,
-                self._measurement_size,
+                (nq, nv, n_feet),
                 self._plan_channel.name,
                 self.layout,
                 self._control.name,
-                nq,
-                nv,
+                self.control_period,
                 period,
                 os.getpid(),
                 child_end,
@@ -351,17 +513,9 @@ class RealtimeMpcController:
         self.low_level.reset()
 
     def publish(self, t: float, measurement: Measurement) -> None:
-        """Write the newest measurement for the MPC process (never blocks)."""
-        nq, nv = self.robot.nq, self.robot.nv
-        out = self._outgoing
-        out[0] = t
-        out[1 : 1 + nq] = measurement.q
-        out[1 + nq : 1 + nq + nv] = measurement.v
-        out[1 + nq + nv :] = measurement.contacts
-        channel = self._measurement
-        channel.begin_write()
-        channel.payload[:] = out
-        channel.end_write()
+        """Write the measurement of the tick at ``t`` into the ring for the MPC process (never blocks)."""
+        tick = round(t / self.control_period)
+        self._measurement.write(tick, t, measurement.q, measurement.v, measurement.contacts)
 
     def compute(self, t: float, measurement: Measurement) -> np.ndarray:
         self.publish(t, measurement)

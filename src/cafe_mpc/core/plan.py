@@ -2,8 +2,10 @@
 
 Per whole-body running knot: time, planned state ``x*`` and torque ``tau*``, gain ``K`` and the local
 Q-function pieces ``Qu, Quu, Qux`` (paper Eq. (6)-(8)), stance flags and planned contact forces.
-``knot_at(t)`` returns the knot the low-level controller uses at time ``t`` (the closest in time, as the
-paper's VWBC and Riccati controller do).
+``knot_at(t)`` returns the knot the low-level controller uses at time ``t``: the one whose interval
+``[t_k, t_k+1)`` contains ``t`` (zero-order hold: its torque acts over that interval in the plan's own
+discretisation, as in the authors' controller; the nearest knot would pick, half an interval before a
+touchdown, a knot of the next contact phase).
 """
 
 from __future__ import annotations
@@ -21,6 +23,13 @@ def nearest_knot(times: np.ndarray, t: float) -> int:
     if index >= len(times):
         return len(times) - 1
     return index if times[index] - t < t - times[index - 1] else index - 1
+
+
+def interval_at(times: np.ndarray, t: float) -> int:
+    """Index ``k`` of the interval ``[times[k], times[k + 1])`` that contains ``t`` (clamped to the first and
+    last); a time within 1 ns of a knot time belongs to the interval that starts there."""
+    index = int(np.searchsorted(times, t + 1e-9, side="right")) - 1
+    return min(max(index, 0), len(times) - 1)
 
 
 @dataclass
@@ -70,5 +79,5 @@ class Plan:
         return float(self.times[-1] + self.dt[-1])
 
     def knot_at(self, t: float) -> int:
-        """Index of the knot whose time is closest to ``t`` (clamped to the plan)."""
-        return nearest_knot(self.times, t)
+        """Index of the knot whose interval contains ``t`` (clamped to the plan; module docstring)."""
+        return interval_at(self.times, t)

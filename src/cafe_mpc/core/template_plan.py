@@ -15,6 +15,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from cafe_mpc.core.plan import interval_at
+
 
 @dataclass
 class TemplatePlan:
@@ -66,8 +68,7 @@ class TemplatePlan:
     def knot_at(self, t: float) -> int:
         """Index of the interval that contains ``t`` (clamped to the plan): its forces and stance act at ``t``
         (zero-order hold, as in the SRB model)."""
-        index = int(np.searchsorted(self.times, t + 1e-9, side="right")) - 1
-        return min(max(index, 0), len(self.times) - 1)
+        return interval_at(self.times, t)
 
     def feet_at(self, t: float, positions: np.ndarray, velocities: np.ndarray) -> None:
         """Reference foot positions and velocities at ``t`` (cubic Hermite interpolation between the knots,

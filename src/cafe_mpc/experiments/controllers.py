@@ -195,7 +195,14 @@ def build_controller(config: RunConfig, robot: Robot) -> RunController:
     if config.planner == "template":
         return build_template_controller(config, robot)
     mpc = build_mpc(config, robot)
-    return CafeMpcController(robot, mpc.reference, mpc.builder, build_recorder(config, robot), mpc=mpc)
+    return CafeMpcController(
+        robot,
+        mpc.reference,
+        mpc.builder,
+        build_recorder(config, robot),
+        mpc=mpc,
+        control_period=1.0 / config.simulation.control_rate_hz,
+    )
 
 
 def build_template_controller(config: RunConfig, robot: Robot) -> CafeMpcController:
@@ -222,7 +229,9 @@ def build_template_controller(config: RunConfig, robot: Robot) -> CafeMpcControl
     mpc = TemplateMpc(robot, reference, builder, mpc_settings(config))
     ticks = config.simulation.duration * config.simulation.control_rate_hz
     recorder = LowLevelRecorder(low_level, capacity=int(np.ceil(ticks)) + 2, n_feet=robot.n_feet)
-    return CafeMpcController(robot, reference, builder, recorder, mpc=mpc)
+    return CafeMpcController(
+        robot, reference, builder, recorder, mpc=mpc, control_period=1.0 / config.simulation.control_rate_hz
+    )
 
 
 def build_recorder(config: RunConfig, robot: Robot) -> LowLevelRecorder:
@@ -247,6 +256,10 @@ def mpc_settings(config: RunConfig) -> MpcSettings:
             touchdown_max_penalty=config.mpc.touchdown_max_penalty,
             final_policy=config.mpc.final_policy,
             warm_up=config.mpc.warm_up,
+            scheme=config.mpc.scheme,
+            rti_line_search=config.mpc.rti_line_search,
+            rti_feedback=config.mpc.rti_feedback,
+            compute_scale=config.mpc.compute_scale,
         )
     except ValueError as error:
         raise ConfigError(f"mpc: {error}") from error
@@ -329,8 +342,15 @@ def build_realtime_controller(
     factory = functools.partial(realtime_mpc, config.model_dump(mode="json"))
     if low_level is None:
         low_level = build_recorder(config, robot)
+    # knots: the whole-body grid knots plus the splits at contact switches (a few per horizon)
     controller = RealtimeMpcController(
-        robot, factory, low_level, config.mpc.period, schedule.whole_body_knots
+        robot,
+        factory,
+        low_level,
+        config.mpc.period,
+        schedule.whole_body_knots + 16,
+        control_period=1.0 / config.simulation.control_rate_hz,
+        scheme=config.mpc.scheme if config.planner != "template" else "one_phase",
     )
     controller.reference = build_mpc(config, robot).reference  # for the run's report (gait stance)
     return controller
@@ -372,10 +392,13 @@ def timing_of(config: RunConfig, controller: RunController) -> dict:
     if mode == "realtime":  # the MPC process always runs with its wall-clock budget
         config = config.model_copy(update={"mpc": config.mpc.model_copy(update={"latency": "measured"})})
     settings = mpc_settings(config)
+    scheme = getattr(controller, "scheme", config.mpc.scheme)
     return {
         "mode": mode,
+        "scheme": scheme,
         "period_s": config.mpc.period,
         "fixed_latency_s": config.mpc.fixed_latency if mode == "fixed" else None,
+        "compute_scale": config.mpc.compute_scale if mode == "measured" else None,
         "time_budget_ms": settings.budget * 1e3 if settings.budget is not None else None,
         "max_iterations": settings.max_iterations,
     }

@@ -25,9 +25,10 @@ import numpy as np
 
 from cafe_mpc.core.contacts import touchdown_flags
 from cafe_mpc.core.interfaces import MultiPhaseProblem, Phase
-from cafe_mpc.dynamics.srb import SRBState
+from cafe_mpc.dynamics.srb import GRAVITY, SRBState
 from cafe_mpc.dynamics.statics import static_stance_torques
 from cafe_mpc.dynamics.transition import whole_body_to_srb_state
+from cafe_mpc.mpc.time_grid import TIME_QUANTUM, PiecewiseTrajectory, grid_times, quanta
 from cafe_mpc.ocp.costs import WholeBodyWeights
 from cafe_mpc.ocp.knots import SRBKnot, SRBModelFactory, WholeBodyKnot, WholeBodyModelFactory
 from cafe_mpc.reference.base import Reference, ReferenceWindow
@@ -98,6 +99,8 @@ class PhaseInfo:
     entered_by_impact: bool = False
     first_knot: int = 0
     """Index of the phase's first knot among the whole-body (or SRB) knots of the horizon."""
+    fractions: np.ndarray | None = None
+    """SRB phase: per knot and foot, the share of the knot's interval in stance (``CafeProblemBuilder``)."""
 
 
 @dataclass
@@ -157,11 +160,8 @@ class CafeProblemBuilder:
         robot = self.robot
         n_wb, n_srb = schedule.whole_body_knots, schedule.srb_knots
         self.window = ReferenceWindow(
-            n_wb + 1 + (n_srb + 1 if n_srb else 0), robot.nq, robot.nv, robot.nu, robot.n_feet
+            n_wb + 1 + (n_srb + 1 if n_srb else 0) + 16, robot.nq, robot.nv, robot.nu, robot.n_feet
         )
-        self._wb_offsets = schedule.whole_body_dt * np.arange(n_wb + 1)
-        self._srb_offsets = schedule.srb_dt * np.arange(n_srb + 1)
-        self._times = np.zeros(len(self._wb_offsets) + (len(self._srb_offsets) if n_srb else 0))
         self._running: dict[tuple, WholeBodyKnot] = {}
         self._terminal: dict[tuple, WholeBodyKnot] = {}
         self._srb_running: dict[tuple, SRBKnot] = {}
@@ -190,12 +190,15 @@ class CafeProblemBuilder:
         whole_body, srb = self.weight_factories[name]
         return name, whole_body, srb
 
-    def _running_knot(self, slot: int, stance: tuple[bool, ...], weight_set: int) -> WholeBodyKnot:
-        key = (slot, stance, weight_set)
+    def _running_knot(
+        self, slot: int, stance: tuple[bool, ...], weight_set: int, duration: int
+    ) -> WholeBodyKnot:
+        """The knot object of slot ``slot`` for this stance, weight set and duration (in ``TIME_QUANTUM``)."""
+        key = (slot, stance, weight_set, duration)
         knot = self._running.get(key)
         if knot is None:
             _, factory, _ = self._factories(weight_set)
-            knot = factory.running_knot(stance, factory.default_reference(), self.schedule.whole_body_dt)
+            knot = factory.running_knot(stance, factory.default_reference(), duration * TIME_QUANTUM)
             self._running[key] = knot
         return knot
 
@@ -226,14 +229,14 @@ class CafeProblemBuilder:
             self._switches[key] = parts
         return parts
 
-    def _srb_knot(self, slot: int, weight_set: int) -> SRBKnot:
-        key = (slot, weight_set)
+    def _srb_knot(self, slot: int, weight_set: int, duration: int) -> SRBKnot:
+        key = (slot, weight_set, duration)
         knot = self._srb_running.get(key)
         if knot is None:
             _, _, srb = self._factories(weight_set)
             n_feet = self.robot.n_feet
             reference = srb.reference(srb.state.zero(), np.zeros((n_feet, 3)), (True,) * n_feet)
-            knot = srb.running_knot(reference, self.schedule.srb_dt)
+            knot = srb.running_knot(reference, duration * TIME_QUANTUM)
             self._srb_running[key] = knot
         return knot
 
@@ -247,38 +250,68 @@ class CafeProblemBuilder:
         return knot
 
     # ------------------------------------------------------------------------------------------- build
-    def build(self, t0: float, x0: np.ndarray, reference: Reference) -> BuiltProblem:
-        """The problem of an MPC update at ``t0`` from the measured ``x0`` (references written in place)."""
+    def _window_for(self, rows: int) -> ReferenceWindow:
+        """The reference window, grown (rarely: many switches in one horizon) to hold ``rows`` times."""
+        if rows > self.window.capacity:
+            robot = self.robot
+            self.window = ReferenceWindow(rows + 8, robot.nq, robot.nv, robot.nu, robot.n_feet)
+        return self.window
+
+    def knot_times(self, t0: float, reference: Reference) -> tuple[np.ndarray, np.ndarray, list[float]]:
+        """Whole-body and SRB knot times of an update at ``t0`` and the contact switches of the SRB tail.
+
+        Whole-body knots on the absolute ``dt_w`` grid after a fractional first knot, split at every contact
+        switch (``time_grid.grid_times``); the SRB tail from the whole-body end on the absolute ``dt_s``
+        grid, its first knot between half and one and a half ``dt_s`` long; no SRB times for ``Ts = 0``.
+        """
         schedule = self.schedule
         n_wb, n_srb = schedule.whole_body_knots, schedule.srb_knots
-        has_srb = n_srb > 0
-        times = self._times
-        times[: n_wb + 1] = t0 + self._wb_offsets
-        if has_srb:
-            times[n_wb + 1 :] = times[n_wb] + self._srb_offsets
-        window = self.window
+        dt_w, dt_s = schedule.whole_body_dt, schedule.srb_dt
+        horizon = (n_wb + 1) * dt_w + ((n_srb + 1) * dt_s if n_srb else 0.0)
+        switches = reference.switch_times(t0, t0 + horizon)
+        wb_times = grid_times(t0, n_wb, dt_w, switches)
+        if not n_srb:
+            return wb_times, np.zeros(0), []
+        srb_times = grid_times(float(wb_times[-1]), n_srb, dt_s, first_min=0.5 * dt_s)
+        tail = [s for s in switches if srb_times[0] < s < srb_times[-1]]
+        return wb_times, srb_times, tail
+
+    def build(self, t0: float, x0: np.ndarray, reference: Reference) -> BuiltProblem:
+        """The problem of an MPC update at ``t0`` from the measured ``x0`` (references written in place).
+
+        Knots at ``knot_times``: every touchdown and lift-off at the reference's own time, whatever ``t0``.
+        An SRB knot whose interval a switch falls inside gets per-foot stance fractions (the share of the
+        interval each foot stands: the SRB's impulse over the interval is then that of the schedule) and,
+        for a foot that lands inside it, the foothold it lands on.
+        """
+        schedule = self.schedule
+        wb_times, srb_times, tail_switches = self.knot_times(t0, reference)
+        n_w, n_s = len(wb_times) - 1, max(len(srb_times) - 1, 0)
+        has_srb = n_s > 0
+        window = self._window_for(len(wb_times) + len(srb_times) + len(tail_switches))
+        times = np.concatenate([wb_times, srb_times, np.asarray(tail_switches, dtype=float)])
         window.set_times(times)
         self._names = tuple(reference.weight_sets)
         reference.sample(window)
         window.check_finite(type(reference).__name__)
         stance_rows = [tuple(bool(s) for s in row) for row in window.stance]
-        wb_times = times[: n_wb + 1]
         groups: list[tuple[tuple[bool, ...], int, int]] = []  # (stance, first knot, last knot + 1)
         start = 0
-        for k in range(1, n_wb + 1):
-            if k == n_wb or stance_rows[k] != stance_rows[start]:
+        for k in range(1, n_w + 1):
+            if k == n_w or stance_rows[k] != stance_rows[start]:
                 groups.append((stance_rows[start], start, k))
                 start = k
         state, torque = window.state, window.torque
         positions, velocities = window.foot_positions, window.foot_velocities
         weight_set = window.weight_set
+        durations = np.diff(wb_times)
         phases: list[Phase] = []
         infos: list[PhaseInfo] = []
-        stance_array = np.asarray(window.stance[: n_wb + 1], dtype=bool)
+        stance_array = np.asarray(window.stance[: n_w + 1], dtype=bool)
         for index, (stance, first, last) in enumerate(groups):
             running = []
             for k in range(first, last):
-                knot = self._running_knot(k, stance, int(weight_set[k]))
+                knot = self._running_knot(k, stance, int(weight_set[k]), quanta(float(durations[k])))
                 ref = knot.reference
                 ref.state[:] = state[k]
                 ref.foot_positions[:] = positions[k]
@@ -286,7 +319,7 @@ class CafeProblemBuilder:
                 ref.torque[:] = torque[k]
                 running.append(knot)
             is_last = index == len(groups) - 1
-            next_stance = groups[index + 1][0] if not is_last else stance_rows[n_wb + 1 if has_srb else n_wb]
+            next_stance = groups[index + 1][0] if not is_last else stance_rows[n_w + 1 if has_srb else n_w]
             terminal = self._terminal_knot(last, stance, int(weight_set[last]), is_last)
             ref = terminal.reference
             ref.state[:] = state[last]
@@ -311,37 +344,70 @@ class CafeProblemBuilder:
                 )
             )
         if has_srb:
-            offset = n_wb + 1
-            srb_times = times[offset:]
-            srb_stance = np.asarray(window.stance[offset:], dtype=bool)
+            offset = n_w + 1
+            switch_rows = {float(s): offset + n_s + 1 + i for i, s in enumerate(tail_switches)}
+            srb_stance = np.asarray(window.stance[offset : offset + n_s + 1], dtype=bool)
+            fractions, sample_rows = self._stance_fractions(srb_times, offset, switch_rows, window.stance)
             running = []
-            srb_forces = np.zeros((n_srb, 12))
-            for j in range(n_srb):
+            srb_forces = np.zeros((n_s, 12))
+            for j in range(n_s):
                 row = offset + j
-                knot = self._srb_knot(j, int(weight_set[row]))
+                knot = self._srb_knot(j, int(weight_set[row]), quanta(float(srb_times[j + 1] - srb_times[j])))
                 srb_factory = self._factories(int(weight_set[row]))[2]
+                to_srb_weight = srb_factory.weight / (self.robot.total_mass * GRAVITY)
                 ref = knot.reference
                 ref.state[:] = whole_body_to_srb_state(state[row])
-                ref.foot_positions[:] = positions[row]
-                ref.contacts[:] = window.stance[row]
-                # GRF target (28): the reference's stance forces, for the SRB's own weight
-                srb_forces[j] = window.forces[row].reshape(-1) * (
-                    srb_factory.weight / (self.robot.total_mass * 9.81)
-                )
+                ref.contacts[:] = fractions[j]
+                for foot in range(self.robot.n_feet):
+                    sample = sample_rows[j, foot]
+                    ref.foot_positions[foot] = positions[sample, foot]
+                    # GRF target (28): the reference's stance force of the foot, for the SRB's own weight
+                    srb_forces[j, 3 * foot : 3 * foot + 3] = window.forces[sample, foot] * to_srb_weight
                 ref.forces[:] = srb_forces[j]
                 running.append(knot)
-            terminal = self._srb_terminal_knot(int(weight_set[-1]))
+            last_row = offset + n_s
+            terminal = self._srb_terminal_knot(int(weight_set[last_row]))
             ref = terminal.reference
-            ref.state[:] = whole_body_to_srb_state(state[-1])
-            ref.foot_positions[:] = positions[-1]
-            ref.contacts[:] = window.stance[-1]
+            ref.state[:] = whole_body_to_srb_state(state[last_row])
+            ref.foot_positions[:] = positions[last_row]
+            ref.contacts[:] = window.stance[last_row]
             phases.append(Phase(running, terminal, dt=schedule.srb_dt, name="srb"))
             entered = any(touchdown_flags(groups[-1][0], stance_rows[offset]))
-            infos.append(PhaseInfo("srb", None, srb_times.copy(), srb_stance[:-1].copy(), entered))
+            infos.append(
+                PhaseInfo("srb", None, np.array(srb_times), srb_stance[:-1].copy(), entered, 0, fractions)
+            )
         else:
             srb_forces = np.zeros((0, 12))
         problem = MultiPhaseProblem(np.asarray(x0, dtype=float), phases)
-        return BuiltProblem(problem, infos, t0, srb_forces, torque[: n_wb + 1].copy())
+        return BuiltProblem(problem, infos, t0, srb_forces, torque[: n_w + 1].copy())
+
+    def _stance_fractions(
+        self, srb_times: np.ndarray, offset: int, switch_rows: dict[float, int], stance: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Per SRB knot and foot: the share of the knot's interval in stance, and the window row whose foot
+        position and force the knot uses (the knot's own row, or the row of the switch at which the foot's
+        first stance inside the interval starts)."""
+        n_s = len(srb_times) - 1
+        n_feet = self.robot.n_feet
+        fractions = np.zeros((n_s, n_feet))
+        rows = np.zeros((n_s, n_feet), dtype=np.int64)
+        switch_times = sorted(switch_rows)
+        for j in range(n_s):
+            a, b = float(srb_times[j]), float(srb_times[j + 1])
+            starts = [(a, offset + j)] + [(s, switch_rows[s]) for s in switch_times if a < s < b]
+            rows[j] = offset + j
+            chosen = np.zeros(n_feet, dtype=bool)
+            for index, (start, row) in enumerate(starts):
+                end = starts[index + 1][0] if index + 1 < len(starts) else b
+                flags = stance[row]
+                fractions[j] += flags * ((end - start) / (b - a))
+                for foot in range(n_feet):
+                    if flags[foot] and not chosen[foot]:
+                        rows[j, foot] = row
+                        chosen[foot] = True
+        fractions[fractions < 1e-9] = 0.0  # round-off of the interval sums
+        fractions[fractions > 1.0 - 1e-9] = 1.0
+        return fractions, rows
 
 
 @dataclass
@@ -357,7 +423,7 @@ class InitialGuess:
 
 @dataclass
 class WarmStart:
-    """Maps a previous solution onto a new problem by knot time (Sec. VI-C, Fig. 5)."""
+    """Maps a previous solution onto a new problem by time (Sec. VI-C, Fig. 5; ``time_grid``)."""
 
     srb_state: SRBState = field(default_factory=SRBState)
 
@@ -366,38 +432,37 @@ class WarmStart:
     ) -> InitialGuess:
         """Initial states, controls and roll-out masks for ``built`` from the previous solution.
 
-        Knots that existed before keep their state and control (shooting knots). Appended whole-body knots
-        copy the last whole-body state and take the knot's torque reference (the static torques carrying
-        that phase's stance load: copying the last planned torque into a phase with other stance feet would
-        swing the now-unloaded legs violently); they are roll-out knots when they belong to a newly appended
-        phase entered through an impact (the adaptive scheme of Fig. 5), shooting knots otherwise.
+        A whole-body knot inside the time span of a previous phase with the same stance takes that
+        phase's solution at its time (``PiecewiseTrajectory``: the knot's own state where the times agree,
+        the interpolation between the two knots around it otherwise; the control of the previous interval
+        containing it); at a phase's start the post-reset state, at its end the pre-reset one (contact
+        switches sit at the same absolute times in every update). Shooting knots. Whole-body knots past
+        the previous whole-body horizon copy its last state and take the knot's torque reference (the
+        static torques carrying that phase's stance load: copying the last planned torque into a phase
+        with other stance feet would swing the now-unloaded legs violently); they are roll-out knots when
+        they belong to a newly appended phase entered through an impact (the adaptive scheme of Fig. 5),
+        shooting knots otherwise. SRB knots take the previous SRB tail at their time (its last state past
+        its end).
         """
         x0 = built.problem.x0
-        dt_w = self._whole_body_dt(built)
         xs, us, rollout = [], [], []
-        # previous whole-body knots by time index: (post-reset state of a phase start, state, control)
-        previous_wb: dict[int, list] = {}
-        previous_srb_times: list[float] = []
-        previous_srb: list[tuple[np.ndarray, np.ndarray | None]] = []
+        previous_wb: list[tuple[tuple[bool, ...] | None, PiecewiseTrajectory]] = []
+        previous_srb: PiecewiseTrajectory | None = None
         last_wb_state, previous_end = x0, -math.inf
         if previous is not None and solution is not None:
-            for info, phase in zip(previous.phases, solution.phases, strict=True):
-                n = len(info.times) - 1
-                for k, t in enumerate(info.times):
-                    control = phase.us[k] if k < n else None
-                    if info.kind == "whole_body":
-                        entry = previous_wb.setdefault(round(float(t) / dt_w), [None, None, None])
-                        if k == 0:
-                            entry[0] = phase.xs[k]
-                        else:
-                            entry[1] = phase.xs[k]
-                        if control is not None:
-                            entry[2] = control
-                        last_wb_state, previous_end = phase.xs[k], float(t)
-                    else:
-                        previous_srb_times.append(float(t))
-                        previous_srb.append((phase.xs[k], control))
-        srb_times = np.array(previous_srb_times)
+            for info, phase, problem_phase in zip(
+                previous.phases, solution.phases, previous.problem.phases, strict=True
+            ):
+                manifold = problem_phase.state
+                trajectory = PiecewiseTrajectory(
+                    info.times, phase.xs, phase.us, manifold.difference, manifold.integrate
+                )
+                if info.kind == "whole_body":
+                    previous_wb.append((info.stance, trajectory))
+                    last_wb_state, previous_end = phase.xs[-1], float(info.times[-1])
+                else:
+                    previous_srb = trajectory
+        tolerance = 0.5 * TIME_QUANTUM
         torque_reference = built.torque_reference
         for info in built.phases:
             n = len(info.times) - 1
@@ -405,23 +470,16 @@ class WarmStart:
                 phase_x = np.empty((n + 1, len(x0)))
                 phase_u = np.empty((n, torque_reference.shape[1]))
                 phase_rollout = np.zeros(n + 1, dtype=bool)
-                new_phase_after_impact = info.entered_by_impact and info.times[0] > previous_end - TIME_EPS
+                new_phase_after_impact = info.entered_by_impact and info.times[0] > previous_end - tolerance
+                same_stance = [trajectory for stance, trajectory in previous_wb if stance == info.stance]
                 for k, t in enumerate(info.times):
-                    entry = previous_wb.get(round(float(t) / dt_w))
-                    state = None
-                    if entry is not None:
-                        # a phase start takes the post-reset copy, a phase end the pre-reset one
-                        state = (
-                            (entry[0] if entry[0] is not None else entry[1])
-                            if k == 0
-                            else (entry[1] if entry[1] is not None else entry[0])
-                        )
-                    if state is not None:
-                        phase_x[k] = state
+                    t = float(t)
+                    source = _covering(same_stance, t, k, n)
+                    if source is not None:
+                        phase_x[k] = source.state_at(t)
+                        control = source.control_at(t) if k < n else None
                         if k < n:
-                            phase_u[k] = (
-                                entry[2] if entry[2] is not None else torque_reference[info.first_knot + k]
-                            )
+                            phase_u[k] = torque_reference[info.first_knot + k] if control is None else control
                     else:
                         phase_x[k] = last_wb_state
                         if k < n:
@@ -435,11 +493,12 @@ class WarmStart:
                 phase_u = np.empty((n, built.srb_forces.shape[1]))
                 wb_end = xs[-1][-1] if xs else x0
                 for j, t in enumerate(info.times):
-                    match = _nearest_srb(srb_times, previous_srb, float(t))
-                    if match is not None:
-                        phase_x[j] = match[0]
+                    t = float(t)
+                    if previous_srb is not None:
+                        phase_x[j] = previous_srb.state_at(t)
+                        control = previous_srb.control_at(t) if j < n else None
                         if j < n:
-                            phase_u[j] = match[1] if match[1] is not None else built.srb_forces[j]
+                            phase_u[j] = control if control is not None else built.srb_forces[j]
                     else:
                         phase_x[j] = whole_body_to_srb_state(wb_end)
                         if j < n:
@@ -450,12 +509,26 @@ class WarmStart:
         multipliers, penalties = _augmented_lagrangian_guess(built, previous, solution)
         return InitialGuess(xs, us, rollout, multipliers, penalties)
 
-    @staticmethod
-    def _whole_body_dt(built: BuiltProblem) -> float:
-        for info in built.phases:
-            if info.kind == "whole_body" and len(info.times) > 1:
-                return float(info.times[1] - info.times[0])
-        return 0.01
+
+def _covering(
+    trajectories: list[PiecewiseTrajectory], t: float, k: int, n: int
+) -> PiecewiseTrajectory | None:
+    """The previous phase (same stance) a new knot ``k`` of ``n`` at time ``t`` takes its guess from: one
+    that starts at ``t`` for a phase start (post-reset state), one that ends at ``t`` for a phase end
+    (pre-reset state), else one whose span contains ``t``."""
+    tolerance = 0.5 * TIME_QUANTUM
+    if k == 0:
+        for trajectory in trajectories:
+            if abs(trajectory.start - t) <= tolerance:
+                return trajectory
+    if k == n:
+        for trajectory in trajectories:
+            if abs(trajectory.end - t) <= tolerance:
+                return trajectory
+    for trajectory in trajectories:
+        if trajectory.start - tolerance <= t <= trajectory.end + tolerance:
+            return trajectory
+    return None
 
 
 def _augmented_lagrangian_guess(
@@ -497,12 +570,3 @@ def _stance_after(built: BuiltProblem, index: int) -> tuple[bool, ...] | None:
     if following.kind == "whole_body":
         return following.stance
     return tuple(bool(s) for s in following.contacts[0])
-
-
-def _nearest_srb(
-    times: np.ndarray, records: list[tuple[np.ndarray, np.ndarray | None]], t: float
-) -> tuple[np.ndarray, np.ndarray | None] | None:
-    if not records:
-        return None
-    index = int(np.argmin(np.abs(times - t)))
-    return records[index]

@@ -1,13 +1,24 @@
-"""The MPC side of CAFE-MPC (paper Sec. IV, VI-C): one receding-horizon update, measured state -> Plan.
+"""The MPC side of CAFE-MPC (paper Sec. IV, VI-C): receding-horizon updates, measured state -> Plan.
 
-``RecedingHorizonMpc.update(t, q, v)`` re-anchors the reference, writes the persistent CAFE problem's
-references in place (``CafeProblemBuilder``), warm-starts MS-iLQR from the shifted previous solution
-(Fig. 5) and turns the whole-body part of the solution into a ``Plan`` (the message to the low-level
-controller: knots with states, torques, gains and the Q-function pieces of Eqs. (6)-(8), forces, contacts).
+Two schemes (``MpcSettings.scheme``):
 
-This object knows nothing about time passing: the policy side (``cafe_mpc.control``) decides when an update
-starts and when its plan takes effect (fixed or measured latency in simulated time, or a separate process
-against the wall clock). It is what the MPC process of the real-time mode runs (OCS2's MPC/MRT split).
+* **one-phase** (``update(t, q, v)``): re-anchor the reference on the measurement, write the persistent
+  CAFE problem's references in place (``CafeProblemBuilder``), warm-start MS-iLQR from the previous solution
+  by time (Fig. 5), iterate, and turn the whole-body part of the solution into a ``Plan`` (the message to
+  the low-level controller: knots with states, torques, gains and the Q-function pieces of Eqs. (6)-(8),
+  forces, contacts). Everything happens after the measurement: the robot waits for all of it.
+* **real-time iteration** (``prepare`` then ``feedback``; Diehl's scheme, which the paper's Sec. VIII names
+  as the next step; acados' preparation/feedback phases): ``prepare(t, q, v)`` does all of the above for
+  the *next* update time ``t`` from the state the current plan predicts there (``predict``), while that
+  plan still drives the robot; ``feedback(t, q, v)``, when the measurement of time ``t`` arrives, only
+  embeds the measured initial state through the prepared policy (``MSiLQRSolver.feedback``: a linear
+  forward pass, well under a millisecond) and publishes the plan. The latency the robot sees is the
+  feedback phase.
+
+This object knows nothing about time passing: the policy side (``cafe_mpc.control``) decides when updates
+happen and when their plans take effect (fixed or measured latency in simulated time, or a separate
+process against the wall clock). It is what the MPC process of the real-time mode runs (OCS2's MPC/MRT
+split).
 """
 
 from __future__ import annotations
@@ -22,6 +33,7 @@ import numpy as np
 
 from cafe_mpc.core.plan import Plan
 from cafe_mpc.mpc.problem import BuiltProblem, CafeProblemBuilder, WarmStart
+from cafe_mpc.mpc.time_grid import TIME_QUANTUM, PiecewiseTrajectory
 from cafe_mpc.reference.base import Reference
 from cafe_mpc.robots.robot import Robot
 from cafe_mpc.solver import MSiLQRSolver, SolverOptions, SolverResult
@@ -63,6 +75,18 @@ class MpcSettings:
     kinematics, buffers) are created right after the cold first solve, before the clock starts, instead of
     inside the first update that meets each knot object (which took 25-60 ms extra at the start of a gait
     and when the barrel roll entered the horizon). 0: no warm-up.
+    ``scheme``: ``"rti"`` (default; real-time iteration: ``prepare`` before the measurement, ``feedback``
+    after it, see the module docstring) or ``"one_phase"`` (the whole update after the measurement).
+    ``rti_line_search``: the preparation takes its MS-iLQR iteration(s) on the predicted state, line search
+    included (``max_iterations`` of them), and the feedback only embeds the measured state (``True``,
+    default); or the preparation stops after the backward sweep and the feedback takes the full Newton step
+    (the classical real-time iteration, no globalisation).
+    ``rti_feedback``: how the feedback carries the measured initial state through the plan: ``"linear"``
+    (the tangential predictor through the prepared ``A``, ``B``) or ``"nonlinear"`` (the dynamics rolled out
+    under the prepared policy).
+    ``compute_scale``: measured mode only: every measured wall time (update, preparation, feedback) is
+    multiplied by it before it is applied in simulated time, to show the controller as it would run on a
+    computer ``compute_scale`` times slower.
     """
 
     period: float = 0.02
@@ -73,6 +97,10 @@ class MpcSettings:
     touchdown_max_penalty: float | None = None
     final_policy: Literal["relinearize", "shift"] = "relinearize"
     warm_up: float = 1.0
+    scheme: Literal["one_phase", "rti"] = "rti"
+    rti_line_search: bool = True
+    rti_feedback: Literal["linear", "nonlinear"] = "linear"
+    compute_scale: float = 1.0
     # The paper's first-solve settings with a tighter tolerance: the first (cold) solve seeds every later
     # warm start. It runs before the clock starts (the robot stands while the first plan is computed).
     first_solve: SolverOptions = field(
@@ -101,6 +129,12 @@ class MpcSettings:
             raise ValueError("MPC max_iterations must be >= 1")
         if self.touchdown_max_penalty is not None and not self.touchdown_max_penalty > 0:
             raise ValueError("MPC touchdown_max_penalty must be positive (or null)")
+        if self.scheme not in ("one_phase", "rti"):
+            raise ValueError(f"MPC scheme must be 'one_phase' or 'rti', got {self.scheme!r}")
+        if self.rti_feedback not in ("linear", "nonlinear"):
+            raise ValueError(f"MPC rti_feedback must be 'linear' or 'nonlinear', got {self.rti_feedback!r}")
+        if not (math.isfinite(self.compute_scale) and self.compute_scale > 0):
+            raise ValueError(f"MPC compute_scale must be positive, got {self.compute_scale}")
 
     @property
     def budget(self) -> float | None:
@@ -124,6 +158,14 @@ class MpcSettings:
         if self.touchdown_max_penalty is not None:
             options = replace(options, al_max_penalty=self.touchdown_max_penalty)
         return options
+
+    @property
+    def prepare_solve(self) -> SolverOptions:
+        """Solver settings of a real-time iteration's preparation: the in-loop ones, or (without the
+        preparation's line search) no iteration: linearisation and backward sweep only."""
+        if self.rti_line_search:
+            return self.update_solve
+        return replace(self.update_solve, max_iterations=0)
 
 
 @dataclass
@@ -150,6 +192,11 @@ class MpcStatistics:
     costs: list[float] = field(default_factory=list)
     defects: list[float] = field(default_factory=list)
     statuses: list[str] = field(default_factory=list)
+    prepare_times: list[float] = field(default_factory=list)
+    """Real-time iteration: wall time of each preparation (reference, problem, warm start, linearisation,
+    backward sweep and, with ``rti_line_search``, the line search)."""
+    feedback_times: list[float] = field(default_factory=list)
+    """Real-time iteration: wall time of each feedback phase (embedding the measurement, the plan)."""
     first_solve_time: float | None = None
     warm_up_time: float | None = None
     """Wall time of the warm-up after the first solve (``MpcSettings.warm_up``), before the clock starts."""
@@ -209,6 +256,16 @@ class MpcStatistics:
             "defect_max_median": float(np.median(self.defects)) if self.defects else None,
             "time_budget_stops": sum(status == "time_budget" for status in self.statuses),
             "pd_fallback_ticks": self.fallback_ticks,
+            "prepare_ms_median": float(np.median(self.prepare_times)) * 1e3 if self.prepare_times else None,
+            "prepare_ms_p99": float(np.percentile(self.prepare_times, 99)) * 1e3
+            if self.prepare_times
+            else None,
+            "feedback_ms_median": float(np.median(self.feedback_times)) * 1e3
+            if self.feedback_times
+            else None,
+            "feedback_ms_p99": float(np.percentile(self.feedback_times, 99)) * 1e3
+            if self.feedback_times
+            else None,
         }
 
 
@@ -228,15 +285,21 @@ class RecedingHorizonMpc:
         self.settings = settings or MpcSettings()
         self.first_solver = MSiLQRSolver(self.settings.first_solve)
         self.solver = MSiLQRSolver(self.settings.update_solve)
+        self.prepare_solver = MSiLQRSolver(self.settings.prepare_solve)
         # one workspace and data pool for the cold solve and the updates (the updates reuse its data)
-        self.solver.workspace = self.first_solver.workspace = Workspace()
+        workspace = Workspace()
+        self.solver.workspace = self.first_solver.workspace = self.prepare_solver.workspace = workspace
         self.warm_start = WarmStart()
         self.statistics = MpcStatistics()
         self.previous: tuple[BuiltProblem, SolverResult] | None = None
+        self.prepared: tuple[float, BuiltProblem, SolverResult] | None = None
+        """The preparation waiting for its measurement: (update time, problem, prepared solution)."""
         self._x = np.zeros(robot.nq + robot.nv)
+        self._projections: dict[tuple[bool, ...], tuple] = {}
 
     def reset(self) -> None:
         self.previous = None
+        self.prepared = None
         self.statistics = MpcStatistics()
 
     @property
@@ -244,43 +307,154 @@ class RecedingHorizonMpc:
         """Whether a first (cold) solve has succeeded."""
         return self.previous is not None
 
+    @property
+    def supports_rti(self) -> bool:
+        """Whether this planner has the real-time iteration's two phases (the template baseline has not)."""
+        return True
+
     def update(self, t: float, q: np.ndarray, v: np.ndarray) -> Plan | None:
-        """One MPC update from the state measured at ``t``; ``None`` (counted and logged) if it failed.
+        """One one-phase MPC update from the state measured at ``t``; ``None`` (counted and logged) if it
+        failed. The first update of a run is the cold solve (``settings.first_solve``).
 
         The steps are ``_build`` (reference update + problem with references written in place), ``_solve``
         (warm start + MS-iLQR) and ``_plan`` (the message to the low level); another planner over the same
         loop (the template baseline, ``mpc/template.py``) overrides them."""
-        robot = self.robot
-        self._x[: robot.nq] = q
-        self._x[robot.nq :] = v
         first = self.previous is None
+        self.prepared = None
         start = time.perf_counter()
+        outcome = self._solve_at(t, q, v, self.first_solver if first else self.solver)
+        if outcome is None:
+            return None
+        built, result = outcome
         try:
-            self.reference.update(t, q, v)
-            built = self._build(t)
-            problem_time = time.perf_counter() - start
-            result = self._solve(built, self.first_solver if first else self.solver)
             plan = self._plan(built, result)
         except (ValueError, FloatingPointError, np.linalg.LinAlgError, RuntimeError) as error:
-            self.statistics.failures += 1
-            logger.warning(
-                "%s update at t = %.3f s failed (%s); keeping the previous plan", self.name, t, error
-            )
+            self._failed(t, f"its plan could not be made ({error})")
             return None
-        elapsed = time.perf_counter() - start
-        self.statistics.record(t, result, elapsed, problem_time)
         if first:
-            self.statistics.first_solve_time = elapsed
-        if result.status == "non_finite" or not result.policy_valid:
-            self.statistics.failures += 1
-            logger.warning(
-                "%s update at t = %.3f s returned %s; keeping the previous plan", self.name, t, result.status
-            )
-            return None
+            self.statistics.first_solve_time = time.perf_counter() - start
         self.previous = (built, result)
         if first and self.settings.warm_up > 0.0:
             self._warm_up(t)
         return plan
+
+    def prepare(self, t: float, q: np.ndarray, v: np.ndarray) -> bool:
+        """The preparation phase of a real-time iteration for the update at ``t``, from the state ``q, v``
+        predicted for ``t`` (``predict``): reference, problem, warm start, linearisation, backward sweep
+        (and the line search, ``MpcSettings.rti_line_search``). ``False`` (counted and logged) if it failed:
+        the update at ``t`` then falls back to a one-phase update. Needs a first (cold) solve."""
+        if self.previous is None:
+            raise RuntimeError(f"{self.name}: prepare needs a first solve (call update once)")
+        self.prepared = None
+        outcome = self._solve_at(t, q, v, self.prepare_solver)
+        if outcome is None:
+            return False
+        built, result = outcome
+        self.statistics.prepare_times.append(self.statistics.update_times[-1])
+        self.prepared = (t, built, result)
+        return True
+
+    def feedback(self, t: float, q: np.ndarray, v: np.ndarray) -> Plan | None:
+        """The feedback phase of the update at ``t``: the state measured at ``t`` embedded through the
+        prepared policy (``MSiLQRSolver.feedback``), the plan made; ``None`` (counted and logged) when no
+        preparation for ``t`` is waiting or the embedding failed (the previous plan stays)."""
+        prepared, self.prepared = self.prepared, None
+        if prepared is None or abs(prepared[0] - t) > 1e-9:
+            self._failed(t, "no preparation for this time")
+            return None
+        _, built, result = prepared
+        robot = self.robot
+        start = time.perf_counter()
+        x = self._x
+        x[: robot.nq] = q
+        x[robot.nq :] = v
+        settings = self.settings
+        try:
+            self._contact_consistent(x, built.phases[0].stance)
+            embedded = self.prepare_solver.feedback(
+                result, x, 0.0 if settings.rti_line_search else 1.0, settings.rti_feedback
+            )
+            built.problem.x0[:] = x
+            plan = self._plan(built, embedded)
+        except (ValueError, FloatingPointError, np.linalg.LinAlgError, RuntimeError) as error:
+            self._failed(t, f"its feedback failed ({error})")
+            return None
+        elapsed = time.perf_counter() - start
+        statistics = self.statistics
+        statistics.feedback_times.append(elapsed)
+        statistics.update_times[-1] += elapsed
+        self.previous = (built, embedded)
+        return plan
+
+    def predict(self, t: float) -> np.ndarray | None:
+        """The whole-body state ``[q, v]`` the newest solution predicts at ``t`` (``None`` without one, or
+        past its whole-body horizon): interpolated between the knots around ``t``; at a contact switch the
+        state after it (the phase starting at ``t``)."""
+        if self.previous is None:
+            return None
+        built, result = self.previous
+        tolerance = 0.5 * TIME_QUANTUM
+        candidates = [
+            (info, phase, problem_phase)
+            for info, phase, problem_phase in zip(
+                built.phases, result.phases, built.problem.phases, strict=True
+            )
+            if info.kind == "whole_body" and info.times[0] - tolerance <= t <= info.times[-1] + tolerance
+        ]
+        if not candidates:
+            return None
+        info, phase, problem_phase = candidates[-1]  # the phase that starts at a switch time ``t``
+        manifold = problem_phase.state
+        return PiecewiseTrajectory(
+            info.times, phase.xs, phase.us, manifold.difference, manifold.integrate
+        ).state_at(t)
+
+    def _solve_at(
+        self, t: float, q: np.ndarray, v: np.ndarray, solver: MSiLQRSolver
+    ) -> tuple[BuiltProblem, SolverResult] | None:
+        """Reference update, problem, warm start and ``solver`` from the state ``q, v`` at ``t``; records the
+        update's statistics; ``None`` (counted and logged) on failure."""
+        robot = self.robot
+        self._x[: robot.nq] = q
+        self._x[robot.nq :] = v
+        start = time.perf_counter()
+        try:
+            self.reference.update(t, q, v)
+            built = self._build(t)
+            if isinstance(built, BuiltProblem):
+                self._contact_consistent(built.problem.x0, built.phases[0].stance)
+            problem_time = time.perf_counter() - start
+            result = self._solve(built, solver)
+        except (ValueError, FloatingPointError, np.linalg.LinAlgError, RuntimeError) as error:
+            self._failed(t, f"it failed ({error})")
+            return None
+        elapsed = time.perf_counter() - start
+        self.statistics.record(t, result, elapsed, problem_time)
+        if result.status == "non_finite" or not result.policy_valid:
+            self._failed(t, f"it returned {result.status}")
+            return None
+        return built, result
+
+    def _contact_consistent(self, x: np.ndarray, stance: tuple[bool, ...] | None) -> None:
+        """Bring the feet the plan's first phase stands on to rest in ``x`` (in place): the impact map (22)
+        onto that stance. A measurement taken at a touchdown's planned time has the landing feet still
+        moving (or not yet landed) while the plan's state there is the post-impact one; projected, the
+        measurement differs from the prediction by the touchdown's timing error, not by the whole impact."""
+        if stance is None or not any(stance):
+            return
+        key = tuple(bool(s) for s in stance)
+        entry = self._projections.get(key)
+        if entry is None:
+            reset = self.builder.whole_body.reset_map((False,) * len(key), key)
+            entry = (reset, reset.create_data())
+            self._projections[key] = entry
+        reset, data = entry
+        reset.calc(data, x)
+        x[:] = data.x_next
+
+    def _failed(self, t: float, why: str) -> None:
+        self.statistics.failures += 1
+        logger.warning("%s update at t = %.3f s: %s; keeping the previous plan", self.name, t, why)
 
     def _warm_up(self, t0: float) -> None:
         """Create the solver data of every knot object the updates of ``settings.warm_up`` seconds after
@@ -290,8 +464,12 @@ class RecedingHorizonMpc:
         period = self.settings.period
         steps = math.ceil(self.settings.warm_up / period)
         workspace = self.solver.workspace
+        grid = getattr(getattr(self.builder, "schedule", None), "whole_body_dt", period)
         for step in range(1, steps + 1):
-            built = self._build(t0 + step * period)
+            # updates start anywhere on the control ticks: vary the start's offset from the knot grid so
+            # that the knot objects of the first knot's durations get their data too
+            offset = (step * 3 * TIME_QUANTUM) % grid
+            built = self._build(t0 + step * period + offset)
             if not isinstance(built, BuiltProblem):  # another planner's problem (the template's): no warm-up
                 return
             workspace.setup(built.problem)

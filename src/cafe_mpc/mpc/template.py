@@ -489,6 +489,11 @@ class TemplateMpc(RecedingHorizonMpc):
     ) -> None:
         super().__init__(robot, reference, builder, settings)  # type: ignore[arg-type]
 
+    @property
+    def supports_rti(self) -> bool:
+        """The template's updates are one-phase (a small problem: about 5 ms per update)."""
+        return False
+
     def _build(self, t: float) -> TemplateProblem:
         return self.builder.build(t, self._x, self.reference)
 

@@ -24,6 +24,20 @@ import numpy as np
 STANCE_TIME_EPS = 1e-7
 """Stance flags of a knot are the schedule's a hair after the knot time (the interval the knot starts)."""
 
+SWITCH_TIME_TOLERANCE = 1e-6
+"""Switch times closer than this are one switch; a switch this close to a window's end is outside it."""
+
+
+def switches_inside(times, t0: float, t1: float) -> list[float]:
+    """The times strictly inside ``(t0, t1)`` (by ``SWITCH_TIME_TOLERANCE``), sorted, duplicates merged."""
+    inside: list[float] = []
+    for t in sorted(float(t) for t in times):
+        if t0 + SWITCH_TIME_TOLERANCE < t < t1 - SWITCH_TIME_TOLERANCE and (
+            not inside or t - inside[-1] > SWITCH_TIME_TOLERANCE
+        ):
+            inside.append(t)
+    return inside
+
 
 class ReferenceWindow:
     """Preallocated reference samples at ``n`` times (filled in place by ``Reference.sample``).
@@ -87,6 +101,34 @@ class Reference(ABC):
     @abstractmethod
     def sample(self, window: ReferenceWindow) -> None:
         """Fill every field of ``window`` at ``window.times`` (in place)."""
+
+    def switch_times(self, t0: float, t1: float) -> list[float]:
+        """The times in ``(t0, t1)`` at which the contact flags change, increasing.
+
+        The problem builder puts a knot boundary at each one, so that touchdowns and lift-offs happen at the
+        reference's own times whatever time an update starts at. This default scans ``stance_at`` every
+        millisecond (and refines each change by bisection); the references of this package answer from
+        their schedules directly.
+        """
+        step = 1e-3
+        times: list[float] = []
+        previous_time, previous = t0, self.stance_at(t0 + STANCE_TIME_EPS)
+        t = t0 + step
+        while t < t1:
+            flags = self.stance_at(t + STANCE_TIME_EPS)
+            if flags != previous:
+                low, high = previous_time, t
+                for _ in range(20):
+                    middle = 0.5 * (low + high)
+                    if self.stance_at(middle + STANCE_TIME_EPS) == previous:
+                        low = middle
+                    else:
+                        high = middle
+                times.append(high)
+                previous = flags
+            previous_time = t
+            t += step
+        return switches_inside(times, t0, t1)
 
     @property
     def end_time(self) -> float:

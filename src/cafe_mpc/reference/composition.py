@@ -34,7 +34,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from cafe_mpc.reference.base import Reference, ReferenceWindow
+from cafe_mpc.reference.base import STANCE_TIME_EPS, Reference, ReferenceWindow, switches_inside
 
 Offset = tuple[float, float, float]
 """Planar placement ``(x, y, yaw)`` of a segment (m, m, rad)."""
@@ -236,6 +236,24 @@ class ComposedReference(Reference):
     def stance_at(self, t: float) -> tuple[bool, ...]:
         segment = self.segments[self.segment_at(t)]
         return segment.reference.stance_at(t - segment.start)
+
+    def switch_times(self, t0: float, t1: float) -> list[float]:
+        """Contact switches in ``(t0, t1)``: each segment's own inside its time span, and the joins where
+        the flags change."""
+        times: list[float] = []
+        for index, segment in enumerate(self.segments):
+            start, end = segment.start, segment.end
+            if end <= t0 or start >= t1:
+                continue
+            low, high = max(t0, start), min(t1, end)
+            times += [segment.start + s for s in segment.reference.switch_times(low - start, high - start)]
+            if index > 0 and t0 < start < t1:
+                before = self.segments[index - 1]
+                if before.reference.stance_at(start - before.start - STANCE_TIME_EPS) != (
+                    segment.reference.stance_at(STANCE_TIME_EPS)
+                ):
+                    times.append(start)
+        return switches_inside(times, t0, t1)
 
     def update(self, t: float, q: np.ndarray, v: np.ndarray) -> None:
         """Pass the measurement to the active segment, expressed in its frame (offset undone)."""

@@ -22,7 +22,7 @@ import numpy as np
 
 from cafe_mpc.dynamics.statics import static_stance_torques
 from cafe_mpc.ocp.contact_schedule import ContactPhase, ContactSchedule, GaitCycle
-from cafe_mpc.reference.base import STANCE_TIME_EPS, Reference, ReferenceWindow
+from cafe_mpc.reference.base import STANCE_TIME_EPS, Reference, ReferenceWindow, switches_inside
 from cafe_mpc.reference.inverse_kinematics import LegInverseKinematics
 from cafe_mpc.robots.robot import Robot
 
@@ -315,7 +315,7 @@ class LocomotionReference(Reference):
         if not (self._schedule_window[0] <= t0 and t1 <= self._schedule_window[1]):
             start = max(0.0, t0 - 2.0 * self.gait.period)
             end = t1 + 4.0 * self.gait.period
-            if start < self.start_stance:
+            if start < self.start_stance - 1e-6:
                 stand = ContactPhase((True, True, True, True), start, self.start_stance)
                 gait = self.gait.schedule(self.start_stance, max(end, self.start_stance + self.gait.period))
                 phases = list(gait.phases)
@@ -329,6 +329,11 @@ class LocomotionReference(Reference):
             self._schedule_window = (start, end)
         assert self._schedule is not None
         return self._schedule
+
+    def switch_times(self, t0: float, t1: float) -> list[float]:
+        """Contact switches in ``(t0, t1)``: the gait schedule's (the start stance's end included)."""
+        schedule = self.schedule(max(t0, 0.0), max(t1, t0 + 1e-6))
+        return switches_inside(schedule.switch_times(), t0, t1)
 
     def stance_at(self, t: float) -> tuple[bool, bool, bool, bool]:
         if t < self.start_stance - 1e-9:

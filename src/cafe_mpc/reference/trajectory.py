@@ -37,7 +37,7 @@ import numpy as np
 import pinocchio as pin
 
 from cafe_mpc.dynamics.statics import static_stance_torques
-from cafe_mpc.reference.base import STANCE_TIME_EPS, Reference, ReferenceWindow
+from cafe_mpc.reference.base import STANCE_TIME_EPS, Reference, ReferenceWindow, switches_inside
 from cafe_mpc.reference.trajectory_file import WholeBodyTrajectory
 from cafe_mpc.robots.robot import Robot
 
@@ -134,6 +134,8 @@ class TrajectoryReference(Reference):
             forces[stance, 2] = robot.total_mass * GRAVITY / stance.sum()
             self._holds.append((q, tuple(bool(s) for s in stance), torque, forces, self._feet[index].copy()))
         self._quaternion = np.zeros(4)
+        changes = np.flatnonzero(np.any(contacts[1:] != contacts[:-1], axis=1)) + 1
+        self._switches = [self.start + float(k) * self.dt for k in changes]
 
     # ------------------------------------------------------------------------------------------- times
     @property
@@ -152,6 +154,11 @@ class TrajectoryReference(Reference):
                 return self.n_intervals - 1, 1.0  # the last knot itself (the hold starts after it)
             return self.n_intervals, 0.0
         return k, min(max(s - k, 0.0), 1.0)
+
+    def switch_times(self, t0: float, t1: float) -> list[float]:
+        """Contact switches in ``(t0, t1)``: the stored knot times where the stance flags change (the holds
+        keep the first and last intervals' flags)."""
+        return switches_inside(self._switches, t0, t1)
 
     def stance_at(self, t: float) -> tuple[bool, ...]:
         """Stored stance flags of the interval containing ``t`` (the holds' stance outside)."""

@@ -46,6 +46,8 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Sequence
+from dataclasses import replace
+from typing import Literal
 
 import numpy as np
 
@@ -239,6 +241,74 @@ class MSiLQRSolver:
         if not data_at_nominal:
             self._recalc_running(workspace)
         return self._make_result(workspace, nominal, converged, status, stats, policy_valid)
+
+    def feedback(
+        self,
+        prepared: SolverResult,
+        x0: np.ndarray,
+        feedforward: float = 0.0,
+        rollout: Literal["linear", "nonlinear"] = "linear",
+    ) -> SolverResult:
+        """The feedback phase of the real-time iteration: embed a measured initial state into a prepared
+        solution through its policy (paper Eqs. (11)-(13)).
+
+        ``prepared`` is the result of the last ``solve`` of this solver (its workspace still holds the
+        linearisation ``A``, ``B`` and reset Jacobians the policy was computed from). From ``dx_0 = x0 ⊖
+        xs_0``: ``du_k = a k_k + K_k dx_k``, ``u'_k = us_k + du_k`` and, with ``rollout = "linear"``,
+        ``dx_{k+1} = A_k dx_k + B_k du_k + a d_{k+1}`` (across a reset ``dx_0 = P dx_N + a d_0``) and ``x'_k =
+        xs_k ⊕ dx_k`` (the tangential predictor of the real-time iteration: matrix products only); with
+        ``"nonlinear"``, ``x'_{k+1} = f(x'_k, u'_k)`` and the reset maps themselves (one model evaluation per
+        knot). ``a = feedforward``: 0 when the preparation already took its step (the solution's remaining
+        feed-forward is then ``(1 - step) k``, not applied again), 1 to take the prepared Newton step here.
+        With ``x0`` equal to ``xs_0`` and ``a = 0`` the result is the prepared solution. The returned policy
+        is the prepared one moved to the new trajectory to first order: ``K``, ``Quu``, ``Qux`` unchanged,
+        ``Qu`` and ``k`` scaled by ``1 - a`` (as ``final_policy = "shift"`` does).
+        """
+        workspace = self.workspace
+        if workspace is None or len(workspace.phases) != len(prepared.phases):
+            raise ValueError("feedback needs the result of this solver's last solve")
+        x0 = np.asarray(x0, dtype=float)
+        first = workspace.phases[0]
+        if x0.shape != (first.nx,):
+            raise ValueError(f"x0 has shape {x0.shape}, the first phase's state needs ({first.nx},)")
+        a = float(feedforward)
+        nonlinear = rollout == "nonlinear"
+        phases = []
+        dx = first.difference(prepared.phases[0].xs[0], x0)
+        previous: PhaseWorkspace | None = None
+        previous_x_end: np.ndarray | None = None
+        for work, solution in zip(workspace.phases, prepared.phases, strict=True):
+            xs, us, K, kff = solution.xs, solution.us, solution.K, solution.k
+            n = len(us)
+            out_x = np.empty_like(xs)
+            out_u = np.empty_like(us)
+            if previous is None:
+                out_x[0] = x0
+            elif nonlinear:
+                assert previous_x_end is not None
+                previous.reset_map.calc(previous.reset_data, previous_x_end)
+                out_x[0] = previous.reset_data.x_next
+                dx = work.difference(xs[0], out_x[0])
+            else:
+                dx = previous.reset_jacobian @ dx + a * solution.defects[0]
+                out_x[0] = work.integrate(xs[0], dx)
+            A, B = work.A, work.B
+            for k in range(n):
+                du = a * kff[k] + K[k] @ dx
+                out_u[k] = us[k] + du
+                if nonlinear:
+                    model, data = work.models[k], work.running_data[k]
+                    model.calc(data, out_x[k], out_u[k])
+                    out_x[k + 1] = data.x_next
+                    dx = work.difference(xs[k + 1], out_x[k + 1])
+                else:
+                    dx = A[k] @ dx + B[k] @ du + a * solution.defects[k + 1]
+                    out_x[k + 1] = work.integrate(xs[k + 1], dx)
+            previous, previous_x_end = work, out_x[-1]
+            phases.append(
+                replace(solution, xs=out_x, us=out_u, k=(1.0 - a) * kff, Qu=(1.0 - a) * solution.Qu)
+            )
+        return replace(prepared, phases=phases)
 
     def evaluate(
         self, problem: MultiPhaseProblem, xs: Sequence[np.ndarray], us: Sequence[np.ndarray]

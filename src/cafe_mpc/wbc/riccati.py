@@ -1,7 +1,7 @@
 """Riccati feedback controller (paper Eq. (33)): ``tau = tau*_k + K_k (x ⊖ x*_k)``, clamped.
 
-The baseline low-level controller and the fallback of the VWBC. ``k`` is the plan knot closest to the
-current time. The torque is clamped to the robot's limits (the paper's controller is not; the number of
+The baseline low-level controller and the fallback of the VWBC. ``k`` is the plan knot whose interval holds
+the current time. The torque is clamped to the robot's limits (the paper's controller is not; the number of
 ticks the unclamped command exceeded the limits is counted in ``limit_violations`` and the unclamped
 torque of the last tick is ``last_request``).
 """
@@ -54,7 +54,7 @@ class RiccatiController(LowLevelController):
         return state_error(self.model, q, v, x_plan, self._dx)
 
     def torques_at(self, t: float, q: np.ndarray, v: np.ndarray, plan: Plan) -> np.ndarray:
-        """Unclamped Riccati torques (Eq. (33)) at the plan knot closest to ``t``."""
+        """Unclamped Riccati torques (Eq. (33)) at the plan knot whose interval holds ``t``."""
         k = plan.knot_at(t)
         dx = self.state_error(q, v, plan.xs[k])
         np.matmul(plan.K[k], dx, out=self._torques)

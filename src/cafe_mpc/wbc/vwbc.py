@@ -10,13 +10,13 @@ At each low-level tick (500 Hz) the VWBC solves
           |Fx|, |Fy| <= mu Fz                   (inner friction pyramid)                (34f)
 
 with ``Q_k(dx, dtau) = 0.5 dtau' Quu dtau + dtau' (Qux dx + Qu)`` (the dx-only terms of the action-value
-function (6) are constant in the QP and dropped). ``k`` is the plan knot closest in time and ``dx = x ⊖ x*_k``
-uses the Riccati controller's convention (``pin.difference(q*, q)``, ``v - v*``). Without the inequality
-constraints the dynamics (34b)-(34c) determine ``qdd`` and ``F`` from ``tau``, so the minimiser is the
-unconstrained policy (7) ``tau* - Quu^{-1} (Qux dx + Qu)`` (with ``Qu = 0`` exactly the Riccati torque (33)).
-The QP is therefore strictly convex on its feasible set although its Hessian is singular in ``qdd`` and
-``F``; no regularisation is added by default (``VWBCSettings.regularization`` adds ``0.5 eps |(qdd, F)|^2``
-if a solver ever needs it — it biases the solution away from (7)).
+function (6) are constant in the QP and dropped). ``k`` is the plan knot whose interval holds ``t`` and ``dx =
+x ⊖ x*_k`` uses the Riccati controller's convention (``pin.difference(q*, q)``, ``v - v*``). Without the
+inequality constraints the dynamics (34b)-(34c) determine ``qdd`` and ``F`` from ``tau``, so the minimiser is
+the unconstrained policy (7) ``tau* - Quu^{-1} (Qux dx + Qu)`` (with ``Qu = 0`` exactly the Riccati torque
+(33)). The QP is therefore strictly convex on its feasible set although its Hessian is singular in ``qdd`` and
+``F``; no regularisation is added by default (``VWBCSettings.regularization`` adds ``0.5 eps |(qdd, F)|^2`` if
+a solver ever needs it — it biases the solution away from (7)).
 
 Contacts: Jacobians and forces are expressed in ``LOCAL_WORLD_ALIGNED`` at the foot frames (forces are the
 world-frame ground reaction forces, as in ``Plan.forces``); ``Jcdot v`` is the classical foot acceleration
