@@ -327,15 +327,58 @@ def _regular_terminal() -> WholeBodyWeightsConfig:
     return WholeBodyWeightsConfig.from_weights(WholeBodyWeights.regular_terminal())
 
 
-class CostsConfig(StrictModel):
-    """Whole-body cost weights; defaults are the authors' "regular" set (``WholeBodyWeights``; sources in
-    docs/settings.md).
+class SRBWeightsConfig(StrictModel):
+    """The fields of ``cafe_mpc.ocp.costs.SRBWeights`` (SRB cost (28), running cost ``0.5 dx' W dx dt``):
+    base weights in the authors' order ``[x, y, z, yaw, pitch, roll]``, the GRF regularisation weight (one
+    value, or 3 shared by the feet, or 12)."""
 
-    The SRB tail uses the same base weights (paper Eq. (28)) with the authors' GRF regularisation.
-    """
+    base_position: tuple[float, float, float, float, float, float]
+    base_velocity: tuple[float, float, float, float, float, float]
+    force: Weights
+
+    @model_validator(mode="after")
+    def _weights_valid(self) -> SRBWeightsConfig:
+        self.to_weights()
+        return self
+
+    @classmethod
+    def from_weights(cls, weights: Any) -> SRBWeightsConfig:
+        force = weights.force
+        return cls(
+            base_position=tuple(float(w) for w in weights.base_position),
+            base_velocity=tuple(float(w) for w in weights.base_velocity),
+            force=[float(f) for f in force] if isinstance(force, tuple | list) else float(force),
+        )
+
+    def to_weights(self) -> Any:
+        from cafe_mpc.ocp.costs import SRBWeights
+
+        force = tuple(self.force) if isinstance(self.force, list | tuple) else self.force
+        return SRBWeights(base_position=self.base_position, base_velocity=self.base_velocity, force=force)
+
+
+def _srb_running() -> SRBWeightsConfig:
+    from cafe_mpc.ocp.costs import SRBWeights
+
+    return SRBWeightsConfig.from_weights(SRBWeights.regular_running())
+
+
+def _srb_terminal() -> SRBWeightsConfig:
+    from cafe_mpc.ocp.costs import SRBWeights
+
+    return SRBWeightsConfig.from_weights(SRBWeights.regular_terminal())
+
+
+class CostsConfig(StrictModel):
+    """Cost weights of the whole-body plan (``running``, ``terminal``: the authors' "regular" set,
+    ``WholeBodyWeights``) and of the SRB tail (``srb_running``, ``srb_terminal``: the authors' SRB tracking
+    set, ``SRBWeights.regular_running``, which says why the tail does not take the whole-body base weights
+    as Eq. (28) does). Sources in docs/settings.md."""
 
     running: WholeBodyWeightsConfig = Field(default_factory=_regular_running)
     terminal: WholeBodyWeightsConfig = Field(default_factory=_regular_terminal)
+    srb_running: SRBWeightsConfig = Field(default_factory=_srb_running)
+    srb_terminal: SRBWeightsConfig = Field(default_factory=_srb_terminal)
 
 
 def _barrel_roll_running() -> WholeBodyWeightsConfig:

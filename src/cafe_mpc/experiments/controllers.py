@@ -31,7 +31,6 @@ from cafe_mpc.mpc.receding_horizon import RecedingHorizonMpc
 from cafe_mpc.mpc.template import TemplateMpc, TemplateProblemBuilder, TemplateSettings, template_srb
 from cafe_mpc.ocp.constraints import WholeBodyConstraintSettings
 from cafe_mpc.ocp.contact_schedule import get_gait
-from cafe_mpc.ocp.costs import SRBWeights
 from cafe_mpc.ocp.knots import SRBModelFactory, SRBSettings, WholeBodyModelFactory, WholeBodySettings
 from cafe_mpc.reference.locomotion import CommandProfile, LocomotionReference, VelocityCommand
 from cafe_mpc.robots.robot import Robot, load_robot
@@ -294,8 +293,8 @@ def build_mpc(config: RunConfig, robot: Robot) -> RecedingHorizonMpc:
     try:
         running = config.costs.running.to_weights()
         terminal = config.costs.terminal.to_weights()
-        srb_running = SRBWeights.from_whole_body(running, force=SRBWeights.regular_running().force)
-        srb_terminal = SRBWeights.from_whole_body(terminal, force=SRBWeights.regular_terminal().force)
+        srb_running = config.costs.srb_running.to_weights()
+        srb_terminal = config.costs.srb_terminal.to_weights()
     except ValueError as error:
         raise ConfigError(f"costs: {error}") from error
     limits = None if config.torque_limits == "plan" else tuple(torque_limits_of(config, robot).tolist())

@@ -181,13 +181,27 @@ class SRBWeights:
 
     @classmethod
     def regular_running(cls) -> SRBWeights:
-        return cls()
+        """The SRB tail's running set of the authors' code (its ``SRB_Tracking_Cost``; docs/settings.md):
+        height 50, pitch 10, roll 5, velocities (2, 3, 3), angular rates 0.5, GRF regularisation 0.01.
+
+        Not the whole-body base weights (paper Eq. (28) takes them from ``W_q``): with those (height 10,
+        angular rates 2) the tail's cheapest way to keep a bounding body from pitching, with its stance pair
+        0.19 m ahead of or behind the centre of mass, was to stand tall (the horizontal force that cancels
+        the moment is 0.19 / h of the vertical one, and the GRF regularisation prices it): the bound rode
+        at 0.32-0.34 m against its 0.25 m reference, the pace at 0.29 m. With this set: 0.256 and 0.267 m
+        (BENCHMARKS.md)."""
+        return cls(
+            base_position=(0.0, 0.0, 50.0, 0.0, 10.0, 5.0),
+            base_velocity=(2.0, 3.0, 3.0, 0.5, 0.5, 0.5),
+            force=0.01,
+        )
 
     @classmethod
     def regular_terminal(cls) -> SRBWeights:
+        """Half the running state weights, no GRF term (the authors' code)."""
         return cls(
-            base_position=(0.0, 0.0, 1.0, 1.0, 1.0, 1.0),
-            base_velocity=(1.0, 1.0, 1.0, 1.0, 1.0, 1.0),
+            base_position=(0.0, 0.0, 25.0, 0.0, 5.0, 2.5),
+            base_velocity=(1.0, 1.5, 1.5, 0.25, 0.25, 0.25),
             force=0.0,
         )
 
