@@ -186,7 +186,19 @@ def test_bench_mpc_reports_each_gait_as_json(capsys):
     assert main(["bench", "mpc", "--gaits", "trot", "--duration", "0.4", "--json"]) == 0
     rows = json.loads(capsys.readouterr().out)
     assert [row["gait"] for row in rows] == ["trot"]
-    for key in ("update_ms_median", "update_ms_p99", "iteration_ms_median", "fell", "vx_mean", "timing_mode"):
+    for key in (
+        "update_ms_median",
+        "update_ms_p99",
+        "iteration_ms_median",
+        "fell",
+        "vx_mean",
+        "timing_mode",
+        "prepare_ms_median",
+        "prepare_ms_p99",
+        "feedback_ms_median",
+        "feedback_ms_p99",
+        "knots",
+    ):
         assert key in rows[0]
     assert rows[0]["timing_mode"] == "measured"
     assert main(["bench", "mpc", "--gaits", "walk"]) == 2  # unknown preset: one clear error

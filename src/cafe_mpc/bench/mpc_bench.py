@@ -4,8 +4,10 @@ Each gait preset runs as ``cafe-mpc run`` does (CAFE-MPC + VWBC, full MuJoCo pla
 preset's timing mode (measured latency by default: each plan acts after its real update time, so the loop
 is what a robot would see). Reported per gait, medians and p99 over the updates after the cold first solve
 (which runs before the clock starts): the MPC update (problem update + solve + plan), its parts (problem
-update, linearisation, backward sweeps, line search), the time per MS-iLQR iteration, iterations per update,
-the plan latency, and whether the robot stayed up and tracked the speed. Wall-clock numbers: run it alone on
+update, linearisation, backward sweeps, line search), with the real-time iteration (``mpc.scheme: rti``,
+the presets' default) its two phases (preparation before the measurement, feedback after it: the latency),
+the time per MS-iLQR iteration, iterations per update, the plan latency, the knots of the last problem by
+type, and whether the robot stayed up and tracked the speed. Wall-clock numbers: run it alone on
 the machine (no other simulation), and read the numbers with the machine they came from.
 """
 
@@ -28,9 +30,20 @@ def bench_gait(preset: str, duration: float, overrides: list[str]) -> dict:
     metrics = run_metrics(config, robot, controller, log)
     mpc = metrics["mpc"]
     iterations = np.asarray(controller.statistics.iteration_times) * 1e3
+    knots = {"whole_body": None, "srb": None}
+    previous = getattr(controller.mpc, "previous", None)
+    if previous is not None and hasattr(previous[0], "phases"):
+        for kind in knots:
+            knots[kind] = sum(len(i.times) - 1 for i in previous[0].phases if getattr(i, "kind", "") == kind)
     return {
         "gait": preset,
         "timing_mode": metrics["timing"]["mode"],
+        "scheme": metrics["timing"].get("scheme"),
+        "prepare_ms_median": mpc.get("prepare_ms_median"),
+        "prepare_ms_p99": mpc.get("prepare_ms_p99"),
+        "feedback_ms_median": mpc.get("feedback_ms_median"),
+        "feedback_ms_p99": mpc.get("feedback_ms_p99"),
+        "knots": knots,
         "schedule": config.mpc.schedule,
         "fell": bool(log.fell),
         "vx_mean": metrics["steady_state"]["vx_mean"],  # from 0.5 s, as in the earlier tables
@@ -76,15 +89,19 @@ def format_report(result: dict) -> str:
     lines = [
         f"{result['machine']['processor']}, {result['duration_s']} s simulated per gait",
         "",
-        "| gait | timing | fell | vx mean from 0.5 s | update ms median / p99 "
+        "| gait | timing, scheme | fell | vx mean from 0.5 s | update ms median / p99 "
+        "| prepare ms median / p99 | feedback ms median / p99 "
         "| problem / linearise / backward / line search ms (median) "
         "| iteration ms | iterations / update | latency ms median / p99 | rate Hz |",
-        "|---|---|---|---|---|---|---|---|---|---|",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for row in result["gaits"]:
         lines.append(
-            f"| {row['gait']} | {row['timing_mode']} | {row['fell']} | {_number(row['vx_mean'], 3)} "
+            f"| {row['gait']} | {row['timing_mode']}, {row['scheme']} | {row['fell']} "
+            f"| {_number(row['vx_mean'], 3)} "
             f"| {_number(row['update_ms_median'])} / {_number(row['update_ms_p99'])} "
+            f"| {_number(row['prepare_ms_median'])} / {_number(row['prepare_ms_p99'])} "
+            f"| {_number(row['feedback_ms_median'], 2)} / {_number(row['feedback_ms_p99'], 2)} "
             f"| {_number(row['problem_update_ms_median'])} / {_number(row['linearize_ms_median'])} / "
             f"{_number(row['backward_ms_median'])} / {_number(row['line_search_ms_median'])} "
             f"| {_number(row['iteration_ms_median'], 2)} | {_number(row['iterations_per_update'], 2)} "
