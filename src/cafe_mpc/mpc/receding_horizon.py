@@ -23,6 +23,7 @@ split).
 
 from __future__ import annotations
 
+import gc
 import logging
 import math
 import time
@@ -369,6 +370,9 @@ class RecedingHorizonMpc:
         x[: robot.nq] = q
         x[robot.nq :] = v
         settings = self.settings
+        # no garbage collection on the robot's latency path: it runs in the preparation instead
+        collecting = gc.isenabled()
+        gc.disable()
         try:
             self._contact_consistent(x, built.phases[0].stance)
             embedded = self.prepare_solver.feedback(
@@ -379,6 +383,9 @@ class RecedingHorizonMpc:
         except (ValueError, FloatingPointError, np.linalg.LinAlgError, RuntimeError) as error:
             self._failed(t, f"its feedback failed ({error})")
             return None
+        finally:
+            if collecting:
+                gc.enable()
         elapsed = time.perf_counter() - start
         statistics = self.statistics
         statistics.feedback_times.append(elapsed)
