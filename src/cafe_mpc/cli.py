@@ -116,6 +116,7 @@ def _add_experiment_parser(commands: argparse._SubParsersAction) -> None:
             "  cafe-mpc experiment solve-times                  # Table II: 3 gaits x S0..S4\n"
             "  cafe-mpc experiment reliability --task bound --trials 100 --max-push 0.8\n"
             "  cafe-mpc experiment reliability --task bound --seeds 17     # trial 17 alone\n"
+            "  cafe-mpc experiment latency --task bound         # success over fixed latency and period\n"
             "  cafe-mpc experiment schedules --out runs/s --resume         # continue an interrupted sweep\n"
             "  cafe-mpc experiment push --scheduler tcp://HOST:8786        # on a running Dask cluster\n"
             "\n"
