@@ -257,3 +257,32 @@ def test_a_variant_that_errors_is_recorded_and_the_others_still_run(tmp_path, ca
     assert "error: SimulationDiverged" in (out / "comparison.md").read_text()
     assert (out / "comparison.png").is_file()
     assert not (out / "vwbc").exists()  # an errored run has a row, no folder
+
+
+def test_latency_experiment_sweeps_two_latencies_and_a_period(tmp_path):
+    """``experiment latency``: one variant per fixed latency and per period (here two and one), each with its
+    timing in the row and a success verdict; the command that reproduces it; a bad option is one error."""
+    out = tmp_path / "latency"
+    result = run_experiment(
+        "latency",
+        out,
+        duration=0.3,
+        task="trot",
+        latencies="0.01,0.035",
+        periods="0.025",
+        scheduler=INLINE,
+    )
+    comparison = check_layout(out, ["latency-010.0ms", "latency-035.0ms", "period-025.0ms"], plots=False)
+    assert not result.errors
+    assert comparison["command"] == (
+        "cafe-mpc experiment latency --duration 0.3 --task trot --latencies 0.01,0.035 --periods 0.025"
+    )
+    rows = comparison["variants"]
+    assert rows["latency-035.0ms"]["latency_s"] == 0.035 and rows["latency-035.0ms"]["sweep"] == "latency"
+    assert rows["latency-035.0ms"]["latency_ms_median"] == pytest.approx(36.0)  # the first tick after 35 ms
+    assert rows["period-025.0ms"]["period_s"] == 0.025 and rows["period-025.0ms"]["latency_s"] == 0.01
+    for row in rows.values():
+        assert row["timing_mode"] == "fixed" and row["scheme"] == "rti"
+        assert isinstance(row["success"], bool) and row["criterion"].startswith("up")
+    with pytest.raises(ConfigError, match="--task PRESET is required"):
+        run_experiment("latency", tmp_path / "none", duration=0.3, scheduler=INLINE)
