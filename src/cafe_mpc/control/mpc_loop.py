@@ -38,6 +38,7 @@ from collections import deque
 
 import numpy as np
 
+from cafe_mpc.control.plan_follower import NewestPlanFollower
 from cafe_mpc.core.controller import LowLevelController
 from cafe_mpc.core.measurement import Measurement
 from cafe_mpc.core.plan import Plan
@@ -47,7 +48,6 @@ from cafe_mpc.mpc.receding_horizon import MpcSettings, MpcStatistics, RecedingHo
 from cafe_mpc.mpc.template import TemplateMpc, TemplateProblemBuilder
 from cafe_mpc.reference.base import Reference
 from cafe_mpc.robots.robot import Robot
-from cafe_mpc.wbc.pd import PDController
 
 __all__ = ["CafeMpcController", "MpcSettings", "MpcStatistics"]
 
@@ -80,7 +80,7 @@ class CafeMpcController:
         """The scheme this run uses (the template baseline has only one-phase updates)."""
         self.low_level = low_level
         self.control_period = float(control_period)
-        self.fallback = PDController(robot)
+        self.follower = NewestPlanFollower(robot, low_level)
         self.plan: Plan | TemplatePlan | None = None
         self.pending: list[tuple[float, float, Plan | TemplatePlan | None]] = []
         """(time it takes effect, its measurement time, plan) of the updates not yet in effect."""
@@ -113,8 +113,7 @@ class CafeMpcController:
         self.next_update = 0.0
         self.worker_free = 0.0
         self._recent_prepares.clear()
-        self.fallback.reset()
-        self.low_level.reset()
+        self.follower.reset()
 
     def start(self, t: float, state: Measurement) -> None:
         """Run the cold first solve now, from ``state`` at time ``t`` (before the clock starts, as on the
@@ -129,14 +128,9 @@ class CafeMpcController:
         if idle and t + 1e-9 >= self.next_update:
             self._update(t, state)
             self._activate_pending(t)
-        plan = self.plan
-        if plan is None or t >= plan.end_time:
-            self.statistics.fallback_ticks += 1
-            return self.fallback.compute(t, state, None)
-        torques = self.low_level.compute(t, state, plan)
-        if not np.all(np.isfinite(torques)):
-            self.statistics.fallback_ticks += 1
-            return self.fallback.compute(t, state, None)
+        before = self.follower.fallback_ticks
+        torques = self.follower.compute(t, state, self.plan)
+        self.statistics.fallback_ticks += self.follower.fallback_ticks - before
         return torques
 
     def _activate_pending(self, t: float) -> None:

@@ -1,4 +1,9 @@
-"""A low-level controller closed around a fixed plan (synthetic plans, offline trajectories)."""
+"""Following plans: the low-level controller on the newest plan, with one safe fallback.
+
+``NewestPlanFollower`` is what both policy sides (simulated time, ``control.mpc_loop``; wall clock,
+``control.realtime``) run at every control tick; ``PlanFollower`` closes a low level around one fixed plan
+(synthetic plans, offline trajectories).
+"""
 
 from __future__ import annotations
 
@@ -7,6 +12,33 @@ import numpy as np
 from cafe_mpc.core.controller import LowLevelController
 from cafe_mpc.core.measurement import Measurement
 from cafe_mpc.core.plan import Plan
+from cafe_mpc.core.template_plan import TemplatePlan
+from cafe_mpc.robots.robot import Robot
+from cafe_mpc.wbc.pd import PDController
+
+
+class NewestPlanFollower:
+    """The low-level controller on a plan, or the damped PD standing controller when there is no plan, the
+    plan's horizon has run out, or the low level returned non-finite torques (``fallback_ticks`` counts those
+    ticks). The one fallback of every MPC loop."""
+
+    def __init__(self, robot: Robot, low_level: LowLevelController) -> None:
+        self.low_level = low_level
+        self.fallback = PDController(robot)
+        self.fallback_ticks = 0
+
+    def reset(self) -> None:
+        self.fallback.reset()
+        self.low_level.reset()
+        self.fallback_ticks = 0
+
+    def compute(self, t: float, measurement: Measurement, plan: Plan | TemplatePlan | None) -> np.ndarray:
+        if plan is not None and t < plan.end_time:
+            torques = self.low_level.compute(t, measurement, plan)
+            if np.all(np.isfinite(torques)):
+                return torques
+        self.fallback_ticks += 1
+        return self.fallback.compute(t, measurement, None)
 
 
 class PlanFollower:

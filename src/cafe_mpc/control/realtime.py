@@ -45,12 +45,12 @@ from multiprocessing import shared_memory
 
 import numpy as np
 
+from cafe_mpc.control.plan_follower import NewestPlanFollower
 from cafe_mpc.core.controller import LowLevelController
 from cafe_mpc.core.measurement import Measurement
 from cafe_mpc.core.plan import Plan
 from cafe_mpc.mpc.receding_horizon import MpcStatistics, RecedingHorizonMpc
 from cafe_mpc.robots.robot import Robot
-from cafe_mpc.wbc.pd import PDController
 
 logger = logging.getLogger(__name__)
 
@@ -400,7 +400,7 @@ class RealtimeMpcController:
     ) -> None:
         self.robot = robot
         self.low_level = low_level
-        self.fallback = PDController(robot)
+        self.follower = NewestPlanFollower(robot, low_level)
         self.period = period
         self.startup_timeout = startup_timeout
         self.stall_timeout = stall_timeout if stall_timeout is not None else max(0.5, 10 * period)
@@ -509,8 +509,7 @@ class RealtimeMpcController:
 
     # ------------------------------------------------------------------------------------ control tick
     def reset(self) -> None:
-        self.fallback.reset()
-        self.low_level.reset()
+        self.follower.reset()
 
     def publish(self, t: float, measurement: Measurement) -> None:
         """Write the measurement of the tick at ``t`` into the ring for the MPC process (never blocks)."""
@@ -525,15 +524,11 @@ class RealtimeMpcController:
             self._check_alive()
             if self.failure is None:
                 self.failure = f"the MPC process delivered no plan for {t - self._last_plan_time:.2f} s"
-        if plan is None or t >= plan.end_time:
-            if plan is not None and self.failure is None:
-                self._check_alive()
-            self.statistics.fallback_ticks += 1
-            return self.fallback.compute(t, measurement, None)
-        torques = self.low_level.compute(t, measurement, plan)
-        if not np.all(np.isfinite(torques)):
-            self.statistics.fallback_ticks += 1
-            return self.fallback.compute(t, measurement, None)
+        if plan is not None and t >= plan.end_time and self.failure is None:
+            self._check_alive()
+        before = self.follower.fallback_ticks
+        torques = self.follower.compute(t, measurement, plan)
+        self.statistics.fallback_ticks += self.follower.fallback_ticks - before
         return torques
 
     def should_stop(self, t: float) -> bool:
