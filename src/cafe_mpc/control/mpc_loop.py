@@ -43,9 +43,10 @@ from cafe_mpc.core.controller import LowLevelController
 from cafe_mpc.core.measurement import Measurement
 from cafe_mpc.core.plan import Plan
 from cafe_mpc.core.template_plan import TemplatePlan
+from cafe_mpc.mpc.planner import MpcSettings, MpcStatistics, Planner
 from cafe_mpc.mpc.problem import CafeProblemBuilder
-from cafe_mpc.mpc.receding_horizon import MpcSettings, MpcStatistics, RecedingHorizonMpc
-from cafe_mpc.mpc.template import TemplateMpc, TemplateProblemBuilder
+from cafe_mpc.mpc.receding_horizon import RecedingHorizonMpc
+from cafe_mpc.mpc.template import TemplateProblemBuilder
 from cafe_mpc.reference.base import Reference
 from cafe_mpc.robots.robot import Robot
 
@@ -68,13 +69,15 @@ class CafeMpcController:
         builder: CafeProblemBuilder | TemplateProblemBuilder,
         low_level: LowLevelController,
         settings: MpcSettings | None = None,
-        mpc: RecedingHorizonMpc | TemplateMpc | None = None,
+        mpc: Planner | None = None,
         control_period: float = 0.002,
     ) -> None:
         if not control_period > 0:
             raise ValueError(f"control period must be positive, got {control_period}")
         self.robot = robot
-        self.mpc = mpc if mpc is not None else RecedingHorizonMpc(robot, reference, builder, settings)
+        self.mpc: Planner = (
+            mpc if mpc is not None else RecedingHorizonMpc(robot, reference, builder, settings)
+        )
         self.settings = self.mpc.settings
         self.scheme = self.settings.scheme if self.mpc.supports_rti else "one_phase"
         """The scheme this run uses (the template baseline has only one-phase updates)."""

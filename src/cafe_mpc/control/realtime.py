@@ -49,12 +49,12 @@ from cafe_mpc.control.plan_follower import NewestPlanFollower
 from cafe_mpc.core.controller import LowLevelController
 from cafe_mpc.core.measurement import Measurement
 from cafe_mpc.core.plan import Plan
-from cafe_mpc.mpc.receding_horizon import MpcStatistics, RecedingHorizonMpc
+from cafe_mpc.mpc.planner import MpcStatistics, Planner
 from cafe_mpc.robots.robot import Robot
 
 logger = logging.getLogger(__name__)
 
-MpcFactory = Callable[[], RecedingHorizonMpc]
+MpcFactory = Callable[[], Planner]
 """Builds the MPC inside the worker process (must be picklable: a module-level function or a partial)."""
 
 
@@ -277,7 +277,7 @@ class _Worker:
 
     def __init__(
         self,
-        mpc: RecedingHorizonMpc,
+        mpc: Planner,
         ring: MeasurementRing,
         plan_channel: _SeqLockArray,
         layout: PlanLayout,

@@ -54,7 +54,8 @@ from cafe_mpc.dynamics.srb import (
     quaternion_to_rotation,
 )
 from cafe_mpc.dynamics.transition import whole_body_to_srb_state
-from cafe_mpc.mpc.receding_horizon import MpcSettings, RecedingHorizonMpc
+from cafe_mpc.mpc.planner import MpcSettings, RecedingHorizonPlanner
+from cafe_mpc.mpc.time_grid import TIME_QUANTUM, PiecewiseTrajectory, grid_times, quanta
 from cafe_mpc.ocp.constraints import BarrierParameters
 from cafe_mpc.ocp.costs import SRBWeights
 from cafe_mpc.ocp.knots import SRBKnot, SRBKnotData, SRBReference
@@ -66,8 +67,6 @@ from cafe_mpc.solver import MSiLQRSolver, SolverResult
 logger = logging.getLogger(__name__)
 
 LWA = pin.ReferenceFrame.LOCAL_WORLD_ALIGNED
-TIME_QUANTUM = 1e-3
-"""Knot interval durations are rounded to this (s): one SRB dynamics object per duration."""
 
 
 # --------------------------------------------------------------------------------------------------
@@ -359,14 +358,8 @@ class TemplateProblemBuilder:
         )
 
     def knot_times(self, t0: float) -> np.ndarray:
-        """``t0``, then the absolute grid ``k * dt`` after it (``n + 1`` times; module docstring)."""
-        dt = self.settings.dt
-        n = self.settings.knots
-        first = math.floor(t0 / dt + 1e-6) + 1
-        times = np.empty(n + 1)
-        times[0] = t0
-        times[1:] = (first + np.arange(n)) * dt
-        return times
+        """``t0``, then the absolute grid ``k * dt`` after it (``n + 1`` times; ``time_grid.grid_times``)."""
+        return grid_times(t0, self.settings.knots, self.settings.dt)
 
     def _knot(self, slot: int, milliseconds: int) -> ConstrainedSRBKnot:
         key = (slot, milliseconds)
@@ -399,7 +392,7 @@ class TemplateProblemBuilder:
         window.set_times(times)
         reference.sample(window)
         window.check_finite(type(reference).__name__)
-        durations = np.maximum(np.rint(np.diff(times) / TIME_QUANTUM).astype(int), 1)
+        durations = [quanta(float(d)) for d in np.diff(times)]
         contacts = np.asarray(window.stance[:n], dtype=bool).copy()
         # GRF targets (28): the reference's stance forces scaled to the SRB's own weight
         force_targets = window.forces[:n].reshape(n, -1) * (self.weight / (robot.total_mass * GRAVITY))
@@ -469,13 +462,14 @@ class TemplateProblemBuilder:
 # --------------------------------------------------------------------------------------------------
 
 
-class TemplateMpc(RecedingHorizonMpc):
+class TemplateMpc(RecedingHorizonPlanner):
     """Template-MPC updates: SRB problem -> warm start -> MS-iLQR -> ``TemplatePlan``.
 
-    The update loop (timing, statistics, failure handling) is ``RecedingHorizonMpc``'s; this class supplies
-    the template's problem, warm start and plan, so the policy side (``control.mpc_loop.CafeMpcController``:
-    fixed or measured latency) runs it unchanged. ``settings``: the same receding-horizon settings as
-    CAFE-MPC (period, latency, iterations per update, first solve).
+    The one-phase update (timing, statistics, failure handling) is ``RecedingHorizonPlanner``'s; this class
+    supplies the template's problem, warm start and plan, so the policy side
+    (``control.mpc_loop.CafeMpcController``: fixed or measured latency) runs it unchanged. ``settings``: the
+    same receding-horizon settings as CAFE-MPC (period, latency, iterations per update, first solve). No
+    real-time iteration: its updates are small (about 5 ms) and one-phase.
     """
 
     name = "template MPC"
@@ -487,12 +481,7 @@ class TemplateMpc(RecedingHorizonMpc):
         builder: TemplateProblemBuilder,
         settings: MpcSettings | None = None,
     ) -> None:
-        super().__init__(robot, reference, builder, settings)  # type: ignore[arg-type]
-
-    @property
-    def supports_rti(self) -> bool:
-        """The template's updates are one-phase (a small problem: about 5 ms per update)."""
-        return False
+        super().__init__(robot, reference, builder, settings)
 
     def _build(self, t: float) -> TemplateProblem:
         return self.builder.build(t, self._x, self.reference)
@@ -507,10 +496,10 @@ class TemplateMpc(RecedingHorizonMpc):
         return template_plan(built, result)
 
     def _guess(self, built: TemplateProblem) -> tuple[np.ndarray, np.ndarray]:
-        """Warm start by knot time: grid knots solved before keep their state and GRFs (shooting knots);
-        the first knot takes the GRFs of the previous interval containing ``t0``; knots new at the end
-        copy the last previous state and take the GRF targets. Cold start: the reference states and GRF
-        targets (multiple shooting from the reference)."""
+        """Warm start by time (``time_grid.PiecewiseTrajectory``): knots inside the previous horizon take
+        the previous solution at their time (the state interpolated, the GRFs of the interval containing
+        it), knots past it copy the last previous state and take the GRF targets. Cold start: the reference
+        states and GRF targets (multiple shooting from the reference)."""
         n = len(built.times) - 1
         xs = built.reference_states.copy()
         us = built.force_targets.copy()
@@ -518,21 +507,18 @@ class TemplateMpc(RecedingHorizonMpc):
         if self.previous is None:
             return xs, us
         previous, solution = self.previous
-        old_xs, old_us = solution.phases[0].xs, solution.phases[0].us
-        old_keys = {round(float(t) / TIME_QUANTUM): i for i, t in enumerate(previous.times)}
-        last = len(previous.times) - 1
-        t0 = float(built.times[0])
-        interval = int(np.searchsorted(previous.times, t0 + 1e-9, side="right")) - 1
-        if 0 <= interval < last:
-            us[0] = old_us[interval]
-        for k in range(1, n + 1):
-            i = old_keys.get(round(float(built.times[k]) / TIME_QUANTUM))
-            if i is None:
-                xs[k] = old_xs[last]
-                continue
-            xs[k] = old_xs[i]
-            if k < n and i < last:
-                us[k] = old_us[i]
+        phase = solution.phases[0]
+        manifold = previous.problem.phases[0].state
+        trajectory = PiecewiseTrajectory(
+            previous.times, phase.xs, phase.us, manifold.difference, manifold.integrate
+        )
+        for k in range(n + 1):
+            t = float(built.times[k])
+            if k > 0:
+                xs[k] = trajectory.state_at(t)
+            control = trajectory.control_at(t) if k < n else None
+            if control is not None:
+                us[k] = control
         return xs, us
 
 
