@@ -27,9 +27,10 @@ import pinocchio as pin
 
 from cafe_mpc.core.measurement import Measurement
 from cafe_mpc.robots.robot import load_robot
+from cafe_mpc.wbc.contact_dynamics import FrictionConeScorer
 from cafe_mpc.wbc.riccati import RiccatiController
 from cafe_mpc.wbc.synthetic import synthetic_plan
-from cafe_mpc.wbc.vwbc import FrictionConeScorer, VWBCController, VWBCSettings
+from cafe_mpc.wbc.vwbc import VWBCController, VWBCSettings
 
 SCENARIOS = {
     "standing": {"stance": (True, True, True, True), "v_scale": 0.03},

@@ -16,15 +16,14 @@ from cafe_mpc.core.measurement import Measurement
 from cafe_mpc.core.plan import Plan
 from cafe_mpc.robots.robot import load_robot
 from cafe_mpc.sim.loop import simulate
-from cafe_mpc.wbc.riccati import RiccatiController
-from cafe_mpc.wbc.synthetic import synthetic_plan
-from cafe_mpc.wbc.vwbc import (
+from cafe_mpc.wbc.contact_dynamics import (
     FrictionConeScorer,
-    VWBCController,
-    VWBCSettings,
     contact_forces_for_torque,
     friction_cone_violation,
 )
+from cafe_mpc.wbc.riccati import RiccatiController
+from cafe_mpc.wbc.synthetic import synthetic_plan
+from cafe_mpc.wbc.vwbc import VWBCController, VWBCSettings
 
 HAS_DAQP = importlib.util.find_spec("daqp") is not None
 SOLVERS = ["proxqp", pytest.param("daqp", marks=pytest.mark.skipif(not HAS_DAQP, reason="daqp missing"))]

@@ -29,6 +29,13 @@ def state_error(
     return out
 
 
+def riccati_torque(plan: Plan, k: int, dx: np.ndarray, out: np.ndarray) -> np.ndarray:
+    """Eq. (33) at knot ``k``: ``out = tau*_k + K_k dx`` (unclamped), ``dx = x ⊖ x*_k``."""
+    np.matmul(plan.K[k], dx, out=out)
+    out += plan.us[k]
+    return out
+
+
 class RiccatiController(LowLevelController):
     """Eq. (33) on the plan passed to ``compute``."""
 
@@ -56,10 +63,7 @@ class RiccatiController(LowLevelController):
     def torques_at(self, t: float, q: np.ndarray, v: np.ndarray, plan: Plan) -> np.ndarray:
         """Unclamped Riccati torques (Eq. (33)) at the plan knot whose interval holds ``t``."""
         k = plan.knot_at(t)
-        dx = self.state_error(q, v, plan.xs[k])
-        np.matmul(plan.K[k], dx, out=self._torques)
-        self._torques += plan.us[k]
-        return self._torques
+        return riccati_torque(plan, k, self.state_error(q, v, plan.xs[k]), self._torques)
 
     def compute(self, t: float, measurement: Measurement, plan: Plan | None) -> np.ndarray:
         if plan is None:

@@ -38,9 +38,9 @@ object for that stance pattern is then rebuilt on its next tick — or, optional
 budget): the clamped Riccati feedback ``tau*_k + K_k dx`` (33), counted in ``fallbacks`` with its reason.
 The controller never returns NaN, and an error inside the QP never propagates out of ``compute``.
 
-Friction-cone scoring: ``contact_forces_for_torque`` gives the contact forces that a torque implies through
-the same contact dynamics (34b)-(34c) (KKT system, ``pin.forwardDynamics``), so a Riccati controller and the
-VWBC can be scored the same way (``FrictionConeScorer``). For a solved QP these forces equal its ``F``.
+Friction-cone scoring (``wbc.contact_dynamics``): the contact forces a torque implies through the same contact
+dynamics (34b)-(34c), so a Riccati controller and the VWBC are scored the same way. For a solved QP these
+forces equal its ``F``.
 """
 
 from __future__ import annotations
@@ -52,14 +52,18 @@ from dataclasses import dataclass
 from typing import Literal
 
 import numpy as np
-import pinocchio as pin
 import proxsuite
 
 from cafe_mpc.core.controller import LowLevelController
 from cafe_mpc.core.measurement import Measurement
 from cafe_mpc.core.plan import Plan
 from cafe_mpc.robots.robot import Robot
-from cafe_mpc.wbc.riccati import state_error
+from cafe_mpc.wbc.contact_dynamics import (
+    ContactDynamicsTerms,
+    contact_forces_for_torque,
+    friction_cone_violation,
+)
+from cafe_mpc.wbc.riccati import riccati_torque, state_error
 
 WarmStart = Literal["plan", "previous", "equality", "none"]
 StanceSource = Literal["plan", "intersect"]
@@ -120,115 +124,6 @@ class VWBCSettings:
             raise ValueError("VWBC needs eps_abs > 0 and max_iter >= 1")
         if self.time_budget_ms is not None and not self.time_budget_ms > 0:
             raise ValueError(f"time_budget_ms must be positive or None, got {self.time_budget_ms}")
-
-
-def friction_cone_violation(forces: np.ndarray, mu: float) -> float:
-    """Largest violation (N) of ``Fz >= 0`` and ``|Fx|, |Fy| <= mu Fz`` (34e)-(34f) over rows of ``forces``.
-
-    ``forces`` is ``(n, 3)``; returns 0 for an empty set or forces inside the pyramid.
-    """
-    if len(forces) == 0:
-        return 0.0
-    fz = forces[:, 2]
-    worst = max(
-        float(np.max(-fz)),
-        float(np.max(np.abs(forces[:, 0]) - mu * fz)),
-        float(np.max(np.abs(forces[:, 1]) - mu * fz)),
-    )
-    return max(worst, 0.0)
-
-
-class ContactDynamicsTerms:
-    """Pinocchio terms of the contact dynamics (34b)-(34c) at ``(q, v)``; preallocated, reused per tick.
-
-    After ``compute(q, v, stance)``: ``M`` (symmetric), ``h`` (Coriolis + gravity), ``Jc`` (``3 nc x nv``,
-    linear foot Jacobians in ``LOCAL_WORLD_ALIGNED``) and ``drift = Jcdot v + alpha Jc v`` (so that (34c)
-    reads ``Jc qdd = -drift``), for the stance feet in leg order.
-    """
-
-    def __init__(self, robot: Robot, alpha: float = 10.0) -> None:
-        self.robot = robot
-        self.model = robot.model
-        self.data = robot.model.createData()
-        self.alpha = float(alpha)
-        nv = self.model.nv
-        self.M = np.zeros((nv, nv))
-        self.h = np.zeros(nv)
-        self._J_all = np.zeros((3 * robot.n_feet, nv))
-        self._drift_all = np.zeros(3 * robot.n_feet)
-        self._zero_a = np.zeros(nv)
-        self._lower = np.tril_indices(nv, -1)
-        self.Jc = self._J_all[:0]
-        self.drift = self._drift_all[:0]
-
-    def compute(self, q: np.ndarray, v: np.ndarray, stance: np.ndarray) -> None:
-        model, data = self.model, self.data
-        self.M[:] = pin.crba(model, data, q)  # symmetric in pin 4 Python; mirror in case only triu is set
-        self.M[self._lower] = self.M.T[self._lower]
-        self.h[:] = pin.nonLinearEffects(model, data, q, v)
-        pin.computeJointJacobians(model, data, q)
-        pin.forwardKinematics(model, data, q, v, self._zero_a)
-        pin.updateFramePlacements(model, data)
-        row = 0
-        for foot, frame_id in enumerate(self.robot.foot_frame_ids):
-            if not stance[foot]:
-                continue
-            J = self._J_all[row : row + 3]
-            J[:] = pin.getFrameJacobian(model, data, frame_id, pin.LOCAL_WORLD_ALIGNED)[:3]
-            accel = pin.getFrameClassicalAcceleration(model, data, frame_id, pin.LOCAL_WORLD_ALIGNED)
-            self._drift_all[row : row + 3] = accel.linear + self.alpha * (J @ v)
-            row += 3
-        self.Jc = self._J_all[:row]
-        self.drift = self._drift_all[:row]
-
-
-def contact_forces_for_torque(
-    robot: Robot,
-    q: np.ndarray,
-    v: np.ndarray,
-    tau: np.ndarray,
-    stance: np.ndarray,
-    alpha: float = 10.0,
-    terms: ContactDynamicsTerms | None = None,
-) -> np.ndarray:
-    """World-frame contact forces (n_feet x 3, zero rows for swing feet) implied by joint torques ``tau``.
-
-    Solves the KKT system of the contact dynamics (34b)-(34c) (``pin.forwardDynamics`` with the stance-foot
-    Jacobian and drift ``Jcdot v + alpha Jc v``) — the forces the plant would need for the feet to follow the
-    stabilised no-slip constraint. Used to score any controller's torque against the friction cone.
-    """
-    stance = np.asarray(stance, dtype=bool)
-    forces = np.zeros((robot.n_feet, 3))
-    if not stance.any():
-        return forces
-    terms = ContactDynamicsTerms(robot, alpha) if terms is None else terms
-    terms.compute(q, v, stance)
-    tau_full = np.zeros(robot.nv)
-    tau_full[robot.nv - robot.nu :] = tau
-    # KKT: [M Jc'; Jc 0] [qdd; -F] = [S' tau - h; -drift]  (computeAllTerms is called inside)
-    pin.forwardDynamics(terms.model, terms.data, q, v, tau_full, terms.Jc, terms.drift, 0.0)
-    forces[stance] = np.asarray(terms.data.lambda_c).reshape(-1, 3)
-    return forces
-
-
-class FrictionConeScorer:
-    """Counts ticks whose torque implies a stance force outside the friction pyramid (any controller)."""
-
-    def __init__(self, robot: Robot, mu: float = 0.6, alpha: float = 10.0, tolerance: float = 1e-3) -> None:
-        self.robot = robot
-        self.mu = float(mu)
-        self.tolerance = float(tolerance)
-        self.terms = ContactDynamicsTerms(robot, alpha)
-        self.ticks = 0
-        self.violations = 0
-
-    def score(self, q: np.ndarray, v: np.ndarray, tau: np.ndarray, stance: np.ndarray) -> bool:
-        """Score one tick; returns True (and counts it) when the implied forces leave the cone."""
-        forces = contact_forces_for_torque(self.robot, q, v, tau, stance, self.terms.alpha, terms=self.terms)
-        self.ticks += 1
-        violated = friction_cone_violation(forces[np.asarray(stance, bool)], self.mu) > self.tolerance
-        self.violations += int(violated)
-        return violated
 
 
 class _StanceQP:
@@ -630,8 +525,7 @@ class VWBCController(LowLevelController):
         self.fallback_reasons[reason.split(":")[0]] += 1
         self.last_status = self.last_status or reason
         self._previous_pattern = None
-        np.matmul(plan.K[k], dx, out=self._torques)
-        self._torques += plan.us[k]
+        riccati_torque(plan, k, dx, self._torques)
         if not np.all(np.isfinite(self._torques)):
             self._torques[:] = plan.us[k]
         np.clip(self._torques, -self.limits, self.limits, out=self._torques)
