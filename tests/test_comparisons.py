@@ -13,8 +13,10 @@ import pytest
 
 from cafe_mpc.cli import main
 from cafe_mpc.config import ConfigError
+from cafe_mpc.experiments.comparison import COMPARISON_FILES
 from cafe_mpc.experiments.registry import PlanContext, experiment_names, get_experiment
-from cafe_mpc.experiments.sweep import COMPARISON_FILES, RESULTS_FILE, ResultsTable, run_experiment
+from cafe_mpc.experiments.results_table import RESULTS_FILE, ResultsTable
+from cafe_mpc.experiments.sweep import run_experiment
 from cafe_mpc.experiments.warm_start import iteration_shares
 
 RUN_FILES = ("config.yaml", "metrics.json", "log.npz", "run.log")
@@ -173,6 +175,7 @@ def test_experiment_help_and_list_show_the_registry(capsys):
         "warm-start",
         "reliability",
         "template-vs-cafe",
+        "latency",
     ]
     assert experiment_names() == names
     with pytest.raises(SystemExit):
@@ -238,13 +241,13 @@ def test_experiment_refuses_a_used_folder(tmp_path):
 
 
 def test_a_variant_that_errors_is_recorded_and_the_others_still_run(tmp_path, capsys, monkeypatch):
-    from cafe_mpc.experiments import sweep
+    from cafe_mpc.experiments import execution
     from cafe_mpc.sim.plant import SimulationDiverged
 
     def diverging(config, out_dir, show_progress=False):
         raise SimulationDiverged("non-finite state at t = 0.1 s")
 
-    monkeypatch.setattr(sweep, "run", diverging)
+    monkeypatch.setattr(execution, "run", diverging)
     out = tmp_path / "push"
     assert main(["experiment", "push", "--duration", "0.2", "--out", str(out), "--scheduler", INLINE]) == 1
     captured = capsys.readouterr()

@@ -20,8 +20,9 @@ from cafe_mpc.experiments.reliability import (
     sample_trial,
     wilson_interval,
 )
+from cafe_mpc.experiments.results_table import RESULTS_FILE, ResultsTable
 from cafe_mpc.experiments.run import simulate_run
-from cafe_mpc.experiments.sweep import RESULTS_FILE, ResultsTable, run_experiment
+from cafe_mpc.experiments.sweep import run_experiment
 from cafe_mpc.robots.robot import load_robot
 from cafe_mpc.sim.plant import MujocoPlant
 from cafe_mpc.sim.randomization import PlantVariation, SensorModel, SensorNoise

@@ -61,7 +61,8 @@ def _experiment_listing() -> str:
 def _command_experiment(arguments: argparse.Namespace) -> int:
     from cafe_mpc.config import ConfigError
     from cafe_mpc.experiments.registry import all_options, get_experiment
-    from cafe_mpc.experiments.sweep import RESULTS_FILE, run_experiment
+    from cafe_mpc.experiments.results_table import RESULTS_FILE
+    from cafe_mpc.experiments.sweep import run_experiment
 
     if arguments.list:
         print(_experiment_listing())

@@ -32,7 +32,10 @@ if TYPE_CHECKING:
     from cafe_mpc.experiments.common import RunStore
     from cafe_mpc.experiments.run import RunResult
 
-NOT_EXPERIMENTS = frozenset({"registry", "sweep", "common", "run", "controllers"})
+NOT_EXPERIMENTS = frozenset(
+    {"registry", "sweep", "common", "run", "controllers"}
+    | {"execution", "results_table", "cluster", "comparison"}
+)
 """Modules of ``cafe_mpc.experiments`` that hold no experiment (never imported by the discovery)."""
 
 
