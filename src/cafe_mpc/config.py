@@ -604,6 +604,13 @@ class RunConfig(StrictModel):
 
     name: str = "stand"
     robot: str = "mini_cheetah"
+    scaling: Literal["robot", "none"] = Field(
+        "robot",
+        description="robot: the tuned settings below (gait timings, swing height, Raibert gain, cost "
+        "weights, PD gains, fall height, ...) are the Mini Cheetah's, scaled to the run's robot by its "
+        "leg length and mass (robots.scaling; docs/robots.md); none: used as written. The Mini Cheetah's "
+        "factors are 1",
+    )
     wbc: Literal["pd", "riccati", "vwbc"] = Field(
         "pd", description="pd: stand in place; riccati / vwbc: CAFE-MPC with that low-level controller"
     )
