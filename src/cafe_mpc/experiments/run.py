@@ -96,6 +96,12 @@ def simulate_run(
         "terrain": config.scene.terrain_pieces(),  # slopes and steps: the plant's scene only
         "bar": bar_of(config.scene),  # the bar to jump over (sim.bar): the plant's scene only
     }
+    if config.plant.kind == "gym-quadruped":  # an external plant: gym-quadruped's environment (sim.gym_plant)
+        from cafe_mpc.sim.gym_plant import GymQuadrupedPlant
+
+        options["plant"] = GymQuadrupedPlant(
+            robot, config.simulation.plant_timestep, config.plant.floor_friction, config.plant.gym_scene
+        )
     if config.simulation.realtime:
         with build_realtime_controller(config, robot) as controller:
             standing = Measurement.of_state(q0, np.zeros(robot.nv), np.ones(robot.n_feet, dtype=bool))
