@@ -25,7 +25,13 @@ from cafe_mpc.core.controller import LowLevelController
 from cafe_mpc.core.measurement import Measurement
 from cafe_mpc.core.plan import Plan
 from cafe_mpc.dynamics.srb import srb_parameters
-from cafe_mpc.experiments.scaling import run_scale, scaled_gait, scaled_weights, srb_force_weight
+from cafe_mpc.experiments.scaling import (
+    run_scale,
+    scaled_gait,
+    scaled_schedule,
+    scaled_weights,
+    srb_force_weight,
+)
 from cafe_mpc.experiments.tasks import (
     minimum_base_height,
     task_reference,
@@ -286,7 +292,7 @@ def build_mpc(config: RunConfig, robot: Robot) -> RecedingHorizonMpc:
         except ValueError as error:
             raise ConfigError(f"gait: {error}") from error
     try:
-        schedule = config.mpc.model_schedule()
+        schedule = scaled_schedule(config.mpc.model_schedule(), scale)
     except ValueError as error:
         raise ConfigError(f"mpc: {error}") from error
     settings = mpc_settings(config)
@@ -340,7 +346,7 @@ def build_realtime_controller(
     low-level controller here (or ``low_level``). Close it (``with``) to stop the process."""
     if config.wbc == "pd":
         raise ConfigError("simulation.realtime needs an MPC run (wbc: vwbc or riccati), not wbc: pd")
-    schedule = config.mpc.model_schedule()
+    schedule = scaled_schedule(config.mpc.model_schedule(), run_scale(config, robot))
     factory = functools.partial(realtime_mpc, config.model_dump(mode="json"))
     if low_level is None:
         low_level = build_recorder(config, robot)

@@ -1,7 +1,8 @@
 """A run's settings carried to its robot (``scaling: robot``; the laws: ``robots.scaling``).
 
 The builders of ``experiments.controllers`` and ``experiments.tasks`` read the config's tuned values as the
-reference robot's and pass them through ``run_scale(config, robot)``: gait phase durations, swing height,
+reference robot's and pass them through ``run_scale(config, robot)``: the MPC's horizons (``scaled_schedule``:
+Tw and Ts times the time scale, in whole knots), gait phase durations, swing height,
 Raibert gain and foothold box (the reference), cost weights (``scaled_weights``), the SRB force weight, the
 Baumgarte rates of the whole-body knots and the VWBC, the minimum base height, PD and template swing gains,
 and the fall height. ``scaling_block`` is what ``metrics.json`` reports of it.
@@ -12,6 +13,7 @@ from __future__ import annotations
 from dataclasses import fields
 
 from cafe_mpc.config import RunConfig
+from cafe_mpc.mpc.problem import ModelSchedule
 from cafe_mpc.ocp.contact_schedule import GaitCycle, get_gait
 from cafe_mpc.ocp.costs import SRBWeights, WholeBodyWeights
 from cafe_mpc.robots.robot import Robot
@@ -29,6 +31,23 @@ def scaled_gait(name: str, scale: RobotScale) -> GaitCycle:
     if scale.time == 1.0:
         return gait
     return GaitCycle(gait.name, tuple((flags, duration * scale.time) for flags, duration in gait.cycle))
+
+
+def scaled_schedule(schedule: ModelSchedule, scale: RobotScale) -> ModelSchedule:
+    """The model schedule with both horizons times the Froude time scale, in whole knots of the unchanged time
+    steps (the plan sees the same share of the gait cycle; a larger robot's update has more knots)."""
+    if scale.time == 1.0:
+        return schedule
+
+    def stretched(horizon: float, dt: float) -> float:
+        return round(horizon * scale.time / dt) * dt if horizon > 0 else 0.0
+
+    return ModelSchedule(
+        stretched(schedule.whole_body_horizon, schedule.whole_body_dt),
+        stretched(schedule.srb_horizon, schedule.srb_dt),
+        schedule.whole_body_dt,
+        schedule.srb_dt,
+    )
 
 
 def _scaled_vector(value, factors: tuple[float, ...]):
@@ -76,10 +95,17 @@ def srb_force_weight(scale: RobotScale, terminal: bool = False):
 def scaling_block(config: RunConfig, robot: Robot) -> dict:
     """``metrics.json``'s ``scaling``: the mode, the robot's factors against the reference robot."""
     scale = run_scale(config, robot)
-    return {
+    schedule = scaled_schedule(config.mpc.model_schedule(), scale)
+    block = {
         "mode": config.scaling,
         "reference": reference_scales(),
         "robot_leg_length": robot.leg_length,
         "robot_mass": robot.mass,
         "factors": scale.summary(),
+        "whole_body_horizon_s": schedule.whole_body_horizon,
+        "srb_horizon_s": schedule.srb_horizon,
     }
+    if config.gait is not None:
+        block["gait_period_s"] = scaled_gait(config.gait.name, scale).period
+        block["swing_height_m"] = scale.distance(config.gait.swing_height)
+    return block
