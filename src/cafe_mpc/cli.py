@@ -118,6 +118,7 @@ def _add_experiment_parser(commands: argparse._SubParsersAction) -> None:
             "  cafe-mpc experiment reliability --task bound --seeds 17     # trial 17 alone\n"
             "  cafe-mpc experiment schedules --out runs/s --resume         # continue an interrupted sweep\n"
             "  cafe-mpc experiment push --scheduler tcp://HOST:8786        # on a running Dask cluster\n"
+            "  cafe-mpc experiment robots --workers 1 --set mpc.latency=fixed   # trot, bound: every robot\n"
             "\n"
             "timing: presets use measured latency; with more workers than cores use --set mpc.latency=fixed"
         ),

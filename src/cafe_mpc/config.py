@@ -717,7 +717,7 @@ def _check_gym_plant(config: RunConfig) -> None:
     if robot.gym_quadruped is None:
         from cafe_mpc.robots.robot import known_robots
 
-        with_gym = [name for name in known_robots() if _names_gym_model(name)]
+        with_gym = [name for name in known_robots() if names_gym_model(name)]
         raise ValueError(
             f"plant.kind: gym-quadruped needs a robot with a gym-quadruped model (robot file key "
             f"gym_quadruped.robot); {config.robot!r} has none. Shipped: {', '.join(with_gym)}"
@@ -739,7 +739,7 @@ def _check_gym_plant(config: RunConfig) -> None:
         )
 
 
-def _names_gym_model(name: str) -> bool:
+def names_gym_model(name: str) -> bool:
     """Whether a shipped robot file names a gym-quadruped model (read without building the robot)."""
     from cafe_mpc.robots.robot import robot_file
 

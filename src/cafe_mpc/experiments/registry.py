@@ -184,6 +184,7 @@ ORDER = (
     "warm-start",
     "reliability",
     "template-vs-cafe",
+    "robots",
 )
 """Listing order of the built-in experiments (others follow by name)."""
 
