@@ -203,6 +203,11 @@ def _command_robot(arguments: argparse.Namespace) -> int:
         print(json.dumps(summary, indent=2))
     else:
         print(f"{robot.name}: total mass {robot.total_mass:.3f} kg, feet {', '.join(robot.foot_frame_names)}")
+        origin = f" ({robot.model_path})" if robot.model_path is not None else ""
+        print(
+            f"source {robot.source}{origin}; leg length {robot.leg_length:.3f} m, standing height "
+            f"{robot.standing_height:.3f} m"
+        )
         inertia = srb.inertia_matrix
         print(
             f"SRB (legs lumped at the standing pose, rotors included): mass {srb.mass:.3f} kg, inertia "

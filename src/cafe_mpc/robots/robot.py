@@ -390,7 +390,8 @@ def _position_limits(
         upper = _signed_values(upper_given, n, "joints.position_upper")
     else:
         lower, upper = file_lower, file_upper
-        _require_finite(name, "joints.position_lower/position_upper", lower + upper, joint_names)
+        bounded = np.where(np.isfinite(lower) & np.isfinite(upper), 0.0, np.inf)
+        _require_finite(name, "joints.position_lower/position_upper", bounded, joint_names)
     if np.any(lower >= upper):
         raise RobotLoadError(
             f"robot {name!r}: joint position limits need lower < upper, got {lower}, {upper}"
@@ -450,10 +451,19 @@ def _build_robot(table: dict, path: Path | None = None) -> Robot:
     if source not in SOURCES:
         raise RobotLoadError(f"robot {name!r}: unknown source {source!r} ({' | '.join(SOURCES)})")
     from_file = source in MODEL_SOURCES
-    geometry = table.get("geometry") or {} if from_file else table["geometry"]
-    joints, plant_table, standing = table["joints"], table["plant"], table["standing"]
-    if not all(isinstance(section, dict) for section in (geometry, joints, plant_table, standing)):
-        raise RobotLoadError(f"robot {name!r}: geometry, joints, plant and standing must be mappings")
+    geometry = (table.get("geometry") or {}) if from_file else table["geometry"]
+    joints = (table.get("joints") or {}) if from_file else table["joints"]
+    plant_table, standing = table["plant"], table["standing"]
+    for key, section in (
+        ("geometry", geometry),
+        ("joints", joints),
+        ("plant", plant_table),
+        ("standing", standing),
+    ):
+        if not isinstance(section, dict):
+            raise RobotLoadError(
+                f"robot {name!r}: {key} must be a mapping of keys to values, got {section!r}"
+            )
     model, urdf, model_path, foot_frames, joint_names = _planning_model(table, name, source, path)
     n_legs = len(leg_names)
     n_joints = JOINTS_PER_LEG * n_legs
