@@ -5,7 +5,7 @@ VENV := .venv
 BIN := $(VENV)/bin
 DEMO ?= trot
 
-.PHONY: install demo test lint bench clean
+.PHONY: install install-gym demo test lint bench clean
 
 $(BIN)/cafe-mpc: pyproject.toml requirements.lock
 	@command -v $(PYTHON) >/dev/null 2>&1 || { echo "need $(PYTHON) (set PYTHON=...)"; exit 1; }
@@ -17,6 +17,13 @@ $(BIN)/cafe-mpc: pyproject.toml requirements.lock
 
 install: $(BIN)/cafe-mpc
 
+# the optional extra cafe-mpc[gym] (gym-quadruped as an external plant), pinned in requirements-gym.lock
+$(VENV)/.gym-installed: $(BIN)/cafe-mpc requirements-gym.lock
+	$(BIN)/python -m pip install --quiet -r requirements-gym.lock
+	touch $(VENV)/.gym-installed
+
+install-gym: $(VENV)/.gym-installed
+
 demo: install
 	$(BIN)/cafe-mpc run $(DEMO)
 
@@ -24,7 +31,7 @@ lint: install
 	$(BIN)/ruff check src tests benchmarks examples
 	$(BIN)/ruff format --check src tests benchmarks examples
 
-test: install
+test: install install-gym
 	$(BIN)/ruff check src tests benchmarks examples
 	$(BIN)/python -m pytest tests
 

@@ -176,6 +176,7 @@ def test_experiment_help_and_list_show_the_registry(capsys):
         "reliability",
         "template-vs-cafe",
         "latency",
+        "robots",
     ]
     assert experiment_names() == names
     with pytest.raises(SystemExit):

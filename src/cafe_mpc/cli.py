@@ -120,6 +120,7 @@ def _add_experiment_parser(commands: argparse._SubParsersAction) -> None:
             "  cafe-mpc experiment latency --task bound         # success over fixed latency and period\n"
             "  cafe-mpc experiment schedules --out runs/s --resume         # continue an interrupted sweep\n"
             "  cafe-mpc experiment push --scheduler tcp://HOST:8786        # on a running Dask cluster\n"
+            "  cafe-mpc experiment robots --workers 1 --set mpc.latency=fixed   # trot, bound: every robot\n"
             "\n"
             "timing: presets use measured latency; with more workers than cores use --set mpc.latency=fixed"
         ),
@@ -204,6 +205,11 @@ def _command_robot(arguments: argparse.Namespace) -> int:
         print(json.dumps(summary, indent=2))
     else:
         print(f"{robot.name}: total mass {robot.total_mass:.3f} kg, feet {', '.join(robot.foot_frame_names)}")
+        origin = f" ({robot.model_path})" if robot.model_path is not None else ""
+        print(
+            f"source {robot.source}{origin}; leg length {robot.leg_length:.3f} m, standing height "
+            f"{robot.standing_height:.3f} m"
+        )
         inertia = srb.inertia_matrix
         print(
             f"SRB (legs lumped at the standing pose, rotors included): mass {srb.mass:.3f} kg, inertia "

@@ -598,6 +598,17 @@ class PlantConfig(StrictModel):
     paper Sec. VII-C3). Only the MuJoCo plant and the controller's measurements change; the controller's model
     never does (``sim.randomization``). The defaults change nothing."""
 
+    kind: Literal["mujoco", "gym-quadruped"] = Field(
+        "mujoco",
+        description="mujoco: our MuJoCo plant of the robot file; gym-quadruped: the robot inside "
+        "gym-quadruped's QuadrupedEnv with its own model file and contact settings (sim.gym_plant; "
+        "pip install 'cafe-mpc[gym]')",
+    )
+    gym_scene: Literal["flat", "perlin", "random_boxes", "random_pyramids", "stairs", "ramp", "slippery"] = (
+        Field(
+            "flat", description="gym-quadruped's scene (plant.kind: gym-quadruped; the controller plans flat)"
+        )
+    )
     floor_friction: float | None = Field(
         None, gt=0.0, le=2.0, description="floor and foot sliding friction (null: the robot table's)"
     )
@@ -669,6 +680,13 @@ class RunConfig(StrictModel):
 
     name: str = "stand"
     robot: str = "mini_cheetah"
+    scaling: Literal["robot", "none"] = Field(
+        "robot",
+        description="robot: the tuned settings below (gait timings, swing height, Raibert gain, cost "
+        "weights, PD gains, fall height, ...) are the Mini Cheetah's, scaled to the run's robot by its "
+        "leg length and mass (robots.scaling; docs/robots.md); none: used as written. The Mini Cheetah's "
+        "factors are 1",
+    )
     wbc: Literal["pd", "riccati", "vwbc"] = Field(
         "pd", description="pd: stand in place; riccati / vwbc: CAFE-MPC with that low-level controller"
     )
@@ -745,6 +763,8 @@ class RunConfig(StrictModel):
             )
         if self.gait is not None:
             _check_commands(self.robot, self.gait.commands)
+        if self.plant.kind == "gym-quadruped":
+            _check_gym_plant(self)
         for key in ("link_mass_scales", "motor_strength_scales"):
             value = getattr(self.plant, key)
             if isinstance(value, list) and len(value) != _cached_robot(self.robot).nu:
@@ -753,6 +773,44 @@ class RunConfig(StrictModel):
                     f"got {len(value)}"
                 )
         return self
+
+
+def _check_gym_plant(config: RunConfig) -> None:
+    """gym-quadruped's environment simulates its own model: the robot must name it, and the run may not ask
+    for what only our plant can do (terrain, the bar, mass and motor variations)."""
+    robot = _cached_robot(config.robot)
+    if robot.gym_quadruped is None:
+        from cafe_mpc.robots.robot import known_robots
+
+        with_gym = [name for name in known_robots() if names_gym_model(name)]
+        raise ValueError(
+            f"plant.kind: gym-quadruped needs a robot with a gym-quadruped model (robot file key "
+            f"gym_quadruped.robot); {config.robot!r} has none. Shipped: {', '.join(with_gym)}"
+        )
+    unsupported = []
+    if config.scene.terrain:
+        unsupported.append("scene.terrain (use plant.gym_scene)")
+    if config.scene.bar_height:
+        unsupported.append("scene.bar_height")
+    plant = config.plant
+    for key in ("mass_scale", "body_mass_scale", "link_mass_scales", "motor_strength_scales"):
+        value = getattr(plant, key)
+        if any(item != 1.0 for item in (value if isinstance(value, list) else [value])):
+            unsupported.append(f"plant.{key}")
+    if unsupported:
+        raise ValueError(
+            "plant.kind: gym-quadruped simulates gym-quadruped's own model and scene; not available there: "
+            + ", ".join(unsupported)
+        )
+
+
+def names_gym_model(name: str) -> bool:
+    """Whether a shipped robot file names a gym-quadruped model (read without building the robot)."""
+    from cafe_mpc.robots.robot import robot_file
+
+    with open(robot_file(name)) as handle:
+        table = yaml.safe_load(handle) or {}
+    return isinstance(table.get("gym_quadruped"), dict)
 
 
 def _check_commands(robot_name: str, commands: list[CommandConfig]) -> None:

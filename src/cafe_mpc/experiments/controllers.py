@@ -25,14 +25,30 @@ from cafe_mpc.core.controller import LowLevelController
 from cafe_mpc.core.measurement import Measurement
 from cafe_mpc.core.plan import Plan
 from cafe_mpc.dynamics.srb import srb_parameters
-from cafe_mpc.experiments.tasks import task_reference, task_weight_sets, torque_limits_of
+from cafe_mpc.experiments.scaling import (
+    run_scale,
+    scaled_gait,
+    scaled_schedule,
+    scaled_srb_weights,
+    scaled_weights,
+)
+from cafe_mpc.experiments.tasks import (
+    minimum_base_height,
+    task_reference,
+    task_weight_sets,
+    torque_limits_of,
+)
 from cafe_mpc.mpc.problem import CafeProblemBuilder
 from cafe_mpc.mpc.receding_horizon import RecedingHorizonMpc
 from cafe_mpc.mpc.template import TemplateMpc, TemplateProblemBuilder, TemplateSettings, template_srb
 from cafe_mpc.ocp.constraints import WholeBodyConstraintSettings
-from cafe_mpc.ocp.contact_schedule import get_gait
 from cafe_mpc.ocp.knots import SRBModelFactory, SRBSettings, WholeBodyModelFactory, WholeBodySettings
-from cafe_mpc.reference.locomotion import CommandProfile, LocomotionReference, VelocityCommand
+from cafe_mpc.reference.locomotion import (
+    FOOTHOLD_BOX,
+    CommandProfile,
+    LocomotionReference,
+    VelocityCommand,
+)
 from cafe_mpc.robots.robot import Robot, load_robot
 from cafe_mpc.wbc.pd import PDController
 from cafe_mpc.wbc.riccati import RiccatiController
@@ -188,9 +204,7 @@ def build_controller(config: RunConfig, robot: Robot) -> RunController:
     Raises ``ConfigError`` (one line, naming the section) when a setting is rejected by the library.
     """
     if config.wbc == "pd":
-        return PDController(
-            robot, config.pd.kp, config.pd.kd, gravity_feedforward=config.pd.gravity_feedforward
-        )
+        return _pd_controller(config, robot)
     if config.planner == "template":
         return build_template_controller(config, robot)
     mpc = build_mpc(config, robot)
@@ -219,8 +233,10 @@ def build_template_controller(config: RunConfig, robot: Robot) -> CafeMpcControl
             leg_torque_limits=section.leg_torque_limits,
             friction_coefficient=config.mpc.friction,
         )
+        scale = run_scale(config, robot)
         low_level = TemplateLowLevelController(
-            robot, TemplateLowLevelSettings(section.swing_kp, section.swing_kd)
+            robot,
+            TemplateLowLevelSettings(scale.stiffness(section.swing_kp), scale.damping(section.swing_kd)),
         )
     except ValueError as error:
         raise ConfigError(f"template: {error}") from error
@@ -268,33 +284,35 @@ def build_mpc(config: RunConfig, robot: Robot) -> RecedingHorizonMpc:
     """The MPC side of a run: reference (Sec. VI-A), CAFE problem builder with its model schedule (Sec. IV-D),
     receding-horizon settings."""
     gait = config.gait
+    scale = run_scale(config, robot)  # the tuned values are the reference robot's (robots.scaling)
     if config.reference is not None:  # a composed reference (stand, stored trajectory, ...): Sec. VII-C
-        reference = task_reference(config.reference, robot)
+        reference = task_reference(config.reference, robot, scale)
     elif gait is None:  # RunConfig rejects this; kept for configs built with model_construct
         raise ConfigError(f"wbc: {config.wbc!r} needs a gait section")
     else:
         try:
             reference = LocomotionReference(
                 robot,
-                get_gait(gait.name),
+                scaled_gait(gait.name, scale),
                 reference_commands(config),
-                swing_height=gait.swing_height,
-                raibert_gain=gait.raibert_gain,
+                swing_height=scale.distance(gait.swing_height),
+                raibert_gain=scale.duration(gait.raibert_gain),
+                foothold_box=tuple(scale.distance(v) for v in FOOTHOLD_BOX),
                 start_stance=gait.start_stance,
                 command_ramp=gait.command_ramp,
             )
         except ValueError as error:
             raise ConfigError(f"gait: {error}") from error
     try:
-        schedule = config.mpc.model_schedule()
+        schedule = scaled_schedule(config.mpc.model_schedule(), scale)
     except ValueError as error:
         raise ConfigError(f"mpc: {error}") from error
     settings = mpc_settings(config)
     try:
-        running = config.costs.running.to_weights()
-        terminal = config.costs.terminal.to_weights()
-        srb_running = config.costs.srb_running.to_weights()
-        srb_terminal = config.costs.srb_terminal.to_weights()
+        running = scaled_weights(config.costs.running.to_weights(), scale)
+        terminal = scaled_weights(config.costs.terminal.to_weights(), scale)
+        srb_running = scaled_srb_weights(config.costs.srb_running.to_weights(), scale)
+        srb_terminal = scaled_srb_weights(config.costs.srb_terminal.to_weights(), scale)
     except ValueError as error:
         raise ConfigError(f"costs: {error}") from error
     limits = None if config.torque_limits == "plan" else tuple(torque_limits_of(config, robot).tolist())
@@ -302,10 +320,13 @@ def build_mpc(config: RunConfig, robot: Robot) -> RecedingHorizonMpc:
         robot,
         WholeBodySettings(
             dt=schedule.whole_body_dt,
+            baumgarte_alpha=scale.rate(WholeBodySettings().baumgarte_alpha),
             running_weights=running,
             terminal_weights=terminal,
             constraints=WholeBodyConstraintSettings(
-                friction_coefficient=config.mpc.friction, torque_limit_values=limits
+                friction_coefficient=config.mpc.friction,
+                torque_limit_values=limits,
+                minimum_base_height=minimum_base_height(scale),
             ),
         ),
     )
@@ -337,7 +358,7 @@ def build_realtime_controller(
     low-level controller here (or ``low_level``). Close it (``with``) to stop the process."""
     if config.wbc == "pd":
         raise ConfigError("simulation.realtime needs an MPC run (wbc: vwbc or riccati), not wbc: pd")
-    schedule = config.mpc.model_schedule()
+    schedule = scaled_schedule(config.mpc.model_schedule(), run_scale(config, robot))
     factory = functools.partial(realtime_mpc, config.model_dump(mode="json"))
     if low_level is None:
         low_level = build_recorder(config, robot)
@@ -358,23 +379,35 @@ def build_realtime_controller(
 def build_low_level(config: RunConfig, robot: Robot) -> LowLevelController:
     """The low-level controller named by ``config.wbc`` (PD, Riccati (33) or VWBC (34))."""
     if config.wbc == "pd":
-        return PDController(
-            robot, config.pd.kp, config.pd.kd, gravity_feedforward=config.pd.gravity_feedforward
-        )
+        return _pd_controller(config, robot)
     if config.wbc == "riccati":
         riccati = RiccatiController(robot)
         riccati.limits = torque_limits_of(config, robot)
         return riccati
     try:
+        scale = run_scale(config, robot)
         vwbc_settings = VWBCSettings(
             solver=config.vwbc.solver,
             warm_start=config.vwbc.warm_start,
             stance_source=config.vwbc.stance_source,
             mu=config.mpc.friction,
+            alpha=scale.rate(VWBCSettings.alpha),
+            cone_tolerance=scale.force(VWBCSettings.cone_tolerance),
         )
     except ValueError as error:
         raise ConfigError(f"vwbc: {error}") from error
     return VWBCController(robot, vwbc_settings, torque_limits=torque_limits_of(config, robot))
+
+
+def _pd_controller(config: RunConfig, robot: Robot) -> PDController:
+    """Joint PD standing with the config's gains scaled to the robot (torque scale; damping also by time)."""
+    scale = run_scale(config, robot)
+    return PDController(
+        robot,
+        scale.stiffness(config.pd.kp),
+        scale.damping(config.pd.kd),
+        gravity_feedforward=config.pd.gravity_feedforward,
+    )
 
 
 def reference_of(controller: RunController):

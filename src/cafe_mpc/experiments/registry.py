@@ -188,6 +188,7 @@ ORDER = (
     "reliability",
     "template-vs-cafe",
     "latency",
+    "robots",
 )
 """Listing order of the built-in experiments (others follow by name)."""
 

@@ -34,6 +34,7 @@ from cafe_mpc.experiments.controllers import (
     reference_profile,
     timing_of,
 )
+from cafe_mpc.experiments.scaling import run_scale, scaling_block
 from cafe_mpc.experiments.tasks import torque_limits_of
 from cafe_mpc.robots.robot import Robot, load_robot
 from cafe_mpc.sim.bar import bar_of
@@ -83,7 +84,10 @@ def simulate_run(
         "q0": q0,
         "pushes": pushes,
         "plant_timestep": config.simulation.plant_timestep,
-        "fall": FallCriteria(config.simulation.fall.min_base_height, config.simulation.fall.max_tilt_rad),
+        "fall": FallCriteria(
+            run_scale(config, robot).distance(config.simulation.fall.min_base_height),
+            config.simulation.fall.max_tilt_rad,
+        ),
         "stop_on_fall": config.simulation.stop_on_fall,
         "progress": progress,
         # the plant's deviations and the sensors (domain randomisation): the controller's robot stays nominal
@@ -92,6 +96,12 @@ def simulate_run(
         "terrain": config.scene.terrain_pieces(),  # slopes and steps: the plant's scene only
         "bar": bar_of(config.scene),  # the bar to jump over (sim.bar): the plant's scene only
     }
+    if config.plant.kind == "gym-quadruped":  # an external plant: gym-quadruped's environment (sim.gym_plant)
+        from cafe_mpc.sim.gym_plant import GymQuadrupedPlant
+
+        options["plant"] = GymQuadrupedPlant(
+            robot, config.simulation.plant_timestep, config.plant.floor_friction, config.plant.gym_scene
+        )
     if config.simulation.realtime:
         with build_realtime_controller(config, robot) as controller:
             standing = Measurement.of_state(q0, np.zeros(robot.nv), np.ones(robot.n_feet, dtype=bool))
@@ -165,6 +175,7 @@ def run_metrics(config: RunConfig, robot: Robot, controller: RunController, log:
     steady = tracking_metrics(robot, log, profile, window_start=METRICS_WINDOW_START_S)
     metrics["steady_state"] = steady  # the paper's steady-state window (the start from rest skipped)
     metrics["timing"] = timing_of(config, controller)
+    metrics["scaling"] = scaling_block(config, robot)
     metrics["mpc"] = mpc_summary(controller, log)
     if "realtime" in log.extra:
         metrics["realtime"] = log.extra["realtime"]

@@ -22,6 +22,7 @@ from cafe_mpc.config import (
     velocity_command,
 )
 from cafe_mpc.dynamics.srb import srb_parameters
+from cafe_mpc.experiments.scaling import run_scale, scaled_gait, scaled_weights, srb_force_weight
 from cafe_mpc.mpc.problem import ModelSchedule
 from cafe_mpc.ocp.constraints import WholeBodyConstraintSettings
 from cafe_mpc.ocp.contact_schedule import get_gait
@@ -29,15 +30,22 @@ from cafe_mpc.ocp.costs import SRBWeights
 from cafe_mpc.ocp.knots import SRBModelFactory, SRBSettings, WholeBodyModelFactory, WholeBodySettings
 from cafe_mpc.reference.base import Reference
 from cafe_mpc.reference.composition import ComposedReference
-from cafe_mpc.reference.locomotion import LocomotionReference, VelocityCommand
+from cafe_mpc.reference.locomotion import FOOTHOLD_BOX, LocomotionReference, VelocityCommand
 from cafe_mpc.reference.trajectory import TrajectoryReference
 from cafe_mpc.report.task_metrics import task_from_reference, task_metrics
 from cafe_mpc.robots.robot import Robot
+from cafe_mpc.robots.scaling import IDENTITY, RobotScale
 from cafe_mpc.sim.bar import bar_of
 from cafe_mpc.sim.loop import SimulationLog
 
 TRAJECTORY_WEIGHT_SET = "barrel_roll"
 """Weight set of the knots inside stored trajectories (``WholeBodyWeights.barrel_roll_*`` by default)."""
+
+
+def minimum_base_height(scale: RobotScale) -> float | None:
+    """The whole-body knots' minimum base height (``WholeBodyConstraintSettings``) scaled to the robot."""
+    default = WholeBodyConstraintSettings().minimum_base_height
+    return None if default is None else scale.distance(default)
 
 
 def torque_limits_of(config: RunConfig, robot: Robot) -> np.ndarray:
@@ -47,8 +55,10 @@ def torque_limits_of(config: RunConfig, robot: Robot) -> np.ndarray:
     return np.asarray(robot.torque_limits, dtype=float).copy()
 
 
-def task_reference(section: ReferenceConfig, robot: Robot) -> ComposedReference:
-    """The composed reference of a ``reference`` config section (see the module docstring)."""
+def task_reference(section: ReferenceConfig, robot: Robot, scale: RobotScale = IDENTITY) -> ComposedReference:
+    """The composed reference of a ``reference`` config section (see the module docstring); gait segments'
+    timings and swing heights scaled by ``scale`` (``experiments.scaling``; stored trajectories are the
+    robot's own)."""
     pieces: list[tuple[Reference, float | None]] = []
     offsets = []
     try:
@@ -66,10 +76,11 @@ def task_reference(section: ReferenceConfig, robot: Robot) -> ComposedReference:
                 assert gait is not None
                 reference = LocomotionReference(
                     robot,
-                    get_gait(gait.name),
+                    scaled_gait(gait.name, scale),
                     [velocity_command(command) for command in gait.commands],
-                    swing_height=gait.swing_height,
-                    raibert_gain=gait.raibert_gain,
+                    swing_height=scale.distance(gait.swing_height),
+                    raibert_gain=scale.duration(gait.raibert_gain),
+                    foothold_box=tuple(scale.distance(v) for v in FOOTHOLD_BOX),
                     start_stance=gait.start_stance,
                     command_ramp=gait.command_ramp,
                 )
@@ -103,14 +114,16 @@ def task_weight_sets(
     section = config.reference
     if section is None:
         return {}
+    scale = run_scale(config, robot)
     try:
-        running = section.costs.running.to_weights()
-        terminal = section.costs.terminal.to_weights()
-        srb_running = SRBWeights.from_whole_body(running, force=SRBWeights.regular_running().force)
+        running = scaled_weights(section.costs.running.to_weights(), scale)
+        terminal = scaled_weights(section.costs.terminal.to_weights(), scale)
+        srb_running = SRBWeights.from_whole_body(running, force=srb_force_weight(scale))
         srb_terminal = SRBWeights.from_whole_body(terminal, force=0.0)
         constraints = WholeBodyConstraintSettings(
             friction_coefficient=config.mpc.friction,
             torque_limit_values=tuple(float(limit) for limit in torque_limits_of(config, robot)),
+            minimum_base_height=minimum_base_height(scale),
         )
     except ValueError as error:
         raise ConfigError(f"reference: {error}") from error
@@ -118,6 +131,7 @@ def task_weight_sets(
         robot,
         WholeBodySettings(
             dt=schedule.whole_body_dt,
+            baumgarte_alpha=scale.rate(WholeBodySettings().baumgarte_alpha),
             running_weights=running,
             terminal_weights=terminal,
             constraints=constraints,

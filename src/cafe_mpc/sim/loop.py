@@ -161,6 +161,7 @@ def simulate(
     terrain: Sequence[Terrain] = (),
     observer: Observer | None = None,
     bar: Bar | None = None,
+    plant: MujocoPlant | None = None,
 ) -> SimulationLog:
     """Run ``controller`` on the MuJoCo plant for ``duration`` seconds of simulated time.
 
@@ -171,13 +172,16 @@ def simulate(
     ``bar``: a bar in the scene (``sim.bar``); the log's ``extra`` then holds ``bar_contact`` (per tick: a
     robot geom touched it) and ``bar`` (``touched_by``: those geoms).
     ``terrain``: slopes and steps in the scene (``sim.terrain``). ``observer``: watches the plant after every
-    tick (the live viewer) and may end the run early.
+    tick (the live viewer) and may end the run early. ``plant``: a plant built by the caller instead of the
+    MuJoCo plant of ``robot`` (e.g. ``sim.gym_plant.GymQuadrupedPlant``, the same interface); then
+    ``plant_timestep``, ``variation``, ``terrain`` and ``bar`` are the caller's business.
     """
     if not duration > 0:
         raise ValueError(f"duration must be positive, got {duration}")
     if not control_rate_hz > 0:
         raise ValueError(f"control rate must be positive, got {control_rate_hz}")
-    plant = MujocoPlant(robot, plant_timestep, variation, terrain, bar)
+    if plant is None:
+        plant = MujocoPlant(robot, plant_timestep, variation, terrain, bar)
     control_period = 1.0 / control_rate_hz
     substeps = round(control_period / plant.timestep)
     if substeps < 1 or abs(substeps * plant.timestep - control_period) > 1e-9:

@@ -94,7 +94,15 @@ class MujocoPlant:
             raise ValueError(f"plant joint order {names} differs from the robot's {robot.joint_names}")
         self.base_body = self.model.body("base").id
         self.floor_geom = self.model.geom("floor").id
-        self.trunk_geom = self.model.geom("trunk").id
+        # the trunk: the robot's collision geoms on the base body (a generated plant's box "trunk"; a model
+        # file's own trunk geoms)
+        self.trunk_geoms = frozenset(
+            g
+            for g in range(self.model.ngeom)
+            if self.model.geom_bodyid[g] == self.base_body
+            and (self.model.geom_contype[g] or self.model.geom_conaffinity[g])
+        )
+        self._world_geom = self.model.geom_bodyid == 0
         self.foot_geoms = np.array([self.model.geom(name).id for name in robot.foot_frame_names])
         self._foot_index = {int(g): i for i, g in enumerate(self.foot_geoms)}
         self.torque_limits = np.array(robot.plant.motor_torque_limits)
@@ -183,7 +191,9 @@ class MujocoPlant:
                 self.bar_in_contact = True
                 self.bar_contact_geoms.add(geom2 if geom1 == self.bar_geom else geom1)
                 continue
-            if self.trunk_geom in (geom1, geom2):
+            if (geom1 in self.trunk_geoms and self._world_geom[geom2]) or (
+                geom2 in self.trunk_geoms and self._world_geom[geom1]
+            ):  # the trunk on the floor or terrain (a model file's legs may also touch it)
                 self.trunk_touched_floor = True
             foot = self._foot_index.get(geom1, self._foot_index.get(geom2, -1))
             if foot < 0:

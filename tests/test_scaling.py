@@ -1,0 +1,71 @@
+"""Defaults that scale with the robot (``robots.scaling``, ``experiments.scaling``): the laws, and no change
+for the reference robot."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from cafe_mpc.config import load_config
+from cafe_mpc.experiments.controllers import build_low_level, build_mpc
+from cafe_mpc.experiments.scaling import run_scale, scaled_gait, scaled_schedule, scaled_weights
+from cafe_mpc.mpc.problem import ModelSchedule
+from cafe_mpc.ocp.contact_schedule import get_gait
+from cafe_mpc.ocp.costs import WholeBodyWeights
+from cafe_mpc.robots.robot import load_robot
+from cafe_mpc.robots.scaling import RobotScale, robot_scale
+
+
+def test_reference_robot_scales_by_exactly_one():
+    mini_cheetah = load_robot("mini_cheetah")
+    scale = robot_scale(mini_cheetah)
+    assert scale.length == 1.0 and scale.mass == 1.0 and scale.is_identity
+    weights = WholeBodyWeights.regular_running()
+    assert scaled_weights(weights, scale) is weights
+    assert scaled_gait("bound", scale) is get_gait("bound")
+    schedule = ModelSchedule.named("S4")
+    assert scaled_schedule(schedule, scale) is schedule
+
+
+def test_scaling_laws():
+    scale = RobotScale(length=4.0, mass=2.0)  # time scale 2, torque scale 8
+    assert scale.time == 2.0 and scale.torque == 8.0
+    gait = scaled_gait("trot", scale)
+    assert [d for _, d in gait.cycle] == [0.5, 0.5] and gait.period == 2 * get_gait("trot").period
+    assert scale.distance(0.06) == pytest.approx(0.24)
+    assert scale.rate(10.0) == 5.0 and scale.stiffness(60.0) == 480.0 and scale.damping(1.5) == 24.0
+    weights = scaled_weights(WholeBodyWeights.regular_running(), scale)
+    # W / u^2: position 1/16, linear velocity 1/4 (u = L/T), angular velocity x4 (u = 1/T), torque 1/64
+    assert weights.base_position == pytest.approx((0.0, 0.0, 10.0 / 16, 1.0, 2.0, 2.0))
+    assert weights.base_velocity == pytest.approx((0.5, 0.5, 0.5, 4.0, 8.0, 8.0))
+    assert weights.joint_position == 1.0 and weights.joint_velocity == pytest.approx(0.04)
+    assert weights.torque == pytest.approx(0.1 / 64)
+    assert weights.swing_foot_position == pytest.approx((10.0 / 16,) * 3)
+    assert weights.swing_foot_velocity == pytest.approx((0.5,) * 3)
+    stretched = scaled_schedule(ModelSchedule.named("S4"), scale)
+    assert stretched.whole_body_horizon == pytest.approx(0.5) and stretched.srb_horizon == pytest.approx(0.8)
+    assert stretched.whole_body_dt == 0.01 and stretched.srb_dt == 0.05
+    with pytest.raises(ValueError, match="positive"):
+        RobotScale(length=0.0)
+
+
+def test_a_big_robot_gets_scaled_settings_and_none_turns_it_off():
+    config = load_config("trot", ["robot=b2", "mpc.latency=fixed"])
+    robot = load_robot("b2")
+    scale = run_scale(config, robot)
+    assert scale.length == pytest.approx(robot.leg_length / load_robot("mini_cheetah").leg_length)
+    assert scale.mass == pytest.approx(robot.mass / 8.912)
+    mpc = build_mpc(config, robot)
+    assert mpc.reference.gait.period == pytest.approx(0.5 * math.sqrt(scale.length))
+    assert mpc.reference.swing_height == pytest.approx(0.06 * scale.length)
+    vwbc = build_low_level(config, robot)
+    assert vwbc.settings.alpha == pytest.approx(10.0 / math.sqrt(scale.length))
+    assert mpc.builder.schedule.whole_body_horizon == pytest.approx(
+        round(0.25 * math.sqrt(scale.length) / 0.01) * 0.01
+    )
+    plain = load_config("trot", ["robot=b2", "mpc.latency=fixed", "scaling=none"])
+    assert run_scale(plain, robot).is_identity
+    assert build_mpc(plain, robot).reference.gait.period == pytest.approx(0.5)
+    assert np.isclose(build_mpc(plain, robot).reference.swing_height, 0.06)
