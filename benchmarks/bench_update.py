@@ -41,6 +41,30 @@ import numpy as np
 PARTS = ("problem", "linearize", "backward", "line_search")
 
 
+class CollectionLog:
+    """Garbage collections (generation, wall time) that happen while ``inside`` is set (``gc.callbacks``)."""
+
+    def __init__(self) -> None:
+        self.inside = False
+        self.pauses: list[tuple[int, float]] = []
+        self._start = 0.0
+
+    def __call__(self, phase: str, info: dict) -> None:
+        if phase == "start":
+            self._start = time.perf_counter()
+        elif self.inside:
+            self.pauses.append((int(info["generation"]), (time.perf_counter() - self._start) * 1e3))
+
+    def summary(self) -> dict:
+        durations = [ms for _, ms in self.pauses]
+        return {
+            "collections": len(self.pauses),
+            "by_generation": {g: sum(1 for gen, _ in self.pauses if gen == g) for g in (0, 1, 2)},
+            "total_ms": float(sum(durations)),
+            "max_ms": float(max(durations)) if durations else 0.0,
+        }
+
+
 @dataclass
 class Call:
     """One recorded call to the MPC."""
@@ -164,6 +188,8 @@ def run(arguments: argparse.Namespace) -> dict:
         variants.append(Variant(name, package, [o for o in overrides.split(",") if o]))
     for variant in variants:
         build(variant, arguments.preset, arguments.duration, common)
+    collections = CollectionLog()
+    gc.callbacks.append(collections)
     profiler = None
     if arguments.profile:
         from pyinstrument import Profiler
@@ -179,12 +205,15 @@ def run(arguments: argparse.Namespace) -> dict:
                 profiling = profiler is not None and call.method == "prepare" and variant is variants[-1]
                 if profiling:
                     profiler.start()
+                collections.inside = call.method != "update"
                 replay_step(variant, call, record_times=call.method != "update")
+                collections.inside = False
                 if profiling:
                     profiler.stop()
             if arguments.gc == "freeze" and call.method == "update":
                 gc.collect()
                 gc.freeze()
+    gc.callbacks.remove(collections)
     reference = variants[0]
     result = {
         "date": started,
@@ -198,6 +227,7 @@ def run(arguments: argparse.Namespace) -> dict:
         "gc": arguments.gc,
         "overrides": common,
         "updates": sum(call.method == "prepare" for call in calls),
+        "collections_inside_updates": collections.summary(),
         "variants": [],
     }
     for variant in variants:
@@ -241,6 +271,8 @@ def format_report(result: dict) -> str:
             f"| {' / '.join(f'{parts[p]:.2f}' for p in PARTS)} "
             f"| {entry['feedback_ms']['median']:.3f} | {ratio_text} |"
         )
+    collections = result["collections_inside_updates"]
+    lines += ["", f"garbage collections inside updates (all variants): {collections}"]
     if "profile" in result:
         lines += ["", "```", result["profile"], "```"]
     return "\n".join(lines)

@@ -32,6 +32,7 @@ from typing import Literal
 import numpy as np
 
 from cafe_mpc.core.plan import Plan
+from cafe_mpc.mpc import collector
 from cafe_mpc.mpc.problem import BuiltProblem, CafeProblemBuilder, WarmStart
 from cafe_mpc.mpc.time_grid import TIME_QUANTUM, PiecewiseTrajectory
 from cafe_mpc.reference.base import Reference
@@ -312,6 +313,7 @@ class RecedingHorizonMpc:
         """Whether this planner has the real-time iteration's two phases (the template baseline has not)."""
         return True
 
+    @collector.paused
     def update(self, t: float, q: np.ndarray, v: np.ndarray) -> Plan | None:
         """One one-phase MPC update from the state measured at ``t``; ``None`` (counted and logged) if it
         failed. The first update of a run is the cold solve (``settings.first_solve``).
@@ -321,6 +323,8 @@ class RecedingHorizonMpc:
         loop (the template baseline, ``mpc/template.py``) overrides them."""
         first = self.previous is None
         self.prepared = None
+        if first:
+            collector.thaw()
         start = time.perf_counter()
         outcome = self._solve_at(t, q, v, self.first_solver if first else self.solver)
         if outcome is None:
@@ -336,8 +340,11 @@ class RecedingHorizonMpc:
         self.previous = (built, result)
         if first and self.settings.warm_up > 0.0:
             self._warm_up(t)
+        if first:
+            collector.freeze_live_objects()  # before the clock starts (collector module)
         return plan
 
+    @collector.paused
     def prepare(self, t: float, q: np.ndarray, v: np.ndarray) -> bool:
         """The preparation phase of a real-time iteration for the update at ``t``, from the state ``q, v``
         predicted for ``t`` (``predict``): reference, problem, warm start, linearisation, backward sweep
@@ -354,6 +361,7 @@ class RecedingHorizonMpc:
         self.prepared = (t, built, result)
         return True
 
+    @collector.paused
     def feedback(self, t: float, q: np.ndarray, v: np.ndarray) -> Plan | None:
         """The feedback phase of the update at ``t``: the state measured at ``t`` embedded through the
         prepared policy (``MSiLQRSolver.feedback``), the plan made; ``None`` (counted and logged) when no
