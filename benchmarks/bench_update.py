@@ -7,10 +7,12 @@ freshly built MPC, which then does exactly the work of the closed loop, with no 
 
 Several variants can be replayed **interleaved, update by update, in one process**: each variant is a
 package (``cafe_mpc`` or a renamed copy of another commit, see ``--baseline``) plus ``--set`` overrides.
-The report gives, per variant, the median and p99 of the preparation (and of its parts), and the median
-of the per-update ratios to the first variant with their interquartile range: on a shared machine a load
-change hits both sides of a ratio alike, which is what makes the ratio trustworthy when the absolute
-times are not.
+The report gives, per variant, the median and p99 of the preparation (wall and thread CPU time, and the
+parts' wall times), and the median of the per-update ratios to the first variant with their interquartile
+range: on a shared machine a load change hits both sides of a ratio alike, which is what makes the ratio
+trustworthy when the absolute times are not. The CPU time leaves out the time the process waited for a
+core (on a machine loaded several times over, most of the wall time); it is the closer estimate of the
+wall time on a quiet machine.
 
 Usage::
 
@@ -82,6 +84,7 @@ class Variant:
     overrides: list[str]
     mpc: object = None
     prepare_ms: list[float] = field(default_factory=list)
+    prepare_cpu_ms: list[float] = field(default_factory=list)
     parts_ms: dict[str, list[float]] = field(default_factory=lambda: {p: [] for p in PARTS})
     feedback_ms: list[float] = field(default_factory=list)
 
@@ -144,11 +147,12 @@ def replay_step(variant: Variant, call: Call, record_times: bool) -> None:
     if call.method == "update":
         mpc.update(call.t, call.q, call.v)
     elif call.method == "prepare":
-        start = time.perf_counter()
+        start, cpu_start = time.perf_counter(), time.thread_time()
         ok = mpc.prepare(call.t, call.q, call.v)
-        elapsed = time.perf_counter() - start
+        elapsed, cpu = time.perf_counter() - start, time.thread_time() - cpu_start
         if record_times and ok:
             variant.prepare_ms.append(elapsed * 1e3)
+            variant.prepare_cpu_ms.append(cpu * 1e3)
             parts = variant.parts_ms
             parts["problem"].append(statistics.problem_times[-1] * 1e3)
             parts["linearize"].append(statistics.linearize_times[-1] * 1e3)
@@ -236,16 +240,21 @@ def run(arguments: argparse.Namespace) -> dict:
             "package": variant.package,
             "overrides": variant.overrides,
             "prepare_ms": summary(variant.prepare_ms),
+            "prepare_cpu_ms": summary(variant.prepare_cpu_ms),
             "feedback_ms": summary(variant.feedback_ms),
             "parts_ms_median": {p: summary(v)["median"] for p, v in variant.parts_ms.items()},
         }
         if variant is not reference and len(variant.prepare_ms) == len(reference.prepare_ms):
-            ratios = np.asarray(variant.prepare_ms) / np.asarray(reference.prepare_ms)
-            entry["ratio_to_first"] = {
-                "median": float(np.median(ratios)),
-                "q25": float(np.percentile(ratios, 25)),
-                "q75": float(np.percentile(ratios, 75)),
-            }
+            for key, mine, theirs in (
+                ("ratio_to_first", variant.prepare_ms, reference.prepare_ms),
+                ("cpu_ratio_to_first", variant.prepare_cpu_ms, reference.prepare_cpu_ms),
+            ):
+                ratios = np.asarray(mine) / np.asarray(theirs)
+                entry[key] = {
+                    "median": float(np.median(ratios)),
+                    "q25": float(np.percentile(ratios, 25)),
+                    "q75": float(np.percentile(ratios, 75)),
+                }
         result["variants"].append(entry)
     if profiler is not None:
         result["profile"] = profiler.output_text(unicode=False, color=False, show_all=False)
@@ -257,17 +266,22 @@ def format_report(result: dict) -> str:
         f"{result['date']}, {result['preset']}, {result['updates']} updates x {result['rounds']} rounds, "
         f"gc {result['gc']}, {result['machine']['processor']}",
         "",
-        "| variant | prepare ms median / p99 | problem / linearise / backward / line search ms (median) "
-        "| feedback ms median | ratio to first: median (IQR) |",
-        "|---|---|---|---|---|",
+        "| variant | prepare ms median / p99 | prepare CPU ms median / p99 "
+        "| problem / linearise / backward / line search ms (median) "
+        "| feedback ms median | ratio to first, wall: median (IQR) | CPU |",
+        "|---|---|---|---|---|---|---|",
     ]
     for entry in result["variants"]:
         parts = entry["parts_ms_median"]
-        ratio = entry.get("ratio_to_first")
-        ratio_text = f"{ratio['median']:.3f} ({ratio['q25']:.3f}-{ratio['q75']:.3f})" if ratio else "-"
+        texts = []
+        for key in ("ratio_to_first", "cpu_ratio_to_first"):
+            ratio = entry.get(key)
+            texts.append(f"{ratio['median']:.3f} ({ratio['q25']:.3f}-{ratio['q75']:.3f})" if ratio else "-")
+        ratio_text = " | ".join(texts)
         lines.append(
             f"| {entry['name']} {' '.join(entry['overrides'])} "
             f"| {entry['prepare_ms']['median']:.2f} / {entry['prepare_ms']['p99']:.2f} "
+            f"| {entry['prepare_cpu_ms']['median']:.2f} / {entry['prepare_cpu_ms']['p99']:.2f} "
             f"| {' / '.join(f'{parts[p]:.2f}' for p in PARTS)} "
             f"| {entry['feedback_ms']['median']:.3f} | {ratio_text} |"
         )

@@ -214,6 +214,13 @@ class MpcConfig(StrictModel):
         description="rti: the preparation takes its line search on the predicted state (false: it stops "
         "after the backward sweep and the feedback takes the full step)",
     )
+    threads: int = Field(
+        1,
+        ge=1,
+        le=64,
+        description="threads linearising the knots of an update (1: none; Pinocchio's Python bindings hold "
+        "the GIL, so only the compiled kernels run in parallel: BENCHMARKS.md)",
+    )
     rti_feedback: Literal["linear", "nonlinear"] = Field(
         "linear",
         description="rti: the measured state carried through the prepared policy by the linearised dynamics "

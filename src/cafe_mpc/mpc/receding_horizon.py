@@ -88,6 +88,7 @@ class MpcSettings:
     ``compute_scale``: measured mode only: every measured wall time (update, preparation, feedback) is
     multiplied by it before it is applied in simulated time, to show the controller as it would run on a
     computer ``compute_scale`` times slower.
+    ``threads``: threads that linearise the knots of an update (``SolverOptions.threads``; 1: none).
     """
 
     period: float = 0.02
@@ -102,6 +103,7 @@ class MpcSettings:
     rti_line_search: bool = True
     rti_feedback: Literal["linear", "nonlinear"] = "linear"
     compute_scale: float = 1.0
+    threads: int = 1
     # The paper's first-solve settings with a tighter tolerance: the first (cold) solve seeds every later
     # warm start. It runs before the clock starts (the robot stands while the first plan is computed).
     first_solve: SolverOptions = field(
@@ -136,6 +138,8 @@ class MpcSettings:
             raise ValueError(f"MPC rti_feedback must be 'linear' or 'nonlinear', got {self.rti_feedback!r}")
         if not (math.isfinite(self.compute_scale) and self.compute_scale > 0):
             raise ValueError(f"MPC compute_scale must be positive, got {self.compute_scale}")
+        if self.threads < 1:
+            raise ValueError(f"MPC threads must be >= 1, got {self.threads}")
 
     @property
     def budget(self) -> float | None:
@@ -155,6 +159,7 @@ class MpcSettings:
             regularization_min=1e-6,
             line_search_min_step=UPDATE_LINE_SEARCH_MIN_STEP,
             final_policy=self.final_policy,
+            threads=self.threads,
         )
         if self.touchdown_max_penalty is not None:
             options = replace(options, al_max_penalty=self.touchdown_max_penalty)

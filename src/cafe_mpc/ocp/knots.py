@@ -26,7 +26,7 @@ import pinocchio as pin
 
 from cafe_mpc.core.contacts import ContactFlags, as_contact_flags, flags_to_string, touchdown_flags
 from cafe_mpc.core.interfaces import ActionData, ActionModel, IdentityReset, ResetMap
-from cafe_mpc.core.kernels import same_point
+from cafe_mpc.core.kernels import quaternion_rotation_into, same_point
 from cafe_mpc.dynamics.impact import ImpactReset
 from cafe_mpc.dynamics.kinematics import FootKinematics
 from cafe_mpc.dynamics.multibody_state import MultibodyState
@@ -371,7 +371,7 @@ class WholeBodyKnot(ActionModel):
         if self.dynamics is not None:
             self.dynamics.calc(data.dynamics, x, u)
         if self._needs_rotation:
-            data.base_rotation = quaternion_to_rotation(x[3:7])
+            quaternion_rotation_into(x[3:7], data.base_rotation)
         if self._has_kinematics:
             self.kinematics.calc(data.kinematics, x[:nq], x[nq:])
         if self.tracks_state:
