@@ -67,11 +67,12 @@ class MpcSettings:
     (``SolverOptions.al_max_penalty``; ``None``: the authors' 1e4). The penalty starts at 20 and grows x5 per
     update while a planned foot misses the floor by more than 5 mm (the AL parameters carry over between
     updates); the barrel-roll preset caps it at 20 (docs/settings.md).
-    ``final_policy``: the policy an update returns (``SolverOptions.final_policy``): ``"relinearize"``
-    (default) linearises and sweeps again at the new plan; ``"shift"`` keeps the sweep the step was taken
-    from, moved to the new plan to first order (the real-time iteration's policy: one linearisation and one
-    sweep less, a fifth to a quarter of an update; but the bound fell with it at fixed 40 and 50 ms latency,
-    where it stands with ``"relinearize"``: BENCHMARKS.md).
+    ``final_policy``: the policy an update returns (``SolverOptions.final_policy``): ``"shift"`` (default)
+    keeps the sweep the step was taken from, moved to the new plan to first order (the real-time iteration's
+    policy: one linearisation and one backward sweep per update); ``"relinearize"`` linearises and sweeps
+    again at the new plan (a third more work per preparation; with the real-time iteration both track the
+    gaits alike at fixed 20-60 ms latency, and the running barrel roll succeeds at 10-40 ms with either,
+    at 50 ms only with ``"relinearize"``: BENCHMARKS.md).
     ``warm_up``: seconds of future updates whose solver data (one per knot object: Pinocchio ``Data``,
     kinematics, buffers) are created right after the cold first solve, before the clock starts, instead of
     inside the first update that meets each knot object (which took 25-60 ms extra at the start of a gait
@@ -97,7 +98,7 @@ class MpcSettings:
     time_budget: float | None = None
     max_iterations: int = 1
     touchdown_max_penalty: float | None = None
-    final_policy: Literal["relinearize", "shift"] = "relinearize"
+    final_policy: Literal["relinearize", "shift"] = "shift"
     warm_up: float = 1.0
     scheme: Literal["one_phase", "rti"] = "rti"
     rti_line_search: bool = True
