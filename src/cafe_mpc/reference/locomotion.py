@@ -520,32 +520,44 @@ class LocomotionReference(Reference):
             t1 = float(max(times[-1], times[0]))
             self.sample_feet(times, t0, t1, self._feet_stance, positions, velocities)
         state = window.state
-        state[:, 3:5] = 0.0  # roll = pitch = 0
-        state[:, 7:] = 0.0
-        nominal = self.nominal_joints
         cos_anchor, sin_anchor = math.cos(self.anchor_yaw), math.sin(self.anchor_yaw)
         anchor_x, anchor_y = float(self.anchor_xy[0]), float(self.anchor_xy[1])
-        for i, t in enumerate(times.tolist()):
+        anchor_time, anchor_yaw = self.anchor_time, self.anchor_yaw
+        profile = self.profile
+        # base_state(t) of every time as plain floats, then one array write per block
+        flags_rows, bases, velocities_xy, yaw_rates, factors, torques = [], [], [], [], [], []
+        for t in times.tolist():
             flags = self.stance_at(t + STANCE_TIME_EPS)
-            window.stance[i] = flags
-            # base_state(t), written in place
-            x, y, turn = self.profile.displacement_floats(self.anchor_time, max(t, self.anchor_time))
-            yaw = self.anchor_yaw + turn
-            vx, vy, yaw_rate, height = self.profile.values_at(t)
-            row = state[i]
-            row[0] = anchor_x + (cos_anchor * x - sin_anchor * y)
-            row[1] = anchor_y + (sin_anchor * x + cos_anchor * y)
-            row[2] = height
-            row[5:7] = (math.sin(0.5 * yaw), math.cos(0.5 * yaw))
-            row[7:nq] = nominal
-            row[nq : nq + 2] = (vx, vy)
-            row[nq + 5] = yaw_rate
+            x, y, turn = profile.displacement_floats(anchor_time, max(t, anchor_time))
+            yaw = anchor_yaw + turn
+            vx, vy, yaw_rate, height = profile.values_at(t)
+            bases.append(
+                (
+                    anchor_x + (cos_anchor * x - sin_anchor * y),
+                    anchor_y + (sin_anchor * x + cos_anchor * y),
+                    height,
+                    0.0,
+                    0.0,
+                    math.sin(0.5 * yaw),
+                    math.cos(0.5 * yaw),
+                )
+            )
+            velocities_xy.append((vx, vy))
+            yaw_rates.append(yaw_rate)
             factor = self.support_factor(t)
-            window.torque[i] = self.stance_torque(flags, factor)
-            forces = window.forces[i]
-            forces[:, :2] = 0.0
-            forces[:, 2] = flags
-            forces[:, 2] *= factor * self.mass * GRAVITY
+            factors.append(factor)
+            flags_rows.append(flags)
+            torques.append(self.stance_torque(flags, factor))
+        if n:
+            state[:, :7] = bases
+            state[:, 7:nq] = self.nominal_joints
+            state[:, nq:] = 0.0
+            state[:, nq : nq + 2] = velocities_xy
+            state[:, nq + 5] = yaw_rates
+            window.stance[:] = flags_rows
+            window.torque[:] = torques
+            window.forces[:, :, :2] = 0.0
+            window.forces[:, :, 2] = window.stance * (np.asarray(factors) * self.mass * GRAVITY)[:, None]
         joints, rates, _ = self.inverse_kinematics.solve_batch(
             state[:, :7], positions, None, state[:, nq : nq + 6], velocities
         )
