@@ -20,7 +20,7 @@ Usage::
     python benchmarks/bench_update.py --preset bound --variant "shift:mpc.final_policy=shift"
     python benchmarks/make_baseline.sh 0d59906   # -> /tmp/cafe_mpc_baseline/cafe_mpc_0d59906
     python benchmarks/bench_update.py --preset trot --baseline /tmp/cafe_mpc_baseline/cafe_mpc_0d59906
-    python benchmarks/bench_update.py --preset trot --profile   # pyinstrument over the preparations
+    python benchmarks/bench_update.py --preset trot --profile   # pyinstrument, each variant's preparations
 
 Variant syntax: ``NAME:override,override`` (this tree) or ``NAME@PACKAGE_DIR:override,...`` (a package
 directory on disk, imported under its directory name).
@@ -194,11 +194,11 @@ def run(arguments: argparse.Namespace) -> dict:
         build(variant, arguments.preset, arguments.duration, common)
     collections = CollectionLog()
     gc.callbacks.append(collections)
-    profiler = None
+    profilers = {}
     if arguments.profile:
         from pyinstrument import Profiler
 
-        profiler = Profiler(interval=0.0005)
+        profilers = {variant.name: Profiler(interval=0.0005) for variant in variants}
     for round_index in range(arguments.rounds):
         for variant in variants:
             variant.mpc.reset()
@@ -206,13 +206,13 @@ def run(arguments: argparse.Namespace) -> dict:
             for variant in variants if round_index % 2 == 0 else reversed(variants):
                 if arguments.gc == "collect-between" and call.method == "prepare":
                     gc.collect(0)
-                profiling = profiler is not None and call.method == "prepare" and variant is variants[-1]
-                if profiling:
+                profiler = profilers.get(variant.name) if call.method == "prepare" else None
+                if profiler is not None:
                     profiler.start()
                 collections.inside = call.method != "update"
                 replay_step(variant, call, record_times=call.method != "update")
                 collections.inside = False
-                if profiling:
+                if profiler is not None:
                     profiler.stop()
             if arguments.gc == "freeze" and call.method == "update":
                 gc.collect()
@@ -256,8 +256,11 @@ def run(arguments: argparse.Namespace) -> dict:
                     "q75": float(np.percentile(ratios, 75)),
                 }
         result["variants"].append(entry)
-    if profiler is not None:
-        result["profile"] = profiler.output_text(unicode=False, color=False, show_all=False)
+    if profilers:
+        result["profiles"] = {
+            name: profiler.output_text(unicode=False, color=False, show_all=False)
+            for name, profiler in profilers.items()
+        }
     return result
 
 
@@ -287,8 +290,8 @@ def format_report(result: dict) -> str:
         )
     collections = result["collections_inside_updates"]
     lines += ["", f"garbage collections inside updates (all variants): {collections}"]
-    if "profile" in result:
-        lines += ["", "```", result["profile"], "```"]
+    for name, profile in result.get("profiles", {}).items():
+        lines += ["", f"pyinstrument, preparations of {name}:", "```", profile, "```"]
     return "\n".join(lines)
 
 
@@ -303,7 +306,7 @@ def main() -> None:
     parser.add_argument("--baseline", help="another commit's package directory (make_baseline.sh)")
     parser.add_argument("--variant", action="append", help="NAME[@PACKAGE_DIR]:override,override")
     parser.add_argument("--gc", choices=["default", "freeze", "collect-between"], default="default")
-    parser.add_argument("--profile", action="store_true", help="pyinstrument, last variant's preparations")
+    parser.add_argument("--profile", action="store_true", help="pyinstrument, each variant's preparations")
     parser.add_argument("--json", action="store_true")
     arguments = parser.parse_args()
     result = run(arguments)
