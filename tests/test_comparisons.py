@@ -173,6 +173,7 @@ def test_experiment_help_and_list_show_the_registry(capsys):
         "warm-start",
         "reliability",
         "template-vs-cafe",
+        "latency",
     ]
     assert experiment_names() == names
     with pytest.raises(SystemExit):
