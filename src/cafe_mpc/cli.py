@@ -247,9 +247,9 @@ def _command_bench(arguments: argparse.Namespace) -> int:
         return 0
     from cafe_mpc.bench.solver_bench import format_report, run_solver_benchmark
 
-    if arguments.iterations < 1 or arguments.repeats < 1:
-        raise ValueError("--iterations and --repeats must be at least 1")
-    result = run_solver_benchmark(arguments.iterations, arguments.repeats)
+    if arguments.iterations < 1 or arguments.rounds < 1:
+        raise ValueError("--iterations and --rounds must be at least 1")
+    result = run_solver_benchmark(arguments.iterations, arguments.rounds)
     print(json.dumps(result, indent=2) if arguments.json else format_report(result))
     return 0
 
@@ -378,7 +378,9 @@ def build_parser() -> argparse.ArgumentParser:
     )
     bench_parser.add_argument("--json", action="store_true", help="print one JSON object")
     bench_parser.add_argument("--iterations", type=int, default=10, help="iterations per solve")
-    bench_parser.add_argument("--repeats", type=int, default=5, help="solves per problem")
+    bench_parser.add_argument(
+        "--rounds", type=int, default=20, help="solver: interleaved rounds (each side solves once per round)"
+    )
     bench_parser.set_defaults(handler=_command_bench)
 
     from cafe_mpc.trajopt.presets import TASKS

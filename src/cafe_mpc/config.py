@@ -200,9 +200,10 @@ class MpcConfig(StrictModel):
         "clock starts (0: none; each first use inside an update cost 25-60 ms)",
     )
     final_policy: Literal["relinearize", "shift"] = Field(
-        "relinearize",
-        description="policy an update returns: relinearize (linearise and sweep again at the new plan) or "
-        "shift (the last sweep moved to the new plan: one linearisation less, less tolerant of latency)",
+        "shift",
+        description="policy an update returns: shift (the sweep the step was taken from, moved to the new "
+        "plan: one linearisation and one sweep per update) or relinearize (linearise and sweep again at the "
+        "new plan: more work, more tolerant of a long fixed latency)",
     )
     scheme: Literal["rti", "one_phase"] = Field(
         "rti",
@@ -213,6 +214,13 @@ class MpcConfig(StrictModel):
         True,
         description="rti: the preparation takes its line search on the predicted state (false: it stops "
         "after the backward sweep and the feedback takes the full step)",
+    )
+    threads: int = Field(
+        1,
+        ge=1,
+        le=64,
+        description="threads linearising the knots of an update (1: none; Pinocchio's Python bindings hold "
+        "the GIL, so only the compiled kernels run in parallel: BENCHMARKS.md)",
     )
     rti_feedback: Literal["linear", "nonlinear"] = Field(
         "linear",

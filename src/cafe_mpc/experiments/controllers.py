@@ -275,6 +275,7 @@ def mpc_settings(config: RunConfig) -> MpcSettings:
             rti_line_search=config.mpc.rti_line_search,
             rti_feedback=config.mpc.rti_feedback,
             compute_scale=config.mpc.compute_scale,
+            threads=config.mpc.threads,
         )
     except ValueError as error:
         raise ConfigError(f"mpc: {error}") from error
