@@ -796,7 +796,7 @@ class RunConfig(StrictModel):
     )
     template: TemplateConfig = TemplateConfig()
     estimator: Literal["ground_truth", "kinematic_kf"] = Field(
-        "ground_truth",
+        "kinematic_kf",
         description="what the controller measures: ground_truth (the plant's state, plus plant.sensor_noise) "
         "or kinematic_kf (the robot's sensors, plant.sensors, through the IMU + leg-kinematics Kalman filter "
         "of the MIT Mini Cheetah; estimation.estimator)",
