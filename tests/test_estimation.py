@@ -357,7 +357,7 @@ def test_the_library_controller_runs_from_a_users_sensor_readings():
         assert first.q[2] == pytest.approx(robot.q_standing[2], abs=0.005) and np.allclose(first.v[:3], 0.0)
         controller.reset(first)
         substeps = round(controller.control_period / model.opt.timestep)
-        for tick in range(round(1.0 / controller.control_period)):
+        for _ in range(round(1.0 / controller.control_period)):
             t = 100.0 + data.time
             torques = controller.compute(t, measurement(t))
             assert np.all(np.isfinite(torques))
