@@ -40,11 +40,9 @@ _DIVERGENCE_WARNINGS = (
 
 
 def scene_mjcf(robot: Robot, terrain: Sequence[Terrain] = (), bar: Bar | None = None) -> str:
-    """The plant's MJCF: the robot's, with the scene's terrain (``sim.terrain``) on the floor, the bar
-    (``sim.bar``), if any, and the robot's sensors (``sim.sensors``: IMU and joint sensors; they do not
-    change the dynamics)."""
-    scene = with_bar(with_terrain(robot.mjcf, terrain, robot.plant.floor_friction), bar)
-    return with_sensors(scene, robot.joint_names)
+    """The plant's MJCF: the robot's, with the scene's terrain (``sim.terrain``) on the floor and the bar
+    (``sim.bar``), if any."""
+    return with_bar(with_terrain(robot.mjcf, terrain, robot.plant.floor_friction), bar)
 
 
 def planning_state(
@@ -81,7 +79,11 @@ class MujocoPlant:
         self.robot = robot
         self.terrain = tuple(terrain)
         self.bar = bar
-        self.model = mujoco.MjModel.from_xml_string(scene_mjcf(robot, self.terrain, bar))
+        # the robot's sensors (sim.sensors: IMU and joint sensors) instrument the plant; they do not change
+        # its dynamics
+        self.model = mujoco.MjModel.from_xml_string(
+            with_sensors(scene_mjcf(robot, self.terrain, bar), robot.joint_names)
+        )
         if timestep is not None:
             if not timestep > 0:
                 raise ValueError(f"plant timestep must be positive, got {timestep}")
