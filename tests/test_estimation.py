@@ -247,6 +247,10 @@ def test_estimator_config_is_validated_at_the_boundary():
         load_config("trot", ["plant.sensors.imu.gyro_bias=[2, 0, 0]"])
     with pytest.raises(ConfigError, match="estimator"):
         load_config("trot", ["estimator=magic"])
+    with pytest.raises(
+        ConfigError, match=r"plant\.sensors\.imu\.rate_hz: 1000.0 Hz is above the control rate"
+    ):
+        load_config("trot", ["plant.sensors.imu.rate_hz=1000"])
     config = load_config("trot", ["estimator=kinematic_kf", "kinematic_kf.slip_threshold=null"])
     assert config.kinematic_kf.settings().slip_threshold is None
 

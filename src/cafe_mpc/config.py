@@ -859,6 +859,12 @@ class RunConfig(StrictModel):
             )
         if self.gait is not None:
             _check_commands(self.robot, self.gait.commands)
+        if self.plant.sensors.imu.rate_hz > self.simulation.control_rate_hz * (1.0 + 1e-9):
+            raise ValueError(
+                f"plant.sensors.imu.rate_hz: {self.plant.sensors.imu.rate_hz} Hz is above the control rate "
+                f"simulation.control_rate_hz {self.simulation.control_rate_hz} Hz (the controller reads the "
+                "sensors once per tick)"
+            )
         if self.estimator != "ground_truth" and self.plant.state_noise:
             raise ValueError(
                 f"plant.sensor_noise perturbs the true state handed to the controller, which estimator: "
