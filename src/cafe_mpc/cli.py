@@ -38,6 +38,15 @@ def _command_run(arguments: argparse.Namespace) -> int:
     )
     if config.gait is not None:
         print(_gait_summary(metrics))
+    estimator = metrics.get("estimator") or {}
+    if estimator.get("velocity_rms_error_m_s") is not None:
+        print(
+            f"estimator {estimator['kind']}: velocity error RMS "
+            f"{_number(estimator['velocity_rms_error_m_s'], 4)} m/s (max "
+            f"{_number(estimator['velocity_error_max_m_s'])}), height RMS "
+            f"{_number(estimator['height_rms_error_m'] * 1e3, 1)} mm, orientation RMS "
+            f"{_number(estimator['orientation_rms_error_rad'], 4)} rad"
+        )
     if "render_error" in metrics:
         print(f"no video: {metrics['render_error']}")
     print(f"results in {result.out_dir}")
