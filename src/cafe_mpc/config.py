@@ -665,6 +665,11 @@ class TemplateConfig(StrictModel):
     swing_kp: float = Field(40.0, ge=0.0, le=500.0, description="Nm/rad, swing-leg joint PD")
     swing_kd: float = Field(1.0, ge=0.0, le=50.0, description="Nm s/rad, swing-leg joint PD")
     leg_torque_limits: bool = Field(True, description="bound the stance legs' J' f by the torque limits")
+    predict_latency: bool = Field(
+        True,
+        description="plan from the SRB state predicted at the time the plan takes effect (the fixed latency, "
+        "or the recent updates' median wall time), under the plan in effect until then",
+    )
 
     @model_validator(mode="after")
     def _knots(self) -> TemplateConfig:

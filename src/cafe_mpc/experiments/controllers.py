@@ -232,6 +232,7 @@ def build_template_controller(config: RunConfig, robot: Robot) -> CafeMpcControl
             dt=section.dt,
             parameters=parameters,
             leg_torque_limits=section.leg_torque_limits,
+            predict_latency=section.predict_latency,
             torque_limits=tuple(limits.tolist()),
             friction_coefficient=config.mpc.friction,
         )

@@ -246,7 +246,7 @@ class TemplateGaits(Experiment):
             "push the bound +1.5 m/s over 50 ms at t = 2 s (paper Sec. VII-B).",
             "Demand: the mean vertical force a stance foot carries over a gait cycle (support factor x "
             "weight: the weight's impulse over the cycle shared by the stance feet); capacity: the vertical "
-            "force one leg can push at the standing pose with its foot under the hip within the plan's "
+            "force one leg can push at the standing pose with its foot under the hip within the run's "
             "torque limits. A stance's force is not flat: its peak is well above the mean (a half sine: "
             "pi/2 x).",
             "Forced pitch rate: the pitch-rate change one stance phase cannot avoid when its feet carry the "
@@ -256,7 +256,7 @@ class TemplateGaits(Experiment):
             "Plan peak: the largest vertical GRF the template's plan asked of one stance foot (n/a for "
             "CAFE-MPC, which plans torques); delivered peak: the largest vertical force a foot of the plant "
             f"pushed with, averaged over {1000 * DELIVERED_WINDOW_S:g} ms (without the touchdown impacts). "
-            "Ticks over torque limit: control ticks whose requested torque exceeded a plan limit (then "
+            "Ticks over torque limit: control ticks whose requested torque exceeded a limit (then "
             "clamped; the template's J'F request, CAFE-MPC's VWBC or its Riccati fallback).",
             *diagnosis(rows),
             f"Timing mode: {mode or 'n/a'} (each run's metrics.json `timing` block).",
