@@ -6,6 +6,8 @@ the stance legs and joint PD on the swing legs (``wbc.template_low_level``).
 
 from __future__ import annotations
 
+import json
+
 import numpy as np
 import pinocchio as pin
 import pytest
@@ -17,6 +19,8 @@ from cafe_mpc.dynamics.srb import GRAVITY
 from cafe_mpc.dynamics.statics import static_stance_torques
 from cafe_mpc.experiments.controllers import build_mpc, mpc_settings
 from cafe_mpc.experiments.run import run_metrics, simulate_run
+from cafe_mpc.experiments.sweep import run_experiment
+from cafe_mpc.experiments.template_gaits import pitch_swing, vertical_force_capacity
 from cafe_mpc.mpc.template import (
     ConstrainedSRBKnot,
     TemplateMpc,
@@ -312,3 +316,47 @@ def test_template_bounds_with_the_short_flight_timing():
     flights = ~log.extra["planned_stance"].any(axis=1)
     assert 0.05 < np.mean(flights[late]) < 0.4  # two 26 ms flights per 0.26 s cycle planned: 0.2
     assert metrics["mpc"]["failures"] == 0 and metrics["mpc"]["pd_fallback_ticks"] == 0
+
+
+# -------------------------------------------------------------------------------- template-gaits experiment
+def test_leg_capacity_and_forced_pitch_rate(robot):
+    """The diagnosis' static numbers: the motor limits (26 Nm knees) give a leg more vertical force than the
+    plan's 17 Nm; only the bound (front and hind pairs apart) forces a pitch rate, less with MIT's shorter
+    stances, and much less pitch is turned in its 26 ms flights."""
+    capacity = vertical_force_capacity(robot)
+    assert 60.0 < capacity < 200.0
+    assert vertical_force_capacity(robot, robot.plant.motor_torque_limits) > capacity
+    paper, paper_turn = pitch_swing(GAITS["bound"], robot, 0.6)
+    mit, mit_turn = pitch_swing(GAITS["bound_short_flight"], robot, 0.6)
+    assert paper > mit > 0.0 and paper_turn > 3.0 * mit_turn > 0.0
+    for name in ("trot", "pace", "pronk", "pronk_short_flight"):
+        assert pitch_swing(GAITS[name], robot, 0.6) == (0.0, 0.0)
+    assert pitch_swing(GAITS["bound"], robot, 5.0) == (0.0, 0.0)  # friction enough to cancel the moment
+
+
+def test_template_gaits_experiment_reports_both_timings(tmp_path):
+    """A short run of the experiment (the start stand only): the variants, the per-gait demand and the
+    comparison files."""
+    out = tmp_path / "gaits"
+    run_experiment(
+        "template-gaits",
+        out,
+        duration=0.3,
+        overrides=["mpc.latency=fixed"],
+        scheduler="synchronous",
+        gaits="bound,bound-mit",
+        planners="template",
+    )
+    comparison = json.loads((out / "comparison.json").read_text())
+    rows = comparison["variants"]
+    assert set(rows) == {"bound-template", "bound-mit-template"}
+    weight = load_robot("mini_cheetah").total_mass * GRAVITY
+    assert rows["bound-template"]["demand_per_foot_n"] == pytest.approx(weight)
+    assert rows["bound-mit-template"]["demand_per_foot_n"] == pytest.approx(0.625 * weight)
+    assert rows["bound-template"]["pitch_rate_swing"] > rows["bound-mit-template"]["pitch_rate_swing"]
+    for row in rows.values():
+        assert row["status"] == "ok" and row["timing_mode"] == "fixed" and not row["fell"]
+        assert row["planned_force_max_n"] > 0.0
+    text = (out / "comparison.md").read_text()
+    assert "bound_short_flight" in text and "demand / capacity" in text
+    assert (out / "comparison.png").is_file()

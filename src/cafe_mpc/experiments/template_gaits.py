@@ -415,7 +415,9 @@ def plot_gaits(rows: list[dict], runs: RunStore, path: Path) -> Path:
     axis.set_xticklabels([f"{c.family}\n{c.timing}" for c in cases], fontsize=8)
     axis.set_ylabel("time up [s] (label: vx steady)")
     axis.grid(alpha=0.3, axis="y")
-    axis.legend(fontsize=8, loc="upper right")
+    longest = max((float(r.get("sim_time_s") or 0.0) for r in rows), default=1.0)
+    axis.set_ylim(0.0, 1.25 * max(longest, 0.1))
+    axis.legend(fontsize=8, loc="upper right", ncol=len(planners))
     axis = axes[1]
     wanted = [r for r in rows if r.get("planner") == "template" and r.get("family") in ("bound", "pronk")]
     loaded = runs.load_all([r["run"] for r in wanted if r.get("status") == "ok"])
