@@ -233,6 +233,8 @@ def build_template_controller(config: RunConfig, robot: Robot) -> CafeMpcControl
             parameters=parameters,
             leg_torque_limits=section.leg_torque_limits,
             predict_latency=section.predict_latency,
+            centroidal_state=section.centroidal_state,
+            vertical_reference=section.vertical_reference,
             torque_limits=tuple(limits.tolist()),
             friction_coefficient=config.mpc.friction,
         )

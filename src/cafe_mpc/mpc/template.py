@@ -545,10 +545,10 @@ class TemplateProblemBuilder:
         angular momentum ``h_G`` (Pinocchio, legs included): the quantities the GRFs change, ``m c_ddot =
         sum f - m g`` and ``h_G_dot = sum (p - c) x f`` exactly, whatever the legs do. Otherwise the base's
         pose and velocities moved to the standing-pose centre of mass (``base_to_com``). The legs are 60 % of
-        the Mini Cheetah's mass: measured with the base state, a pace of 0.13 s a side (HKD weights) rolled
-        to 0.58 rad in 10 s, the plan's roll moment cancelled by a true centre of mass 4 mm to the side of
-        the SRB's (0.04 rad with this state); with the template's weights the trot and pace rolled up to
-        0.17 and 0.32 rad (0.04, 0.26) and the push test fell (recovered with this state).
+        the Mini Cheetah's mass. Measured with the base state (fixed 20 ms latency): both paces (0.25 and
+        0.13 s a side) rolled over within 0.7 s and the bound fell after the push test's push, where all
+        three run 10 s with this state; with the HKD weights a pace of 0.13 s a side rolled to 0.58 rad in
+        10 s, the plan's roll moment cancelled by a true centre of mass 4 mm to the side of the SRB's.
         """
         robot = self.robot
         state = whole_body_to_srb_state(x0, robot.nq)
@@ -625,7 +625,8 @@ class TemplateMpc(RecedingHorizonPlanner):
     supplies the template's problem, warm start and plan, so the policy side
     (``control.mpc_loop.CafeMpcController``: fixed or measured latency) runs it unchanged. ``settings``: the
     same receding-horizon settings as CAFE-MPC (period, latency, iterations per update, first solve). No
-    real-time iteration: its updates are small (about 5 ms) and one-phase.
+    real-time iteration: its updates are small (5-10 ms) and one-phase, planned from the state predicted
+    where their plan takes effect (``predict_start``).
     """
 
     name = "template MPC"
