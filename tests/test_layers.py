@@ -25,7 +25,7 @@ LAYERS: list[tuple[str, ...]] = [
     ("ocp",),  # costs, constraints, barriers, knots, contact schedules and gaits
     ("solver",),  # MS-iLQR
     ("reference", "mpc", "trajopt"),  # locomotion reference; CAFE problem + warm start; offline TO
-    ("wbc",),  # low-level controllers: PD, Riccati (33), VWBC (34)
+    ("wbc", "estimation"),  # low-level controllers: PD, Riccati (33), VWBC (34); the state estimator
     ("control",),  # closed loops: the MPC loop over a low-level controller, a plan follower
     ("sim",),  # MuJoCo plant, closed-loop simulation, Pinocchio-vs-MuJoCo consistency
     ("experiments", "report", "bench", "config", "api"),  # runs, metrics, plots, benchmarks, configs, library

@@ -80,6 +80,7 @@ def test_randomisation_never_touches_the_controllers_model(robot):
         [
             "simulation.duration=0.1",
             "mpc.latency=fixed",
+            "estimator=ground_truth",  # noise on the measured state: ground truth only
             "plant={floor_friction: 0.4, body_mass_scale: 1.1, link_mass_scales: 0.9, "
             "motor_strength_scales: 0.9, measurement_delay_max: 0.004, seed: 3, "
             "sensor_noise: {joint_velocity: 0.05, base_orientation: 0.01}}",

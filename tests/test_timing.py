@@ -222,3 +222,19 @@ def test_time_quantum_rounds_first_knots_to_few_durations(robot):
         builder.build(float(t0), robot.x_standing, reference)
     durations = {key[3] for key in builder._running}
     assert durations <= {round(d / TIME_QUANTUM) for d in (0.002, 0.004, 0.006, 0.008, 0.01)}
+
+
+def test_the_update_clock_keeps_the_period_and_leaves_room_for_slow_preparations():
+    from cafe_mpc.control.update_clock import PREPARATION_HISTORY, UpdateClock
+
+    clock = UpdateClock(period=0.02, control_period=0.002)
+    assert clock.next_update(0.1, 0.1007) == pytest.approx(0.12)  # one period, on a tick
+    assert clock.next_update(0.1, 0.1193) == pytest.approx(0.12)  # no preparation recorded yet
+    for duration in [0.005] * (PREPARATION_HISTORY - 3) + [0.05] * 3:
+        clock.record_preparation(duration)
+    assert clock.expected_preparation == pytest.approx(0.005)  # three slow ones do not set the pace
+    assert clock.next_update(0.1, 0.101) == pytest.approx(0.12)
+    for _ in range(PREPARATION_HISTORY):
+        clock.record_preparation(0.031)
+    assert clock.next_update(0.1, 0.101) == pytest.approx(0.132)  # 0.101 + 0.031, on the next tick
+    assert clock.tick_at_or_after(0.1320000001) == pytest.approx(0.132)

@@ -31,10 +31,19 @@ Two ways to run the MPC (``mode``):
   the process. If the MPC process dies or stalls the robot is held in a damped stance and ``failure`` says
   why.
 
-Measurements are in the planning model's coordinates (``core.measurement.Measurement``: Pinocchio's
-free-flyer ``q``, ``v`` with the base linear velocity in the base frame); ``measurement(qpos, qvel, ...)``
-converts MuJoCo's free-joint state. ``plan`` is the plan the low level follows now (``core.plan.Plan``), e.g.
-to draw it (``robots.plan_overlay``). ``examples/mujoco_loop.py`` runs it against a MuJoCo loop.
+Measurements are in the planning model's coordinates (``core.measurement.Measurement``: Pinocchio's free-flyer
+``q``, ``v`` with the base linear velocity in the base frame); ``measurement(qpos, qvel, ...)`` converts
+MuJoCo's free-joint state. A robot has no such state: ``measurement_from_sensors(...)`` estimates it from the
+IMU and the joint encoders (``estimation.estimator.StateEstimator``, the config's ``kinematic_kf`` tuning)
+with the stance of the plan the controller follows; call it once per tick, before ``compute``::
+
+    measurement = controller.measurement_from_sensors(t, quaternion, gyro, accelerometer, q_joints, v_joints)
+    controller.reset(measurement)          # first tick (robot standing)
+    ...
+    torques = controller.compute(t, controller.measurement_from_sensors(t, ...))
+
+``plan`` is the plan the low level follows now (``core.plan.Plan``), e.g. to draw it
+(``robots.plan_overlay``). ``examples/mujoco_loop.py`` runs it against a MuJoCo loop.
 """
 
 from __future__ import annotations
@@ -50,6 +59,8 @@ from cafe_mpc.control.mpc_loop import CafeMpcController
 from cafe_mpc.control.realtime import RealtimeMpcController
 from cafe_mpc.core.measurement import Measurement
 from cafe_mpc.core.plan import Plan
+from cafe_mpc.core.sensors import SensorReadings
+from cafe_mpc.estimation.estimator import StateEstimator
 from cafe_mpc.experiments.controllers import (
     build_low_level,
     build_mpc,
@@ -97,6 +108,8 @@ class Controller:
         self.robot: Robot = load_robot(config.robot)
         self._inner: CafeMpcController | RealtimeMpcController | None = None
         self._t0 = 0.0
+        self._estimator: StateEstimator | None = None  # built on the first measurement_from_sensors
+        self._readings = SensorReadings.zeros(self.robot.nu)
         self._closed = False
         if mode == "inline":
             self._inner = self._build_inline()
@@ -212,6 +225,78 @@ class Controller:
         planning_state(np.asarray(qpos, dtype=float), np.asarray(qvel, dtype=float), q, v)
         flags = np.zeros(robot.n_feet, dtype=bool) if contacts is None else np.asarray(contacts, dtype=bool)
         return Measurement(float(time), q, v, flags, np.zeros((robot.n_feet, 3)))
+
+    def measurement_from_sensors(
+        self,
+        time: float,
+        orientation: Sequence[float] | np.ndarray,
+        gyro: Sequence[float] | np.ndarray,
+        accelerometer: Sequence[float] | np.ndarray,
+        joint_positions: Sequence[float] | np.ndarray,
+        joint_velocities: Sequence[float] | np.ndarray,
+        joint_torques: Sequence[float] | np.ndarray | None = None,
+        scalar_first: bool = False,
+    ) -> Measurement:
+        """The ``Measurement`` the state estimator makes of a robot's sensor readings at ``time`` (your
+        clock).
+
+        ``orientation``: the IMU's attitude estimate, base to world, quaternion ``(x, y, z, w)`` (``(w, x,
+        y, z)`` with ``scalar_first``; e.g. MuJoCo's ``framequat``); ``gyro``: base-frame angular velocity
+        (rad/s); ``accelerometer``: base-frame specific force (m/s^2, +9.81 up at rest); joint angles, rates
+        and (optional, for the foot-load compensation) torques in the robot's joint order. The IMU is assumed
+        at the base frame's origin with the base's axes. Call once per control tick, before ``compute``: the
+        estimator (``estimation.estimator.StateEstimator``, the config's ``kinematic_kf`` section) integrates
+        from one call to the next and uses the stance of the plan followed now. Its first call (or the first
+        after ``reset_estimator``) starts it with the robot standing at x-y ``(0, 0)``. Bad readings raise
+        ``ValueError`` naming the field. The returned object is reused by the next call."""
+        if self._estimator is None:
+            self._estimator = StateEstimator(self.robot, self.config.kinematic_kf.settings())
+            self._estimator.reset()
+        readings = self._readings
+        try:
+            readings.time = float(time)
+            quaternion = np.asarray(orientation, dtype=float)
+            if quaternion.shape != (4,):
+                raise ValueError(f"sensor reading orientation must have shape (4,), got {quaternion.shape}")
+            if scalar_first:
+                readings.orientation[3] = quaternion[0]
+                readings.orientation[:3] = quaternion[1:]
+            else:
+                readings.orientation[:] = quaternion
+            for name, value in (
+                ("gyro", gyro),
+                ("accelerometer", accelerometer),
+                ("joint_positions", joint_positions),
+                ("joint_velocities", joint_velocities),
+            ):
+                array = np.asarray(value, dtype=float)
+                target = getattr(readings, name)
+                if array.shape != target.shape:
+                    raise ValueError(
+                        f"sensor reading {name} must have shape {target.shape}, got {array.shape}"
+                    )
+                target[:] = array
+            if joint_torques is None:
+                readings.joint_torques[:] = np.nan
+            else:
+                torques = np.asarray(joint_torques, dtype=float)
+                if torques.shape != readings.joint_torques.shape:
+                    raise ValueError(
+                        f"sensor reading joint_torques must have shape {readings.joint_torques.shape}, "
+                        f"got {torques.shape}"
+                    )
+                readings.joint_torques[:] = torques
+        except (TypeError, ValueError) as error:
+            raise ValueError(str(error)) from error
+        readings.validate(self.robot.nu)
+        return self._estimator.update(readings, self.plan, plan_time=readings.time - self._t0)
+
+    def reset_estimator(self, position_xy: Sequence[float] = (0.0, 0.0)) -> None:
+        """Restart the state estimator: its next ``measurement_from_sensors`` starts it with the robot
+        standing at ``position_xy`` (the odometry origin)."""
+        if self._estimator is None:
+            self._estimator = StateEstimator(self.robot, self.config.kinematic_kf.settings())
+        self._estimator.reset(np.asarray(position_xy, dtype=float))
 
     def standing_qpos(self) -> np.ndarray:
         """MuJoCo ``qpos`` of the robot standing (where the presets start), for ``robot.mjcf``'s model."""

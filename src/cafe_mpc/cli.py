@@ -38,6 +38,15 @@ def _command_run(arguments: argparse.Namespace) -> int:
     )
     if config.gait is not None:
         print(_gait_summary(metrics))
+    estimator = metrics.get("estimator") or {}
+    if estimator.get("velocity_rms_error_m_s") is not None:
+        print(
+            f"estimator {estimator['kind']}: velocity error RMS "
+            f"{_number(estimator['velocity_rms_error_m_s'], 4)} m/s (max "
+            f"{_number(estimator['velocity_error_max_m_s'])}), height RMS "
+            f"{_number(estimator['height_rms_error_m'] * 1e3, 1)} mm, orientation RMS "
+            f"{_number(estimator['orientation_rms_error_rad'], 4)} rad"
+        )
     if "render_error" in metrics:
         print(f"no video: {metrics['render_error']}")
     print(f"results in {result.out_dir}")
@@ -247,9 +256,9 @@ def _command_bench(arguments: argparse.Namespace) -> int:
         return 0
     from cafe_mpc.bench.solver_bench import format_report, run_solver_benchmark
 
-    if arguments.iterations < 1 or arguments.repeats < 1:
-        raise ValueError("--iterations and --repeats must be at least 1")
-    result = run_solver_benchmark(arguments.iterations, arguments.repeats)
+    if arguments.iterations < 1 or arguments.rounds < 1:
+        raise ValueError("--iterations and --rounds must be at least 1")
+    result = run_solver_benchmark(arguments.iterations, arguments.rounds)
     print(json.dumps(result, indent=2) if arguments.json else format_report(result))
     return 0
 
@@ -378,7 +387,9 @@ def build_parser() -> argparse.ArgumentParser:
     )
     bench_parser.add_argument("--json", action="store_true", help="print one JSON object")
     bench_parser.add_argument("--iterations", type=int, default=10, help="iterations per solve")
-    bench_parser.add_argument("--repeats", type=int, default=5, help="solves per problem")
+    bench_parser.add_argument(
+        "--rounds", type=int, default=20, help="solver: interleaved rounds (each side solves once per round)"
+    )
     bench_parser.set_defaults(handler=_command_bench)
 
     from cafe_mpc.trajopt.presets import TASKS

@@ -19,12 +19,15 @@ from typing import TYPE_CHECKING, Any, Literal
 import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
+from cafe_mpc.estimation.settings import KinematicKFSettings  # a plain dataclass: no heavy imports
+
 if TYPE_CHECKING:  # heavy modules (Pinocchio) are imported only where a value is built
     from cafe_mpc.mpc.problem import ModelSchedule
     from cafe_mpc.ocp.costs import WholeBodyWeights
     from cafe_mpc.reference.locomotion import VelocityCommand
     from cafe_mpc.robots.robot import Robot
     from cafe_mpc.sim.randomization import PlantVariation, SensorModel
+    from cafe_mpc.sim.sensors import SensorSpec
     from cafe_mpc.sim.terrain import Terrain
 
 PRESET_DIR = Path(__file__).parent / "configs"
@@ -200,9 +203,10 @@ class MpcConfig(StrictModel):
         "clock starts (0: none; each first use inside an update cost 25-60 ms)",
     )
     final_policy: Literal["relinearize", "shift"] = Field(
-        "relinearize",
-        description="policy an update returns: relinearize (linearise and sweep again at the new plan) or "
-        "shift (the last sweep moved to the new plan: one linearisation less, less tolerant of latency)",
+        "shift",
+        description="policy an update returns: shift (the sweep the step was taken from, moved to the new "
+        "plan: one linearisation and one sweep per update) or relinearize (linearise and sweep again at the "
+        "new plan: more work, more tolerant of a long fixed latency)",
     )
     scheme: Literal["rti", "one_phase"] = Field(
         "rti",
@@ -213,6 +217,13 @@ class MpcConfig(StrictModel):
         True,
         description="rti: the preparation takes its line search on the predicted state (false: it stops "
         "after the backward sweep and the feedback takes the full step)",
+    )
+    threads: int = Field(
+        1,
+        ge=1,
+        le=64,
+        description="threads linearising the knots of an update (1: none; Pinocchio's Python bindings hold "
+        "the GIL, so only the compiled kernels run in parallel: BENCHMARKS.md)",
     )
     rti_feedback: Literal["linear", "nonlinear"] = Field(
         "linear",
@@ -589,6 +600,80 @@ class SensorNoiseConfig(StrictModel):
     joint_velocity: float = Field(0.0, ge=0.0, le=10.0, description="rad/s")
 
 
+Vector3 = tuple[float, float, float]
+
+
+def _bounded(name: str, value: Vector3, bound: float) -> Vector3:
+    if not all(math.isfinite(item) and abs(item) <= bound for item in value):
+        raise ValueError(f"{name} must be 3 finite numbers within +-{bound:g}, got {list(value)}")
+    return value
+
+
+class ImuConfig(StrictModel):
+    """The IMU on the trunk (``sim.sensors.ImuSpec``): noise (standard deviation per sample, Gaussian) and
+    constant bias of the gyro and the accelerometer, and of the orientation its attitude filter outputs (a
+    body-frame rotation vector), sampled at ``rate_hz`` and held in between.
+
+    Defaults: the Mini Cheetah's VectorNav IMU as MIT's own simulator models it (``Cheetah-Software``,
+    ``config/simulator-defaults.yaml``: ``vectornav_imu_gyro_noise 0.005``, ``..._accelerometer_noise 0.005``,
+    ``..._quat_noise 0.003``, drawn there uniformly in +-value; here Gaussian with that value as standard
+    deviation, sqrt(3) x MIT's). No bias by default (MIT's simulator has none); ``rate_hz`` 500, the control
+    rate (the robot reads its VectorNav at 200 Hz: ``robot/src/rt/rt_vectornav.cpp``, 800 Hz / 4);
+    ``average``: the VectorNav filters its 800 Hz samples over a window (its ``ImuFilteringConfiguration``
+    register, which ``rt_vectornav.cpp`` reads)."""
+
+    rate_hz: float = Field(500.0, gt=0.0, le=10000.0, description="Hz, IMU samples (held between samples)")
+    gyro_noise: float = Field(0.005, ge=0.0, le=1.0, description="rad/s, standard deviation per sample")
+    gyro_bias: Vector3 = Field((0.0, 0.0, 0.0), description="rad/s, constant (base frame)")
+    accelerometer_noise: float = Field(0.005, ge=0.0, le=10.0, description="m/s^2, standard deviation")
+    accelerometer_bias: Vector3 = Field((0.0, 0.0, 0.0), description="m/s^2, constant (base frame)")
+    orientation_noise: float = Field(0.003, ge=0.0, le=0.5, description="rad per axis, standard deviation")
+    orientation_bias: Vector3 = Field((0.0, 0.0, 0.0), description="rad, constant body-frame rotation vector")
+    average: bool = Field(
+        True,
+        description="gyro and accelerometer report their mean over the sample period (an anti-aliasing IMU, "
+        "as the VectorNav's averaging window); false: the instantaneous value at the sample",
+    )
+
+    @field_validator("gyro_bias")
+    @classmethod
+    def _gyro_bias(cls, value: Vector3) -> Vector3:
+        return _bounded("gyro_bias", value, 1.0)
+
+    @field_validator("accelerometer_bias")
+    @classmethod
+    def _accelerometer_bias(cls, value: Vector3) -> Vector3:
+        return _bounded("accelerometer_bias", value, 5.0)
+
+    @field_validator("orientation_bias")
+    @classmethod
+    def _orientation_bias(cls, value: Vector3) -> Vector3:
+        return _bounded("orientation_bias", value, 0.5)
+
+
+class EncoderConfig(StrictModel):
+    """The joint sensors (``sim.sensors.EncoderSpec``): Gaussian noise, then quantisation to a resolution.
+
+    Default resolutions: the Mini Cheetah's motor controllers report joint angle, rate and torque over CAN as
+    16-, 12- and 12-bit integers over +-12.5 rad, +-65 rad/s and +-18 Nm (``P_MIN``/``V_MIN``/``T_MIN`` and
+    ``pack_reply`` of Ben Katz's motor-controller firmware and the SPIne board, which MIT's Mini Cheetah
+    uses): 25/65535 rad, 130/4095 rad/s, 36/4095 Nm. No noise beyond that by default (not published)."""
+
+    position_noise: float = Field(0.0, ge=0.0, le=0.1, description="rad, standard deviation")
+    velocity_noise: float = Field(0.0, ge=0.0, le=5.0, description="rad/s, standard deviation")
+    torque_noise: float = Field(0.0, ge=0.0, le=5.0, description="Nm, standard deviation")
+    position_resolution: float = Field(25.0 / 65535.0, ge=0.0, le=0.1, description="rad (0: none)")
+    velocity_resolution: float = Field(130.0 / 4095.0, ge=0.0, le=1.0, description="rad/s (0: none)")
+    torque_resolution: float = Field(36.0 / 4095.0, ge=0.0, le=1.0, description="Nm (0: none)")
+
+
+class SensorsConfig(StrictModel):
+    """The robot's sensors in the plant (``sim.sensors``), read when ``estimator`` is not ``ground_truth``."""
+
+    imu: ImuConfig = ImuConfig()
+    encoders: EncoderConfig = EncoderConfig()
+
+
 PlantScales = float | list[float]
 """One factor for every joint, or one per actuated joint (robot joint order)."""
 
@@ -623,6 +708,10 @@ class PlantConfig(StrictModel):
         0.0, ge=0.0, le=0.05, description="s; latency jitter: each tick sees a state up to this old"
     )
     seed: int = Field(0, ge=0, description="random stream of the sensor noise and delays")
+    sensors: SensorsConfig = Field(
+        default_factory=SensorsConfig,
+        description="IMU and joint sensors the controller reads with estimator: kinematic_kf (sim.sensors)",
+    )
 
     @field_validator("link_mass_scales", "motor_strength_scales")
     @classmethod
@@ -653,6 +742,95 @@ class PlantConfig(StrictModel):
 
         ticks = math.floor(self.measurement_delay_max * control_rate_hz + 1e-9)
         return SensorModel(SensorNoise(**self.sensor_noise.model_dump()), ticks, self.seed)
+
+    def sensor_spec(self, control_rate_hz: float) -> SensorSpec:
+        """The robot's sensors (``sim.sensors.SensorSpec``): ``sensors``, the latency jitter
+        ``measurement_delay_max`` (whole control ticks, rounded down) and ``seed``."""
+        from cafe_mpc.sim.sensors import EncoderSpec, ImuSpec, SensorSpec
+
+        ticks = math.floor(self.measurement_delay_max * control_rate_hz + 1e-9)
+        imu = self.sensors.imu.model_dump()
+        return SensorSpec(ImuSpec(**imu), EncoderSpec(**self.sensors.encoders.model_dump()), ticks, self.seed)
+
+    @property
+    def state_noise(self) -> bool:
+        """Whether ``sensor_noise`` perturbs the state (only the ground-truth estimator can have it)."""
+        return any(value != 0.0 for value in self.sensor_noise.model_dump().values())
+
+
+_KF = KinematicKFSettings()
+"""The filter's defaults (``estimation.settings``): the one source of ``KinematicKFConfig``'s."""
+
+
+class KinematicKFConfig(StrictModel):
+    """The kinematic Kalman filter (``estimator: kinematic_kf``; ``estimation.settings.KinematicKFSettings``,
+    whose defaults are MIT's Mini Cheetah tuning; docs/estimation.md)."""
+
+    imu_process_noise_position: float = Field(_KF.imu_process_noise_position, gt=0.0, le=100.0)
+    imu_process_noise_velocity: float = Field(_KF.imu_process_noise_velocity, gt=0.0, le=100.0)
+    foot_process_noise_position: float = Field(_KF.foot_process_noise_position, gt=0.0, le=100.0)
+    foot_sensor_noise_position: float = Field(_KF.foot_sensor_noise_position, gt=0.0, le=100.0)
+    foot_sensor_noise_velocity: float = Field(_KF.foot_sensor_noise_velocity, gt=0.0, le=100.0)
+    foot_height_sensor_noise: float = Field(_KF.foot_height_sensor_noise, gt=0.0, le=100.0)
+    vertical_velocity_factor: float = Field(
+        _KF.vertical_velocity_factor,
+        gt=0.0,
+        le=1e6,
+        description="x foot_sensor_noise_velocity, vertical axis",
+    )
+    trust_window: float = Field(
+        _KF.trust_window, gt=0.0, le=0.5, description="fraction of a stance over which a foot's trust ramps"
+    )
+    suspect_factor: float = Field(
+        _KF.suspect_factor, ge=0.0, le=1e6, description="noise x (1 + (1-trust) x this)"
+    )
+    rolling_foot: bool = Field(
+        _KF.rolling_foot, description="correct the leg velocity for a rolling sphere foot"
+    )
+    foot_height: bool = Field(_KF.foot_height, description="stance feet on flat ground measure the height")
+    foot_compliance: float = Field(
+        _KF.foot_compliance, ge=0.0, le=0.01, description="m/N, loaded foot sinks this much per N (0: off)"
+    )
+    contact_force_threshold: float | None = Field(
+        _KF.contact_force_threshold,
+        ge=0.0,
+        le=1000.0,
+        description="N; null: planned contact only; else planned and the torque-implied ground force above",
+    )
+    accelerometer_bias: bool = Field(_KF.accelerometer_bias, description="estimate a world-frame accel. bias")
+    bias_process_noise: float = Field(_KF.bias_process_noise, gt=0.0, le=100.0, description="(m/s^2)^2 / s")
+    initial_bias_variance: float = Field(_KF.initial_bias_variance, gt=0.0, le=100.0, description="(m/s^2)^2")
+    slip_threshold: float | None = Field(
+        _KF.slip_threshold,
+        gt=0.0,
+        le=100.0,
+        description="m/s; null: off; else a trusted foot whose leg velocity differs horizontally from the "
+        "IMU-propagated estimate by more than this is left out for the tick (slip)",
+    )
+    slip_patience: float = Field(
+        _KF.slip_patience,
+        gt=0.0,
+        le=10.0,
+        description="s; all trusted feet failing the slip test this long: used",
+    )
+    contact_height_threshold: float | None = Field(
+        _KF.contact_height_threshold,
+        gt=0.0,
+        le=1.0,
+        description="m; null: off; else a foot planned in stance higher than this above the (flat) ground "
+        "counts as not in contact",
+    )
+    initial_position_variance: float = Field(_KF.initial_position_variance, gt=0.0, le=100.0)
+    initial_velocity_variance: float = Field(_KF.initial_velocity_variance, gt=0.0, le=100.0)
+    swing_foot_variance: float = Field(_KF.swing_foot_variance, gt=0.0, le=1e6)
+
+    def settings(self) -> KinematicKFSettings:
+        return KinematicKFSettings(**self.model_dump())
+
+    @model_validator(mode="after")
+    def _settings_valid(self) -> KinematicKFConfig:
+        self.settings().check()
+        return self
 
 
 class TemplateConfig(StrictModel):
@@ -723,6 +901,15 @@ class RunConfig(StrictModel):
         "(paper Sec. VII-C) with its own stance/swing low level (wbc is not used)",
     )
     template: TemplateConfig = TemplateConfig()
+    estimator: Literal["ground_truth", "kinematic_kf"] = Field(
+        "kinematic_kf",
+        description="what the controller measures: ground_truth (the plant's state, plus plant.sensor_noise) "
+        "or kinematic_kf (the robot's sensors, plant.sensors, through the IMU + leg-kinematics Kalman filter "
+        "of the MIT Mini Cheetah; estimation.estimator)",
+    )
+    kinematic_kf: KinematicKFConfig = Field(
+        default_factory=KinematicKFConfig, description="the Kalman filter's tuning (estimator: kinematic_kf)"
+    )
     costs: CostsConfig = Field(default_factory=CostsConfig)
     simulation: SimulationConfig = SimulationConfig()
     pushes: list[PushConfig] = Field(default_factory=list)
@@ -780,6 +967,18 @@ class RunConfig(StrictModel):
             _check_commands(self.robot, self.gait.commands)
         if self.plant.kind == "gym-quadruped":
             _check_gym_plant(self)
+        if self.plant.sensors.imu.rate_hz > self.simulation.control_rate_hz * (1.0 + 1e-9):
+            raise ValueError(
+                f"plant.sensors.imu.rate_hz: {self.plant.sensors.imu.rate_hz} Hz is above the control rate "
+                f"simulation.control_rate_hz {self.simulation.control_rate_hz} Hz (the controller reads the "
+                "sensors once per tick)"
+            )
+        if self.estimator != "ground_truth" and self.plant.state_noise:
+            raise ValueError(
+                f"plant.sensor_noise perturbs the true state handed to the controller, which estimator: "
+                f"{self.estimator!r} does not see; set the sensors' noise in plant.sensors (or use "
+                "estimator: ground_truth)"
+            )
         for key in ("link_mass_scales", "motor_strength_scales"):
             value = getattr(self.plant, key)
             if isinstance(value, list) and len(value) != _cached_robot(self.robot).nu:
@@ -803,6 +1002,11 @@ def _check_gym_plant(config: RunConfig) -> None:
             f"gym_quadruped.robot); {config.robot!r} has none. Shipped: {', '.join(with_gym)}"
         )
     unsupported = []
+    if config.estimator != "ground_truth":
+        unsupported.append(
+            f"estimator: {config.estimator} (it reads our plant's IMU and joint sensors, which "
+            "gym-quadruped's model does not carry: set estimator=ground_truth)"
+        )
     if config.scene.terrain:
         unsupported.append("scene.terrain (use plant.gym_scene)")
     if config.scene.bar_height:

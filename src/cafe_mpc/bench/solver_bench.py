@@ -1,15 +1,18 @@
-"""``cafe-mpc bench solver``: MS-iLQR time per iteration against Crocoddyl FDDP, in one run.
+"""``cafe-mpc bench solver``: MS-iLQR against Crocoddyl FDDP, interleaved in one process.
 
-Three problems, each solved ``repeats`` times from the same initial guess:
+Three problems, each solved from the same initial guess in every round:
 
 * ``whole_body_25``: the 25-knot (10 ms) whole-body trot-cycle problem of ``bench.problems`` (ours);
-* ``crocoddyl_fddp_25``: the same problem in Crocoddyl (FDDP);
+* ``crocoddyl_fddp_25``: the same problem in Crocoddyl (FDDP, one thread);
 * ``cafe_s4``: the CAFE problem of one MPC update: 25 whole-body knots at 10 ms + SRB tail 0.4 s at 50 ms,
-  trotting at 0.5 m/s, all constraints on the whole-body part.
+  trotting at 0.5 m/s, all constraints on the whole-body part (ours only).
 
-Ours: the median of the per-iteration wall times the solver records (backward sweep + line search).
-Crocoddyl: the wall time of a solve divided by its iterations (median over repeats). Medians, because these
-machines are noisy.
+Each side's time per iteration is the wall time of a whole solve (set-up, first evaluation and
+linearisation included, as Crocoddyl's ``solve`` does them too) divided by its iterations. The solvers are
+made once and reused (their data persist, as in an MPC). In every round both solve once, in alternating
+order, so that a change of the machine's load hits both sides of that round's ratio alike; the report is
+the median over the rounds of the per-round ratio with its spread (interquartile range, min, max), and each
+side's median. On a shared machine the ratio is what to read; the absolute times move with the load.
 """
 
 from __future__ import annotations
@@ -23,43 +26,60 @@ from cafe_mpc.robots.robot import Robot, load_robot
 from cafe_mpc.solver import MSiLQRSolver, SolverOptions
 
 
-def _ours(problem, xs, us, iterations: int, repeats: int) -> dict:
-    times, counts, costs = [], [], []
-    for _ in range(repeats):
-        solver = MSiLQRSolver(SolverOptions(max_iterations=iterations, max_al_iterations=1))
-        result = solver.solve(problem, xs, us)
-        times.extend(result.statistics.iteration_times)
-        counts.append(result.statistics.iterations)
-        costs.append(result.cost)
-    return {
-        "iteration_ms_median": float(np.median(times)) * 1e3,
-        "iteration_ms_p90": float(np.percentile(times, 90)) * 1e3,
-        "iterations": int(np.median(counts)),
-        "cost": float(costs[-1]),
-    }
+class _Ours:
+    """One of our problems with its initial guess and a persistent solver."""
 
+    def __init__(self, problem, xs, us, iterations: int) -> None:
+        self.problem, self.xs, self.us = problem, xs, us
+        self.solver = MSiLQRSolver(SolverOptions(max_iterations=iterations, max_al_iterations=1))
+        self.per_iteration: list[float] = []
+        self.iterations = 0
+        self.cost = float("nan")
 
-def _crocoddyl(robot: Robot, peer, iterations: int, repeats: int) -> dict:
-    import crocoddyl
-
-    problem, xs, us = peer.crocoddyl(robot)
-    per_iteration, counts, cost = [], [], 0.0
-    for _ in range(repeats):
-        solver = crocoddyl.SolverFDDP(problem)
+    def run(self) -> float:
         start = time.perf_counter()
-        solver.solve(xs, us, iterations, False)
+        result = self.solver.solve(self.problem, self.xs, self.us)
         elapsed = time.perf_counter() - start
-        per_iteration.append(elapsed / max(1, solver.iter))
-        counts.append(solver.iter)
-        cost = solver.cost
+        self.iterations = result.statistics.iterations
+        self.cost = float(result.cost)
+        self.per_iteration.append(elapsed / max(1, self.iterations))
+        return self.per_iteration[-1]
+
+
+class _Crocoddyl:
+    """The same whole-body problem in Crocoddyl FDDP (one thread), solver made once."""
+
+    def __init__(self, robot: Robot, peer, iterations: int) -> None:
+        import crocoddyl
+
+        self.problem, self.xs, self.us = peer.crocoddyl(robot)
+        self.solver = crocoddyl.SolverFDDP(self.problem)
+        self.max_iterations = iterations
+        self.per_iteration: list[float] = []
+        self.iterations = 0
+        self.cost = float("nan")
+
+    def run(self) -> float:
+        start = time.perf_counter()
+        self.solver.solve(self.xs, self.us, self.max_iterations, False)
+        elapsed = time.perf_counter() - start
+        self.iterations = int(self.solver.iter)
+        self.cost = float(self.solver.cost)
+        self.per_iteration.append(elapsed / max(1, self.iterations))
+        return self.per_iteration[-1]
+
+
+def _side(side) -> dict:
+    times = np.asarray(side.per_iteration) * 1e3
     return {
-        "iteration_ms_median": float(np.median(per_iteration)) * 1e3,
-        "iterations": int(np.median(counts)),
-        "cost": float(cost),
+        "iteration_ms_median": float(np.median(times)),
+        "iteration_ms_p90": float(np.percentile(times, 90)),
+        "iterations": side.iterations,
+        "cost": side.cost,
     }
 
 
-def _cafe(robot: Robot, iterations: int, repeats: int) -> dict:
+def _cafe(robot: Robot, iterations: int) -> _Ours:
     from cafe_mpc.mpc.problem import CafeProblemBuilder, ModelSchedule, WarmStart
     from cafe_mpc.ocp.contact_schedule import get_gait
     from cafe_mpc.ocp.knots import SRBModelFactory, WholeBodyModelFactory
@@ -73,25 +93,45 @@ def _cafe(robot: Robot, iterations: int, repeats: int) -> dict:
     reference.update(0.0, x0[: robot.nq], x0[robot.nq :])
     built = builder.build(0.0, x0, reference)
     guess = WarmStart().guess(built, None, None)
-    result = _ours(built.problem, guess.xs, guess.us, iterations, repeats)
-    result["knots"] = {"whole_body": builder.schedule.whole_body_knots, "srb": builder.schedule.srb_knots}
-    return result
+    return _Ours(built.problem, guess.xs, guess.us, iterations)
 
 
-def run_solver_benchmark(iterations: int = 10, repeats: int = 5) -> dict:
-    """Median time per iteration of ours (WB, CAFE) and Crocoddyl FDDP (WB) measured in the same run."""
+def run_solver_benchmark(iterations: int = 10, rounds: int = 20, warm_up: int = 2) -> dict:
+    """``rounds`` interleaved rounds (after ``warm_up`` unrecorded ones) of ours (WB, CAFE) and Crocoddyl
+    FDDP (WB); per-round ratios ours / Crocoddyl on the same whole-body problem."""
     robot = load_robot("mini_cheetah")
     peer = whole_body_problem(robot, TROT_CYCLE)
-    whole_body = _ours(peer.problem, peer.initial_xs, peer.initial_us, iterations, repeats)
-    crocoddyl_result = _crocoddyl(robot, peer, iterations, repeats)
-    cafe = _cafe(robot, iterations, repeats)
+    ours = _Ours(peer.problem, peer.initial_xs, peer.initial_us, iterations)
+    theirs = _Crocoddyl(robot, peer, iterations)
+    cafe = _cafe(robot, iterations)
+    ratios = []
+    for index in range(warm_up + rounds):
+        if index % 2 == 0:
+            mine, peer_time = ours.run(), theirs.run()
+        else:
+            peer_time, mine = theirs.run(), ours.run()
+        cafe.run()
+        if index >= warm_up:
+            ratios.append(mine / peer_time)
+        else:
+            for side in (ours, theirs, cafe):
+                side.per_iteration.clear()
+    ratios_array = np.asarray(ratios)
+    cafe_result = _side(cafe)
+    cafe_result["knots"] = {"whole_body": 25, "srb": 8}
     return {
-        "whole_body_25": whole_body,
-        "cafe_s4": cafe,
-        "crocoddyl_fddp_25": crocoddyl_result,
-        "ratio_vs_crocoddyl": whole_body["iteration_ms_median"] / crocoddyl_result["iteration_ms_median"],
+        "whole_body_25": _side(ours),
+        "cafe_s4": cafe_result,
+        "crocoddyl_fddp_25": _side(theirs),
+        "ratio_vs_crocoddyl": float(np.median(ratios_array)),
+        "ratio_spread": {
+            "q25": float(np.percentile(ratios_array, 25)),
+            "q75": float(np.percentile(ratios_array, 75)),
+            "min": float(ratios_array.min()),
+            "max": float(ratios_array.max()),
+        },
         "paper_ms_per_iteration": 5.3,
-        "settings": {"iterations": iterations, "repeats": repeats, "threads": 1},
+        "settings": {"iterations": iterations, "rounds": rounds, "warm_up_rounds": warm_up, "threads": 1},
     }
 
 
@@ -103,6 +143,11 @@ def format_report(result: dict) -> str:
             f"{key:<20} {entry['iteration_ms_median']:>10.2f}              {entry['iterations']:>4}    "
             f"{entry['cost']:.6f}"
         )
-    lines.append(f"ratio ours / Crocoddyl (whole body, 25 knots): {result['ratio_vs_crocoddyl']:.2f}")
+    spread = result["ratio_spread"]
+    lines.append(
+        f"ratio ours / Crocoddyl (whole body, 25 knots), median of {result['settings']['rounds']} "
+        f"interleaved rounds: {result['ratio_vs_crocoddyl']:.3f} "
+        f"(IQR {spread['q25']:.3f}-{spread['q75']:.3f}, min {spread['min']:.3f}, max {spread['max']:.3f})"
+    )
     lines.append("paper (C++, 4 threads): 5.3 ms per iteration")
     return "\n".join(lines)

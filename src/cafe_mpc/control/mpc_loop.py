@@ -9,9 +9,9 @@ The closed-loop composition of the MPC (``cafe_mpc.mpc.RecedingHorizonMpc``) and
   time. Right after it, the worker *prepares* the next update, for the time ``t_next`` at which the
   measurement will be taken, from the state the new plan predicts there (``predict``), while the plan drives
   the robot. ``t_next`` is one MPC period later, or later still when the preparation is expected to take
-  longer (the median of the last ten preparations): then the rate drops, not the latency. A preparation that
-  runs past ``t_next`` anyway delays that update's feedback (its measurement is then older: the delay counts
-  in its latency).
+  longer (``control.update_clock``): then the rate drops, not the latency. A preparation that runs past
+  ``t_next`` anyway delays that update's feedback (its measurement is then older: the delay counts in its
+  latency).
 * **one-phase** (``one_phase``): an update starts from the newest measurement when the worker is free and at
   least one period has passed since the previous start; the whole update runs after the measurement, and
   the worker is busy until its plan takes effect (a slow update delays the next one).
@@ -33,12 +33,11 @@ process is ``cafe_mpc.control.realtime``. The same loop runs the template-MPC ba
 from __future__ import annotations
 
 import logging
-import math
-from collections import deque
 
 import numpy as np
 
 from cafe_mpc.control.plan_follower import NewestPlanFollower
+from cafe_mpc.control.update_clock import UpdateClock
 from cafe_mpc.core.controller import LowLevelController
 from cafe_mpc.core.measurement import Measurement
 from cafe_mpc.core.plan import Plan
@@ -90,7 +89,7 @@ class CafeMpcController:
         self.next_update = 0.0
         self.worker_free = 0.0
         """Simulated time at which the MPC worker finishes what it is doing (real-time iteration)."""
-        self._recent_prepares: deque[float] = deque(maxlen=10)
+        self.clock = UpdateClock(self.settings.period, self.control_period)
 
     @property
     def reference(self) -> Reference:
@@ -115,7 +114,7 @@ class CafeMpcController:
         self.mpc.reset()
         self.next_update = 0.0
         self.worker_free = 0.0
-        self._recent_prepares.clear()
+        self.clock.reset()
         self.follower.reset()
 
     def start(self, t: float, state: Measurement) -> None:
@@ -154,7 +153,7 @@ class CafeMpcController:
                 self.plan = plan
                 self.statistics.latencies.append(0.0)
                 if self.scheme == "rti":
-                    self._prepare(self._tick_at_or_after(t + self.settings.period))
+                    self._prepare(self.clock.tick_at_or_after(t + self.settings.period))
             self.next_update = t + self.settings.period
             return
         if self.scheme == "rti":
@@ -191,10 +190,8 @@ class CafeMpcController:
             effective = t + settings.fixed_latency
         self.pending.append((effective, t, plan))
         self.pending.sort(key=lambda entry: entry[0])
-        following = t + settings.period
-        if measured and self._recent_prepares:
-            following = max(following, effective + float(np.median(self._recent_prepares)))
-        following = self._tick_at_or_after(following)
+        # fixed latency: a transport delay, the MPC itself is ready at once
+        following = self.clock.next_update(t, effective if measured else t)
         self.worker_free = effective
         self._prepare(following)
         self.next_update = following
@@ -205,13 +202,8 @@ class CafeMpcController:
         if predicted is None:
             return
         nq = self.robot.nq
-        if self.mpc.prepare(t_next, predicted[:nq], predicted[nq:]):
+        prepared = self.mpc.prepare(t_next, predicted[:nq], predicted[nq:])
+        if prepared and self.settings.latency == "measured":  # fixed: the update times are the period's
             elapsed = self.statistics.prepare_times[-1] * self._scale
-            self._recent_prepares.append(elapsed)
-            if self.settings.latency == "measured":
-                self.worker_free += elapsed
-
-    def _tick_at_or_after(self, t: float) -> float:
-        """The first control tick at or after ``t``."""
-        period = self.control_period
-        return math.ceil(t / period - 1e-6) * period
+            self.clock.record_preparation(elapsed)
+            self.worker_free += elapsed

@@ -15,8 +15,8 @@ Each slot and channel is a seqlock (a counter that is odd while the writer write
 or skip when the counter moved, so neither side ever blocks the other.
 
 The MPC process runs the scheme of its settings (``MpcSettings.scheme``). Real-time iteration: after
-publishing a plan it picks the next update time ``t_next`` (one period later, or later when its
-preparations take longer: the median of the last ten), prepares that update from the state the new plan
+publishing a plan it picks the next update time ``t_next`` (``control.update_clock``: one period later,
+or later when its preparations take longer), prepares that update from the state the new plan
 predicts there, waits for the measurement of the tick at ``t_next`` and runs only the feedback phase on it
 before publishing (the latency the robot sees). One-phase: it takes the newest measurement, at most once
 per period, and runs the whole update. A process (not a thread) because the solver
@@ -34,18 +34,17 @@ from __future__ import annotations
 
 import contextlib
 import logging
-import math
 import multiprocessing
 import os
 import signal
 import time
-from collections import deque
 from collections.abc import Callable
 from multiprocessing import shared_memory
 
 import numpy as np
 
 from cafe_mpc.control.plan_follower import NewestPlanFollower
+from cafe_mpc.control.update_clock import UpdateClock
 from cafe_mpc.core.controller import LowLevelController
 from cafe_mpc.core.measurement import Measurement
 from cafe_mpc.core.plan import Plan
@@ -293,7 +292,7 @@ class _Worker:
         self.parent_pid = parent_pid
         self.buffer = np.zeros(ring.slot - 2)
         self.nq, self.nv = ring.nq, ring.nv
-        self.recent_prepares: deque[float] = deque(maxlen=10)
+        self.clock = UpdateClock(period, control_period)
 
     def running(self) -> bool:
         """Until the stop flag is set or the main process is gone (do not outlive it)."""
@@ -337,17 +336,15 @@ class _Worker:
         """Prepare the update at the next tick ``t_next``, wait for its measurement, feed it back."""
         mpc, control_period = self.mpc, self.control_period
         newest = self.ring.newest
-        following = last_tick * control_period + self.period
-        if self.recent_prepares:
-            following = max(following, newest * control_period + float(np.median(self.recent_prepares)))
-        tick = max(math.ceil(following / control_period - 1e-6), last_tick + 1)
+        following = self.clock.next_update(last_tick * control_period, newest * control_period)
+        tick = max(round(following / control_period), last_tick + 1)
         t_next = tick * control_period
         predicted = mpc.predict(t_next)
         prepared = False
         if predicted is not None:
             prepared = mpc.prepare(t_next, predicted[: self.nq], predicted[self.nq :])
             if prepared:
-                self.recent_prepares.append(mpc.statistics.prepare_times[-1])
+                self.clock.record_preparation(mpc.statistics.prepare_times[-1])
         while self.ring.newest < tick:
             if not self.running():
                 return last_tick

@@ -50,6 +50,10 @@ class FootKinematics:
         # Velocity Jacobians need the position Jacobians too (dv_foot/dv = J).
         self.position_legs = tuple(sorted(set(position_legs) | set(velocity_legs)))
         self.velocity_legs = tuple(sorted(set(velocity_legs)))
+        self._position_only_legs = tuple(leg for leg in self.position_legs if leg not in self.velocity_legs)
+        frames = [robot.model.frames[frame_id] for frame_id in self.frame_ids]
+        self._parent_joints = tuple(frame.parentJoint for frame in frames)
+        self._placements = tuple(frame.placement.copy() for frame in frames)
 
     @property
     def empty(self) -> bool:
@@ -82,16 +86,13 @@ class FootKinematics:
             pin.computeForwardKinematicsDerivatives(self.model, pd, q, v, data._zero_acceleration)
         else:
             pin.computeJointJacobians(self.model, pd, q)
-        for leg in self.position_legs:
-            if leg in self.velocity_legs:
-                # Derivatives of the point's world velocity; d pdot / dv is the position Jacobian.
-                frame = self.model.frames[self.frame_ids[leg]]
-                dv_dq, dv_dv = pin.getPointVelocityDerivatives(
-                    self.model, pd, frame.parentJoint, frame.placement, LWA
-                )
-                data.velocity_dq[leg] = dv_dq
-                data.position_jacobians[leg] = dv_dv
-            else:
-                data.position_jacobians[leg] = pin.getFrameJacobian(self.model, pd, self.frame_ids[leg], LWA)[
-                    :3
-                ]
+        model = self.model
+        for leg in self.velocity_legs:
+            # Derivatives of the point's world velocity; d pdot / dv is the position Jacobian.
+            dv_dq, dv_dv = pin.getPointVelocityDerivatives(
+                model, pd, self._parent_joints[leg], self._placements[leg], LWA
+            )
+            data.velocity_dq[leg] = dv_dq
+            data.position_jacobians[leg] = dv_dv
+        for leg in self._position_only_legs:
+            data.position_jacobians[leg] = pin.getFrameJacobian(model, pd, self.frame_ids[leg], LWA)[:3]

@@ -89,6 +89,15 @@ class WholeBodyDynamicsData:
         if dynamics.n_contacts:
             pin.initConstraintDynamics(model, self.pinocchio, dynamics.contact_models, self.contact_datas)
         self.proximal = proximal_settings(dynamics.damping)
+        # Views into the Pinocchio data (eigenpy shares these members' memory; they keep their size once
+        # the contact dynamics are initialised): read without a Python attribute lookup per call.
+        # ``dlambda_*`` are not shared (each access copies) and are read from the data.
+        pd = self.pinocchio
+        self.lambda_c = pd.lambda_c
+        self.ddq_dq = pd.ddq_dq
+        self.ddq_dv = pd.ddq_dv
+        self.ddq_dtau = pd.ddq_dtau
+        self.Minv = pd.Minv
         self.tau = np.zeros(nv)
         self.acceleration = np.zeros(nv)
         self.forces = np.zeros(nf)
@@ -148,6 +157,7 @@ class WholeBodyDynamics:
         self.n_contacts = len(self.contact_legs)
         self.n_forces = 3 * self.n_contacts
         self.contact_models = foot_contact_models(robot, self.stance, self.baumgarte_alpha)
+        self._nq = robot.model.nq
         self._eye_nv = np.eye(robot.model.nv)
         self._strict_lower = np.tril_indices(robot.model.nv, -1)
 
@@ -165,14 +175,14 @@ class WholeBodyDynamics:
 
     def calc(self, data: WholeBodyDynamicsData, x: np.ndarray, u: np.ndarray) -> None:
         """Write ``data.acceleration``, ``data.forces`` and ``data.x_next``."""
-        model, nq, dt = self.model, self.model.nq, self.dt
+        model, nq, dt = self.model, self._nq, self.dt
         q, v = x[:nq], x[nq:]
         data.tau[6:] = u
         if self.n_contacts:
             acceleration = pin.constraintDynamics(
                 model, data.pinocchio, q, v, data.tau, self.contact_models, data.contact_datas, data.proximal
             )
-            data.forces[:] = data.pinocchio.lambda_c
+            data.forces[:] = data.lambda_c
         else:
             # WORLD convention: what computeABADerivatives(model, data) reuses in calc_diff.
             acceleration = pin.aba(model, data.pinocchio, q, v, data.tau, pin.Convention.WORLD)
@@ -185,23 +195,23 @@ class WholeBodyDynamics:
     def calc_diff(self, data: WholeBodyDynamicsData, x: np.ndarray, u: np.ndarray) -> None:
         """Write ``data.Fx``, ``data.Fu`` (tangent Jacobians of ``x_next``) and ``data.dforces_dx``,
         ``data.dforces_du``. Assumes ``calc(data, x, u)`` ran last on this data."""
-        model, nq = self.model, self.model.nq
+        model, nq = self.model, self._nq
         pd = data.pinocchio
         if self.n_contacts:
             pin.computeConstraintDynamicsDerivatives(
                 model, pd, self.contact_models, data.contact_datas, data.proximal
             )
-            da_dtau = pd.ddq_dtau
+            da_dtau = data.ddq_dtau
             copy_force_derivatives(
                 pd.dlambda_dq, pd.dlambda_dv, pd.dlambda_dtau, data.dforces_dx, data.dforces_du
             )
         else:
             pin.computeABADerivatives(model, pd)  # reuses the WORLD-convention ABA of calc
-            da_dtau = pd.Minv  # d qdd / d tau; Pinocchio fills only its upper triangle
+            da_dtau = data.Minv  # d qdd / d tau; Pinocchio fills only its upper triangle
         dintegrate_dq, dintegrate_dstep = pin.dIntegrate(model, x[:nq], data._step)
         euler_step_jacobians(
-            pd.ddq_dq,
-            pd.ddq_dv,
+            data.ddq_dq,
+            data.ddq_dv,
             da_dtau,
             self.n_contacts == 0,
             dintegrate_dq,

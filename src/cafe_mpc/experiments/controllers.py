@@ -25,6 +25,8 @@ from cafe_mpc.core.controller import LowLevelController
 from cafe_mpc.core.measurement import Measurement
 from cafe_mpc.core.plan import Plan
 from cafe_mpc.dynamics.srb import srb_parameters
+from cafe_mpc.estimation.controller import SensingController
+from cafe_mpc.estimation.estimator import StateEstimator
 from cafe_mpc.experiments.scaling import (
     run_scale,
     scaled_gait,
@@ -281,6 +283,7 @@ def mpc_settings(config: RunConfig) -> MpcSettings:
             rti_line_search=config.mpc.rti_line_search,
             rti_feedback=config.mpc.rti_feedback,
             compute_scale=config.mpc.compute_scale,
+            threads=config.mpc.threads,
         )
     except ValueError as error:
         raise ConfigError(f"mpc: {error}") from error
@@ -380,6 +383,20 @@ def build_realtime_controller(
     )
     controller.reference = build_mpc(config, robot).reference  # for the run's report (gait stance)
     return controller
+
+
+def build_sensing_controller(
+    config: RunConfig, robot: Robot, inner: RunController, position_xy: tuple[float, float] = (0.0, 0.0)
+) -> SensingController:
+    """``inner`` behind the state estimator (``estimator: kinematic_kf``): the closed loop hands it sensor
+    readings, the estimator turns them into the measurement ``inner`` gets (``estimation.controller``).
+    ``position_xy``: where the robot is placed (the estimator's odometry origin)."""
+    try:
+        estimator = StateEstimator(robot, config.kinematic_kf.settings())
+    except ValueError as error:
+        raise ConfigError(f"kinematic_kf: {error}") from error
+    ticks = int(np.ceil(config.simulation.duration * config.simulation.control_rate_hz)) + 2
+    return SensingController(inner, estimator, capacity=ticks, position_xy=position_xy)
 
 
 def build_low_level(config: RunConfig, robot: Robot) -> LowLevelController:

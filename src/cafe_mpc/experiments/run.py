@@ -26,6 +26,7 @@ from cafe_mpc.experiments.controllers import (
     RunController,
     build_controller,
     build_realtime_controller,
+    build_sensing_controller,
     low_level_of,
     mpc_statistics_of,
     mpc_summary,
@@ -39,6 +40,7 @@ from cafe_mpc.experiments.tasks import torque_limits_of
 from cafe_mpc.robots.robot import Robot, load_robot
 from cafe_mpc.sim.bar import bar_of
 from cafe_mpc.sim.loop import FallCriteria, Push, SimulationLog, WallClockPacer, simulate
+from cafe_mpc.sim.sensors import SensorSuite
 
 logger = logging.getLogger(__name__)
 
@@ -57,6 +59,12 @@ def simulate_run(
     config: RunConfig, progress=None, viewer: bool = False
 ) -> tuple[Robot, RunController, SimulationLog]:
     """Build robot and controller from ``config`` and run the closed loop (no files written).
+
+    ``config.estimator``: ``ground_truth`` hands the controller the plant's state; ``kinematic_kf`` hands it
+    the robot's sensor readings (``config.plant.sensors``, ``sim.sensors``) through the state estimator
+    (``estimation``), in every timing mode and in real time; the log's ``extra`` then holds the estimate of
+    every tick (``estimate_q``, ``estimate_v``, ``estimated_contacts``, ``estimate_trust``; ``log.npz``:
+    ``extra_<name>``). The returned controller is the one behind the estimator.
 
     ``config.simulation.realtime``: against the wall clock with the MPC in its own process (the process is
     stopped before this returns, also on errors). For CAFE-MPC runs the log's ``extra`` holds per-tick
@@ -102,16 +110,24 @@ def simulate_run(
         options["plant"] = GymQuadrupedPlant(
             robot, config.simulation.plant_timestep, config.plant.floor_friction, config.plant.gym_scene
         )
+    estimating = config.estimator != "ground_truth"
+    if estimating:  # the controller reads the robot's sensors; the state noise model does not apply
+        rate = config.simulation.control_rate_hz
+        options["sensor"] = None
+        options["sensors"] = SensorSuite(robot.nu, config.plant.sensor_spec(rate), rate)
+    sensing = None
     if config.simulation.realtime:
         with build_realtime_controller(config, robot) as controller:
             standing = Measurement.of_state(q0, np.zeros(robot.nv), np.ones(robot.n_feet, dtype=bool))
             controller.wait_ready(standing)
             if viewer:  # the pacer holds the wall clock already
                 live = options["observer"] = _live_viewer(robot, controller, realtime=False)
+            if estimating:
+                sensing = build_sensing_controller(config, robot, controller, (float(q0[0]), float(q0[1])))
             try:
                 log = simulate(
                     robot,
-                    controller,
+                    controller if sensing is None else sensing,
                     config.simulation.duration,
                     pacer=WallClockPacer(),
                     stop=controller.should_stop,
@@ -127,15 +143,22 @@ def simulate_run(
             )
     else:
         controller = build_controller(config, robot)
+        if estimating:
+            sensing = build_sensing_controller(config, robot, controller, (float(q0[0]), float(q0[1])))
         if viewer:
             live = options["observer"] = _live_viewer(robot, controller, realtime=True)
         try:
-            log = simulate(robot, controller, config.simulation.duration, **options)
+            log = simulate(
+                robot, controller if sensing is None else sensing, config.simulation.duration, **options
+            )
         finally:
             if live is not None:
                 live.close()
     if live is not None:
         log.extra["viewer"] = live.summary()
+    log.extra["estimator"] = config.estimator
+    if sensing is not None:
+        log.extra.update({name: values[: log.ticks] for name, values in sensing.trace().items()})
     recorder = recorder_of(controller)
     if recorder is not None:
         requested, planned = recorder.traces(log.time)
@@ -183,6 +206,9 @@ def run_metrics(config: RunConfig, robot: Robot, controller: RunController, log:
         metrics["sensor"] = log.extra["sensor"]
     if "viewer" in log.extra:
         metrics["viewer"] = log.extra["viewer"]
+    from cafe_mpc.report.estimation import estimator_metrics
+
+    metrics["estimator"] = estimator_metrics(config.estimator, log)
     metrics["wbc"] = wbc_metrics(
         robot,
         log,
@@ -277,6 +303,10 @@ def run(
                     mpc_statistics=mpc_statistics_of(controller),
                     mpc_period=config.mpc.period,
                 )
+                if "estimate_q" in log.extra:  # estimator: kinematic_kf
+                    from cafe_mpc.report.estimation import plot_estimate
+
+                    plot_estimate(robot, log, partial / "estimator.png")
                 if metrics.get("task"):
                     from cafe_mpc.report.task_metrics import task_from_reference
                     from cafe_mpc.report.task_plots import plot_task, plot_task_torques

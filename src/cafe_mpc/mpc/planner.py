@@ -28,6 +28,7 @@ import numpy as np
 
 from cafe_mpc.core.plan import Plan
 from cafe_mpc.core.template_plan import TemplatePlan
+from cafe_mpc.mpc import collector
 from cafe_mpc.reference.base import Reference
 from cafe_mpc.robots.robot import Robot
 from cafe_mpc.solver import MSiLQRSolver, SolverOptions, SolverResult
@@ -59,11 +60,12 @@ class MpcSettings:
     (``SolverOptions.al_max_penalty``; ``None``: the authors' 1e4). The penalty starts at 20 and grows x5 per
     update while a planned foot misses the floor by more than 5 mm (the AL parameters carry over between
     updates); the barrel-roll preset caps it at 20 (docs/settings.md).
-    ``final_policy``: the policy an update returns (``SolverOptions.final_policy``): ``"relinearize"``
-    (default) linearises and sweeps again at the new plan; ``"shift"`` keeps the sweep the step was taken
-    from, moved to the new plan to first order (the real-time iteration's policy: one linearisation and one
-    sweep less, a fifth to a quarter of an update; but the bound fell with it at fixed 40 and 50 ms latency,
-    where it stands with ``"relinearize"``: BENCHMARKS.md).
+    ``final_policy``: the policy an update returns (``SolverOptions.final_policy``): ``"shift"`` (default)
+    keeps the sweep the step was taken from, moved to the new plan to first order (the real-time iteration's
+    policy: one linearisation and one backward sweep per update); ``"relinearize"`` linearises and sweeps
+    again at the new plan (a third more work per preparation; with the real-time iteration both track the
+    gaits alike at fixed 20-60 ms latency, and the running barrel roll succeeds at 10-40 ms with either,
+    at 50 ms only with ``"relinearize"``: BENCHMARKS.md).
     ``warm_up``: seconds of future updates whose solver data (one per knot object: Pinocchio ``Data``,
     kinematics, buffers) are created right after the cold first solve, before the clock starts, instead of
     inside the first update that meets each knot object (which took 25-60 ms extra at the start of a gait
@@ -80,6 +82,7 @@ class MpcSettings:
     ``compute_scale``: measured mode only: every measured wall time (update, preparation, feedback) is
     multiplied by it before it is applied in simulated time, to show the controller as it would run on a
     computer ``compute_scale`` times slower.
+    ``threads``: threads that linearise the knots of an update (``SolverOptions.threads``; 1: none).
     """
 
     period: float = 0.02
@@ -88,12 +91,13 @@ class MpcSettings:
     time_budget: float | None = None
     max_iterations: int = 1
     touchdown_max_penalty: float | None = None
-    final_policy: Literal["relinearize", "shift"] = "relinearize"
+    final_policy: Literal["relinearize", "shift"] = "shift"
     warm_up: float = 1.0
     scheme: Literal["one_phase", "rti"] = "rti"
     rti_line_search: bool = True
     rti_feedback: Literal["linear", "nonlinear"] = "linear"
     compute_scale: float = 1.0
+    threads: int = 1
     # The paper's first-solve settings with a tighter tolerance: the first (cold) solve seeds every later
     # warm start. It runs before the clock starts (the robot stands while the first plan is computed).
     first_solve: SolverOptions = field(
@@ -128,6 +132,8 @@ class MpcSettings:
             raise ValueError(f"MPC rti_feedback must be 'linear' or 'nonlinear', got {self.rti_feedback!r}")
         if not (math.isfinite(self.compute_scale) and self.compute_scale > 0):
             raise ValueError(f"MPC compute_scale must be positive, got {self.compute_scale}")
+        if self.threads < 1:
+            raise ValueError(f"MPC threads must be >= 1, got {self.threads}")
 
     @property
     def budget(self) -> float | None:
@@ -147,6 +153,7 @@ class MpcSettings:
             regularization_min=1e-6,
             line_search_min_step=UPDATE_LINE_SEARCH_MIN_STEP,
             final_policy=self.final_policy,
+            threads=self.threads,
         )
         if self.touchdown_max_penalty is not None:
             options = replace(options, al_max_penalty=self.touchdown_max_penalty)
@@ -334,11 +341,15 @@ class RecedingHorizonPlanner:
         """Whether this planner has the real-time iteration's two phases."""
         return False
 
+    @collector.paused
     def update(self, t: float, q: np.ndarray, v: np.ndarray) -> Plan | TemplatePlan | None:
         """One one-phase update from the state measured at ``t``; ``None`` (counted and logged) if it
-        failed. The first update of a run is the cold solve (``settings.first_solve``)."""
+        failed. The first update of a run is the cold solve (``settings.first_solve``); after it (and the
+        warm-up) the objects alive are frozen out of the garbage collector's reach (``mpc.collector``)."""
         first = self.previous is None
         self.prepared = None
+        if first:
+            collector.thaw()
         start = time.perf_counter()
         outcome = self._solve_at(t, q, v, self.first_solver if first else self.solver)
         if outcome is None:
@@ -354,6 +365,8 @@ class RecedingHorizonPlanner:
         self.previous = (built, result)
         if first and self.settings.warm_up > 0.0:
             self._warm_up(t)
+        if first:
+            collector.freeze_live_objects()  # before the clock starts
         return plan
 
     def prepare(self, t: float, q: np.ndarray, v: np.ndarray) -> bool:

@@ -168,6 +168,7 @@ class CafeProblemBuilder:
         self._srb_terminal: dict[str, SRBKnot] = {}
         self._switches: dict[tuple, tuple] = {}
         self._names: tuple[str, ...] = ("regular",)
+        self._total_weight = self.robot.total_mass * GRAVITY
 
     def stance_torque(
         self, stance: tuple[bool, ...] | None, support_factor: float | None = None
@@ -294,7 +295,7 @@ class CafeProblemBuilder:
         self._names = tuple(reference.weight_sets)
         reference.sample(window)
         window.check_finite(type(reference).__name__)
-        stance_rows = [tuple(bool(s) for s in row) for row in window.stance]
+        stance_rows = [tuple(row) for row in window.stance.tolist()]
         groups: list[tuple[tuple[bool, ...], int, int]] = []  # (stance, first knot, last knot + 1)
         start = 0
         for k in range(1, n_w + 1):
@@ -354,7 +355,7 @@ class CafeProblemBuilder:
                 row = offset + j
                 knot = self._srb_knot(j, int(weight_set[row]), quanta(float(srb_times[j + 1] - srb_times[j])))
                 srb_factory = self._factories(int(weight_set[row]))[2]
-                to_srb_weight = srb_factory.weight / (self.robot.total_mass * GRAVITY)
+                to_srb_weight = srb_factory.weight / self._total_weight
                 ref = knot.reference
                 ref.state[:] = whole_body_to_srb_state(state[row])
                 ref.contacts[:] = fractions[j]

@@ -23,7 +23,6 @@ split).
 
 from __future__ import annotations
 
-import gc
 import logging
 import math
 import time
@@ -31,6 +30,7 @@ import time
 import numpy as np
 
 from cafe_mpc.core.plan import Plan
+from cafe_mpc.mpc import collector
 from cafe_mpc.mpc.planner import (
     PLANNER_ERRORS,
     UPDATE_LINE_SEARCH_MIN_STEP,
@@ -84,6 +84,7 @@ class RecedingHorizonMpc(RecedingHorizonPlanner):
     def supports_rti(self) -> bool:
         return True
 
+    @collector.paused
     def prepare(self, t: float, q: np.ndarray, v: np.ndarray) -> bool:
         """The preparation phase of a real-time iteration for the update at ``t``, from the state ``q, v``
         predicted for ``t`` (``predict``): reference, problem, warm start, linearisation, backward sweep
@@ -100,6 +101,7 @@ class RecedingHorizonMpc(RecedingHorizonPlanner):
         self.prepared = (t, built, result)
         return True
 
+    @collector.paused
     def feedback(self, t: float, q: np.ndarray, v: np.ndarray) -> Plan | None:
         """The feedback phase of the update at ``t``: the state measured at ``t`` embedded through the
         prepared policy (``MSiLQRSolver.feedback``), the plan made; ``None`` (counted and logged) when no
@@ -115,9 +117,6 @@ class RecedingHorizonMpc(RecedingHorizonPlanner):
         x[: robot.nq] = q
         x[robot.nq :] = v
         settings = self.settings
-        # no garbage collection on the robot's latency path: it runs in the preparation instead
-        collecting = gc.isenabled()
-        gc.disable()
         try:
             self._contact_consistent(x, built.phases[0].stance)
             embedded = self.prepare_solver.feedback(
@@ -128,9 +127,6 @@ class RecedingHorizonMpc(RecedingHorizonPlanner):
         except PLANNER_ERRORS as error:
             self._failed(t, f"its feedback failed ({error})")
             return None
-        finally:
-            if collecting:
-                gc.enable()
         elapsed = time.perf_counter() - start
         statistics = self.statistics
         statistics.feedback_times.append(elapsed)

@@ -36,7 +36,7 @@ from cafe_mpc.dynamics.transition import ComposedReset, WholeBodyToSRB
 from cafe_mpc.dynamics.whole_body import IntegrationScheme, WholeBodyDynamics
 from cafe_mpc.ocp.constraints import BarrierParameters, TouchdownFootHeight, WholeBodyConstraintSettings
 from cafe_mpc.ocp.costs import BaseError, SRBWeights, WholeBodyWeights
-from cafe_mpc.ocp.kernels import whole_body_cost, whole_body_derivatives
+from cafe_mpc.ocp.kernels import quaternion_rotation_into, whole_body_cost, whole_body_derivatives
 from cafe_mpc.robots.robot import Robot
 
 
@@ -305,6 +305,11 @@ class WholeBodyKnot(ActionModel):
         self._stance_legs = np.array([leg for leg in range(self.n_feet) if self.stance[leg]], dtype=np.int64)
         self._velocity_rows_from = nv if base_error == "tangent" else nv + 3
         self._needs_rotation = base_error == "world" or self.height_index >= 0
+        self._nq, self._nv = nq, nv
+        self._x_shape, self._u_shape = (nq + nv,), (self.nu,)
+        self._has_kinematics = not self.kinematics.empty
+        self._cost_velocity_rows_from = self._velocity_rows_from if self.tracks_state else 2 * nq
+        self._tangent_base_error = base_error == "tangent"
         self.layout = object()
         """Identity token shared by every knot made from this one with ``with_reference``: a data object
         created by one of them can be reused by any other (``data.layout is knot.layout``)."""
@@ -337,6 +342,8 @@ class WholeBodyKnot(ActionModel):
         return WholeBodyKnotData(self)
 
     def _check_sizes(self, x: np.ndarray, u: np.ndarray) -> None:
+        if x.shape == self._x_shape and u.shape == self._u_shape:
+            return
         if x.shape != (self.state.nx,):
             raise ValueError(f"{self!r}: x must have shape ({self.state.nx},), got {x.shape}")
         if u.shape != (self.nu,):
@@ -345,9 +352,9 @@ class WholeBodyKnot(ActionModel):
     def _state_residual(self, data: WholeBodyKnotData, x: np.ndarray) -> None:
         """Rows ``r[:ndx]``: ``x ⊖ x_ref`` (tangent) or the world-frame base error (see ``BaseError``)."""
         model, r = self.model, data.r
-        nq, nv = model.nq, model.nv
+        nq, nv = self._nq, self._nv
         x_ref = self.reference.state
-        if self.base_error == "tangent":
+        if self._tangent_base_error:
             r[:nv] = pin.difference(model, x_ref[:nq], x[:nq])
             return  # the velocity rows v - v_ref are set by the compiled cost
         rotation = data.base_rotation
@@ -360,12 +367,12 @@ class WholeBodyKnot(ActionModel):
 
     def calc(self, data: WholeBodyKnotData, x: np.ndarray, u: np.ndarray) -> None:
         self._check_sizes(x, u)
-        nq = self.model.nq
+        nq = self._nq
         if self.dynamics is not None:
             self.dynamics.calc(data.dynamics, x, u)
         if self._needs_rotation:
-            data.base_rotation = quaternion_to_rotation(x[3:7])
-        if not self.kinematics.empty:
+            quaternion_rotation_into(x[3:7], data.base_rotation)
+        if self._has_kinematics:
             self.kinematics.calc(data.kinematics, x[:nq], x[nq:])
         if self.tracks_state:
             self._state_residual(data, x)
@@ -401,10 +408,10 @@ class WholeBodyKnot(ActionModel):
             data.d2,
             self.cost_scale,
             data.values,
-            self._velocity_rows_from if self.tracks_state else 2 * nq,
+            self._cost_velocity_rows_from,
             reference.state,
             nq,
-            self.model.nv,
+            self._nv,
             self._stance_legs,
             data.forces,
             data.last_x,
@@ -417,14 +424,14 @@ class WholeBodyKnot(ActionModel):
         if not (same_point(x, data.last_x) and same_point(u, data.last_u)):
             self.calc(data, x, u)  # keep the forward pass consistent with (x, u)
         model = self.model
-        nq, nv = model.nq, model.nv
+        nq, nv = self._nq, self._nv
         if self.dynamics is not None:
             self.dynamics.calc_diff(data.dynamics, x, u)
-        if not self.kinematics.empty:
+        if self._has_kinematics:
             self.kinematics.calc_diff(data.kinematics, x[:nq], x[nq:])
         jacobian = data.base_jacobian
         if self.tracks_state:
-            if self.base_error == "tangent":
+            if self._tangent_base_error:
                 jacobian[:, :] = pin.dDifference(
                     model, self.reference.state[:nq], x[:nq], pin.ArgumentPosition.ARG1
                 )[:6, :6]

@@ -21,9 +21,10 @@ from dataclasses import dataclass
 import numpy as np
 
 from cafe_mpc.dynamics.statics import static_stance_torques
-from cafe_mpc.ocp.contact_schedule import ContactPhase, ContactSchedule, GaitCycle
+from cafe_mpc.ocp.contact_schedule import TIME_TOLERANCE, ContactPhase, ContactSchedule, GaitCycle
 from cafe_mpc.reference.base import STANCE_TIME_EPS, Reference, ReferenceWindow, switches_inside
 from cafe_mpc.reference.inverse_kinematics import LegInverseKinematics
+from cafe_mpc.reference.kernels import sample_foot
 from cafe_mpc.robots.robot import Robot
 
 GRAVITY = 9.81
@@ -172,6 +173,11 @@ class CommandProfile:
     def heading_displacement(self, t0: float, t1: float) -> tuple[np.ndarray, float]:
         """Position (x, y) and yaw change from ``t0`` to ``t1`` in the heading frame at ``t0``: the commands'
         velocities integrated (closed form where they are constant, Gauss-Legendre quadrature on ramps)."""
+        x, y, yaw = self.displacement_floats(t0, t1)
+        return np.array([x, y]), yaw
+
+    def displacement_floats(self, t0: float, t1: float) -> tuple[float, float, float]:
+        """``heading_displacement`` as plain floats ``(x, y, yaw)`` (the per-knot hot path)."""
         x = y = yaw = 0.0
         time = t0
         index = self._segment(t0)
@@ -208,7 +214,7 @@ class CommandProfile:
                     yaw += w * dt + 0.5 * slope[2] * dt * dt
             time = boundary
             index += 1
-        return np.array([x, y]), yaw
+        return x, y, yaw
 
 
 _GAUSS_NODES, _GAUSS_WEIGHTS = (values.tolist() for values in np.polynomial.legendre.leggauss(8))
@@ -303,6 +309,19 @@ class LocomotionReference(Reference):
         self._schedule_window = (math.inf, -math.inf)
         self.inverse_kinematics = LegInverseKinematics(robot)
         self._stance_torques: dict[tuple[tuple[bool, ...], float], np.ndarray] = {}
+        self._feet_stance = np.zeros((0, robot.n_feet), dtype=bool)
+        self._support_factor = gait.support_factor
+        self._period = gait.period
+        self._phase_ends = [float(end) for end in np.cumsum([duration for _, duration in gait.cycle])]
+        self._phase_flags = [flags for flags, _ in gait.cycle]
+
+    def _flags_at(self, t: float) -> tuple[bool, ...]:
+        """``gait.flags_at(t, cycle_start)`` with the cycle's sums made once."""
+        tau = (t - self.cycle_start) % self._period
+        for flags, end in zip(self._phase_flags, self._phase_ends, strict=True):
+            if tau < end - TIME_TOLERANCE:
+                return flags
+        return self._phase_flags[0]
 
     # ----------------------------------------------------------------------------------------- commands
     def command_at(self, t: float) -> VelocityCommand:
@@ -341,7 +360,7 @@ class LocomotionReference(Reference):
     def stance_at(self, t: float) -> tuple[bool, bool, bool, bool]:
         if t < self.start_stance - 1e-9:
             return (True, True, True, True)
-        return self.gait.flags_at(t, self.cycle_start)
+        return self._flags_at(t)
 
     # ------------------------------------------------------------------------------------------ update
     def update(self, t: float, q: np.ndarray, v: np.ndarray) -> None:
@@ -435,49 +454,52 @@ class LocomotionReference(Reference):
         # down in between stands on that swing's foothold, not where it stood at the anchor (missing this put
         # the SRB tail's stance feet up to 0.4 m from where the whole-body plan had placed them).
         t0, t1 = min(float(times[0]), self.anchor_time), float(max(times[-1], times[0]))
-        for foot in range(n_feet):
-            start_position = self.stance_positions[foot].copy()
-            swings = self._swings(foot, t0, t1)
-            segments = []  # (liftoff, touchdown, p_liftoff, p_touchdown)
-            for liftoff, touchdown, stance_duration in swings:
-                p0 = self.liftoff_positions[foot].copy() if liftoff <= self.anchor_time else start_position
-                p1 = self.foothold(foot, touchdown, stance_duration)
-                segments.append((liftoff, touchdown, p0, p1))
-                start_position = p1
-            for i, t in enumerate(times):
-                position = self.stance_positions[foot]
-                in_swing = False
-                for liftoff, touchdown, p0, p1 in segments:
-                    if liftoff - 1e-9 <= t < touchdown - 1e-9:
-                        in_swing = True
-                        duration = touchdown - liftoff
-                        s = (t - liftoff) / duration
-                        blend, dblend = cubic_bezier_blend(s)
-                        positions[i, foot, :2] = p0[:2] + (p1[:2] - p0[:2]) * blend
-                        velocities[i, foot, :2] = (p1[:2] - p0[:2]) * dblend / duration
-                        apex = max(p0[2], p1[2]) + self.swing_height
-                        if s < 0.5:
-                            blend, dblend = cubic_bezier_blend(2.0 * s)
-                            positions[i, foot, 2] = p0[2] + (apex - p0[2]) * blend
-                            velocities[i, foot, 2] = (apex - p0[2]) * dblend * 2.0 / duration
-                        else:
-                            blend, dblend = cubic_bezier_blend(2.0 * s - 1.0)
-                            positions[i, foot, 2] = apex + (p1[2] - apex) * blend
-                            velocities[i, foot, 2] = (p1[2] - apex) * dblend * 2.0 / duration
-                        break
-                    if t >= touchdown - 1e-9:
-                        position = p1
-                if not in_swing:
-                    stance[i, foot] = True
-                    positions[i, foot] = position
+        self.sample_feet(times, t0, t1, stance, positions, velocities)
         return stance, positions, velocities
+
+    def sample_feet(
+        self,
+        times: np.ndarray,
+        t0: float,
+        t1: float,
+        stance: np.ndarray,
+        positions: np.ndarray,
+        velocities: np.ndarray,
+    ) -> None:
+        """``feet`` into given arrays: the swings overlapping ``[t0, t1]`` with their Raibert footholds, then
+        each foot sampled by the compiled ``reference.kernels.sample_foot``."""
+        for foot in range(self.robot.n_feet):
+            start_position = self.stance_positions[foot]
+            swings = self._swings(foot, t0, t1)
+            n_swings = len(swings)
+            liftoffs, touchdowns = np.empty(n_swings), np.empty(n_swings)
+            starts, ends = np.empty((n_swings, 3)), np.empty((n_swings, 3))
+            for j, (liftoff, touchdown, stance_duration) in enumerate(swings):
+                liftoffs[j], touchdowns[j] = liftoff, touchdown
+                starts[j] = self.liftoff_positions[foot] if liftoff <= self.anchor_time else start_position
+                ends[j] = self.foothold(foot, touchdown, stance_duration)
+                start_position = ends[j]
+            sample_foot(
+                times,
+                liftoffs,
+                touchdowns,
+                starts,
+                ends,
+                self.stance_positions[foot],
+                self.swing_height,
+                foot,
+                stance,
+                positions,
+                velocities,
+            )
 
     def stance_torque(self, stance: Sequence[bool], support_factor: float) -> np.ndarray:
         """Torques holding the standing pose with ``support_factor * m g`` on each stance foot (zero in
         flight); cached per stance and factor."""
-        key = (tuple(bool(s) for s in stance), round(float(support_factor), 6))
+        key = (tuple(stance), round(float(support_factor), 6))
         torque = self._stance_torques.get(key)
         if torque is None:
+            key = (tuple(bool(s) for s in stance), key[1])
             if any(key[0]):
                 force = key[1] * self.mass * GRAVITY
                 torque = static_stance_torques(self.robot, self.robot.q_standing, np.array(key[0]), force)
@@ -492,26 +514,58 @@ class LocomotionReference(Reference):
         inverse kinematics, torque and GRF references from the gait's average stance load."""
         times = window.times
         nq = self.robot.nq
-        _, positions, velocities = self.feet(times)
-        window.foot_positions[:] = positions
-        window.foot_velocities[:] = velocities
+        positions, velocities = window.foot_positions, window.foot_velocities
+        n = len(times)
+        if n:
+            if self._feet_stance.shape[0] < n:
+                self._feet_stance = np.zeros((window.capacity, self.robot.n_feet), dtype=bool)
+            t0 = min(float(times[0]), self.anchor_time)
+            t1 = float(max(times[-1], times[0]))
+            self.sample_feet(times, t0, t1, self._feet_stance, positions, velocities)
         state = window.state
-        for i, t in enumerate(times):
-            t = float(t)
-            window.stance[i] = self.stance_at(t + STANCE_TIME_EPS)
-            q, v = self.base_state(t)
-            state[i, :nq] = q
-            state[i, nq:] = v
+        cos_anchor, sin_anchor = math.cos(self.anchor_yaw), math.sin(self.anchor_yaw)
+        anchor_x, anchor_y = float(self.anchor_xy[0]), float(self.anchor_xy[1])
+        anchor_time, anchor_yaw = self.anchor_time, self.anchor_yaw
+        profile = self.profile
+        # base_state(t) of every time as plain floats, then one array write per block
+        flags_rows, bases, velocities_xy, yaw_rates, factors, torques = [], [], [], [], [], []
+        for t in times.tolist():
+            flags = self.stance_at(t + STANCE_TIME_EPS)
+            x, y, turn = profile.displacement_floats(anchor_time, max(t, anchor_time))
+            yaw = anchor_yaw + turn
+            vx, vy, yaw_rate, height = profile.values_at(t)
+            bases.append(
+                (
+                    anchor_x + (cos_anchor * x - sin_anchor * y),
+                    anchor_y + (sin_anchor * x + cos_anchor * y),
+                    height,
+                    0.0,
+                    0.0,
+                    math.sin(0.5 * yaw),
+                    math.cos(0.5 * yaw),
+                )
+            )
+            velocities_xy.append((vx, vy))
+            yaw_rates.append(yaw_rate)
+            factor = self.support_factor(t)
+            factors.append(factor)
+            flags_rows.append(flags)
+            torques.append(self.stance_torque(flags, factor))
+        if n:
+            state[:, :7] = bases
+            state[:, 7:nq] = self.nominal_joints
+            state[:, nq:] = 0.0
+            state[:, nq : nq + 2] = velocities_xy
+            state[:, nq + 5] = yaw_rates
+            window.stance[:] = flags_rows
+            window.torque[:] = torques
+            window.forces[:, :, :2] = 0.0
+            window.forces[:, :, 2] = window.stance * (np.asarray(factors) * self.mass * GRAVITY)[:, None]
         joints, rates, _ = self.inverse_kinematics.solve_batch(
             state[:, :7], positions, None, state[:, nq : nq + 6], velocities
         )
         state[:, 7:nq] = joints
         state[:, nq + 6 :] = rates
-        for i, t in enumerate(times):
-            factor = self.support_factor(float(t))
-            window.torque[i] = self.stance_torque(window.stance[i], factor)
-            window.forces[i] = 0.0
-            window.forces[i, :, 2] = window.stance[i] * (factor * self.mass * GRAVITY)
         window.weight_set[:] = 0
 
     def support_factor(self, t: float) -> float:
@@ -519,7 +573,7 @@ class LocomotionReference(Reference):
         (``GaitCycle.support_factor``: 1/2 trotting, 1 bounding); 1/4 during the initial stand."""
         if t < self.start_stance - 1e-9:
             return 1.0 / self.robot.n_feet
-        return self.gait.support_factor
+        return self._support_factor
 
     def normal_forces(self, stance: np.ndarray, times: Sequence[float] | None = None) -> np.ndarray:
         """GRF reference (n, n_feet, 3): vertical, ``support_factor * m g`` on each stance foot (the weight

@@ -4,7 +4,9 @@ The controller sees only a ``Measurement`` (planning coordinates) and returns jo
 (zero-order hold) until its next call. Push disturbances are world-frame forces on the base over time
 intervals. Every control tick is logged into preallocated arrays. A ``PlantVariation`` changes the plant
 (friction, masses, motor strengths) and a ``SensorModel`` what the controller measures (noise, latency
-jitter); the log records the plant's true state (``sim.randomization``).
+jitter); the log records the plant's true state (``sim.randomization``). With a ``SensorSuite``
+(``sim.sensors``) the controller gets the robot's sensor readings instead of a state (IMU and encoders;
+``estimation.controller.SensingController`` estimates the state from them).
 """
 
 from __future__ import annotations
@@ -18,13 +20,24 @@ from typing import Protocol
 import numpy as np
 
 from cafe_mpc.core.controller import Controller
+from cafe_mpc.core.sensors import SensorReadings
 from cafe_mpc.robots.robot import Robot
 from cafe_mpc.sim.bar import Bar, geom_label
 from cafe_mpc.sim.plant import MujocoPlant
 from cafe_mpc.sim.randomization import PlantVariation, SensorModel
+from cafe_mpc.sim.sensors import SensorSuite
 from cafe_mpc.sim.terrain import Terrain
 
 logger = logging.getLogger(__name__)
+
+
+class SensorController(Protocol):
+    """A controller fed by sensor readings (``estimation.controller.SensingController``): ``reset()`` once,
+    then ``compute(t, readings)`` at the control rate."""
+
+    def reset(self) -> None: ...
+
+    def compute(self, t: float, readings: SensorReadings) -> np.ndarray: ...
 
 
 class ControllerError(RuntimeError):
@@ -144,7 +157,7 @@ def base_tilt(q: np.ndarray) -> float:
 
 def simulate(
     robot: Robot,
-    controller: Controller,
+    controller: Controller | SensorController,
     duration: float,
     control_rate_hz: float = 500.0,
     q0: np.ndarray | None = None,
@@ -162,6 +175,7 @@ def simulate(
     observer: Observer | None = None,
     bar: Bar | None = None,
     plant: MujocoPlant | None = None,
+    sensors: SensorSuite | None = None,
 ) -> SimulationLog:
     """Run ``controller`` on the MuJoCo plant for ``duration`` seconds of simulated time.
 
@@ -175,11 +189,19 @@ def simulate(
     tick (the live viewer) and may end the run early. ``plant``: a plant built by the caller instead of the
     MuJoCo plant of ``robot`` (e.g. ``sim.gym_plant.GymQuadrupedPlant``, the same interface); then
     ``plant_timestep``, ``variation``, ``terrain`` and ``bar`` are the caller's business.
+    ``sensors``: the controller is a ``SensorController`` and gets the robot's sensor readings
+    (``sim.sensors``; ``sensor`` must then be None or ideal: the suite has its own noise and latency jitter);
+    the log's ``extra`` holds ``sensors`` (their summary).
     """
     if not duration > 0:
         raise ValueError(f"duration must be positive, got {duration}")
     if not control_rate_hz > 0:
         raise ValueError(f"control rate must be positive, got {control_rate_hz}")
+    if sensors is not None and sensor is not None and not sensor.is_identity:
+        raise ValueError(
+            "a run with sensor readings (sensors) cannot also perturb the true state (sensor): the readings "
+            "carry their own noise and latency jitter"
+        )
     if plant is None:
         plant = MujocoPlant(robot, plant_timestep, variation, terrain, bar)
     control_period = 1.0 / control_rate_hz
@@ -197,6 +219,8 @@ def simulate(
     controller.reset()
     if sensor is not None:
         sensor.reset()
+    if sensors is not None:
+        sensors.reset()
     ticks = round(duration * control_rate_hz)
     log = SimulationLog.allocate(ticks, robot.nq, robot.nv, robot.nu, robot.n_feet)
     bar_contact = np.zeros(ticks, dtype=bool)
@@ -211,8 +235,11 @@ def simulate(
         if pacer is not None:
             pacer.wait(tick)
         state = plant.read_state()
-        measured = state if sensor is None else sensor.observe(tick, state)
-        torques = np.asarray(controller.compute(t, measured), dtype=float)
+        if sensors is not None:  # the controller sees the sensors, never the plant's state
+            torques = np.asarray(controller.compute(t, sensors.read(plant)), dtype=float)  # type: ignore[arg-type]
+        else:
+            measured = state if sensor is None else sensor.observe(tick, state)
+            torques = np.asarray(controller.compute(t, measured), dtype=float)  # type: ignore[arg-type]
         if torques.shape != (robot.nu,) or not np.all(np.isfinite(torques)):
             raise ControllerError(f"controller returned invalid torques at t = {t:.3f} s: {torques}")
         external[:] = 0.0
@@ -257,6 +284,8 @@ def simulate(
         log.extra["realtime"] = pacer.summary(log.ticks)
     if sensor is not None and not sensor.is_identity:
         log.extra["sensor"] = sensor.summary()
+    if sensors is not None:
+        log.extra["sensors"] = sensors.summary()
     if bar is not None:
         geoms = sorted(plant.bar_contact_geoms)
         log.extra["bar"] = {"touched_by": [geom_label(plant.model, geom) for geom in geoms]}

@@ -11,14 +11,16 @@ coordinates (Pinocchio's free-flyer convention):
 MuJoCo's free joint stores the quaternion as ``(w, x, y, z)`` and the linear velocity in the world frame;
 the conversion happens here and only here.
 
-A ``PlantVariation`` (``sim.randomization``) changes the plant's friction, masses and motor strengths
-after the model is loaded (domain randomisation), and terrain (``sim.terrain``) adds slopes and steps to the
-scene; the ``Robot``, and so every controller, stays nominal (it plans on flat ground).
+The scene carries the robot's sensors (``sim.sensors``): ``sim.sensors.SensorSuite`` reads them as a robot
+would (IMU and encoders with noise, bias and quantisation). A ``PlantVariation`` (``sim.randomization``)
+changes the plant's friction, masses and motor strengths after the model is loaded (domain randomisation), and
+terrain (``sim.terrain``) adds slopes and steps to the scene; the ``Robot``, and so every controller, stays
+nominal (it plans on flat ground).
 """
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 
 import mujoco
 import numpy as np
@@ -27,6 +29,7 @@ from cafe_mpc.core.measurement import Measurement
 from cafe_mpc.robots.robot import Robot
 from cafe_mpc.sim.bar import BAR_NAME, Bar, with_bar
 from cafe_mpc.sim.randomization import PlantVariation, apply_variation
+from cafe_mpc.sim.sensors import with_sensors
 from cafe_mpc.sim.terrain import Terrain, with_terrain
 
 _DIVERGENCE_WARNINGS = (
@@ -76,7 +79,11 @@ class MujocoPlant:
         self.robot = robot
         self.terrain = tuple(terrain)
         self.bar = bar
-        self.model = mujoco.MjModel.from_xml_string(scene_mjcf(robot, self.terrain, bar))
+        # the robot's sensors (sim.sensors: IMU and joint sensors) instrument the plant; they do not change
+        # its dynamics
+        self.model = mujoco.MjModel.from_xml_string(
+            with_sensors(scene_mjcf(robot, self.terrain, bar), robot.joint_names)
+        )
         if timestep is not None:
             if not timestep > 0:
                 raise ValueError(f"plant timestep must be positive, got {timestep}")
@@ -116,6 +123,8 @@ class MujocoPlant:
         """A robot geom touched the bar at the last ``read_state`` (``sim.bar``)."""
         self.bar_contact_geoms: set[int] = set()
         """Every robot geom that touched the bar since ``reset``."""
+        self.after_step: Callable[[mujoco.MjData], None] | None = None
+        """Called after every physics step (``sim.sensors.SensorSuite`` averages the IMU over the steps)."""
 
     @property
     def timestep(self) -> float:
@@ -156,6 +165,8 @@ class MujocoPlant:
         self.data.ctrl[:] = torques
         for _ in range(n_steps):
             mujoco.mj_step(self.model, self.data)
+            if self.after_step is not None:
+                self.after_step(self.data)
             # MuJoCo resets itself (and only warns) when the state blows up; turn that into an error.
             for warning in _DIVERGENCE_WARNINGS:
                 if self.data.warning[warning].number > 0:

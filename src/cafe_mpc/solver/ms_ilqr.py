@@ -133,15 +133,20 @@ class MSiLQRSolver:
         seed_states = self._initialize(workspace, initial_xs, initial_us, rollout_knots)
         self._initialize_augmented_lagrangian(workspace, initial_multipliers, initial_penalties)
 
-        nominal = self._evaluate_nominal(workspace, problem.x0, seed_states)
+        stats = SolverStatistics()
+        # the first linearisation fused with the evaluation (each knot's calc_diff right after its calc,
+        # while its data are in the cache), except on a thread pool
+        fused = options.threads == 1
+        nominal = self._evaluate_nominal(workspace, problem.x0, seed_states, stats if fused else None)
         data_at_nominal = True
         if not nominal.finite():
             raise ValueError("the initial guess has a non-finite cost or defect")
-        stats = SolverStatistics()
         clock = time.perf_counter()
-        stats.setup_time = clock - start
-        self._linearize(workspace)
-        stats.linearize_time += time.perf_counter() - clock
+        stats.setup_time = clock - start - stats.linearize_time
+        if not fused:
+            self._linearize(workspace)
+            stats.linearize_time += time.perf_counter() - clock
+            stats.linearizations += 1
         self._regularization = options.regularization_initial
         status, inner_converged, policy_valid = "max_iterations", False, False
         last_iteration_time = 0.0
@@ -162,6 +167,7 @@ class MSiLQRSolver:
                     clock = time.perf_counter()
                     self._linearize(workspace)
                     stats.linearize_time += time.perf_counter() - clock
+                    stats.linearizations += 1
                     pending_step = None
                 clock = time.perf_counter()
                 outcome = self._backward_pass_with_regularization(workspace, stats)
@@ -231,6 +237,7 @@ class MSiLQRSolver:
                     clock = time.perf_counter()
                     self._linearize(workspace)
                     stats.linearize_time += time.perf_counter() - clock
+                    stats.linearizations += 1
                 clock = time.perf_counter()
                 policy_valid = self._backward_pass_with_regularization(workspace, stats) == "ok"
                 stats.backward_time += time.perf_counter() - clock
@@ -392,15 +399,23 @@ class MSiLQRSolver:
 
     # ------------------------------------------------------------------------ evaluation and linearisation
     def _evaluate_nominal(
-        self, workspace: Workspace, x0: np.ndarray, seed_states: list[np.ndarray]
+        self,
+        workspace: Workspace,
+        x0: np.ndarray,
+        seed_states: list[np.ndarray],
+        linearize: SolverStatistics | None = None,
     ) -> _Totals:
         """Evaluate cost, defects (Eqs. (4), (15)) and switching constraints of the nominal trajectory.
 
         States flagged in ``seed_states`` are overwritten by simulating the dynamics (roll-out, Eq. (13)); the
-        first state of the first phase is set to ``x0``.
+        first state of the first phase is set to ``x0``. With ``linearize`` (the solve's statistics, which
+        get the time it took) every knot is also linearised right after its evaluation, as ``_linearize``
+        does (same results, the knot's data still in the cache).
         """
         totals = _Totals()
         previous: PhaseWorkspace | None = None
+        clock = time.perf_counter
+        linearize_time = 0.0
         for work, seed in zip(workspace.phases, seed_states, strict=True):
             xs, us, defects = work.xs, work.us, work.defects
             if previous is None:
@@ -412,7 +427,12 @@ class MSiLQRSolver:
                     xs[0] = reset_state
                     defects[0] = 0.0
                 else:
-                    defects[0] = work.difference(xs[0], reset_state)
+                    work.difference_into(xs[0], reset_state, defects[0])
+                if linearize is not None:
+                    started = clock()
+                    work.transport(xs[0], reset_state, previous.reset_data.Px, previous.reset_jacobian)
+                    linearize_time += clock() - started
+            F, transport = work.F, work.transport_stacked
             for k, (model, data) in enumerate(zip(work.models, work.running_data, strict=True)):
                 model.calc(data, xs[k], us[k])
                 totals.cost += data.cost
@@ -422,9 +442,25 @@ class MSiLQRSolver:
                     xs[k + 1] = data.x_next
                     defects[k + 1] = 0.0
                 else:
-                    defects[k + 1] = work.difference(xs[k + 1], data.x_next)
+                    work.difference_into(xs[k + 1], data.x_next, defects[k + 1])
+                if linearize is not None and math.isfinite(data.cost):
+                    started = clock()
+                    model.calc_diff(data, xs[k], us[k])
+                    transport(xs[k + 1], data.x_next, data.Fx, data.Fu, F[k])  # [A_k | B_k]
+                    linearize_time += clock() - started
             self._evaluate_phase_end(work, xs[-1], work.switching_value, totals)
+            if linearize is not None and math.isfinite(totals.cost):
+                started = clock()
+                work.terminal_model.calc_diff(work.terminal_data, xs[-1], EMPTY_CONTROL)
+                if work.constraint is not None:
+                    work.constraint.calc_diff(work.constraint_data, xs[-1])
+                if work.reset_map is not None:
+                    work.reset_map.calc_diff(work.reset_data, xs[-1])
+                linearize_time += clock() - started
             previous = work
+        if linearize is not None:
+            linearize.linearize_time += linearize_time
+            linearize.linearizations += 1
         self._sum_defects(workspace, totals, trial=False)
         totals.augmented_cost += totals.cost
         return totals
@@ -474,30 +510,52 @@ class MSiLQRSolver:
         nominal.augmented_cost = nominal.cost + self._augmented_lagrangian_terms(workspace)
         return nominal
 
-    @staticmethod
-    def _linearize(workspace: Workspace) -> None:
+    def _linearize(self, workspace: Workspace) -> None:
         """Derivatives at the nominal trajectory; ``A``, ``B`` and the reset Jacobian in the tangent spaces.
 
         ``A = J Fx`` and ``B = J Fu`` with ``J = ∂(y ⊖ x̄_{k+1})/∂y`` at ``y = f(x̄_k, ū_k)``: a perturbation
         of the knot then maps to a perturbation of the *next nominal state* (identity on Euclidean states).
         The cost derivatives land directly in the phase's stacked arrays (the data are bound to them).
         The models' ``calc`` ran last at the nominal trajectory (initial evaluation or accepted trial).
+        With ``options.threads > 1`` the running knots go to a thread pool in contiguous blocks.
         """
         phases = workspace.phases
-        for i, work in enumerate(phases):
-            xs, us, F = work.xs, work.us, work.F
-            transport = work.transport_stacked
-            for k, (model, data) in enumerate(zip(work.models, work.running_data, strict=True)):
-                model.calc_diff(data, xs[k], us[k])
-                transport(xs[k + 1], data.x_next, data.Fx, data.Fu, F[k])  # [A_k | B_k]
-            work.terminal_model.calc_diff(work.terminal_data, xs[-1], EMPTY_CONTROL)
-            if work.constraint is not None:
-                work.constraint.calc_diff(work.constraint_data, xs[-1])
-            if work.reset_map is not None:
-                reset_data = work.reset_data
-                work.reset_map.calc_diff(reset_data, xs[-1])
-                following = phases[i + 1]
-                following.transport(following.xs[0], reset_data.x_next, reset_data.Px, work.reset_jacobian)
+        threads = self.options.threads
+        pending = []
+        if threads > 1:
+            pool = self._thread_pool()
+            for work in phases:
+                n_knots = work.horizon
+                block = -(-n_knots // threads)
+                for first in range(block, n_knots, block):
+                    pending.append(pool.submit(_linearize_knots, work, first, min(first + block, n_knots)))
+        try:
+            for i, work in enumerate(phases):
+                _linearize_knots(work, 0, -(-work.horizon // threads) if threads > 1 else work.horizon)
+                xs = work.xs
+                work.terminal_model.calc_diff(work.terminal_data, xs[-1], EMPTY_CONTROL)
+                if work.constraint is not None:
+                    work.constraint.calc_diff(work.constraint_data, xs[-1])
+                if work.reset_map is not None:
+                    reset_data = work.reset_data
+                    work.reset_map.calc_diff(reset_data, xs[-1])
+                    following = phases[i + 1]
+                    following.transport(
+                        following.xs[0], reset_data.x_next, reset_data.Px, work.reset_jacobian
+                    )
+        finally:
+            for future in pending:  # every block done (and its error raised) before the data are read
+                future.result()
+
+    def _thread_pool(self):
+        """The solver's linearisation pool (``options.threads - 1`` workers; the caller's thread is one)."""
+        pool = getattr(self, "_pool", None)
+        if pool is None:
+            from concurrent.futures import ThreadPoolExecutor
+
+            pool = ThreadPoolExecutor(max_workers=self.options.threads - 1, thread_name_prefix="ms-ilqr")
+            self._pool = pool
+        return pool
 
     # -------------------------------------------------------------------------------------- backward sweep
     def _backward_pass_with_regularization(self, workspace: Workspace, stats: SolverStatistics) -> str:
@@ -795,6 +853,17 @@ class MSiLQRSolver:
             statistics=stats,
             policy_valid=policy_valid,
         )
+
+
+def _linearize_knots(work: PhaseWorkspace, first: int, last: int) -> None:
+    """``calc_diff`` of the running knots ``first..last-1`` of a phase and their ``[A_k | B_k]``."""
+    xs, us, F = work.xs, work.us, work.F
+    transport = work.transport_stacked
+    models, datas = work.models, work.running_data
+    for k in range(first, last):
+        data = datas[k]
+        models[k].calc_diff(data, xs[k], us[k])
+        transport(xs[k + 1], data.x_next, data.Fx, data.Fu, F[k])  # [A_k | B_k]
 
 
 def _stacked_forces(work: PhaseWorkspace) -> np.ndarray | None:

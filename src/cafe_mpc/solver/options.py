@@ -40,6 +40,14 @@ class SolverOptions:
         policy only at the next solve. A linearisation deferred this way is done at the start of the next
         iteration, so multi-iteration solves do the same work as before.
 
+    Threads
+        ``threads``: the running knots' linearisation (``calc_diff`` and the transport to the next nominal's
+        tangent space) is split over a pool of this many threads, each taking a contiguous block of every
+        phase's knots; 1 (default): no pool. Knots never share data, so the blocks are independent, but
+        Python threads run in parallel only while the code they run has released the GIL: the compiled
+        kernels do (``nogil``), Pinocchio 4.0.0's Python bindings do not (no ``PyEval_SaveThread`` in
+        them), so most of a knot's linearisation stays serial (BENCHMARKS.md measures the gain).
+
     Regularisation (``mu * I`` added to ``Quu``, Eq. (8e))
         Starts at ``regularization_initial`` every solve. On a failed Cholesky factorisation or a failed
         line search ``mu <- max(mu * regularization_increase, regularization_failure_min)``; the solve gives
@@ -86,6 +94,7 @@ class SolverOptions:
 
     final_backward_pass: bool = True
     final_policy: Literal["relinearize", "shift"] = "relinearize"
+    threads: int = 1
     verbose: bool = False
 
     def __post_init__(self) -> None:
@@ -105,6 +114,8 @@ class SolverOptions:
             raise ValueError("regularisation increase/decrease factors must be > 1")
         if self.final_policy not in ("relinearize", "shift"):
             raise ValueError(f"final_policy must be 'relinearize' or 'shift', got {self.final_policy!r}")
+        if self.threads < 1:
+            raise ValueError(f"threads must be >= 1, got {self.threads}")
         if self.time_budget is not None and self.time_budget <= 0:
             raise ValueError("time_budget must be positive (or None)")
 

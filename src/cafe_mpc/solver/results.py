@@ -81,6 +81,8 @@ class SolverStatistics:
     """Workspace set-up, initial guess and its evaluation (s)."""
     linearize_time: float = 0.0
     """Derivatives of every knot along the accepted trajectories (s)."""
+    linearizations: int = 0
+    """Linearisations of the whole trajectory (the first one, fused with the first evaluation, included)."""
     backward_time: float = 0.0
     """Backward sweeps, the final one included (s)."""
     line_search_time: float = 0.0

@@ -131,6 +131,9 @@ class PhaseWorkspace:
         self.A = self.F[:, :, :ndx]
         self.B = self.F[:, :, ndx:]
         for k, data in enumerate(running_data):
+            if getattr(data, "_bound_to", None) is buffers and data._bound_index == k:
+                continue  # bound to this very row at an earlier update (the arrays never move)
+            data._bound_to, data._bound_index = buffers, k
             gradient, hessian = self.G[k], self.H[k]
             if hasattr(data, "gradient"):
                 data.gradient = gradient

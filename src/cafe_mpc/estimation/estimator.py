@@ -1,0 +1,379 @@
+"""The state estimator a legged robot runs at 500 Hz: IMU orientation + a kinematic linear Kalman filter.
+
+This is the MIT Cheetah 3 / Mini Cheetah design (G. Bledt, M. J. Powell, B. Katz, J. Di Carlo, P. M. Wensing
+and S. Kim, "MIT Cheetah 3: Design and Control of a Robust, Dynamic Quadruped Robot", IROS 2018, Sec. IV-B
+"State estimation"; B. Katz, J. Di Carlo and S. Kim, "Mini Cheetah: A Platform for Pushing the Limits of
+Dynamic Quadruped Control", ICRA 2019; implemented in MIT's ``Cheetah-Software`` as
+``VectorNavOrientationEstimator`` and ``LinearKFPositionVelocityEstimator``), in two stages:
+
+1. **Orientation and angular velocity from the IMU**: the IMU's own attitude estimate (the Mini Cheetah's
+   VectorNav runs its attitude filter on board) is the base orientation ``R``; the gyro is the base angular
+   velocity ``w`` (base frame).
+2. **Base position and linear velocity from a linear Kalman filter** (state ``[p, v, p_foot_1..4]``, world
+   frame; ``kernels``): the prediction integrates the accelerometer, ``a = R f + g``; every foot in stance
+   measures its position relative to the base, ``p_foot - p = R r(q_j)``, and, being at rest, the base
+   velocity ``v = -R (w x r + J(q_j) qd_j)`` (leg kinematics from Pinocchio); a stance foot's height is the
+   ground's (flat ground). Feet in swing or flight give nothing (their states are re-anchored at the legs'
+   kinematic positions with a large variance, uncorrelated): in flight the filter runs on the IMU alone.
+   A foot's trust ramps in and out over the first and last ``trust_window`` of its planned stance, scaling
+   its velocity and height noise by ``1 + (1 - trust) * 100`` as MIT's filter does.
+
+Differences from MIT's code, on purpose: the measurements are applied one scalar at a time (equal to MIT's
+28-row batch update, ``R`` being diagonal) so that skipped feet cost nothing and nothing is allocated;
+``p`` integrates ``dt^2 a / 2`` too; the foot's velocity is corrected for a spherical foot rolling on the
+ground (``rolling_foot``: the contact point is at rest, not the sphere's centre; MIT's feet are points);
+MIT's covariance reset of the unobservable x-y position is not done (it only bounds ``P``).
+Contacts come from the plan (``kernels.planned_trust``), optionally gated by the ground force the joint
+torques imply (``contact_force_threshold``).
+
+The x-y position and the yaw are not observable: they drift with the sensors' errors, as on the robot. The
+estimate's x-y starts where ``reset`` says (the robot's placement: its odometry origin).
+"""
+
+from __future__ import annotations
+
+from typing import Protocol
+
+import numpy as np
+import pinocchio as pin
+
+from cafe_mpc.core.measurement import Measurement
+from cafe_mpc.core.sensors import SensorReadings
+from cafe_mpc.estimation.kernels import (
+    NOISE_HEIGHT,
+    NOISE_POSITION,
+    NOISE_VELOCITY,
+    SLIP_THRESHOLD,
+    SUSPECT,
+    SWING_VARIANCE,
+    VERTICAL_FACTOR,
+    kf_predict,
+    kf_update_feet,
+    leg_ground_forces,
+    planned_trust,
+    quaternion_to_rotation,
+)
+from cafe_mpc.estimation.settings import KinematicKFSettings
+from cafe_mpc.robots.robot import Robot
+
+GRAVITY = np.array([0.0, 0.0, -9.81])
+"""World gravity, m/s^2 (the plant's and the planning model's)."""
+LWA = pin.ReferenceFrame.LOCAL_WORLD_ALIGNED
+
+
+class ContactPlan(Protocol):
+    """What the estimator reads from a plan (``core.plan.Plan``, ``core.template_plan.TemplatePlan``): knot
+    start times, durations and stance flags (leg order)."""
+
+    times: np.ndarray
+    dt: np.ndarray
+    contacts: np.ndarray
+
+
+def leg_velocity_indices(robot: Robot) -> np.ndarray:
+    """Velocity indices (``n_feet x 3``) of the joints that move each foot, root to foot."""
+    model = robot.model
+    rows = []
+    for frame_id in robot.foot_frame_ids:
+        joint = model.frames[frame_id].parentJoint
+        chain = []
+        while joint > 1:  # joint 1 is the free flyer
+            chain.append(model.joints[joint].idx_v)
+            joint = model.parents[joint]
+        rows.append(sorted(chain))
+    lengths = {len(row) for row in rows}
+    if lengths != {3}:
+        raise ValueError(f"the estimator needs 3 joints per leg, got {sorted(lengths)}")
+    return np.array(rows, dtype=np.int64)
+
+
+class LegKinematics:
+    """Foot positions and velocities relative to the base from the joint readings and the IMU (Pinocchio).
+
+    With the base at the origin, oriented by the IMU and turning at the gyro's rate, a foot frame's placement
+    is ``R r`` and its velocity (``LOCAL_WORLD_ALIGNED``) is ``R (w x r + J qd)``, its angular velocity the
+    foot link's (world). Preallocated; Pinocchio's data is this object's own.
+    """
+
+    def __init__(self, robot: Robot, foot_radius: float) -> None:
+        self.model = robot.model
+        self.data = self.model.createData()
+        self.frame_ids = tuple(robot.foot_frame_ids)
+        self.foot_radius = float(foot_radius)
+        n_feet = len(self.frame_ids)
+        self.q = pin.neutral(self.model)
+        self.v = np.zeros(self.model.nv)
+        self.relative = np.zeros((n_feet, 3))
+        """World-frame foot (sphere centre) minus base position."""
+        self.velocity = np.zeros((n_feet, 3))
+        """World-frame velocity of the foot's point on the ground relative to the base."""
+        self.jacobians = np.zeros((n_feet, 3, 3))
+        """World-frame Jacobians of each foot w.r.t. its own leg's joints."""
+        self.leg_indices = leg_velocity_indices(robot)
+
+    def compute(self, readings: SensorReadings, rolling_foot: bool, jacobians: bool) -> None:
+        q, v = self.q, self.v
+        q[3:7] = readings.orientation
+        q[3:7] /= np.linalg.norm(q[3:7])
+        q[7:] = readings.joint_positions
+        v[3:6] = readings.gyro
+        v[6:] = readings.joint_velocities
+        model, data = self.model, self.data
+        pin.forwardKinematics(model, data, q, v)
+        if jacobians:
+            pin.computeJointJacobians(model, data, q)
+        radius = self.foot_radius
+        for leg, frame_id in enumerate(self.frame_ids):
+            placement = pin.updateFramePlacement(model, data, frame_id)
+            self.relative[leg] = placement.translation
+            motion = pin.getFrameVelocity(model, data, frame_id, LWA)
+            velocity = self.velocity[leg]
+            velocity[:] = motion.linear
+            if (
+                rolling_foot
+            ):  # the ground contact point, r_c = centre - radius z, is at rest: add w x (-radius z)
+                angular = motion.angular
+                velocity[0] -= radius * angular[1]
+                velocity[1] += radius * angular[0]
+            if jacobians:
+                full = pin.getFrameJacobian(model, data, frame_id, LWA)
+                self.jacobians[leg] = full[:3, self.leg_indices[leg]]
+
+
+class PlannedContacts:
+    """Which feet the plan has in stance now, and how much each is trusted (``kernels.planned_trust``).
+
+    Without a plan (before the first one, PD standing) every foot is in stance and trusted.
+    """
+
+    def __init__(self, n_feet: int, trust_window: float) -> None:
+        self.window = float(trust_window)
+        self.flags = np.ones(n_feet, dtype=np.bool_)
+        self.trust = np.ones(n_feet)
+        self.touchdown = np.zeros(n_feet)
+        self.settled = np.ones(n_feet, dtype=np.bool_)
+
+    def reset(self, t: float = 0.0) -> None:
+        self.flags[:] = True
+        self.trust[:] = 1.0
+        self.touchdown[:] = t
+        self.settled[:] = True
+
+    def update(self, t: float, plan: ContactPlan | None) -> None:
+        if plan is None:
+            self.flags[:] = True
+            self.trust[:] = 1.0
+            self.settled[:] = True
+            return
+        planned_trust(
+            plan.times,
+            plan.dt,
+            plan.contacts,
+            t,
+            self.window,
+            self.flags,
+            self.touchdown,
+            self.settled,
+            self.trust,
+        )
+
+
+class StateEstimator:
+    """Sensor readings -> ``Measurement`` (see the module docstring); one ``update`` per control tick.
+
+    ``reset(position_xy)`` before a run: the next ``update`` starts the filter from the robot standing (base
+    height and feet from the leg kinematics, velocity zero, x-y at ``position_xy``). Arrays are preallocated;
+    ``update`` returns the estimator's own ``Measurement`` (overwritten on the next update).
+    """
+
+    def __init__(self, robot: Robot, settings: KinematicKFSettings | None = None) -> None:
+        settings = settings if settings is not None else KinematicKFSettings()
+        settings.check()
+        self.robot = robot
+        self.settings = settings
+        n_feet, nj = robot.n_feet, robot.nu
+        self.n_feet = n_feet
+        self.foot_height = float(robot.foot_radius)
+        """Height of a foot frame (the foot sphere's centre) standing on the ground, unloaded."""
+        self.ground_height = np.full(n_feet, self.foot_height)
+        """Height of each foot frame standing on the ground under its estimated load (``foot_compliance``)."""
+        self.legs = LegKinematics(robot, robot.foot_radius)
+        self.contacts = PlannedContacts(n_feet, settings.trust_window)
+        self.feet_start = 9 if settings.accelerometer_bias else 6
+        n = self.feet_start + 3 * n_feet
+        self.x = np.zeros(n)
+        self.P = np.zeros((n, n))
+        self.rotation = np.eye(3)
+        self._specific_force = np.zeros(3)
+        self.acceleration = np.zeros(3)
+        """World-frame base acceleration the last prediction used (IMU, gravity removed)."""
+        self.base_velocity = np.zeros((n_feet, 3))
+        self.trust = np.zeros(n_feet)
+        """Trust of each foot's measurements at the last update (0: not used)."""
+        self.in_contact = np.zeros(n_feet, dtype=np.bool_)
+        self.slipping = np.zeros(n_feet, dtype=np.bool_)
+        """Trusted feet the slip test left out at the last update (``KinematicKFSettings.slip_threshold``)."""
+        self.forces = np.zeros((n_feet, 3))
+        self._q_feet = np.zeros(n_feet)
+        self._slip_streak = np.zeros(1, dtype=np.int64)
+        self._slip_patience = 0  # ticks; set from the tick period at the first prediction
+        self._scratch = np.zeros((2, n))
+        self._parameters = np.zeros(7)
+        self._parameters[NOISE_POSITION] = settings.foot_sensor_noise_position
+        self._parameters[NOISE_VELOCITY] = settings.foot_sensor_noise_velocity
+        self._parameters[VERTICAL_FACTOR] = settings.vertical_velocity_factor
+        self._parameters[NOISE_HEIGHT] = settings.foot_height_sensor_noise
+        self._parameters[SUSPECT] = settings.suspect_factor
+        self._parameters[SWING_VARIANCE] = settings.swing_foot_variance
+        self._parameters[SLIP_THRESHOLD] = (
+            settings.slip_threshold if settings.slip_threshold is not None else 0.0
+        )
+        self._position_xy = np.zeros(2)
+        self._last_time = 0.0
+        self._started = False
+        self.measurement = Measurement.zeros(robot.nq, robot.nv, n_feet)
+        if len(self.measurement.q) - 7 != nj:
+            raise ValueError("the estimator expects a floating base with 7 configuration coordinates")
+
+    @property
+    def started(self) -> bool:
+        return self._started
+
+    def reset(self, position_xy: tuple[float, float] | np.ndarray = (0.0, 0.0)) -> None:
+        """Forget the run; the next ``update`` initialises the filter with its base at ``position_xy``."""
+        self._position_xy[:] = position_xy
+        self._started = False
+        self.contacts.reset()
+
+    # ------------------------------------------------------------------------------------------ update
+    def update(
+        self, readings: SensorReadings, plan: ContactPlan | None = None, plan_time: float | None = None
+    ) -> Measurement:
+        """The estimate at ``readings.time`` from the readings and the plan in effect (its stance flags,
+        looked up at ``plan_time``, default ``readings.time``: the plan's clock if it is not the sensors')."""
+        settings = self.settings
+        t = float(readings.time)
+        self.contacts.update(t if plan_time is None else float(plan_time), plan)
+        quaternion_to_rotation(readings.orientation, self.rotation)
+        need_forces = (
+            settings.contact_force_threshold is not None or settings.foot_compliance > 0.0
+        ) and bool(np.all(np.isfinite(readings.joint_torques)))
+        self.legs.compute(readings, settings.rolling_foot, need_forces)
+        np.copyto(self.trust, self.contacts.trust)
+        np.copyto(self.in_contact, self.contacts.flags)
+        self.ground_height[:] = self.foot_height
+        if need_forces:
+            leg_ground_forces(self.legs.jacobians, readings.joint_torques, 3, self.forces)
+            threshold = settings.contact_force_threshold
+            for foot in range(self.n_feet):
+                normal = self.forces[foot, 2]
+                if threshold is not None and normal < threshold:
+                    self.in_contact[foot] = False
+                    self.trust[foot] = 0.0
+                if normal > 0.0:  # a loaded foot sinks in (compliant foot and floor)
+                    self.ground_height[foot] -= settings.foot_compliance * normal
+        else:
+            self.forces[:] = 0.0
+        height_limit = settings.contact_height_threshold
+        if height_limit is not None and self._started:
+            # a foot planned in stance that the legs put well above the ground is not on it (a missed or late
+            # touchdown); flat ground, as the foot-height measurement assumes
+            for foot in range(self.n_feet):
+                clearance = self.x[2] + self.legs.relative[foot, 2] - self.ground_height[foot]
+                if self.in_contact[foot] and clearance > height_limit:
+                    self.in_contact[foot] = False
+                    self.trust[foot] = 0.0
+        np.negative(self.legs.velocity, out=self.base_velocity)
+        if not self._started:
+            self._initialise(t)
+        else:
+            dt = t - self._last_time
+            if dt > 0.0:
+                self._slip_patience = max(round(settings.slip_patience / dt), 1)
+                # The accelerometer's mean over the last dt, rotated with the attitude of the interval's
+                # middle, R(t - dt/2) = R(t) (I - [w] dt/2): at a 10 rad/s roll R(t) alone turns a 50 m/s^2
+                # push-off 0.01 rad, a 0.5 m/s^2 error (the first-order sculling correction).
+                f, w, mid = readings.accelerometer, readings.gyro, self._specific_force
+                half = 0.5 * dt
+                mid[0] = f[0] - half * (w[1] * f[2] - w[2] * f[1])
+                mid[1] = f[1] - half * (w[2] * f[0] - w[0] * f[2])
+                mid[2] = f[2] - half * (w[0] * f[1] - w[1] * f[0])
+                np.matmul(self.rotation, mid, out=self.acceleration)
+                self.acceleration += GRAVITY
+                for foot in range(self.n_feet):
+                    self._q_feet[foot] = (
+                        dt
+                        * settings.foot_process_noise_position
+                        * (1.0 + (1.0 - self.trust[foot]) * settings.suspect_factor)
+                    )
+                kf_predict(
+                    self.x,
+                    self.P,
+                    self.acceleration,
+                    dt,
+                    dt / 20.0 * settings.imu_process_noise_position,
+                    dt * 9.8 / 20.0 * settings.imu_process_noise_velocity,
+                    dt * settings.bias_process_noise,
+                    self.feet_start,
+                    self._q_feet,
+                )
+                kf_update_feet(
+                    self.x,
+                    self.P,
+                    self.feet_start,
+                    self.legs.relative,
+                    self.base_velocity,
+                    self.trust,
+                    self.ground_height,
+                    settings.foot_height,
+                    self._parameters,
+                    self._slip_patience,
+                    self._slip_streak,
+                    self.slipping,
+                    self._scratch,
+                )
+        self._last_time = t
+        return self._write(readings)
+
+    def _initialise(self, t: float) -> None:
+        """The robot standing: base height from the feet in planned stance (all if none), velocity zero."""
+        settings = self.settings
+        relative = self.legs.relative
+        stance = self.in_contact if np.any(self.in_contact) else np.ones(self.n_feet, dtype=np.bool_)
+        height = float(np.mean(self.ground_height[stance] - relative[stance, 2]))
+        self.x[:] = 0.0
+        self.x[:2] = self._position_xy
+        self.x[2] = height
+        start = self.feet_start
+        for foot in range(self.n_feet):
+            self.x[start + 3 * foot : start + 3 + 3 * foot] = self.x[:3] + relative[foot]
+        self.P[:] = 0.0
+        diagonal = np.einsum("ii->i", self.P)
+        diagonal[:] = settings.initial_position_variance
+        diagonal[3:6] = settings.initial_velocity_variance
+        if start == 9:
+            diagonal[6:9] = settings.initial_bias_variance
+        self.acceleration[:] = 0.0
+        self._slip_streak[0] = 0
+        self._started = True
+        self._last_time = t
+
+    def _write(self, readings: SensorReadings) -> Measurement:
+        measurement = self.measurement
+        measurement.time = float(readings.time)
+        q, v = measurement.q, measurement.v
+        q[:3] = self.x[:3]
+        q[3:7] = readings.orientation
+        q[3:7] /= np.linalg.norm(q[3:7])
+        q[7:] = readings.joint_positions
+        np.matmul(self.rotation.T, self.x[3:6], out=v[:3])  # base-frame linear velocity
+        v[3:6] = readings.gyro
+        v[6:] = readings.joint_velocities
+        np.copyto(measurement.contacts, self.in_contact)
+        np.copyto(measurement.foot_forces, self.forces)
+        return measurement
+
+    @property
+    def world_velocity(self) -> np.ndarray:
+        """The estimated base velocity, world frame (a view of the filter state)."""
+        return self.x[3:6]

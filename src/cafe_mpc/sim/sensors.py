@@ -1,0 +1,367 @@
+"""The plant's sensors: an IMU on the trunk and joint encoders, from MuJoCo's sensors at the control rate.
+
+``with_sensors`` adds MuJoCo sensors to the plant's MJCF (the robot's ``imu`` site on the trunk, at the base
+frame's origin, and every joint): ``gyro`` (base-frame angular velocity), ``accelerometer`` (base-frame
+specific force: the site's acceleration minus gravity, so it reads +9.81 m/s^2 upwards at rest and 0 in free
+fall), ``framequat`` (the site's orientation; the ideal output of the IMU's attitude filter), ``jointpos``,
+``jointvel`` and ``jointactuatorfrc`` (the torque each motor applies at its joint). Sensors do not change
+the dynamics.
+
+``SensorSuite`` turns MuJoCo's ideal values into what a robot reads (``core.sensors.SensorReadings``):
+
+* **IMU**: the gyro and the accelerometer report their mean over the sample period (MuJoCo's value after
+  every physics step is accumulated: a MEMS IMU low-pass filters its kHz samples, and the VectorNav averages
+  them over a window, ``ImuFilteringConfiguration``; sampling the instantaneous value instead aliases the
+  short, large accelerations of foot impacts into the velocity estimate), Gaussian white noise and a constant
+  bias on both; the orientation output
+  is the true orientation turned by a small body-frame rotation vector (constant bias + Gaussian noise per
+  axis), as ``Cheetah-Software``'s ``ImuSimulator`` perturbs the VectorNav quaternion; the IMU is sampled at
+  ``rate_hz`` and held in between (the Mini Cheetah reads its VectorNav at 200 Hz, ``rt_vectornav.cpp``).
+* **encoders**: Gaussian noise, then quantisation to a resolution (the Mini Cheetah's motor controllers
+  send joint angle, rate and torque over CAN as 16-, 12- and 12-bit integers over +-12.5 rad, +-65 rad/s
+  and +-18 Nm).
+* **latency jitter**: each tick the controller gets the readings of a random earlier tick, at most
+  ``delay_max_ticks`` old and never older than the previous tick's (as ``sim.randomization.SensorModel``
+  does for the state).
+
+The values of a run (defaults: the Mini Cheetah's, with sources) are the config's ``plant.sensors`` section.
+``read`` runs ``mj_forward`` first, so the readings are those of the current state (MuJoCo computes sensors
+inside ``mj_step`` *before* integrating, one physics step behind ``qpos``); ``mj_forward`` changes no state
+(the next step is bit for bit the same). Nothing is allocated per tick: every array is preallocated and the
+random numbers are drawn into buffers (``numpy.random.Generator.standard_normal(out=...)``).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import mujoco
+import numpy as np
+
+from cafe_mpc.core.sensors import SensorReadings
+
+IMU_SITE = "imu"
+"""The trunk site the IMU sits at (the robot's MJCF puts it at the base frame's origin)."""
+Vector3 = tuple[float, float, float]
+
+
+@dataclass(frozen=True)
+class ImuSpec:
+    """The IMU's imperfections (standard deviations per sample, constant biases; base frame)."""
+
+    rate_hz: float
+    gyro_noise: float  # rad/s
+    gyro_bias: Vector3  # rad/s
+    accelerometer_noise: float  # m/s^2
+    accelerometer_bias: Vector3  # m/s^2
+    orientation_noise: float  # rad, per axis of a body-frame rotation vector
+    orientation_bias: Vector3  # rad, body-frame rotation vector
+    average: bool = True
+    """Gyro and accelerometer report their mean over the sample period (every physics step's value), as an
+    IMU with an anti-aliasing filter does; False: the instantaneous value at the sample (aliases impacts)."""
+
+
+@dataclass(frozen=True)
+class EncoderSpec:
+    """The joint sensors' imperfections: Gaussian noise (std), then quantisation (0: none)."""
+
+    position_noise: float  # rad
+    velocity_noise: float  # rad/s
+    torque_noise: float  # Nm
+    position_resolution: float  # rad
+    velocity_resolution: float  # rad/s
+    torque_resolution: float  # Nm
+
+
+@dataclass(frozen=True)
+class SensorSpec:
+    """Everything ``SensorSuite`` needs: the IMU, the encoders, the latency jitter and the random seed."""
+
+    imu: ImuSpec
+    encoders: EncoderSpec
+    delay_max_ticks: int = 0
+    seed: int = 0
+
+    def check(self, control_rate_hz: float) -> None:
+        """Raise ``ValueError`` naming the field when a value cannot be used."""
+        scalars = {
+            "imu.gyro_noise": self.imu.gyro_noise,
+            "imu.accelerometer_noise": self.imu.accelerometer_noise,
+            "imu.orientation_noise": self.imu.orientation_noise,
+            "encoders.position_noise": self.encoders.position_noise,
+            "encoders.velocity_noise": self.encoders.velocity_noise,
+            "encoders.torque_noise": self.encoders.torque_noise,
+            "encoders.position_resolution": self.encoders.position_resolution,
+            "encoders.velocity_resolution": self.encoders.velocity_resolution,
+            "encoders.torque_resolution": self.encoders.torque_resolution,
+        }
+        for name, value in scalars.items():
+            if not (math.isfinite(value) and value >= 0.0):
+                raise ValueError(f"sensors.{name} must be finite and >= 0, got {value}")
+        for name in ("gyro_bias", "accelerometer_bias", "orientation_bias"):
+            value = getattr(self.imu, name)
+            if len(value) != 3 or not all(math.isfinite(item) for item in value):
+                raise ValueError(f"sensors.imu.{name} must be 3 finite numbers, got {value}")
+        if not (math.isfinite(self.imu.rate_hz) and self.imu.rate_hz > 0.0):
+            raise ValueError(f"sensors.imu.rate_hz must be positive, got {self.imu.rate_hz}")
+        if self.imu.rate_hz > control_rate_hz * (1.0 + 1e-9):
+            raise ValueError(
+                f"sensors.imu.rate_hz {self.imu.rate_hz} is above the control rate {control_rate_hz}: "
+                "the controller reads the sensors once per tick"
+            )
+        if self.delay_max_ticks < 0:
+            raise ValueError(f"delay_max_ticks must be >= 0, got {self.delay_max_ticks}")
+
+
+def with_sensors(mjcf: str, joint_names: Sequence[str]) -> str:
+    """The plant's MJCF with the IMU (at site ``imu``) and the joint sensors of ``joint_names`` added."""
+    if f'<site name="{IMU_SITE}"' not in mjcf:
+        raise ValueError(f"the plant's MJCF has no site {IMU_SITE!r} on its trunk for the IMU")
+    marker = "</mujoco>"
+    index = mjcf.rfind(marker)
+    if index < 0:
+        raise ValueError("the plant's MJCF has no </mujoco> to add the sensors to")
+    lines = [
+        "  <sensor>",
+        f'    <gyro name="imu_gyro" site="{IMU_SITE}"/>',
+        f'    <accelerometer name="imu_accelerometer" site="{IMU_SITE}"/>',
+        f'    <framequat name="imu_orientation" objtype="site" objname="{IMU_SITE}"/>',
+    ]
+    for kind in ("jointpos", "jointvel", "jointactuatorfrc"):
+        lines += [f'    <{kind} name="{kind}_{joint}" joint="{joint}"/>' for joint in joint_names]
+    lines.append("  </sensor>")
+    return mjcf[:index] + "\n".join(lines) + "\n" + mjcf[index:]
+
+
+def _address(model: mujoco.MjModel, name: str) -> tuple[int, int]:
+    sensor = model.sensor(name)
+    return int(sensor.adr[0]), int(sensor.adr[0]) + int(sensor.dim[0])
+
+
+class IdealSensors:
+    """Slices of ``MjData.sensordata`` of the sensors ``with_sensors`` added (looked up by name)."""
+
+    def __init__(self, model: mujoco.MjModel, joint_names: Sequence[str]) -> None:
+        self.gyro = _address(model, "imu_gyro")
+        self.accelerometer = _address(model, "imu_accelerometer")
+        self.orientation = _address(model, "imu_orientation")
+
+        def joint_block(kind: str) -> tuple[int, int]:
+            addresses = [_address(model, f"{kind}_{joint}") for joint in joint_names]
+            first, last = addresses[0][0], addresses[-1][1]
+            if [a for a, _ in addresses] != list(range(first, last)):
+                raise ValueError(f"the plant's {kind} sensors are not contiguous in joint order")
+            return first, last
+
+        self.joint_positions = joint_block("jointpos")
+        self.joint_velocities = joint_block("jointvel")
+        self.joint_torques = joint_block("jointactuatorfrc")
+
+    def read(self, data: mujoco.MjData, out: SensorReadings) -> None:
+        """The ideal readings of the current ``sensordata`` into ``out`` (orientation as x, y, z, w)."""
+        sensordata = data.sensordata
+        start, end = self.gyro
+        np.copyto(out.gyro, sensordata[start:end])
+        start, end = self.accelerometer
+        np.copyto(out.accelerometer, sensordata[start:end])
+        start, _ = self.orientation
+        out.orientation[3] = sensordata[start]
+        np.copyto(out.orientation[:3], sensordata[start + 1 : start + 4])
+        start, end = self.joint_positions
+        np.copyto(out.joint_positions, sensordata[start:end])
+        start, end = self.joint_velocities
+        np.copyto(out.joint_velocities, sensordata[start:end])
+        start, end = self.joint_torques
+        np.copyto(out.joint_torques, sensordata[start:end])
+        out.time = float(data.time)
+
+
+def _quantise(values: np.ndarray, resolution: float) -> None:
+    """Round ``values`` in place to the nearest multiple of ``resolution`` (a no-op for 0)."""
+    if resolution > 0.0:
+        np.divide(values, resolution, out=values)
+        np.round(values, out=values)
+        np.multiply(values, resolution, out=values)
+
+
+class SensorSuite:
+    """The robot's sensors on a ``MujocoPlant`` (see the module docstring).
+
+    ``reset()`` before a run; ``read(plant)`` once per control tick returns the readings the controller gets
+    (the suite's own arrays, overwritten on the next read). Random numbers come from
+    ``numpy.random.default_rng(spec.seed)``: a seed gives the same noise and delays on every run.
+    """
+
+    def __init__(self, n_joints: int, spec: SensorSpec, control_rate_hz: float) -> None:
+        spec.check(control_rate_hz)
+        self.spec = spec
+        self.n_joints = n_joints
+        self.imu_period = 1.0 / spec.imu.rate_hz
+        self.rng = np.random.default_rng(spec.seed)
+        self._gyro_bias = np.asarray(spec.imu.gyro_bias, dtype=float)
+        self._accelerometer_bias = np.asarray(spec.imu.accelerometer_bias, dtype=float)
+        self._orientation_bias = np.asarray(spec.imu.orientation_bias, dtype=float)
+        self._ideal = SensorReadings.zeros(n_joints)
+        self._imu_held = SensorReadings.zeros(n_joints)  # the last IMU sample (orientation, gyro, accel)
+        self._history = [SensorReadings.zeros(n_joints) for _ in range(spec.delay_max_ticks + 1)]
+        self._out = SensorReadings.zeros(n_joints)
+        self._noise3 = np.zeros(3)
+        self._rotation = np.zeros(3)
+        self._quaternion = np.zeros(4)  # w, x, y, z for mju_quatIntegrate
+        self._noise_joints = np.zeros(n_joints)
+        self._gyro_sum = np.zeros(3)
+        self._accelerometer_sum = np.zeros(3)
+        self._steps = 0
+        self._hook = self._accumulate  # one bound method (compared by identity in ``attach``)
+        self._sensors: IdealSensors | None = None
+        self._model: mujoco.MjModel | None = None
+        self.reset()
+
+    @property
+    def is_ideal(self) -> bool:
+        """No noise, bias, quantisation, averaging or delay: the readings are MuJoCo's values at the tick."""
+        imu, encoders = self.spec.imu, self.spec.encoders
+        return (
+            self.spec.delay_max_ticks == 0
+            and not imu.average
+            and not any(self._gyro_bias)
+            and not any(self._accelerometer_bias)
+            and not any(self._orientation_bias)
+            and imu.gyro_noise == imu.accelerometer_noise == imu.orientation_noise == 0.0
+            and not any(
+                (
+                    encoders.position_noise,
+                    encoders.velocity_noise,
+                    encoders.torque_noise,
+                    encoders.position_resolution,
+                    encoders.velocity_resolution,
+                    encoders.torque_resolution,
+                )
+            )
+        )
+
+    def reset(self) -> None:
+        """Restart the random stream, the IMU sampling clock and the delay history."""
+        self.rng = np.random.default_rng(self.spec.seed)
+        self._next_imu_time = -np.inf
+        self._tick = -1
+        self._last_source = -1
+        self._delays_total = 0
+        self._delay_max = 0
+        self._gyro_sum[:] = 0.0
+        self._accelerometer_sum[:] = 0.0
+        self._steps = 0
+
+    def attach(self, plant) -> None:
+        """Find the sensors in the plant's model (``with_sensors`` must have added them) and, for an averaging
+        IMU, accumulate the IMU after every physics step (``MujocoPlant.after_step``)."""
+        if plant.model is not self._model:
+            self._sensors = IdealSensors(plant.model, plant.robot.joint_names)
+            self._model = plant.model
+        if self.spec.imu.average and plant.after_step is not self._hook:
+            plant.after_step = self._hook
+
+    def _accumulate(self, data: mujoco.MjData) -> None:
+        """After a physics step: its IMU values (those of the state the step started from, which drove it)."""
+        assert self._sensors is not None
+        start, end = self._sensors.gyro
+        self._gyro_sum += data.sensordata[start:end]
+        start, end = self._sensors.accelerometer
+        self._accelerometer_sum += data.sensordata[start:end]
+        self._steps += 1
+
+    def read(self, plant) -> SensorReadings:
+        """The readings of ``plant`` (a ``MujocoPlant``) now, as the controller gets them."""
+        self.attach(plant)
+        assert self._sensors is not None
+        mujoco.mj_forward(plant.model, plant.data)  # sensors of the current state (see the module docstring)
+        ideal = self._ideal
+        self._sensors.read(plant.data, ideal)
+        self._tick += 1
+        slot = self._history[self._tick % len(self._history)]
+        self._measure(ideal, slot)
+        if self.spec.delay_max_ticks == 0:
+            self._out.copy_from(slot)
+            return self._out
+        # latency jitter: a random earlier tick, never older than the previous tick's source
+        delay = int(self.rng.integers(0, self.spec.delay_max_ticks + 1))
+        oldest = max(self._tick - self.spec.delay_max_ticks, 0)
+        source = max(self._tick - delay, self._last_source, oldest)
+        self._last_source = source
+        self._delays_total += self._tick - source
+        self._delay_max = max(self._delay_max, self._tick - source)
+        self._out.copy_from(self._history[source % len(self._history)])
+        return self._out
+
+    def _measure(self, ideal: SensorReadings, out: SensorReadings) -> None:
+        """``ideal`` -> what the sensors report, into ``out``."""
+        imu, encoders, rng = self.spec.imu, self.spec.encoders, self.rng
+        held = self._imu_held
+        if ideal.time + 1e-9 >= self._next_imu_time:  # a new IMU sample
+            self._next_imu_time = (
+                ideal.time + self.imu_period
+                if not np.isfinite(self._next_imu_time)
+                else self._next_imu_time + self.imu_period
+            )
+            noise = self._noise3
+            if self.spec.imu.average and self._steps > 0:  # the mean over the steps since the last sample
+                np.multiply(self._gyro_sum, 1.0 / self._steps, out=held.gyro)
+                np.multiply(self._accelerometer_sum, 1.0 / self._steps, out=held.accelerometer)
+                self._gyro_sum[:] = 0.0
+                self._accelerometer_sum[:] = 0.0
+                self._steps = 0
+            else:
+                np.copyto(held.gyro, ideal.gyro)
+                np.copyto(held.accelerometer, ideal.accelerometer)
+            held.gyro += self._gyro_bias
+            if imu.gyro_noise > 0.0:
+                rng.standard_normal(out=noise)
+                noise *= imu.gyro_noise
+                held.gyro += noise
+            held.accelerometer += self._accelerometer_bias
+            if imu.accelerometer_noise > 0.0:
+                rng.standard_normal(out=noise)
+                noise *= imu.accelerometer_noise
+                held.accelerometer += noise
+            rotation = self._rotation
+            np.copyto(rotation, self._orientation_bias)
+            if imu.orientation_noise > 0.0:
+                rng.standard_normal(out=noise)
+                noise *= imu.orientation_noise
+                rotation += noise
+            quaternion = self._quaternion  # MuJoCo's (w, x, y, z)
+            quaternion[0] = ideal.orientation[3]
+            quaternion[1:] = ideal.orientation[:3]
+            mujoco.mju_quatIntegrate(quaternion, rotation, 1.0)  # q <- q * exp(rotation), body frame
+            held.orientation[3] = quaternion[0]
+            held.orientation[:3] = quaternion[1:]
+        np.copyto(out.orientation, held.orientation)
+        np.copyto(out.gyro, held.gyro)
+        np.copyto(out.accelerometer, held.accelerometer)
+        out.time = ideal.time
+        self._encoder(ideal.joint_positions, out.joint_positions, encoders.position_noise)
+        _quantise(out.joint_positions, encoders.position_resolution)
+        self._encoder(ideal.joint_velocities, out.joint_velocities, encoders.velocity_noise)
+        _quantise(out.joint_velocities, encoders.velocity_resolution)
+        self._encoder(ideal.joint_torques, out.joint_torques, encoders.torque_noise)
+        _quantise(out.joint_torques, encoders.torque_resolution)
+
+    def _encoder(self, ideal: np.ndarray, out: np.ndarray, noise: float) -> None:
+        np.copyto(out, ideal)
+        if noise > 0.0:
+            buffer = self._noise_joints
+            self.rng.standard_normal(out=buffer)
+            buffer *= noise
+            out += buffer
+
+    def summary(self) -> dict:
+        """The run's sensor settings and delay statistics (``metrics.json``)."""
+        ticks = self._tick + 1
+        return {
+            "imu_rate_hz": self.spec.imu.rate_hz,
+            "delay_max_ticks": self.spec.delay_max_ticks,
+            "delay_ticks_mean": self._delays_total / ticks if ticks > 0 else 0.0,
+            "delay_ticks_max": int(self._delay_max),
+        }

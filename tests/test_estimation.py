@@ -1,0 +1,388 @@
+"""State estimation as on the robot (issue 23): sensors in the plant, the kinematic Kalman filter, the closed
+loop that sees sensors only.
+
+Synthetic tests feed the estimator readings made from a known motion (Pinocchio leg inverse kinematics: the
+base moves, the feet stay on the ground, or one slides): the filter recovers a constant velocity, a slipping
+stance foot raises its error (and the slip test catches it), a foot in swing or the whole robot in flight is
+ignored (the IMU alone). Closed loops: standing (the IMU's orientation matches the truth; the controller gets
+the estimator's measurement, not the plant's state) and a short trot with fixed latency that stays up.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+
+import numpy as np
+import pinocchio as pin
+import pytest
+from scipy.spatial.transform import Rotation
+
+from cafe_mpc.config import ConfigError, load_config
+from cafe_mpc.core.sensors import SensorReadings
+from cafe_mpc.estimation.estimator import StateEstimator, leg_velocity_indices
+from cafe_mpc.estimation.settings import KinematicKFSettings
+from cafe_mpc.robots.robot import load_robot
+from cafe_mpc.sim.plant import MujocoPlant
+from cafe_mpc.sim.sensors import EncoderSpec, ImuSpec, SensorSpec, SensorSuite
+
+DT = 0.002
+LWA = pin.ReferenceFrame.LOCAL_WORLD_ALIGNED
+
+
+@pytest.fixture(scope="module")
+def robot():
+    return load_robot("mini_cheetah")
+
+
+@dataclass
+class FakePlan:
+    """Stance flags over knot intervals, as ``core.plan.Plan`` carries them."""
+
+    times: np.ndarray
+    dt: np.ndarray
+    contacts: np.ndarray
+
+
+def steady_plan(n_feet: int, swing: tuple[int, ...] = (), duration: float = 10.0) -> FakePlan:
+    times = np.arange(0.0, duration, 0.01)
+    contacts = np.ones((len(times), n_feet), dtype=bool)
+    contacts[:, list(swing)] = False
+    return FakePlan(times, np.full(len(times), 0.01), contacts)
+
+
+def synthetic_readings(
+    robot,
+    velocity: np.ndarray,
+    duration: float,
+    slip: tuple[int, np.ndarray, float] | None = None,
+    tilt: tuple[float, float] = (0.05, -0.03),
+    ramp: float = 0.2,
+) -> list[SensorReadings]:
+    """Readings of the base speeding up from rest to ``velocity`` (world) at a constant acceleration over
+    ``ramp`` seconds, then translating at it, with a fixed tilted attitude, while the feet stay where they
+    stand; ``slip = (leg, foot velocity, from time)``: that foot slides from then on. Joint angles from
+    Pinocchio's leg kinematics (Newton on each leg's 3 joints), joint rates exact; the accelerometer reads
+    the acceleration and gravity."""
+    model, data = robot.model, robot.model.createData()
+    legs = leg_velocity_indices(robot)
+    rotation = Rotation.from_euler("xy", tilt)
+    q = robot.q_standing.copy()
+    q[3:7] = rotation.as_quat()
+    feet0 = robot.foot_positions(robot.q_standing)  # standing feet, on the ground
+    base0 = q[:3].copy()
+    readings = []
+    for k in range(round(duration / DT) + 1):
+        t = k * DT
+        if t < ramp:
+            q[:3] = base0 + velocity * t * t / (2.0 * ramp)
+            base_velocity, acceleration = velocity * t / ramp, velocity / ramp
+        else:
+            q[:3] = base0 + velocity * (t - 0.5 * ramp)
+            base_velocity, acceleration = velocity, np.zeros(3)
+        feet = feet0.copy()
+        foot_velocity = np.zeros_like(feet)
+        if slip is not None and t >= slip[2]:
+            feet[slip[0]] += slip[1] * (t - slip[2])
+            foot_velocity[slip[0]] = slip[1]
+        for _ in range(8):
+            pin.framesForwardKinematics(model, data, q)
+            pin.computeJointJacobians(model, data, q)
+            for leg, frame in enumerate(robot.foot_frame_ids):
+                error = feet[leg] - data.oMf[frame].translation
+                jacobian = pin.getFrameJacobian(model, data, frame, LWA)[:3, legs[leg]]
+                q[legs[leg] + 1] += np.linalg.solve(jacobian, error)
+        pin.computeJointJacobians(model, data, q)
+        qd = np.zeros(robot.nu)
+        for leg, frame in enumerate(robot.foot_frame_ids):
+            jacobian = pin.getFrameJacobian(model, data, frame, LWA)[:3, legs[leg]]
+            qd[legs[leg] - 6] = np.linalg.solve(jacobian, foot_velocity[leg] - base_velocity)
+        reading = SensorReadings.zeros(robot.nu)
+        reading.time = t
+        reading.orientation[:] = q[3:7]
+        reading.accelerometer[:] = rotation.inv().apply(acceleration + np.array([0.0, 0.0, 9.81]))
+        reading.joint_positions[:] = q[7:]
+        reading.joint_velocities[:] = qd
+        reading.joint_torques[:] = np.nan  # no torque sensing: no foot-load compensation
+        readings.append(reading)
+    return readings
+
+
+def run_estimator(robot, readings, settings=None, plan=None) -> tuple[np.ndarray, StateEstimator]:
+    """World-frame base velocity estimate at every reading. The synthetic feet are points (the foot frame
+    stays put while the shank turns), so the filter's rolling-sphere correction is off."""
+    estimator = StateEstimator(robot, replace(settings or KinematicKFSettings(), rolling_foot=False))
+    estimator.reset((0.0, 0.0))
+    velocities = np.zeros((len(readings), 3))
+    for row, reading in enumerate(readings):
+        measurement = estimator.update(reading, plan)
+        velocities[row] = Rotation.from_quat(measurement.q[3:7]).apply(measurement.v[:3])
+    return velocities, estimator
+
+
+def test_the_filter_recovers_a_constant_velocity_from_synthetic_readings(robot):
+    velocity = np.array([0.15, -0.05, 0.0])
+    readings = synthetic_readings(robot, velocity, 0.5)  # from rest to 0.15 m/s in 0.2 s, then constant
+    for settings in (KinematicKFSettings(), KinematicKFSettings.mit()):
+        estimates, estimator = run_estimator(robot, readings, settings)
+        assert np.linalg.norm(estimates[0]) < 1e-9  # starts from rest
+        constant = estimates[round(0.25 / DT) :]
+        assert np.max(np.linalg.norm(constant - velocity, axis=1)) < 0.005, (settings, constant[-1])
+        # the base height from the stance feet, the position integrated
+        assert estimator.x[2] == pytest.approx(robot.q_standing[2], abs=0.003)
+        assert estimator.x[0] == pytest.approx(velocity[0] * (0.5 - 0.1), abs=0.005)
+    # the legs alone (no acceleration read) bring a filter that starts wrong to the velocity
+    stepped = synthetic_readings(robot, velocity, 0.5, ramp=1e-9)
+    estimates, _ = run_estimator(robot, stepped, KinematicKFSettings.mit())
+    assert np.max(np.linalg.norm(estimates[-50:] - velocity, axis=1)) < 0.01
+
+
+def test_a_slipping_stance_foot_raises_the_error_and_the_slip_test_catches_it(robot):
+    slide = np.array([0.5, 0.2, 0.0])  # the front-left foot slides from 0.2 s on, the base stands still
+    readings = synthetic_readings(robot, np.zeros(3), 0.4, slip=(0, slide, 0.2))
+    still = slice(round(0.15 / DT), round(0.2 / DT))
+    sliding = slice(round(0.25 / DT), None)
+    mit, _ = run_estimator(robot, readings, KinematicKFSettings.mit())
+    before, during = np.linalg.norm(mit[still], axis=1), np.linalg.norm(mit[sliding], axis=1)
+    assert np.max(before) < 0.005
+    assert np.max(during) > 0.03  # without a slip test the sliding foot drags the estimate along
+    tested, estimator = run_estimator(robot, readings, KinematicKFSettings())
+    assert np.max(np.linalg.norm(tested[sliding], axis=1)) < 0.3 * np.max(during)
+    assert estimator.slipping[0] and not np.any(estimator.slipping[1:])
+
+
+def test_a_foot_in_swing_is_ignored_and_in_flight_the_imu_alone_counts(robot):
+    readings = synthetic_readings(robot, np.array([0.1, 0.0, 0.0]), 0.3)
+    garbage = []
+    rng = np.random.default_rng(0)
+    for reading in readings:  # the front-right leg (planned in swing) moves wildly
+        changed = SensorReadings.zeros(robot.nu)
+        changed.copy_from(reading)
+        changed.joint_positions[3:6] += rng.normal(0.0, 0.5, 3)
+        changed.joint_velocities[3:6] += rng.normal(0.0, 20.0, 3)
+        garbage.append(changed)
+    plan = steady_plan(robot.n_feet, swing=(1,))
+    clean, _ = run_estimator(robot, readings, plan=plan)
+    noisy, estimator = run_estimator(robot, garbage, plan=plan)
+    assert np.max(np.abs(clean - noisy)) < 1e-9  # the swing leg changes nothing
+    assert estimator.trust[1] == 0.0 and not estimator.in_contact[1]
+    # flight: every foot in swing, the IMU reads free fall; the estimate falls with g whatever the legs do
+    flight = steady_plan(robot.n_feet, swing=(0, 1, 2, 3))
+    estimator = StateEstimator(robot)
+    estimator.reset()
+    estimator.update(readings[0])  # starts standing (no plan: all feet down)
+    for reading in garbage[1:101]:
+        falling = SensorReadings.zeros(robot.nu)
+        falling.copy_from(reading)
+        falling.accelerometer[:] = 0.0
+        estimator.update(falling, flight)
+    assert estimator.world_velocity[2] == pytest.approx(-9.81 * 100 * DT, rel=0.02)
+    assert not np.any(estimator.in_contact)
+
+
+def ideal_spec(average: bool = False) -> SensorSpec:
+    return SensorSpec(
+        ImuSpec(500.0, 0.0, (0.0, 0.0, 0.0), 0.0, (0.0, 0.0, 0.0), 0.0, (0.0, 0.0, 0.0), average),
+        EncoderSpec(0.0, 0.0, 0.0, 0.0, 0.0, 0.0),
+    )
+
+
+def test_sensor_suite_reads_mujoco_sensors_with_noise_bias_quantisation_and_delay(robot):
+    from cafe_mpc.wbc.pd import PDController
+
+    plant = MujocoPlant(robot)
+    plant.reset(robot.q_standing)
+    ideal = SensorSuite(robot.nu, ideal_spec(), 500.0)
+    assert np.linalg.norm(ideal.read(plant).accelerometer) < 1e-6  # placed, feet unloaded: free fall
+    stand = PDController(robot)
+    for k in range(150):  # settle standing
+        plant.step(stand.compute(k * DT, plant.read_state(), None), 2)
+    readings = ideal.read(plant)
+    state = plant.read_state()
+    assert np.allclose(readings.joint_positions, state.q[7:]) and np.allclose(readings.gyro, state.v[3:6])
+    assert np.allclose(np.abs(readings.orientation), np.abs(state.q[3:7]))
+    assert readings.accelerometer[2] == pytest.approx(9.81, abs=0.3)  # standing: gravity, upwards
+    spec = SensorSpec(
+        ImuSpec(500.0, 0.01, (0.02, 0.0, 0.0), 0.05, (0.0, 0.1, 0.0), 0.01, (0.0, 0.0, 0.0), False),
+        EncoderSpec(0.0, 0.0, 0.0, 25.0 / 65535.0, 130.0 / 4095.0, 36.0 / 4095.0),
+        seed=4,
+    )
+    suite = SensorSuite(robot.nu, spec, 500.0)
+    gyro_error, accelerometer_error = [], []
+    for k in range(200):
+        truth = ideal.read(plant)
+        gyro, accelerometer = truth.gyro.copy(), truth.accelerometer.copy()
+        reading = suite.read(plant)
+        gyro_error.append(reading.gyro - gyro)
+        accelerometer_error.append(reading.accelerometer - accelerometer)
+        steps = reading.joint_positions / spec.encoders.position_resolution
+        assert np.allclose(steps, np.round(steps))  # quantised
+        assert np.max(np.abs(reading.joint_positions - truth.joint_positions)) <= 0.5 * 25.0 / 65535.0 + 1e-12
+        plant.step(stand.compute(k * DT, plant.read_state(), None), 2)
+    assert np.mean(gyro_error, axis=0) == pytest.approx([0.02, 0.0, 0.0], abs=0.003)  # bias, noise
+    assert np.std(gyro_error, axis=0) == pytest.approx([0.01] * 3, rel=0.2)
+    assert np.mean(accelerometer_error, axis=0) == pytest.approx([0.0, 0.1, 0.0], abs=0.015)
+    delayed = SensorSuite(robot.nu, replace(spec, delay_max_ticks=3), 500.0)
+    seen = []
+    for _ in range(100):  # latency jitter: never older than 3 ticks, never going back
+        now = plant.time
+        seen.append((now, delayed.read(plant).time))
+        plant.step(np.zeros(robot.nu), 2)
+    ages = [now - read for now, read in seen]
+    assert max(ages) <= 3 * DT + 1e-9 and max(ages) > 0.0
+    assert np.all(np.diff([read for _, read in seen]) >= 0.0)
+    plant.reset(robot.q_standing)  # a seed gives the same readings
+    suite.reset()
+    first = suite.read(plant).gyro.copy()
+    assert np.array_equal(first, SensorSuite(robot.nu, spec, 500.0).read(plant).gyro)
+    with pytest.raises(ValueError, match="rate_hz"):
+        SensorSuite(robot.nu, replace(spec, imu=replace(spec.imu, rate_hz=1000.0)), 500.0)
+
+
+def test_estimator_config_is_validated_at_the_boundary():
+    with pytest.raises(ConfigError, match=r"plant\.sensor_noise perturbs the true state"):
+        load_config("trot", ["estimator=kinematic_kf", "plant.sensor_noise.base_position=0.01"])
+    with pytest.raises(ConfigError, match=r"kinematic_kf\.trust_window"):
+        load_config("trot", ["kinematic_kf.trust_window=0.8"])
+    with pytest.raises(ConfigError, match=r"plant\.sensors\.imu\.gyro_bias"):
+        load_config("trot", ["plant.sensors.imu.gyro_bias=[2, 0, 0]"])
+    with pytest.raises(ConfigError, match="estimator"):
+        load_config("trot", ["estimator=magic"])
+    with pytest.raises(
+        ConfigError, match=r"plant\.sensors\.imu\.rate_hz: 1000.0 Hz is above the control rate"
+    ):
+        load_config("trot", ["plant.sensors.imu.rate_hz=1000"])
+    config = load_config("trot", ["estimator=kinematic_kf", "kinematic_kf.slip_threshold=null"])
+    assert config.kinematic_kf.settings().slip_threshold is None
+
+
+def test_orientation_from_the_imu_matches_the_truth_in_a_short_closed_loop(robot):
+    from cafe_mpc.experiments.run import run_metrics, simulate_run
+
+    config = load_config("stand", ["estimator=kinematic_kf", "simulation.duration=0.6", "output.plots=false"])
+    _, controller, log = simulate_run(config)
+    assert not log.fell
+    estimate = log.extra["estimate_q"]
+    assert estimate.shape == log.q.shape
+    angle = (Rotation.from_quat(estimate[:, 3:7]).inv() * Rotation.from_quat(log.q[:, 3:7])).magnitude()
+    noise = config.plant.sensors.imu.orientation_noise
+    assert np.sqrt(np.mean(angle**2)) < 3.0 * noise and np.max(angle) < 8.0 * noise
+    assert np.max(np.abs(estimate[:, 2] - log.q[:, 2])) < 0.01
+    metrics = run_metrics(config, robot, controller, log)
+    block = metrics["estimator"]
+    assert block["kind"] == "kinematic_kf" and block["orientation_rms_error_rad"] < 3.0 * noise
+    assert block["velocity_rms_error_m_s"] < 0.02
+
+
+def test_the_controller_gets_the_estimate_not_the_plant_state(robot):
+    from cafe_mpc.estimation.controller import SensingController
+    from cafe_mpc.sim.loop import simulate
+
+    seen = []
+
+    class Spy:
+        """A controller that records what it measured and holds the stance with PD."""
+
+        def __init__(self) -> None:
+            from cafe_mpc.wbc.pd import PDController
+
+            self.pd = PDController(robot)
+
+        def reset(self) -> None:
+            self.pd.reset()
+
+        def compute(self, t, measurement):
+            seen.append(measurement)
+            return self.pd.compute(t, measurement, None)
+
+    spec = load_config("stand", ["estimator=kinematic_kf"]).plant.sensor_spec(500.0)
+    estimator = StateEstimator(robot)
+    sensing = SensingController(Spy(), estimator, capacity=10)
+    log = simulate(robot, sensing, 0.02, sensors=SensorSuite(robot.nu, spec, 500.0))
+    assert len(seen) == log.ticks == 10
+    assert all(measurement is estimator.measurement for measurement in seen)
+    assert sensing.trace()["estimate_q"].shape == (10, robot.nq)
+
+
+def test_a_closed_loop_trot_with_the_estimator_stays_up():
+    from cafe_mpc.experiments.run import run_metrics, simulate_run
+
+    duration = 1.5
+    config = load_config(
+        "trot",
+        [
+            "estimator=kinematic_kf",
+            f"simulation.duration={duration}",
+            "output.plots=false",
+            "mpc.latency=fixed",
+        ],
+    )
+    robot, controller, log = simulate_run(config)
+    metrics = run_metrics(config, robot, controller, log)
+    assert not log.fell, log.fall_reason
+    assert log.q[-1, 0] - log.q[0, 0] > 0.25 * 0.5 * duration
+    assert metrics["estimator"]["velocity_rms_error_m_s"] < 0.05
+    assert metrics["mpc"]["failures"] == 0
+    assert np.all(np.isfinite(log.torque_command))
+
+
+def test_the_library_controller_runs_from_a_users_sensor_readings():
+    """``cafe_mpc.Controller.measurement_from_sensors`` in a hand-written MuJoCo loop that reads its own IMU
+    and joint sensors (the user's clock starts at 100 s)."""
+    import mujoco
+
+    from cafe_mpc.api import Controller
+    from cafe_mpc.sim.sensors import with_sensors
+
+    with Controller("trot", ["mpc.latency=fixed"]) as controller:
+        robot = controller.robot
+        model = mujoco.MjModel.from_xml_string(with_sensors(robot.mjcf, robot.joint_names))
+        data = mujoco.MjData(model)
+        data.qpos[:] = controller.standing_qpos()
+        mujoco.mj_forward(model, data)
+
+        def read(name: str) -> np.ndarray:
+            sensor = model.sensor(name)
+            return data.sensordata[sensor.adr[0] : sensor.adr[0] + sensor.dim[0]]
+
+        def measurement(t: float):
+            joints = [read(f"jointpos_{joint}")[0] for joint in robot.joint_names]
+            rates = [read(f"jointvel_{joint}")[0] for joint in robot.joint_names]
+            return controller.measurement_from_sensors(
+                t,
+                read("imu_orientation"),
+                read("imu_gyro"),
+                read("imu_accelerometer"),
+                joints,
+                rates,
+                scalar_first=True,
+            )
+
+        first = measurement(100.0)
+        assert first.q[2] == pytest.approx(robot.q_standing[2], abs=0.005) and np.allclose(first.v[:3], 0.0)
+        controller.reset(first)
+        substeps = round(controller.control_period / model.opt.timestep)
+        for _ in range(round(1.0 / controller.control_period)):
+            t = 100.0 + data.time
+            torques = controller.compute(t, measurement(t))
+            assert np.all(np.isfinite(torques))
+            data.ctrl[:] = torques
+            for _ in range(substeps):
+                mujoco.mj_step(model, data)
+            mujoco.mj_forward(model, data)
+        assert data.qpos[2] > 0.2 and data.qpos[0] > 0.15  # up, and moving forward
+        estimate = measurement(100.0 + data.time)
+        assert estimate.q[0] == pytest.approx(data.qpos[0], abs=0.03)
+        with pytest.raises(ValueError, match="gyro must have shape"):
+            controller.measurement_from_sensors(101.0, [0, 0, 0, 1], [0, 0], [0, 0, 9.81], joints(), joints())
+        with pytest.raises(ValueError, match="accelerometer contains NaN"):
+            controller.measurement_from_sensors(
+                101.0, [0, 0, 0, 1], [0, 0, 0], [0, np.nan, 9.81], joints(), joints()
+            )
+        with pytest.raises(ValueError, match="not a unit quaternion"):
+            controller.measurement_from_sensors(
+                101.0, [0, 0, 0, 0], [0, 0, 0], [0, 0, 9.81], joints(), joints()
+            )
+
+
+def joints() -> np.ndarray:
+    return np.zeros(12)
