@@ -216,6 +216,14 @@ def test_latency_prediction_runs_the_plan_in_effect(robot):
     built = mpc._build(0.0)  # the next problem starts at the predicted time, from the predicted state
     assert built.times[0] == pytest.approx(0.02)
     np.testing.assert_allclose(built.problem.x0, falling)
+    # measured latency: the in-loop updates' median wall time, not the cold first solve's
+    standing = ["gait.name=stand", "gait.commands.0.vx=0", "mpc.latency=measured"]
+    measured = _template_mpc(robot, "trot", standing)
+    measured.update(0.0, robot.q_standing, np.zeros(robot.nv))
+    assert measured.expected_latency() == 0.0
+    for t in (0.02, 0.04, 0.06):
+        measured.update(t, robot.q_standing, np.zeros(robot.nv))
+    assert measured.expected_latency() == pytest.approx(np.median(measured.statistics.update_times[1:]))
 
 
 def test_constraint_barrier_gradient_matches_finite_differences(robot):

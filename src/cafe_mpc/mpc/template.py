@@ -654,11 +654,12 @@ class TemplateMpc(RecedingHorizonPlanner):
 
     def expected_latency(self) -> float:
         """How long after its measurement the next plan will take effect: the fixed latency, or (measured)
-        the median of the last ten updates' wall times times ``compute_scale`` (0 before any update)."""
+        the median of the last ten in-loop updates' wall times times ``compute_scale`` (0 before the first
+        one; the cold first solve runs before the clock starts and does not count)."""
         settings = self.settings
         if settings.latency == "fixed":
             return settings.fixed_latency
-        recent = self.statistics.update_times[-10:]
+        recent = self.statistics.update_times[1:][-10:]
         return float(np.median(recent)) * settings.compute_scale if recent else 0.0
 
     def predict_start(self, t: float, t_plan: float, state: np.ndarray) -> np.ndarray:
