@@ -175,6 +175,7 @@ def test_experiment_help_and_list_show_the_registry(capsys):
         "warm-start",
         "reliability",
         "template-vs-cafe",
+        "template-gaits",
         "latency",
         "robots",
     ]

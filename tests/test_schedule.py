@@ -75,7 +75,18 @@ def test_merge_and_then():
 
 
 def test_gait_library():
-    assert set(GAITS) == {"trot", "pace", "bound", "pronk", "flying_trot", "flying_pace", "stand"}
+    assert set(GAITS) == {
+        "trot",
+        "pace",
+        "bound",
+        "pronk",
+        "flying_trot",
+        "flying_pace",
+        "stand",
+        "bound_short_flight",
+        "pronk_short_flight",
+        "pace_short_stance",
+    }
     assert get_gait("flying-trot") is GAITS["flying_trot"]
     with pytest.raises(ValueError, match="known gaits"):
         get_gait("gallop")
@@ -93,6 +104,22 @@ def test_gait_library():
     for gait in GAITS.values():
         for flags, duration in gait.cycle:
             assert len(flags) == 4 and duration > 0
+
+
+def test_mit_timings():
+    """MIT Cheetah-Software's convex-MPC gaits: ten 26 ms segments a cycle; the bound's pairs 104 ms in
+    stance with a 26 ms flight after each, the pronk 104 ms down and 156 ms up, the pace 130 ms a side."""
+    bound, pronk, pace = GAITS["bound_short_flight"], GAITS["pronk_short_flight"], GAITS["pace_short_stance"]
+    for gait in (bound, pronk, pace):
+        assert gait.period == pytest.approx(0.26)
+    assert bound.flags_at(0.05) == (True, True, False, False)
+    assert bound.flags_at(0.11) == FLIGHT
+    assert bound.flags_at(0.20) == (False, False, True, True)
+    assert bound.flags_at(0.25) == FLIGHT
+    assert bound.support_factor == pytest.approx(0.26 / 0.416)  # 0.625 of the weight per stance foot
+    assert pronk.flags_at(0.1) == ALL_STANCE and pronk.flags_at(0.11) == FLIGHT
+    assert pace.flags_at(0.0) == (True, False, True, False)
+    assert pace.flags_at(0.14) == (False, True, False, True)
 
 
 def test_gait_schedule_over_a_window():

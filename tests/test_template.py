@@ -6,6 +6,8 @@ the stance legs and joint PD on the swing legs (``wbc.template_low_level``).
 
 from __future__ import annotations
 
+import json
+
 import numpy as np
 import pinocchio as pin
 import pytest
@@ -17,13 +19,17 @@ from cafe_mpc.dynamics.srb import GRAVITY
 from cafe_mpc.dynamics.statics import static_stance_torques
 from cafe_mpc.experiments.controllers import build_mpc, mpc_settings
 from cafe_mpc.experiments.run import run_metrics, simulate_run
+from cafe_mpc.experiments.sweep import run_experiment
+from cafe_mpc.experiments.template_gaits import pitch_swing, vertical_force_capacity
 from cafe_mpc.mpc.template import (
     ConstrainedSRBKnot,
     TemplateMpc,
     TemplateProblemBuilder,
     TemplateSettings,
+    VerticalOscillation,
     template_srb,
 )
+from cafe_mpc.ocp.contact_schedule import GAITS
 from cafe_mpc.robots.robot import load_robot
 from cafe_mpc.wbc.template_low_level import TemplateLowLevelController, stance_torques
 
@@ -128,6 +134,98 @@ def test_knots_lie_on_the_absolute_grid_and_switch_with_the_gait(robot):
     assert built.problem.x0[2] == pytest.approx(robot.q_standing[2] + mpc.builder.com_offset[2])
 
 
+def test_knots_split_at_contact_switches_off_the_grid(robot):
+    """MIT's bound switches every 26 ms segment boundary (0.104 s stance, 0.026 s flight after the 0.2 s
+    stand): off the 10 ms grid, each switch gets a knot of its own and the stance flags change there."""
+    mpc = _template_mpc(robot, "bound", ["gait.name=bound_short_flight"])
+    built = mpc.builder.build(0.25, robot.x_standing, mpc.reference)
+    for switch in (0.304, 0.330, 0.434, 0.460, 0.564, 0.590, 0.694, 0.720):
+        k = int(np.argmin(np.abs(built.times - switch)))
+        assert built.times[k] == pytest.approx(switch, abs=1e-9)
+        assert tuple(built.contacts[k - 1]) == mpc.reference.stance_at(switch - 1e-4)
+        assert tuple(built.contacts[k]) == mpc.reference.stance_at(switch + 1e-4)
+        assert tuple(built.contacts[k - 1]) != tuple(built.contacts[k])
+    grid = built.times[1:][np.abs(built.times[1:] / 0.01 - np.round(built.times[1:] / 0.01)) < 1e-6]
+    np.testing.assert_allclose(np.diff(grid), 0.01, atol=1e-9)  # the 10 ms grid is kept around them
+    assert built.times[-1] == pytest.approx(0.75)
+
+
+def test_vertical_oscillation_is_the_motion_the_force_references_imply():
+    """Under ``support_factor * m g`` per stance foot the body accelerates at ``g (n s - 1)``: the oscillation
+    integrates that with zero mean height and speed, periodically; none for a trot (always two feet at s =
+    1/2)."""
+    for name in ("pronk", "bound", "bound_short_flight", "pronk_short_flight"):
+        gait = GAITS[name]
+        oscillation = VerticalOscillation(gait)
+        times = np.linspace(0.0, gait.period, 2601)
+        values = np.array([oscillation.at(float(t)) for t in times])
+        assert abs(np.mean(values[:-1, 0])) < 1e-6 and abs(np.mean(values[:-1, 1])) < 1e-4
+        np.testing.assert_allclose(values[0], values[-1], atol=1e-9)  # periodic
+        step = times[1] - times[0]
+        np.testing.assert_allclose(np.gradient(values[:, 0], step)[5:-5], values[5:-5, 1], atol=2e-3)
+        for t in (0.01, 0.5 * gait.period + 0.01):
+            flags = gait.flags_at(t)
+            expected = GRAVITY * (sum(flags) * gait.support_factor - 1.0)
+            rate = (oscillation.at(t + 1e-5)[1] - oscillation.at(t - 1e-5)[1]) / 2e-5
+            assert rate == pytest.approx(expected, rel=1e-6)
+    trot = VerticalOscillation(GAITS["trot"])
+    assert trot.at(0.1) == pytest.approx((0.0, 0.0), abs=1e-12)
+    # the paper's pronk: apex g Tf^2 / 8 above touchdown (0.2 s flight), lowest point (2 g) Ts^2 / 8 below it
+    heights = [VerticalOscillation(GAITS["pronk"]).at(float(t))[0] for t in np.linspace(0, 0.3, 3001)]
+    assert np.ptp(heights) == pytest.approx(GRAVITY * 0.2**2 / 8 + 2 * GRAVITY * 0.1**2 / 8, rel=1e-4)
+
+
+def test_updates_start_from_the_measured_centroidal_state(robot):
+    """The SRB's initial state: the robot's centre of mass and its velocity, and the angular velocity whose
+    SRB momentum is the centroidal angular momentum (legs included), about the base orientation."""
+    mpc = _template_mpc(robot)
+    rng = np.random.default_rng(3)
+    q = robot.q_standing.copy()
+    q[3:7] = pin.Quaternion(pin.exp3(np.array([0.05, -0.1, 0.3]))).coeffs()
+    q[7:] += rng.uniform(-0.2, 0.2, robot.nu)
+    v = rng.uniform(-1.0, 1.0, robot.nv)
+    state = mpc.builder.initial_state(np.concatenate([q, v]))
+    data = robot.model.createData()
+    np.testing.assert_allclose(state[0:3], pin.centerOfMass(robot.model, data, q, v), atol=1e-12)
+    np.testing.assert_allclose(state[7:10], data.vcom[0], atol=1e-12)
+    np.testing.assert_allclose(state[3:7], q[3:7])
+    momentum = pin.computeCentroidalMomentum(robot.model, data, q, v).angular
+    inertia = np.asarray(mpc.builder.settings.parameters.inertia)
+    rotation = pin.Quaternion(q[6], q[3], q[4], q[5]).toRotationMatrix()
+    np.testing.assert_allclose(rotation @ inertia @ state[10:13], momentum, atol=1e-10)
+    # legs at rest: the base's own angular velocity is the SRB's up to the legs' share of the inertia
+    v[6:] = 0.0
+    rested = mpc.builder.initial_state(np.concatenate([q, v]))
+    assert np.dot(rested[10:13], v[3:6]) > 0.5 * np.dot(v[3:6], v[3:6])
+
+
+def test_latency_prediction_runs_the_plan_in_effect(robot):
+    """``predict_start``: the SRB state where the next plan takes effect, under the previous plan's forces.
+    Standing, the plan's forces carry the weight (the state stays put); with them zeroed, the body falls
+    freely over the predicted 20 ms."""
+    mpc = _template_mpc(robot, "trot", ["gait.name=stand", "gait.commands.0.vx=0"])
+    assert mpc.expected_latency() == pytest.approx(0.02)  # fixed latency
+    mpc.update(0.0, robot.q_standing, np.zeros(robot.nv))
+    start = mpc.builder.initial_state(robot.x_standing)
+    held = mpc.predict_start(0.0, 0.02, start)
+    assert abs(held[2] - start[2]) < 1e-3 and abs(held[9]) < 0.02
+    mpc.previous[1].phases[0].us[:] = 0.0
+    falling = mpc.predict_start(0.0, 0.02, start)
+    assert falling[9] == pytest.approx(-GRAVITY * 0.02, rel=1e-6)
+    assert 0.0 < start[2] - falling[2] <= 0.5 * GRAVITY * 0.02**2 + 1e-9  # (explicit Euler: below it)
+    built = mpc._build(0.0)  # the next problem starts at the predicted time, from the predicted state
+    assert built.times[0] == pytest.approx(0.02)
+    np.testing.assert_allclose(built.problem.x0, falling)
+    # measured latency: the in-loop updates' median wall time, not the cold first solve's
+    standing = ["gait.name=stand", "gait.commands.0.vx=0", "mpc.latency=measured"]
+    measured = _template_mpc(robot, "trot", standing)
+    measured.update(0.0, robot.q_standing, np.zeros(robot.nv))
+    assert measured.expected_latency() == 0.0
+    for t in (0.02, 0.04, 0.06):
+        measured.update(t, robot.q_standing, np.zeros(robot.nv))
+    assert measured.expected_latency() == pytest.approx(np.median(measured.statistics.update_times[1:]))
+
+
 def test_constraint_barrier_gradient_matches_finite_differences(robot):
     mpc = _template_mpc(robot)
     built = mpc.builder.build(0.0, robot.x_standing, mpc.reference)
@@ -200,3 +298,73 @@ def test_template_trot_stays_up_and_moves_forward():
     assert metrics["vx_mean"] > 0.3
     assert metrics["mpc"]["failures"] == 0 and metrics["mpc"]["pd_fallback_ticks"] == 0
     assert np.all(np.abs(log.torque_command) <= robot.torque_limits + 1e-6)
+
+
+def test_template_bounds_with_the_short_flight_timing():
+    """MIT's bound timing (0.104 s stance, 0.026 s flights), fixed latency: the template bounds for 2 s (1.3 s
+    at the full 0.5 m/s), with a pitch oscillation that stays bounded."""
+    duration = 2.0
+    config = load_config(
+        "bound",
+        [
+            f"simulation.duration={duration}",
+            "planner=template",
+            "gait.name=bound_short_flight",
+            "output.plots=false",
+            "mpc.latency=fixed",
+        ],
+    )
+    robot, controller, log = simulate_run(config)
+    metrics = run_metrics(config, robot, controller, log)
+    assert not log.fell, log.fall_reason
+    assert metrics["base_height_min"] > 0.18
+    assert metrics["pitch_abs_max_rad"] < 0.3
+    late = log.time >= 1.0
+    assert (log.q[late][-1, 0] - log.q[late][0, 0]) / (log.time[late][-1] - log.time[late][0]) > 0.35
+    flights = ~log.extra["planned_stance"].any(axis=1)
+    assert 0.05 < np.mean(flights[late]) < 0.4  # two 26 ms flights per 0.26 s cycle planned: 0.2
+    assert metrics["mpc"]["failures"] == 0 and metrics["mpc"]["pd_fallback_ticks"] == 0
+
+
+# -------------------------------------------------------------------------------- template-gaits experiment
+def test_leg_capacity_and_forced_pitch_rate(robot):
+    """The diagnosis' static numbers: the motor limits (26 Nm knees) give a leg more vertical force than the
+    plan's 17 Nm; only the bound (front and hind pairs apart) forces a pitch rate, less with MIT's shorter
+    stances, and much less pitch is turned in its 26 ms flights."""
+    capacity = vertical_force_capacity(robot)
+    assert 60.0 < capacity < 200.0
+    assert vertical_force_capacity(robot, robot.plant.motor_torque_limits) > capacity
+    paper, paper_turn = pitch_swing(GAITS["bound"], robot, 0.6)
+    mit, mit_turn = pitch_swing(GAITS["bound_short_flight"], robot, 0.6)
+    assert paper > mit > 0.0 and paper_turn > 3.0 * mit_turn > 0.0
+    for name in ("trot", "pace", "pronk", "pronk_short_flight"):
+        assert pitch_swing(GAITS[name], robot, 0.6) == (0.0, 0.0)
+    assert pitch_swing(GAITS["bound"], robot, 5.0) == (0.0, 0.0)  # friction enough to cancel the moment
+
+
+def test_template_gaits_experiment_reports_both_timings(tmp_path):
+    """A short run of the experiment (the start stand only): the variants, the per-gait demand and the
+    comparison files."""
+    out = tmp_path / "gaits"
+    run_experiment(
+        "template-gaits",
+        out,
+        duration=0.3,
+        overrides=["mpc.latency=fixed"],
+        scheduler="synchronous",
+        gaits="bound,bound-mit",
+        planners="template",
+    )
+    comparison = json.loads((out / "comparison.json").read_text())
+    rows = comparison["variants"]
+    assert set(rows) == {"bound-template", "bound-mit-template"}
+    weight = load_robot("mini_cheetah").total_mass * GRAVITY
+    assert rows["bound-template"]["demand_per_foot_n"] == pytest.approx(weight)
+    assert rows["bound-mit-template"]["demand_per_foot_n"] == pytest.approx(0.625 * weight)
+    assert rows["bound-template"]["pitch_rate_swing"] > rows["bound-mit-template"]["pitch_rate_swing"]
+    for row in rows.values():
+        assert row["status"] == "ok" and row["timing_mode"] == "fixed" and not row["fell"]
+        assert row["planned_force_max_n"] > 0.0
+    text = (out / "comparison.md").read_text()
+    assert "bound_short_flight" in text and "demand / capacity" in text
+    assert (out / "comparison.png").is_file()

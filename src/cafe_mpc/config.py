@@ -835,14 +835,29 @@ class KinematicKFConfig(StrictModel):
 
 class TemplateConfig(StrictModel):
     """The template-MPC baseline (``planner: template``; ``mpc.template``, ``wbc.template_low_level``): the
-    SRB plan's horizon and knot spacing, and the swing legs' joint PD gains. Period, latency and iterations
-    per update are ``mpc``'s; the weights and GRF constraints are ``mpc.template.TemplateSettings``'."""
+    SRB plan's horizon and knot spacing, the swing legs' joint PD gains, and the switches of the plan's
+    initial state, reference height and delay compensation (docs/settings.md has what each one changed).
+    Period, latency and iterations per update are ``mpc``'s; the weights and GRF constraints are
+    ``mpc.template.TemplateSettings``'."""
 
     horizon: float = Field(0.5, gt=0.0, le=2.0, description="s planned with the SRB model")
     dt: float = Field(0.01, ge=0.001, le=0.1, description="s between SRB knots (whole milliseconds)")
     swing_kp: float = Field(40.0, ge=0.0, le=500.0, description="Nm/rad, swing-leg joint PD")
     swing_kd: float = Field(1.0, ge=0.0, le=50.0, description="Nm s/rad, swing-leg joint PD")
     leg_torque_limits: bool = Field(True, description="bound the stance legs' J' f by the torque limits")
+    predict_latency: bool = Field(
+        True,
+        description="plan from the SRB state predicted at the time the plan takes effect (the fixed latency, "
+        "or the recent updates' median wall time), under the plan in effect until then",
+    )
+    centroidal_state: bool = Field(
+        True,
+        description="start each update from the measured centre of mass, its velocity and the centroidal "
+        "angular momentum (false: the base state moved to the standing pose's centre of mass)",
+    )
+    vertical_reference: bool = Field(
+        True, description="add the height and vertical speed the gait's GRF references imply to the reference"
+    )
 
     @model_validator(mode="after")
     def _knots(self) -> TemplateConfig:

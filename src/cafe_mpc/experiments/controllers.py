@@ -227,18 +227,24 @@ def build_template_controller(config: RunConfig, robot: Robot) -> CafeMpcControl
     reference = build_mpc(config, robot).reference
     parameters, com_offset = template_srb(robot)
     section = config.template
+    limits = torque_limits_of(config, robot)
     try:
         settings = TemplateSettings(
             horizon=section.horizon,
             dt=section.dt,
             parameters=parameters,
             leg_torque_limits=section.leg_torque_limits,
+            predict_latency=section.predict_latency,
+            centroidal_state=section.centroidal_state,
+            vertical_reference=section.vertical_reference,
+            torque_limits=tuple(limits.tolist()),
             friction_coefficient=config.mpc.friction,
         )
         scale = run_scale(config, robot)
         low_level = TemplateLowLevelController(
             robot,
             TemplateLowLevelSettings(scale.stiffness(section.swing_kp), scale.damping(section.swing_kd)),
+            torque_limits=limits,
         )
     except ValueError as error:
         raise ConfigError(f"template: {error}") from error

@@ -187,6 +187,7 @@ ORDER = (
     "warm-start",
     "reliability",
     "template-vs-cafe",
+    "template-gaits",
     "latency",
     "robots",
 )

@@ -16,26 +16,43 @@ is the planning half of such a baseline, built from the same parts as CAFE-MPC:
   twice what 17 Nm knees give at that posture);
 * MS-iLQR, warm-started from the previous solution shifted by time, with the same iteration budget per
   update as CAFE-MPC; the result is a ``core.template_plan.TemplatePlan`` (SRB states, GRFs, stance,
-  reference feet) for ``wbc.template_low_level``.
+  reference feet) for ``wbc.template_low_level``;
+* delay compensation (``TemplateMpc.predict_start``): an update plans from the time its plan will take
+  effect (its measurement time plus the fixed latency, or the recent updates' median wall time), from the
+  SRB state the plan in effect until then predicts there. CAFE-MPC's real-time iteration prepares each
+  update from its plan's prediction too (``mpc.receding_horizon``). Measured (bound with MIT's timing, +1.5
+  m/s push): without it the template recovered at 5 and 10 ms of fixed latency and fell at 15 and 20 ms;
+  with it, it recovers at 15 and 20 ms (falls at 30 ms).
 
-The SRB's position is the robot's centre of mass and its mass and inertia are the planning model's own,
-without the rotor point masses of the CAFE tail (``template_srb``: the plant has none).
+The SRB's mass and inertia are the planning model's own, without the rotor point masses of the CAFE tail
+(``template_srb``: the plant has none). Its position is the robot's centre of mass: each update starts from
+the measured centroidal state (``TemplateProblemBuilder.initial_state``: centre of mass, its velocity, and
+the angular velocity of the centroidal angular momentum), which the GRFs act on whatever the legs do; the
+reference's base poses are moved to the standing pose's centre of mass.
+
+Reference height (``VerticalOscillation``). With flight phases the reference's constant height
+contradicts its own GRF references (``support_factor * m g`` per stance foot): under them the body rises
+in stance and falls in flight. The template adds that periodic motion to its SRB reference, so that the
+terminal cost, wherever in the cycle the horizon ends, asks for a state of the gait rather than a hover
+in mid-flight (the first plan of the paper's pronk crouched the centre of mass to 0.14 m with the constant
+height, to 0.20 m with the oscillation; reference 0.24 m).
 
 Knot grid (design choice). The authors' HKD-MPC plans 0.6 s at 0.01 s. Here: ``horizon`` 0.5 s (the CAFE
 tail's Ts of S5) at ``dt`` 0.01 s, with the knots on the absolute time grid ``k * dt`` after the first one
-(``t0``, the measurement time): every contact switch of the gaits (and of the barrel roll's schedule) lies
-on that grid, so no knot interval straddles a switch, and knots persist between updates (the warm start
-maps them by time). The first interval ``[t0, next grid time)`` is 1 ms to ``dt`` long; its duration is
-rounded to 1 ms so the SRB dynamics objects (one per duration) stay few. One update (50 knots, one
-MS-iLQR iteration) takes about 5 ms.
+(``t0``, the measurement time), so that knots persist between updates (the warm start maps them by time),
+and an interval that a contact switch falls inside is split at the switch (``time_grid.grid_times``): the
+paper's gaits switch on the grid, MIT's 26 ms segments do not. The first interval ``[t0, next grid time)``
+is 1 ms to ``dt`` long; durations are rounded to 1 ms so the SRB dynamics objects (one per duration) stay
+few. One update (50-60 knots, one MS-iLQR iteration) takes about 5-8 ms.
 
-Weights: ``hkd_running_weights`` (the authors' HKD tracking weights, a lighter GRF regularisation) and
-``terminal_weights`` (5 x the running ones); each deviation and the measurement behind it is in its
-docstring.
+Weights: ``template_running_weights`` (the authors' HKD tracking weights with a heavier height, pitch and
+roll and a lighter GRF regularisation) and ``terminal_weights`` (5 x the running ones); each deviation and
+the measurement behind it is in its docstring.
 """
 
 from __future__ import annotations
 
+import bisect
 import logging
 import math
 from dataclasses import dataclass, field, replace
@@ -45,6 +62,7 @@ import pinocchio as pin
 from numba import njit
 
 from cafe_mpc.core.interfaces import MultiPhaseProblem, Phase
+from cafe_mpc.core.plan import interval_at
 from cafe_mpc.core.template_plan import TemplatePlan
 from cafe_mpc.dynamics.srb import (
     GRAVITY,
@@ -57,6 +75,7 @@ from cafe_mpc.dynamics.transition import whole_body_to_srb_state
 from cafe_mpc.mpc.planner import MpcSettings, RecedingHorizonPlanner
 from cafe_mpc.mpc.time_grid import TIME_QUANTUM, PiecewiseTrajectory, grid_times, quanta
 from cafe_mpc.ocp.constraints import BarrierParameters
+from cafe_mpc.ocp.contact_schedule import GaitCycle
 from cafe_mpc.ocp.costs import SRBWeights
 from cafe_mpc.ocp.knots import SRBKnot, SRBKnotData, SRBReference
 from cafe_mpc.reference.base import Reference, ReferenceWindow
@@ -208,18 +227,40 @@ class ConstrainedSRBKnot(SRBKnot):
 
 
 def hkd_running_weights(force: float = 1e-3) -> SRBWeights:
-    """Running weights of the SRB cost (28): the authors' HKD-MPC tracking weights (public CAFE-MPC code,
-    ``HKDMPC/HKD-TrajOpt/HKDCost.h``; base order here ``[x, y, z, yaw, pitch, roll]``): position
-    (1, 1, 30), Euler angles (yaw 1, pitch 4, roll 4), linear velocity (1, 1, 1), body rates (yaw 0.2,
-    pitch 0.5, roll 1.0). GRF regularisation ``force`` (default 1e-3, toward the reference's stance forces),
-    not their 0.1: measured in closed loop, 0.1 (and 0.01) kept the trotting body pitched by 0.3-0.45 rad
-    (pitch RMS 0.46 and 0.19 rad), because the equal per-foot force targets do not balance the moments
-    about the centre of mass and a heavy pull toward them wins over the pitch cost; 1e-3 gives 0.02-0.04 rad
-    and 1e-4 fell (GRFs chattering between updates)."""
+    """The authors' HKD-MPC tracking weights (public CAFE-MPC code, ``HKDMPC/HKD-TrajOpt/HKDCost.h``; base
+    order here ``[x, y, z, yaw, pitch, roll]``): position (1, 1, 30), Euler angles (yaw 1, pitch 4, roll 4),
+    linear velocity (1, 1, 1), body rates (yaw 0.2, pitch 0.5, roll 1.0); GRF regularisation ``force``
+    (their 0.1; 1e-3 here, see ``template_running_weights``). The template's own set is
+    ``template_running_weights``."""
     return SRBWeights(
         base_position=(1.0, 1.0, 30.0, 1.0, 4.0, 4.0),
         base_velocity=(1.0, 1.0, 1.0, 0.2, 0.5, 1.0),
         force=force,
+    )
+
+
+def template_running_weights() -> SRBWeights:
+    """Running weights of the template's SRB cost (28): the HKD set (``hkd_running_weights``) with the height
+    weight 1000 (HKD: 30) and the pitch and roll weights 40 (HKD: 4), GRF regularisation 1e-3.
+
+    Each change measured in closed loop (fixed 20 ms latency, 5-10 s at 0.5 m/s; docs/settings.md):
+
+    * GRF regularisation 1e-3 (HKD: 0.1) toward the reference's equal per-foot forces: 0.1 (and 0.01) kept
+      the trotting body pitched by 0.3-0.45 rad, because equal forces do not balance the moments about the
+      centre of mass and a heavy pull toward them wins over the pitch cost; 1e-4 fell (GRFs chattering
+      between updates).
+    * Height 1000: with 30, a lift priced in GRF regularisation cost as much as an 8 cm height error, and
+      the pace (0.25 s a side) sank from 0.25 m to 0.11 m and fell at 2.7 s; with 100, 300 and 1000 it
+      paced at a mean base height of 0.196, 0.220 and 0.238 m (reference 0.25 m). The ratio of the height
+      weight to the GRF weight is then about that of MIT's convex MPC (Cheetah-Software: 50 / 4e-5).
+    * Pitch and roll 40: pitch RMS 0.033 -> 0.008 rad trotting, 0.098 -> 0.073 rad pronking; of the sets
+      tried (pitch and roll 20 or 40, horizontal-speed weights 1, 3 or 10) only this one recovered from
+      the push test (bound, +1.5 m/s) at 20 ms latency.
+    """
+    return SRBWeights(
+        base_position=(1.0, 1.0, 1000.0, 1.0, 40.0, 40.0),
+        base_velocity=(1.0, 1.0, 1.0, 0.2, 0.5, 1.0),
+        force=1e-3,
     )
 
 
@@ -229,12 +270,12 @@ TERMINAL_SCALE = 5.0
 
 def terminal_weights(running: SRBWeights | None = None) -> SRBWeights:
     """Terminal weights: ``TERMINAL_SCALE`` (5) x the running state weights, no force term. The HKD code's
-    ``Qf = 20 diag(scale) Q`` (z weight 12000, 400 x the running z weight) made the plans aim only at the
-    horizon's end: in a pronk the first plan let the body fall from 0.24 m to 0.02 m and launched it back to
-    hit the terminal height. The CAFE tail's regular terminal set (base (0, 0, 1, 1, 1, 1), velocities 1)
-    let the trotting body roll away slowly (1.2 rad at 6.2 s, then the fall); 1 x and 5 x the running
-    weights both trot for 10 s (measured with fixed latency)."""
-    running = running or hkd_running_weights()
+    ``Qf = 20 diag(scale) Q`` (400 x the running height weight) made the plans aim only at the horizon's
+    end: in a pronk the first plan let the body fall from 0.24 m to 0.02 m and launched it back to hit the
+    terminal height. The CAFE tail's regular terminal set (base (0, 0, 1, 1, 1, 1), velocities 1) let the
+    trotting body roll away slowly (1.2 rad at 6.2 s, then the fall); 1 x and 5 x the running weights both
+    trot for 10 s (measured with fixed latency)."""
+    running = running or template_running_weights()
     return SRBWeights(
         base_position=tuple(TERMINAL_SCALE * w for w in running.base_position),
         base_velocity=tuple(TERMINAL_SCALE * w for w in running.base_velocity),
@@ -251,14 +292,20 @@ class TemplateSettings:
     ``friction_coefficient``, ``friction_barrier``: the GRF pyramid (the authors' HKD-MPC ReB delta 0.1,
     eps 0.01). ``leg_torque_limits``: also bound the leg torques ``-J' f`` of the stance legs
     (``torque_limits``, default the robot's, with ``torque_barrier``: the whole-body knots' delta 1,
-    eps 0.01).
+    eps 0.01). ``centroidal_state``: start each update from the measured centroidal state
+    (``TemplateProblemBuilder.initial_state``). ``vertical_reference``: add the height and vertical speed
+    the gait's GRF references imply to the SRB reference (``VerticalOscillation``). ``predict_latency``: plan
+    from the state predicted at the time the plan will take effect (``TemplateMpc.predict_start``).
     """
 
     horizon: float = 0.5
     dt: float = 0.01
     parameters: SRBParameters = field(default_factory=SRBParameters)
-    running_weights: SRBWeights = field(default_factory=hkd_running_weights)
+    running_weights: SRBWeights = field(default_factory=template_running_weights)
     terminal_weights: SRBWeights = field(default_factory=terminal_weights)
+    centroidal_state: bool = True
+    vertical_reference: bool = True
+    predict_latency: bool = True
     friction_coefficient: float = 0.6
     friction_barrier: BarrierParameters = field(default_factory=lambda: BarrierParameters(0.1, 0.01))
     leg_torque_limits: bool = True
@@ -298,6 +345,54 @@ def template_srb(robot: Robot) -> tuple[SRBParameters, np.ndarray]:
         float(lumped.mass), tuple(tuple(float(v) for v in row) for row in inertia), n_feet=robot.n_feet
     )
     return parameters, np.asarray(lumped.lever, dtype=float).copy()
+
+
+class VerticalOscillation:
+    """The periodic height and vertical speed a gait's GRF references imply (added to the SRB reference).
+
+    The locomotion reference holds the body at a constant height, and its GRF reference puts
+    ``support_factor * m g`` on every stance foot (``GaitCycle.support_factor``). With flight phases the two
+    disagree: under those forces the SRB accelerates upward by ``g (n_stance * support_factor - 1)`` in
+    stance and falls at ``g`` in flight. This is that motion's periodic solution: piecewise parabolas with
+    zero mean height and zero mean vertical speed over the cycle. Zero for gaits without flight phases
+    whose stance count is constant (trot, pace, stand).
+    """
+
+    def __init__(self, gait: GaitCycle, gravity: float = GRAVITY) -> None:
+        self.period = gait.period
+        factor = gait.support_factor
+        self.starts: list[float] = []
+        self.accelerations: list[float] = []
+        velocity = position = elapsed = 0.0
+        velocities, positions = [], []
+        mean_velocity = mean_position = 0.0
+        for flags, duration in gait.cycle:
+            acceleration = gravity * (sum(flags) * factor - 1.0)
+            self.starts.append(elapsed)
+            self.accelerations.append(acceleration)
+            velocities.append(velocity)
+            positions.append(position)
+            mean_velocity += velocity * duration + 0.5 * acceleration * duration**2
+            mean_position += (
+                position * duration + 0.5 * velocity * duration**2 + acceleration * duration**3 / 6.0
+            )
+            position += velocity * duration + 0.5 * acceleration * duration**2
+            velocity += acceleration * duration
+            elapsed += duration
+        # shift the initial speed so that the mean speed is zero, then the height so that its mean is zero
+        v0 = -mean_velocity / self.period
+        self.velocities = [v + v0 for v in velocities]
+        shifted = [z + v0 * t for z, t in zip(positions, self.starts, strict=True)]
+        mean_shifted = mean_position + v0 * 0.5 * self.period**2
+        self.positions = [z - mean_shifted / self.period for z in shifted]
+
+    def at(self, tau: float) -> tuple[float, float]:
+        """Height offset and vertical speed at ``tau`` seconds into the cycle."""
+        tau = tau % self.period
+        index = max(bisect.bisect_right(self.starts, tau) - 1, 0)
+        s = tau - self.starts[index]
+        a, v, z = self.accelerations[index], self.velocities[index], self.positions[index]
+        return z + v * s + 0.5 * a * s * s, v + a * s
 
 
 @dataclass
@@ -340,7 +435,8 @@ class TemplateProblemBuilder:
         """Centre of mass in the base frame: the SRB's position ``c`` is the CoM (``template_srb``)."""
         self.weight = self.settings.parameters.mass * self.settings.parameters.gravity
         n = self.settings.knots
-        self.window = ReferenceWindow(n + 1, robot.nq, robot.nv, robot.nu, robot.n_feet)
+        # the grid's n + 1 times and up to one split per knot interval at the contact switches
+        self.window = ReferenceWindow(2 * n + 1, robot.nq, robot.nv, robot.nu, robot.n_feet)
         self._dynamics: dict[int, SRBDynamics] = {}
         self._running: dict[tuple[int, int], ConstrainedSRBKnot] = {}
         limits = self.settings.torque_limits
@@ -349,6 +445,8 @@ class TemplateProblemBuilder:
             raise ValueError(f"template torque limits need {robot.nu} positive values")
         self.inverse_kinematics = LegInverseKinematics(robot)
         self._data = robot.model.createData()
+        self._oscillations: dict[str, VerticalOscillation] = {}
+        self._inertia_inverse = np.linalg.inv(np.asarray(self.settings.parameters.inertia, dtype=float))
         zero = np.zeros(13)
         zero[6] = 1.0
         self._terminal = SRBKnot(
@@ -357,18 +455,27 @@ class TemplateProblemBuilder:
             SRBReference(zero, np.zeros((4, 3)), (True,) * 4, self.weight),
         )
 
-    def knot_times(self, t0: float) -> np.ndarray:
-        """``t0``, then the absolute grid ``k * dt`` after it (``n + 1`` times; ``time_grid.grid_times``)."""
-        return grid_times(t0, self.settings.knots, self.settings.dt)
+    def knot_times(self, t0: float, reference: Reference | None = None) -> np.ndarray:
+        """``t0``, then the absolute grid ``k * dt`` after it, with the intervals that a contact switch of
+        ``reference`` falls inside split at the switch (``time_grid.grid_times``): a gait whose phases are
+        not whole multiples of ``dt`` (MIT's 26 ms segments) still switches at its own times."""
+        n, dt = self.settings.knots, self.settings.dt
+        switches = () if reference is None else reference.switch_times(t0, t0 + (n + 1) * dt)
+        return grid_times(t0, n, dt, switches)
+
+    def dynamics(self, milliseconds: int) -> SRBDynamics:
+        """The SRB dynamics (29), (30) over ``milliseconds`` (one object per duration, shared by knots)."""
+        dynamics = self._dynamics.get(milliseconds)
+        if dynamics is None:
+            dynamics = SRBDynamics(self.settings.parameters, milliseconds * TIME_QUANTUM)
+            self._dynamics[milliseconds] = dynamics
+        return dynamics
 
     def _knot(self, slot: int, milliseconds: int) -> ConstrainedSRBKnot:
         key = (slot, milliseconds)
         knot = self._running.get(key)
         if knot is None:
-            dynamics = self._dynamics.get(milliseconds)
-            if dynamics is None:
-                dynamics = SRBDynamics(self.settings.parameters, milliseconds * TIME_QUANTUM)
-                self._dynamics[milliseconds] = dynamics
+            dynamics = self.dynamics(milliseconds)
             zero = np.zeros(13)
             zero[6] = 1.0
             knot = ConstrainedSRBKnot(
@@ -383,10 +490,13 @@ class TemplateProblemBuilder:
             self._running[key] = knot
         return knot
 
-    def build(self, t0: float, x0: np.ndarray, reference: Reference) -> TemplateProblem:
-        """The problem of an update at ``t0`` from the measured whole-body state ``x0 = [q, v]``."""
+    def build(
+        self, t0: float, x0: np.ndarray, reference: Reference, start: np.ndarray | None = None
+    ) -> TemplateProblem:
+        """The problem of an update at ``t0`` from the measured whole-body state ``x0 = [q, v]``; ``start``:
+        the SRB state at ``t0`` when it is not ``initial_state(x0)`` (a prediction)."""
         robot = self.robot
-        times = self.knot_times(t0)
+        times = self.knot_times(t0, reference)
         n = len(times) - 1
         window = self.window
         window.set_times(times)
@@ -400,6 +510,7 @@ class TemplateProblemBuilder:
         for k in range(n + 1):
             whole_body_to_srb_state(window.state[k], robot.nq, reference_states[k])
             base_to_com(reference_states[k], self.com_offset)
+        self._add_vertical_oscillation(reference, times, reference_states)
         running = []
         for k in range(n):
             knot = self._knot(k, int(durations[k]))
@@ -413,7 +524,7 @@ class TemplateProblemBuilder:
         terminal.reference.state[:] = reference_states[n]
         terminal.reference.foot_positions[:] = window.foot_positions[n]
         terminal.reference.contacts[:] = window.stance[n]
-        srb_x0 = base_to_com(whole_body_to_srb_state(np.asarray(x0, dtype=float), robot.nq), self.com_offset)
+        srb_x0 = self.initial_state(np.asarray(x0, dtype=float)) if start is None else start
         phase = Phase(running, terminal, dt=self.settings.dt, name="template")
         return TemplateProblem(
             MultiPhaseProblem(srb_x0, [phase]),
@@ -425,6 +536,51 @@ class TemplateProblemBuilder:
             reference_states,
             running,
         )
+
+    def initial_state(self, x0: np.ndarray) -> np.ndarray:
+        """The SRB state an update starts from, for the measured whole-body state ``x0 = [q, v]``.
+
+        With ``settings.centroidal_state`` (default): the base orientation with the robot's centre of mass,
+        its velocity, and the angular velocity whose SRB momentum ``R I omega`` is the robot's centroidal
+        angular momentum ``h_G`` (Pinocchio, legs included): the quantities the GRFs change, ``m c_ddot =
+        sum f - m g`` and ``h_G_dot = sum (p - c) x f`` exactly, whatever the legs do. Otherwise the base's
+        pose and velocities moved to the standing-pose centre of mass (``base_to_com``). The legs are 60 % of
+        the Mini Cheetah's mass. Measured with the base state (fixed 20 ms latency): both paces (0.25 and
+        0.13 s a side) rolled over within 0.7 s and the bound fell after the push test's push, where all
+        three run 10 s with this state; with the HKD weights a pace of 0.13 s a side rolled to 0.58 rad in
+        10 s, the plan's roll moment cancelled by a true centre of mass 4 mm to the side of the SRB's.
+        """
+        robot = self.robot
+        state = whole_body_to_srb_state(x0, robot.nq)
+        if not self.settings.centroidal_state:
+            return base_to_com(state, self.com_offset)
+        q, v = x0[: robot.nq], x0[robot.nq :]
+        model, data = robot.model, self._data
+        state[0:3] = pin.centerOfMass(model, data, q, v)
+        state[7:10] = data.vcom[0]
+        momentum = pin.computeCentroidalMomentum(model, data, q, v).angular
+        state[10:13] = self._inertia_inverse @ (quaternion_to_rotation(state[3:7]).T @ momentum)
+        return state
+
+    def _add_vertical_oscillation(self, reference: Reference, times: np.ndarray, states: np.ndarray) -> None:
+        """Add the gait's ``VerticalOscillation`` to the reference height and vertical speed (a
+        ``LocomotionReference``'s gait, from its first cycle on, faded in over one period)."""
+        if not self.settings.vertical_reference:
+            return
+        gait = getattr(reference, "gait", None)
+        if not isinstance(gait, GaitCycle):
+            return
+        oscillation = self._oscillations.get(gait.name)
+        if oscillation is None:
+            oscillation = VerticalOscillation(gait, self.settings.parameters.gravity)
+            self._oscillations[gait.name] = oscillation
+        start = float(getattr(reference, "cycle_start", 0.0))
+        for k, t in enumerate(times):
+            fade = min(max((float(t) - start) / oscillation.period, 0.0), 1.0)
+            if fade > 0.0:
+                dz, dvz = oscillation.at(float(t) - start)
+                states[k, 2] += fade * dz
+                states[k, 9] += fade * dvz
 
     def update_torque_maps(self, built: TemplateProblem, states: np.ndarray) -> None:
         """Set each running knot's torque map ``d tau / d f = -J_leg(q)'`` (world-frame foot Jacobian of each
@@ -469,7 +625,8 @@ class TemplateMpc(RecedingHorizonPlanner):
     supplies the template's problem, warm start and plan, so the policy side
     (``control.mpc_loop.CafeMpcController``: fixed or measured latency) runs it unchanged. ``settings``: the
     same receding-horizon settings as CAFE-MPC (period, latency, iterations per update, first solve). No
-    real-time iteration: its updates are small (about 5 ms) and one-phase.
+    real-time iteration: its updates are small (5-10 ms) and one-phase, planned from the state predicted
+    where their plan takes effect (``predict_start``).
     """
 
     name = "template MPC"
@@ -482,9 +639,52 @@ class TemplateMpc(RecedingHorizonPlanner):
         settings: MpcSettings | None = None,
     ) -> None:
         super().__init__(robot, reference, builder, settings)
+        self._prediction_data: dict[int, object] = {}
 
     def _build(self, t: float) -> TemplateProblem:
-        return self.builder.build(t, self._x, self.reference)
+        """The problem from the state measured at ``t``; with ``settings.predict_latency`` (and a previous
+        plan), the problem of ``t`` plus the expected latency, from the SRB state predicted there
+        (``predict_start``)."""
+        lead = self.expected_latency() if self.builder.settings.predict_latency else 0.0
+        if lead <= 0.0 or self.previous is None:
+            return self.builder.build(t, self._x, self.reference)
+        t_plan = t + quanta(lead) * TIME_QUANTUM
+        start = self.predict_start(t, t_plan, self.builder.initial_state(self._x))
+        return self.builder.build(t_plan, self._x, self.reference, start)
+
+    def expected_latency(self) -> float:
+        """How long after its measurement the next plan will take effect: the fixed latency, or (measured)
+        the median of the last ten in-loop updates' wall times times ``compute_scale`` (0 before the first
+        one; the cold first solve runs before the clock starts and does not count)."""
+        settings = self.settings
+        if settings.latency == "fixed":
+            return settings.fixed_latency
+        recent = self.statistics.update_times[1:][-10:]
+        return float(np.median(recent)) * settings.compute_scale if recent else 0.0
+
+    def predict_start(self, t: float, t_plan: float, state: np.ndarray) -> np.ndarray:
+        """The SRB state at ``t_plan`` from ``state`` at ``t``: the SRB dynamics (29), (30) under the plan in
+        effect until then (the previous one: its GRFs, stance flags and feet, held over its intervals as its
+        low level applies them). Delay compensation: the new plan then starts where the robot will be when
+        it takes effect, not where it was measured."""
+        previous, solution = self.previous
+        times = previous.times
+        forces = solution.phases[0].us
+        x, time = np.asarray(state, dtype=float).copy(), t
+        while time < t_plan - 0.5 * TIME_QUANTUM:
+            k = min(interval_at(times, time), len(times) - 2)
+            boundary = float(times[k + 1])
+            end = min(boundary, t_plan) if boundary > time + 0.5 * TIME_QUANTUM else t_plan
+            milliseconds = quanta(end - time)
+            dynamics = self.builder.dynamics(milliseconds)
+            data = self._prediction_data.get(milliseconds)
+            if data is None:
+                data = self._prediction_data[milliseconds] = dynamics.create_data()
+            contacts = previous.contacts[k].astype(float)
+            dynamics.calc(data, x, forces[k], previous.foot_positions[k], contacts)
+            x = data.x_next.copy()
+            time = time + milliseconds * TIME_QUANTUM
+        return x
 
     def _solve(self, built: TemplateProblem, solver: MSiLQRSolver) -> SolverResult:
         xs, us = self._guess(built)

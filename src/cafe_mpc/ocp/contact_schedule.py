@@ -241,6 +241,14 @@ GAITS: dict[str, GaitCycle] = {
     "flying_trot": _gait("flying_trot", ("1001", 0.15), ("0000", 0.10), ("0110", 0.15), ("0000", 0.10)),
     "flying_pace": _gait("flying_pace", ("1010", 0.15), ("0000", 0.10), ("0101", 0.15), ("0000", 0.10)),
     "stand": _gait("stand", ("1111", 0.50)),
+    # MIT Cheetah-Software's convex-MPC timings of the Mini Cheetah (docs/settings.md, "Gaits"): a cycle of
+    # ten 26 ms segments (the MPC step, 13 ticks at 500 Hz). Bound: each pair 4 segments in stance, a
+    # one-segment flight after each; pronk: 4 segments on all feet, 6 in the air; pace: 5 segments a side.
+    "bound_short_flight": _gait(
+        "bound_short_flight", ("1100", 0.104), ("0000", 0.026), ("0011", 0.104), ("0000", 0.026)
+    ),
+    "pronk_short_flight": _gait("pronk_short_flight", ("1111", 0.104), ("0000", 0.156)),
+    "pace_short_stance": _gait("pace_short_stance", ("1010", 0.13), ("0101", 0.13)),
 }
 """The gait library (data). Add a gait by adding a ``GaitCycle``."""
 

@@ -86,14 +86,22 @@ def stance_torques(
 
 class TemplateLowLevelController(LowLevelController):
     """Stance legs ``J' F`` from the planned GRFs, swing legs joint PD on the Bezier swings (module
-    docstring). Needs a ``TemplatePlan``."""
+    docstring). Needs a ``TemplatePlan``. ``torque_limits``: the clamp (default the robot's plan limits; a run
+    with ``torque_limits: motor`` passes the motor limits, as to the planner)."""
 
-    def __init__(self, robot: Robot, settings: TemplateLowLevelSettings | None = None) -> None:
+    def __init__(
+        self,
+        robot: Robot,
+        settings: TemplateLowLevelSettings | None = None,
+        torque_limits: np.ndarray | None = None,
+    ) -> None:
         self.robot = robot
         self.settings = settings or TemplateLowLevelSettings()
         self.model = robot.model
         self.data = robot.model.createData()
-        self.limits = robot.torque_limits
+        self.limits = np.asarray(robot.torque_limits if torque_limits is None else torque_limits, dtype=float)
+        if self.limits.shape != (robot.nu,) or np.any(self.limits <= 0):
+            raise ValueError(f"template low level: {robot.nu} positive torque limits needed")
         self.legs = leg_joint_indices(robot)
         self.inverse_kinematics = LegInverseKinematics(robot)
         n_feet = robot.n_feet
@@ -109,12 +117,15 @@ class TemplateLowLevelController(LowLevelController):
         self.swing_ticks = 0
         self.swing_error_max = 0.0
         """Largest joint-space swing tracking error (rad) over the run."""
+        self.planned_force_max = 0.0
+        """Largest planned vertical GRF on a stance foot (N) over the run."""
 
     def reset(self) -> None:
         self.ticks = 0
         self.limit_violations = 0
         self.swing_ticks = 0
         self.swing_error_max = 0.0
+        self.planned_force_max = 0.0
         self.last_request[:] = 0.0
 
     def compute(self, t: float, measurement: Measurement, plan: Plan | TemplatePlan | None) -> np.ndarray:
@@ -124,6 +135,8 @@ class TemplateLowLevelController(LowLevelController):
         q, v = measurement.q, measurement.v
         k = plan.knot_at(t)
         stance = plan.contacts[k]
+        if stance.any():
+            self.planned_force_max = max(self.planned_force_max, float(np.max(plan.forces[k, stance, 2])))
         torques = stance_torques(
             robot, q, plan.forces[k], stance, self.settings.leg_gravity, model_data=self.data
         )
@@ -157,9 +170,11 @@ class TemplateLowLevelController(LowLevelController):
 
     def statistics(self) -> dict:
         """``torque_limit_violations``: ticks whose requested torque exceeded a limit (then clamped);
-        ``swing_error_max_rad``: largest swing-leg joint tracking error."""
+        ``swing_error_max_rad``: largest swing-leg joint tracking error; ``planned_force_max_n``: largest
+        planned vertical GRF on a stance foot (what the plan asked of one leg)."""
         return {
             "ticks": self.ticks,
             "torque_limit_violations": self.limit_violations,
             "swing_error_max_rad": self.swing_error_max,
+            "planned_force_max_n": self.planned_force_max,
         }
