@@ -57,6 +57,7 @@ import numpy as np
 from cafe_mpc.config import ConfigError, RunConfig, load_config
 from cafe_mpc.control.mpc_loop import CafeMpcController
 from cafe_mpc.control.realtime import RealtimeMpcController
+from cafe_mpc.core.free_joint import free_joint_qpos, planning_state
 from cafe_mpc.core.measurement import Measurement
 from cafe_mpc.core.plan import Plan
 from cafe_mpc.core.sensors import SensorReadings
@@ -68,7 +69,6 @@ from cafe_mpc.experiments.controllers import (
     build_template_controller,
 )
 from cafe_mpc.robots.robot import Robot, load_robot
-from cafe_mpc.sim.plant import planning_state
 
 __all__ = ["Controller"]
 
@@ -300,5 +300,4 @@ class Controller:
 
     def standing_qpos(self) -> np.ndarray:
         """MuJoCo ``qpos`` of the robot standing (where the presets start), for ``robot.mjcf``'s model."""
-        q = self.robot.q_standing
-        return np.concatenate([q[:3], [q[6], q[3], q[4], q[5]], q[7:]])
+        return free_joint_qpos(self.robot.q_standing)
