@@ -13,12 +13,14 @@ from __future__ import annotations
 import functools
 import itertools
 import math
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Literal
 
 import yaml
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
+from pydantic import Field, field_validator, model_validator
 
+from cafe_mpc.config.loading import StrictModel, load_model, read_yaml
 from cafe_mpc.estimation.settings import KinematicKFSettings  # a plain dataclass: no heavy imports
 
 if TYPE_CHECKING:  # heavy modules (Pinocchio) are imported only where a value is built
@@ -30,15 +32,7 @@ if TYPE_CHECKING:  # heavy modules (Pinocchio) are imported only where a value i
     from cafe_mpc.sim.sensors import SensorSpec
     from cafe_mpc.sim.terrain import Terrain
 
-PRESET_DIR = Path(__file__).parent / "configs"
-
-
-class ConfigError(ValueError):
-    """A config that cannot be used, with a message naming the bad key."""
-
-
-class StrictModel(BaseModel):
-    model_config = ConfigDict(extra="forbid", validate_assignment=True)
+PRESET_DIR = Path(__file__).parent.parent / "configs"
 
 
 class FallConfig(StrictModel):
@@ -1096,124 +1090,11 @@ def available_presets() -> list[str]:
     return sorted(path.stem for path in PRESET_DIR.glob("*.yaml"))
 
 
-def _read_yaml(path: Path) -> dict[str, Any]:
-    try:
-        with open(path) as handle:
-            raw = yaml.safe_load(handle) or {}
-    except (OSError, yaml.YAMLError) as error:
-        raise ConfigError(f"cannot read config {path}: {error}") from error
-    if not isinstance(raw, dict):
-        raise ConfigError(f"config {path} must be a mapping of keys to values")
-    return raw
+def _presets() -> dict[str, Callable[[], dict[str, Any]]]:
+    """The presets' raw data by name (each file read when asked for)."""
+    return {name: functools.partial(read_yaml, PRESET_DIR / f"{name}.yaml") for name in available_presets()}
 
 
-def _set_dotted(raw: dict[str, Any], model: type[BaseModel], dotted: str, value: Any) -> None:
-    """Set ``raw[a][b]... = value`` after checking that the path exists in the config schema.
-
-    Sections missing from ``raw`` (or null, like ``gait`` of the stand preset) are created from the schema's
-    defaults, so ``--set gait.commands.0.vx=0.8`` works on any config.
-    """
-    parts = dotted.split(".")
-    node: Any = raw
-    schema: Any = model
-    for depth, part in enumerate(parts):
-        last = depth == len(parts) - 1
-        if isinstance(node, list):  # list index; the element schema stays ``schema``
-            if not part.isdigit() or int(part) >= len(node):
-                raise ConfigError(f"config key {dotted!r}: index {part} is not in a list of {len(node)}")
-            if last:
-                node[int(part)] = value
-                return
-            node = node[int(part)]
-        elif isinstance(node, dict) and isinstance(schema, type) and issubclass(schema, BaseModel):
-            if part not in schema.model_fields:
-                allowed = ", ".join(schema.model_fields)
-                where = ".".join(parts[:depth]) or "top level"
-                raise ConfigError(f"unknown config key {dotted!r}: {where} allows {allowed}")
-            field = schema.model_fields[part]
-            if last:
-                node[part] = value
-                return
-            schema = _inner_model(field.annotation)
-            if part not in node or node[part] is None:
-                default = field.get_default(call_default_factory=True)
-                if default is None and isinstance(schema, type) and issubclass(schema, BaseModel):
-                    default = {}  # an optional section (gait: null) that a sub-key override creates
-                node[part] = _plain(default)
-            node = node[part]
-        else:
-            raise ConfigError(f"unknown config key {dotted!r}: {'.'.join(parts[:depth])} has no sub-keys")
-
-
-def _plain(value: Any) -> Any:
-    """A default as plain YAML data (models and lists of models dumped)."""
-    if isinstance(value, BaseModel):
-        return value.model_dump()
-    if isinstance(value, list):
-        return [_plain(item) for item in value]
-    return value
-
-
-def _inner_model(annotation: Any) -> Any:
-    """The pydantic model inside ``Model``, ``list[Model]`` or ``Model | None`` (else the annotation)."""
-    for arg in getattr(annotation, "__args__", ()) or ():
-        if isinstance(arg, type) and issubclass(arg, BaseModel):
-            return arg
-    return annotation
-
-
-def parse_override(item: str) -> tuple[str, Any]:
-    """``key=value`` -> (key, YAML-parsed value)."""
-    if "=" not in item:
-        raise ConfigError(f"--set expects key=value, got {item!r}")
-    key, text = item.split("=", 1)
-    key = key.strip()
-    if not key:
-        raise ConfigError(f"--set expects key=value, got {item!r}")
-    try:
-        value = yaml.safe_load(text)
-    except yaml.YAMLError as error:
-        raise ConfigError(f"--set {key}: cannot parse value {text!r}: {error}") from error
-    return key, value
-
-
-def format_validation_error(error: ValidationError) -> str:
-    """One line per problem: ``key.path: message (got value)``."""
-    lines = []
-    for problem in error.errors():
-        location = ".".join(str(part) for part in problem["loc"]) or "config"
-        message = problem["msg"].removeprefix("Value error, ")
-        got = problem.get("input")
-        if problem["type"] == "extra_forbidden":
-            message = "unknown key"
-        if not problem["loc"] and isinstance(got, dict):
-            lines.append(message)  # a whole-config check: the message names its keys
-        elif isinstance(got, dict):
-            lines.append(f"{location}: {message}")
-        else:
-            lines.append(f"{location}: {message} (got {got!r})")
-    return "; ".join(lines)
-
-
-def load_config(preset_or_path: str, overrides: list[str] | None = None) -> RunConfig:
+def load_config(preset_or_path: str, overrides: Sequence[str] | None = None) -> RunConfig:
     """Load a preset name or a YAML file, apply ``key=value`` overrides, validate."""
-    path = Path(preset_or_path)
-    if path.suffix in (".yaml", ".yml") or path.is_file():
-        if not path.is_file():
-            raise ConfigError(f"config file {path} does not exist")
-        raw = _read_yaml(path)
-    else:
-        candidate = PRESET_DIR / f"{preset_or_path}.yaml"
-        if not candidate.is_file():
-            raise ConfigError(
-                f"unknown preset {preset_or_path!r}; presets: {', '.join(available_presets())} "
-                "(or give a path to a .yaml config)"
-            )
-        raw = _read_yaml(candidate)
-    for item in overrides or []:
-        key, value = parse_override(item)
-        _set_dotted(raw, RunConfig, key, value)
-    try:
-        return RunConfig.model_validate(raw)
-    except ValidationError as error:
-        raise ConfigError(f"invalid config: {format_validation_error(error)}") from error
+    return load_model(RunConfig, preset_or_path, overrides or (), _presets())
