@@ -9,7 +9,8 @@ import numpy as np
 import pinocchio as pin
 import pytest
 
-from cafe_mpc.config import ConfigError, load_config
+from cafe_mpc.assembly import load_run_config
+from cafe_mpc.config import ConfigError
 from cafe_mpc.robots.robot import load_robot
 from cafe_mpc.sim.gym_plant import JointOffsets
 
@@ -80,15 +81,15 @@ def test_standing_contact_forces_carry_the_weight(mini_cheetah_plant):
 
 def test_config_rejects_what_the_environment_cannot_do():
     with pytest.raises(ConfigError, match=r"go1' has none\. Shipped: .*go1_gym"):
-        load_config("trot", ["plant.kind=gym-quadruped", "robot=go1"])
+        load_run_config("trot", ["plant.kind=gym-quadruped", "robot=go1"])
     with pytest.raises(ConfigError, match=r"not available there: plant\.mass_scale"):
-        load_config(
+        load_run_config(
             "trot",
             ["plant.kind=gym-quadruped", "robot=go2", "plant.mass_scale=1.2", "estimator=ground_truth"],
         )
     with pytest.raises(ConfigError, match=r"estimator: kinematic_kf .* set estimator=ground_truth"):
-        load_config("trot", ["plant.kind=gym-quadruped", "robot=go2"])
-    config = load_config(
+        load_run_config("trot", ["plant.kind=gym-quadruped", "robot=go2"])
+    config = load_run_config(
         "trot", ["plant.kind=gym-quadruped", "robot=go2", "plant.gym_scene=flat", "estimator=ground_truth"]
     )
     assert config.plant.kind == "gym-quadruped"
@@ -99,7 +100,7 @@ def test_go1_trots_inside_gym_quadruped():
     controlled through the robot file only: it stays up and walks forward."""
     from cafe_mpc.experiments.run import run
 
-    config = load_config(
+    config = load_run_config(
         "trot",
         [
             "robot=go1_gym",
@@ -162,7 +163,7 @@ def test_our_plant_from_the_model_file_reproduces_gym_quadruped():
 
     logs = {}
     for kind in ("mujoco", "gym-quadruped"):
-        config = load_config(
+        config = load_run_config(
             "trot",
             [
                 "robot=go2",

@@ -27,8 +27,11 @@ LAYERS: list[tuple[str, ...]] = [
     ("reference", "mpc", "trajopt"),  # locomotion reference; CAFE problem + warm start; offline TO
     ("wbc", "estimation"),  # low-level controllers: PD, Riccati (33), VWBC (34); the state estimator
     ("control",),  # closed loops: the MPC loop over a low-level controller, a plan follower
+    ("config",),  # run configs: the schema, presets, overrides
+    ("assembly",),  # a config -> its controller (planner, low level, real-time and estimator front ends)
+    ("api",),  # the library front end (cafe_mpc.Controller): no simulator below it
     ("sim",),  # MuJoCo plant, closed-loop simulation, Pinocchio-vs-MuJoCo consistency
-    ("experiments", "report", "bench", "config", "api"),  # runs, metrics, plots, benchmarks, configs, library
+    ("experiments", "report", "bench"),  # runs, metrics, plots, benchmarks
     ("cli",),  # the cafe-mpc command
 ]
 """Layers from the bottom up; a name is a subpackage (``cafe_mpc/<name>/``) or a module (``<name>.py``)."""

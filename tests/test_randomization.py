@@ -10,7 +10,8 @@ import numpy as np
 import pytest
 import yaml
 
-from cafe_mpc.config import ConfigError, load_config
+from cafe_mpc.assembly import load_run_config
+from cafe_mpc.config import ConfigError, SensorNoise
 from cafe_mpc.core.measurement import Measurement
 from cafe_mpc.dynamics.srb import srb_parameters
 from cafe_mpc.experiments.registry import PlanContext, get_experiment
@@ -25,7 +26,7 @@ from cafe_mpc.experiments.run import simulate_run
 from cafe_mpc.experiments.sweep import run_experiment
 from cafe_mpc.robots.robot import load_robot
 from cafe_mpc.sim.plant import MujocoPlant
-from cafe_mpc.sim.randomization import PlantVariation, SensorModel, SensorNoise
+from cafe_mpc.sim.randomization import PlantVariation, SensorModel
 
 
 @pytest.fixture(scope="module")
@@ -75,7 +76,7 @@ def test_a_plant_variation_changes_the_plant(robot):
 
 
 def test_randomisation_never_touches_the_controllers_model(robot):
-    varied = load_config(
+    varied = load_run_config(
         "trot",
         [
             "simulation.duration=0.1",
@@ -135,11 +136,11 @@ def test_the_sensor_model_delays_in_order_and_adds_noise(robot):
 
 def test_plant_config_errors_name_the_key():
     with pytest.raises(ConfigError, match=r"plant\.link_mass_scales: one factor or 12"):
-        load_config("trot", ["plant.link_mass_scales=[1.0, 1.0]"])
+        load_run_config("trot", ["plant.link_mass_scales=[1.0, 1.0]"])
     with pytest.raises(ConfigError, match=r"plant\.floor_friction"):
-        load_config("trot", ["plant.floor_friction=-1"])
+        load_run_config("trot", ["plant.floor_friction=-1"])
     with pytest.raises(ConfigError, match=r"factors must be in \[0.5, 1.5\]"):
-        load_config("trot", ["plant.motor_strength_scales=3"])
+        load_run_config("trot", ["plant.motor_strength_scales=3"])
 
 
 def test_reliability_trials_are_drawn_from_their_seed():
@@ -164,7 +165,7 @@ def test_reliability_trials_are_drawn_from_their_seed():
     }
     alone = experiment.plan({"task": "bound-push", "seeds": "7"}, PlanContext())
     assert alone.variants[0] == plan.variants[2]  # a trial re-runs alone from its seed
-    config = load_config("bound-push", list(plan.variants[0].overrides))
+    config = load_run_config("bound-push", list(plan.variants[0].overrides))
     assert len(config.pushes) == 2  # the preset's push, then the random one
     assert config.plant.floor_friction == dict(plan.variants[0].fields)["floor_friction"]
 

@@ -19,10 +19,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from cafe_mpc.assembly.controllers import realtime_mpc
 from cafe_mpc.config import load_config
 from cafe_mpc.control.realtime import RealtimeMpcController
 from cafe_mpc.core.measurement import Measurement
-from cafe_mpc.experiments.controllers import build_recorder, realtime_mpc
+from cafe_mpc.experiments.controllers import build_recorder
 from cafe_mpc.experiments.run import run
 from cafe_mpc.robots.robot import load_robot
 from cafe_mpc.sim.loop import WallClockPacer, simulate
@@ -126,7 +127,7 @@ def test_a_dead_or_stalled_mpc_process_holds_a_stance_and_ends_with_one_error(mo
 
 def test_the_command_line_reports_a_dead_mpc_process(monkeypatch, tmp_path, capsys):
     """``cafe-mpc run --realtime`` ends with one line and a non-zero status when the MPC process dies."""
-    import cafe_mpc.experiments.controllers as controllers
+    import cafe_mpc.assembly.controllers as controllers
     from cafe_mpc.cli import main
 
     original = controllers.realtime_mpc

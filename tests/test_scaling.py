@@ -1,4 +1,4 @@
-"""Defaults that scale with the robot (``robots.scaling``, ``experiments.scaling``): the laws, and no change
+"""Defaults that scale with the robot (``robots.scaling``, ``assembly.scaling``): the laws, and no change
 for the reference robot."""
 
 from __future__ import annotations
@@ -8,9 +8,9 @@ import math
 import numpy as np
 import pytest
 
+from cafe_mpc.assembly import build_low_level, build_mpc
+from cafe_mpc.assembly.scaling import run_scale, scaled_gait, scaled_schedule, scaled_weights
 from cafe_mpc.config import load_config
-from cafe_mpc.experiments.controllers import build_low_level, build_mpc
-from cafe_mpc.experiments.scaling import run_scale, scaled_gait, scaled_schedule, scaled_weights
 from cafe_mpc.mpc.problem import ModelSchedule
 from cafe_mpc.ocp.contact_schedule import get_gait
 from cafe_mpc.ocp.costs import WholeBodyWeights

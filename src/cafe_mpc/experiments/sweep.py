@@ -45,7 +45,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from cafe_mpc.config import ConfigError, RunConfig, load_config
+from cafe_mpc.assembly.checks import load_run_config
+from cafe_mpc.config import ConfigError, RunConfig
 from cafe_mpc.experiments.cluster import ClusterInfo, open_cluster
 from cafe_mpc.experiments.comparison import write_comparison
 from cafe_mpc.experiments.execution import (
@@ -142,7 +143,7 @@ def prepare(
     for variant in plan.variants:
         if variant.name in configs:
             raise ConfigError(f"experiment {name!r}: two runs named {variant.name!r}")
-        configs[variant.name] = load_config(variant.preset, [*base, *extra, *variant.overrides])
+        configs[variant.name] = load_run_config(variant.preset, [*base, *extra, *variant.overrides])
         if experiment.needs_gait and configs[variant.name].gait is None:
             raise ConfigError(f"experiment {name!r}: preset {variant.preset!r} has no gait to run")
     hashes = {run: config_hash(config) for run, config in configs.items()}

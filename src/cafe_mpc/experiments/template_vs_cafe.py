@@ -153,7 +153,7 @@ def _video_of(result: RunResult) -> str | None:
 def plot_comparison(results: dict[str, RunResult], labels: dict[str, str], path: Path) -> Path:
     """Roll (integral of the body roll rate), base height and lateral position of each planner's run over the
     reference of the first run (paper Fig. 12); the planned flight shaded, a fall marked with x."""
-    from cafe_mpc.experiments.tasks import task_reference
+    from cafe_mpc.assembly.references import task_reference
     from cafe_mpc.report.task_metrics import reference_trace, task_from_reference
 
     first = next(iter(results.values()))

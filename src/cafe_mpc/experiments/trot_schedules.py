@@ -14,8 +14,8 @@ from typing import Any
 
 import numpy as np
 
+from cafe_mpc.assembly.references import reference_commands, reference_profile
 from cafe_mpc.experiments.common import RunStore, colors, fall_fields, fell_text, num
-from cafe_mpc.experiments.controllers import reference_commands, reference_profile
 from cafe_mpc.experiments.registry import (
     Experiment,
     Option,

@@ -1,11 +1,11 @@
 """A run's settings carried to its robot (``scaling: robot``; the laws: ``robots.scaling``).
 
-The builders of ``experiments.controllers`` and ``experiments.tasks`` read the config's tuned values as the
-reference robot's and pass them through ``run_scale(config, robot)``: the MPC's horizons (``scaled_schedule``:
-Tw and Ts times the time scale, in whole knots), gait phase durations, swing height,
-Raibert gain and foothold box (the reference), cost weights (``scaled_weights``), the SRB force weight, the
-Baumgarte rates of the whole-body knots and the VWBC, the minimum base height, PD and template swing gains,
-and the fall height. ``scaling_block`` is what ``metrics.json`` reports of it.
+The assembly's builders read the config's tuned values as the reference robot's and pass them through
+``run_scale(config, robot)``: the MPC's horizons (``scaled_schedule``: Tw and Ts times the time scale, in
+whole knots), gait phase durations, swing height, Raibert gain and foothold box (the reference), cost
+weights (``scaled_weights``), the SRB force weight, the Baumgarte rates of the whole-body knots and the
+VWBC, the minimum base height, PD and template swing gains, and the fall height. ``scaling_block`` is what
+``metrics.json`` reports of it.
 """
 
 from __future__ import annotations
