@@ -8,9 +8,9 @@ import math
 import pytest
 
 from cafe_mpc.assembly import load_run_config
-from cafe_mpc.assembly.controllers import mpc_settings
 from cafe_mpc.config import ConfigError
 from cafe_mpc.experiments.run import run
+from cafe_mpc.mpc.planner import update_solve_options
 
 
 def test_preset_loads_with_its_reference_section():
@@ -20,8 +20,8 @@ def test_preset_loads_with_its_reference_section():
     assert kinds == ["stand", "trajectory", "stand"]
     assert config.reference.costs.running.base_position == (0.0, 0.0, 15.0, 5.0, 5.0, 5.0)
     assert load_run_config("barrel-roll", ["wbc=riccati"]).wbc == "riccati"
-    assert mpc_settings(config).update_solve.al_max_penalty == 20.0
-    assert mpc_settings(load_run_config("trot")).update_solve.al_max_penalty == 1e4  # the authors' default
+    assert update_solve_options(config.mpc).al_max_penalty == 20.0
+    assert update_solve_options(load_run_config("trot").mpc).al_max_penalty == 1e4  # the authors' default
 
 
 @pytest.mark.parametrize(

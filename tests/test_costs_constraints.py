@@ -7,9 +7,9 @@ import numpy as np
 import pinocchio as pin
 import pytest
 
+from cafe_mpc.config.weights import SRBWeights, WholeBodyWeights, base_weights_to_tangent
 from cafe_mpc.ocp.barrier import RelaxedBarrier
 from cafe_mpc.ocp.constraints import TouchdownFootHeight, WholeBodyConstraintSettings, friction_pyramid_matrix
-from cafe_mpc.ocp.costs import SRBWeights, WholeBodyWeights, base_weights_to_tangent
 from cafe_mpc.ocp.kernels import relaxed_barrier
 from cafe_mpc.ocp.knots import WholeBodyKnot, WholeBodyModelFactory, WholeBodyReference, WholeBodySettings
 from cafe_mpc.robots.robot import load_robot

@@ -18,10 +18,9 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from cafe_mpc.assembly import load_run_config
-from cafe_mpc.config import ConfigError, EncoderSpec, ImuSpec
+from cafe_mpc.config import ConfigError, EncoderSpec, ImuSpec, KinematicKFSettings
 from cafe_mpc.core.sensors import SensorReadings
 from cafe_mpc.estimation.estimator import StateEstimator, leg_velocity_indices
-from cafe_mpc.estimation.settings import KinematicKFSettings
 from cafe_mpc.robots.robot import load_robot
 from cafe_mpc.sim.plant import MujocoPlant
 from cafe_mpc.sim.sensors import SensorSpec, SensorSuite, sensor_spec
@@ -111,7 +110,9 @@ def synthetic_readings(
 def run_estimator(robot, readings, settings=None, plan=None) -> tuple[np.ndarray, StateEstimator]:
     """World-frame base velocity estimate at every reading. The synthetic feet are points (the foot frame
     stays put while the shank turns), so the filter's rolling-sphere correction is off."""
-    estimator = StateEstimator(robot, replace(settings or KinematicKFSettings(), rolling_foot=False))
+    estimator = StateEstimator(
+        robot, (settings or KinematicKFSettings()).model_copy(update={"rolling_foot": False})
+    )
     estimator.reset((0.0, 0.0))
     velocities = np.zeros((len(readings), 3))
     for row, reading in enumerate(readings):
@@ -260,7 +261,7 @@ def test_estimator_config_is_validated_at_the_boundary():
     ):
         load_run_config("trot", ["plant.sensors.imu.rate_hz=1000"])
     config = load_run_config("trot", ["estimator=kinematic_kf", "kinematic_kf.slip_threshold=null"])
-    assert config.kinematic_kf.settings().slip_threshold is None
+    assert config.kinematic_kf.slip_threshold is None
 
 
 def test_orientation_from_the_imu_matches_the_truth_in_a_short_closed_loop(robot):

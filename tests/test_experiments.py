@@ -13,14 +13,15 @@ import numpy as np
 import pytest
 
 from cafe_mpc.assembly import load_run_config
+from cafe_mpc.assembly.problem import model_schedule
 from cafe_mpc.cli import main
-from cafe_mpc.config import ConfigError, available_presets
+from cafe_mpc.config import ConfigError, VelocityCommand, available_presets
 from cafe_mpc.control.mpc_loop import CafeMpcController
 from cafe_mpc.core.measurement import Measurement
 from cafe_mpc.dynamics.srb import srb_parameters
 from cafe_mpc.experiments.controllers import LowLevelRecorder, build_run_controller, low_level_of
 from cafe_mpc.experiments.run import run
-from cafe_mpc.reference.locomotion import VelocityCommand, quaternion_from_yaw
+from cafe_mpc.reference.locomotion import quaternion_from_yaw
 from cafe_mpc.report.metrics import (
     METRICS_WINDOW_START_S,
     foot_slip_max,
@@ -95,7 +96,7 @@ def test_gait_names_overrides_and_defaults():
     config = load_run_config(
         "bound", ["mpc.schedule=null", "mpc.whole_body_horizon=0.2", "mpc.srb_horizon=0.3"]
     )
-    schedule = config.mpc.model_schedule()
+    schedule = model_schedule(config.mpc)
     assert (schedule.whole_body_knots, schedule.srb_knots) == (20, 6)
     stand = load_run_config("stand")
     assert stand.wbc == "pd" and stand.gait is None
@@ -114,7 +115,7 @@ def test_every_preset_loads_and_builds_its_controller(robot, preset):
     assert isinstance(controller, CafeMpcController)
     expected = {"riccati": RiccatiController, "vwbc": VWBCController}[config.wbc]
     assert isinstance(low_level_of(controller), expected)
-    assert controller.builder.schedule == config.mpc.model_schedule()
+    assert controller.builder.schedule == model_schedule(config.mpc)
     assert controller.settings.period == config.mpc.period
     if config.gait is not None:  # presets with a reference section (barrel-roll) have no gait
         assert controller.reference.commands[0].vx == config.gait.commands[0].vx
@@ -218,9 +219,11 @@ def straight_line(robot, speed: float, yaw: float, seconds: float = 1.0, dt: flo
 def test_tracking_of_a_constant_velocity_log_is_exact(robot, yaw):
     q, v = straight_line(robot, 0.5, yaw)
     log = synthetic_log(robot, q, v)
-    metrics = tracking_metrics(robot, log, [VelocityCommand(0.0, 0.5)], window_start=METRICS_WINDOW_START_S)
+    metrics = tracking_metrics(
+        robot, log, [VelocityCommand(start=0.0, vx=0.5)], window_start=METRICS_WINDOW_START_S
+    )
     assert metrics["metrics_window_start_s"] == 0.5
-    whole = tracking_metrics(robot, log, [VelocityCommand(0.0, 0.5)])  # the default: the whole run
+    whole = tracking_metrics(robot, log, [VelocityCommand(start=0.0, vx=0.5)])  # the default: the whole run
     assert whole["metrics_window_start_s"] == 0.0 and whole["vx_rms_error"] == pytest.approx(0.0, abs=1e-9)
     assert metrics["vx_mean"] == pytest.approx(0.5)
     for key in ("vx_rms_error", "vy_rms_error", "yaw_rate_rms_error", "height_rms_error"):
@@ -232,7 +235,10 @@ def test_tracking_of_a_constant_velocity_log_is_exact(robot, yaw):
 def test_tracking_errors_against_changing_commands(robot):
     q, v = straight_line(robot, 0.5, 0.0, seconds=2.0)
     v[:, 5] = 0.2  # yaw rate about the (level) body z axis
-    commands = [VelocityCommand(0.0, 0.5), VelocityCommand(1.0, 0.8, yaw_rate=0.2, height=0.27)]
+    commands = [
+        VelocityCommand(start=0.0, vx=0.5),
+        VelocityCommand(start=1.0, vx=0.8, yaw_rate=0.2, height=0.27),
+    ]
     metrics = tracking_metrics(
         robot, synthetic_log(robot, q, v), commands, window_start=METRICS_WINDOW_START_S
     )

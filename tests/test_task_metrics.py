@@ -8,9 +8,10 @@ import math
 import numpy as np
 import pytest
 
+from cafe_mpc.config import VelocityCommand
 from cafe_mpc.ocp.contact_schedule import get_gait
 from cafe_mpc.reference.composition import ComposedReference
-from cafe_mpc.reference.locomotion import LocomotionReference, VelocityCommand
+from cafe_mpc.reference.locomotion import LocomotionReference
 from cafe_mpc.reference.trajectory import TrajectoryReference
 from cafe_mpc.reference.trajectory_file import load_packaged_trajectory
 from cafe_mpc.report.task_metrics import (

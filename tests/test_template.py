@@ -11,7 +11,7 @@ import pinocchio as pin
 import pytest
 
 from cafe_mpc.assembly import load_run_config
-from cafe_mpc.assembly.controllers import build_mpc, mpc_settings
+from cafe_mpc.assembly.controllers import build_mpc
 from cafe_mpc.config import ConfigError
 from cafe_mpc.core.measurement import Measurement
 from cafe_mpc.core.template_plan import TemplatePlan
@@ -111,7 +111,7 @@ def _template_mpc(robot, preset="trot", overrides=()):
     config = load_run_config(preset, ["mpc.latency=fixed", *overrides])
     parameters, offset = template_srb(robot)
     builder = TemplateProblemBuilder(robot, TemplateSettings(parameters=parameters), offset)
-    return TemplateMpc(robot, build_mpc(config, robot).reference, builder, mpc_settings(config))
+    return TemplateMpc(robot, build_mpc(config, robot).reference, builder, config.mpc)
 
 
 def test_knots_lie_on_the_absolute_grid_and_switch_with_the_gait(robot):

@@ -5,7 +5,6 @@ torques, random SPD ``Quu`` and ``Qux = -Quu K``.
 """
 
 import importlib.util
-from dataclasses import replace
 
 import numpy as np
 import pinocchio as pin
@@ -229,10 +228,10 @@ def mean_iterations(stats):
 
 def test_proxqp_warm_start_reduces_iterations_versus_cold_start(robot):
     plan = synthetic_plan(robot, knots=20, seed=12)
-    cold, tau_cold = run_sequence(robot, plan, VWBCSettings(warm_start="none"))
+    cold, tau_cold = run_sequence(robot, plan, VWBCSettings(solver="proxqp", warm_start="none"))
     means = {}
     for mode in ("plan", "previous"):
-        warm, tau_warm = run_sequence(robot, plan, VWBCSettings(warm_start=mode))
+        warm, tau_warm = run_sequence(robot, plan, VWBCSettings(solver="proxqp", warm_start=mode))
         assert warm["fallbacks"] == cold["fallbacks"] == 0
         means[mode] = mean_iterations(warm)
         assert means[mode] < mean_iterations(cold) - 1.0
@@ -250,7 +249,7 @@ def test_daqp_warm_start_reduces_active_set_iterations(robot):
     assert mean_iterations(warm) < mean_iterations(cold)
     assert warm["qp_iterations_histogram"].get(1, 0) > cold["qp_iterations_histogram"].get(1, 0)
     np.testing.assert_allclose(tau_warm, tau_cold, atol=1e-6)
-    _, tau_proxqp = run_sequence(robot, plan, VWBCSettings(eps_abs=1e-9))
+    _, tau_proxqp = run_sequence(robot, plan, VWBCSettings(solver="proxqp", eps_abs=1e-9))
     np.testing.assert_allclose(tau_warm, tau_proxqp, atol=1e-4)  # both backends solve the same QP
 
 
@@ -335,7 +334,7 @@ def multi_pattern_plan(robot, patterns, dt=0.02, seed=0):
 
 def cold_solution(robot, plan, settings, t, q, v, limits):
     """The tick solved by a fresh controller from a cold start (no state carried over)."""
-    cold = VWBCController(robot, replace(settings, warm_start="none"), torque_limits=limits)
+    cold = VWBCController(robot, settings.model_copy(update={"warm_start": "none"}), torque_limits=limits)
     tau = cold.compute(t, measured(q, v), plan).copy()
     assert cold.last_used_qp
     return tau

@@ -237,7 +237,7 @@ class Controller:
         after ``reset_estimator``) starts it with the robot standing at x-y ``(0, 0)``. Bad readings raise
         ``ValueError`` naming the field. The returned object is reused by the next call."""
         if self._estimator is None:
-            self._estimator = StateEstimator(self.robot, self.config.kinematic_kf.settings())
+            self._estimator = StateEstimator(self.robot, self.config.kinematic_kf)
             self._estimator.reset()
         readings = self._readings
         try:
@@ -282,7 +282,7 @@ class Controller:
         """Restart the state estimator: its next ``measurement_from_sensors`` starts it with the robot
         standing at ``position_xy`` (the odometry origin)."""
         if self._estimator is None:
-            self._estimator = StateEstimator(self.robot, self.config.kinematic_kf.settings())
+            self._estimator = StateEstimator(self.robot, self.config.kinematic_kf)
         self._estimator.reset(np.asarray(position_xy, dtype=float))
 
     def standing_qpos(self) -> np.ndarray:

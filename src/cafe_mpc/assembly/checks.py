@@ -20,11 +20,12 @@ from __future__ import annotations
 import functools
 from collections.abc import Sequence
 
-from cafe_mpc.assembly.references import load_reference_trajectory, velocity_command
-from cafe_mpc.config import CommandConfig, ConfigError, GaitConfig, RunConfig, load_config
+from cafe_mpc.assembly.problem import model_schedule
+from cafe_mpc.assembly.references import load_reference_trajectory
+from cafe_mpc.config import ConfigError, GaitConfig, RunConfig, VelocityCommand, load_config
 from cafe_mpc.mpc.problem import PAPER_SCHEDULES
 from cafe_mpc.ocp.contact_schedule import GAITS
-from cafe_mpc.reference.locomotion import VelocityCommand, validate_command
+from cafe_mpc.reference.locomotion import validate_command
 from cafe_mpc.robots.robot import Robot, RobotLoadError, known_robots, load_robot, names_gym_model
 
 
@@ -90,7 +91,7 @@ def _check_schedule(config: RunConfig) -> None:
             "(or null with whole_body_horizon and srb_horizon)"
         )
     try:
-        config.mpc.model_schedule()
+        model_schedule(config.mpc)
     except ValueError as error:
         keys = "keys whole_body_horizon, srb_horizon, whole_body_dt, srb_dt"
         raise ValueError(f"mpc: {error} ({keys})") from None
@@ -103,10 +104,10 @@ def _check_gait(gait: GaitConfig, key: str, robot: Robot) -> None:
     _check_commands(gait.commands, f"{key}.commands", robot)
 
 
-def _check_commands(commands: list[CommandConfig], key: str, robot: Robot) -> None:
+def _check_commands(commands: list[VelocityCommand], key: str, robot: Robot) -> None:
     for index, command in enumerate(commands):
         try:
-            validate_command(velocity_command(command), robot)
+            validate_command(command, robot)
         except ValueError as error:
             raise ValueError(f"{key}.{index}: {error}") from error
 

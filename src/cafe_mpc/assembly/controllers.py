@@ -4,7 +4,7 @@ Each builder turns config sections into objects once:
 
 * ``build_mpc``: the CAFE-MPC planner (``mpc.receding_horizon.RecedingHorizonMpc``): the reference
   (``assembly.references``, Sec. VI-A), the CAFE problem with its model schedule (``assembly.problem``,
-  Sec. IV-D) and the receding-horizon settings (the ``mpc`` section itself);
+  Sec. IV-D) and the receding-horizon settings (the ``mpc`` section itself: ``config.MpcSettings``);
 * ``build_template_mpc``: the template-MPC baseline (``mpc.template.TemplateMpc``, Sec. VII-C);
 * ``build_low_level``: what follows the plan at the control rate: PD standing, Riccati feedback (33), the
   VWBC QP (34), or the template's stance ``J' F`` / swing PD;
@@ -30,7 +30,7 @@ from cafe_mpc.assembly.problem import build_problem, run_schedule, torque_limits
 from cafe_mpc.assembly.references import build_reference
 from cafe_mpc.assembly.scaling import run_scale
 from cafe_mpc.config import ConfigError, RunConfig
-from cafe_mpc.control.mpc_loop import CafeMpcController, MpcSettings
+from cafe_mpc.control.mpc_loop import CafeMpcController
 from cafe_mpc.control.realtime import RealtimeMpcController
 from cafe_mpc.core.controller import Controller, LowLevelController
 from cafe_mpc.estimation.controller import SensingController
@@ -48,33 +48,12 @@ RunController = PDController | CafeMpcController | RealtimeMpcController
 """What a run config builds: PD standing, or an MPC loop in simulated or wall-clock time."""
 
 
-def mpc_settings(config: RunConfig) -> MpcSettings:
-    try:
-        return MpcSettings(
-            period=config.mpc.period,
-            latency=config.mpc.latency,
-            fixed_latency=config.mpc.fixed_latency,
-            time_budget=config.mpc.time_budget,
-            max_iterations=config.mpc.max_iterations,
-            touchdown_max_penalty=config.mpc.touchdown_max_penalty,
-            final_policy=config.mpc.final_policy,
-            warm_up=config.mpc.warm_up,
-            scheme=config.mpc.scheme,
-            rti_line_search=config.mpc.rti_line_search,
-            rti_feedback=config.mpc.rti_feedback,
-            compute_scale=config.mpc.compute_scale,
-            threads=config.mpc.threads,
-        )
-    except ValueError as error:
-        raise ConfigError(f"mpc: {error}") from error
-
-
 def build_mpc(config: RunConfig, robot: Robot, reference: Reference | None = None) -> RecedingHorizonMpc:
     """The CAFE-MPC planner of a run: reference (Sec. VI-A; ``reference`` if given), CAFE problem builder
     with its model schedule (Sec. IV-D), receding-horizon settings."""
     if reference is None:
         reference = build_reference(config, robot)
-    return RecedingHorizonMpc(robot, reference, build_problem(config, robot), mpc_settings(config))
+    return RecedingHorizonMpc(robot, reference, build_problem(config, robot), config.mpc)
 
 
 def build_template_mpc(config: RunConfig, robot: Robot, reference: Reference | None = None) -> TemplateMpc:
@@ -96,7 +75,7 @@ def build_template_mpc(config: RunConfig, robot: Robot, reference: Reference | N
     except ValueError as error:
         raise ConfigError(f"template: {error}") from error
     builder = TemplateProblemBuilder(robot, settings, com_offset)
-    return TemplateMpc(robot, reference, builder, mpc_settings(config))
+    return TemplateMpc(robot, reference, builder, config.mpc)
 
 
 def build_low_level(config: RunConfig, robot: Robot) -> LowLevelController:
@@ -119,13 +98,12 @@ def build_low_level(config: RunConfig, robot: Robot) -> LowLevelController:
         return riccati
     try:
         scale = run_scale(config, robot)
+        defaults = VWBCSettings.model_fields  # the reference robot's, scaled to the run's robot
         vwbc_settings = VWBCSettings(
-            solver=config.vwbc.solver,
-            warm_start=config.vwbc.warm_start,
-            stance_source=config.vwbc.stance_source,
+            **config.vwbc.model_dump(),
             mu=config.mpc.friction,
-            alpha=scale.rate(VWBCSettings.alpha),
-            cone_tolerance=scale.force(VWBCSettings.cone_tolerance),
+            alpha=scale.rate(defaults["alpha"].default),
+            cone_tolerance=scale.force(defaults["cone_tolerance"].default),
         )
     except ValueError as error:
         raise ConfigError(f"vwbc: {error}") from error
@@ -214,7 +192,7 @@ def build_sensing_controller(
     ``position_xy``: where the robot is placed (the estimator's odometry origin); ``capacity``: ticks of
     estimates to preallocate (default: the run's)."""
     try:
-        estimator = StateEstimator(robot, config.kinematic_kf.settings())
+        estimator = StateEstimator(robot, config.kinematic_kf)
     except ValueError as error:
         raise ConfigError(f"kinematic_kf: {error}") from error
     if capacity is None:

@@ -20,11 +20,11 @@ from cafe_mpc.assembly.scaling import (
     scaled_weights,
     srb_force_weight,
 )
-from cafe_mpc.config import ConfigError, RunConfig
+from cafe_mpc.config import ConfigError, MpcConfig, RunConfig
+from cafe_mpc.config.weights import SRBWeights
 from cafe_mpc.dynamics.srb import srb_parameters
 from cafe_mpc.mpc.problem import CafeProblemBuilder, ModelSchedule
 from cafe_mpc.ocp.constraints import WholeBodyConstraintSettings
-from cafe_mpc.ocp.costs import SRBWeights
 from cafe_mpc.ocp.knots import SRBModelFactory, SRBSettings, WholeBodyModelFactory, WholeBodySettings
 from cafe_mpc.robots.robot import Robot
 from cafe_mpc.robots.scaling import RobotScale
@@ -43,10 +43,21 @@ def torque_limits_of(config: RunConfig, robot: Robot) -> np.ndarray:
     return np.asarray(robot.torque_limits, dtype=float).copy()
 
 
+def model_schedule(section: MpcConfig) -> ModelSchedule:
+    """The ``ModelSchedule`` an ``mpc`` section describes: a paper schedule (Table I) or an explicit split,
+    at the section's time steps (``ValueError`` if it has no whole knots)."""
+    if section.schedule is not None:
+        return ModelSchedule.named(section.schedule, section.whole_body_dt, section.srb_dt)
+    assert section.whole_body_horizon is not None and section.srb_horizon is not None
+    return ModelSchedule(
+        section.whole_body_horizon, section.srb_horizon, section.whole_body_dt, section.srb_dt
+    )
+
+
 def run_schedule(config: RunConfig, robot: Robot) -> ModelSchedule:
     """The run's model schedule (Tw, Ts, dt_w, dt_s) with its horizons scaled to the robot."""
     try:
-        return scaled_schedule(config.mpc.model_schedule(), run_scale(config, robot))
+        return scaled_schedule(model_schedule(config.mpc), run_scale(config, robot))
     except ValueError as error:
         raise ConfigError(f"mpc: {error}") from error
 
@@ -56,10 +67,10 @@ def build_problem(config: RunConfig, robot: Robot) -> CafeProblemBuilder:
     scale = run_scale(config, robot)
     schedule = run_schedule(config, robot)
     try:
-        running = scaled_weights(config.costs.running.to_weights(), scale)
-        terminal = scaled_weights(config.costs.terminal.to_weights(), scale)
-        srb_running = scaled_srb_weights(config.costs.srb_running.to_weights(), scale)
-        srb_terminal = scaled_srb_weights(config.costs.srb_terminal.to_weights(), scale)
+        running = scaled_weights(config.costs.running, scale)
+        terminal = scaled_weights(config.costs.terminal, scale)
+        srb_running = scaled_srb_weights(config.costs.srb_running, scale)
+        srb_terminal = scaled_srb_weights(config.costs.srb_terminal, scale)
     except ValueError as error:
         raise ConfigError(f"costs: {error}") from error
     limits = None if config.torque_limits == "plan" else tuple(torque_limits_of(config, robot).tolist())
@@ -99,8 +110,8 @@ def task_weight_sets(
         return {}
     scale = run_scale(config, robot)
     try:
-        running = scaled_weights(section.costs.running.to_weights(), scale)
-        terminal = scaled_weights(section.costs.terminal.to_weights(), scale)
+        running = scaled_weights(section.costs.running, scale)
+        terminal = scaled_weights(section.costs.terminal, scale)
         srb_running = SRBWeights.from_whole_body(running, force=srb_force_weight(scale))
         srb_terminal = SRBWeights.from_whole_body(terminal, force=0.0)
         constraints = WholeBodyConstraintSettings(

@@ -18,11 +18,11 @@ section into a ``Reference``:
 from __future__ import annotations
 
 from cafe_mpc.assembly.scaling import run_scale, scaled_gait
-from cafe_mpc.config import CommandConfig, ConfigError, GaitConfig, ReferenceConfig, RunConfig
+from cafe_mpc.config import ConfigError, GaitConfig, ReferenceConfig, RunConfig, VelocityCommand
 from cafe_mpc.ocp.contact_schedule import get_gait
 from cafe_mpc.reference.base import Reference
 from cafe_mpc.reference.composition import ComposedReference
-from cafe_mpc.reference.locomotion import FOOTHOLD_BOX, CommandProfile, LocomotionReference, VelocityCommand
+from cafe_mpc.reference.locomotion import FOOTHOLD_BOX, CommandProfile, LocomotionReference
 from cafe_mpc.reference.trajectory import TrajectoryReference
 from cafe_mpc.reference.trajectory_file import (
     PACKAGED_TRAJECTORIES,
@@ -37,16 +37,11 @@ TRAJECTORY_WEIGHT_SET = "barrel_roll"
 """Weight set of the knots inside stored trajectories (the config's ``reference.costs``)."""
 
 
-def velocity_command(command: CommandConfig) -> VelocityCommand:
-    """The reference's ``VelocityCommand`` of a config command."""
-    return VelocityCommand(command.start, command.vx, command.vy, command.yaw_rate, command.height)
-
-
 def reference_commands(config: RunConfig) -> list[VelocityCommand]:
     """The commands the run tracks: the gait's, or standing still at the standing height (PD)."""
     if config.gait is None:
         return [VelocityCommand()]
-    return [velocity_command(command) for command in config.gait.commands]
+    return list(config.gait.commands)
 
 
 def reference_profile(config: RunConfig, robot: Robot) -> CommandProfile:
@@ -66,7 +61,7 @@ def locomotion_reference(gait: GaitConfig, robot: Robot, scale: RobotScale = IDE
     return LocomotionReference(
         robot,
         scaled_gait(gait.name, scale),
-        [velocity_command(command) for command in gait.commands],
+        list(gait.commands),
         swing_height=scale.distance(gait.swing_height),
         raibert_gain=scale.duration(gait.raibert_gain),
         foothold_box=tuple(scale.distance(v) for v in FOOTHOLD_BOX),

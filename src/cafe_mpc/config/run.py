@@ -15,16 +15,13 @@ import itertools
 import math
 from collections.abc import Callable, Sequence
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Literal
+from typing import Any, Literal
 
-from pydantic import Field, field_validator, model_validator
+from pydantic import ConfigDict, Field, field_validator, model_validator
 
+from cafe_mpc.config.estimation import KinematicKFSettings
 from cafe_mpc.config.loading import StrictModel, load_model, read_yaml
-from cafe_mpc.estimation.settings import KinematicKFSettings  # a plain dataclass: no heavy imports
-
-if TYPE_CHECKING:  # heavy modules (Pinocchio) are imported only where a value is built
-    from cafe_mpc.mpc.problem import ModelSchedule
-    from cafe_mpc.ocp.costs import WholeBodyWeights
+from cafe_mpc.config.weights import BaseError, SRBWeights, WholeBodyWeights
 
 PRESET_DIR = Path(__file__).parent.parent / "configs"
 
@@ -85,13 +82,20 @@ class PDConfig(StrictModel):
     gravity_feedforward: bool = True
 
 
+WarmStart = Literal["previous", "plan", "equality", "none"]
+"""How the VWBC QP starts: the previous tick's solution, the plan's guess, the equality-constrained
+solution (ProxQP), or cold."""
+
+
 class VWBCConfig(StrictModel):
-    """The VWBC QP (34) solver (``cafe_mpc.wbc.vwbc.VWBCSettings``)."""
+    """The VWBC QP (34) solver: the run config's ``vwbc`` section, and the base of the controller's own
+    settings (``wbc.vwbc.VWBCSettings``), which adds what the assembly derives (friction, robot-scaled
+    rates) and the solvers' tolerances."""
 
     solver: Literal["daqp", "proxqp"] = Field(
         "daqp", description="daqp: dual active set on the QP condensed onto tau; proxqp: the QP as written"
     )
-    warm_start: Literal["previous", "plan", "equality", "none"] = Field(
+    warm_start: WarmStart = Field(
         "previous", description="previous tick's solution, the plan's guess, or cold"
     )
     stance_source: Literal["plan", "intersect"] = Field(
@@ -99,8 +103,21 @@ class VWBCConfig(StrictModel):
     )
 
 
-class CommandConfig(StrictModel):
-    """A velocity command from ``start`` on (heading frame): ``reference.locomotion.VelocityCommand``."""
+DEFAULT_FRICTION = 0.6
+"""Friction coefficient a controller assumes unless told otherwise: ``mpc.friction``'s default, and the one
+source of every controller-side default (plan pyramid, VWBC cone, template, trajectory optimisation)."""
+
+
+PAPER_BUDGET_FRACTION = 0.9
+"""The share of the MPC period a solve may take in measured mode (the paper's budget: 18 ms of 20 ms)."""
+
+
+class VelocityCommand(StrictModel):
+    """A velocity command from ``start`` on: speeds in the heading (yaw) frame, yaw rate and body height
+    (``reference.locomotion`` tracks it; a gait's ``commands``). Which commands a robot can follow is the
+    library's check (``reference.locomotion.validate_command``)."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
     start: float = Field(0.0, ge=0.0, description="s; the command holds until the next one starts")
     vx: float = Field(0.0, description="m/s forward in the heading frame")
@@ -109,8 +126,8 @@ class CommandConfig(StrictModel):
     height: float | None = Field(None, description="m body height; null: the robot's standing height")
 
 
-def _default_commands() -> list[CommandConfig]:
-    return [CommandConfig(vx=0.5)]
+def _default_commands() -> list[VelocityCommand]:
+    return [VelocityCommand(vx=0.5)]
 
 
 class GaitConfig(StrictModel):
@@ -129,7 +146,7 @@ class GaitConfig(StrictModel):
         description="s over which the reference moves linearly to each new command (0: steps); the robot is "
         "at rest until the gait starts (start_stance), then ramps to the first command",
     )
-    commands: list[CommandConfig] = Field(default_factory=_default_commands, min_length=1)
+    commands: list[VelocityCommand] = Field(default_factory=_default_commands, min_length=1)
 
     @field_validator("name")
     @classmethod
@@ -140,7 +157,7 @@ class GaitConfig(StrictModel):
 
     @field_validator("commands")
     @classmethod
-    def _commands_in_order(cls, commands: list[CommandConfig]) -> list[CommandConfig]:
+    def _commands_in_order(cls, commands: list[VelocityCommand]) -> list[VelocityCommand]:
         starts = [command.start for command in commands]
         if starts[0] != 0.0:
             raise ValueError(f"the first command must start at 0 s, got {starts[0]}")
@@ -149,18 +166,39 @@ class GaitConfig(StrictModel):
         return commands
 
 
-class MpcConfig(StrictModel):
-    """Receding-horizon settings: model schedule (Tw, Ts, dt_w, dt_s), period and policy lag.
+class MpcSettings(StrictModel):
+    """Receding-horizon settings of an MPC (``mpc.planner``; docs/settings.md: "MPC loop" and "Solver").
 
-    ``schedule`` names one of the paper's schedules (S0..S20: Tw = 0.25 s, Ts = 0..2 s); for another split
-    set ``schedule: null`` and give ``whole_body_horizon`` and ``srb_horizon``. The time steps apply to both.
+    ``latency``: ``measured`` (default): a plan takes effect once its real wall-clock update time has passed
+    in simulated time (times ``compute_scale``: a computer that much slower), and the next update starts
+    from the newest measurement when the worker is free; ``fixed``: the same with a constant
+    ``fixed_latency`` (deterministic, for tests and for the paper's C++ budget). ``time_budget``: wall-clock
+    cap of one solve (the paper's 0.9 x period), applied in measured mode only so that fixed-latency runs do
+    not depend on the machine's load. ``max_iterations``: MS-iLQR iterations per update: 1, the real-time
+    iteration scheme (the paper uses 4 with ~5 ms C++ iterations; in Python, with measured latency, 4
+    iterations made 20-32 ms updates and the pace and bound presets fell, while 1 iteration keeps the latency
+    near 12 ms and all five gaits stay up: BENCHMARKS.md). ``touchdown_max_penalty``: cap of the
+    augmented-Lagrangian penalty of the touchdown constraint (25) (``SolverOptions.al_max_penalty``; the
+    authors' 1e4 when null). The penalty starts at 20 and grows x5 per update while a planned foot misses the
+    floor by more than 5 mm (the AL parameters carry over between updates); the barrel-roll preset caps it
+    at 20. ``final_policy``: ``shift`` keeps the sweep the step was taken from, moved to the new plan to
+    first order (one linearisation and one backward sweep per update); ``relinearize`` linearises and sweeps
+    again at the new plan (a third more work per preparation; with the real-time iteration both track the
+    gaits alike at fixed 20-60 ms latency, and the running barrel roll succeeds at 10-40 ms with either, at
+    50 ms only with ``relinearize``: BENCHMARKS.md). ``warm_up``: seconds of future updates whose solver data
+    (one per knot object: Pinocchio ``Data``, kinematics, buffers) are created right after the cold first
+    solve, before the clock starts, instead of inside the first update that meets each knot object (which
+    took 25-60 ms extra at the start of a gait and when the barrel roll entered the horizon). ``scheme``:
+    ``rti`` (real-time iteration: ``prepare`` before the measurement, ``feedback`` after it) or
+    ``one_phase`` (the whole update after the measurement). ``rti_line_search``: the preparation takes its
+    MS-iLQR iteration(s) on the predicted state, line search included, and the feedback only embeds the
+    measured state; or the preparation stops after the backward sweep and the feedback takes the full
+    Newton step (the classical real-time iteration, no globalisation). ``rti_feedback``: how the feedback
+    carries the measured initial state through the plan: the tangential predictor through the prepared
+    ``A``, ``B`` (``linear``) or the dynamics rolled out under the prepared policy (``nonlinear``).
+    ``threads``: threads that linearise the knots of an update (``SolverOptions.threads``).
     """
 
-    schedule: str | None = Field("S4", description="paper schedule S0..S5, S10, S15, S20; null: explicit")
-    whole_body_horizon: float | None = Field(None, gt=0.0, le=2.0, description="Tw, s (schedule: null)")
-    srb_horizon: float | None = Field(None, ge=0.0, le=5.0, description="Ts, s (schedule: null)")
-    whole_body_dt: float = Field(0.01, gt=0.0, le=0.1, description="dt_w, s")
-    srb_dt: float = Field(0.05, gt=0.0, le=0.5, description="dt_s, s")
     period: float = Field(0.02, gt=0.0, le=0.5, description="s between MPC update starts (at most)")
     latency: Literal["fixed", "measured"] = Field(
         "measured",
@@ -222,8 +260,30 @@ class MpcConfig(StrictModel):
         description="measured latency: every measured compute time is multiplied by this (a computer that "
         "many times slower)",
     )
+
+    @property
+    def budget(self) -> float | None:
+        """The wall-clock cap of an update's solve: ``time_budget`` or 0.9 x period in measured mode."""
+        if self.latency != "measured":
+            return None
+        return self.time_budget if self.time_budget is not None else PAPER_BUDGET_FRACTION * self.period
+
+
+class MpcConfig(MpcSettings):
+    """The run's MPC: its model schedule (Tw, Ts, dt_w, dt_s), the friction it assumes and its
+    receding-horizon settings (``MpcSettings``).
+
+    ``schedule`` names one of the paper's schedules (S0..S20: Tw = 0.25 s, Ts = 0..2 s); for another split
+    set ``schedule: null`` and give ``whole_body_horizon`` and ``srb_horizon``. The time steps apply to both.
+    """
+
+    schedule: str | None = Field("S4", description="paper schedule S0..S5, S10, S15, S20; null: explicit")
+    whole_body_horizon: float | None = Field(None, gt=0.0, le=2.0, description="Tw, s (schedule: null)")
+    srb_horizon: float | None = Field(None, ge=0.0, le=5.0, description="Ts, s (schedule: null)")
+    whole_body_dt: float = Field(0.01, gt=0.0, le=0.1, description="dt_w, s")
+    srb_dt: float = Field(0.05, gt=0.0, le=0.5, description="dt_s, s")
     friction: float = Field(
-        0.6,
+        DEFAULT_FRICTION,
         gt=0.0,
         le=2.0,
         description="friction coefficient the controller assumes (plan's pyramid, VWBC's cone); the plant's "
@@ -242,110 +302,6 @@ class MpcConfig(StrictModel):
             raise ValueError("with schedule null, give both whole_body_horizon and srb_horizon")
         return self
 
-    def model_schedule(self) -> ModelSchedule:
-        """The ``ModelSchedule`` this section describes."""
-        from cafe_mpc.mpc.problem import ModelSchedule
-
-        if self.schedule is not None:
-            return ModelSchedule.named(self.schedule, self.whole_body_dt, self.srb_dt)
-        assert self.whole_body_horizon is not None and self.srb_horizon is not None
-        return ModelSchedule(self.whole_body_horizon, self.srb_horizon, self.whole_body_dt, self.srb_dt)
-
-
-Weights = float | list[float]
-"""A scalar (every joint / axis) or a list (12 per joint, or 3 x y z shared by the legs, or 12 per leg)."""
-
-
-class WholeBodyWeightsConfig(StrictModel):
-    """The main fields of ``cafe_mpc.ocp.costs.WholeBodyWeights`` (running cost ``0.5 dx' W dx dt``).
-
-    Base weights are in the authors' order ``[x, y, z, yaw, pitch, roll]`` (docs/settings.md).
-    """
-
-    base_position: tuple[float, float, float, float, float, float]
-    base_velocity: tuple[float, float, float, float, float, float]
-    joint_position: Weights
-    joint_velocity: Weights
-    torque: Weights
-    swing_foot_position: Weights
-    swing_foot_velocity: Weights
-
-    @model_validator(mode="after")
-    def _weights_valid(self) -> WholeBodyWeightsConfig:
-        self.to_weights()  # raises ValueError naming the field (shape, negative or non-finite)
-        return self
-
-    @classmethod
-    def from_weights(cls, weights: WholeBodyWeights) -> WholeBodyWeightsConfig:
-        """From a ``WholeBodyWeights`` (tuples become lists so the YAML dump stays plain)."""
-
-        def plain(value: Any) -> Any:
-            return [float(v) for v in value] if isinstance(value, tuple | list) else float(value)
-
-        return cls(**{name: plain(getattr(weights, name)) for name in cls.model_fields})
-
-    def to_weights(self) -> WholeBodyWeights:
-        from cafe_mpc.ocp.costs import WholeBodyWeights
-
-        def value(item: Any) -> Any:
-            return tuple(item) if isinstance(item, tuple | list) else item
-
-        return WholeBodyWeights(**{name: value(getattr(self, name)) for name in type(self).model_fields})
-
-
-def _regular_running() -> WholeBodyWeightsConfig:
-    from cafe_mpc.ocp.costs import WholeBodyWeights
-
-    return WholeBodyWeightsConfig.from_weights(WholeBodyWeights.regular_running())
-
-
-def _regular_terminal() -> WholeBodyWeightsConfig:
-    from cafe_mpc.ocp.costs import WholeBodyWeights
-
-    return WholeBodyWeightsConfig.from_weights(WholeBodyWeights.regular_terminal())
-
-
-class SRBWeightsConfig(StrictModel):
-    """The fields of ``cafe_mpc.ocp.costs.SRBWeights`` (SRB cost (28), running cost ``0.5 dx' W dx dt``):
-    base weights in the authors' order ``[x, y, z, yaw, pitch, roll]``, the GRF regularisation weight (one
-    value, or 3 shared by the feet, or 12)."""
-
-    base_position: tuple[float, float, float, float, float, float]
-    base_velocity: tuple[float, float, float, float, float, float]
-    force: Weights
-
-    @model_validator(mode="after")
-    def _weights_valid(self) -> SRBWeightsConfig:
-        self.to_weights()
-        return self
-
-    @classmethod
-    def from_weights(cls, weights: Any) -> SRBWeightsConfig:
-        force = weights.force
-        return cls(
-            base_position=tuple(float(w) for w in weights.base_position),
-            base_velocity=tuple(float(w) for w in weights.base_velocity),
-            force=[float(f) for f in force] if isinstance(force, tuple | list) else float(force),
-        )
-
-    def to_weights(self) -> Any:
-        from cafe_mpc.ocp.costs import SRBWeights
-
-        force = tuple(self.force) if isinstance(self.force, list | tuple) else self.force
-        return SRBWeights(base_position=self.base_position, base_velocity=self.base_velocity, force=force)
-
-
-def _srb_running() -> SRBWeightsConfig:
-    from cafe_mpc.ocp.costs import SRBWeights
-
-    return SRBWeightsConfig.from_weights(SRBWeights.regular_running())
-
-
-def _srb_terminal() -> SRBWeightsConfig:
-    from cafe_mpc.ocp.costs import SRBWeights
-
-    return SRBWeightsConfig.from_weights(SRBWeights.regular_terminal())
-
 
 class CostsConfig(StrictModel):
     """Cost weights of the whole-body plan (``running``, ``terminal``: the authors' "regular" set,
@@ -353,22 +309,10 @@ class CostsConfig(StrictModel):
     set, ``SRBWeights.regular_running``, which says why the tail does not take the whole-body base weights
     as Eq. (28) does). Sources in docs/settings.md."""
 
-    running: WholeBodyWeightsConfig = Field(default_factory=_regular_running)
-    terminal: WholeBodyWeightsConfig = Field(default_factory=_regular_terminal)
-    srb_running: SRBWeightsConfig = Field(default_factory=_srb_running)
-    srb_terminal: SRBWeightsConfig = Field(default_factory=_srb_terminal)
-
-
-def _barrel_roll_running() -> WholeBodyWeightsConfig:
-    from cafe_mpc.ocp.costs import WholeBodyWeights
-
-    return WholeBodyWeightsConfig.from_weights(WholeBodyWeights.barrel_roll_running())
-
-
-def _barrel_roll_terminal() -> WholeBodyWeightsConfig:
-    from cafe_mpc.ocp.costs import WholeBodyWeights
-
-    return WholeBodyWeightsConfig.from_weights(WholeBodyWeights.barrel_roll_terminal())
+    running: WholeBodyWeights = Field(default_factory=WholeBodyWeights.regular_running)
+    terminal: WholeBodyWeights = Field(default_factory=WholeBodyWeights.regular_terminal)
+    srb_running: SRBWeights = Field(default_factory=SRBWeights.regular_running)
+    srb_terminal: SRBWeights = Field(default_factory=SRBWeights.regular_terminal)
 
 
 class TrajectoryCostsConfig(StrictModel):
@@ -376,8 +320,8 @@ class TrajectoryCostsConfig(StrictModel):
     set, ``WholeBodyWeights.barrel_roll_running/terminal``; docs/settings.md). The SRB tail uses the same base
     weights (Eq. (28))."""
 
-    running: WholeBodyWeightsConfig = Field(default_factory=_barrel_roll_running)
-    terminal: WholeBodyWeightsConfig = Field(default_factory=_barrel_roll_terminal)
+    running: WholeBodyWeights = Field(default_factory=WholeBodyWeights.barrel_roll_running)
+    terminal: WholeBodyWeights = Field(default_factory=WholeBodyWeights.barrel_roll_terminal)
 
 
 class ReferenceSegmentConfig(StrictModel):
@@ -433,7 +377,7 @@ class ReferenceConfig(StrictModel):
 
     segments: list[ReferenceSegmentConfig] = Field(min_length=1)
     costs: TrajectoryCostsConfig = Field(default_factory=TrajectoryCostsConfig)
-    base_error: Literal["tangent", "world"] = Field(
+    base_error: BaseError = Field(
         "world",
         description="whole-body base residual of the barrel_roll set: world-frame position, log3(R_ref' R) "
         "and world-frame linear velocity (world), or the tangent-space difference (tangent)",
@@ -677,81 +621,6 @@ class PlantConfig(StrictModel):
         return not self.sensor_noise.is_zero
 
 
-_KF = KinematicKFSettings()
-"""The filter's defaults (``estimation.settings``): the one source of ``KinematicKFConfig``'s."""
-
-
-class KinematicKFConfig(StrictModel):
-    """The kinematic Kalman filter (``estimator: kinematic_kf``; ``estimation.settings.KinematicKFSettings``,
-    whose defaults are MIT's Mini Cheetah tuning; docs/estimation.md)."""
-
-    imu_process_noise_position: float = Field(_KF.imu_process_noise_position, gt=0.0, le=100.0)
-    imu_process_noise_velocity: float = Field(_KF.imu_process_noise_velocity, gt=0.0, le=100.0)
-    foot_process_noise_position: float = Field(_KF.foot_process_noise_position, gt=0.0, le=100.0)
-    foot_sensor_noise_position: float = Field(_KF.foot_sensor_noise_position, gt=0.0, le=100.0)
-    foot_sensor_noise_velocity: float = Field(_KF.foot_sensor_noise_velocity, gt=0.0, le=100.0)
-    foot_height_sensor_noise: float = Field(_KF.foot_height_sensor_noise, gt=0.0, le=100.0)
-    vertical_velocity_factor: float = Field(
-        _KF.vertical_velocity_factor,
-        gt=0.0,
-        le=1e6,
-        description="x foot_sensor_noise_velocity, vertical axis",
-    )
-    trust_window: float = Field(
-        _KF.trust_window, gt=0.0, le=0.5, description="fraction of a stance over which a foot's trust ramps"
-    )
-    suspect_factor: float = Field(
-        _KF.suspect_factor, ge=0.0, le=1e6, description="noise x (1 + (1-trust) x this)"
-    )
-    rolling_foot: bool = Field(
-        _KF.rolling_foot, description="correct the leg velocity for a rolling sphere foot"
-    )
-    foot_height: bool = Field(_KF.foot_height, description="stance feet on flat ground measure the height")
-    foot_compliance: float = Field(
-        _KF.foot_compliance, ge=0.0, le=0.01, description="m/N, loaded foot sinks this much per N (0: off)"
-    )
-    contact_force_threshold: float | None = Field(
-        _KF.contact_force_threshold,
-        ge=0.0,
-        le=1000.0,
-        description="N; null: planned contact only; else planned and the torque-implied ground force above",
-    )
-    accelerometer_bias: bool = Field(_KF.accelerometer_bias, description="estimate a world-frame accel. bias")
-    bias_process_noise: float = Field(_KF.bias_process_noise, gt=0.0, le=100.0, description="(m/s^2)^2 / s")
-    initial_bias_variance: float = Field(_KF.initial_bias_variance, gt=0.0, le=100.0, description="(m/s^2)^2")
-    slip_threshold: float | None = Field(
-        _KF.slip_threshold,
-        gt=0.0,
-        le=100.0,
-        description="m/s; null: off; else a trusted foot whose leg velocity differs horizontally from the "
-        "IMU-propagated estimate by more than this is left out for the tick (slip)",
-    )
-    slip_patience: float = Field(
-        _KF.slip_patience,
-        gt=0.0,
-        le=10.0,
-        description="s; all trusted feet failing the slip test this long: used",
-    )
-    contact_height_threshold: float | None = Field(
-        _KF.contact_height_threshold,
-        gt=0.0,
-        le=1.0,
-        description="m; null: off; else a foot planned in stance higher than this above the (flat) ground "
-        "counts as not in contact",
-    )
-    initial_position_variance: float = Field(_KF.initial_position_variance, gt=0.0, le=100.0)
-    initial_velocity_variance: float = Field(_KF.initial_velocity_variance, gt=0.0, le=100.0)
-    swing_foot_variance: float = Field(_KF.swing_foot_variance, gt=0.0, le=1e6)
-
-    def settings(self) -> KinematicKFSettings:
-        return KinematicKFSettings(**self.model_dump())
-
-    @model_validator(mode="after")
-    def _settings_valid(self) -> KinematicKFConfig:
-        self.settings().check()
-        return self
-
-
 class TemplateConfig(StrictModel):
     """The template-MPC baseline (``planner: template``; ``mpc.template``, ``wbc.template_low_level``): the
     SRB plan's horizon and knot spacing, and the swing legs' joint PD gains. Period, latency and iterations
@@ -811,8 +680,9 @@ class RunConfig(StrictModel):
         "or kinematic_kf (the robot's sensors, plant.sensors, through the IMU + leg-kinematics Kalman filter "
         "of the MIT Mini Cheetah; estimation.estimator)",
     )
-    kinematic_kf: KinematicKFConfig = Field(
-        default_factory=KinematicKFConfig, description="the Kalman filter's tuning (estimator: kinematic_kf)"
+    kinematic_kf: KinematicKFSettings = Field(
+        default_factory=KinematicKFSettings,
+        description="the Kalman filter's tuning (estimator: kinematic_kf)",
     )
     costs: CostsConfig = Field(default_factory=CostsConfig)
     simulation: SimulationConfig = SimulationConfig()

@@ -37,6 +37,7 @@ from typing import Protocol
 import numpy as np
 import pinocchio as pin
 
+from cafe_mpc.config.estimation import KinematicKFSettings
 from cafe_mpc.core.measurement import Measurement
 from cafe_mpc.core.sensors import SensorReadings
 from cafe_mpc.estimation.kernels import (
@@ -53,7 +54,6 @@ from cafe_mpc.estimation.kernels import (
     planned_trust,
     quaternion_to_rotation,
 )
-from cafe_mpc.estimation.settings import KinematicKFSettings
 from cafe_mpc.robots.robot import Robot
 
 GRAVITY = np.array([0.0, 0.0, -9.81])
@@ -188,7 +188,6 @@ class StateEstimator:
 
     def __init__(self, robot: Robot, settings: KinematicKFSettings | None = None) -> None:
         settings = settings if settings is not None else KinematicKFSettings()
-        settings.check()
         self.robot = robot
         self.settings = settings
         n_feet, nj = robot.n_feet, robot.nu

@@ -20,7 +20,6 @@ from cafe_mpc.assembly.controllers import (
     build_controller,
     build_low_level,
     build_realtime_controller,
-    mpc_settings,
 )
 from cafe_mpc.config import RunConfig
 from cafe_mpc.control.mpc_loop import CafeMpcController
@@ -191,7 +190,7 @@ def timing_of(config: RunConfig, controller: RunController) -> dict:
     mode = "realtime" if config.simulation.realtime else config.mpc.latency
     if mode == "realtime":  # the MPC process always runs with its wall-clock budget
         config = config.model_copy(update={"mpc": config.mpc.model_copy(update={"latency": "measured"})})
-    settings = mpc_settings(config)
+    settings = config.mpc
     scheme = getattr(controller, "scheme", config.mpc.scheme)
     return {
         "mode": mode,

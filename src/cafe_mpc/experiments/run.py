@@ -22,9 +22,9 @@ import yaml
 
 from cafe_mpc.assembly.checks import robot_of
 from cafe_mpc.assembly.controllers import RunController, build_sensing_controller
-from cafe_mpc.assembly.problem import torque_limits_of
+from cafe_mpc.assembly.problem import model_schedule, torque_limits_of
 from cafe_mpc.assembly.references import reference_profile
-from cafe_mpc.assembly.scaling import run_scale, scaling_block
+from cafe_mpc.assembly.scaling import run_scale, scaled_gait, scaled_schedule
 from cafe_mpc.config import RunConfig
 from cafe_mpc.control.realtime import MpcProcessError
 from cafe_mpc.core.measurement import Measurement
@@ -39,6 +39,7 @@ from cafe_mpc.experiments.controllers import (
     timing_of,
 )
 from cafe_mpc.robots.robot import Robot
+from cafe_mpc.robots.scaling import reference_scales
 from cafe_mpc.sim.bar import bar_of
 from cafe_mpc.sim.loop import FallCriteria, Push, SimulationLog, WallClockPacer, simulate
 from cafe_mpc.sim.randomization import plant_variation, sensor_model
@@ -226,6 +227,25 @@ def run_metrics(config: RunConfig, robot: Robot, controller: RunController, log:
 
         metrics["task"] = task_block(config, robot, log, reference_of(controller))
     return metrics
+
+
+def scaling_block(config: RunConfig, robot: Robot) -> dict:
+    """``metrics.json``'s ``scaling``: the mode, the robot's factors against the reference robot."""
+    scale = run_scale(config, robot)
+    schedule = scaled_schedule(model_schedule(config.mpc), scale)
+    block = {
+        "mode": config.scaling,
+        "reference": reference_scales(),
+        "robot_leg_length": robot.leg_length,
+        "robot_mass": robot.mass,
+        "factors": scale.summary(),
+        "whole_body_horizon_s": schedule.whole_body_horizon,
+        "srb_horizon_s": schedule.srb_horizon,
+    }
+    if config.gait is not None:
+        block["gait_period_s"] = scaled_gait(config.gait.name, scale).period
+        block["swing_height_m"] = scale.distance(config.gait.swing_height)
+    return block
 
 
 def default_out_dir(config: RunConfig, root: Path = Path("runs")) -> Path:

@@ -20,6 +20,7 @@ from typing import Any
 
 import numpy as np
 
+from cafe_mpc.assembly.problem import model_schedule
 from cafe_mpc.experiments.common import (
     WALL_CLOCK_NOTE,
     RunStore,
@@ -55,7 +56,7 @@ def schedule_variant_name(schedule: str, srb_dt: float) -> str:
 
 def schedule_fields(result: RunResult) -> dict:
     """Schedule, horizons and SRB knots of a run."""
-    schedule = result.config.mpc.model_schedule()
+    schedule = model_schedule(result.config.mpc)
     return {
         "schedule": result.config.mpc.schedule,
         "whole_body_horizon_s": schedule.whole_body_horizon,

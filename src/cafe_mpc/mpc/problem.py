@@ -23,13 +23,13 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
+from cafe_mpc.config.weights import WholeBodyWeights
 from cafe_mpc.core.contacts import touchdown_flags
 from cafe_mpc.core.interfaces import MultiPhaseProblem, Phase
 from cafe_mpc.dynamics.srb import GRAVITY, SRBState
 from cafe_mpc.dynamics.statics import static_stance_torques
 from cafe_mpc.dynamics.transition import whole_body_to_srb_state
 from cafe_mpc.mpc.time_grid import TIME_QUANTUM, PiecewiseTrajectory, grid_times, quanta
-from cafe_mpc.ocp.costs import WholeBodyWeights
 from cafe_mpc.ocp.knots import SRBKnot, SRBModelFactory, WholeBodyKnot, WholeBodyModelFactory
 from cafe_mpc.reference.base import Reference, ReferenceWindow
 from cafe_mpc.solver.results import SolverResult

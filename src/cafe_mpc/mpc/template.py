@@ -44,6 +44,8 @@ import numpy as np
 import pinocchio as pin
 from numba import njit
 
+from cafe_mpc.config import MpcSettings
+from cafe_mpc.config.weights import SRBWeights
 from cafe_mpc.core.interfaces import MultiPhaseProblem, Phase
 from cafe_mpc.core.template_plan import TemplatePlan
 from cafe_mpc.dynamics.srb import (
@@ -54,10 +56,9 @@ from cafe_mpc.dynamics.srb import (
     quaternion_to_rotation,
 )
 from cafe_mpc.dynamics.transition import whole_body_to_srb_state
-from cafe_mpc.mpc.planner import MpcSettings, RecedingHorizonPlanner
+from cafe_mpc.mpc.planner import RecedingHorizonPlanner
 from cafe_mpc.mpc.time_grid import TIME_QUANTUM, PiecewiseTrajectory, grid_times, quanta
 from cafe_mpc.ocp.constraints import BarrierParameters
-from cafe_mpc.ocp.costs import SRBWeights
 from cafe_mpc.ocp.knots import SRBKnot, SRBKnotData, SRBReference
 from cafe_mpc.reference.base import Reference, ReferenceWindow
 from cafe_mpc.reference.inverse_kinematics import LegInverseKinematics

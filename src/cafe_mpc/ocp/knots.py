@@ -24,6 +24,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 import pinocchio as pin
 
+from cafe_mpc.config.weights import BaseError, SRBWeights, WholeBodyWeights
 from cafe_mpc.core.contacts import ContactFlags, as_contact_flags, flags_to_string, touchdown_flags
 from cafe_mpc.core.interfaces import ActionData, ActionModel, IdentityReset, ResetMap
 from cafe_mpc.core.kernels import same_point
@@ -35,7 +36,6 @@ from cafe_mpc.dynamics.srb_kernels import srb_cost, srb_cost_derivatives
 from cafe_mpc.dynamics.transition import ComposedReset, WholeBodyToSRB
 from cafe_mpc.dynamics.whole_body import IntegrationScheme, WholeBodyDynamics
 from cafe_mpc.ocp.constraints import BarrierParameters, TouchdownFootHeight, WholeBodyConstraintSettings
-from cafe_mpc.ocp.costs import BaseError, SRBWeights, WholeBodyWeights
 from cafe_mpc.ocp.kernels import quaternion_rotation_into, whole_body_cost, whole_body_derivatives
 from cafe_mpc.robots.robot import Robot
 

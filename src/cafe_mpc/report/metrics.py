@@ -9,7 +9,8 @@ import numpy as np
 import pinocchio as pin
 from scipy.spatial.transform import Rotation
 
-from cafe_mpc.reference.locomotion import CommandProfile, VelocityCommand
+from cafe_mpc.config import VelocityCommand
+from cafe_mpc.reference.locomotion import CommandProfile
 from cafe_mpc.robots.robot import Robot
 from cafe_mpc.sim.loop import SimulationLog
 

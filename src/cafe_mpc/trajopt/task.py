@@ -4,8 +4,8 @@ The offline TO of the paper's Appendix (Sec. VI-B) is a multi-phase problem whos
 sequence with switching times; each phase tracks one *keyframe* (the desired state at the end of the phase)
 with its own running and terminal weights; touchdowns are constraints (Eq. (25)); minimum base height,
 torque, joint-position, joint-speed and friction limits are inequality constraints. ``TrajOptTask`` holds all
-of it as plain values so that a task is a YAML file (``cafe-mpc optimize TASK_OR_FILE --set key=value``)
-and every written trajectory comes with the YAML that made it.
+of it as plain values so that a task is a YAML file (``cafe-mpc optimize TASK_OR_FILE --set key=value``,
+read like a run config: ``config.loading``) and every written trajectory comes with the YAML that made it.
 
 Conventions: contact codes as in ``cafe_mpc.reference.trajectory_file`` (``"FS"``, ``"FT"``, ``"FR-HR"``);
 base weights in the order ``[x, y, z, yaw, pitch, roll]`` (``cafe_mpc.ocp.costs``); keyframe orientations as
@@ -18,14 +18,15 @@ from __future__ import annotations
 
 import itertools
 import math
-from typing import Any, Literal
+from typing import Literal
 
 import numpy as np
 import yaml
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
+from pydantic import Field, field_validator, model_validator
 
+from cafe_mpc.config.loading import ConfigError, StrictModel
+from cafe_mpc.config.weights import WholeBodyWeights
 from cafe_mpc.ocp.constraints import BarrierParameters, WholeBodyConstraintSettings
-from cafe_mpc.ocp.costs import WholeBodyWeights
 from cafe_mpc.reference.trajectory_file import parse_contact_code
 from cafe_mpc.solver.options import SolverOptions
 
@@ -34,12 +35,8 @@ Vector6 = tuple[float, float, float, float, float, float]
 TIME_TOLERANCE = 1e-9
 
 
-class TrajOptTaskError(ValueError):
+class TrajOptTaskError(ConfigError):
     """A task (preset, YAML file or override) that cannot be used; the message names the key."""
-
-
-class StrictModel(BaseModel):
-    model_config = ConfigDict(extra="forbid", validate_assignment=True)
 
 
 def _joint_vector(values: list[float], name: str) -> list[float]:
@@ -284,60 +281,3 @@ class TrajOptTask(StrictModel):
         )
         lines = "".join(f"# {line}\n" if line else "#\n" for line in header.splitlines())
         return lines + text
-
-
-def format_validation_error(error: ValidationError) -> str:
-    """One line naming each bad key: ``key.path: message (got value)``."""
-    parts = []
-    for problem in error.errors():
-        location = ".".join(str(part) for part in problem["loc"]) or "task"
-        message = problem["msg"].removeprefix("Value error, ")
-        if problem["type"] == "extra_forbidden":
-            message = "unknown key"
-        got = problem.get("input")
-        parts.append(
-            f"{location}: {message}" if isinstance(got, dict) else f"{location}: {message} (got {got!r})"
-        )
-    return "; ".join(parts)
-
-
-def validate_task(raw: dict[str, Any], source: str) -> TrajOptTask:
-    try:
-        return TrajOptTask.model_validate(raw)
-    except ValidationError as error:
-        raise TrajOptTaskError(f"invalid task {source}: {format_validation_error(error)}") from error
-
-
-def set_dotted(raw: dict[str, Any], dotted: str, value: Any) -> None:
-    """``raw[a][b][0]... = value`` for an existing key path (list indices allowed); names the bad key."""
-    parts = dotted.split(".")
-    node: Any = raw
-    for depth, part in enumerate(parts):
-        where = ".".join(parts[:depth]) or "top level"
-        if isinstance(node, list):
-            if not part.isdigit() or int(part) >= len(node):
-                raise TrajOptTaskError(
-                    f"task key {dotted!r}: {where} is a list of {len(node)}, not index {part}"
-                )
-            key: Any = int(part)
-        elif isinstance(node, dict):
-            if part not in node:
-                raise TrajOptTaskError(f"unknown task key {dotted!r}: {where} allows {', '.join(node)}")
-            key = part
-        else:
-            raise TrajOptTaskError(f"unknown task key {dotted!r}: {where} has no sub-keys")
-        if depth == len(parts) - 1:
-            node[key] = value
-            return
-        node = node[key]
-
-
-def parse_override(item: str) -> tuple[str, Any]:
-    """``key=value`` -> (key, YAML-parsed value)."""
-    key, separator, text = item.partition("=")
-    if not separator or not key.strip():
-        raise TrajOptTaskError(f"--set expects key=value, got {item!r}")
-    try:
-        return key.strip(), yaml.safe_load(text)
-    except yaml.YAMLError as error:
-        raise TrajOptTaskError(f"--set {key}: cannot parse value {text!r}: {error}") from error
