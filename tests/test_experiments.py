@@ -346,9 +346,9 @@ def test_imports_and_runs_leave_global_state_alone(tmp_path):
     its folder restores the package logger's level."""
     code = (
         "import matplotlib\n"
-        "import cafe_mpc.experiments.registry, cafe_mpc.experiments.sweep, cafe_mpc.report.plots\n"
+        "import cafe_mpc.experiments.catalog, cafe_mpc.experiments.sweep, cafe_mpc.report.plots\n"
         "import cafe_mpc.cli\n"
-        "cafe_mpc.experiments.registry.experiments()\n"
+        "cafe_mpc.experiments.catalog.experiments()\n"
         "print(matplotlib.get_backend())\n"
     )
     environment = {**os.environ, "MPLBACKEND": "svg"}

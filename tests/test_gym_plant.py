@@ -126,11 +126,12 @@ def test_go1_trots_inside_gym_quadruped():
 
 def test_robots_experiment_runs_both_plants(tmp_path):
     """``cafe-mpc experiment robots`` on one robot and gait: one run per plant, the table and counts."""
-    from cafe_mpc.experiments.registry import PlanContext, get_experiment
+    from cafe_mpc.experiments.catalog import get_experiment
+    from cafe_mpc.experiments.registry import PlanContext
     from cafe_mpc.experiments.sweep import run_experiment
 
     experiment = get_experiment("robots")
-    plan = experiment.plan({}, PlanContext())
+    plan = experiment.plan(experiment.options_from({}), PlanContext())
     names = {variant.name for variant in plan.variants}
     assert "go1-trot-mujoco" in names and "go1-trot-gym-quadruped" not in names  # ours has no gym model
     assert {"go2-bound-mujoco", "go2-bound-gym-quadruped", "hyqreal2-trot-gym-quadruped"} <= names

@@ -305,6 +305,34 @@ def test_building_a_library_controller_loads_no_simulator_nor_harness():
     assert output.strip() == "[]", output
 
 
+def _loaded_after_import(modules: list[str]) -> list[str]:
+    """``sys.modules`` of a fresh interpreter after importing ``modules`` (and nothing else)."""
+    code = "import importlib, sys\n" + "".join(f"importlib.import_module({m!r})\n" for m in modules)
+    code += "print('\\n'.join(sorted(sys.modules)))\n"
+    output = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
+    return output.split()
+
+
+def test_importing_the_api_and_the_assembly_loads_no_simulator_nor_harness():
+    """Every module of ``api`` and ``assembly`` imported in a fresh interpreter: neither MuJoCo nor the
+    harness, the report or the simulator is in ``sys.modules`` (imports at module level, transitively)."""
+    sources = package_sources()
+    front = sorted(module for module in sources if component(module) in FRONT_ENDS)
+    loaded = _loaded_after_import(front)
+    forbidden = tuple(f"{PACKAGE}.{name}" for name in FORBIDDEN_FOR_FRONT_ENDS)
+    bad = [m for m in loaded if m == "mujoco" or m.startswith(("mujoco.", *forbidden))]
+    assert not bad, f"importing api/assembly loads {bad}"
+
+
+def test_importing_the_config_schema_loads_no_domain_package():
+    """``cafe_mpc.config`` and its modules load no other package of ``cafe_mpc`` (nor MuJoCo)."""
+    sources = package_sources()
+    schema = sorted(module for module in sources if component(module) == "config")
+    loaded = _loaded_after_import(schema)
+    bad = [m for m in loaded if m == "mujoco" or (m.startswith(PACKAGE + ".") and component(m) != "config")]
+    assert not bad, f"importing the config schema loads {bad}"
+
+
 def test_the_checker_catches_upward_imports_cycles_and_function_level_imports():
     """The checks themselves, on a small made-up package."""
     sources = {

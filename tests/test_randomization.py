@@ -14,7 +14,8 @@ from cafe_mpc.assembly import load_run_config
 from cafe_mpc.config import ConfigError, SensorNoise
 from cafe_mpc.core.measurement import Measurement
 from cafe_mpc.dynamics.srb import srb_parameters
-from cafe_mpc.experiments.registry import PlanContext, get_experiment
+from cafe_mpc.experiments.catalog import get_experiment
+from cafe_mpc.experiments.registry import PlanContext
 from cafe_mpc.experiments.reliability import (
     RandomizationRanges,
     reliability_summary,
@@ -156,14 +157,16 @@ def test_reliability_trials_are_drawn_from_their_seed():
         assert all(0.9 <= s <= 1.1 for s in plant["motor_strength_scales"]) and plant["seed"] == seed
         assert 2.5 <= push["start"] <= 7.5 and np.hypot(*push["velocity_change"][:2]) <= 0.5 + 1e-9
     experiment = get_experiment("reliability")
-    plan = experiment.plan({"task": "bound-push", "trials": "3", "seed": "5"}, PlanContext())
+    plan = experiment.plan(
+        experiment.options_from({"task": "bound-push", "trials": "3", "seed": "5"}), PlanContext()
+    )
     assert [v.name for v in plan.variants] == ["trial-0005", "trial-0006", "trial-0007"]
     assert plan.drop_files == ("log.npz",) and plan.options == {
         "--task": "bound-push",
         "--trials": "3",
         "--seed": "5",
     }
-    alone = experiment.plan({"task": "bound-push", "seeds": "7"}, PlanContext())
+    alone = experiment.plan(experiment.options_from({"task": "bound-push", "seeds": "7"}), PlanContext())
     assert alone.variants[0] == plan.variants[2]  # a trial re-runs alone from its seed
     config = load_run_config("bound-push", list(plan.variants[0].overrides))
     assert len(config.pushes) == 2  # the preset's push, then the random one
@@ -173,16 +176,17 @@ def test_reliability_trials_are_drawn_from_their_seed():
 def test_reliability_ranges_from_a_file(tmp_path):
     path = tmp_path / "ranges.yaml"
     path.write_text(yaml.safe_dump({"floor_friction": [0.2, 0.3], "push": {"max_velocity_change": 1.0}}))
-    plan = get_experiment("reliability").plan(
-        {"task": "trot", "trials": "2", "ranges": str(path)}, PlanContext()
+    reliability = get_experiment("reliability")
+    plan = reliability.plan(
+        reliability.options_from({"task": "trot", "trials": "2", "ranges": str(path)}), PlanContext()
     )
     assert all(0.2 <= dict(v.fields)["floor_friction"] <= 0.3 for v in plan.variants)
     path.write_text(yaml.safe_dump({"floor_friction": [0.9, 0.3]}))
     with pytest.raises(ConfigError, match="floor_friction: need"):
-        get_experiment("reliability").plan({"task": "trot", "ranges": str(path)}, PlanContext())
+        reliability.plan(reliability.options_from({"task": "trot", "ranges": str(path)}), PlanContext())
     path.write_text(yaml.safe_dump({"friction": [0.2, 0.3]}))
     with pytest.raises(ConfigError, match="--ranges: friction: unknown key"):
-        get_experiment("reliability").plan({"task": "trot", "ranges": str(path)}, PlanContext())
+        reliability.plan(reliability.options_from({"task": "trot", "ranges": str(path)}), PlanContext())
 
 
 def test_reliability_summary_counts_failure_modes():

@@ -47,6 +47,7 @@ from typing import Any
 
 from cafe_mpc.assembly.checks import load_run_config
 from cafe_mpc.config import ConfigError, RunConfig
+from cafe_mpc.experiments.catalog import get_experiment
 from cafe_mpc.experiments.cluster import ClusterInfo, open_cluster
 from cafe_mpc.experiments.comparison import write_comparison
 from cafe_mpc.experiments.execution import (
@@ -61,14 +62,12 @@ from cafe_mpc.experiments.execution import (
 )
 from cafe_mpc.experiments.registry import (
     Experiment,
-    Plan,
+    ExperimentPlan,
     PlanContext,
     SweepError,
     Variant,
-    check_options,
     check_overrides,
     experiment_command,
-    get_experiment,
     run_command,
 )
 from cafe_mpc.experiments.results_table import RESULTS_FILE, ResultsTable
@@ -115,7 +114,7 @@ def _write_run_folder(out_dir: Path, run: str, files: Mapping[str, bytes]) -> No
 @dataclass
 class _Prepared:
     experiment: Experiment
-    plan: Plan
+    plan: ExperimentPlan
     duration: float | None
     overrides: list[str]
     configs: dict[str, RunConfig]
@@ -129,7 +128,7 @@ def prepare(
 ) -> _Prepared:
     """Plan and validate every run of an experiment (nothing is started or written)."""
     experiment = get_experiment(name)
-    chosen = check_options(experiment, options)
+    chosen = experiment.options_from(options)
     overrides = list(overrides)
     check_overrides(experiment, overrides)
     if duration is None:
