@@ -619,7 +619,7 @@ class TermKnot(ActionModel):
     Args:
         robot: the robot.
         dynamics: the phase dynamics (sets ``nu = 12`` and the time step), or ``None`` for a terminal knot.
-        costs: cost terms (``cafe_mpc.ocp.costs``), summed and multiplied by ``dt`` on running knots.
+        costs: cost terms (weights: ``cafe_mpc.config.weights``), summed, times ``dt`` on running knots.
         constraints: inequality terms (``cafe_mpc.ocp.constraints``); ``eps B(g)``, times ``dt`` if running.
         reference: this knot's mutable reference.
         stance: stance flags of a terminal knot (a running knot takes the dynamics').

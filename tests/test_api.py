@@ -94,6 +94,7 @@ def test_bad_uses_are_clear_errors():
         controller.reset(measurement)
 
 
+@pytest.mark.realtime
 def test_process_mode_runs_the_mpc_in_its_own_process_and_cleans_up():
     import multiprocessing
 

@@ -14,18 +14,12 @@ from cafe_mpc.config import VelocityCommand, load_config
 from cafe_mpc.experiments.run import run, run_metrics, simulate_run
 from cafe_mpc.reference.locomotion import CommandProfile, LocomotionReference
 from cafe_mpc.report.metrics import body_rates, commanded_at
-from cafe_mpc.robots.robot import load_robot
 
 COMMANDS = [
     VelocityCommand(start=0.0, vx=0.5, vy=0.1, yaw_rate=0.3),
     VelocityCommand(start=1.0, vx=0.8, vy=0.0, yaw_rate=-0.2),
     VelocityCommand(start=1.2, vx=0.0, vy=0.3, yaw_rate=0.5, height=0.3),
 ]
-
-
-@pytest.fixture(scope="module")
-def robot():
-    return load_robot("mini_cheetah")
 
 
 def _integrated(profile: CommandProfile, t0: float, t1: float, steps: int = 48000):

@@ -21,17 +21,11 @@ from cafe_mpc.assembly import load_run_config
 from cafe_mpc.config import ConfigError, EncoderSpec, ImuSpec, KinematicKFSettings
 from cafe_mpc.core.sensors import SensorReadings
 from cafe_mpc.estimation.estimator import StateEstimator, leg_velocity_indices
-from cafe_mpc.robots.robot import load_robot
 from cafe_mpc.sim.plant import MujocoPlant
 from cafe_mpc.sim.sensors import SensorSpec, SensorSuite, sensor_spec
 
 DT = 0.002
 LWA = pin.ReferenceFrame.LOCAL_WORLD_ALIGNED
-
-
-@pytest.fixture(scope="module")
-def robot():
-    return load_robot("mini_cheetah")
 
 
 @dataclass

@@ -39,11 +39,6 @@ from cafe_mpc.wbc.vwbc import VWBCController
 GAIT_PRESETS = ["trot", "pace", "bound", "pronk", "flying-trot", "trot-commands", "bound-push"]
 
 
-@pytest.fixture(scope="module")
-def robot():
-    return load_robot("mini_cheetah")
-
-
 # ------------------------------------------------------------------------------------------- config
 @pytest.mark.parametrize(
     ("overrides", "message"),

@@ -17,7 +17,7 @@ import numpy as np
 import pinocchio as pin
 import pytest
 
-from cafe_mpc.reference.inverse_kinematics import (
+from cafe_mpc.dynamics.leg_inverse_kinematics import (
     LegChainError,
     LegInverseKinematics,
     _chain_kinematics,
@@ -166,11 +166,6 @@ def robot(request) -> Robot:
 @pytest.fixture(scope="module")
 def ik(robot: Robot) -> LegInverseKinematics:
     return LegInverseKinematics(robot)
-
-
-@pytest.fixture(scope="module")
-def mini_cheetah() -> Robot:
-    return load_robot("mini_cheetah")
 
 
 # ------------------------------------------------------------------------------------ tests

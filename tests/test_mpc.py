@@ -14,15 +14,9 @@ from cafe_mpc.mpc.problem import CafeProblemBuilder, ModelSchedule, WarmStart
 from cafe_mpc.ocp.contact_schedule import get_gait
 from cafe_mpc.ocp.knots import SRBModelFactory, WholeBodyModelFactory
 from cafe_mpc.reference.locomotion import LocomotionReference
-from cafe_mpc.robots.robot import load_robot
 from cafe_mpc.sim.loop import simulate
 from cafe_mpc.solver import MSiLQRSolver
 from cafe_mpc.wbc.riccati import RiccatiController
-
-
-@pytest.fixture(scope="module")
-def robot():
-    return load_robot("mini_cheetah")
 
 
 def _builder(robot, schedule):
@@ -217,6 +211,7 @@ def test_plans_take_effect_after_their_latency(robot, latency, scheme):
     np.testing.assert_array_equal(np.array(low_level.contacts), log.contacts)
 
 
+@pytest.mark.realtime
 def test_measured_latency_never_uses_a_plan_before_it_exists(robot):
     """Measured mode, one-phase: a plan takes effect at the first control tick after its update's real wall
     time, never earlier; while the worker is busy no other update starts; the latencies are recorded."""
@@ -243,6 +238,7 @@ def test_measured_latency_never_uses_a_plan_before_it_exists(robot):
     assert update_solve_options(controller.settings).time_budget == pytest.approx(0.018)
 
 
+@pytest.mark.realtime
 @pytest.mark.parametrize("compute_scale", [1.0, 3.0])
 def test_measured_real_time_iteration_pays_its_feedback_and_its_preparations(robot, compute_scale):
     """Measured mode, real-time iteration: a plan takes effect at the first tick after its update time plus

@@ -30,11 +30,6 @@ from cafe_mpc.sim.plant import MujocoPlant
 from cafe_mpc.sim.randomization import PlantVariation, SensorModel
 
 
-@pytest.fixture(scope="module")
-def robot():
-    return load_robot("mini_cheetah")
-
-
 def test_wilson_interval_matches_known_values():
     # 16 of 22 (the paper's reliability test): 0.5185-0.8685 (scipy.stats.binomtest(...).proportion_ci
     # ("wilson") gives the same digits)

@@ -28,6 +28,9 @@ from cafe_mpc.experiments.run import run
 from cafe_mpc.robots.robot import load_robot
 from cafe_mpc.sim.loop import WallClockPacer, simulate
 
+pytestmark = pytest.mark.realtime
+"""Every test here runs the MPC in its own process on the wall clock."""
+
 SHM = Path("/dev/shm")
 
 

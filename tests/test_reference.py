@@ -14,12 +14,6 @@ from cafe_mpc.reference.locomotion import (
     validate_command,
     yaw_from_quaternion,
 )
-from cafe_mpc.robots.robot import load_robot
-
-
-@pytest.fixture(scope="module")
-def robot():
-    return load_robot("mini_cheetah")
 
 
 def test_base_integrates_commands_with_yaw_rate(robot):
@@ -128,7 +122,7 @@ def test_feet_after_a_touchdown_between_anchor_and_query_stand_on_its_foothold(r
 
 
 def test_leg_inverse_kinematics_reaches_feet_and_matches_rates(robot):
-    from cafe_mpc.reference.inverse_kinematics import LegInverseKinematics
+    from cafe_mpc.dynamics.leg_inverse_kinematics import LegInverseKinematics
 
     ik = LegInverseKinematics(robot)
     base = robot.q_standing[:7].copy()

@@ -107,6 +107,7 @@ def _chromium_run(arguments: list[str], tmp_path: Path) -> subprocess.CompletedP
     return subprocess.run(command, capture_output=True, text=True, timeout=120)
 
 
+@pytest.mark.display
 @pytest.mark.parametrize("which", ["run", "experiment"])
 def test_reports_render_in_headless_chromium_with_every_image_loaded(
     which, run_folder, experiment_folder, tmp_path

@@ -8,11 +8,6 @@ from cafe_mpc.robots.robot import LEG_NAMES, RobotLoadError, load_robot
 from cafe_mpc.sim.consistency import check_consistency
 
 
-@pytest.fixture(scope="module")
-def mini_cheetah():
-    return load_robot("mini_cheetah")
-
-
 def test_mini_cheetah_planning_model(mini_cheetah):
     robot = mini_cheetah
     assert robot.model.nq == 19 and robot.model.nv == 18

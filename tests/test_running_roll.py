@@ -13,16 +13,10 @@ from cafe_mpc.config import ConfigError
 from cafe_mpc.experiments.sweep import run_experiment
 from cafe_mpc.report.metrics import roll_pitch_yaw
 from cafe_mpc.report.task_metrics import reference_trace, task_from_reference
-from cafe_mpc.robots.robot import load_robot
 from cafe_mpc.sim.bar import Bar, bar_of
 from cafe_mpc.sim.plant import scene_mjcf
 
 DT = 0.005
-
-
-@pytest.fixture(scope="module")
-def robot():
-    return load_robot("mini_cheetah")
 
 
 @pytest.fixture(scope="module")

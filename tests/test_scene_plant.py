@@ -9,15 +9,9 @@ import pytest
 
 from cafe_mpc.assembly import build_controller, build_low_level, build_mpc, load_run_config
 from cafe_mpc.config import ConfigError
-from cafe_mpc.robots.robot import load_robot
 from cafe_mpc.sim.plant import MujocoPlant, scene_mjcf
 from cafe_mpc.sim.randomization import PlantVariation, plant_variation, terrain_geoms
 from cafe_mpc.sim.terrain import Slope, Steps, terrain_height, terrain_pieces
-
-
-@pytest.fixture(scope="module")
-def robot():
-    return load_robot("mini_cheetah")
 
 
 def _ray_height(plant: MujocoPlant, x: float, y: float = 0.0) -> float:

@@ -9,11 +9,6 @@ from cafe_mpc.sim.plant import MujocoPlant, SimulationDiverged
 from cafe_mpc.wbc.pd import PDController
 
 
-@pytest.fixture(scope="module")
-def robot():
-    return load_robot("mini_cheetah")
-
-
 def test_state_round_trip_in_planning_coordinates(robot):
     plant = MujocoPlant(robot)
     rng = np.random.default_rng(0)

@@ -20,16 +20,10 @@ from cafe_mpc.report.task_metrics import (
     task_from_reference,
     task_metrics,
 )
-from cafe_mpc.robots.robot import load_robot
 from cafe_mpc.sim.loop import SimulationLog
 
 DT = 0.002
 TASK = AcrobaticTask("roll", start=0.5, takeoff=0.83, touchdown=1.25, end=1.75)
-
-
-@pytest.fixture(scope="module")
-def robot():
-    return load_robot("mini_cheetah")
 
 
 def roll_log(robot, duration=3.6, final_roll=2.0 * math.pi, z_after=None) -> SimulationLog:

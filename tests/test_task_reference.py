@@ -15,12 +15,6 @@ from cafe_mpc.reference.composition import ComposedReference, heading, quaternio
 from cafe_mpc.reference.locomotion import LocomotionReference
 from cafe_mpc.reference.trajectory import TrajectoryReference, foot_states, quaternion_slerp
 from cafe_mpc.reference.trajectory_file import load_packaged_trajectory
-from cafe_mpc.robots.robot import load_robot
-
-
-@pytest.fixture(scope="module")
-def robot():
-    return load_robot("mini_cheetah")
 
 
 @pytest.fixture(scope="module")

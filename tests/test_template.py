@@ -14,8 +14,8 @@ from cafe_mpc.assembly import load_run_config
 from cafe_mpc.assembly.controllers import build_mpc
 from cafe_mpc.config import ConfigError
 from cafe_mpc.core.measurement import Measurement
+from cafe_mpc.core.physics import GRAVITY
 from cafe_mpc.core.template_plan import TemplatePlan
-from cafe_mpc.dynamics.srb import GRAVITY
 from cafe_mpc.dynamics.statics import static_stance_torques
 from cafe_mpc.experiments.run import run_metrics, simulate_run
 from cafe_mpc.mpc.template import (
@@ -25,15 +25,9 @@ from cafe_mpc.mpc.template import (
     TemplateSettings,
     template_srb,
 )
-from cafe_mpc.robots.robot import load_robot
 from cafe_mpc.wbc.template_low_level import TemplateLowLevelController, stance_torques
 
 LWA = pin.ReferenceFrame.LOCAL_WORLD_ALIGNED
-
-
-@pytest.fixture(scope="module")
-def robot():
-    return load_robot("mini_cheetah")
 
 
 # ------------------------------------------------------------------------------------ stance torque map

@@ -13,12 +13,6 @@ from cafe_mpc.ocp.contact_schedule import get_gait
 from cafe_mpc.ocp.knots import SRBModelFactory, WholeBodyModelFactory
 from cafe_mpc.reference.base import Reference
 from cafe_mpc.reference.locomotion import LocomotionReference
-from cafe_mpc.robots.robot import load_robot
-
-
-@pytest.fixture(scope="module")
-def robot():
-    return load_robot("mini_cheetah")
 
 
 def _builder(robot, schedule=None):

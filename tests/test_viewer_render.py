@@ -22,14 +22,8 @@ import pytest
 from cafe_mpc.config import load_config
 from cafe_mpc.experiments.run import run
 from cafe_mpc.robots.plan_overlay import PlanOverlay, draw_plan
-from cafe_mpc.robots.robot import load_robot
 
 CLI = [sys.executable, "-m", "cafe_mpc.cli"]
-
-
-@pytest.fixture(scope="module")
-def robot():
-    return load_robot("mini_cheetah")
 
 
 @pytest.fixture(scope="module")
@@ -117,6 +111,7 @@ def _with_display(display: str) -> dict[str, str]:
     return environment
 
 
+@pytest.mark.display
 def test_viewer_follows_a_run_under_xvfb_with_the_plan_drawn(tmp_path, xvfb_display):
     out = tmp_path / "run"
     result = subprocess.run(
@@ -165,6 +160,7 @@ viewer.close()
 """
 
 
+@pytest.mark.display
 def test_closing_the_viewer_window_ends_the_run(xvfb_display):
     result = subprocess.run(
         [sys.executable, "-c", CLOSE_WINDOW],
@@ -204,6 +200,7 @@ def _offscreen_gl_or_skip() -> None:
         pytest.skip(f"no off-screen OpenGL here ({type(error).__name__}: {error}); Debian: libosmesa6")
 
 
+@pytest.mark.display
 def test_render_draws_the_plan_into_the_video(tmp_path, robot):
     _offscreen_gl_or_skip()
     import imageio.v2 as imageio

@@ -13,7 +13,6 @@ import pytest
 from cafe_mpc.control.plan_follower import PlanFollower
 from cafe_mpc.core.measurement import Measurement
 from cafe_mpc.core.plan import Plan
-from cafe_mpc.robots.robot import load_robot
 from cafe_mpc.sim.loop import simulate
 from cafe_mpc.wbc.contact_dynamics import (
     FrictionConeScorer,
@@ -29,11 +28,6 @@ SOLVERS = ["proxqp", pytest.param("daqp", marks=pytest.mark.skipif(not HAS_DAQP,
 FOUR = np.ones(4, dtype=bool)
 TROT = np.array([True, False, False, True])
 GENEROUS = np.full(12, 1e3)
-
-
-@pytest.fixture(scope="module")
-def robot():
-    return load_robot("mini_cheetah")
 
 
 def measured(q, v, contacts=FOUR):

@@ -39,6 +39,7 @@ import pinocchio as pin
 
 from cafe_mpc.config.estimation import KinematicKFSettings
 from cafe_mpc.core.measurement import Measurement
+from cafe_mpc.core.physics import GRAVITY_VECTOR
 from cafe_mpc.core.sensors import SensorReadings
 from cafe_mpc.estimation.kernels import (
     NOISE_HEIGHT,
@@ -56,8 +57,6 @@ from cafe_mpc.estimation.kernels import (
 )
 from cafe_mpc.robots.robot import Robot
 
-GRAVITY = np.array([0.0, 0.0, -9.81])
-"""World gravity, m/s^2 (the plant's and the planning model's)."""
 LWA = pin.ReferenceFrame.LOCAL_WORLD_ALIGNED
 
 
@@ -298,7 +297,7 @@ class StateEstimator:
                 mid[1] = f[1] - half * (w[2] * f[0] - w[0] * f[2])
                 mid[2] = f[2] - half * (w[0] * f[1] - w[1] * f[0])
                 np.matmul(self.rotation, mid, out=self.acceleration)
-                self.acceleration += GRAVITY
+                self.acceleration += GRAVITY_VECTOR
                 for foot in range(self.n_feet):
                     self._q_feet[foot] = (
                         dt

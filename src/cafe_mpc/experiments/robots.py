@@ -23,6 +23,7 @@ from pathlib import Path
 import numpy as np
 from pydantic import Field
 
+from cafe_mpc.core.physics import GRAVITY
 from cafe_mpc.experiments.common import GaitPresetNames, RunStore, fall_fields, fell_text, num, pct
 from cafe_mpc.experiments.options import ExperimentOptions, names
 from cafe_mpc.experiments.registry import Experiment, ExperimentPlan, PlanContext, Variant
@@ -37,7 +38,6 @@ STEADY_FROM_S = 3.0
 SPEED_TOLERANCE = 0.1
 """m/s; a run passes when it stays up and its steady-state vx is this close to the command."""
 AT_LIMIT = 0.99
-GRAVITY = 9.81
 
 
 def steady_start(duration: float) -> float:

@@ -32,7 +32,7 @@ from cafe_mpc.core.template_plan import TemplatePlan
 from cafe_mpc.mpc import collector
 from cafe_mpc.reference.base import Reference
 from cafe_mpc.robots.robot import Robot
-from cafe_mpc.solver import MSiLQRSolver, SolverOptions, SolverResult
+from cafe_mpc.solver import MSiLQRSolver, SolverOptions, SolverResult, SolveStatus
 
 logger = logging.getLogger(__name__)
 
@@ -107,7 +107,7 @@ class MpcStatistics:
     line_search_steps: list[int] = field(default_factory=list)
     costs: list[float] = field(default_factory=list)
     defects: list[float] = field(default_factory=list)
-    statuses: list[str] = field(default_factory=list)
+    statuses: list[SolveStatus] = field(default_factory=list)
     prepare_times: list[float] = field(default_factory=list)
     """Real-time iteration: wall time of each preparation (reference, problem, warm start, linearisation,
     backward sweep and, with ``rti_line_search``, the line search)."""
@@ -170,7 +170,7 @@ class MpcStatistics:
             if self.line_search_steps[start:]
             else None,
             "defect_max_median": float(np.median(self.defects)) if self.defects else None,
-            "time_budget_stops": sum(status == "time_budget" for status in self.statuses),
+            "time_budget_stops": sum(status == SolveStatus.TIME_BUDGET for status in self.statuses),
             "pd_fallback_ticks": self.fallback_ticks,
             "prepare_ms_median": float(np.median(self.prepare_times)) * 1e3 if self.prepare_times else None,
             "prepare_ms_p99": float(np.percentile(self.prepare_times, 99)) * 1e3
@@ -312,7 +312,7 @@ class RecedingHorizonPlanner:
             return None
         elapsed = time.perf_counter() - start
         self.statistics.record(t, result, elapsed, problem_time)
-        if result.status == "non_finite" or not result.policy_valid:
+        if result.status == SolveStatus.NON_FINITE or not result.policy_valid:
             self._failed(t, f"it returned {result.status}")
             return None
         return built, result

@@ -24,6 +24,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 import pinocchio as pin
 
+from cafe_mpc.config import DEFAULT_FRICTION
 from cafe_mpc.config.weights import BaseError, SRBWeights, WholeBodyWeights
 from cafe_mpc.core.contacts import ContactFlags, as_contact_flags, flags_to_string, touchdown_flags
 from cafe_mpc.core.interfaces import ActionData, ActionModel, IdentityReset, ResetMap
@@ -237,7 +238,7 @@ class WholeBodyKnot(ActionModel):
         deltas: list[np.ndarray] = []
         epsilons: list[np.ndarray] = []
         self.n_friction = 0
-        self.friction_coefficient = 0.6
+        self.friction_coefficient = DEFAULT_FRICTION
         n_contacts = sum(self.stance)
         if settings is not None and running and settings.friction_cone and n_contacts:
             self.n_friction = n_contacts
@@ -768,7 +769,7 @@ class WholeBodyModelFactory:
 class SRBSettings:
     """Configuration of SRB knots (docs/settings.md). ``parameters``: the SRB's mass and inertia; ``None``:
     from the robot given to ``SRBModelFactory`` (``dynamics.srb.srb_parameters``: legs lumped, rotors
-    included), or the authors' Mini Cheetah values when no robot is given."""
+    included); one of the two is needed."""
 
     dt: float = 0.05
     parameters: SRBParameters | None = None
@@ -783,10 +784,12 @@ class SRBModelFactory:
     def __init__(self, settings: SRBSettings | None = None, robot: Robot | None = None) -> None:
         settings = settings or SRBSettings()
         if settings.parameters is None:
-            parameters = srb_parameters(robot) if robot is not None else SRBParameters()
-            settings = replace(settings, parameters=parameters)
+            if robot is None:
+                raise ValueError("SRBModelFactory needs the robot or SRBSettings.parameters (mass, inertia)")
+            settings = replace(settings, parameters=srb_parameters(robot))
         self.settings = settings
-        self.n_feet = robot.n_feet if robot is not None else 4
+        assert settings.parameters is not None
+        self.n_feet = settings.parameters.n_feet
         self.state = SRBState()
         self._dynamics: dict[float, SRBDynamics] = {}
         self._prototypes: dict[tuple, SRBKnot] = {}

@@ -21,14 +21,14 @@ from dataclasses import dataclass
 import numpy as np
 
 from cafe_mpc.config import VelocityCommand
+from cafe_mpc.core.physics import GRAVITY
+from cafe_mpc.dynamics.leg_inverse_kinematics import LegInverseKinematics
 from cafe_mpc.dynamics.statics import static_stance_torques
 from cafe_mpc.ocp.contact_schedule import TIME_TOLERANCE, ContactPhase, ContactSchedule, GaitCycle
 from cafe_mpc.reference.base import STANCE_TIME_EPS, Reference, ReferenceWindow, switches_inside
-from cafe_mpc.reference.inverse_kinematics import LegInverseKinematics
 from cafe_mpc.reference.kernels import sample_foot
 from cafe_mpc.robots.robot import Robot
 
-GRAVITY = 9.81
 FOOTHOLD_BOX = (0.10, 0.06)
 """m; how far (x, y) a Raibert foothold may move from under the hip (the Mini Cheetah's; other robots' runs
 scale it with the leg length, ``robots.scaling``)."""

@@ -8,8 +8,8 @@ of it as plain values so that a task is a YAML file (``cafe-mpc optimize TASK_OR
 read like a run config: ``config.loading``) and every written trajectory comes with the YAML that made it.
 
 Conventions: contact codes as in ``cafe_mpc.reference.trajectory_file`` (``"FS"``, ``"FT"``, ``"FR-HR"``);
-base weights in the order ``[x, y, z, yaw, pitch, roll]`` (``cafe_mpc.ocp.costs``); keyframe orientations as
-roll, pitch, yaw (``R = Rz(yaw) Ry(pitch) Rx(roll)``) where the roll is *cumulative* (``2 pi`` = one full
+base weights in the order ``[x, y, z, yaw, pitch, roll]`` (``cafe_mpc.config.weights``); keyframe orientations
+as roll, pitch, yaw (``R = Rz(yaw) Ry(pitch) Rx(roll)``) where the roll is *cumulative* (``2 pi`` = one full
 turn), and orientation rates as roll, pitch, yaw rates; joint vectors as 3 values (abad, hip, knee; every
 leg) or 12 (leg order FL, FR, HL, HR).
 """
@@ -24,10 +24,12 @@ import numpy as np
 import yaml
 from pydantic import Field, field_validator, model_validator
 
+from cafe_mpc.config import DEFAULT_FRICTION
 from cafe_mpc.config.loading import ConfigError, StrictModel
 from cafe_mpc.config.weights import WholeBodyWeights
 from cafe_mpc.ocp.constraints import BarrierParameters, WholeBodyConstraintSettings
 from cafe_mpc.reference.trajectory_file import parse_contact_code
+from cafe_mpc.robots.robot import Robot
 from cafe_mpc.solver.options import SolverOptions
 
 Vector3 = tuple[float, float, float]
@@ -190,13 +192,23 @@ class ConstraintSpec(StrictModel):
     stall the line search when they are used from the start).
     """
 
-    torque_limit: float = Field(17.0, gt=0.0, description="|tau| limit (Nm)")
+    torque_limit: float | None = Field(
+        None, gt=0.0, description="|tau| limit of every joint, Nm (null: the robot's joints.torque_limits)"
+    )
     joint_speed_limit: float = Field(20.0, gt=0.0, description="|qdot| limit (rad/s)")
-    friction_coefficient: float = Field(0.6, gt=0.0)
+    friction_coefficient: float = Field(DEFAULT_FRICTION, gt=0.0)
     barriers: BarrierSetSpec = Field(default_factory=_authors_to_barriers)
     warm_up_barriers: BarrierSetSpec | None = Field(default_factory=_mpc_barriers)
 
-    def settings(self, minimum_height: float | None, barriers: BarrierSetSpec) -> WholeBodyConstraintSettings:
+    def torque_limits(self, robot: Robot) -> tuple[float, ...]:
+        """Per-joint ``|tau|`` limits, Nm: ``torque_limit`` on every joint, or the robot's own limits."""
+        if self.torque_limit is None:
+            return tuple(float(limit) for limit in robot.torque_limits)
+        return (float(self.torque_limit),) * robot.nu
+
+    def settings(
+        self, minimum_height: float | None, barriers: BarrierSetSpec, robot: Robot
+    ) -> WholeBodyConstraintSettings:
         """Knot constraint settings (joint speed limits come from the planning robot, see ``multiphase``)."""
         return WholeBodyConstraintSettings(
             friction_coefficient=self.friction_coefficient,
@@ -206,7 +218,7 @@ class ConstraintSpec(StrictModel):
             joint_position_barrier=barriers.joint_position.parameters(),
             joint_velocity_barrier=barriers.joint_speed.parameters(),
             base_height_barrier=barriers.height.parameters(),
-            torque_limit_values=(self.torque_limit,) * 12,
+            torque_limit_values=self.torque_limits(robot),
         )
 
 
