@@ -108,6 +108,7 @@ def test_process_mode_runs_the_mpc_in_its_own_process_and_cleans_up():
     assert not [child for child in multiprocessing.active_children() if child.name == "cafe-mpc-solver"]
 
 
+@pytest.mark.slow
 def test_the_example_runs_against_its_own_mujoco_loop():
     result = subprocess.run(
         [sys.executable, str(EXAMPLE), "--duration", "1.0", "--set", "mpc.latency=fixed"],

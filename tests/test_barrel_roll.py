@@ -55,6 +55,7 @@ def test_bad_reference_section_is_one_clear_error(overrides, message):
     assert "\n" not in str(error.value)
 
 
+@pytest.mark.slow
 def test_closed_loop_barrel_roll_lands_on_its_feet():
     """Fixed latency (20 ms, deterministic), VWBC, 2.3 s: the roll and the landing (about 4 s wall time)."""
     config = load_run_config(

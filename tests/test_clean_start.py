@@ -103,6 +103,7 @@ def test_a_preset_trot_starts_without_the_lurch_and_reports_both_windows():
     assert not math.isnan(steady["pitch_rms"])
 
 
+@pytest.mark.slow
 def test_a_run_ends_without_a_progress_bar_warning(tmp_path, capsys):
     """tqdm warned "clamping frac to range [0, 1]" at the end of every run with a progress bar."""
     config = load_config("stand", ["simulation.duration=10.0", "output.plots=false"])  # 10 s warned, 3 s not

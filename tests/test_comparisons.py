@@ -45,6 +45,7 @@ def check_layout(out, variants, plots: bool) -> dict:
     return comparison
 
 
+@pytest.mark.slow
 def test_schedules_experiment_writes_runs_and_comparison(tmp_path):
     out = tmp_path / "schedules"
     result = run_experiment(
@@ -90,6 +91,7 @@ def test_the_paper_defaults_of_the_new_experiments():
     assert {v.preset for v in trot.variants} == {"trot"}
 
 
+@pytest.mark.slow
 def test_solve_times_and_trot_schedules_run(tmp_path):
     out = tmp_path / "solve"
     result = run_experiment(
@@ -116,6 +118,7 @@ def test_solve_times_and_trot_schedules_run(tmp_path):
     assert (out / "comparison.png").stat().st_size > 10_000  # Fig. 8 traces drawn from the run logs
 
 
+@pytest.mark.slow
 def test_push_experiment_from_the_command_line(tmp_path, capsys):
     out = tmp_path / "push"
     argv = ["experiment", "push", "--duration", "0.2", "--out", str(out), "--set", "pushes.0.start=0.1"]
@@ -135,6 +138,7 @@ def test_push_experiment_from_the_command_line(tmp_path, capsys):
     assert vwbc["torque_limit_violations"] == 0
 
 
+@pytest.mark.slow
 def test_warm_start_experiment(tmp_path):
     plan = plan_of("warm-start", PlanContext())
     assert [v.name for v in plan.variants] == [
@@ -295,6 +299,7 @@ def test_a_variant_that_errors_is_recorded_and_the_others_still_run(tmp_path, ca
     assert not (out / "vwbc").exists()  # an errored run has a row, no folder
 
 
+@pytest.mark.slow
 def test_latency_experiment_sweeps_two_latencies_and_a_period(tmp_path):
     """``experiment latency``: one variant per fixed latency and per period (here two and one), each with its
     timing in the row and a success verdict; the command that reproduces it; a bad option is one error."""

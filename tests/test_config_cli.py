@@ -46,6 +46,7 @@ def test_unknown_preset_and_missing_file():
         load_run_config("missing.yaml")
 
 
+@pytest.mark.slow
 def test_cli_run_writes_what_it_promises(tmp_path, capsys):
     out = tmp_path / "stand"
     assert main(["run", "stand", "--duration", "0.5", "--out", str(out)]) == 0
@@ -82,6 +83,7 @@ def test_cli_errors_are_one_line_and_leave_nothing(tmp_path, capsys):
     assert main(["robot", "no_such_robot"]) == 2
 
 
+@pytest.mark.slow
 def test_cli_robot_json(capsys):
     assert main(["robot", "mini_cheetah", "--json", "--samples", "2"]) == 0
     summary = json.loads(capsys.readouterr().out)

@@ -315,6 +315,7 @@ def test_srb_parameters_come_from_the_robot_model(robot):
     assert srb_parameters(bare).mass == pytest.approx(bare.total_mass)
 
 
+@pytest.mark.slow
 def test_srb_parameters_of_go1_are_its_own():
     go1 = load_robot("go1")
     parameters = srb_parameters(go1)

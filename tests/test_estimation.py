@@ -308,6 +308,7 @@ def test_the_controller_gets_the_estimate_not_the_plant_state(robot):
     assert sensing.trace()["estimate_q"].shape == (10, robot.nq)
 
 
+@pytest.mark.slow
 def test_a_closed_loop_trot_with_the_estimator_stays_up():
     from cafe_mpc.experiments.run import run_metrics, simulate_run
 

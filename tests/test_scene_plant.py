@@ -101,6 +101,7 @@ def test_mpc_friction_is_the_controllers_own_and_independent_of_the_plant(robot)
     assert build_low_level(default, robot).settings.mu == 0.6
 
 
+@pytest.mark.slow
 def test_a_trot_climbs_low_steps(tmp_path):
     """Terrain in a closed loop: 2 cm steps under a flat-ground plan; the feet stand on them, nobody falls."""
     from cafe_mpc.experiments.run import simulate_run

@@ -112,6 +112,7 @@ def _with_display(display: str) -> dict[str, str]:
 
 
 @pytest.mark.display
+@pytest.mark.slow
 def test_viewer_follows_a_run_under_xvfb_with_the_plan_drawn(tmp_path, xvfb_display):
     out = tmp_path / "run"
     result = subprocess.run(
@@ -173,6 +174,7 @@ def test_closing_the_viewer_window_ends_the_run(xvfb_display):
     assert result.stdout.strip() == "False the viewer window was closed"
 
 
+@pytest.mark.slow
 def test_viewer_without_a_display_is_one_clear_line(tmp_path):
     environment = {
         key: value for key, value in os.environ.items() if key not in ("DISPLAY", "WAYLAND_DISPLAY")
@@ -201,6 +203,7 @@ def _offscreen_gl_or_skip() -> None:
 
 
 @pytest.mark.display
+@pytest.mark.slow
 def test_render_draws_the_plan_into_the_video(tmp_path, robot):
     _offscreen_gl_or_skip()
     import imageio.v2 as imageio
