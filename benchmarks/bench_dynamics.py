@@ -25,7 +25,7 @@ import numpy as np
 import pinocchio as pin
 
 from cafe_mpc.dynamics.impact import ImpactReset
-from cafe_mpc.dynamics.srb import SRBDynamics, SRBState
+from cafe_mpc.dynamics.srb import SRBDynamics, SRBState, srb_parameters
 from cafe_mpc.dynamics.whole_body import WholeBodyDynamics
 from cafe_mpc.ocp.knots import SRBModelFactory, WholeBodyModelFactory
 from cafe_mpc.robots.robot import Robot, load_robot
@@ -103,9 +103,9 @@ def run(robot_name: str, repeats: int) -> dict:
     feet = robot.foot_positions(robot.q_standing)
     contacts = np.array([1.0, 0.0, 0.0, 1.0])
     forces = 20.0 * rng.standard_normal(12)
-    srb = SRBDynamics(dt=0.05)
+    srb = SRBDynamics(srb_parameters(robot), dt=0.05)
     srb_data = srb.create_data()
-    srb_factory = SRBModelFactory()
+    srb_factory = SRBModelFactory(robot=robot)
     srb_knot = srb_factory.running_knot(srb_factory.reference(xs, feet, (1, 0, 0, 1)))
     srb_knot_data = srb_knot.create_data()
     results["SRB"] = {

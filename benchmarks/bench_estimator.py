@@ -21,11 +21,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from cafe_mpc.assembly import build_controller
 from cafe_mpc.config import load_config
 from cafe_mpc.core.measurement import Measurement
 from cafe_mpc.core.sensors import SensorReadings
 from cafe_mpc.estimation.estimator import StateEstimator
-from cafe_mpc.experiments.controllers import build_controller
 from cafe_mpc.robots.robot import load_robot
 from cafe_mpc.sim.loop import Push, simulate
 

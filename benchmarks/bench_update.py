@@ -123,9 +123,18 @@ def record(preset: str, duration: float, overrides: list[str]) -> list[Call]:
     return calls
 
 
+def _builders(package: str):
+    """The module with ``build_mpc``: ``assembly.controllers``, or ``experiments.controllers`` in a copy of a
+    commit from before the assembly layer."""
+    try:
+        return _import(package, "assembly.controllers")
+    except ModuleNotFoundError:
+        return _import(package, "experiments.controllers")
+
+
 def build(variant: Variant, preset: str, duration: float, common: list[str]) -> None:
     config_module = _import(variant.package, "config")
-    controllers = _import(variant.package, "experiments.controllers")
+    controllers = _builders(variant.package)
     robots = _import(variant.package, "robots.robot")
     config = config_module.load_config(
         preset,

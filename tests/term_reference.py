@@ -16,6 +16,7 @@ from collections.abc import Sequence
 import numpy as np
 import pinocchio as pin
 
+from cafe_mpc.config.weights import BaseError, WholeBodyWeights, leg_weights, weight_vector
 from cafe_mpc.core.contacts import as_contact_flags, flags_to_string
 from cafe_mpc.core.interfaces import ActionData, ActionModel
 from cafe_mpc.dynamics.kinematics import FootKinematics
@@ -23,7 +24,6 @@ from cafe_mpc.dynamics.multibody_state import MultibodyState
 from cafe_mpc.dynamics.whole_body import WholeBodyDynamics
 from cafe_mpc.ocp.barrier import RelaxedBarrier
 from cafe_mpc.ocp.constraints import BarrierParameters, WholeBodyConstraintSettings, friction_pyramid_matrix
-from cafe_mpc.ocp.costs import BaseError, WholeBodyWeights, _leg_weights, _weight_vector
 from cafe_mpc.ocp.knots import WholeBodyReference
 from cafe_mpc.robots.robot import Robot
 
@@ -106,7 +106,7 @@ class StateTrackingCost(WholeBodyCostTerm):
         self.model = model
         self.nq, self.nv = model.nq, model.nv
         self.dim = 2 * model.nv
-        self.weights = _weight_vector(weights, self.dim, "state weights")
+        self.weights = weight_vector(weights, self.dim, "state weights")
         self.base_error = base_error
         nv = self.nv
         # Rows/columns whose Jacobian is not the identity: the base pose (0:6) always, the base velocity
@@ -197,8 +197,8 @@ class SwingFootPositionCost(WholeBodyCostTerm):
         self.legs = self.position_legs
         self.nv = nv
         self.dim = 3 * len(self.legs)
-        leg_weights = _leg_weights(weights, "swing foot position weights").reshape(4, 3)
-        self.weights = leg_weights[list(self.legs)].reshape(-1)
+        per_leg = leg_weights(weights, "swing foot position weights").reshape(4, 3)
+        self.weights = per_leg[list(self.legs)].reshape(-1)
 
     def calc(self, td, kd, x, u, ref) -> float:
         kin = kd.kinematics
@@ -229,8 +229,8 @@ class SwingFootVelocityCost(WholeBodyCostTerm):
         self.legs = self.velocity_legs
         self.nv = nv
         self.dim = 3 * len(self.legs)
-        leg_weights = _leg_weights(weights, "swing foot velocity weights").reshape(4, 3)
-        self.weights = leg_weights[list(self.legs)].reshape(-1)
+        per_leg = leg_weights(weights, "swing foot velocity weights").reshape(4, 3)
+        self.weights = per_leg[list(self.legs)].reshape(-1)
 
     def calc(self, td, kd, x, u, ref) -> float:
         kin = kd.kinematics
@@ -253,7 +253,7 @@ class TorqueRegularisationCost(WholeBodyCostTerm):
     needs_control = True
 
     def __init__(self, weights: np.ndarray) -> None:
-        self.weights = _weight_vector(weights, 12, "torque weights")
+        self.weights = weight_vector(weights, 12, "torque weights")
         self.dim = 12
         self._flat_diagonal = np.arange(12) * 13
 
@@ -619,7 +619,7 @@ class TermKnot(ActionModel):
     Args:
         robot: the robot.
         dynamics: the phase dynamics (sets ``nu = 12`` and the time step), or ``None`` for a terminal knot.
-        costs: cost terms (``cafe_mpc.ocp.costs``), summed and multiplied by ``dt`` on running knots.
+        costs: cost terms (weights: ``cafe_mpc.config.weights``), summed, times ``dt`` on running knots.
         constraints: inequality terms (``cafe_mpc.ocp.constraints``); ``eps B(g)``, times ``dt`` if running.
         reference: this knot's mutable reference.
         stance: stance flags of a terminal knot (a running knot takes the dynamics').

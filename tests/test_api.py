@@ -13,7 +13,8 @@ import pytest
 
 import cafe_mpc
 from cafe_mpc.api import Controller
-from cafe_mpc.config import ConfigError, load_config
+from cafe_mpc.assembly import load_run_config
+from cafe_mpc.config import ConfigError
 
 ROOT = Path(__file__).resolve().parents[1]
 EXAMPLE = ROOT / "examples" / "mujoco_loop.py"
@@ -81,10 +82,10 @@ def test_bad_uses_are_clear_errors():
     with pytest.raises(ConfigError, match="mode must be"):
         Controller("trot", mode="thread")  # type: ignore[arg-type]
     with pytest.raises(ConfigError, match="overrides apply"):
-        Controller(load_config("trot"), ["mpc.period=0.03"])
+        Controller(load_run_config("trot"), ["mpc.period=0.03"])
     with pytest.raises(ConfigError, match=r"mpc\.friction"):
         Controller("trot", ["mpc.friction=0"])
-    controller = Controller(load_config("trot"))
+    controller = Controller(load_run_config("trot"))
     measurement = controller.measurement(controller.standing_qpos(), np.zeros(controller.robot.nv))
     with pytest.raises(RuntimeError, match="reset"):
         controller.compute(0.0, measurement)
@@ -93,6 +94,7 @@ def test_bad_uses_are_clear_errors():
         controller.reset(measurement)
 
 
+@pytest.mark.realtime
 def test_process_mode_runs_the_mpc_in_its_own_process_and_cleans_up():
     import multiprocessing
 
@@ -106,6 +108,7 @@ def test_process_mode_runs_the_mpc_in_its_own_process_and_cleans_up():
     assert not [child for child in multiprocessing.active_children() if child.name == "cafe-mpc-solver"]
 
 
+@pytest.mark.slow
 def test_the_example_runs_against_its_own_mujoco_loop():
     result = subprocess.run(
         [sys.executable, str(EXAMPLE), "--duration", "1.0", "--set", "mpc.latency=fixed"],

@@ -7,20 +7,21 @@ import math
 
 import pytest
 
-from cafe_mpc.config import ConfigError, load_config
-from cafe_mpc.experiments.controllers import mpc_settings
+from cafe_mpc.assembly import load_run_config
+from cafe_mpc.config import ConfigError
 from cafe_mpc.experiments.run import run
+from cafe_mpc.mpc.planner import update_solve_options
 
 
 def test_preset_loads_with_its_reference_section():
-    config = load_config("barrel-roll")
+    config = load_run_config("barrel-roll")
     assert config.gait is None and config.wbc == "vwbc" and config.torque_limits == "motor"
     kinds = [segment.kind for segment in config.reference.segments]
     assert kinds == ["stand", "trajectory", "stand"]
     assert config.reference.costs.running.base_position == (0.0, 0.0, 15.0, 5.0, 5.0, 5.0)
-    assert load_config("barrel-roll", ["wbc=riccati"]).wbc == "riccati"
-    assert mpc_settings(config).update_solve.al_max_penalty == 20.0
-    assert mpc_settings(load_config("trot")).update_solve.al_max_penalty == 1e4  # the authors' default
+    assert load_run_config("barrel-roll", ["wbc=riccati"]).wbc == "riccati"
+    assert update_solve_options(config.mpc).al_max_penalty == 20.0
+    assert update_solve_options(load_run_config("trot").mpc).al_max_penalty == 1e4  # the authors' default
 
 
 @pytest.mark.parametrize(
@@ -50,13 +51,14 @@ def test_preset_loads_with_its_reference_section():
 )
 def test_bad_reference_section_is_one_clear_error(overrides, message):
     with pytest.raises(ConfigError, match=message.replace("(", r"\(").replace(".", r"\.")) as error:
-        load_config("barrel-roll", overrides)
+        load_run_config("barrel-roll", overrides)
     assert "\n" not in str(error.value)
 
 
+@pytest.mark.slow
 def test_closed_loop_barrel_roll_lands_on_its_feet():
     """Fixed latency (20 ms, deterministic), VWBC, 2.3 s: the roll and the landing (about 4 s wall time)."""
-    config = load_config(
+    config = load_run_config(
         "barrel-roll",
         ["mpc.latency=fixed", "simulation.duration=2.3", "output.plots=false"],
     )

@@ -10,22 +10,16 @@ import warnings
 import numpy as np
 import pytest
 
-from cafe_mpc.config import load_config
+from cafe_mpc.config import VelocityCommand, load_config
 from cafe_mpc.experiments.run import run, run_metrics, simulate_run
-from cafe_mpc.reference.locomotion import CommandProfile, LocomotionReference, VelocityCommand
+from cafe_mpc.reference.locomotion import CommandProfile, LocomotionReference
 from cafe_mpc.report.metrics import body_rates, commanded_at
-from cafe_mpc.robots.robot import load_robot
 
 COMMANDS = [
-    VelocityCommand(0.0, 0.5, 0.1, 0.3),
-    VelocityCommand(1.0, 0.8, 0.0, -0.2),
-    VelocityCommand(1.2, 0.0, 0.3, 0.5, 0.3),
+    VelocityCommand(start=0.0, vx=0.5, vy=0.1, yaw_rate=0.3),
+    VelocityCommand(start=1.0, vx=0.8, vy=0.0, yaw_rate=-0.2),
+    VelocityCommand(start=1.2, vx=0.0, vy=0.3, yaw_rate=0.5, height=0.3),
 ]
-
-
-@pytest.fixture(scope="module")
-def robot():
-    return load_robot("mini_cheetah")
 
 
 def _integrated(profile: CommandProfile, t0: float, t1: float, steps: int = 48000):
@@ -75,7 +69,7 @@ def test_the_locomotion_reference_follows_the_ramp(robot):
     from cafe_mpc.ocp.contact_schedule import get_gait
 
     reference = LocomotionReference(
-        robot, get_gait("trot"), [VelocityCommand(0.0, 0.5)], start_stance=0.2, command_ramp=0.5
+        robot, get_gait("trot"), [VelocityCommand(start=0.0, vx=0.5)], start_stance=0.2, command_ramp=0.5
     )
     q, v = reference.base_state(0.1)
     assert v[0] == 0.0 and q[0] == pytest.approx(0.0)  # standing still during the start stance
@@ -109,6 +103,7 @@ def test_a_preset_trot_starts_without_the_lurch_and_reports_both_windows():
     assert not math.isnan(steady["pitch_rms"])
 
 
+@pytest.mark.slow
 def test_a_run_ends_without_a_progress_bar_warning(tmp_path, capsys):
     """tqdm warned "clamping frac to range [0, 1]" at the end of every run with a progress bar."""
     config = load_config("stand", ["simulation.duration=10.0", "output.plots=false"])  # 10 s warned, 3 s not

@@ -20,6 +20,7 @@ DURATION = 1.5
     ("preset", "wbc"),
     [("trot", "riccati"), ("trot", "vwbc"), ("bound", "vwbc")],
 )
+@pytest.mark.slow
 def test_gait_stays_up_and_moves_forward(preset, wbc):
     config = load_config(
         preset,

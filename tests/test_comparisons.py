@@ -13,8 +13,9 @@ import pytest
 
 from cafe_mpc.cli import main
 from cafe_mpc.config import ConfigError
+from cafe_mpc.experiments.catalog import experiment_names, get_experiment
 from cafe_mpc.experiments.comparison import COMPARISON_FILES
-from cafe_mpc.experiments.registry import PlanContext, experiment_names, get_experiment
+from cafe_mpc.experiments.registry import ExperimentPlan, PlanContext
 from cafe_mpc.experiments.results_table import RESULTS_FILE, ResultsTable
 from cafe_mpc.experiments.sweep import run_experiment
 from cafe_mpc.experiments.warm_start import iteration_shares
@@ -44,6 +45,7 @@ def check_layout(out, variants, plots: bool) -> dict:
     return comparison
 
 
+@pytest.mark.slow
 def test_schedules_experiment_writes_runs_and_comparison(tmp_path):
     out = tmp_path / "schedules"
     result = run_experiment(
@@ -69,20 +71,27 @@ def test_schedules_experiment_writes_runs_and_comparison(tmp_path):
     assert (out / "traces.png").is_file()
 
 
+def plan_of(name: str, context: PlanContext) -> ExperimentPlan:
+    """The runs of experiment ``name`` with its default options."""
+    experiment = get_experiment(name)
+    return experiment.plan(experiment.options_from({}), context)
+
+
 def test_the_paper_defaults_of_the_new_experiments():
     context = PlanContext()
-    schedules = get_experiment("schedules").plan({}, context)
+    schedules = plan_of("schedules", context)
     assert len(schedules.variants) == 18  # Table I (9 schedules) x dts in {0.01, 0.05}
     assert schedules.variants[0].name == "S0-dt0.01" and schedules.variants[-1].name == "S20-dt0.05"
-    solve = get_experiment("solve-times").plan({}, context)
+    solve = plan_of("solve-times", context)
     assert [v.name for v in solve.variants[:5]] == [f"pace-S{i}" for i in range(5)]
     assert {v.preset for v in solve.variants} == {"pace", "flying-trot", "pronk"}
     assert all("mpc.srb_dt=0.05" in v.overrides for v in solve.variants)
-    trot = get_experiment("trot-schedules").plan({}, context)
+    trot = plan_of("trot-schedules", context)
     assert [v.name for v in trot.variants] == ["S0", "S1", "S2", "S3", "S4"]
     assert {v.preset for v in trot.variants} == {"trot"}
 
 
+@pytest.mark.slow
 def test_solve_times_and_trot_schedules_run(tmp_path):
     out = tmp_path / "solve"
     result = run_experiment(
@@ -109,6 +118,7 @@ def test_solve_times_and_trot_schedules_run(tmp_path):
     assert (out / "comparison.png").stat().st_size > 10_000  # Fig. 8 traces drawn from the run logs
 
 
+@pytest.mark.slow
 def test_push_experiment_from_the_command_line(tmp_path, capsys):
     out = tmp_path / "push"
     argv = ["experiment", "push", "--duration", "0.2", "--out", str(out), "--set", "pushes.0.start=0.1"]
@@ -128,8 +138,9 @@ def test_push_experiment_from_the_command_line(tmp_path, capsys):
     assert vwbc["torque_limit_violations"] == 0
 
 
+@pytest.mark.slow
 def test_warm_start_experiment(tmp_path):
-    plan = get_experiment("warm-start").plan({}, PlanContext())
+    plan = plan_of("warm-start", PlanContext())
     assert [v.name for v in plan.variants] == [
         f"{gait}-{mode}" for gait in ("bound", "pace") for mode in ("previous", "plan", "none")
     ]
@@ -188,6 +199,31 @@ def test_experiment_help_and_list_show_the_registry(capsys):
     assert main(["experiment", "--list"]) == 0
     listing = capsys.readouterr().out
     assert all(name in listing for name in names) and "--srb-dts" in listing and "--trials" in listing
+
+
+def test_each_experiment_help_shows_its_own_options(capsys):
+    """``cafe-mpc experiment NAME --help``: the sweep options and that experiment's, no other's."""
+    with pytest.raises(SystemExit):
+        main(["experiment", "push", "--help"])
+    push = capsys.readouterr().out
+    assert "--scheduler" in push and "--resume" in push
+    assert "--schedules" not in push and "--trials" not in push and "--task" not in push
+    with pytest.raises(SystemExit):
+        main(["experiment", "reliability", "--help"])
+    reliability = capsys.readouterr().out
+    assert "--trials" in reliability and "--keep-logs" in reliability and "--schedules" not in reliability
+
+
+def test_experiment_options_are_typed():
+    """Options parse into the experiment's model: lists become tuples of values, flags booleans."""
+    reliability = get_experiment("reliability").options_from(
+        {"task": "bound", "seeds": "7,12", "keep_logs": True}
+    )
+    assert reliability.seeds == (7, 12) and reliability.keep_logs and reliability.trial_seeds == [7, 12]
+    latency = get_experiment("latency").options_from({"task": "bound", "latencies": "none", "repeats": "3"})
+    assert latency.latencies == () and latency.repeats == 3 and latency.periods[0] == pytest.approx(0.015)
+    schedules = get_experiment("schedules").options_from({"srb_dts": [0.05]})
+    assert schedules.srb_dts == (0.05,) and schedules.schedules[0] == "S0"
 
 
 @pytest.mark.parametrize(
@@ -264,6 +300,7 @@ def test_a_variant_that_errors_is_recorded_and_the_others_still_run(tmp_path, ca
     assert not (out / "vwbc").exists()  # an errored run has a row, no folder
 
 
+@pytest.mark.slow
 def test_latency_experiment_sweeps_two_latencies_and_a_period(tmp_path):
     """``experiment latency``: one variant per fixed latency and per period (here two and one), each with its
     timing in the row and a success verdict; the command that reproduces it; a bad option is one error."""

@@ -5,17 +5,18 @@ import json
 import pytest
 import yaml
 
+from cafe_mpc.assembly import load_run_config
 from cafe_mpc.cli import main
-from cafe_mpc.config import ConfigError, load_config
+from cafe_mpc.config import ConfigError
 
 
 def test_preset_loads_and_overrides_apply():
-    config = load_config(
+    config = load_run_config(
         "stand", ["simulation.duration=1.5", "pushes=[{start: 0.5, duration: 0.05, force: [10, 0, 0]}]"]
     )
     assert config.simulation.duration == 1.5
     assert config.pushes[0].force == (10.0, 0.0, 0.0)
-    config = load_config("stand", ["pushes=[{start: 0.5, duration: 0.1, velocity_change: [1, 0, 0]}]"])
+    config = load_run_config("stand", ["pushes=[{start: 0.5, duration: 0.1, velocity_change: [1, 0, 0]}]"])
     assert config.pushes[0].force_on(8.0) == pytest.approx((80.0, 0.0, 0.0))
 
 
@@ -35,16 +36,17 @@ def test_preset_loads_and_overrides_apply():
 )
 def test_bad_config_values_name_the_key(overrides, message):
     with pytest.raises(ConfigError, match=message.replace("(", r"\(")):
-        load_config("stand", overrides)
+        load_run_config("stand", overrides)
 
 
 def test_unknown_preset_and_missing_file():
     with pytest.raises(ConfigError, match="unknown preset 'trott'"):
-        load_config("trott")
+        load_run_config("trott")
     with pytest.raises(ConfigError, match="does not exist"):
-        load_config("missing.yaml")
+        load_run_config("missing.yaml")
 
 
+@pytest.mark.slow
 def test_cli_run_writes_what_it_promises(tmp_path, capsys):
     out = tmp_path / "stand"
     assert main(["run", "stand", "--duration", "0.5", "--out", str(out)]) == 0
@@ -81,6 +83,7 @@ def test_cli_errors_are_one_line_and_leave_nothing(tmp_path, capsys):
     assert main(["robot", "no_such_robot"]) == 2
 
 
+@pytest.mark.slow
 def test_cli_robot_json(capsys):
     assert main(["robot", "mini_cheetah", "--json", "--samples", "2"]) == 0
     summary = json.loads(capsys.readouterr().out)

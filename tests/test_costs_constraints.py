@@ -7,12 +7,11 @@ import numpy as np
 import pinocchio as pin
 import pytest
 
+from cafe_mpc.config.weights import SRBWeights, WholeBodyWeights, base_weights_to_tangent
 from cafe_mpc.ocp.barrier import RelaxedBarrier
 from cafe_mpc.ocp.constraints import TouchdownFootHeight, WholeBodyConstraintSettings, friction_pyramid_matrix
-from cafe_mpc.ocp.costs import SRBWeights, WholeBodyWeights, base_weights_to_tangent
 from cafe_mpc.ocp.kernels import relaxed_barrier
 from cafe_mpc.ocp.knots import WholeBodyKnot, WholeBodyModelFactory, WholeBodyReference, WholeBodySettings
-from cafe_mpc.robots.robot import load_robot
 from term_reference import (
     StateTrackingCost,
     SwingFootPositionCost,
@@ -23,11 +22,6 @@ from term_reference import (
 )
 
 EPS = 1e-6
-
-
-@pytest.fixture(scope="module")
-def robot():
-    return load_robot("mini_cheetah")
 
 
 @pytest.fixture(scope="module")

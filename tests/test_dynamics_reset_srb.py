@@ -13,15 +13,14 @@ from cafe_mpc.dynamics.impact import ImpactReset
 from cafe_mpc.dynamics.multibody_state import MultibodyState
 from cafe_mpc.dynamics.srb import SRBDynamics, SRBParameters, SRBState, quaternion_to_rotation, srb_parameters
 from cafe_mpc.dynamics.transition import ComposedReset, WholeBodyToSRB
-from cafe_mpc.ocp.knots import SRBModelFactory, WholeBodyModelFactory, weight_split_forces
+from cafe_mpc.ocp.knots import SRBModelFactory, SRBSettings, WholeBodyModelFactory, weight_split_forces
 from cafe_mpc.robots.robot import load_robot
 
 EPS = 1e-6
 
 
-@pytest.fixture(scope="module")
-def robot():
-    return load_robot("mini_cheetah")
+PAPER_MINI_CHEETAH_SRB = SRBParameters(8.912, ((0.0616, 0.0, 0.0), (0.0, 0.2207, 0.0), (0.0, 0.0, 0.2726)))
+"""The CAFE-MPC authors' Mini Cheetah SRB (8.912 kg with rotors, legs lumped; docs/settings.md): test data."""
 
 
 def random_wb_state(robot, rng, spread=0.3, speed=1.0):
@@ -193,7 +192,7 @@ def test_srb_state_manifold():
 @pytest.mark.parametrize("contacts", [(1, 1, 1, 1), (1, 0, 0, 1), (0, 0, 1, 0), (0, 0, 0, 0)])
 def test_srb_dynamics_jacobians(contacts):
     rng = np.random.default_rng(5)
-    dynamics = SRBDynamics(dt=0.05)
+    dynamics = SRBDynamics(PAPER_MINI_CHEETAH_SRB, dt=0.05)
     data = dynamics.create_data()
     state = dynamics.state
     x, u = random_srb_state(rng), 20.0 * rng.standard_normal(12)
@@ -218,7 +217,7 @@ def test_srb_dynamics_jacobians(contacts):
 
 def test_srb_free_fall():
     """Eq. (29) with no contact: c_ddot = -g, omega_dot = -I^-1 (omega x I omega) (zero for omega = 0)."""
-    dynamics = SRBDynamics(dt=0.05)
+    dynamics = SRBDynamics(PAPER_MINI_CHEETAH_SRB, dt=0.05)
     data = dynamics.create_data()
     x = SRBState().zero()
     x[2] = 1.0
@@ -232,7 +231,7 @@ def test_srb_free_fall():
 
 def test_srb_static_balance():
     """Weight split over four feet placed symmetrically about the COM: no acceleration at all."""
-    parameters = SRBParameters()
+    parameters = PAPER_MINI_CHEETAH_SRB
     dynamics = SRBDynamics(parameters, dt=0.05)
     data = dynamics.create_data()
     x = SRBState().zero()
@@ -248,17 +247,19 @@ def test_srb_static_balance():
 
 def test_srb_parameters_validation():
     with pytest.raises(ValueError):
-        SRBParameters(mass=0.0)
+        replace(PAPER_MINI_CHEETAH_SRB, mass=0.0)
     with pytest.raises(ValueError):
-        SRBParameters(inertia=((1.0, 0.0, 0.0), (0.0, -1.0, 0.0), (0.0, 0.0, 1.0)))
+        replace(PAPER_MINI_CHEETAH_SRB, inertia=((1.0, 0.0, 0.0), (0.0, -1.0, 0.0), (0.0, 0.0, 1.0)))
     with pytest.raises(ValueError):
-        SRBDynamics(dt=0.0)
+        SRBDynamics(PAPER_MINI_CHEETAH_SRB, dt=0.0)
+    with pytest.raises(ValueError, match="needs the robot"):
+        SRBModelFactory()
 
 
 @pytest.mark.parametrize("terminal", [False, True])
 def test_srb_knot_gradient(terminal):
     rng = np.random.default_rng(6)
-    factory = SRBModelFactory()
+    factory = SRBModelFactory(SRBSettings(parameters=PAPER_MINI_CHEETAH_SRB))
     reference = factory.reference(random_srb_state(rng), rng.standard_normal((4, 3)), (1, 0, 0, 1))
     knot = factory.terminal_knot(reference) if terminal else factory.running_knot(reference)
     data = knot.create_data()
@@ -314,13 +315,14 @@ def test_srb_parameters_come_from_the_robot_model(robot):
     assert srb_parameters(bare).mass == pytest.approx(bare.total_mass)
 
 
+@pytest.mark.slow
 def test_srb_parameters_of_go1_are_its_own():
     go1 = load_robot("go1")
     parameters = srb_parameters(go1)
     assert go1.rotor_mass == 0.0  # Go1's URDF has its rotors as links
     assert parameters.mass == pytest.approx(go1.total_mass)
-    assert parameters.mass > 12.0 and parameters.mass != pytest.approx(SRBParameters().mass)
-    assert not np.allclose(parameters.inertia_matrix, SRBParameters().inertia_matrix, atol=1e-2)
+    assert parameters.mass > 12.0 and parameters.mass != pytest.approx(PAPER_MINI_CHEETAH_SRB.mass)
+    assert not np.allclose(parameters.inertia_matrix, PAPER_MINI_CHEETAH_SRB.inertia_matrix, atol=1e-2)
 
 
 def test_compiled_so3_maths_matches_pinocchio():

@@ -11,15 +11,9 @@ import pytest
 
 from cafe_mpc.dynamics.multibody_state import MultibodyState
 from cafe_mpc.dynamics.whole_body import ContactDynamicsError, WholeBodyDynamics
-from cafe_mpc.robots.robot import load_robot
 
 ALL_STANCES = list(itertools.product((False, True), repeat=4))
 EPS = 1e-6
-
-
-@pytest.fixture(scope="module")
-def robot():
-    return load_robot("mini_cheetah")
 
 
 def random_state(robot, rng, spread=0.3, speed=1.0):

@@ -17,21 +17,15 @@ import pinocchio as pin
 import pytest
 from scipy.spatial.transform import Rotation
 
-from cafe_mpc.config import ConfigError, load_config
+from cafe_mpc.assembly import load_run_config
+from cafe_mpc.config import ConfigError, EncoderSpec, ImuSpec, KinematicKFSettings
 from cafe_mpc.core.sensors import SensorReadings
 from cafe_mpc.estimation.estimator import StateEstimator, leg_velocity_indices
-from cafe_mpc.estimation.settings import KinematicKFSettings
-from cafe_mpc.robots.robot import load_robot
 from cafe_mpc.sim.plant import MujocoPlant
-from cafe_mpc.sim.sensors import EncoderSpec, ImuSpec, SensorSpec, SensorSuite
+from cafe_mpc.sim.sensors import SensorSpec, SensorSuite, sensor_spec
 
 DT = 0.002
 LWA = pin.ReferenceFrame.LOCAL_WORLD_ALIGNED
-
-
-@pytest.fixture(scope="module")
-def robot():
-    return load_robot("mini_cheetah")
 
 
 @dataclass
@@ -110,7 +104,9 @@ def synthetic_readings(
 def run_estimator(robot, readings, settings=None, plan=None) -> tuple[np.ndarray, StateEstimator]:
     """World-frame base velocity estimate at every reading. The synthetic feet are points (the foot frame
     stays put while the shank turns), so the filter's rolling-sphere correction is off."""
-    estimator = StateEstimator(robot, replace(settings or KinematicKFSettings(), rolling_foot=False))
+    estimator = StateEstimator(
+        robot, (settings or KinematicKFSettings()).model_copy(update={"rolling_foot": False})
+    )
     estimator.reset((0.0, 0.0))
     velocities = np.zeros((len(readings), 3))
     for row, reading in enumerate(readings):
@@ -181,8 +177,8 @@ def test_a_foot_in_swing_is_ignored_and_in_flight_the_imu_alone_counts(robot):
 
 def ideal_spec(average: bool = False) -> SensorSpec:
     return SensorSpec(
-        ImuSpec(500.0, 0.0, (0.0, 0.0, 0.0), 0.0, (0.0, 0.0, 0.0), 0.0, (0.0, 0.0, 0.0), average),
-        EncoderSpec(0.0, 0.0, 0.0, 0.0, 0.0, 0.0),
+        ImuSpec(gyro_noise=0.0, accelerometer_noise=0.0, orientation_noise=0.0, average=average),
+        EncoderSpec(position_resolution=0.0, velocity_resolution=0.0, torque_resolution=0.0),
     )
 
 
@@ -202,8 +198,15 @@ def test_sensor_suite_reads_mujoco_sensors_with_noise_bias_quantisation_and_dela
     assert np.allclose(np.abs(readings.orientation), np.abs(state.q[3:7]))
     assert readings.accelerometer[2] == pytest.approx(9.81, abs=0.3)  # standing: gravity, upwards
     spec = SensorSpec(
-        ImuSpec(500.0, 0.01, (0.02, 0.0, 0.0), 0.05, (0.0, 0.1, 0.0), 0.01, (0.0, 0.0, 0.0), False),
-        EncoderSpec(0.0, 0.0, 0.0, 25.0 / 65535.0, 130.0 / 4095.0, 36.0 / 4095.0),
+        ImuSpec(
+            gyro_noise=0.01,
+            gyro_bias=(0.02, 0.0, 0.0),
+            accelerometer_noise=0.05,
+            accelerometer_bias=(0.0, 0.1, 0.0),
+            orientation_noise=0.01,
+            average=False,
+        ),
+        EncoderSpec(),  # the Mini Cheetah's CAN resolutions, no noise
         seed=4,
     )
     suite = SensorSuite(robot.nu, spec, 500.0)
@@ -235,30 +238,32 @@ def test_sensor_suite_reads_mujoco_sensors_with_noise_bias_quantisation_and_dela
     first = suite.read(plant).gyro.copy()
     assert np.array_equal(first, SensorSuite(robot.nu, spec, 500.0).read(plant).gyro)
     with pytest.raises(ValueError, match="rate_hz"):
-        SensorSuite(robot.nu, replace(spec, imu=replace(spec.imu, rate_hz=1000.0)), 500.0)
+        SensorSuite(robot.nu, replace(spec, imu=spec.imu.model_copy(update={"rate_hz": 1000.0})), 500.0)
 
 
 def test_estimator_config_is_validated_at_the_boundary():
     with pytest.raises(ConfigError, match=r"plant\.sensor_noise perturbs the true state"):
-        load_config("trot", ["estimator=kinematic_kf", "plant.sensor_noise.base_position=0.01"])
+        load_run_config("trot", ["estimator=kinematic_kf", "plant.sensor_noise.base_position=0.01"])
     with pytest.raises(ConfigError, match=r"kinematic_kf\.trust_window"):
-        load_config("trot", ["kinematic_kf.trust_window=0.8"])
+        load_run_config("trot", ["kinematic_kf.trust_window=0.8"])
     with pytest.raises(ConfigError, match=r"plant\.sensors\.imu\.gyro_bias"):
-        load_config("trot", ["plant.sensors.imu.gyro_bias=[2, 0, 0]"])
+        load_run_config("trot", ["plant.sensors.imu.gyro_bias=[2, 0, 0]"])
     with pytest.raises(ConfigError, match="estimator"):
-        load_config("trot", ["estimator=magic"])
+        load_run_config("trot", ["estimator=magic"])
     with pytest.raises(
         ConfigError, match=r"plant\.sensors\.imu\.rate_hz: 1000.0 Hz is above the control rate"
     ):
-        load_config("trot", ["plant.sensors.imu.rate_hz=1000"])
-    config = load_config("trot", ["estimator=kinematic_kf", "kinematic_kf.slip_threshold=null"])
-    assert config.kinematic_kf.settings().slip_threshold is None
+        load_run_config("trot", ["plant.sensors.imu.rate_hz=1000"])
+    config = load_run_config("trot", ["estimator=kinematic_kf", "kinematic_kf.slip_threshold=null"])
+    assert config.kinematic_kf.slip_threshold is None
 
 
 def test_orientation_from_the_imu_matches_the_truth_in_a_short_closed_loop(robot):
     from cafe_mpc.experiments.run import run_metrics, simulate_run
 
-    config = load_config("stand", ["estimator=kinematic_kf", "simulation.duration=0.6", "output.plots=false"])
+    config = load_run_config(
+        "stand", ["estimator=kinematic_kf", "simulation.duration=0.6", "output.plots=false"]
+    )
     _, controller, log = simulate_run(config)
     assert not log.fell
     estimate = log.extra["estimate_q"]
@@ -294,7 +299,7 @@ def test_the_controller_gets_the_estimate_not_the_plant_state(robot):
             seen.append(measurement)
             return self.pd.compute(t, measurement, None)
 
-    spec = load_config("stand", ["estimator=kinematic_kf"]).plant.sensor_spec(500.0)
+    spec = sensor_spec(load_run_config("stand", ["estimator=kinematic_kf"]).plant, 500.0)
     estimator = StateEstimator(robot)
     sensing = SensingController(Spy(), estimator, capacity=10)
     log = simulate(robot, sensing, 0.02, sensors=SensorSuite(robot.nu, spec, 500.0))
@@ -303,11 +308,12 @@ def test_the_controller_gets_the_estimate_not_the_plant_state(robot):
     assert sensing.trace()["estimate_q"].shape == (10, robot.nq)
 
 
+@pytest.mark.slow
 def test_a_closed_loop_trot_with_the_estimator_stays_up():
     from cafe_mpc.experiments.run import run_metrics, simulate_run
 
     duration = 1.5
-    config = load_config(
+    config = load_run_config(
         "trot",
         [
             "estimator=kinematic_kf",

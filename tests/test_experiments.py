@@ -12,14 +12,16 @@ import sys
 import numpy as np
 import pytest
 
+from cafe_mpc.assembly import load_run_config
+from cafe_mpc.assembly.problem import model_schedule
 from cafe_mpc.cli import main
-from cafe_mpc.config import ConfigError, available_presets, load_config
+from cafe_mpc.config import ConfigError, VelocityCommand, available_presets
 from cafe_mpc.control.mpc_loop import CafeMpcController
 from cafe_mpc.core.measurement import Measurement
 from cafe_mpc.dynamics.srb import srb_parameters
-from cafe_mpc.experiments.controllers import LowLevelRecorder, build_controller, low_level_of
+from cafe_mpc.experiments.controllers import LowLevelRecorder, build_run_controller, low_level_of
 from cafe_mpc.experiments.run import run
-from cafe_mpc.reference.locomotion import VelocityCommand, quaternion_from_yaw
+from cafe_mpc.reference.locomotion import quaternion_from_yaw
 from cafe_mpc.report.metrics import (
     METRICS_WINDOW_START_S,
     foot_slip_max,
@@ -35,11 +37,6 @@ from cafe_mpc.wbc.synthetic import synthetic_plan
 from cafe_mpc.wbc.vwbc import VWBCController
 
 GAIT_PRESETS = ["trot", "pace", "bound", "pronk", "flying-trot", "trot-commands", "bound-push"]
-
-
-@pytest.fixture(scope="module")
-def robot():
-    return load_robot("mini_cheetah")
 
 
 # ------------------------------------------------------------------------------------------- config
@@ -80,21 +77,23 @@ def robot():
 )
 def test_bad_gait_config_names_the_key(overrides, message):
     with pytest.raises(ConfigError, match=message.replace("(", r"\(")) as error:
-        load_config("bound", overrides)
+        load_run_config("bound", overrides)
     assert "\n" not in str(error.value)
 
 
 def test_gait_names_overrides_and_defaults():
-    config = load_config("stand", ["wbc=riccati", "gait.name=flying-trot", "gait.commands.0.vx=0.8"])
+    config = load_run_config("stand", ["wbc=riccati", "gait.name=flying-trot", "gait.commands.0.vx=0.8"])
     assert config.gait is not None and config.gait.name == "flying_trot"
     assert config.gait.commands[0].vx == 0.8
-    config = load_config("stand", ["wbc=vwbc", "gait={name: pace}"])
+    config = load_run_config("stand", ["wbc=vwbc", "gait={name: pace}"])
     assert config.gait.commands[0].vx == 0.5  # default command
     assert config.vwbc.solver == "daqp" and config.vwbc.warm_start == "previous"
-    config = load_config("bound", ["mpc.schedule=null", "mpc.whole_body_horizon=0.2", "mpc.srb_horizon=0.3"])
-    schedule = config.mpc.model_schedule()
+    config = load_run_config(
+        "bound", ["mpc.schedule=null", "mpc.whole_body_horizon=0.2", "mpc.srb_horizon=0.3"]
+    )
+    schedule = model_schedule(config.mpc)
     assert (schedule.whole_body_knots, schedule.srb_knots) == (20, 6)
-    stand = load_config("stand")
+    stand = load_run_config("stand")
     assert stand.wbc == "pd" and stand.gait is None
     # the authors' regular weights are the cost defaults
     assert tuple(stand.costs.running.base_position) == (0.0, 0.0, 10.0, 1.0, 2.0, 2.0)
@@ -103,15 +102,15 @@ def test_gait_names_overrides_and_defaults():
 
 @pytest.mark.parametrize("preset", sorted(set(available_presets()) | set(GAIT_PRESETS)))
 def test_every_preset_loads_and_builds_its_controller(robot, preset):
-    config = load_config(preset)
-    controller = build_controller(config, robot)
+    config = load_run_config(preset)
+    controller = build_run_controller(config, robot)
     if config.wbc == "pd":
         assert isinstance(controller, PDController)
         return
     assert isinstance(controller, CafeMpcController)
     expected = {"riccati": RiccatiController, "vwbc": VWBCController}[config.wbc]
     assert isinstance(low_level_of(controller), expected)
-    assert controller.builder.schedule == config.mpc.model_schedule()
+    assert controller.builder.schedule == model_schedule(config.mpc)
     assert controller.settings.period == config.mpc.period
     if config.gait is not None:  # presets with a reference section (barrel-roll) have no gait
         assert controller.reference.commands[0].vx == config.gait.commands[0].vx
@@ -119,23 +118,24 @@ def test_every_preset_loads_and_builds_its_controller(robot, preset):
 
 def test_gait_presets_match_the_issues():
     for preset in ("trot", "pace", "bound", "pronk", "flying-trot"):
-        config = load_config(preset)
+        config = load_run_config(preset)
         assert config.wbc == "vwbc" and config.mpc.schedule == "S4"
         assert config.simulation.duration == 10.0
         assert [(c.start, c.vx, c.vy, c.yaw_rate) for c in config.gait.commands] == [(0.0, 0.5, 0.0, 0.0)]
-    commands = load_config("trot-commands").gait.commands
+    commands = load_run_config("trot-commands").gait.commands
     assert max(c.vx for c in commands) == 0.8
     assert any(c.vy == 0.3 for c in commands) and any(c.yaw_rate == 0.5 for c in commands)
-    push = load_config("bound-push")
+    push = load_run_config("bound-push")
     assert push.gait.name == "bound" and push.gait.commands[0].vx == 0.5
     assert push.simulation.duration == 5.0
     assert (push.pushes[0].start, push.pushes[0].duration) == (2.0, 0.05)
     assert push.pushes[0].velocity_change == (1.5, 0.0, 0.0)
 
 
+@pytest.mark.slow
 def test_go1_plans_its_srb_tail_with_its_own_mass_and_inertia(robot):
     go1 = load_robot("go1")
-    controller = build_controller(load_config("trot", ["robot=go1", "simulation.duration=1"]), go1)
+    controller = build_run_controller(load_run_config("trot", ["robot=go1", "simulation.duration=1"]), go1)
     own = srb_parameters(go1)
     factory = controller.builder.srb
     assert factory.settings.parameters == own
@@ -147,15 +147,15 @@ def test_go1_plans_its_srb_tail_with_its_own_mass_and_inertia(robot):
     assert dynamics.mass == pytest.approx(own.mass) and dynamics.mass > 12.0
     np.testing.assert_allclose(dynamics.inertia, own.inertia_matrix)
     # and the Mini Cheetah's own: the authors' mass, its lumped inertia
-    mini = build_controller(load_config("trot"), robot).builder.srb.settings.parameters
+    mini = build_run_controller(load_run_config("trot"), robot).builder.srb.settings.parameters
     assert mini.mass == pytest.approx(8.912) and mini == srb_parameters(robot)
 
 
 def test_overrides_reach_the_controller(robot):
-    config = load_config(
+    config = load_run_config(
         "bound", ["wbc=riccati", "mpc.schedule=S0", "costs.running.torque=0.3", "gait.swing_height=0.08"]
     )
-    controller = build_controller(config, robot)
+    controller = build_run_controller(config, robot)
     assert isinstance(low_level_of(controller), RiccatiController)
     assert controller.builder.schedule.srb_knots == 0
     assert controller.builder.whole_body.settings.running_weights.torque == 0.3
@@ -165,15 +165,18 @@ def test_overrides_reach_the_controller(robot):
 def test_start_stance_reaches_the_reference(robot):
     gait_presets = ("trot", "pace", "bound", "bound-push", "pronk", "flying-trot", "trot-commands")
     for preset in gait_presets:  # every gait starts from a short stand, then ramps in its commands
-        assert load_config(preset).gait.start_stance == 0.2
-        assert load_config(preset).gait.command_ramp == 0.5
-    assert load_config("stand", ["wbc=riccati", "gait.name=pace"]).gait.start_stance == 0.0  # the default
-    assert load_config("stand", ["wbc=riccati", "gait.name=pace"]).gait.command_ramp == 0.0
-    config = load_config("trot", ["gait.start_stance=0.35"])
+        assert load_run_config(preset).gait.start_stance == 0.2
+        assert load_run_config(preset).gait.command_ramp == 0.5
+    assert load_run_config("stand", ["wbc=riccati", "gait.name=pace"]).gait.start_stance == 0.0  # the default
+    assert load_run_config("stand", ["wbc=riccati", "gait.name=pace"]).gait.command_ramp == 0.0
+    config = load_run_config("trot", ["gait.start_stance=0.35"])
     assert config.gait.start_stance == 0.35
-    reference = build_controller(config, robot).reference
+    reference = build_run_controller(config, robot).reference
     assert reference.start_stance == 0.35 and reference.cycle_start == 0.35
-    assert build_controller(load_config("trot", ["gait.start_stance=0"]), robot).reference.start_stance == 0.0
+    assert (
+        build_run_controller(load_run_config("trot", ["gait.start_stance=0"]), robot).reference.start_stance
+        == 0.0
+    )
 
 
 def test_run_help_lists_presets(capsys):
@@ -212,9 +215,11 @@ def straight_line(robot, speed: float, yaw: float, seconds: float = 1.0, dt: flo
 def test_tracking_of_a_constant_velocity_log_is_exact(robot, yaw):
     q, v = straight_line(robot, 0.5, yaw)
     log = synthetic_log(robot, q, v)
-    metrics = tracking_metrics(robot, log, [VelocityCommand(0.0, 0.5)], window_start=METRICS_WINDOW_START_S)
+    metrics = tracking_metrics(
+        robot, log, [VelocityCommand(start=0.0, vx=0.5)], window_start=METRICS_WINDOW_START_S
+    )
     assert metrics["metrics_window_start_s"] == 0.5
-    whole = tracking_metrics(robot, log, [VelocityCommand(0.0, 0.5)])  # the default: the whole run
+    whole = tracking_metrics(robot, log, [VelocityCommand(start=0.0, vx=0.5)])  # the default: the whole run
     assert whole["metrics_window_start_s"] == 0.0 and whole["vx_rms_error"] == pytest.approx(0.0, abs=1e-9)
     assert metrics["vx_mean"] == pytest.approx(0.5)
     for key in ("vx_rms_error", "vy_rms_error", "yaw_rate_rms_error", "height_rms_error"):
@@ -226,7 +231,10 @@ def test_tracking_of_a_constant_velocity_log_is_exact(robot, yaw):
 def test_tracking_errors_against_changing_commands(robot):
     q, v = straight_line(robot, 0.5, 0.0, seconds=2.0)
     v[:, 5] = 0.2  # yaw rate about the (level) body z axis
-    commands = [VelocityCommand(0.0, 0.5), VelocityCommand(1.0, 0.8, yaw_rate=0.2, height=0.27)]
+    commands = [
+        VelocityCommand(start=0.0, vx=0.5),
+        VelocityCommand(start=1.0, vx=0.8, yaw_rate=0.2, height=0.27),
+    ]
     metrics = tracking_metrics(
         robot, synthetic_log(robot, q, v), commands, window_start=METRICS_WINDOW_START_S
     )
@@ -325,18 +333,19 @@ def test_recorder_preallocates_and_grows(robot):
     assert np.all(np.isnan(requested[[0, 7, 8]])) and not stance[[0, 7, 8]].any()  # ticks not served
     assert np.all(stance[1:7] == [True, False, False, True])
     # a run's recorder is sized for its ticks
-    controller = build_controller(load_config("trot", ["simulation.duration=1.5"]), robot)
+    controller = build_run_controller(load_run_config("trot", ["simulation.duration=1.5"]), robot)
     assert len(controller.low_level._times) >= 750
 
 
+@pytest.mark.slow
 def test_imports_and_runs_leave_global_state_alone(tmp_path):
     """No ``matplotlib.use`` at import (the plots draw on their own Agg canvases), and a run that logs to
     its folder restores the package logger's level."""
     code = (
         "import matplotlib\n"
-        "import cafe_mpc.experiments.registry, cafe_mpc.experiments.sweep, cafe_mpc.report.plots\n"
+        "import cafe_mpc.experiments.catalog, cafe_mpc.experiments.sweep, cafe_mpc.report.plots\n"
         "import cafe_mpc.cli\n"
-        "cafe_mpc.experiments.registry.experiments()\n"
+        "cafe_mpc.experiments.catalog.experiments()\n"
         "print(matplotlib.get_backend())\n"
     )
     environment = {**os.environ, "MPLBACKEND": "svg"}
@@ -346,7 +355,7 @@ def test_imports_and_runs_leave_global_state_alone(tmp_path):
     assert backend == "svg"
     package_logger = logging.getLogger("cafe_mpc")
     before = package_logger.level
-    config = load_config("stand", ["simulation.duration=0.05", "output.plots=true"])
+    config = load_run_config("stand", ["simulation.duration=0.05", "output.plots=true"])
     result = run(config, tmp_path / "run")
     assert (tmp_path / "run" / "base_height.png").is_file() and (tmp_path / "run" / "run.log").is_file()
     assert package_logger.level == before and result.metrics["fell"] is False

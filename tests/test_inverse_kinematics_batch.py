@@ -17,7 +17,7 @@ import numpy as np
 import pinocchio as pin
 import pytest
 
-from cafe_mpc.reference.inverse_kinematics import (
+from cafe_mpc.dynamics.leg_inverse_kinematics import (
     LegChainError,
     LegInverseKinematics,
     _chain_kinematics,
@@ -168,12 +168,8 @@ def ik(robot: Robot) -> LegInverseKinematics:
     return LegInverseKinematics(robot)
 
 
-@pytest.fixture(scope="module")
-def mini_cheetah() -> Robot:
-    return load_robot("mini_cheetah")
-
-
 # ------------------------------------------------------------------------------------ tests
+@pytest.mark.slow
 def test_compiled_path_is_used(ik):
     """Both robots fit the compiled path (otherwise the comparisons below would compare Pinocchio with
     itself): a kinematics extraction that disagrees with Pinocchio switches it off and fails here."""

@@ -6,11 +6,18 @@ modules, and between the packages of one layer, has no cycle. Every ``import`` s
 level, inside functions and methods, in ``try`` blocks. Exempt: imports under ``if TYPE_CHECKING:`` (they
 never run; they only name types for annotations, which ``from __future__ import annotations`` keeps
 unevaluated). The check reads the sources with ``ast``; nothing is imported.
+
+Besides the order: the settings schema (``config``) imports no other package of ``cafe_mpc``; the library
+front end (``api``) and the assembly (``assembly``: a config -> its controller) reach neither the experiment
+harness, the report, the simulator (``sim``) nor MuJoCo, through any chain of imports (and a subprocess that
+builds a ``cafe_mpc.Controller`` shows MuJoCo never loaded).
 """
 
 from __future__ import annotations
 
 import ast
+import subprocess
+import sys
 from pathlib import Path
 
 import pytest
@@ -19,6 +26,7 @@ PACKAGE = "cafe_mpc"
 SOURCE = Path(__file__).resolve().parents[1] / "src" / PACKAGE
 
 LAYERS: list[tuple[str, ...]] = [
+    ("config",),  # the settings schema: run configs, weights, estimator tuning, loading (no domain imports)
     ("core",),  # per-knot solver interface, contact flags, Measurement, Plan, controller interfaces
     ("robots",),  # robot tables, URDF/MJCF generation, Robot
     ("dynamics",),  # whole-body and SRB models, impact, transition, statics, SRB parameters of a robot
@@ -27,8 +35,10 @@ LAYERS: list[tuple[str, ...]] = [
     ("reference", "mpc", "trajopt"),  # locomotion reference; CAFE problem + warm start; offline TO
     ("wbc", "estimation"),  # low-level controllers: PD, Riccati (33), VWBC (34); the state estimator
     ("control",),  # closed loops: the MPC loop over a low-level controller, a plan follower
+    ("assembly",),  # a config -> its controller (planner, low level, real-time and estimator front ends)
+    ("api",),  # the library front end (cafe_mpc.Controller): no simulator below it
     ("sim",),  # MuJoCo plant, closed-loop simulation, Pinocchio-vs-MuJoCo consistency
-    ("experiments", "report", "bench", "config", "api"),  # runs, metrics, plots, benchmarks, configs, library
+    ("experiments", "report", "bench"),  # runs, metrics, plots, benchmarks
     ("cli",),  # the cafe-mpc command
 ]
 """Layers from the bottom up; a name is a subpackage (``cafe_mpc/<name>/``) or a module (``<name>.py``)."""
@@ -94,6 +104,43 @@ def imported_modules(source: str, module: str, is_package: bool, known: set[str]
         if name in known and name != module:
             own.add(name)
     return own
+
+
+def external_imports(source: str, module_level_only: bool = False) -> set[str]:
+    """Top-level names of the packages outside ``cafe_mpc`` that ``source`` imports (``import mujoco`` ->
+    ``mujoco``), anywhere or only at module level; ``if TYPE_CHECKING:`` blocks are exempt."""
+    found: set[str] = set()
+
+    def visit(node: ast.AST, depth: int) -> None:
+        if isinstance(node, ast.If) and _is_type_checking(node.test):
+            for child in node.orelse:
+                visit(child, depth)
+            return
+        if isinstance(node, ast.Import):
+            found.update(alias.name.split(".")[0] for alias in node.names)
+        elif isinstance(node, ast.ImportFrom) and node.level == 0 and node.module:
+            found.add(node.module.split(".")[0])
+        inside = isinstance(node, ast.FunctionDef | ast.AsyncFunctionDef | ast.Lambda)
+        if module_level_only and inside:
+            return
+        for child in ast.iter_child_nodes(node):
+            visit(child, depth + inside)
+
+    visit(ast.parse(source), 0)
+    return found - {PACKAGE}
+
+
+def reachable(graph: dict[str, set[str]], starts: set[str]) -> set[str]:
+    """Every module of the package that ``starts`` import, directly or through others."""
+    seen: set[str] = set()
+    todo = list(starts)
+    while todo:
+        module = todo.pop()
+        for target in graph.get(module, ()):
+            if target not in seen:
+                seen.add(target)
+                todo.append(target)
+    return seen
 
 
 def import_graph(sources: dict[str, tuple[str, bool]]) -> dict[str, set[str]]:
@@ -204,6 +251,88 @@ def test_no_import_cycle_between_packages(graph):
     assert not found, "package cycles (within a layer):\n" + "\n".join(" <-> ".join(c) for c in found)
 
 
+FRONT_ENDS = ("api", "assembly")
+"""What turns a config into a controller without a simulator: the library front end and the assembly."""
+FORBIDDEN_FOR_FRONT_ENDS = ("experiments", "report", "sim", "cli", "bench")
+"""Packages the front ends must not reach: the harness, the report, the simulator and the commands."""
+
+
+def test_the_config_schema_imports_no_domain_package(graph):
+    found = sorted(
+        f"{module} imports {target}"
+        for module, targets in graph.items()
+        if component(module) == "config"
+        for target in targets
+        if component(target) != "config"
+    )
+    assert not found, "the config schema must not import the library:\n" + "\n".join(found)
+
+
+def test_the_api_and_the_assembly_reach_neither_harness_nor_simulator(graph):
+    starts = {module for module in graph if component(module) in FRONT_ENDS}
+    found = sorted(
+        module for module in reachable(graph, starts) if component(module) in FORBIDDEN_FOR_FRONT_ENDS
+    )
+    assert not found, f"api/assembly reach: {found}"
+
+
+def test_the_api_and_the_assembly_never_import_mujoco():
+    """Not in their own modules (anywhere), nor at module level in anything they import: MuJoCo is the
+    simulator's (a robot given as an MJCF file is converted with it, inside ``robots.model_file``)."""
+    sources = package_sources()
+    graph = import_graph(sources)
+    own = {module for module in sources if component(module) in FRONT_ENDS}
+    direct = sorted(module for module in own if "mujoco" in external_imports(sources[module][0]))
+    assert not direct, f"import mujoco in {direct}"
+    loaded = sorted(
+        module
+        for module in reachable(graph, own) | own
+        if "mujoco" in external_imports(sources[module][0], module_level_only=True)
+    )
+    assert not loaded, f"api/assembly load mujoco through {loaded}"
+
+
+def test_building_a_library_controller_loads_no_simulator_nor_harness():
+    code = (
+        "import sys\n"
+        "import cafe_mpc\n"
+        "controller = cafe_mpc.Controller('trot', ['mpc.latency=fixed'])\n"
+        "bad = [m for m in sys.modules if m == 'mujoco' or m.startswith(('mujoco.', 'cafe_mpc.experiments', "
+        "'cafe_mpc.sim', 'cafe_mpc.report'))]\n"
+        "print(bad)\n"
+    )
+    output = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
+    assert output.strip() == "[]", output
+
+
+def _loaded_after_import(modules: list[str]) -> list[str]:
+    """``sys.modules`` of a fresh interpreter after importing ``modules`` (and nothing else)."""
+    code = "import importlib, sys\n" + "".join(f"importlib.import_module({m!r})\n" for m in modules)
+    code += "print('\\n'.join(sorted(sys.modules)))\n"
+    output = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
+    return output.split()
+
+
+def test_importing_the_api_and_the_assembly_loads_no_simulator_nor_harness():
+    """Every module of ``api`` and ``assembly`` imported in a fresh interpreter: neither MuJoCo nor the
+    harness, the report or the simulator is in ``sys.modules`` (imports at module level, transitively)."""
+    sources = package_sources()
+    front = sorted(module for module in sources if component(module) in FRONT_ENDS)
+    loaded = _loaded_after_import(front)
+    forbidden = tuple(f"{PACKAGE}.{name}" for name in FORBIDDEN_FOR_FRONT_ENDS)
+    bad = [m for m in loaded if m == "mujoco" or m.startswith(("mujoco.", *forbidden))]
+    assert not bad, f"importing api/assembly loads {bad}"
+
+
+def test_importing_the_config_schema_loads_no_domain_package():
+    """``cafe_mpc.config`` and its modules load no other package of ``cafe_mpc`` (nor MuJoCo)."""
+    sources = package_sources()
+    schema = sorted(module for module in sources if component(module) == "config")
+    loaded = _loaded_after_import(schema)
+    bad = [m for m in loaded if m == "mujoco" or (m.startswith(PACKAGE + ".") and component(m) != "config")]
+    assert not bad, f"importing the config schema loads {bad}"
+
+
 def test_the_checker_catches_upward_imports_cycles_and_function_level_imports():
     """The checks themselves, on a small made-up package."""
     sources = {
@@ -229,7 +358,13 @@ def test_the_checker_catches_upward_imports_cycles_and_function_level_imports():
     assert graph["cafe_mpc.ocp.c"] == {"cafe_mpc.ocp.b", "cafe_mpc.wbc.d"}
     assert graph["cafe_mpc.wbc.d"] == {"cafe_mpc.ocp.b"}
     assert upward_imports(graph) == [
-        "cafe_mpc.ocp.c (layer 3: ocp) imports cafe_mpc.wbc.d (layer 6: wbc)",
+        f"cafe_mpc.ocp.c (layer {LAYER_OF['ocp']}: ocp) imports cafe_mpc.wbc.d "
+        f"(layer {LAYER_OF['wbc']}: wbc)",
     ]
     assert cycles(graph) == [["cafe_mpc.wbc.e", "cafe_mpc.wbc.f"]]
     assert cycles(component_graph(graph)) == [["ocp", "wbc"]]
+    # what the front ends reach, and where a third-party package is imported
+    assert reachable(graph, {"cafe_mpc.ocp.c"}) == {"cafe_mpc.ocp.b", "cafe_mpc.wbc.d", "cafe_mpc.core.a"}
+    assert external_imports("import numpy\ndef f():\n    import mujoco\n") == {"numpy", "mujoco"}
+    assert external_imports("def f():\n    import mujoco\n", module_level_only=True) == set()
+    assert external_imports("from mujoco import viewer\n", module_level_only=True) == {"mujoco"}

@@ -63,6 +63,7 @@ def _mujoco_qpos(q: np.ndarray) -> np.ndarray:
 
 @needs_gym
 @pytest.mark.parametrize("name", GYM_ROBOTS)
+@pytest.mark.slow
 def test_model_file_gives_mujocos_mass_inertia_and_kinematics(name):
     """Pinocchio's model of the file against MuJoCo's compilation of the same file (not our plant): total
     and per-body mass, every body's position and orientation, the joint-space mass matrix with the file's
@@ -117,6 +118,7 @@ def _welded(model: mujoco.MjModel, body: int) -> list[int]:
 
 @needs_gym
 @pytest.mark.parametrize("name", GYM_ROBOTS)
+@pytest.mark.slow
 def test_plant_from_the_same_file_agrees_with_the_planning_model(name):
     robot = load_robot(name)
     result = check_consistency(robot, samples=2, seed=1)

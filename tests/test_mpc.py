@@ -5,22 +5,18 @@ import itertools
 import numpy as np
 import pytest
 
+from cafe_mpc.config import VelocityCommand
 from cafe_mpc.control.mpc_loop import CafeMpcController, MpcSettings
 from cafe_mpc.core.measurement import Measurement
 from cafe_mpc.dynamics.statics import static_stance_torques
+from cafe_mpc.mpc.planner import first_solve_options, update_solve_options
 from cafe_mpc.mpc.problem import CafeProblemBuilder, ModelSchedule, WarmStart
 from cafe_mpc.ocp.contact_schedule import get_gait
 from cafe_mpc.ocp.knots import SRBModelFactory, WholeBodyModelFactory
-from cafe_mpc.reference.locomotion import LocomotionReference, VelocityCommand
-from cafe_mpc.robots.robot import load_robot
+from cafe_mpc.reference.locomotion import LocomotionReference
 from cafe_mpc.sim.loop import simulate
 from cafe_mpc.solver import MSiLQRSolver
 from cafe_mpc.wbc.riccati import RiccatiController
-
-
-@pytest.fixture(scope="module")
-def robot():
-    return load_robot("mini_cheetah")
 
 
 def _builder(robot, schedule):
@@ -28,7 +24,7 @@ def _builder(robot, schedule):
 
 
 def _reference(robot, gait, vx=0.5):
-    reference = LocomotionReference(robot, get_gait(gait), [VelocityCommand(0.0, vx)])
+    reference = LocomotionReference(robot, get_gait(gait), [VelocityCommand(start=0.0, vx=vx)])
     reference.update(0.0, robot.q_standing, np.zeros(robot.nv))
     return reference
 
@@ -64,7 +60,7 @@ def test_warm_start_shifts_by_time_and_rolls_out_after_impacts(robot):
     reference = _reference(robot, "trot")
     first = builder.build(0.0, robot.x_standing, reference)
     guess = WarmStart().guess(first, None, None)
-    solution = MSiLQRSolver(MpcSettings(latency="fixed").update_solve).solve(
+    solution = MSiLQRSolver(update_solve_options(MpcSettings(latency="fixed"))).solve(
         first.problem, guess.xs, guess.us, guess.rollout
     )
     second = builder.build(0.02, solution.phases[0].xs[2], reference)
@@ -97,7 +93,7 @@ def _mpc_updates(robot, builder_for, solver_for, updates=8, gait="trot"):
     for i in range(updates):
         built = builder_for(i).build(0.02 * i, x, reference)
         guess = WarmStart().guess(built, *(previous or (None, None)))
-        options = settings.first_solve if i == 0 else settings.update_solve
+        options = first_solve_options() if i == 0 else update_solve_options(settings)
         result = solver_for(i, options).solve(
             built.problem,
             guess.xs,
@@ -215,6 +211,7 @@ def test_plans_take_effect_after_their_latency(robot, latency, scheme):
     np.testing.assert_array_equal(np.array(low_level.contacts), log.contacts)
 
 
+@pytest.mark.realtime
 def test_measured_latency_never_uses_a_plan_before_it_exists(robot):
     """Measured mode, one-phase: a plan takes effect at the first control tick after its update's real wall
     time, never earlier; while the worker is busy no other update starts; the latencies are recorded."""
@@ -238,9 +235,10 @@ def test_measured_latency_never_uses_a_plan_before_it_exists(robot):
     for earlier, later in itertools.pairwise(starts[1:]):
         assert later >= earlier + max(0.02, update_times[earlier]) - 1e-9
     assert len(statistics.latencies) == len(low_level.activations)
-    assert controller.settings.update_solve.time_budget == pytest.approx(0.018)
+    assert update_solve_options(controller.settings).time_budget == pytest.approx(0.018)
 
 
+@pytest.mark.realtime
 @pytest.mark.parametrize("compute_scale", [1.0, 3.0])
 def test_measured_real_time_iteration_pays_its_feedback_and_its_preparations(robot, compute_scale):
     """Measured mode, real-time iteration: a plan takes effect at the first tick after its update time plus

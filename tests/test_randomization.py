@@ -10,10 +10,12 @@ import numpy as np
 import pytest
 import yaml
 
-from cafe_mpc.config import ConfigError, load_config
+from cafe_mpc.assembly import load_run_config
+from cafe_mpc.config import ConfigError, SensorNoise
 from cafe_mpc.core.measurement import Measurement
 from cafe_mpc.dynamics.srb import srb_parameters
-from cafe_mpc.experiments.registry import PlanContext, get_experiment
+from cafe_mpc.experiments.catalog import get_experiment
+from cafe_mpc.experiments.registry import PlanContext
 from cafe_mpc.experiments.reliability import (
     RandomizationRanges,
     reliability_summary,
@@ -25,12 +27,7 @@ from cafe_mpc.experiments.run import simulate_run
 from cafe_mpc.experiments.sweep import run_experiment
 from cafe_mpc.robots.robot import load_robot
 from cafe_mpc.sim.plant import MujocoPlant
-from cafe_mpc.sim.randomization import PlantVariation, SensorModel, SensorNoise
-
-
-@pytest.fixture(scope="module")
-def robot():
-    return load_robot("mini_cheetah")
+from cafe_mpc.sim.randomization import PlantVariation, SensorModel
 
 
 def test_wilson_interval_matches_known_values():
@@ -75,7 +72,7 @@ def test_a_plant_variation_changes_the_plant(robot):
 
 
 def test_randomisation_never_touches_the_controllers_model(robot):
-    varied = load_config(
+    varied = load_run_config(
         "trot",
         [
             "simulation.duration=0.1",
@@ -135,11 +132,11 @@ def test_the_sensor_model_delays_in_order_and_adds_noise(robot):
 
 def test_plant_config_errors_name_the_key():
     with pytest.raises(ConfigError, match=r"plant\.link_mass_scales: one factor or 12"):
-        load_config("trot", ["plant.link_mass_scales=[1.0, 1.0]"])
+        load_run_config("trot", ["plant.link_mass_scales=[1.0, 1.0]"])
     with pytest.raises(ConfigError, match=r"plant\.floor_friction"):
-        load_config("trot", ["plant.floor_friction=-1"])
+        load_run_config("trot", ["plant.floor_friction=-1"])
     with pytest.raises(ConfigError, match=r"factors must be in \[0.5, 1.5\]"):
-        load_config("trot", ["plant.motor_strength_scales=3"])
+        load_run_config("trot", ["plant.motor_strength_scales=3"])
 
 
 def test_reliability_trials_are_drawn_from_their_seed():
@@ -155,16 +152,18 @@ def test_reliability_trials_are_drawn_from_their_seed():
         assert all(0.9 <= s <= 1.1 for s in plant["motor_strength_scales"]) and plant["seed"] == seed
         assert 2.5 <= push["start"] <= 7.5 and np.hypot(*push["velocity_change"][:2]) <= 0.5 + 1e-9
     experiment = get_experiment("reliability")
-    plan = experiment.plan({"task": "bound-push", "trials": "3", "seed": "5"}, PlanContext())
+    plan = experiment.plan(
+        experiment.options_from({"task": "bound-push", "trials": "3", "seed": "5"}), PlanContext()
+    )
     assert [v.name for v in plan.variants] == ["trial-0005", "trial-0006", "trial-0007"]
     assert plan.drop_files == ("log.npz",) and plan.options == {
         "--task": "bound-push",
         "--trials": "3",
         "--seed": "5",
     }
-    alone = experiment.plan({"task": "bound-push", "seeds": "7"}, PlanContext())
+    alone = experiment.plan(experiment.options_from({"task": "bound-push", "seeds": "7"}), PlanContext())
     assert alone.variants[0] == plan.variants[2]  # a trial re-runs alone from its seed
-    config = load_config("bound-push", list(plan.variants[0].overrides))
+    config = load_run_config("bound-push", list(plan.variants[0].overrides))
     assert len(config.pushes) == 2  # the preset's push, then the random one
     assert config.plant.floor_friction == dict(plan.variants[0].fields)["floor_friction"]
 
@@ -172,16 +171,17 @@ def test_reliability_trials_are_drawn_from_their_seed():
 def test_reliability_ranges_from_a_file(tmp_path):
     path = tmp_path / "ranges.yaml"
     path.write_text(yaml.safe_dump({"floor_friction": [0.2, 0.3], "push": {"max_velocity_change": 1.0}}))
-    plan = get_experiment("reliability").plan(
-        {"task": "trot", "trials": "2", "ranges": str(path)}, PlanContext()
+    reliability = get_experiment("reliability")
+    plan = reliability.plan(
+        reliability.options_from({"task": "trot", "trials": "2", "ranges": str(path)}), PlanContext()
     )
     assert all(0.2 <= dict(v.fields)["floor_friction"] <= 0.3 for v in plan.variants)
     path.write_text(yaml.safe_dump({"floor_friction": [0.9, 0.3]}))
     with pytest.raises(ConfigError, match="floor_friction: need"):
-        get_experiment("reliability").plan({"task": "trot", "ranges": str(path)}, PlanContext())
+        reliability.plan(reliability.options_from({"task": "trot", "ranges": str(path)}), PlanContext())
     path.write_text(yaml.safe_dump({"friction": [0.2, 0.3]}))
     with pytest.raises(ConfigError, match="--ranges: friction: unknown key"):
-        get_experiment("reliability").plan({"task": "trot", "ranges": str(path)}, PlanContext())
+        reliability.plan(reliability.options_from({"task": "trot", "ranges": str(path)}), PlanContext())
 
 
 def test_reliability_summary_counts_failure_modes():

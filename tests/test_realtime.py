@@ -19,13 +19,16 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from cafe_mpc.assembly.controllers import realtime_mpc
 from cafe_mpc.config import load_config
 from cafe_mpc.control.realtime import RealtimeMpcController
 from cafe_mpc.core.measurement import Measurement
-from cafe_mpc.experiments.controllers import build_recorder, realtime_mpc
+from cafe_mpc.experiments.controllers import build_recorder
 from cafe_mpc.experiments.run import run
-from cafe_mpc.robots.robot import load_robot
 from cafe_mpc.sim.loop import WallClockPacer, simulate
+
+pytestmark = pytest.mark.realtime
+"""Every test here runs the MPC in its own process on the wall clock."""
 
 SHM = Path("/dev/shm")
 
@@ -49,6 +52,7 @@ def _children(pid: int) -> set[int]:
     return children
 
 
+@pytest.mark.slow
 def test_realtime_run_starts_records_and_cleans_up(tmp_path):
     before = _shared_memory_blocks()
     config = load_config(
@@ -101,12 +105,12 @@ def crashing_mpc(config_data: dict, after: int, mode: str) -> CrashingMpc:
 
 
 @pytest.mark.parametrize("mode", ["crash", "stall"])
-def test_a_dead_or_stalled_mpc_process_holds_a_stance_and_ends_with_one_error(mode):
+@pytest.mark.slow
+def test_a_dead_or_stalled_mpc_process_holds_a_stance_and_ends_with_one_error(mode, robot):
     import functools
 
     before = _shared_memory_blocks()
     config = load_config("trot", ["simulation.duration=3.0", "output.plots=false"])
-    robot = load_robot("mini_cheetah")
     factory = functools.partial(crashing_mpc, config.model_dump(mode="json"), 5, mode)
     controller = RealtimeMpcController(
         robot, factory, build_recorder(config, robot), 0.02, 25, stall_timeout=0.3
@@ -124,9 +128,10 @@ def test_a_dead_or_stalled_mpc_process_holds_a_stance_and_ends_with_one_error(mo
     assert _shared_memory_blocks() <= before
 
 
+@pytest.mark.slow
 def test_the_command_line_reports_a_dead_mpc_process(monkeypatch, tmp_path, capsys):
     """``cafe-mpc run --realtime`` ends with one line and a non-zero status when the MPC process dies."""
-    import cafe_mpc.experiments.controllers as controllers
+    import cafe_mpc.assembly.controllers as controllers
     from cafe_mpc.cli import main
 
     original = controllers.realtime_mpc
@@ -146,6 +151,7 @@ def _crashing_realtime_mpc(config_data: dict) -> CrashingMpc:
     return crashing_mpc(config_data, 5, "crash")
 
 
+@pytest.mark.slow
 def test_ctrl_c_stops_the_run_and_leaves_no_process(tmp_path):
     """SIGINT (Ctrl-C) during a real-time run: exit status 130 and no MPC process left behind."""
     command = [sys.executable, "-m", "cafe_mpc.cli", "run", "trot", "--realtime", "--duration", "30"]

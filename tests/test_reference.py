@@ -14,16 +14,12 @@ from cafe_mpc.reference.locomotion import (
     validate_command,
     yaw_from_quaternion,
 )
-from cafe_mpc.robots.robot import load_robot
-
-
-@pytest.fixture(scope="module")
-def robot():
-    return load_robot("mini_cheetah")
 
 
 def test_base_integrates_commands_with_yaw_rate(robot):
-    reference = LocomotionReference(robot, get_gait("trot"), [VelocityCommand(0.0, 0.5, 0.0, 0.5)])
+    reference = LocomotionReference(
+        robot, get_gait("trot"), [VelocityCommand(start=0.0, vx=0.5, vy=0.0, yaw_rate=0.5)]
+    )
     reference.update(0.0, robot.q_standing, np.zeros(robot.nv))
     q, v = reference.base_state(2.0)
     assert yaw_from_quaternion(q[3:7]) == pytest.approx(1.0)
@@ -34,7 +30,11 @@ def test_base_integrates_commands_with_yaw_rate(robot):
 
 
 def test_commands_switch_in_time(robot):
-    commands = [VelocityCommand(0.0, 0.0), VelocityCommand(1.0, 0.8), VelocityCommand(2.0, 0.0, 0.3)]
+    commands = [
+        VelocityCommand(start=0.0, vx=0.0),
+        VelocityCommand(start=1.0, vx=0.8),
+        VelocityCommand(start=2.0, vx=0.0, vy=0.3),
+    ]
     reference = LocomotionReference(robot, get_gait("trot"), commands)
     reference.update(0.0, robot.q_standing, np.zeros(robot.nv))
     assert reference.base_state(0.5)[1][0] == 0.0
@@ -44,7 +44,9 @@ def test_commands_switch_in_time(robot):
 
 
 def test_swing_feet_follow_bezier_and_land_on_raibert_footholds(robot):
-    reference = LocomotionReference(robot, get_gait("trot"), [VelocityCommand(0.0, 0.5)], swing_height=0.06)
+    reference = LocomotionReference(
+        robot, get_gait("trot"), [VelocityCommand(start=0.0, vx=0.5)], swing_height=0.06
+    )
     reference.update(0.0, robot.q_standing, np.zeros(robot.nv))
     times = np.arange(0.0, 0.5, 0.01)
     stance, positions, velocities = reference.feet(times)
@@ -66,7 +68,7 @@ def test_swing_feet_follow_bezier_and_land_on_raibert_footholds(robot):
 
 def test_footholds_are_clamped_to_a_box_about_the_hip(robot):
     reference = LocomotionReference(
-        robot, get_gait("bound"), [VelocityCommand(0.0, 2.5)], foothold_box=(0.05, 0.05)
+        robot, get_gait("bound"), [VelocityCommand(start=0.0, vx=2.5)], foothold_box=(0.05, 0.05)
     )
     reference.update(0.0, robot.q_standing, np.zeros(robot.nv))
     foothold = reference.foothold(0, 0.2, 0.1)
@@ -90,10 +92,10 @@ def test_bezier_blend():
 @pytest.mark.parametrize(
     ("command", "message"),
     [
-        (VelocityCommand(0.0, 10.0), "vx = 10"),
-        (VelocityCommand(0.0, 0.5, 2.0), "vy = 2"),
-        (VelocityCommand(0.0, 0.5, height=0.6), "height = 0.6"),
-        (VelocityCommand(0.0, 0.5, yaw_rate=9.0), "yaw_rate = 9"),
+        (VelocityCommand(start=0.0, vx=10.0), "vx = 10"),
+        (VelocityCommand(start=0.0, vx=0.5, vy=2.0), "vy = 2"),
+        (VelocityCommand(start=0.0, vx=0.5, height=0.6), "height = 0.6"),
+        (VelocityCommand(start=0.0, vx=0.5, yaw_rate=9.0), "yaw_rate = 9"),
     ],
 )
 def test_out_of_range_commands_are_rejected(robot, command, message):
@@ -104,7 +106,7 @@ def test_out_of_range_commands_are_rejected(robot, command, message):
 def test_feet_after_a_touchdown_between_anchor_and_query_stand_on_its_foothold(robot):
     """A window that starts after a touchdown (the SRB tail's) must see that swing's foothold, not where the
     foot stood before it lifted off (the bug put SRB stance feet up to 0.4 m away)."""
-    reference = LocomotionReference(robot, get_gait("trot"), [VelocityCommand(0.0, 0.5)])
+    reference = LocomotionReference(robot, get_gait("trot"), [VelocityCommand(start=0.0, vx=0.5)])
     reference.update(0.1, robot.q_standing, np.zeros(robot.nv))  # FR is swinging until 0.25 s
     _, whole, _ = reference.feet(np.arange(0.1, 0.4, 0.01))
     _, tail, _ = reference.feet(np.array([0.3, 0.35]))
@@ -120,7 +122,7 @@ def test_feet_after_a_touchdown_between_anchor_and_query_stand_on_its_foothold(r
 
 
 def test_leg_inverse_kinematics_reaches_feet_and_matches_rates(robot):
-    from cafe_mpc.reference.inverse_kinematics import LegInverseKinematics
+    from cafe_mpc.dynamics.leg_inverse_kinematics import LegInverseKinematics
 
     ik = LegInverseKinematics(robot)
     base = robot.q_standing[:7].copy()

@@ -46,6 +46,7 @@ def _images(page: str) -> list[str]:
     return re.findall(r'<img[^>]* src="([^"]+)"', page)
 
 
+@pytest.mark.slow
 def test_a_run_report_holds_metrics_plots_and_video_in_one_file(run_folder):
     path = write_report(run_folder)
     assert path == run_folder / "index.html"
@@ -65,6 +66,7 @@ def test_a_run_report_holds_metrics_plots_and_video_in_one_file(run_folder):
     assert 'href="log.npz"' in page and 'href="config.yaml"' in page
 
 
+@pytest.mark.slow
 def test_an_experiment_report_has_the_comparison_and_a_report_per_variant(experiment_folder):
     path = write_report(experiment_folder)
     page = path.read_text()
@@ -107,6 +109,7 @@ def _chromium_run(arguments: list[str], tmp_path: Path) -> subprocess.CompletedP
     return subprocess.run(command, capture_output=True, text=True, timeout=120)
 
 
+@pytest.mark.display
 @pytest.mark.parametrize("which", ["run", "experiment"])
 def test_reports_render_in_headless_chromium_with_every_image_loaded(
     which, run_folder, experiment_folder, tmp_path

@@ -8,11 +8,6 @@ from cafe_mpc.robots.robot import LEG_NAMES, RobotLoadError, load_robot
 from cafe_mpc.sim.consistency import check_consistency
 
 
-@pytest.fixture(scope="module")
-def mini_cheetah():
-    return load_robot("mini_cheetah")
-
-
 def test_mini_cheetah_planning_model(mini_cheetah):
     robot = mini_cheetah
     assert robot.model.nq == 19 and robot.model.nv == 18
@@ -42,6 +37,7 @@ def test_standing_pose_puts_feet_on_floor(mini_cheetah):
 
 
 @pytest.mark.parametrize("name", ["mini_cheetah", "go1"])
+@pytest.mark.slow
 def test_pinocchio_and_mujoco_agree(name):
     result = check_consistency(load_robot(name), samples=4, seed=3)
     assert result["passed"], result
@@ -74,9 +70,8 @@ def test_bad_robot_files_give_clear_errors(tmp_path):
         load_robot(str(not_yaml))
 
 
-def test_planning_model_carries_the_rotor_inertia():
+def test_planning_model_carries_the_rotor_inertia(robot):
     """The Mini Cheetah file sets ``rotor_inertia_in_model``: the Pinocchio model has the plant's armature on
     the 12 joints (none on the floating base), so the planned legs are as heavy as the plant's."""
-    robot = load_robot("mini_cheetah")
     np.testing.assert_allclose(robot.model.armature[6:], robot.plant.armature)
     assert not robot.model.armature[:6].any()

@@ -7,12 +7,12 @@ import mujoco
 import numpy as np
 import pytest
 
-from cafe_mpc.config import ConfigError, load_config
+from cafe_mpc.assembly import load_run_config
+from cafe_mpc.assembly.references import task_reference
+from cafe_mpc.config import ConfigError
 from cafe_mpc.experiments.sweep import run_experiment
-from cafe_mpc.experiments.tasks import task_reference
 from cafe_mpc.report.metrics import roll_pitch_yaw
 from cafe_mpc.report.task_metrics import reference_trace, task_from_reference
-from cafe_mpc.robots.robot import load_robot
 from cafe_mpc.sim.bar import Bar, bar_of
 from cafe_mpc.sim.plant import scene_mjcf
 
@@ -20,13 +20,8 @@ DT = 0.005
 
 
 @pytest.fixture(scope="module")
-def robot():
-    return load_robot("mini_cheetah")
-
-
-@pytest.fixture(scope="module")
 def composed(robot):
-    config = load_config("running-barrel-roll")
+    config = load_run_config("running-barrel-roll")
     return config, task_reference(config.reference, robot)
 
 
@@ -89,7 +84,7 @@ def test_running_roll_reference_is_continuous_and_turns_once(robot, composed):
 def test_measured_join_places_the_roll_where_the_pace_now_ends(robot):
     """``join: measured``: the pace re-anchors on the measurement, and the roll (not started yet) is placed at
     the pace's new end; the trace stays continuous across the join."""
-    config = load_config("running-barrel-roll")
+    config = load_run_config("running-barrel-roll")
     reference = task_reference(config.reference, robot)
     before = reference.offset_of(1)
     q = robot.q_standing.copy()
@@ -105,17 +100,18 @@ def test_measured_join_places_the_roll_where_the_pace_now_ends(robot):
 
 
 def test_bar_in_the_scene_collides_with_legs_only_where_it_is(robot):
-    config = load_config("running-barrel-roll")
+    config = load_run_config("running-barrel-roll")
     bar = bar_of(config.scene)
     assert bar == Bar(0.4, (2.0, -0.265), 0.0, 2.0, 0.005)
-    assert bar_of(load_config("running-barrel-roll", ["scene.bar_height=0"]).scene) is None
+    assert bar_of(load_run_config("running-barrel-roll", ["scene.bar_height=0"]).scene) is None
     model = mujoco.MjModel.from_xml_string(scene_mjcf(robot, (), bar))
     geom = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_GEOM, "bar")
     assert geom >= 0 and model.geom_pos[geom][2] == pytest.approx(0.4)
     with pytest.raises(ConfigError, match="bar"):
-        load_config("running-barrel-roll", ["scene.bar_radius=-1"])
+        load_run_config("running-barrel-roll", ["scene.bar_radius=-1"])
 
 
+@pytest.mark.slow
 def test_template_vs_cafe_compares_both_planners(tmp_path):
     """A short comparison (the roll's first 0.6 s, fixed latency, no video): both planners run the same
     reference and the comparison files name both."""

@@ -1,4 +1,4 @@
-"""Defaults that scale with the robot (``robots.scaling``, ``experiments.scaling``): the laws, and no change
+"""Defaults that scale with the robot (``robots.scaling``, ``assembly.scaling``): the laws, and no change
 for the reference robot."""
 
 from __future__ import annotations
@@ -8,18 +8,17 @@ import math
 import numpy as np
 import pytest
 
+from cafe_mpc.assembly import build_low_level, build_mpc
+from cafe_mpc.assembly.scaling import run_scale, scaled_gait, scaled_schedule, scaled_weights
 from cafe_mpc.config import load_config
-from cafe_mpc.experiments.controllers import build_low_level, build_mpc
-from cafe_mpc.experiments.scaling import run_scale, scaled_gait, scaled_schedule, scaled_weights
+from cafe_mpc.config.weights import WholeBodyWeights
 from cafe_mpc.mpc.problem import ModelSchedule
 from cafe_mpc.ocp.contact_schedule import get_gait
-from cafe_mpc.ocp.costs import WholeBodyWeights
 from cafe_mpc.robots.robot import load_robot
 from cafe_mpc.robots.scaling import RobotScale, robot_scale
 
 
-def test_reference_robot_scales_by_exactly_one():
-    mini_cheetah = load_robot("mini_cheetah")
+def test_reference_robot_scales_by_exactly_one(mini_cheetah):
     scale = robot_scale(mini_cheetah)
     assert scale.length == 1.0 and scale.mass == 1.0 and scale.is_identity
     weights = WholeBodyWeights.regular_running()

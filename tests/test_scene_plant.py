@@ -7,17 +7,11 @@ import mujoco
 import numpy as np
 import pytest
 
-from cafe_mpc.config import ConfigError, load_config
-from cafe_mpc.experiments.controllers import build_controller, build_low_level, build_mpc
-from cafe_mpc.robots.robot import load_robot
+from cafe_mpc.assembly import build_controller, build_low_level, build_mpc, load_run_config
+from cafe_mpc.config import ConfigError
 from cafe_mpc.sim.plant import MujocoPlant, scene_mjcf
-from cafe_mpc.sim.randomization import PlantVariation, terrain_geoms
-from cafe_mpc.sim.terrain import Slope, Steps, terrain_height
-
-
-@pytest.fixture(scope="module")
-def robot():
-    return load_robot("mini_cheetah")
+from cafe_mpc.sim.randomization import PlantVariation, plant_variation, terrain_geoms
+from cafe_mpc.sim.terrain import Slope, Steps, terrain_height, terrain_pieces
 
 
 def _ray_height(plant: MujocoPlant, x: float, y: float = 0.0) -> float:
@@ -49,13 +43,13 @@ def _ray_height(plant: MujocoPlant, x: float, y: float = 0.0) -> float:
 )
 def test_bad_plant_and_scene_values_are_rejected_naming_the_key(override, message):
     with pytest.raises(ConfigError, match="invalid config") as error:
-        load_config("trot", [override])
+        load_run_config("trot", [override])
     assert message in str(error.value)
     assert "\n" not in str(error.value)
 
 
 def test_terrain_defaults_fill_the_kind_and_reach_the_plant(robot):
-    config = load_config(
+    config = load_run_config(
         "trot",
         ["scene.terrain=[{kind: slope, start: 1.0, angle_deg: 10}, {kind: steps, start: 5.0, rise: 0.05}]"],
     )
@@ -65,7 +59,7 @@ def test_terrain_defaults_fill_the_kind_and_reach_the_plant(robot):
         0.3,
         None,
     )
-    pieces = config.scene.terrain_pieces()
+    pieces = terrain_pieces(config.scene)
     assert pieces == [Slope(start=1.0, angle_deg=10.0), Steps(start=5.0, rise=0.05)]
     plant = MujocoPlant(robot, terrain=pieces)
     names = [plant.model.geom(i).name for i in terrain_geoms(plant.model)]
@@ -90,28 +84,29 @@ def test_floor_friction_and_mass_scale_change_the_plant_only(robot):
     assert np.all(nominal.model.geom_friction[terrain_geoms(nominal.model), 0] == robot.plant.floor_friction)
     with pytest.raises(ValueError, match="mass_scale"):
         MujocoPlant(robot, variation=PlantVariation(mass_scale=0.0))
-    config = load_config("trot", ["plant.mass_scale=1.2", "plant.floor_friction=0.3"])
-    variation = config.plant.variation()
+    config = load_run_config("trot", ["plant.mass_scale=1.2", "plant.floor_friction=0.3"])
+    variation = plant_variation(config.plant)
     assert (variation.mass_scale, variation.floor_friction) == (1.2, 0.3)
 
 
 def test_mpc_friction_is_the_controllers_own_and_independent_of_the_plant(robot):
-    config = load_config("trot", ["mpc.friction=0.35", "plant.floor_friction=0.9"])
+    config = load_run_config("trot", ["mpc.friction=0.35", "plant.floor_friction=0.9"])
     mpc = build_mpc(config, robot)
     assert mpc.builder.whole_body.settings.constraints.friction_coefficient == 0.35
     assert build_low_level(config, robot).settings.mu == 0.35
-    template = build_controller(load_config("trot", ["mpc.friction=0.35", "planner=template"]), robot)
+    template = build_controller(load_run_config("trot", ["mpc.friction=0.35", "planner=template"]), robot)
     assert template.builder.settings.friction_coefficient == 0.35
-    default = load_config("trot")
+    default = load_run_config("trot")
     assert default.mpc.friction == 0.6 and default.plant.floor_friction is None  # the robot table's 0.6
     assert build_low_level(default, robot).settings.mu == 0.6
 
 
+@pytest.mark.slow
 def test_a_trot_climbs_low_steps(tmp_path):
     """Terrain in a closed loop: 2 cm steps under a flat-ground plan; the feet stand on them, nobody falls."""
     from cafe_mpc.experiments.run import simulate_run
 
-    config = load_config(
+    config = load_run_config(
         "trot",
         [
             "simulation.duration=2.5",

@@ -9,11 +9,6 @@ from cafe_mpc.sim.plant import MujocoPlant, SimulationDiverged
 from cafe_mpc.wbc.pd import PDController
 
 
-@pytest.fixture(scope="module")
-def robot():
-    return load_robot("mini_cheetah")
-
-
 def test_state_round_trip_in_planning_coordinates(robot):
     plant = MujocoPlant(robot)
     rng = np.random.default_rng(0)
@@ -82,6 +77,7 @@ def test_bad_rates_are_rejected(robot):
         simulate(robot, PDController(robot), 0.1, control_rate_hz=300.0)
 
 
+@pytest.mark.slow
 def test_second_quadruped_from_config_stands():
     go1 = load_robot("go1")
     log = simulate(go1, PDController(go1), 1.5)

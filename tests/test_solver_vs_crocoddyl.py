@@ -5,13 +5,7 @@ import numpy as np
 import pytest
 
 from cafe_mpc.bench.problems import STAND, TROT_CYCLE, whole_body_problem
-from cafe_mpc.robots.robot import load_robot
 from cafe_mpc.solver import MSiLQRSolver, SolverOptions, evaluate_trajectory
-
-
-@pytest.fixture(scope="module")
-def robot():
-    return load_robot("mini_cheetah")
 
 
 @pytest.mark.parametrize(("name", "phases"), [("stand", STAND), ("trot", TROT_CYCLE)])

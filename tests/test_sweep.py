@@ -50,6 +50,7 @@ def wait_for_no_children(timeout: float = 10.0) -> list[psutil.Process]:
     return children()
 
 
+@pytest.mark.slow
 def test_local_cluster_sweep_writes_each_result_as_it_completes_and_resumes(tmp_path):
     before = {p.pid for p in children()}
     out = tmp_path / "sweep"
@@ -99,6 +100,7 @@ def test_local_cluster_sweep_writes_each_result_as_it_completes_and_resumes(tmp_
         run_experiment("push", out, 0.2, FAST, scheduler="synchronous", resume=True)
 
 
+@pytest.mark.slow
 def test_the_command_leaves_no_worker_processes_behind_after_an_error(tmp_path, capsys, monkeypatch):
     before = {p.pid for p in children()}
 
@@ -131,6 +133,7 @@ def test_a_worker_with_several_threads_is_refused(tmp_path):
         run_experiment("push", tmp_path / "b", 0.2, FAST, scheduler=cluster.scheduler_address)
 
 
+@pytest.mark.slow
 def test_a_running_dask_cluster_is_used_and_left_running(tmp_path):
     """``dask scheduler`` and ``dask worker`` as the README starts them (here on 127.0.0.1 only)."""
     dask = Path(sys.executable).with_name("dask")

@@ -8,9 +8,10 @@ import math
 import numpy as np
 import pytest
 
+from cafe_mpc.config import VelocityCommand
 from cafe_mpc.ocp.contact_schedule import get_gait
 from cafe_mpc.reference.composition import ComposedReference
-from cafe_mpc.reference.locomotion import LocomotionReference, VelocityCommand
+from cafe_mpc.reference.locomotion import LocomotionReference
 from cafe_mpc.reference.trajectory import TrajectoryReference
 from cafe_mpc.reference.trajectory_file import load_packaged_trajectory
 from cafe_mpc.report.task_metrics import (
@@ -19,16 +20,10 @@ from cafe_mpc.report.task_metrics import (
     task_from_reference,
     task_metrics,
 )
-from cafe_mpc.robots.robot import load_robot
 from cafe_mpc.sim.loop import SimulationLog
 
 DT = 0.002
 TASK = AcrobaticTask("roll", start=0.5, takeoff=0.83, touchdown=1.25, end=1.75)
-
-
-@pytest.fixture(scope="module")
-def robot():
-    return load_robot("mini_cheetah")
 
 
 def roll_log(robot, duration=3.6, final_roll=2.0 * math.pi, z_after=None) -> SimulationLog:

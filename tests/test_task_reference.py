@@ -8,18 +8,13 @@ import math
 import numpy as np
 import pytest
 
+from cafe_mpc.config import VelocityCommand
 from cafe_mpc.ocp.contact_schedule import get_gait
 from cafe_mpc.reference.base import ReferenceWindow
 from cafe_mpc.reference.composition import ComposedReference, heading, quaternion_multiply, yaw_quaternion
-from cafe_mpc.reference.locomotion import LocomotionReference, VelocityCommand
+from cafe_mpc.reference.locomotion import LocomotionReference
 from cafe_mpc.reference.trajectory import TrajectoryReference, foot_states, quaternion_slerp
 from cafe_mpc.reference.trajectory_file import load_packaged_trajectory
-from cafe_mpc.robots.robot import load_robot
-
-
-@pytest.fixture(scope="module")
-def robot():
-    return load_robot("mini_cheetah")
 
 
 @pytest.fixture(scope="module")

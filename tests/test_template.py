@@ -12,12 +12,13 @@ import numpy as np
 import pinocchio as pin
 import pytest
 
-from cafe_mpc.config import ConfigError, load_config
+from cafe_mpc.assembly import load_run_config
+from cafe_mpc.assembly.controllers import build_mpc
+from cafe_mpc.config import ConfigError
 from cafe_mpc.core.measurement import Measurement
+from cafe_mpc.core.physics import GRAVITY
 from cafe_mpc.core.template_plan import TemplatePlan
-from cafe_mpc.dynamics.srb import GRAVITY
 from cafe_mpc.dynamics.statics import static_stance_torques
-from cafe_mpc.experiments.controllers import build_mpc, mpc_settings
 from cafe_mpc.experiments.run import run_metrics, simulate_run
 from cafe_mpc.experiments.sweep import run_experiment
 from cafe_mpc.experiments.template_gaits import pitch_swing, vertical_force_capacity
@@ -34,11 +35,6 @@ from cafe_mpc.robots.robot import load_robot
 from cafe_mpc.wbc.template_low_level import TemplateLowLevelController, stance_torques
 
 LWA = pin.ReferenceFrame.LOCAL_WORLD_ALIGNED
-
-
-@pytest.fixture(scope="module")
-def robot():
-    return load_robot("mini_cheetah")
 
 
 # ------------------------------------------------------------------------------------ stance torque map
@@ -113,10 +109,10 @@ def test_template_plan_holds_forces_and_interpolates_feet():
 
 # ----------------------------------------------------------------------------------------- the problem
 def _template_mpc(robot, preset="trot", overrides=()):
-    config = load_config(preset, ["mpc.latency=fixed", *overrides])
+    config = load_run_config(preset, ["mpc.latency=fixed", *overrides])
     parameters, offset = template_srb(robot)
     builder = TemplateProblemBuilder(robot, TemplateSettings(parameters=parameters), offset)
-    return TemplateMpc(robot, build_mpc(config, robot).reference, builder, mpc_settings(config))
+    return TemplateMpc(robot, build_mpc(config, robot).reference, builder, config.mpc)
 
 
 def test_knots_lie_on_the_absolute_grid_and_switch_with_the_gait(robot):
@@ -269,14 +265,14 @@ def test_low_level_needs_a_template_plan(robot):
 
 # ---------------------------------------------------------------------------------------------- config
 def test_planner_is_validated():
-    assert load_config("trot").planner == "cafe"
-    assert load_config("trot", ["planner=template"]).planner == "template"
+    assert load_run_config("trot").planner == "cafe"
+    assert load_run_config("trot", ["planner=template"]).planner == "template"
     with pytest.raises(ConfigError, match="planner"):
-        load_config("trot", ["planner=hkd"])
+        load_run_config("trot", ["planner=hkd"])
     with pytest.raises(ConfigError, match="simulated time only"):
-        load_config("trot", ["planner=template", "simulation.realtime=true"])
+        load_run_config("trot", ["planner=template", "simulation.realtime=true"])
     with pytest.raises(ConfigError, match="whole number of milliseconds"):
-        load_config("trot", ["planner=template", "template.dt=0.0125"])
+        load_run_config("trot", ["planner=template", "template.dt=0.0125"])
 
 
 # ------------------------------------------------------------------------------------------ closed loop
@@ -284,7 +280,7 @@ DURATION = 1.5
 
 
 def test_template_trot_stays_up_and_moves_forward():
-    config = load_config(
+    config = load_run_config(
         "trot",
         [f"simulation.duration={DURATION}", "planner=template", "output.plots=false", "mpc.latency=fixed"],
     )
@@ -304,7 +300,7 @@ def test_template_bounds_with_the_short_flight_timing():
     """MIT's bound timing (0.104 s stance, 0.026 s flights), fixed latency: the template bounds for 2 s (1.3 s
     at the full 0.5 m/s), with a pitch oscillation that stays bounded."""
     duration = 2.0
-    config = load_config(
+    config = load_run_config(
         "bound",
         [
             f"simulation.duration={duration}",

@@ -4,6 +4,7 @@ prepare/feedback split and the low level's zero-order hold."""
 import numpy as np
 import pytest
 
+from cafe_mpc.config import VelocityCommand
 from cafe_mpc.core.plan import Plan, interval_at
 from cafe_mpc.mpc.problem import CafeProblemBuilder, ModelSchedule
 from cafe_mpc.mpc.receding_horizon import MpcSettings, RecedingHorizonMpc
@@ -11,13 +12,7 @@ from cafe_mpc.mpc.time_grid import TIME_QUANTUM, PiecewiseTrajectory, grid_times
 from cafe_mpc.ocp.contact_schedule import get_gait
 from cafe_mpc.ocp.knots import SRBModelFactory, WholeBodyModelFactory
 from cafe_mpc.reference.base import Reference
-from cafe_mpc.reference.locomotion import LocomotionReference, VelocityCommand
-from cafe_mpc.robots.robot import load_robot
-
-
-@pytest.fixture(scope="module")
-def robot():
-    return load_robot("mini_cheetah")
+from cafe_mpc.reference.locomotion import LocomotionReference
 
 
 def _builder(robot, schedule=None):
@@ -27,7 +22,7 @@ def _builder(robot, schedule=None):
 
 def _reference(robot, gait, start_stance=0.0):
     reference = LocomotionReference(
-        robot, get_gait(gait), [VelocityCommand(0.0, 0.5)], start_stance=start_stance
+        robot, get_gait(gait), [VelocityCommand(start=0.0, vx=0.5)], start_stance=start_stance
     )
     reference.update(0.0, robot.q_standing, np.zeros(robot.nv))
     return reference

@@ -17,12 +17,6 @@ from cafe_mpc.reference.trajectory_file import (
     parse_contact_code,
     save_trajectory,
 )
-from cafe_mpc.robots.robot import load_robot
-
-
-@pytest.fixture(scope="module")
-def robot():
-    return load_robot("mini_cheetah")
 
 
 def small_trajectory(robot) -> WholeBodyTrajectory:

@@ -15,7 +15,6 @@ import pytest
 
 from cafe_mpc.cli import main
 from cafe_mpc.reference.trajectory_file import load_packaged_trajectory, packaged_trajectory_path
-from cafe_mpc.robots.robot import load_robot
 from cafe_mpc.solver import MSiLQRSolver
 from cafe_mpc.trajopt.barrel_roll import barrel_roll_task
 from cafe_mpc.trajopt.multiphase import build_problem, check_trajectory, roll_turned
@@ -24,11 +23,6 @@ from cafe_mpc.trajopt.presets import load_task
 from cafe_mpc.trajopt.task import TrajOptTaskError
 
 TWO_PI = 2.0 * np.pi
-
-
-@pytest.fixture(scope="module")
-def robot():
-    return load_robot("mini_cheetah")
 
 
 @pytest.fixture(scope="module")

@@ -9,7 +9,6 @@ import pytest
 
 from cafe_mpc.bench.problems import TROT_CYCLE, whole_body_problem
 from cafe_mpc.mpc import collector
-from cafe_mpc.robots.robot import load_robot
 from cafe_mpc.solver import MSiLQRSolver, SolverOptions
 
 
@@ -18,10 +17,10 @@ def _solve(peer, **options):
     return solver.solve(peer.problem, peer.initial_xs, peer.initial_us)
 
 
-def test_threaded_and_fused_linearisations_equal_the_plain_one() -> None:
+def test_threaded_and_fused_linearisations_equal_the_plain_one(robot) -> None:
     """``threads=2`` linearises on a pool (blocks of knots, no fused first linearisation); the result is the
     one of the single-threaded solve, whose first linearisation is fused with the evaluation, bit for bit."""
-    peer = whole_body_problem(load_robot("mini_cheetah"), TROT_CYCLE)
+    peer = whole_body_problem(robot, TROT_CYCLE)
     single, threaded = _solve(peer), _solve(peer, threads=2)
     assert single.statistics.linearizations == threaded.statistics.linearizations == 4
     assert single.cost == threaded.cost

@@ -22,21 +22,15 @@ import pytest
 from cafe_mpc.config import load_config
 from cafe_mpc.experiments.run import run
 from cafe_mpc.robots.plan_overlay import PlanOverlay, draw_plan
-from cafe_mpc.robots.robot import load_robot
 
 CLI = [sys.executable, "-m", "cafe_mpc.cli"]
 
 
 @pytest.fixture(scope="module")
-def robot():
-    return load_robot("mini_cheetah")
-
-
-@pytest.fixture(scope="module")
 def trot_plan(robot):
     """A real plan: the first (cold) solve of the trot preset, a tenth of a second into the gait."""
+    from cafe_mpc.assembly import build_controller
     from cafe_mpc.core.measurement import Measurement
-    from cafe_mpc.experiments.controllers import build_controller
 
     controller = build_controller(load_config("trot", ["mpc.latency=fixed", "gait.start_stance=0"]), robot)
     standing = Measurement.of_state(robot.q_standing, np.zeros(robot.nv), np.ones(4, dtype=bool))
@@ -117,6 +111,8 @@ def _with_display(display: str) -> dict[str, str]:
     return environment
 
 
+@pytest.mark.display
+@pytest.mark.slow
 def test_viewer_follows_a_run_under_xvfb_with_the_plan_drawn(tmp_path, xvfb_display):
     out = tmp_path / "run"
     result = subprocess.run(
@@ -165,6 +161,7 @@ viewer.close()
 """
 
 
+@pytest.mark.display
 def test_closing_the_viewer_window_ends_the_run(xvfb_display):
     result = subprocess.run(
         [sys.executable, "-c", CLOSE_WINDOW],
@@ -177,6 +174,7 @@ def test_closing_the_viewer_window_ends_the_run(xvfb_display):
     assert result.stdout.strip() == "False the viewer window was closed"
 
 
+@pytest.mark.slow
 def test_viewer_without_a_display_is_one_clear_line(tmp_path):
     environment = {
         key: value for key, value in os.environ.items() if key not in ("DISPLAY", "WAYLAND_DISPLAY")
@@ -204,6 +202,8 @@ def _offscreen_gl_or_skip() -> None:
         pytest.skip(f"no off-screen OpenGL here ({type(error).__name__}: {error}); Debian: libosmesa6")
 
 
+@pytest.mark.display
+@pytest.mark.slow
 def test_render_draws_the_plan_into_the_video(tmp_path, robot):
     _offscreen_gl_or_skip()
     import imageio.v2 as imageio

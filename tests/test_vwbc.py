@@ -5,7 +5,6 @@ torques, random SPD ``Quu`` and ``Qux = -Quu K``.
 """
 
 import importlib.util
-from dataclasses import replace
 
 import numpy as np
 import pinocchio as pin
@@ -14,7 +13,6 @@ import pytest
 from cafe_mpc.control.plan_follower import PlanFollower
 from cafe_mpc.core.measurement import Measurement
 from cafe_mpc.core.plan import Plan
-from cafe_mpc.robots.robot import load_robot
 from cafe_mpc.sim.loop import simulate
 from cafe_mpc.wbc.contact_dynamics import (
     FrictionConeScorer,
@@ -30,11 +28,6 @@ SOLVERS = ["proxqp", pytest.param("daqp", marks=pytest.mark.skipif(not HAS_DAQP,
 FOUR = np.ones(4, dtype=bool)
 TROT = np.array([True, False, False, True])
 GENEROUS = np.full(12, 1e3)
-
-
-@pytest.fixture(scope="module")
-def robot():
-    return load_robot("mini_cheetah")
 
 
 def measured(q, v, contacts=FOUR):
@@ -229,10 +222,10 @@ def mean_iterations(stats):
 
 def test_proxqp_warm_start_reduces_iterations_versus_cold_start(robot):
     plan = synthetic_plan(robot, knots=20, seed=12)
-    cold, tau_cold = run_sequence(robot, plan, VWBCSettings(warm_start="none"))
+    cold, tau_cold = run_sequence(robot, plan, VWBCSettings(solver="proxqp", warm_start="none"))
     means = {}
     for mode in ("plan", "previous"):
-        warm, tau_warm = run_sequence(robot, plan, VWBCSettings(warm_start=mode))
+        warm, tau_warm = run_sequence(robot, plan, VWBCSettings(solver="proxqp", warm_start=mode))
         assert warm["fallbacks"] == cold["fallbacks"] == 0
         means[mode] = mean_iterations(warm)
         assert means[mode] < mean_iterations(cold) - 1.0
@@ -250,7 +243,7 @@ def test_daqp_warm_start_reduces_active_set_iterations(robot):
     assert mean_iterations(warm) < mean_iterations(cold)
     assert warm["qp_iterations_histogram"].get(1, 0) > cold["qp_iterations_histogram"].get(1, 0)
     np.testing.assert_allclose(tau_warm, tau_cold, atol=1e-6)
-    _, tau_proxqp = run_sequence(robot, plan, VWBCSettings(eps_abs=1e-9))
+    _, tau_proxqp = run_sequence(robot, plan, VWBCSettings(solver="proxqp", eps_abs=1e-9))
     np.testing.assert_allclose(tau_warm, tau_proxqp, atol=1e-4)  # both backends solve the same QP
 
 
@@ -335,7 +328,7 @@ def multi_pattern_plan(robot, patterns, dt=0.02, seed=0):
 
 def cold_solution(robot, plan, settings, t, q, v, limits):
     """The tick solved by a fresh controller from a cold start (no state carried over)."""
-    cold = VWBCController(robot, replace(settings, warm_start="none"), torque_limits=limits)
+    cold = VWBCController(robot, settings.model_copy(update={"warm_start": "none"}), torque_limits=limits)
     tau = cold.compute(t, measured(q, v), plan).copy()
     assert cold.last_used_qp
     return tau

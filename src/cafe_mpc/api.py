@@ -54,21 +54,17 @@ from typing import Literal
 
 import numpy as np
 
+from cafe_mpc.assembly.checks import robot_of
+from cafe_mpc.assembly.controllers import build_controller, build_realtime_controller
 from cafe_mpc.config import ConfigError, RunConfig, load_config
 from cafe_mpc.control.mpc_loop import CafeMpcController
 from cafe_mpc.control.realtime import RealtimeMpcController
+from cafe_mpc.core.free_joint import free_joint_qpos, planning_state
 from cafe_mpc.core.measurement import Measurement
 from cafe_mpc.core.plan import Plan
 from cafe_mpc.core.sensors import SensorReadings
 from cafe_mpc.estimation.estimator import StateEstimator
-from cafe_mpc.experiments.controllers import (
-    build_low_level,
-    build_mpc,
-    build_realtime_controller,
-    build_template_controller,
-)
-from cafe_mpc.robots.robot import Robot, load_robot
-from cafe_mpc.sim.plant import planning_state
+from cafe_mpc.robots.robot import Robot
 
 __all__ = ["Controller"]
 
@@ -105,7 +101,7 @@ class Controller:
             raise ConfigError("planner: 'template' runs inline only (mode='inline')")
         self.config = config
         self.mode: Mode = mode
-        self.robot: Robot = load_robot(config.robot)
+        self.robot: Robot = robot_of(config)  # the config checked against the robot it names
         self._inner: CafeMpcController | RealtimeMpcController | None = None
         self._t0 = 0.0
         self._estimator: StateEstimator | None = None  # built on the first measurement_from_sensors
@@ -128,19 +124,10 @@ class Controller:
         self._closed = True
 
     def _build_inline(self) -> CafeMpcController:
-        config, robot = self.config, self.robot
-        if config.planner == "template":
-            return build_template_controller(config, robot)
-        mpc = build_mpc(config, robot)
         # the low level without a run recorder: a loop of unknown length keeps no per-tick records
-        return CafeMpcController(
-            robot,
-            mpc.reference,
-            mpc.builder,
-            build_low_level(self.config, robot),
-            mpc=mpc,
-            control_period=self.control_period,
-        )
+        controller = build_controller(self.config, self.robot)
+        assert isinstance(controller, CafeMpcController)  # wbc: pd is rejected above
+        return controller
 
     # -------------------------------------------------------------------------------------- control
     @property
@@ -164,8 +151,8 @@ class Controller:
         else:
             if self._inner is not None:  # a new process: the old one's reference and warm starts are stale
                 self._inner.close()
-            low_level = build_low_level(self.config, self.robot)  # no per-tick records (see _build_inline)
-            self._inner = build_realtime_controller(self.config, self.robot, low_level)
+            # no run recorder around the low level (see _build_inline)
+            self._inner = build_realtime_controller(self.config, self.robot)
             self._inner.reset()
             self._inner.wait_ready(start)
 
@@ -250,7 +237,7 @@ class Controller:
         after ``reset_estimator``) starts it with the robot standing at x-y ``(0, 0)``. Bad readings raise
         ``ValueError`` naming the field. The returned object is reused by the next call."""
         if self._estimator is None:
-            self._estimator = StateEstimator(self.robot, self.config.kinematic_kf.settings())
+            self._estimator = StateEstimator(self.robot, self.config.kinematic_kf)
             self._estimator.reset()
         readings = self._readings
         try:
@@ -295,10 +282,9 @@ class Controller:
         """Restart the state estimator: its next ``measurement_from_sensors`` starts it with the robot
         standing at ``position_xy`` (the odometry origin)."""
         if self._estimator is None:
-            self._estimator = StateEstimator(self.robot, self.config.kinematic_kf.settings())
+            self._estimator = StateEstimator(self.robot, self.config.kinematic_kf)
         self._estimator.reset(np.asarray(position_xy, dtype=float))
 
     def standing_qpos(self) -> np.ndarray:
         """MuJoCo ``qpos`` of the robot standing (where the presets start), for ``robot.mjcf``'s model."""
-        q = self.robot.q_standing
-        return np.concatenate([q[:3], [q[6], q[3], q[4], q[5]], q[7:]])
+        return free_joint_qpos(self.robot.q_standing)

@@ -17,7 +17,7 @@ EXIT_FAILED = 1
 
 
 def _command_run(arguments: argparse.Namespace) -> int:
-    from cafe_mpc.config import load_config
+    from cafe_mpc.assembly.checks import load_run_config
     from cafe_mpc.experiments.run import default_out_dir, run
 
     overrides = list(arguments.set or [])
@@ -27,7 +27,7 @@ def _command_run(arguments: argparse.Namespace) -> int:
         overrides.append("output.render=true")
     if arguments.realtime:
         overrides.append("simulation.realtime=true")
-    config = load_config(arguments.config, overrides)
+    config = load_run_config(arguments.config, overrides)
     out_dir = Path(arguments.out) if arguments.out else default_out_dir(config)
     result = run(config, out_dir, show_progress=True, viewer=arguments.viewer)
     metrics = result.metrics
@@ -54,12 +54,13 @@ def _command_run(arguments: argparse.Namespace) -> int:
 
 
 def _experiment_listing() -> str:
-    from cafe_mpc.experiments.registry import experiments
+    from cafe_mpc.experiments.catalog import experiments
+    from cafe_mpc.experiments.options import option_fields
 
     lines = []
     for cls in experiments().values():
         duration = f"{cls.default_duration:g} s per run" if cls.default_duration else "each preset's duration"
-        flags = " ".join(option.flag for option in cls.options)
+        flags = " ".join(flag for _, flag, _, _, _ in option_fields(cls.Options))
         lines.append(
             f"  {cls.name:<15} {cls.title} ({cls.paper}; {duration})"
             + (f"\n{'':17} {flags}" if flags else "")
@@ -69,7 +70,8 @@ def _experiment_listing() -> str:
 
 def _command_experiment(arguments: argparse.Namespace) -> int:
     from cafe_mpc.config import ConfigError
-    from cafe_mpc.experiments.registry import all_options, get_experiment
+    from cafe_mpc.experiments.catalog import get_experiment
+    from cafe_mpc.experiments.options import option_fields
     from cafe_mpc.experiments.results_table import RESULTS_FILE
     from cafe_mpc.experiments.sweep import run_experiment
 
@@ -78,7 +80,8 @@ def _command_experiment(arguments: argparse.Namespace) -> int:
         return 0
     if arguments.name is None:
         raise ConfigError("give an experiment (cafe-mpc experiment --list shows them)")
-    options = {dest: getattr(arguments, dest, None) for dest in all_options()}
+    experiment = get_experiment(arguments.name)
+    options = {dest: getattr(arguments, dest) for dest, *_ in option_fields(experiment.Options)}
     result = run_experiment(
         arguments.name,
         out_dir=Path(arguments.out) if arguments.out else None,
@@ -92,7 +95,7 @@ def _command_experiment(arguments: argparse.Namespace) -> int:
         **options,
     )
     print((result.out_dir / "comparison.md").read_text().rstrip())
-    line = get_experiment(arguments.name).summary_line(result.comparison)
+    line = experiment.summary_line(result.comparison)
     if line:
         print(line)
     print(f"results in {result.out_dir} ({RESULTS_FILE}, comparison.json, .md, .png; one folder per run)")
@@ -103,40 +106,33 @@ def _command_experiment(arguments: argparse.Namespace) -> int:
     return 0
 
 
-def _add_experiment_parser(commands: argparse._SubParsersAction) -> None:
-    from cafe_mpc.experiments.registry import all_options, experiment_names
+EXPERIMENT_EXAMPLES = (
+    "examples:\n"
+    "  cafe-mpc experiment --list\n"
+    "  cafe-mpc experiment schedules                    # bound: Table I x dts 10/50 ms (Fig. 6, 7)\n"
+    "  cafe-mpc experiment schedules --schedules S0,S4 --srb-dts 0.05 --duration 5\n"
+    "  cafe-mpc experiment solve-times                  # Table II: 3 gaits x S0..S4\n"
+    "  cafe-mpc experiment reliability --task bound --trials 100 --max-push 0.8\n"
+    "  cafe-mpc experiment reliability --task bound --seeds 17     # trial 17 alone\n"
+    "  cafe-mpc experiment latency --task bound         # success over fixed latency and period\n"
+    "  cafe-mpc experiment schedules --out runs/s --resume         # continue an interrupted sweep\n"
+    "  cafe-mpc experiment push --scheduler tcp://HOST:8786        # on a running Dask cluster\n"
+    "  cafe-mpc experiment robots --workers 1 --set mpc.latency=fixed   # trot, bound: every robot\n"
+    "  cafe-mpc experiment NAME --help                  # the options of one experiment\n"
+    "\n"
+    "timing: presets use measured latency; with more workers than cores use --set mpc.latency=fixed"
+)
 
-    names = experiment_names()
-    parser = commands.add_parser(
-        "experiment",
-        help=f"the paper's experiments, in parallel on Dask ({', '.join(names)})",
-        description=(
-            "Run an experiment of the paper's Sec. VII: its runs in parallel on Dask (by default a local\n"
-            "cluster, one worker process per core; --scheduler for a running cluster), each run in its own\n"
-            "folder, one row per run in results.csv as it completes, then comparison.json, comparison.md\n"
-            "(a markdown table) and comparison.png. An interrupted sweep keeps its finished runs: re-run\n"
-            "the same command with --resume --out DIR.\n\n"
-            f"experiments:\n{_experiment_listing()}"
-        ),
-        epilog=(
-            "examples:\n"
-            "  cafe-mpc experiment --list\n"
-            "  cafe-mpc experiment schedules                    # bound: Table I x dts 10/50 ms (Fig. 6, 7)\n"
-            "  cafe-mpc experiment schedules --schedules S0,S4 --srb-dts 0.05 --duration 5\n"
-            "  cafe-mpc experiment solve-times                  # Table II: 3 gaits x S0..S4\n"
-            "  cafe-mpc experiment reliability --task bound --trials 100 --max-push 0.8\n"
-            "  cafe-mpc experiment reliability --task bound --seeds 17     # trial 17 alone\n"
-            "  cafe-mpc experiment latency --task bound         # success over fixed latency and period\n"
-            "  cafe-mpc experiment schedules --out runs/s --resume         # continue an interrupted sweep\n"
-            "  cafe-mpc experiment push --scheduler tcp://HOST:8786        # on a running Dask cluster\n"
-            "  cafe-mpc experiment robots --workers 1 --set mpc.latency=fixed   # trot, bound: every robot\n"
-            "\n"
-            "timing: presets use measured latency; with more workers than cores use --set mpc.latency=fixed"
-        ),
-        formatter_class=argparse.RawDescriptionHelpFormatter,
-    )
-    parser.add_argument("name", nargs="?", help=f"experiment: {', '.join(names)}")
-    parser.add_argument("--list", action="store_true", help="list the registered experiments and exit")
+
+def _examples_of(name: str) -> str:
+    """The lines of ``EXPERIMENT_EXAMPLES`` that run experiment ``name`` (its ``--help`` epilog)."""
+    own = [line for line in EXPERIMENT_EXAMPLES.splitlines() if f"cafe-mpc experiment {name} " in line + " "]
+    own = own or [f"  cafe-mpc experiment {name}"]
+    return "examples:\n" + "\n".join(own) + "\n\n" + EXPERIMENT_EXAMPLES.splitlines()[-1]
+
+
+def _add_sweep_arguments(parser: argparse.ArgumentParser) -> None:
+    """The options every experiment takes (where and how its runs run)."""
     parser.add_argument("--duration", type=float, help="simulated seconds per run")
     parser.add_argument("--out", help="output folder (default runs/<time>-experiment-<name>/)")
     parser.add_argument(
@@ -157,14 +153,106 @@ def _add_experiment_parser(commands: argparse._SubParsersAction) -> None:
     parser.add_argument(
         "--resume", action="store_true", help="continue the sweep in --out: skip the runs already finished"
     )
-    for dest, owners in all_options().items():
-        option = owners[0][1]
-        text = "; ".join(f"{name}: {owner.help}" for name, owner in owners)
-        if option.kind == "flag":
-            parser.add_argument(option.flag, dest=dest, action="store_true", help=text)
-        else:
-            parser.add_argument(option.flag, dest=dest, metavar=option.metavar or None, help=text)
-    parser.set_defaults(handler=_command_experiment)
+
+
+def _add_experiment_parser(commands: argparse._SubParsersAction) -> None:
+    from cafe_mpc.experiments.catalog import experiments
+    from cafe_mpc.experiments.options import option_fields
+
+    known = experiments()
+    parser = commands.add_parser(
+        "experiment",
+        help=f"the paper's experiments, in parallel on Dask ({', '.join(known)})",
+        description=(
+            "Run an experiment of the paper's Sec. VII: its runs in parallel on Dask (by default a local\n"
+            "cluster, one worker process per core; --scheduler for a running cluster), each run in its own\n"
+            "folder, one row per run in results.csv as it completes, then comparison.json, comparison.md\n"
+            "(a markdown table) and comparison.png. An interrupted sweep keeps its finished runs: re-run\n"
+            "the same command with --resume --out DIR.\n\n"
+            f"experiments:\n{_experiment_listing()}"
+        ),
+        epilog=EXPERIMENT_EXAMPLES,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    parser.add_argument("--list", action="store_true", help="list the experiments and exit")
+    parser.set_defaults(handler=_command_experiment, name=None)
+    names = parser.add_subparsers(dest="name", metavar="NAME")
+    for name, cls in known.items():
+        sub = names.add_parser(
+            name,
+            help=f"{cls.title} ({cls.paper})",
+            description=f"{cls.title} ({cls.paper}).",
+            epilog=_examples_of(name),
+            formatter_class=argparse.RawDescriptionHelpFormatter,
+        )
+        _add_sweep_arguments(sub)
+        for dest, option, text, metavar, is_flag in option_fields(cls.Options):
+            if is_flag:
+                sub.add_argument(option, dest=dest, action="store_true", help=text)
+            else:
+                sub.add_argument(option, dest=dest, metavar=metavar, help=text)
+        sub.set_defaults(handler=_command_experiment, list=False)
+
+
+class _Parser(argparse.ArgumentParser):
+    """A parser whose usage errors are one ``cafe-mpc: error:`` line (``ConfigError``, exit status 2); an
+    unknown experiment name is named as such, with the known ones."""
+
+    def error(self, message: str):  # type: ignore[override]
+        from cafe_mpc.config import ConfigError
+
+        if self.prog.endswith(" experiment") and message.startswith("argument NAME: invalid choice: "):
+            from cafe_mpc.experiments.catalog import experiment_names
+
+            given = message.removeprefix("argument NAME: invalid choice: ").split(" (choose", 1)[0].strip("'")
+            raise ConfigError(f"unknown experiment {given!r}; experiments: {', '.join(experiment_names())}")
+        raise ConfigError(message)
+
+
+def _parse_arguments(parser: argparse.ArgumentParser, argv: list[str] | None) -> argparse.Namespace | None:
+    """The parsed command line, or None after printing its one-line usage error (``cafe-mpc: error: ...``;
+    an option of another experiment is named as such)."""
+    from cafe_mpc.config import ConfigError
+
+    try:
+        _check_experiment_name_first(sys.argv[1:] if argv is None else argv)
+        arguments, extra = parser.parse_known_args(argv)
+        if extra:
+            raise ConfigError(_unknown_arguments(arguments, extra))
+    except ConfigError as error:
+        print(f"cafe-mpc: error: {error}", file=sys.stderr)
+        return None
+    return arguments
+
+
+def _check_experiment_name_first(argv: list[str]) -> None:
+    """``cafe-mpc experiment`` takes the experiment's name before its options (each experiment has its own):
+    options first would make the option's value read as the name."""
+    from cafe_mpc.config import ConfigError
+
+    words = [word for word in argv if not word.startswith("-")]
+    if not words or words[0] != "experiment":
+        return
+    after = argv[argv.index("experiment") + 1 :]
+    if after and after[0].startswith("-") and after[0] not in ("-h", "--help", "--list"):
+        raise ConfigError(
+            f"give an experiment (cafe-mpc experiment --list shows them) before its options: "
+            f"cafe-mpc experiment NAME {after[0]} ..."
+        )
+
+
+def _unknown_arguments(arguments: argparse.Namespace, extra: list[str]) -> str:
+    """The one-line error for arguments no parser took: an experiment's, naming the experiment."""
+    if getattr(arguments, "command", None) == "experiment" and getattr(arguments, "name", None):
+        from cafe_mpc.experiments.catalog import get_experiment
+        from cafe_mpc.experiments.options import option_fields
+
+        option = next((item for item in extra if item.startswith("--")), extra[0])
+        flags = ", ".join(flag for _, flag, *_ in option_fields(get_experiment(arguments.name).Options))
+        return f"{option.split('=')[0]} does not apply to experiment {arguments.name!r}" + (
+            f" (it takes {flags})" if flags else ""
+        )
+    return f"unrecognized arguments: {' '.join(extra)}"
 
 
 def _number(value: float | None, digits: int = 3) -> str:
@@ -241,8 +329,8 @@ def _command_robot(arguments: argparse.Namespace) -> int:
 
 def _command_bench(arguments: argparse.Namespace) -> int:
     if arguments.what == "mpc":
+        from cafe_mpc.assembly.checks import load_run_config
         from cafe_mpc.bench.mpc_bench import format_report, run_mpc_benchmark
-        from cafe_mpc.config import load_config
 
         gaits = tuple(gait.strip() for gait in arguments.gaits.split(",") if gait.strip())
         if not gaits:
@@ -250,7 +338,7 @@ def _command_bench(arguments: argparse.Namespace) -> int:
         if not arguments.duration > 0:
             raise ValueError(f"--duration must be positive, got {arguments.duration}")
         for gait in gaits:  # bad names and overrides fail before anything runs
-            load_config(gait, list(arguments.set or []))
+            load_run_config(gait, list(arguments.set or []))
         result = run_mpc_benchmark(gaits, arguments.duration, tuple(arguments.set or []))
         print(json.dumps(result["gaits"], indent=2) if arguments.json else format_report(result))
         return 0
@@ -306,7 +394,7 @@ def _command_optimize(arguments: argparse.Namespace) -> int:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="cafe-mpc", description="CAFE-MPC on a simulated quadruped")
+    parser = _Parser(prog="cafe-mpc", description="CAFE-MPC on a simulated quadruped")
     parser.add_argument("-v", "--verbose", action="store_true", help="log at INFO level to stderr")
     commands = parser.add_subparsers(dest="command", required=True)
 
@@ -430,7 +518,9 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
-    arguments = parser.parse_args(argv)
+    arguments = _parse_arguments(parser, argv)
+    if arguments is None:
+        return EXIT_USAGE
     console = logging.StreamHandler()
     console.setLevel(logging.INFO if arguments.verbose else logging.WARNING)
     console.setFormatter(logging.Formatter("%(levelname)s %(name)s: %(message)s"))

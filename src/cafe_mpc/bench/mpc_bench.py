@@ -17,7 +17,7 @@ import platform
 
 import numpy as np
 
-from cafe_mpc.config import load_config
+from cafe_mpc.assembly.checks import load_run_config
 from cafe_mpc.experiments.run import run_metrics, simulate_run
 
 DEFAULT_GAITS = ("trot", "bound")
@@ -25,7 +25,7 @@ DEFAULT_GAITS = ("trot", "bound")
 
 def bench_gait(preset: str, duration: float, overrides: list[str]) -> dict:
     """One closed-loop run of ``preset``; its MPC timing and tracking."""
-    config = load_config(preset, [f"simulation.duration={duration}", "output.plots=false", *overrides])
+    config = load_run_config(preset, [f"simulation.duration={duration}", "output.plots=false", *overrides])
     robot, controller, log = simulate_run(config)
     metrics = run_metrics(config, robot, controller, log)
     mpc = metrics["mpc"]

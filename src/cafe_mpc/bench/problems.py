@@ -13,10 +13,10 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from cafe_mpc.config.weights import WholeBodyWeights
 from cafe_mpc.core.interfaces import MultiPhaseProblem, Phase
 from cafe_mpc.dynamics.statics import static_stance_torques
 from cafe_mpc.ocp.constraints import WholeBodyConstraintSettings
-from cafe_mpc.ocp.costs import WholeBodyWeights
 from cafe_mpc.ocp.knots import WholeBodyModelFactory, WholeBodySettings
 from cafe_mpc.robots.robot import Robot
 
@@ -75,7 +75,7 @@ def whole_body_problem(robot: Robot, phases=TROT_CYCLE, dt: float = 0.01, seed: 
     """An unconstrained whole-body problem from a perturbed standing state toward standing still."""
     rng = np.random.default_rng(seed)
     running = WholeBodyWeights(swing_foot_position=0.0, swing_foot_velocity=0.0)
-    terminal = replace(WholeBodyWeights.regular_terminal(), swing_foot_velocity=0.0)
+    terminal = WholeBodyWeights.regular_terminal().model_copy(update={"swing_foot_velocity": 0.0})
     settings = WholeBodySettings(
         dt=dt,
         integration="semi_implicit",

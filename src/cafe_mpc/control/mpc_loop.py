@@ -36,13 +36,14 @@ import logging
 
 import numpy as np
 
+from cafe_mpc.config import MpcSettings
 from cafe_mpc.control.plan_follower import NewestPlanFollower
 from cafe_mpc.control.update_clock import UpdateClock
 from cafe_mpc.core.controller import LowLevelController
 from cafe_mpc.core.measurement import Measurement
 from cafe_mpc.core.plan import Plan
 from cafe_mpc.core.template_plan import TemplatePlan
-from cafe_mpc.mpc.planner import MpcSettings, MpcStatistics, Planner
+from cafe_mpc.mpc.planner import MpcStatistics, Planner
 from cafe_mpc.mpc.problem import CafeProblemBuilder
 from cafe_mpc.mpc.receding_horizon import RecedingHorizonMpc
 from cafe_mpc.mpc.template import TemplateProblemBuilder

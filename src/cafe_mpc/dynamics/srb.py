@@ -25,13 +25,14 @@ rotor masses added); ``SRBParameters(mass, inertia)`` sets them explicitly.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 import pinocchio as pin
 
 from cafe_mpc.core.contacts import N_FEET
 from cafe_mpc.core.interfaces import StateManifold
+from cafe_mpc.core.physics import GRAVITY
 from cafe_mpc.dynamics.srb_kernels import (
     srb_difference,
     srb_difference_jacobian_product,
@@ -40,8 +41,6 @@ from cafe_mpc.dynamics.srb_kernels import (
     srb_step_jacobians,
 )
 from cafe_mpc.robots.robot import Robot
-
-GRAVITY = 9.81
 
 
 def quaternion_to_rotation(quaternion: np.ndarray) -> np.ndarray:
@@ -121,17 +120,15 @@ class SRBState(StateManifold):
 
 @dataclass(frozen=True)
 class SRBParameters:
-    """Mass and body-frame inertia of the single rigid body.
+    """Mass and body-frame inertia of the single rigid body of Eq. (29).
 
-    The defaults are the CAFE-MPC authors' Mini Cheetah values (8.912 kg with rotors, diag(0.0616, 0.2207,
-    0.2726) kg m^2, legs lumped; docs/settings.md). A controller for a robot uses ``srb_parameters(robot)``,
-    computed from the robot's own model.
+    No defaults: they belong to a robot. ``srb_parameters(robot)`` computes them from the robot's own model
+    (legs lumped, rotors included; for the Mini Cheetah 8.912 kg, as the CAFE-MPC authors'); a test may give
+    any positive mass and inertia.
     """
 
-    mass: float = 8.912
-    inertia: tuple[tuple[float, ...], ...] = field(
-        default_factory=lambda: ((0.0616, 0.0, 0.0), (0.0, 0.2207, 0.0), (0.0, 0.0, 0.2726))
-    )
+    mass: float
+    inertia: tuple[tuple[float, ...], ...]
     gravity: float = GRAVITY
     n_feet: int = N_FEET
 
@@ -208,10 +205,10 @@ class SRBDynamicsData:
 class SRBDynamics:
     """Discrete SRB dynamics (29), (30) with time step ``dt``; immutable and shareable between knots."""
 
-    def __init__(self, parameters: SRBParameters | None = None, dt: float = 0.05) -> None:
+    def __init__(self, parameters: SRBParameters, dt: float = 0.05) -> None:
         if not (math.isfinite(dt) and dt > 0):
             raise ValueError(f"time step must be positive and finite, got {dt}")
-        self.parameters = parameters or SRBParameters()
+        self.parameters = parameters
         self.dt = float(dt)
         self.state = SRBState()
         self.n_feet = self.parameters.n_feet

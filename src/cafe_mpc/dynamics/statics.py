@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pinocchio as pin
 
-from cafe_mpc.dynamics.srb import GRAVITY
+from cafe_mpc.core.physics import GRAVITY
 from cafe_mpc.robots.robot import Robot
 
 

@@ -37,7 +37,9 @@ from typing import Protocol
 import numpy as np
 import pinocchio as pin
 
+from cafe_mpc.config.estimation import KinematicKFSettings
 from cafe_mpc.core.measurement import Measurement
+from cafe_mpc.core.physics import GRAVITY_VECTOR
 from cafe_mpc.core.sensors import SensorReadings
 from cafe_mpc.estimation.kernels import (
     NOISE_HEIGHT,
@@ -53,11 +55,8 @@ from cafe_mpc.estimation.kernels import (
     planned_trust,
     quaternion_to_rotation,
 )
-from cafe_mpc.estimation.settings import KinematicKFSettings
 from cafe_mpc.robots.robot import Robot
 
-GRAVITY = np.array([0.0, 0.0, -9.81])
-"""World gravity, m/s^2 (the plant's and the planning model's)."""
 LWA = pin.ReferenceFrame.LOCAL_WORLD_ALIGNED
 
 
@@ -188,7 +187,6 @@ class StateEstimator:
 
     def __init__(self, robot: Robot, settings: KinematicKFSettings | None = None) -> None:
         settings = settings if settings is not None else KinematicKFSettings()
-        settings.check()
         self.robot = robot
         self.settings = settings
         n_feet, nj = robot.n_feet, robot.nu
@@ -299,7 +297,7 @@ class StateEstimator:
                 mid[1] = f[1] - half * (w[2] * f[0] - w[0] * f[2])
                 mid[2] = f[2] - half * (w[0] * f[1] - w[1] * f[0])
                 np.matmul(self.rotation, mid, out=self.acceleration)
-                self.acceleration += GRAVITY
+                self.acceleration += GRAVITY_VECTOR
                 for foot in range(self.n_feet):
                     self._q_feet[foot] = (
                         dt

@@ -14,6 +14,7 @@ import yaml
 
 from cafe_mpc.config import RunConfig
 from cafe_mpc.experiments.controllers import mpc_statistics_of
+from cafe_mpc.experiments.options import names
 from cafe_mpc.experiments.run import RunResult
 from cafe_mpc.robots.robot import Robot, load_robot
 from cafe_mpc.sim.loop import SimulationLog
@@ -66,6 +67,19 @@ def gait_presets() -> list[str]:
     from cafe_mpc.config import available_presets, load_config
 
     return [name for name in available_presets() if load_config(name).gait is not None]
+
+
+def paper_schedules() -> list[str]:
+    """The model schedules the library knows (``mpc.problem.PAPER_SCHEDULES``: Table I)."""
+    from cafe_mpc.mpc.problem import PAPER_SCHEDULES
+
+    return list(PAPER_SCHEDULES)
+
+
+GaitPresetNames = names(gait_presets)
+"""A list option of gait presets (presets with a gait section)."""
+ScheduleNames = names(paper_schedules)
+"""A list option of model schedule names."""
 
 
 # ------------------------------------------------------------------------------------------ markdown

@@ -1,63 +1,34 @@
-"""The closed-loop controller of a run config: PD standing, or CAFE-MPC over a Riccati or VWBC low level.
+"""The controller of a run as the experiment harness sees it: the assembly's, its low level recorded.
 
-``build_controller(config, robot)`` is the one place that turns the config's ``gait``, ``mpc``, ``costs``
-and ``vwbc`` sections into objects: the heuristic locomotion reference (Sec. VI-A), the CAFE problem
-builder with its model schedule (Sec. IV-D), the MPC loop (Sec. VI-C) and the low-level controller
-(Riccati feedback (33) or VWBC (34)). The low-level controller is wrapped in a ``LowLevelRecorder`` (any
-``LowLevelController``: it reads ``last_request``) so the run can report what it asked for before clamping
-(the Riccati controller clamps to the torque limits; the paper's Fig. 9 shows the unclamped request) and
-which stance the plan assumed at every tick (for the friction-cone score of controllers that do not check
-it themselves). The SRB tail gets the robot's own mass and inertia (``dynamics.srb.srb_parameters``).
+``build_run_controller(config, robot)`` is ``assembly.build_controller`` with the low-level controller
+wrapped in a ``LowLevelRecorder`` (any ``LowLevelController``: it reads ``last_request``), so the run can
+report what it asked for before clamping (the Riccati controller clamps to the torque limits; the paper's
+Fig. 9 shows the unclamped request) and which stance the plan assumed at every tick (for the friction-cone
+score of controllers that do not check it themselves). The rest reads what ``metrics.json`` reports of a
+run's controller: how time was modelled (``timing_of``), the MPC's statistics (``mpc_summary``), the
+reference it tracked.
 """
 
 from __future__ import annotations
 
-import functools
 from dataclasses import dataclass
 
 import numpy as np
 
-from cafe_mpc.config import ConfigError, RunConfig, velocity_command
-from cafe_mpc.control.mpc_loop import CafeMpcController, MpcSettings
+from cafe_mpc.assembly.controllers import (
+    RunController,
+    build_controller,
+    build_low_level,
+    build_realtime_controller,
+)
+from cafe_mpc.config import RunConfig
+from cafe_mpc.control.mpc_loop import CafeMpcController
 from cafe_mpc.control.realtime import RealtimeMpcController
 from cafe_mpc.core.contacts import N_FEET
 from cafe_mpc.core.controller import LowLevelController
 from cafe_mpc.core.measurement import Measurement
 from cafe_mpc.core.plan import Plan
-from cafe_mpc.dynamics.srb import srb_parameters
-from cafe_mpc.estimation.controller import SensingController
-from cafe_mpc.estimation.estimator import StateEstimator
-from cafe_mpc.experiments.scaling import (
-    run_scale,
-    scaled_gait,
-    scaled_schedule,
-    scaled_srb_weights,
-    scaled_weights,
-)
-from cafe_mpc.experiments.tasks import (
-    minimum_base_height,
-    task_reference,
-    task_weight_sets,
-    torque_limits_of,
-)
-from cafe_mpc.mpc.problem import CafeProblemBuilder
-from cafe_mpc.mpc.receding_horizon import RecedingHorizonMpc
-from cafe_mpc.mpc.template import TemplateMpc, TemplateProblemBuilder, TemplateSettings, template_srb
-from cafe_mpc.ocp.constraints import WholeBodyConstraintSettings
-from cafe_mpc.ocp.knots import SRBModelFactory, SRBSettings, WholeBodyModelFactory, WholeBodySettings
-from cafe_mpc.reference.locomotion import (
-    FOOTHOLD_BOX,
-    CommandProfile,
-    LocomotionReference,
-    VelocityCommand,
-)
-from cafe_mpc.robots.robot import Robot, load_robot
-from cafe_mpc.wbc.pd import PDController
-from cafe_mpc.wbc.riccati import RiccatiController
-from cafe_mpc.wbc.template_low_level import TemplateLowLevelController, TemplateLowLevelSettings
-from cafe_mpc.wbc.vwbc import VWBCController, VWBCSettings
-
-RunController = PDController | CafeMpcController | RealtimeMpcController
+from cafe_mpc.robots.robot import Robot
 
 
 @dataclass(frozen=True)
@@ -181,84 +152,9 @@ class LowLevelRecorder(LowLevelController):
         return requested, stance
 
 
-def reference_commands(config: RunConfig) -> list[VelocityCommand]:
-    """The commands the run tracks: the gait's, or standing still at the standing height (PD)."""
-    if config.gait is None:
-        return [VelocityCommand()]
-    return [velocity_command(command) for command in config.gait.commands]
-
-
-def reference_profile(config: RunConfig, robot: Robot) -> CommandProfile:
-    """What the run commands over time (``CommandProfile``): the gait's commands, ramped from rest after the
-    start stance when ``gait.command_ramp`` > 0; standing still for PD and composed references."""
-    gait = config.gait
-    if gait is None:
-        return CommandProfile(reference_commands(config), robot.standing_height)
-    return CommandProfile(
-        reference_commands(config), robot.standing_height, gait.command_ramp, gait.start_stance
-    )
-
-
-def build_controller(config: RunConfig, robot: Robot) -> RunController:
-    """The closed-loop controller named by ``config.wbc`` (``pd``, or CAFE-MPC over ``riccati``/``vwbc``) in
-    simulated time (fixed or measured latency).
-
-    Raises ``ConfigError`` (one line, naming the section) when a setting is rejected by the library.
-    """
-    if config.wbc == "pd":
-        return _pd_controller(config, robot)
-    if config.planner == "template":
-        return build_template_controller(config, robot)
-    mpc = build_mpc(config, robot)
-    return CafeMpcController(
-        robot,
-        mpc.reference,
-        mpc.builder,
-        build_recorder(config, robot),
-        mpc=mpc,
-        control_period=1.0 / config.simulation.control_rate_hz,
-    )
-
-
-def build_template_controller(config: RunConfig, robot: Robot) -> CafeMpcController:
-    """The template-MPC baseline (``planner: template``, paper Sec. VII-C): the SRB-only plan
-    (``mpc.template``) over its stance ``J' F`` / swing PD low level (``wbc.template_low_level``), with the
-    CAFE run's reference (``build_mpc``'s) and receding-horizon settings (period, latency, iterations)."""
-    reference = build_mpc(config, robot).reference
-    parameters, com_offset = template_srb(robot)
-    section = config.template
-    limits = torque_limits_of(config, robot)
-    try:
-        settings = TemplateSettings(
-            horizon=section.horizon,
-            dt=section.dt,
-            parameters=parameters,
-            leg_torque_limits=section.leg_torque_limits,
-            predict_latency=section.predict_latency,
-            centroidal_state=section.centroidal_state,
-            vertical_reference=section.vertical_reference,
-            torque_limits=tuple(limits.tolist()),
-            friction_coefficient=config.mpc.friction,
-        )
-        scale = run_scale(config, robot)
-        low_level = TemplateLowLevelController(
-            robot,
-            TemplateLowLevelSettings(scale.stiffness(section.swing_kp), scale.damping(section.swing_kd)),
-            torque_limits=limits,
-        )
-    except ValueError as error:
-        raise ConfigError(f"template: {error}") from error
-    builder = TemplateProblemBuilder(robot, settings, com_offset)
-    mpc = TemplateMpc(robot, reference, builder, mpc_settings(config))
-    ticks = config.simulation.duration * config.simulation.control_rate_hz
-    recorder = LowLevelRecorder(low_level, capacity=int(np.ceil(ticks)) + 2, n_feet=robot.n_feet)
-    return CafeMpcController(
-        robot, reference, builder, recorder, mpc=mpc, control_period=1.0 / config.simulation.control_rate_hz
-    )
-
-
 def build_recorder(config: RunConfig, robot: Robot) -> LowLevelRecorder:
-    """The run's low-level controller wrapped in a recorder sized for the run's ticks."""
+    """The run's low-level controller (``assembly.build_low_level``) wrapped in a recorder sized for the
+    run's ticks."""
     ticks = config.simulation.duration * config.simulation.control_rate_hz  # the run's low-level calls
     return LowLevelRecorder(
         build_low_level(config, robot),
@@ -268,169 +164,17 @@ def build_recorder(config: RunConfig, robot: Robot) -> LowLevelRecorder:
     )
 
 
-def mpc_settings(config: RunConfig) -> MpcSettings:
-    try:
-        return MpcSettings(
-            period=config.mpc.period,
-            latency=config.mpc.latency,
-            fixed_latency=config.mpc.fixed_latency,
-            time_budget=config.mpc.time_budget,
-            max_iterations=config.mpc.max_iterations,
-            touchdown_max_penalty=config.mpc.touchdown_max_penalty,
-            final_policy=config.mpc.final_policy,
-            warm_up=config.mpc.warm_up,
-            scheme=config.mpc.scheme,
-            rti_line_search=config.mpc.rti_line_search,
-            rti_feedback=config.mpc.rti_feedback,
-            compute_scale=config.mpc.compute_scale,
-            threads=config.mpc.threads,
-        )
-    except ValueError as error:
-        raise ConfigError(f"mpc: {error}") from error
-
-
-def build_mpc(config: RunConfig, robot: Robot) -> RecedingHorizonMpc:
-    """The MPC side of a run: reference (Sec. VI-A), CAFE problem builder with its model schedule (Sec. IV-D),
-    receding-horizon settings."""
-    gait = config.gait
-    scale = run_scale(config, robot)  # the tuned values are the reference robot's (robots.scaling)
-    if config.reference is not None:  # a composed reference (stand, stored trajectory, ...): Sec. VII-C
-        reference = task_reference(config.reference, robot, scale)
-    elif gait is None:  # RunConfig rejects this; kept for configs built with model_construct
-        raise ConfigError(f"wbc: {config.wbc!r} needs a gait section")
-    else:
-        try:
-            reference = LocomotionReference(
-                robot,
-                scaled_gait(gait.name, scale),
-                reference_commands(config),
-                swing_height=scale.distance(gait.swing_height),
-                raibert_gain=scale.duration(gait.raibert_gain),
-                foothold_box=tuple(scale.distance(v) for v in FOOTHOLD_BOX),
-                start_stance=gait.start_stance,
-                command_ramp=gait.command_ramp,
-            )
-        except ValueError as error:
-            raise ConfigError(f"gait: {error}") from error
-    try:
-        schedule = scaled_schedule(config.mpc.model_schedule(), scale)
-    except ValueError as error:
-        raise ConfigError(f"mpc: {error}") from error
-    settings = mpc_settings(config)
-    try:
-        running = scaled_weights(config.costs.running.to_weights(), scale)
-        terminal = scaled_weights(config.costs.terminal.to_weights(), scale)
-        srb_running = scaled_srb_weights(config.costs.srb_running.to_weights(), scale)
-        srb_terminal = scaled_srb_weights(config.costs.srb_terminal.to_weights(), scale)
-    except ValueError as error:
-        raise ConfigError(f"costs: {error}") from error
-    limits = None if config.torque_limits == "plan" else tuple(torque_limits_of(config, robot).tolist())
-    whole_body = WholeBodyModelFactory(
-        robot,
-        WholeBodySettings(
-            dt=schedule.whole_body_dt,
-            baumgarte_alpha=scale.rate(WholeBodySettings().baumgarte_alpha),
-            running_weights=running,
-            terminal_weights=terminal,
-            constraints=WholeBodyConstraintSettings(
-                friction_coefficient=config.mpc.friction,
-                torque_limit_values=limits,
-                minimum_base_height=minimum_base_height(scale),
-            ),
-        ),
-    )
-    srb = SRBModelFactory(
-        SRBSettings(
-            dt=schedule.srb_dt,
-            parameters=srb_parameters(robot),
-            running_weights=srb_running,
-            terminal_weights=srb_terminal,
-        )
-    )
-    builder = CafeProblemBuilder(whole_body, srb, schedule, weights=task_weight_sets(config, robot, schedule))
-    return RecedingHorizonMpc(robot, reference, builder, settings)
-
-
-def realtime_mpc(config_data: dict) -> RecedingHorizonMpc:
-    """Builds the MPC inside the real-time mode's MPC process, from the run config as plain data (picklable):
-    its own robot model, reference and solver; measured latency, so the solve keeps the wall-clock budget."""
-    config = RunConfig.model_validate(config_data)
-    robot = load_robot(config.robot)
-    config = config.model_copy(update={"mpc": config.mpc.model_copy(update={"latency": "measured"})})
-    return build_mpc(config, robot)
-
-
-def build_realtime_controller(
-    config: RunConfig, robot: Robot, low_level: LowLevelController | None = None
-) -> RealtimeMpcController:
-    """CAFE-MPC against the wall clock: the MPC in its own process (``control.realtime``), the recorded
-    low-level controller here (or ``low_level``). Close it (``with``) to stop the process."""
+def build_run_controller(config: RunConfig, robot: Robot) -> RunController:
+    """The controller of a run in simulated time (``assembly.build_controller``), its low level recorded."""
     if config.wbc == "pd":
-        raise ConfigError("simulation.realtime needs an MPC run (wbc: vwbc or riccati), not wbc: pd")
-    schedule = scaled_schedule(config.mpc.model_schedule(), run_scale(config, robot))
-    factory = functools.partial(realtime_mpc, config.model_dump(mode="json"))
-    if low_level is None:
-        low_level = build_recorder(config, robot)
-    # knots: the whole-body grid knots plus the splits at contact switches (a few per horizon)
-    controller = RealtimeMpcController(
-        robot,
-        factory,
-        low_level,
-        config.mpc.period,
-        schedule.whole_body_knots + 16,
-        control_period=1.0 / config.simulation.control_rate_hz,
-        scheme=config.mpc.scheme if config.planner != "template" else "one_phase",
-    )
-    controller.reference = build_mpc(config, robot).reference  # for the run's report (gait stance)
-    return controller
+        return build_controller(config, robot)
+    return build_controller(config, robot, low_level=build_recorder(config, robot))
 
 
-def build_sensing_controller(
-    config: RunConfig, robot: Robot, inner: RunController, position_xy: tuple[float, float] = (0.0, 0.0)
-) -> SensingController:
-    """``inner`` behind the state estimator (``estimator: kinematic_kf``): the closed loop hands it sensor
-    readings, the estimator turns them into the measurement ``inner`` gets (``estimation.controller``).
-    ``position_xy``: where the robot is placed (the estimator's odometry origin)."""
-    try:
-        estimator = StateEstimator(robot, config.kinematic_kf.settings())
-    except ValueError as error:
-        raise ConfigError(f"kinematic_kf: {error}") from error
-    ticks = int(np.ceil(config.simulation.duration * config.simulation.control_rate_hz)) + 2
-    return SensingController(inner, estimator, capacity=ticks, position_xy=position_xy)
-
-
-def build_low_level(config: RunConfig, robot: Robot) -> LowLevelController:
-    """The low-level controller named by ``config.wbc`` (PD, Riccati (33) or VWBC (34))."""
-    if config.wbc == "pd":
-        return _pd_controller(config, robot)
-    if config.wbc == "riccati":
-        riccati = RiccatiController(robot)
-        riccati.limits = torque_limits_of(config, robot)
-        return riccati
-    try:
-        scale = run_scale(config, robot)
-        vwbc_settings = VWBCSettings(
-            solver=config.vwbc.solver,
-            warm_start=config.vwbc.warm_start,
-            stance_source=config.vwbc.stance_source,
-            mu=config.mpc.friction,
-            alpha=scale.rate(VWBCSettings.alpha),
-            cone_tolerance=scale.force(VWBCSettings.cone_tolerance),
-        )
-    except ValueError as error:
-        raise ConfigError(f"vwbc: {error}") from error
-    return VWBCController(robot, vwbc_settings, torque_limits=torque_limits_of(config, robot))
-
-
-def _pd_controller(config: RunConfig, robot: Robot) -> PDController:
-    """Joint PD standing with the config's gains scaled to the robot (torque scale; damping also by time)."""
-    scale = run_scale(config, robot)
-    return PDController(
-        robot,
-        scale.stiffness(config.pd.kp),
-        scale.damping(config.pd.kd),
-        gravity_feedforward=config.pd.gravity_feedforward,
-    )
+def build_run_realtime_controller(config: RunConfig, robot: Robot) -> RealtimeMpcController:
+    """The controller of a run against the wall clock (``assembly.build_realtime_controller``), its low
+    level recorded."""
+    return build_realtime_controller(config, robot, low_level=build_recorder(config, robot))
 
 
 def reference_of(controller: RunController):
@@ -446,7 +190,7 @@ def timing_of(config: RunConfig, controller: RunController) -> dict:
     mode = "realtime" if config.simulation.realtime else config.mpc.latency
     if mode == "realtime":  # the MPC process always runs with its wall-clock budget
         config = config.model_copy(update={"mpc": config.mpc.model_copy(update={"latency": "measured"})})
-    settings = mpc_settings(config)
+    settings = config.mpc
     scheme = getattr(controller, "scheme", config.mpc.scheme)
     return {
         "mode": mode,

@@ -16,7 +16,8 @@ from pathlib import Path
 
 from cafe_mpc.config import RunConfig
 from cafe_mpc.control.realtime import MpcProcessError
-from cafe_mpc.experiments.registry import Variant, get_experiment
+from cafe_mpc.experiments.catalog import get_experiment
+from cafe_mpc.experiments.registry import Variant
 from cafe_mpc.experiments.run import run
 from cafe_mpc.sim.loop import ControllerError
 from cafe_mpc.sim.plant import SimulationDiverged

@@ -16,25 +16,16 @@ draws success and tracking error against latency, period and compute scale.
 
 from __future__ import annotations
 
-from collections.abc import Mapping
 from pathlib import Path
-from typing import Any
 
 import numpy as np
+from pydantic import Field, model_validator
 
-from cafe_mpc.config import ConfigError, load_config
+from cafe_mpc.assembly.checks import load_run_config
+from cafe_mpc.config import ConfigError
 from cafe_mpc.experiments.common import RunStore, fall_fields, fell_text, num
-from cafe_mpc.experiments.registry import (
-    Experiment,
-    Option,
-    Plan,
-    PlanContext,
-    Variant,
-    float_list_option,
-    float_option,
-    int_option,
-    register,
-)
+from cafe_mpc.experiments.options import ExperimentOptions, integer, number, numbers
+from cafe_mpc.experiments.registry import Experiment, ExperimentPlan, PlanContext, Variant
 from cafe_mpc.experiments.run import RunResult
 from cafe_mpc.report.figures import new_figure, save_figure
 
@@ -45,43 +36,73 @@ SPEED_TOLERANCE = 0.1
 """m/s: a gait run succeeds when its steady-state forward speed is this close to the command."""
 
 
-@register
+Latencies = numbers(0.0, 0.5, none_word=True)
+"""Fixed latencies, s ('none': no latency sweep)."""
+Periods = numbers(0.005, 0.5, none_word=True)
+"""MPC periods, s ('none': no period sweep)."""
+ComputeScales = numbers(0.1, 100.0, none_word=True)
+"""Factors on the measured compute times."""
+PeriodLatency = number(0.0, 0.5)
+"""Fixed latency of the period sweep, s."""
+Repeats = integer(1, 1000)
+
+
+class LatencyOptions(ExperimentOptions):
+    task: str | None = Field(
+        None,
+        description="the preset (or YAML config) every run uses (required)",
+        json_schema_extra={"metavar": "PRESET"},
+    )
+    latencies: Latencies = Field(
+        DEFAULT_LATENCIES,
+        description="fixed latencies in s (default 0 to 0.06 in 0.005 steps; 'none': skip)",
+        json_schema_extra={"metavar": "0,0.02"},
+    )
+    periods: Periods = Field(
+        DEFAULT_PERIODS,
+        description="MPC periods in s (default 0.015 to 0.04 in 0.005 steps; 'none': skip)",
+        json_schema_extra={"metavar": "0.02,0.03"},
+    )
+    period_latency: PeriodLatency = Field(
+        DEFAULT_PERIOD_LATENCY,
+        description="fixed latency of the period sweep in s (default 0.01)",
+        json_schema_extra={"metavar": "L"},
+    )
+    compute_scales: ComputeScales = Field(
+        (),
+        description="compute-time factors of measured-latency runs (default none)",
+        json_schema_extra={"metavar": "1,2"},
+    )
+    repeats: Repeats = Field(
+        1, description="runs per compute scale (default 1)", json_schema_extra={"metavar": "N"}
+    )
+
+    @model_validator(mode="after")
+    def _task_given(self) -> LatencyOptions:
+        if not self.task:
+            from cafe_mpc.config import available_presets
+
+            raise ValueError(f"--task PRESET is required (presets: {', '.join(available_presets())})")
+        return self
+
+
 class Latency(Experiment):
     name = "latency"
     title = "Success against latency, MPC period and computer speed"
     paper = "not in the paper (the timing issue's sweep)"
     default_duration = None  # each preset's own
     varied_keys = ("mpc.latency", "mpc.fixed_latency", "mpc.period", "mpc.compute_scale")
-    options = (
-        Option("task", "the preset (or YAML config) every run uses (required)", "PRESET"),
-        Option(
-            "latencies", "fixed latencies in s (default 0 to 0.06 in 0.005 steps; 'none': skip)", "0,0.02"
-        ),
-        Option(
-            "periods", "MPC periods in s (default 0.015 to 0.04 in 0.005 steps; 'none': skip)", "0.02,0.03"
-        ),
-        Option("period_latency", "fixed latency of the period sweep in s (default 0.01)", "L"),
-        Option("compute_scales", "compute-time factors of measured-latency runs (default none)", "1,2"),
-        Option("repeats", "runs per compute scale (default 1)", "N"),
-    )
+    Options = LatencyOptions
     default_overrides = ("output.plots=false",)
     needs_gait = False
     errors_are_results = True
     reports_timing = True
 
-    def plan(self, options: Mapping[str, Any], context: PlanContext) -> Plan:
-        from cafe_mpc.config import available_presets
-
-        task = options.get("task")
-        if not task:
-            raise ConfigError(f"--task PRESET is required (presets: {', '.join(available_presets())})")
-        load_config(str(task), list(context.overrides))  # a bad preset or override: one clear error now
-        latencies = _sweep(options, "latencies", DEFAULT_LATENCIES, 0.0, 0.5)
-        periods = _sweep(options, "periods", DEFAULT_PERIODS, 0.005, 0.5)
-        scales = _sweep(options, "compute_scales", (), 0.1, 100.0)
-        period_latency = float_option(options, "period_latency", DEFAULT_PERIOD_LATENCY, 0.0, 0.5)
-        repeats = int_option(options, "repeats", 1, 1, 1000)
-        assert repeats is not None
+    def plan(self, options: LatencyOptions, context: PlanContext) -> ExperimentPlan:
+        task = options.task
+        load_run_config(str(task), list(context.overrides))  # a bad preset or override: one clear error now
+        latencies, periods, scales = options.latencies, options.periods, options.compute_scales
+        period_latency, repeats = options.period_latency, options.repeats
         variants = []
         for latency in latencies:
             variants.append(
@@ -147,7 +168,7 @@ class Latency(Experiment):
         if scales:
             plan_options["--compute-scales"] = ",".join(f"{s:g}" for s in scales)
             plan_options["--repeats"] = str(repeats)
-        return Plan(variants, plan_options)
+        return ExperimentPlan(variants, plan_options)
 
     def summarize(self, result: RunResult, variant: Variant) -> dict:
         metrics = result.metrics
@@ -229,15 +250,6 @@ class Latency(Experiment):
 
     def plot(self, rows: list[dict], runs: RunStore, path: Path) -> None:
         plot_latency(rows, path)
-
-
-def _sweep(
-    options: Mapping[str, Any], dest: str, default: tuple[float, ...], low: float, high: float
-) -> tuple[float, ...]:
-    """A list option (``none`` for an empty list)."""
-    if str(options.get(dest, "")).strip().lower() == "none":
-        return ()
-    return float_list_option(options, dest, default, low, high)
 
 
 def plot_latency(rows: list[dict], path: Path) -> Path:

@@ -9,9 +9,7 @@ controller's unclamped request), as Fig. 9.
 
 from __future__ import annotations
 
-from collections.abc import Mapping
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 from matplotlib.axes import Axes
@@ -27,7 +25,8 @@ from cafe_mpc.experiments.common import (
     num,
     window_mask,
 )
-from cafe_mpc.experiments.registry import Experiment, Plan, PlanContext, Variant, register
+from cafe_mpc.experiments.options import ExperimentOptions
+from cafe_mpc.experiments.registry import Experiment, ExperimentPlan, PlanContext, Variant
 from cafe_mpc.experiments.run import RunResult
 from cafe_mpc.report.figures import new_figure, save_figure
 from cafe_mpc.report.metrics import body_rates
@@ -36,7 +35,6 @@ PUSH_CONTROLLERS = ("vwbc", "riccati")
 PUSH_PLOT_BEFORE_S, PUSH_PLOT_AFTER_S = 0.5, 1.5  # torque plot window around the push start (Fig. 9)
 
 
-@register
 class Push(Experiment):
     name = "push"
     title = "Bounding push test: VWBC vs Riccati controller"
@@ -44,8 +42,8 @@ class Push(Experiment):
     default_duration = 5.0
     varied_keys = ("wbc",)
 
-    def plan(self, options: Mapping[str, Any], context: PlanContext) -> Plan:
-        return Plan(
+    def plan(self, options: ExperimentOptions, context: PlanContext) -> ExperimentPlan:
+        return ExperimentPlan(
             [
                 Variant(c, "bound-push", (f"wbc={c}",), c.upper() if c == "vwbc" else "Riccati")
                 for c in PUSH_CONTROLLERS

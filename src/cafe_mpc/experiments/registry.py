@@ -1,61 +1,40 @@
-"""The experiment registry: every reproduction of the paper's Sec. VII is one module behind one interface.
+"""The experiment interface: every reproduction of the paper's Sec. VII is one module behind one interface.
 
-An experiment is a subclass of ``Experiment`` in its own module of ``cafe_mpc.experiments``, decorated with
-``@register``. It says
+An experiment is a subclass of ``Experiment`` in its own module of ``cafe_mpc.experiments``, listed in
+``experiments.catalog``. It says
 
-* which runs to make (``plan``: variants from the command-line options, each a preset plus ``--set``
-  overrides, an optional seed and the columns it is known by: schedule, time step, sampled parameters);
+* which options it takes (``Options``: a typed model, ``experiments.options``; ``cafe-mpc experiment NAME
+  --help`` shows them);
+* which runs to make (``plan``: variants from its options, each a preset plus ``--set`` overrides, an
+  optional seed and the columns it is known by: schedule, time step, sampled parameters);
 * what to report of one finished run (``summarize``: the run's summary metrics, computed where the run ran,
   one row of ``results.csv``);
 * how to show them (``table``: the markdown table of ``comparison.md``; ``plot``: ``comparison.png``;
   ``outputs``: extra files such as the reliability test's ``summary.json``).
 
 Running the runs (one task per run on a Dask cluster), writing the files and resuming is
-``experiments.sweep``'s job, the same for every experiment. A new experiment is one new file here: on first
-use the registry imports every module of the package that uses ``@register``, and ``cafe-mpc experiment
---list`` shows what registered.
+``experiments.sweep``'s job, the same for every experiment. A new experiment is one new module here and one
+line in ``experiments.catalog``.
 """
 
 from __future__ import annotations
 
-import importlib
-import pkgutil
 import shlex
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, ClassVar, Literal
+from typing import TYPE_CHECKING, Any, ClassVar
 
 from cafe_mpc.config import ConfigError, parse_override
+from cafe_mpc.experiments.options import ExperimentOptions, parse_options
 
 if TYPE_CHECKING:
     from cafe_mpc.experiments.common import RunStore
     from cafe_mpc.experiments.run import RunResult
 
-NOT_EXPERIMENTS = frozenset(
-    {"registry", "sweep", "common", "run", "controllers"}
-    | {"execution", "results_table", "cluster", "comparison"}
-)
-"""Modules of ``cafe_mpc.experiments`` that hold no experiment (never imported by the discovery)."""
-
 
 class SweepError(RuntimeError):
     """An experiment cannot run as asked (cluster unreachable or unsuitable, a folder of another sweep)."""
-
-
-@dataclass(frozen=True)
-class Option:
-    """A command-line option of an experiment (``--<dest with dashes>``); its value reaches ``plan`` as the
-    raw string (``kind="text"``) or ``True`` (``kind="flag"``), or is absent when not given."""
-
-    dest: str
-    help: str
-    metavar: str = ""
-    kind: Literal["text", "flag"] = "text"
-
-    @property
-    def flag(self) -> str:
-        return "--" + self.dest.replace("_", "-")
 
 
 @dataclass(frozen=True)
@@ -91,7 +70,7 @@ class PlanContext:
 
 
 @dataclass
-class Plan:
+class ExperimentPlan:
     """The runs of an experiment and the options that reproduce them (flag -> value, in command order)."""
 
     variants: list[Variant]
@@ -104,6 +83,9 @@ class Experiment:
     """Base class of the experiments; subclasses set the class attributes and implement ``plan``,
     ``summarize``, ``table`` and ``plot`` (``outputs`` is optional)."""
 
+    Options: ClassVar[type[ExperimentOptions]] = ExperimentOptions
+    """The experiment's own command-line options (none by default)."""
+
     name: ClassVar[str]
     title: ClassVar[str]
     paper: ClassVar[str]
@@ -111,7 +93,6 @@ class Experiment:
     """Simulated seconds per run (None: each preset's own)."""
     varied_keys: ClassVar[tuple[str, ...]] = ()
     """Config keys the experiment sets per run (``--set`` may not touch them)."""
-    options: ClassVar[tuple[Option, ...]] = ()
     default_overrides: ClassVar[tuple[str, ...]] = ()
     """``--set`` items applied before the user's (which may change them)."""
     needs_gait: ClassVar[bool] = True
@@ -121,7 +102,13 @@ class Experiment:
     reports_timing: ClassVar[bool] = False
     """Whether the experiment reports wall-clock timings (then only honest with one worker per core)."""
 
-    def plan(self, options: Mapping[str, Any], context: PlanContext) -> Plan:
+    def options_from(self, given: Mapping[str, Any]) -> ExperimentOptions:
+        """The experiment's ``Options`` from command-line strings or Python values (``None``: not given);
+        ``ConfigError`` with one line naming the flag."""
+        return parse_options(self.Options, given, self.name)
+
+    def plan(self, options: Any, context: PlanContext) -> ExperimentPlan:
+        """The runs of ``options`` (an instance of ``Options``: ``options_from`` makes one)."""
         raise NotImplementedError
 
     def summarize(self, result: RunResult, variant: Variant) -> dict:
@@ -147,98 +134,6 @@ class Experiment:
         return None
 
 
-_REGISTRY: dict[str, type[Experiment]] = {}
-_DISCOVERED = False
-
-
-def register(cls: type[Experiment]) -> type[Experiment]:
-    """Class decorator: add an experiment to the registry under ``cls.name``."""
-    existing = _REGISTRY.get(cls.name)
-    if existing is not None and existing is not cls and existing.__qualname__ != cls.__qualname__:
-        raise ValueError(
-            f"experiment {cls.name!r} registered twice ({existing.__module__}, {cls.__module__})"
-        )
-    _REGISTRY[cls.name] = cls
-    return cls
-
-
-def _discover() -> None:
-    """Import every experiment module of the package once (each registers itself): the modules whose source
-    uses ``@register`` (helpers such as ``run``, ``controllers`` or ``sweep`` are not imported for it)."""
-    global _DISCOVERED
-    if _DISCOVERED:
-        return
-    import cafe_mpc.experiments as package
-
-    for module in sorted(pkgutil.iter_modules(package.__path__), key=lambda m: m.name):
-        if module.name in NOT_EXPERIMENTS or module.name.startswith("_") or module.ispkg:
-            continue
-        source = Path(package.__path__[0]) / f"{module.name}.py"
-        if source.is_file() and "@register" in source.read_text(encoding="utf-8"):
-            importlib.import_module(f"{package.__name__}.{module.name}")
-    _DISCOVERED = True
-
-
-ORDER = (
-    "schedules",
-    "solve-times",
-    "trot-schedules",
-    "push",
-    "warm-start",
-    "reliability",
-    "template-vs-cafe",
-    "template-gaits",
-    "latency",
-    "robots",
-)
-"""Listing order of the built-in experiments (others follow by name)."""
-
-
-def experiments() -> dict[str, type[Experiment]]:
-    """Every registered experiment by name, the paper's order first."""
-    _discover()
-    names = [n for n in ORDER if n in _REGISTRY] + sorted(n for n in _REGISTRY if n not in ORDER)
-    return {name: _REGISTRY[name] for name in names}
-
-
-def experiment_names() -> list[str]:
-    return list(experiments())
-
-
-def get_experiment(name: str) -> Experiment:
-    """A new instance of the experiment ``name``; ``ConfigError`` naming the known ones otherwise."""
-    known = experiments()
-    if name not in known:
-        raise ConfigError(f"unknown experiment {name!r}; experiments: {', '.join(known)}")
-    return known[name]()
-
-
-def all_options() -> dict[str, list[tuple[str, Option]]]:
-    """Every option of every experiment: dest -> [(experiment name, its option), ...]."""
-    found: dict[str, list[tuple[str, Option]]] = {}
-    for name, cls in experiments().items():
-        for option in cls.options:
-            found.setdefault(option.dest, []).append((name, option))
-    return found
-
-
-def check_options(experiment: Experiment, given: Mapping[str, Any]) -> dict[str, Any]:
-    """The options given (not None) that the experiment takes; ``ConfigError`` for one it does not take."""
-    own = {option.dest for option in experiment.options}
-    chosen = {}
-    for dest, value in given.items():
-        if value is None or value is False:
-            continue
-        if dest not in own:
-            flags = ", ".join(option.flag for option in experiment.options)
-            raise ConfigError(
-                f"--{dest.replace('_', '-')} does not apply to experiment {experiment.name!r}"
-                + (f" (it takes {flags})" if flags else "")
-            )
-        chosen[dest] = value
-    return chosen
-
-
 def check_overrides(experiment: Experiment, overrides: Sequence[str]) -> None:
     """``--set`` may change anything the experiment does not vary itself, nor the duration, nor the real-time
     mode (a real-time run needs the whole machine; parallel workers would share it)."""
@@ -254,86 +149,6 @@ def check_overrides(experiment: Experiment, overrides: Sequence[str]) -> None:
                 else:
                     hint = "the experiment sets it per variant"
                 raise ConfigError(f"--set {key}: not allowed in experiment {experiment.name!r} ({hint})")
-
-
-def parse_list(text: str | Sequence[str] | None) -> tuple[str, ...] | None:
-    """``"S0,S4"`` or ``["S0", "S4"]`` -> ``("S0", "S4")`` (None stays None)."""
-    if text is None:
-        return None
-    items = text.split(",") if isinstance(text, str) else list(text)
-    return tuple(str(item).strip() for item in items if str(item).strip())
-
-
-def check_list(option: str, values: tuple[str, ...], known: Sequence[str] | None = None) -> None:
-    """At least one value, no repeats, each one of ``known`` (when given)."""
-    flag = "--" + option.replace("_", "-")
-    if not values:
-        raise ConfigError(f"{flag}: give at least one value")
-    if len(set(values)) != len(values):
-        raise ConfigError(f"{flag}: repeated value in {','.join(values)}")
-    if known is not None:
-        for value in values:
-            if value not in known:
-                raise ConfigError(f"{flag}: unknown value {value!r}; known: {', '.join(known)}")
-
-
-def list_option(options: Mapping[str, Any], dest: str, default: Sequence[str], known: Sequence[str] | None):
-    """A comma-separated list option, checked, or its default."""
-    values = parse_list(options.get(dest))
-    chosen = tuple(default) if values is None else values
-    check_list(dest, chosen, known)
-    return chosen
-
-
-def float_list_option(
-    options: Mapping[str, Any], dest: str, default: Sequence[float], low: float, high: float
-) -> tuple[float, ...]:
-    """A comma-separated list of numbers in ``[low, high]``, or its default."""
-    values = parse_list(options.get(dest))
-    if values is None:
-        return tuple(default)
-    check_list(dest, values)
-    flag = "--" + dest.replace("_", "-")
-    numbers = []
-    for value in values:
-        try:
-            number = float(value)
-        except ValueError:
-            raise ConfigError(f"{flag}: {value!r} is not a number") from None
-        if not low <= number <= high:
-            raise ConfigError(f"{flag}: {value} is outside [{low:g}, {high:g}]")
-        numbers.append(number)
-    return tuple(numbers)
-
-
-def int_option(options: Mapping[str, Any], dest: str, default: int | None, low: int, high: int) -> int | None:
-    """An integer option in ``[low, high]``, or its default."""
-    value = options.get(dest)
-    if value is None:
-        return default
-    flag = "--" + dest.replace("_", "-")
-    try:
-        number = int(str(value))
-    except ValueError:
-        raise ConfigError(f"{flag}: {value!r} is not an integer") from None
-    if not low <= number <= high:
-        raise ConfigError(f"{flag}: {number} is outside [{low}, {high}]")
-    return number
-
-
-def float_option(options: Mapping[str, Any], dest: str, default: float, low: float, high: float) -> float:
-    """A number option in ``[low, high]``, or its default."""
-    value = options.get(dest)
-    if value is None:
-        return default
-    flag = "--" + dest.replace("_", "-")
-    try:
-        number = float(str(value))
-    except ValueError:
-        raise ConfigError(f"{flag}: {value!r} is not a number") from None
-    if not low <= number <= high:
-        raise ConfigError(f"{flag}: {number:g} is outside [{low:g}, {high:g}]")
-    return number
 
 
 def experiment_command(

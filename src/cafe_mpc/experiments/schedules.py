@@ -16,29 +16,23 @@ from __future__ import annotations
 import itertools
 from collections.abc import Mapping
 from pathlib import Path
-from typing import Any
 
 import numpy as np
+from pydantic import Field
 
+from cafe_mpc.assembly.problem import model_schedule
 from cafe_mpc.experiments.common import (
     WALL_CLOCK_NOTE,
     RunStore,
+    ScheduleNames,
     colors,
     fall_fields,
     fell_text,
     iteration_timing,
     num,
 )
-from cafe_mpc.experiments.registry import (
-    Experiment,
-    Option,
-    Plan,
-    PlanContext,
-    Variant,
-    float_list_option,
-    list_option,
-    register,
-)
+from cafe_mpc.experiments.options import ExperimentOptions, numbers
+from cafe_mpc.experiments.registry import Experiment, ExperimentPlan, PlanContext, Variant
 from cafe_mpc.experiments.run import RunResult
 from cafe_mpc.report.figures import new_figure, save_figure
 from cafe_mpc.report.metrics import METRICS_WINDOW_START_S, body_rates, roll_pitch_yaw
@@ -55,7 +49,7 @@ def schedule_variant_name(schedule: str, srb_dt: float) -> str:
 
 def schedule_fields(result: RunResult) -> dict:
     """Schedule, horizons and SRB knots of a run."""
-    schedule = result.config.mpc.model_schedule()
+    schedule = model_schedule(result.config.mpc)
     return {
         "schedule": result.config.mpc.schedule,
         "whole_body_horizon_s": schedule.whole_body_horizon,
@@ -64,24 +58,36 @@ def schedule_fields(result: RunResult) -> dict:
     }
 
 
-@register
+SrbTimeSteps = numbers(0.005, 0.2)
+"""A list option of SRB integration time steps, s."""
+
+
+class SchedulesOptions(ExperimentOptions):
+    schedules: ScheduleNames = Field(
+        PAPER_TABLE_I,
+        description="model schedules (default: Table I, S0..S5,S10,S15,S20)",
+        json_schema_extra={"metavar": "S0,S4,..."},
+    )
+    srb_dts: SrbTimeSteps = Field(
+        PAPER_SRB_DTS,
+        description="SRB integration time steps in s (default 0.01,0.05)",
+        json_schema_extra={"metavar": "0.01,0.05"},
+    )
+
+
 class Schedules(Experiment):
     name = "schedules"
     title = "Bounding under the model schedules of Table I and two SRB time steps"
     paper = "paper Table I, Fig. 6 and Fig. 7"
     default_duration = 10.0
     varied_keys = ("mpc.schedule", "mpc.whole_body_horizon", "mpc.srb_horizon", "mpc.srb_dt")
-    options = (
-        Option("schedules", "model schedules (default: Table I, S0..S5,S10,S15,S20)", "S0,S4,..."),
-        Option("srb_dts", "SRB integration time steps in s (default 0.01,0.05)", "0.01,0.05"),
-    )
+    Options = SchedulesOptions
     reports_timing = True
 
-    def plan(self, options: Mapping[str, Any], context: PlanContext) -> Plan:
+    def plan(self, options: SchedulesOptions, context: PlanContext) -> ExperimentPlan:
         from cafe_mpc.mpc.problem import PAPER_SCHEDULES
 
-        schedules = list_option(options, "schedules", PAPER_TABLE_I, list(PAPER_SCHEDULES))
-        dts = float_list_option(options, "srb_dts", PAPER_SRB_DTS, 0.005, 0.2)
+        schedules, dts = options.schedules, options.srb_dts
         variants = [
             Variant(
                 schedule_variant_name(s, dt),
@@ -94,7 +100,7 @@ class Schedules(Experiment):
             for dt in dts
             for s in schedules
         ]
-        return Plan(
+        return ExperimentPlan(
             variants,
             {"--schedules": ",".join(schedules), "--srb-dts": ",".join(f"{dt:g}" for dt in dts)},
         )

@@ -9,31 +9,24 @@ single-core times; other load on the machine inflates them.
 
 from __future__ import annotations
 
-from collections.abc import Mapping
 from pathlib import Path
-from typing import Any
 
 import numpy as np
+from pydantic import Field
 
 from cafe_mpc.experiments.common import (
     WALL_CLOCK_NOTE,
+    GaitPresetNames,
     RunStore,
+    ScheduleNames,
     colors,
     fall_fields,
     fell_text,
-    gait_presets,
     iteration_timing,
     num,
 )
-from cafe_mpc.experiments.registry import (
-    Experiment,
-    Option,
-    Plan,
-    PlanContext,
-    Variant,
-    list_option,
-    register,
-)
+from cafe_mpc.experiments.options import ExperimentOptions
+from cafe_mpc.experiments.registry import Experiment, ExperimentPlan, PlanContext, Variant
 from cafe_mpc.experiments.run import RunResult
 from cafe_mpc.report.figures import new_figure, save_figure
 
@@ -48,24 +41,32 @@ PAPER_TABLE_II: dict[str, dict[str, float]] = {
 PAPER_GAIT_NAMES = {"pace": "Pace", "flying-trot": "FlyTrot", "pronk": "Pronk"}
 
 
-@register
+class SolveTimesOptions(ExperimentOptions):
+    gaits: GaitPresetNames = Field(
+        tuple(PAPER_TABLE_II),
+        description="gait presets (default: Table II's pace,flying-trot,pronk)",
+        json_schema_extra={"metavar": "pace,pronk"},
+    )
+    schedules: ScheduleNames = Field(
+        TABLE_II_SCHEDULES,
+        description="model schedules (default: Table II's S0..S4)",
+        json_schema_extra={"metavar": "S0,S4,..."},
+    )
+
+
 class SolveTimes(Experiment):
     name = "solve-times"
     title = "MS-iLQR time per iteration by gait and model schedule (dts = 50 ms)"
     paper = "paper Table II"
     default_duration = 5.0
     varied_keys = ("mpc.schedule", "mpc.whole_body_horizon", "mpc.srb_horizon", "mpc.srb_dt")
-    options = (
-        Option("gaits", "gait presets (default: Table II's pace,flying-trot,pronk)", "pace,pronk"),
-        Option("schedules", "model schedules (default: Table II's S0..S4)", "S0,S4,..."),
-    )
+    Options = SolveTimesOptions
     reports_timing = True
 
-    def plan(self, options: Mapping[str, Any], context: PlanContext) -> Plan:
+    def plan(self, options: SolveTimesOptions, context: PlanContext) -> ExperimentPlan:
         from cafe_mpc.mpc.problem import PAPER_SCHEDULES
 
-        gaits = list_option(options, "gaits", tuple(PAPER_TABLE_II), gait_presets())
-        schedules = list_option(options, "schedules", TABLE_II_SCHEDULES, list(PAPER_SCHEDULES))
+        gaits, schedules = options.gaits, options.schedules
         variants = [
             Variant(
                 f"{gait}-{s}",
@@ -78,7 +79,7 @@ class SolveTimes(Experiment):
             for gait in gaits
             for s in schedules
         ]
-        return Plan(variants, {"--gaits": ",".join(gaits), "--schedules": ",".join(schedules)})
+        return ExperimentPlan(variants, {"--gaits": ",".join(gaits), "--schedules": ",".join(schedules)})
 
     def summarize(self, result: RunResult, variant: Variant) -> dict:
         timing = iteration_timing(result)

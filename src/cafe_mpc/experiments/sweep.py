@@ -45,7 +45,9 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from cafe_mpc.config import ConfigError, RunConfig, load_config
+from cafe_mpc.assembly.checks import load_run_config
+from cafe_mpc.config import ConfigError, RunConfig
+from cafe_mpc.experiments.catalog import get_experiment
 from cafe_mpc.experiments.cluster import ClusterInfo, open_cluster
 from cafe_mpc.experiments.comparison import write_comparison
 from cafe_mpc.experiments.execution import (
@@ -60,14 +62,12 @@ from cafe_mpc.experiments.execution import (
 )
 from cafe_mpc.experiments.registry import (
     Experiment,
-    Plan,
+    ExperimentPlan,
     PlanContext,
     SweepError,
     Variant,
-    check_options,
     check_overrides,
     experiment_command,
-    get_experiment,
     run_command,
 )
 from cafe_mpc.experiments.results_table import RESULTS_FILE, ResultsTable
@@ -114,7 +114,7 @@ def _write_run_folder(out_dir: Path, run: str, files: Mapping[str, bytes]) -> No
 @dataclass
 class _Prepared:
     experiment: Experiment
-    plan: Plan
+    plan: ExperimentPlan
     duration: float | None
     overrides: list[str]
     configs: dict[str, RunConfig]
@@ -128,7 +128,7 @@ def prepare(
 ) -> _Prepared:
     """Plan and validate every run of an experiment (nothing is started or written)."""
     experiment = get_experiment(name)
-    chosen = check_options(experiment, options)
+    chosen = experiment.options_from(options)
     overrides = list(overrides)
     check_overrides(experiment, overrides)
     if duration is None:
@@ -142,7 +142,7 @@ def prepare(
     for variant in plan.variants:
         if variant.name in configs:
             raise ConfigError(f"experiment {name!r}: two runs named {variant.name!r}")
-        configs[variant.name] = load_config(variant.preset, [*base, *extra, *variant.overrides])
+        configs[variant.name] = load_run_config(variant.preset, [*base, *extra, *variant.overrides])
         if experiment.needs_gait and configs[variant.name].gait is None:
             raise ConfigError(f"experiment {name!r}: preset {variant.preset!r} has no gait to run")
     hashes = {run: config_hash(config) for run, config in configs.items()}

@@ -30,33 +30,25 @@ the measured quantities that say why a run fell:
 
 from __future__ import annotations
 
-from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 import pinocchio as pin
+from pydantic import Field
 
+from cafe_mpc.assembly.problem import torque_limits_of
+from cafe_mpc.core.physics import GRAVITY
 from cafe_mpc.experiments.common import RunStore, colors, fall_fields, fell_text, num, pct
 from cafe_mpc.experiments.controllers import low_level_of
-from cafe_mpc.experiments.registry import (
-    Experiment,
-    Option,
-    Plan,
-    PlanContext,
-    Variant,
-    list_option,
-    register,
-)
+from cafe_mpc.experiments.options import ExperimentOptions, names
+from cafe_mpc.experiments.registry import Experiment, ExperimentPlan, PlanContext, Variant
 from cafe_mpc.experiments.run import RunResult
-from cafe_mpc.experiments.tasks import torque_limits_of
 from cafe_mpc.ocp.contact_schedule import GaitCycle, get_gait
 from cafe_mpc.report.figures import save_figure, subplots
 from cafe_mpc.report.metrics import body_rates, roll_pitch_yaw
 from cafe_mpc.robots.robot import Robot
 
-GRAVITY = 9.81
 STEADY_FROM_S = 3.0
 """s; the steady-state window starts here (0.2 s stand, 0.5 s command ramp, settling; after the push)."""
 SPEED_TOLERANCE = 0.1
@@ -100,7 +92,7 @@ def vertical_force_capacity(
     (default the standing height), level, each foot under its hip (``foothold_offsets``); per leg the
     smallest ``tau_max_j / |J_j' e_z|`` over its joints (``torque_limits``, default the robot's plan limits;
     leg weight ignored)."""
-    from cafe_mpc.reference.inverse_kinematics import LegInverseKinematics
+    from cafe_mpc.dynamics.leg_inverse_kinematics import LegInverseKinematics
 
     height = robot.standing_height if height is None else height
     limits = robot.torque_limits if torque_limits is None else np.asarray(torque_limits, dtype=float)
@@ -156,22 +148,33 @@ def pitch_swing(gait: GaitCycle, robot: Robot, friction: float) -> tuple[float, 
     return worst_rate, worst_turn
 
 
-@register
+CASE_NAMES = tuple(case.name for case in CASES)
+PLANNER_NAMES = tuple(planner for planner, _ in PLANNERS)
+
+
+class TemplateGaitsOptions(ExperimentOptions):
+    gaits: names(CASE_NAMES) = Field(
+        CASE_NAMES,
+        description=f"cases (default all: {','.join(CASE_NAMES)})",
+        json_schema_extra={"metavar": "bound,bound-mit,..."},
+    )
+    planners: names(PLANNER_NAMES) = Field(
+        PLANNER_NAMES,
+        description="cafe and/or template (default both)",
+        json_schema_extra={"metavar": "cafe,template"},
+    )
+
+
 class TemplateGaits(Experiment):
     name = "template-gaits"
     title = "Gaits and push test with the paper's and MIT's timings: CAFE-MPC vs the template MPC"
     paper = "Sec. VII-C (the template baseline of Fig. 12)"
     default_duration = 10.0
     varied_keys = ("planner", "gait.name")
-    options = (
-        Option("gaits", f"cases (default all: {','.join(c.name for c in CASES)})", "bound,bound-mit,..."),
-        Option("planners", "cafe and/or template (default both)", "cafe,template"),
-    )
+    Options = TemplateGaitsOptions
 
-    def plan(self, options: Mapping[str, Any], context: PlanContext) -> Plan:
-        names = [case.name for case in CASES]
-        chosen_cases = list_option(options, "gaits", names, names)
-        planners = list_option(options, "planners", [p for p, _ in PLANNERS], [p for p, _ in PLANNERS])
+    def plan(self, options: TemplateGaitsOptions, context: PlanContext) -> ExperimentPlan:
+        chosen_cases, planners = options.gaits, options.planners
         labels = dict(PLANNERS)
         variants = []
         for case in CASES:
@@ -194,11 +197,7 @@ class TemplateGaits(Experiment):
                         ),
                     )
                 )
-        chosen = {}
-        for dest, values in (("gaits", chosen_cases), ("planners", planners)):
-            if options.get(dest):
-                chosen[f"--{dest}"] = ",".join(values)
-        return Plan(variants, chosen)
+        return ExperimentPlan(variants, {"--gaits": ",".join(chosen_cases), "--planners": ",".join(planners)})
 
     def summarize(self, result: RunResult, variant: Variant) -> dict:
         return gait_summary(result)

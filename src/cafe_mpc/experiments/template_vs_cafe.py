@@ -18,15 +18,15 @@ that the template MPC fails the landing; whatever happens here is reported as it
 
 from __future__ import annotations
 
-from collections.abc import Mapping
 from pathlib import Path
-from typing import Any
 
 import numpy as np
+from pydantic import Field
 
 from cafe_mpc.config import ConfigError, available_presets, load_config
 from cafe_mpc.experiments.common import RunStore, colors, fall_fields, fell_text, integer, num
-from cafe_mpc.experiments.registry import Experiment, Option, Plan, PlanContext, Variant, register
+from cafe_mpc.experiments.options import ExperimentOptions
+from cafe_mpc.experiments.registry import Experiment, ExperimentPlan, PlanContext, Variant
 from cafe_mpc.experiments.run import RunResult
 from cafe_mpc.report.figures import save_figure, subplots
 from cafe_mpc.report.metrics import roll_pitch_yaw
@@ -52,24 +52,31 @@ TASK_FIELDS = (
 )
 
 
-@register
+class TemplateVsCafeOptions(ExperimentOptions):
+    task: str | None = Field(
+        None,
+        description=f"the acrobatic preset both planners run (default {DEFAULT_TASK})",
+        json_schema_extra={"metavar": "PRESET"},
+    )
+
+
 class TemplateVsCafe(Experiment):
     name = "template-vs-cafe"
     title = "Barrel roll: CAFE-MPC vs the template MPC"
     paper = "paper Fig. 12"
     varied_keys = ("planner",)
     needs_gait = False
-    options = (Option("task", f"the acrobatic preset both planners run (default {DEFAULT_TASK})", "PRESET"),)
+    Options = TemplateVsCafeOptions
     default_overrides = ("output.render=true",)
 
-    def plan(self, options: Mapping[str, Any], context: PlanContext) -> Plan:
-        task = str(options.get("task") or DEFAULT_TASK)
+    def plan(self, options: TemplateVsCafeOptions, context: PlanContext) -> ExperimentPlan:
+        task = options.task or DEFAULT_TASK
         if task not in available_presets() and not Path(task).is_file():
             raise ConfigError(f"--task: unknown preset {task!r}; presets: {', '.join(available_presets())}")
         if load_config(task).reference is None:
             raise ConfigError(f"--task {task}: not an acrobatic task (it has no reference section)")
-        chosen = {"--task": task} if options.get("task") else {}
-        return Plan([Variant(p, task, (f"planner={p}",), label) for p, label in PLANNERS], chosen)
+        chosen = {"--task": task} if options.task else {}
+        return ExperimentPlan([Variant(p, task, (f"planner={p}",), label) for p, label in PLANNERS], chosen)
 
     def summarize(self, result: RunResult, variant: Variant) -> dict:
         task = result.metrics.get("task") or {}
@@ -153,7 +160,7 @@ def _video_of(result: RunResult) -> str | None:
 def plot_comparison(results: dict[str, RunResult], labels: dict[str, str], path: Path) -> Path:
     """Roll (integral of the body roll rate), base height and lateral position of each planner's run over the
     reference of the first run (paper Fig. 12); the planned flight shaded, a fall marked with x."""
-    from cafe_mpc.experiments.tasks import task_reference
+    from cafe_mpc.assembly.references import task_reference
     from cafe_mpc.report.task_metrics import reference_trace, task_from_reference
 
     first = next(iter(results.values()))

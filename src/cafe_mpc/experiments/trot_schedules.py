@@ -8,23 +8,15 @@ Fig. 8's shape: vx and the base height against time, one line per schedule, the 
 
 from __future__ import annotations
 
-from collections.abc import Mapping
 from pathlib import Path
-from typing import Any
 
 import numpy as np
+from pydantic import Field
 
-from cafe_mpc.experiments.common import RunStore, colors, fall_fields, fell_text, num
-from cafe_mpc.experiments.controllers import reference_commands, reference_profile
-from cafe_mpc.experiments.registry import (
-    Experiment,
-    Option,
-    Plan,
-    PlanContext,
-    Variant,
-    list_option,
-    register,
-)
+from cafe_mpc.assembly.references import reference_commands, reference_profile
+from cafe_mpc.experiments.common import RunStore, ScheduleNames, colors, fall_fields, fell_text, num
+from cafe_mpc.experiments.options import ExperimentOptions
+from cafe_mpc.experiments.registry import Experiment, ExperimentPlan, PlanContext, Variant
 from cafe_mpc.experiments.run import RunResult
 from cafe_mpc.report.figures import new_figure, save_figure
 from cafe_mpc.report.metrics import METRICS_WINDOW_START_S, body_rates, commanded_at
@@ -33,19 +25,26 @@ SRB_DT = 0.05
 FIG_8_SCHEDULES = ("S0", "S1", "S2", "S3", "S4")
 
 
-@register
+class TrotSchedulesOptions(ExperimentOptions):
+    schedules: ScheduleNames = Field(
+        FIG_8_SCHEDULES,
+        description="model schedules (default: Fig. 8's S0..S4)",
+        json_schema_extra={"metavar": "S0,S4,..."},
+    )
+
+
 class TrotSchedules(Experiment):
     name = "trot-schedules"
     title = "Trotting under the model schedules S0..S4 (dts = 50 ms): speed and height tracking"
     paper = "paper Fig. 8 (hardware there, simulation here)"
     default_duration = 10.0
     varied_keys = ("mpc.schedule", "mpc.whole_body_horizon", "mpc.srb_horizon", "mpc.srb_dt")
-    options = (Option("schedules", "model schedules (default: Fig. 8's S0..S4)", "S0,S4,..."),)
+    Options = TrotSchedulesOptions
 
-    def plan(self, options: Mapping[str, Any], context: PlanContext) -> Plan:
+    def plan(self, options: TrotSchedulesOptions, context: PlanContext) -> ExperimentPlan:
         from cafe_mpc.mpc.problem import PAPER_SCHEDULES
 
-        schedules = list_option(options, "schedules", FIG_8_SCHEDULES, list(PAPER_SCHEDULES))
+        schedules = options.schedules
         variants = [
             Variant(
                 s,
@@ -56,7 +55,7 @@ class TrotSchedules(Experiment):
             )
             for s in schedules
         ]
-        return Plan(variants, {"--schedules": ",".join(schedules)})
+        return ExperimentPlan(variants, {"--schedules": ",".join(schedules)})
 
     def summarize(self, result: RunResult, variant: Variant) -> dict:
         metrics = result.metrics

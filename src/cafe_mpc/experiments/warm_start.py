@@ -6,31 +6,24 @@ plan's guess and no warm start, for bounding and pacing (Sec. VII-B, Fig. 11).
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+from collections.abc import Sequence
 from pathlib import Path
-from typing import Any
 
 import numpy as np
+from pydantic import Field
 
 from cafe_mpc.experiments.common import (
+    GaitPresetNames,
     RunStore,
     colors,
     fall_fields,
     fell_text,
-    gait_presets,
     integer,
     num,
     pct,
 )
-from cafe_mpc.experiments.registry import (
-    Experiment,
-    Option,
-    Plan,
-    PlanContext,
-    Variant,
-    list_option,
-    register,
-)
+from cafe_mpc.experiments.options import ExperimentOptions, names
+from cafe_mpc.experiments.registry import Experiment, ExperimentPlan, PlanContext, Variant
 from cafe_mpc.experiments.run import RunResult
 from cafe_mpc.report.figures import save_figure, subplots
 
@@ -40,32 +33,39 @@ WARM_START_MODES = ("previous", "plan", "equality", "none")
 MAX_HISTOGRAM_BIN = 10  # iterations >= this share one bar
 
 
-@register
+WarmStartModes = names(WARM_START_MODES)
+"""A list option of VWBC warm-start modes."""
+
+
+class WarmStartOptions(ExperimentOptions):
+    gaits: GaitPresetNames = Field(
+        DEFAULT_GAITS,
+        description="gait presets (default bound,pace)",
+        json_schema_extra={"metavar": "bound,pace"},
+    )
+    warm_starts: WarmStartModes = Field(
+        DEFAULT_WARM_STARTS,
+        description="VWBC warm-start modes (default previous,plan,none; also equality)",
+        json_schema_extra={"metavar": "previous,plan,none"},
+    )
+
+
 class WarmStart(Experiment):
     name = "warm-start"
     title = "VWBC QP iterations per tick with and without warm start"
     paper = "paper Fig. 11"
     default_duration = 4.0
     varied_keys = ("wbc", "vwbc.warm_start")
-    options = (
-        Option("gaits", "gait presets (default bound,pace)", "bound,pace"),
-        Option(
-            "warm_starts",
-            "VWBC warm-start modes (default previous,plan,none; also equality)",
-            "previous,plan,none",
-        ),
-    )
+    Options = WarmStartOptions
 
-    def plan(self, options: Mapping[str, Any], context: PlanContext) -> Plan:
-
-        gaits = list_option(options, "gaits", DEFAULT_GAITS, gait_presets())
-        modes = list_option(options, "warm_starts", DEFAULT_WARM_STARTS, WARM_START_MODES)
+    def plan(self, options: WarmStartOptions, context: PlanContext) -> ExperimentPlan:
+        gaits, modes = options.gaits, options.warm_starts
         variants = [
             Variant(f"{gait}-{mode}", gait, ("wbc=vwbc", f"vwbc.warm_start={mode}"), mode, group=gait)
             for gait in gaits
             for mode in modes
         ]
-        return Plan(variants, {"--gaits": ",".join(gaits), "--warm-starts": ",".join(modes)})
+        return ExperimentPlan(variants, {"--gaits": ",".join(gaits), "--warm-starts": ",".join(modes)})
 
     def summarize(self, result: RunResult, variant: Variant) -> dict:
         return warm_start_summary(result)

@@ -8,7 +8,8 @@ A planner turns measured (or predicted) states into plans for the low-level cont
 * ``prepare(t, q, v)`` / ``feedback(t, q, v)``: the two phases of a real-time iteration, when
   ``supports_rti``; ``predict(t)``: the state the newest solution predicts at ``t`` (what ``prepare`` starts
   from);
-* ``settings`` (``MpcSettings``), ``statistics`` (``MpcStatistics``), ``reference``, ``started``, ``reset``.
+* ``settings`` (``config.MpcSettings``; the run config's ``mpc`` section is one), ``statistics``
+  (``MpcStatistics``), ``reference``, ``started``, ``reset``.
 
 ``RecedingHorizonPlanner`` is the shared part: the one-phase update (reference re-anchored, problem built,
 solver run, plan made; failures counted and logged and the previous plan kept) over three hooks, ``_build``,
@@ -19,23 +20,21 @@ iteration) and ``mpc.template.TemplateMpc`` (the SRB-only baseline) implement th
 from __future__ import annotations
 
 import logging
-import math
 import time
 from dataclasses import dataclass, field, replace
-from typing import Literal, Protocol
+from typing import Protocol
 
 import numpy as np
 
+from cafe_mpc.config import MpcSettings
 from cafe_mpc.core.plan import Plan
 from cafe_mpc.core.template_plan import TemplatePlan
 from cafe_mpc.mpc import collector
 from cafe_mpc.reference.base import Reference
 from cafe_mpc.robots.robot import Robot
-from cafe_mpc.solver import MSiLQRSolver, SolverOptions, SolverResult
+from cafe_mpc.solver import MSiLQRSolver, SolverOptions, SolverResult, SolveStatus
 
 logger = logging.getLogger(__name__)
-
-LatencyMode = Literal["fixed", "measured"]
 
 UPDATE_LINE_SEARCH_MIN_STEP = 0.125
 """Smallest line-search step of an in-loop update (steps 1, 1/2, 1/4, 1/8; the offline solver goes down to
@@ -44,128 +43,45 @@ setting made 20 roll-outs (hybrid and nonlinear per step), and at the running ba
 update took 229 ms instead of ~50 ms (measured). A failed search keeps the previous plan and its policy."""
 
 
-@dataclass
-class MpcSettings:
-    """Receding-horizon settings (docs/settings.md: "MPC loop" and "Solver (MS-iLQR)").
-
-    ``latency``: ``"measured"`` (default): a plan takes effect once its real wall-clock update time has
-    passed in simulated time, and the next update starts from the newest measurement when the worker is
-    free; ``"fixed"``: the same with a constant ``fixed_latency`` (deterministic, for tests and for the
-    paper's C++ budget). ``time_budget``: wall-clock cap of one solve (the paper's 0.9 x period), applied in
-    measured mode only so that fixed-latency runs do not depend on the machine's load. ``max_iterations``:
-    MS-iLQR iterations per update: 1, the real-time iteration scheme (the paper uses 4 with ~5 ms C++
-    iterations; in Python, with measured latency, 4 iterations made 20-32 ms updates and the pace and bound
-    presets fell, while 1 iteration keeps the latency near 12 ms and all five gaits stay up: BENCHMARKS.md).
-    ``touchdown_max_penalty``: cap of the augmented-Lagrangian penalty of the touchdown constraint (25)
-    (``SolverOptions.al_max_penalty``; ``None``: the authors' 1e4). The penalty starts at 20 and grows x5 per
-    update while a planned foot misses the floor by more than 5 mm (the AL parameters carry over between
-    updates); the barrel-roll preset caps it at 20 (docs/settings.md).
-    ``final_policy``: the policy an update returns (``SolverOptions.final_policy``): ``"shift"`` (default)
-    keeps the sweep the step was taken from, moved to the new plan to first order (the real-time iteration's
-    policy: one linearisation and one backward sweep per update); ``"relinearize"`` linearises and sweeps
-    again at the new plan (a third more work per preparation; with the real-time iteration both track the
-    gaits alike at fixed 20-60 ms latency, and the running barrel roll succeeds at 10-40 ms with either,
-    at 50 ms only with ``"relinearize"``: BENCHMARKS.md).
-    ``warm_up``: seconds of future updates whose solver data (one per knot object: Pinocchio ``Data``,
-    kinematics, buffers) are created right after the cold first solve, before the clock starts, instead of
-    inside the first update that meets each knot object (which took 25-60 ms extra at the start of a gait
-    and when the barrel roll entered the horizon). 0: no warm-up.
-    ``scheme``: ``"rti"`` (default; real-time iteration: ``prepare`` before the measurement, ``feedback``
-    after it, see the module docstring) or ``"one_phase"`` (the whole update after the measurement).
-    ``rti_line_search``: the preparation takes its MS-iLQR iteration(s) on the predicted state, line search
-    included (``max_iterations`` of them), and the feedback only embeds the measured state (``True``,
-    default); or the preparation stops after the backward sweep and the feedback takes the full Newton step
-    (the classical real-time iteration, no globalisation).
-    ``rti_feedback``: how the feedback carries the measured initial state through the plan: ``"linear"``
-    (the tangential predictor through the prepared ``A``, ``B``) or ``"nonlinear"`` (the dynamics rolled out
-    under the prepared policy).
-    ``compute_scale``: measured mode only: every measured wall time (update, preparation, feedback) is
-    multiplied by it before it is applied in simulated time, to show the controller as it would run on a
-    computer ``compute_scale`` times slower.
-    ``threads``: threads that linearise the knots of an update (``SolverOptions.threads``; 1: none).
-    """
-
-    period: float = 0.02
-    latency: LatencyMode = "measured"
-    fixed_latency: float = 0.02
-    time_budget: float | None = None
-    max_iterations: int = 1
-    touchdown_max_penalty: float | None = None
-    final_policy: Literal["relinearize", "shift"] = "shift"
-    warm_up: float = 1.0
-    scheme: Literal["one_phase", "rti"] = "rti"
-    rti_line_search: bool = True
-    rti_feedback: Literal["linear", "nonlinear"] = "linear"
-    compute_scale: float = 1.0
-    threads: int = 1
-    # The paper's first-solve settings with a tighter tolerance: the first (cold) solve seeds every later
-    # warm start. It runs before the clock starts (the robot stands while the first plan is computed).
-    first_solve: SolverOptions = field(
-        default_factory=lambda: replace(
-            SolverOptions.paper_first_solve(),
-            max_iterations=30,
-            max_al_iterations=3,
-            cost_change_tolerance=1e-4,
-            expected_decrease_tolerance=1e-5,
-            defect_tolerance=1e-6,
-            regularization_initial=1e-6,
-            regularization_min=1e-6,
-        )
+def first_solve_options() -> SolverOptions:
+    """Solver settings of the first (cold) solve: the paper's, with a tighter tolerance, since it seeds
+    every later warm start. It runs before the clock starts (the robot stands while the first plan is
+    computed)."""
+    return replace(
+        SolverOptions.paper_first_solve(),
+        max_iterations=30,
+        max_al_iterations=3,
+        cost_change_tolerance=1e-4,
+        expected_decrease_tolerance=1e-5,
+        defect_tolerance=1e-6,
+        regularization_initial=1e-6,
+        regularization_min=1e-6,
     )
 
-    def __post_init__(self) -> None:
-        if not self.period > 0:
-            raise ValueError(f"MPC period must be positive, got {self.period}")
-        if self.latency not in ("fixed", "measured"):
-            raise ValueError(f"MPC latency must be 'fixed' or 'measured', got {self.latency!r}")
-        if self.fixed_latency < 0:
-            raise ValueError("MPC latency must be >= 0")
-        if self.time_budget is not None and not self.time_budget > 0:
-            raise ValueError("MPC time budget must be positive (or null)")
-        if self.max_iterations < 1:
-            raise ValueError("MPC max_iterations must be >= 1")
-        if self.touchdown_max_penalty is not None and not self.touchdown_max_penalty > 0:
-            raise ValueError("MPC touchdown_max_penalty must be positive (or null)")
-        if self.scheme not in ("one_phase", "rti"):
-            raise ValueError(f"MPC scheme must be 'one_phase' or 'rti', got {self.scheme!r}")
-        if self.rti_feedback not in ("linear", "nonlinear"):
-            raise ValueError(f"MPC rti_feedback must be 'linear' or 'nonlinear', got {self.rti_feedback!r}")
-        if not (math.isfinite(self.compute_scale) and self.compute_scale > 0):
-            raise ValueError(f"MPC compute_scale must be positive, got {self.compute_scale}")
-        if self.threads < 1:
-            raise ValueError(f"MPC threads must be >= 1, got {self.threads}")
 
-    @property
-    def budget(self) -> float | None:
-        """The wall-clock cap of an update's solve: ``time_budget`` or 0.9 x period in measured mode."""
-        if self.latency != "measured":
-            return None
-        return self.time_budget if self.time_budget is not None else 0.9 * self.period
+def update_solve_options(settings: MpcSettings) -> SolverOptions:
+    """In-loop solver settings (the paper's: ``max_iterations`` iterations, one AL update, the budget)."""
+    options = replace(
+        SolverOptions.paper_mpc(settings.period),
+        max_iterations=settings.max_iterations,
+        time_budget=settings.budget,
+        regularization_initial=1e-6,
+        regularization_min=1e-6,
+        line_search_min_step=UPDATE_LINE_SEARCH_MIN_STEP,
+        final_policy=settings.final_policy,
+        threads=settings.threads,
+    )
+    if settings.touchdown_max_penalty is not None:
+        options = replace(options, al_max_penalty=settings.touchdown_max_penalty)
+    return options
 
-    @property
-    def update_solve(self) -> SolverOptions:
-        """In-loop solver settings (the paper's: ``max_iterations`` iterations, one AL update, the budget)."""
-        options = replace(
-            SolverOptions.paper_mpc(self.period),
-            max_iterations=self.max_iterations,
-            time_budget=self.budget,
-            regularization_initial=1e-6,
-            regularization_min=1e-6,
-            line_search_min_step=UPDATE_LINE_SEARCH_MIN_STEP,
-            final_policy=self.final_policy,
-            threads=self.threads,
-        )
-        if self.touchdown_max_penalty is not None:
-            options = replace(options, al_max_penalty=self.touchdown_max_penalty)
-        return options
 
-    @property
-    def prepare_solve(self) -> SolverOptions:
-        """Solver settings of a real-time iteration's preparation: the in-loop ones, or (without the
-        preparation's line search) no iteration: linearisation and backward sweep only."""
-        if self.rti_line_search:
-            return self.update_solve
-        return replace(self.update_solve, max_iterations=0)
+def prepare_solve_options(settings: MpcSettings) -> SolverOptions:
+    """Solver settings of a real-time iteration's preparation: the in-loop ones, or (without the
+    preparation's line search) no iteration: linearisation and backward sweep only."""
+    if settings.rti_line_search:
+        return update_solve_options(settings)
+    return replace(update_solve_options(settings), max_iterations=0)
 
 
 @dataclass
@@ -191,7 +107,7 @@ class MpcStatistics:
     line_search_steps: list[int] = field(default_factory=list)
     costs: list[float] = field(default_factory=list)
     defects: list[float] = field(default_factory=list)
-    statuses: list[str] = field(default_factory=list)
+    statuses: list[SolveStatus] = field(default_factory=list)
     prepare_times: list[float] = field(default_factory=list)
     """Real-time iteration: wall time of each preparation (reference, problem, warm start, linearisation,
     backward sweep and, with ``rti_line_search``, the line search)."""
@@ -254,7 +170,7 @@ class MpcStatistics:
             if self.line_search_steps[start:]
             else None,
             "defect_max_median": float(np.median(self.defects)) if self.defects else None,
-            "time_budget_stops": sum(status == "time_budget" for status in self.statuses),
+            "time_budget_stops": sum(status == SolveStatus.TIME_BUDGET for status in self.statuses),
             "pd_fallback_ticks": self.fallback_ticks,
             "prepare_ms_median": float(np.median(self.prepare_times)) * 1e3 if self.prepare_times else None,
             "prepare_ms_p99": float(np.percentile(self.prepare_times, 99)) * 1e3
@@ -318,8 +234,8 @@ class RecedingHorizonPlanner:
         self.reference = reference
         self.builder = builder
         self.settings = settings or MpcSettings()
-        self.first_solver = MSiLQRSolver(self.settings.first_solve)
-        self.solver = MSiLQRSolver(self.settings.update_solve)
+        self.first_solver = MSiLQRSolver(first_solve_options())
+        self.solver = MSiLQRSolver(update_solve_options(self.settings))
         self.statistics = MpcStatistics()
         self.previous: tuple | None = None
         """The newest (problem, solution) the plan in effect came from."""
@@ -344,7 +260,7 @@ class RecedingHorizonPlanner:
     @collector.paused
     def update(self, t: float, q: np.ndarray, v: np.ndarray) -> Plan | TemplatePlan | None:
         """One one-phase update from the state measured at ``t``; ``None`` (counted and logged) if it
-        failed. The first update of a run is the cold solve (``settings.first_solve``); after it (and the
+        failed. The first update of a run is the cold solve (``first_solve_options``); after it (and the
         warm-up) the objects alive are frozen out of the garbage collector's reach (``mpc.collector``)."""
         first = self.previous is None
         self.prepared = None
@@ -396,7 +312,7 @@ class RecedingHorizonPlanner:
             return None
         elapsed = time.perf_counter() - start
         self.statistics.record(t, result, elapsed, problem_time)
-        if result.status == "non_finite" or not result.policy_valid:
+        if result.status == SolveStatus.NON_FINITE or not result.policy_valid:
             self._failed(t, f"it returned {result.status}")
             return None
         return built, result

@@ -23,13 +23,14 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
+from cafe_mpc.config.weights import WholeBodyWeights
 from cafe_mpc.core.contacts import touchdown_flags
 from cafe_mpc.core.interfaces import MultiPhaseProblem, Phase
-from cafe_mpc.dynamics.srb import GRAVITY, SRBState
+from cafe_mpc.core.physics import GRAVITY
+from cafe_mpc.dynamics.srb import SRBState
 from cafe_mpc.dynamics.statics import static_stance_torques
 from cafe_mpc.dynamics.transition import whole_body_to_srb_state
 from cafe_mpc.mpc.time_grid import TIME_QUANTUM, PiecewiseTrajectory, grid_times, quanta
-from cafe_mpc.ocp.costs import WholeBodyWeights
 from cafe_mpc.ocp.knots import SRBKnot, SRBModelFactory, WholeBodyKnot, WholeBodyModelFactory
 from cafe_mpc.reference.base import Reference, ReferenceWindow
 from cafe_mpc.solver.results import SolverResult
@@ -108,9 +109,9 @@ class BuiltProblem:
     problem: MultiPhaseProblem
     phases: list[PhaseInfo]
     start_time: float
-    srb_forces: np.ndarray = field(default_factory=lambda: np.zeros((0, 12)))
-    """GRF targets of the SRB knots (n_srb, 12): also their warm-start guess."""
-    torque_reference: np.ndarray = field(default_factory=lambda: np.zeros((0, 12)))
+    srb_forces: np.ndarray
+    """GRF targets of the SRB knots (n_srb, 3 n_feet): also their warm-start guess."""
+    torque_reference: np.ndarray
     """Torque references of the whole-body knots (n_wb + 1, nu): the guess of appended knots."""
 
     @property
@@ -178,7 +179,7 @@ class CafeProblemBuilder:
         key = tuple(bool(s) for s in stance) if stance is not None else (False,) * self.robot.n_feet
         if not any(key):
             return np.zeros(self.robot.nu)
-        force = None if support_factor is None else support_factor * self.robot.total_mass * 9.81
+        force = None if support_factor is None else support_factor * self.robot.total_mass * GRAVITY
         return static_stance_torques(self.robot, self.robot.q_standing, key, force)
 
     # ------------------------------------------------------------------------------------ persistent parts
@@ -350,7 +351,7 @@ class CafeProblemBuilder:
             srb_stance = np.asarray(window.stance[offset : offset + n_s + 1], dtype=bool)
             fractions, sample_rows = self._stance_fractions(srb_times, offset, switch_rows, window.stance)
             running = []
-            srb_forces = np.zeros((n_s, 12))
+            srb_forces = np.zeros((n_s, 3 * self.robot.n_feet))
             for j in range(n_s):
                 row = offset + j
                 knot = self._srb_knot(j, int(weight_set[row]), quanta(float(srb_times[j + 1] - srb_times[j])))
@@ -378,7 +379,7 @@ class CafeProblemBuilder:
                 PhaseInfo("srb", None, np.array(srb_times), srb_stance[:-1].copy(), entered, 0, fractions)
             )
         else:
-            srb_forces = np.zeros((0, 12))
+            srb_forces = np.zeros((0, 3 * self.robot.n_feet))
         problem = MultiPhaseProblem(np.asarray(x0, dtype=float), phases)
         return BuiltProblem(problem, infos, t0, srb_forces, torque[: n_w + 1].copy())
 

@@ -29,14 +29,15 @@ import time
 
 import numpy as np
 
+from cafe_mpc.config import MpcSettings
 from cafe_mpc.core.plan import Plan
 from cafe_mpc.mpc import collector
 from cafe_mpc.mpc.planner import (
     PLANNER_ERRORS,
     UPDATE_LINE_SEARCH_MIN_STEP,
-    MpcSettings,
     MpcStatistics,
     RecedingHorizonPlanner,
+    prepare_solve_options,
 )
 from cafe_mpc.mpc.problem import BuiltProblem, CafeProblemBuilder, WarmStart
 from cafe_mpc.mpc.time_grid import TIME_QUANTUM, PiecewiseTrajectory
@@ -70,7 +71,7 @@ class RecedingHorizonMpc(RecedingHorizonPlanner):
         settings: MpcSettings | None = None,
     ) -> None:
         super().__init__(robot, reference, builder, settings)
-        self.prepare_solver = MSiLQRSolver(self.settings.prepare_solve)
+        self.prepare_solver = MSiLQRSolver(prepare_solve_options(self.settings))
         # one workspace and data pool for the cold solve and the updates (the updates reuse its data)
         workspace = Workspace()
         self.solver.workspace = self.first_solver.workspace = self.prepare_solver.workspace = workspace

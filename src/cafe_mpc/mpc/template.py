@@ -61,25 +61,27 @@ import numpy as np
 import pinocchio as pin
 from numba import njit
 
+from cafe_mpc.config import DEFAULT_FRICTION, MpcSettings
+from cafe_mpc.config.weights import SRBWeights
 from cafe_mpc.core.interfaces import MultiPhaseProblem, Phase
+from cafe_mpc.core.physics import GRAVITY
 from cafe_mpc.core.plan import interval_at
 from cafe_mpc.core.template_plan import TemplatePlan
+from cafe_mpc.dynamics.leg_inverse_kinematics import LegInverseKinematics
 from cafe_mpc.dynamics.srb import (
-    GRAVITY,
     SRBDynamics,
     SRBParameters,
+    SRBState,
     lumped_inertia,
     quaternion_to_rotation,
 )
 from cafe_mpc.dynamics.transition import whole_body_to_srb_state
-from cafe_mpc.mpc.planner import MpcSettings, RecedingHorizonPlanner
+from cafe_mpc.mpc.planner import RecedingHorizonPlanner
 from cafe_mpc.mpc.time_grid import TIME_QUANTUM, PiecewiseTrajectory, grid_times, quanta
 from cafe_mpc.ocp.constraints import BarrierParameters
 from cafe_mpc.ocp.contact_schedule import GaitCycle
-from cafe_mpc.ocp.costs import SRBWeights
 from cafe_mpc.ocp.knots import SRBKnot, SRBKnotData, SRBReference
 from cafe_mpc.reference.base import Reference, ReferenceWindow
-from cafe_mpc.reference.inverse_kinematics import LegInverseKinematics
 from cafe_mpc.robots.robot import Robot
 from cafe_mpc.solver import MSiLQRSolver, SolverResult
 
@@ -306,7 +308,7 @@ class TemplateSettings:
     centroidal_state: bool = True
     vertical_reference: bool = True
     predict_latency: bool = True
-    friction_coefficient: float = 0.6
+    friction_coefficient: float = DEFAULT_FRICTION
     friction_barrier: BarrierParameters = field(default_factory=lambda: BarrierParameters(0.1, 0.01))
     leg_torque_limits: bool = True
     torque_limits: tuple[float, ...] | None = None
@@ -404,8 +406,8 @@ class TemplateProblem:
     contacts: np.ndarray  # (n, n_feet) bool
     foot_positions: np.ndarray  # (n + 1, n_feet, 3)
     foot_velocities: np.ndarray  # (n + 1, n_feet, 3)
-    force_targets: np.ndarray  # (n, 12) GRF regularisation targets (also the guess of new knots)
-    reference_states: np.ndarray  # (n + 1, 13) SRB reference states
+    force_targets: np.ndarray  # (n, 3 n_feet) GRF regularisation targets (also the guess of new knots)
+    reference_states: np.ndarray  # (n + 1, SRBState.nx) SRB reference states
     knots: list[ConstrainedSRBKnot]  # the running knots (their torque maps are set per update)
 
 
@@ -447,12 +449,10 @@ class TemplateProblemBuilder:
         self._data = robot.model.createData()
         self._oscillations: dict[str, VerticalOscillation] = {}
         self._inertia_inverse = np.linalg.inv(np.asarray(self.settings.parameters.inertia, dtype=float))
-        zero = np.zeros(13)
-        zero[6] = 1.0
         self._terminal = SRBKnot(
             None,
             self.settings.terminal_weights,
-            SRBReference(zero, np.zeros((4, 3)), (True,) * 4, self.weight),
+            SRBReference(SRBState().zero(), np.zeros((robot.n_feet, 3)), (True,) * robot.n_feet, self.weight),
         )
 
     def knot_times(self, t0: float, reference: Reference | None = None) -> np.ndarray:
@@ -476,12 +476,11 @@ class TemplateProblemBuilder:
         knot = self._running.get(key)
         if knot is None:
             dynamics = self.dynamics(milliseconds)
-            zero = np.zeros(13)
-            zero[6] = 1.0
+            feet = self.robot.n_feet
             knot = ConstrainedSRBKnot(
                 dynamics,
                 self.settings.running_weights,
-                SRBReference(zero, np.zeros((4, 3)), (True,) * 4, self.weight),
+                SRBReference(SRBState().zero(), np.zeros((feet, 3)), (True,) * feet, self.weight),
                 self.settings.friction_coefficient,
                 self.settings.friction_barrier,
                 self.torque_limits,
@@ -506,7 +505,7 @@ class TemplateProblemBuilder:
         contacts = np.asarray(window.stance[:n], dtype=bool).copy()
         # GRF targets (28): the reference's stance forces scaled to the SRB's own weight
         force_targets = window.forces[:n].reshape(n, -1) * (self.weight / (robot.total_mass * GRAVITY))
-        reference_states = np.empty((n + 1, 13))
+        reference_states = np.empty((n + 1, SRBState.nx))
         for k in range(n + 1):
             whole_body_to_srb_state(window.state[k], robot.nq, reference_states[k])
             base_to_com(reference_states[k], self.com_offset)

@@ -27,6 +27,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import pinocchio as pin
 
+from cafe_mpc.config import DEFAULT_FRICTION
 from cafe_mpc.core.contacts import as_contact_flags
 from cafe_mpc.core.interfaces import ConstraintData, SwitchingConstraint
 from cafe_mpc.dynamics.multibody_state import MultibodyState
@@ -58,7 +59,7 @@ class WholeBodyConstraintSettings:
     """
 
     friction_cone: bool = True
-    friction_coefficient: float = 0.6
+    friction_coefficient: float = DEFAULT_FRICTION
     torque_limits: bool = True
     joint_position_limits: bool = True
     joint_velocity_limits: bool = True

@@ -24,6 +24,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 import pinocchio as pin
 
+from cafe_mpc.config.weights import BaseError, SRBWeights, WholeBodyWeights
 from cafe_mpc.core.contacts import ContactFlags, as_contact_flags, flags_to_string, touchdown_flags
 from cafe_mpc.core.interfaces import ActionData, ActionModel, IdentityReset, ResetMap
 from cafe_mpc.core.kernels import same_point
@@ -34,9 +35,9 @@ from cafe_mpc.dynamics.srb import SRBDynamics, SRBParameters, SRBState, quaterni
 from cafe_mpc.dynamics.srb_kernels import srb_cost, srb_cost_derivatives
 from cafe_mpc.dynamics.transition import ComposedReset, WholeBodyToSRB
 from cafe_mpc.dynamics.whole_body import IntegrationScheme, WholeBodyDynamics
-from cafe_mpc.ocp.constraints import BarrierParameters, TouchdownFootHeight, WholeBodyConstraintSettings
-from cafe_mpc.ocp.costs import BaseError, SRBWeights, WholeBodyWeights
+from cafe_mpc.ocp.constraints import TouchdownFootHeight, WholeBodyConstraintSettings
 from cafe_mpc.ocp.kernels import quaternion_rotation_into, whole_body_cost, whole_body_derivatives
+from cafe_mpc.ocp.knot_layout import constraint_layout, residual_layout
 from cafe_mpc.robots.robot import Robot
 
 
@@ -199,109 +200,32 @@ class WholeBodyKnot(ActionModel):
         self.weights = weights
         self.base_error = base_error
         nq, nv = robot.model.nq, robot.model.nv
-        ndx = 2 * nv
         self.n_feet = len(robot.foot_frame_ids)
-        running = dynamics is not None
-
-        # ---- stacked residual r (weights w): state | swing-foot positions | swing-foot velocities | torque
-        swing = [leg for leg in range(self.n_feet) if not self.stance[leg]]
-        position_weights = weights.foot_position_weights().reshape(self.n_feet, 3)
-        velocity_weights = weights.foot_velocity_weights().reshape(self.n_feet, 3)
-        self.position_legs = np.array(
-            [leg for leg in swing if np.any(position_weights[leg] > 0)], dtype=np.int64
+        residual = residual_layout(robot, weights, self.stance, self.nu, base_error)
+        limits = constraint_layout(robot, constraints, self.stance, self.nu)
+        self.residual_layout, self.constraint_layout = residual, limits
+        # The layouts' fields as plain attributes: the compiled calls read them on every evaluation.
+        self.residual_weights = residual.weights
+        self.residual_dim = residual.dim
+        self.position_legs, self.velocity_legs = residual.position_legs, residual.velocity_legs
+        self.feet_row, self.torque_row, self.nu_torque = (
+            residual.feet_row,
+            residual.torque_row,
+            residual.nu_torque,
         )
-        self.velocity_legs = np.array(
-            [leg for leg in swing if np.any(velocity_weights[leg] > 0)], dtype=np.int64
-        )
-        torque_weights = weights.torque_weights()
-        with_torque = running and bool(np.any(torque_weights > 0))
-        state_weights = weights.state_weights()
-        self.tracks_state = bool(np.any(state_weights > 0))
-        pieces = [state_weights]
-        pieces += [position_weights[leg] for leg in self.position_legs]
-        pieces += [velocity_weights[leg] for leg in self.velocity_legs]
-        self.feet_row = ndx
-        self.torque_row = ndx + 3 * (len(self.position_legs) + len(self.velocity_legs)) if with_torque else -1
-        if with_torque:
-            pieces.append(torque_weights)
-        self.residual_weights = np.concatenate(pieces)
-        self.residual_dim = len(self.residual_weights)
-        self.nu_torque = self.nu if with_torque else 0
-        self.base_rows = np.r_[0:6] if base_error == "tangent" else np.r_[0:6, nv : nv + 6]
-        self.base_mask = np.zeros(ndx, dtype=bool)
-        self.base_mask[self.base_rows] = True
+        self.tracks_state = residual.tracks_state
+        self.base_rows, self.base_mask = residual.base_rows, residual.base_mask
         self.kinematics = FootKinematics(robot, self.position_legs.tolist(), self.velocity_legs.tolist())
-
-        # ---- stacked constraints g >= 0: friction rows | box rows | base height
-        settings = constraints
-        deltas: list[np.ndarray] = []
-        epsilons: list[np.ndarray] = []
-        self.n_friction = 0
-        self.friction_coefficient = 0.6
-        n_contacts = sum(self.stance)
-        if settings is not None and running and settings.friction_cone and n_contacts:
-            self.n_friction = n_contacts
-            self.friction_coefficient = float(settings.friction_coefficient)
-            deltas.append(np.full(5 * n_contacts, settings.friction_barrier.delta))
-            epsilons.append(np.full(5 * n_contacts, settings.friction_barrier.eps))
-        on_control, index, column, sign, offset = [], [], [], [], []
-
-        def box(lower, upper, control: bool, coordinates, columns, barrier: BarrierParameters) -> None:
-            lower, upper = np.asarray(lower, dtype=float), np.asarray(upper, dtype=float)
-            if lower.shape != upper.shape or np.any(lower >= upper):
-                raise ValueError("box constraint: need lower < upper element-wise")
-            for bound_sign, bounds in ((-1.0, upper), (1.0, lower)):
-                for i, (coordinate, tangent) in enumerate(zip(coordinates, columns, strict=True)):
-                    on_control.append(control)
-                    index.append(coordinate)
-                    column.append(tangent)
-                    sign.append(bound_sign)
-                    offset.append(bounds[i] if bound_sign < 0 else -bounds[i])
-            deltas.append(np.full(2 * len(lower), barrier.delta))
-            epsilons.append(np.full(2 * len(lower), barrier.eps))
-
-        joints = range(6, nv)
-        if settings is not None and running and settings.torque_limits:
-            limits = (
-                np.asarray(settings.torque_limit_values, dtype=float)
-                if settings.torque_limit_values is not None
-                else robot.torque_limits
-            )
-            box(-limits, limits, True, range(self.nu), range(ndx, ndx + self.nu), settings.torque_barrier)
-        if settings is not None and settings.joint_position_limits:
-            box(
-                robot.position_lower,
-                robot.position_upper,
-                False,
-                [j + 1 for j in joints],
-                list(joints),
-                settings.joint_position_barrier,
-            )
-        if settings is not None and settings.joint_velocity_limits:
-            box(
-                -robot.velocity_limits,
-                robot.velocity_limits,
-                False,
-                [nq + j for j in joints],
-                [nv + j for j in joints],
-                settings.joint_velocity_barrier,
-            )
-        self.box_on_control = np.array(on_control, dtype=np.bool_)
-        self.box_index = np.array(index, dtype=np.int64)
-        self.box_column = np.array(column, dtype=np.int64)
-        self.box_sign = np.array(sign, dtype=float)
-        self.box_offset = np.array(offset, dtype=float)
-        n_box = len(index)
-        self.minimum_height = 0.0
-        self.height_index = -1
-        if settings is not None and settings.minimum_base_height is not None:
-            self.minimum_height = float(settings.minimum_base_height)
-            self.height_index = 5 * self.n_friction + n_box
-            deltas.append(np.array([settings.base_height_barrier.delta]))
-            epsilons.append(np.array([settings.base_height_barrier.eps]))
-        self.barrier_delta = np.concatenate(deltas) if deltas else np.zeros(0)
-        self.barrier_eps = np.concatenate(epsilons) if epsilons else np.zeros(0)
-        self.constraint_dim = len(self.barrier_delta)
+        self.n_friction, self.friction_coefficient = limits.n_friction, limits.friction_coefficient
+        self.box_on_control, self.box_index, self.box_column = (
+            limits.box_on_control,
+            limits.box_index,
+            limits.box_column,
+        )
+        self.box_sign, self.box_offset = limits.box_sign, limits.box_offset
+        self.minimum_height, self.height_index = limits.minimum_height, limits.height_index
+        self.barrier_delta, self.barrier_eps = limits.barrier_delta, limits.barrier_eps
+        self.constraint_dim = limits.dim
         self._stance_legs = np.array([leg for leg in range(self.n_feet) if self.stance[leg]], dtype=np.int64)
         self._velocity_rows_from = nv if base_error == "tangent" else nv + 3
         self._needs_rotation = base_error == "world" or self.height_index >= 0
@@ -768,7 +692,7 @@ class WholeBodyModelFactory:
 class SRBSettings:
     """Configuration of SRB knots (docs/settings.md). ``parameters``: the SRB's mass and inertia; ``None``:
     from the robot given to ``SRBModelFactory`` (``dynamics.srb.srb_parameters``: legs lumped, rotors
-    included), or the authors' Mini Cheetah values when no robot is given."""
+    included); one of the two is needed."""
 
     dt: float = 0.05
     parameters: SRBParameters | None = None
@@ -783,10 +707,12 @@ class SRBModelFactory:
     def __init__(self, settings: SRBSettings | None = None, robot: Robot | None = None) -> None:
         settings = settings or SRBSettings()
         if settings.parameters is None:
-            parameters = srb_parameters(robot) if robot is not None else SRBParameters()
-            settings = replace(settings, parameters=parameters)
+            if robot is None:
+                raise ValueError("SRBModelFactory needs the robot or SRBSettings.parameters (mass, inertia)")
+            settings = replace(settings, parameters=srb_parameters(robot))
         self.settings = settings
-        self.n_feet = robot.n_feet if robot is not None else 4
+        assert settings.parameters is not None
+        self.n_feet = settings.parameters.n_feet
         self.state = SRBState()
         self._dynamics: dict[float, SRBDynamics] = {}
         self._prototypes: dict[tuple, SRBKnot] = {}

@@ -20,35 +20,18 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from cafe_mpc.config import VelocityCommand
+from cafe_mpc.core.physics import GRAVITY
+from cafe_mpc.dynamics.leg_inverse_kinematics import LegInverseKinematics
 from cafe_mpc.dynamics.statics import static_stance_torques
 from cafe_mpc.ocp.contact_schedule import TIME_TOLERANCE, ContactPhase, ContactSchedule, GaitCycle
 from cafe_mpc.reference.base import STANCE_TIME_EPS, Reference, ReferenceWindow, switches_inside
-from cafe_mpc.reference.inverse_kinematics import LegInverseKinematics
 from cafe_mpc.reference.kernels import sample_foot
 from cafe_mpc.robots.robot import Robot
 
-GRAVITY = 9.81
 FOOTHOLD_BOX = (0.10, 0.06)
 """m; how far (x, y) a Raibert foothold may move from under the hip (the Mini Cheetah's; other robots' runs
 scale it with the leg length, ``robots.scaling``)."""
-
-
-@dataclass(frozen=True)
-class VelocityCommand:
-    """User command from ``start`` on: speeds in the heading (yaw) frame, yaw rate and body height."""
-
-    start: float = 0.0
-    vx: float = 0.0
-    vy: float = 0.0
-    yaw_rate: float = 0.0
-    height: float | None = None  # None: the robot's standing height
-
-    def __post_init__(self) -> None:
-        for name in ("start", "vx", "vy", "yaw_rate"):
-            if not math.isfinite(getattr(self, name)):
-                raise ValueError(f"command {name} must be finite")
-        if self.start < 0:
-            raise ValueError(f"command start must be >= 0, got {self.start}")
 
 
 def validate_command(command: VelocityCommand, robot: Robot) -> None:
@@ -168,7 +151,9 @@ class CommandProfile:
 
     def command_at(self, t: float) -> VelocityCommand:
         vx, vy, yaw_rate, height = self.values_at(t)
-        return VelocityCommand(float(t) if t > 0 else 0.0, vx, vy, yaw_rate, height)
+        return VelocityCommand(
+            start=float(t) if t > 0 else 0.0, vx=vx, vy=vy, yaw_rate=yaw_rate, height=height
+        )
 
     def heading_displacement(self, t0: float, t1: float) -> tuple[np.ndarray, float]:
         """Position (x, y) and yaw change from ``t0`` to ``t1`` in the heading frame at ``t0``: the commands'

@@ -36,12 +36,12 @@ import math
 import numpy as np
 import pinocchio as pin
 
+from cafe_mpc.core.physics import GRAVITY
 from cafe_mpc.dynamics.statics import static_stance_torques
 from cafe_mpc.reference.base import STANCE_TIME_EPS, Reference, ReferenceWindow, switches_inside
 from cafe_mpc.reference.trajectory_file import WholeBodyTrajectory
 from cafe_mpc.robots.robot import Robot
 
-GRAVITY = 9.81
 INDEX_TOLERANCE = 1e-6
 """Knot-index rounding tolerance in units of ``dt`` (a time a hair below a knot belongs to that knot)."""
 

@@ -9,7 +9,8 @@ import numpy as np
 import pinocchio as pin
 from scipy.spatial.transform import Rotation
 
-from cafe_mpc.reference.locomotion import CommandProfile, VelocityCommand
+from cafe_mpc.config import DEFAULT_FRICTION, VelocityCommand
+from cafe_mpc.reference.locomotion import CommandProfile
 from cafe_mpc.robots.robot import Robot
 from cafe_mpc.sim.loop import SimulationLog
 
@@ -184,7 +185,7 @@ def foot_slip_max(feet: np.ndarray, contacts: np.ndarray) -> float:
 
 
 def friction_cone_violations_post_hoc(
-    robot: Robot, log: SimulationLog, stance: np.ndarray, mu: float = 0.6
+    robot: Robot, log: SimulationLog, stance: np.ndarray, mu: float = DEFAULT_FRICTION
 ) -> int:
     """Ticks whose commanded torque implies a stance force outside the friction pyramid.
 
@@ -207,7 +208,7 @@ def wbc_metrics(
     controller: str,
     low_level_statistics: dict | None = None,
     planned_stance: np.ndarray | None = None,
-    mu: float = 0.6,
+    mu: float = DEFAULT_FRICTION,
     torque_limits: np.ndarray | None = None,
 ) -> dict:
     """The low-level controller's block of ``metrics.json`` (issue 6).

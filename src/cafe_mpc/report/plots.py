@@ -12,7 +12,8 @@ import numpy as np
 from matplotlib.axes import Axes
 from matplotlib.figure import Figure
 
-from cafe_mpc.reference.locomotion import CommandProfile, VelocityCommand
+from cafe_mpc.config import VelocityCommand
+from cafe_mpc.reference.locomotion import CommandProfile
 from cafe_mpc.report.figures import save_figure, subplots
 from cafe_mpc.report.metrics import (
     METRICS_WINDOW_START_S,

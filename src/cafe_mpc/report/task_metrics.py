@@ -49,6 +49,7 @@ from dataclasses import dataclass
 import mujoco
 import numpy as np
 
+from cafe_mpc.config import DEFAULT_FRICTION
 from cafe_mpc.reference.base import Reference, ReferenceWindow
 from cafe_mpc.reference.composition import ComposedReference
 from cafe_mpc.reference.trajectory import TrajectoryReference
@@ -233,7 +234,7 @@ def task_metrics(
     control_period: float,
     requested: np.ndarray | None = None,
     planned_stance: np.ndarray | None = None,
-    mu: float = 0.6,
+    mu: float = DEFAULT_FRICTION,
     limits: np.ndarray | None = None,
     bar: Bar | None = None,
 ) -> dict:

@@ -14,6 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
+from cafe_mpc.core.free_joint import free_joint_qpos
 from cafe_mpc.reference.base import Reference
 from cafe_mpc.report.figures import save_figure, subplots
 from cafe_mpc.report.metrics import roll_pitch_yaw
@@ -141,9 +142,7 @@ def render_frame_strip(
     try:
         for time in times:
             q = log.q[int(np.clip(np.searchsorted(log.time, time), 0, log.ticks - 1))]
-            data.qpos[:3] = q[:3]
-            data.qpos[3:7] = [q[6], q[3], q[4], q[5]]
-            data.qpos[7:] = q[7:]
+            data.qpos[:] = free_joint_qpos(q)
             mujoco.mj_forward(model, data)
             view.lookat[:] = [q[0], q[1], 0.25]
             renderer.update_scene(data, view)

@@ -16,6 +16,8 @@ from xml.sax.saxutils import quoteattr
 import numpy as np
 import pinocchio as pin
 
+from cafe_mpc.core.physics import GRAVITY
+
 LEG_SIGNS = {"FL": (1.0, 1.0), "FR": (1.0, -1.0), "HL": (-1.0, 1.0), "HR": (-1.0, -1.0)}
 JOINT_KINDS = ("abad", "hip", "knee")
 
@@ -202,7 +204,7 @@ def mjcf_from_model(
     out.append('  <compiler angle="radian" autolimits="true"/>\n')
     out.append(
         f'  <option timestep="{plant.timestep:.10g}" integrator="implicitfast" cone="elliptic" '
-        'impratio="1" gravity="0 0 -9.81"/>\n'
+        f'impratio="1" gravity="0 0 {-GRAVITY:g}"/>\n'
     )
     out.append('  <visual><global offwidth="640" offheight="480"/></visual>\n')
     out.append("  <asset>\n")

@@ -19,6 +19,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from cafe_mpc.core.free_joint import free_joint_qpos
 from cafe_mpc.robots.robot import Robot
 
 if TYPE_CHECKING:
@@ -112,9 +113,7 @@ def render_configurations(
     frames = []
     try:
         for frame, q in enumerate(configurations):
-            data.qpos[:3] = q[:3]
-            data.qpos[3:7] = [q[6], q[3], q[4], q[5]]  # (x, y, z, w) -> MuJoCo's (w, x, y, z)
-            data.qpos[7:] = q[7:]
+            data.qpos[:] = free_joint_qpos(q)
             mujoco.mj_forward(model, data)
             view.lookat[:] = [q[0], q[1], look_at_height]
             renderer.update_scene(data, view)

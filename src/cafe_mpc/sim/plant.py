@@ -25,6 +25,7 @@ from collections.abc import Callable, Sequence
 import mujoco
 import numpy as np
 
+from cafe_mpc.core.free_joint import planning_state
 from cafe_mpc.core.measurement import Measurement
 from cafe_mpc.robots.robot import Robot
 from cafe_mpc.sim.bar import BAR_NAME, Bar, with_bar
@@ -43,22 +44,6 @@ def scene_mjcf(robot: Robot, terrain: Sequence[Terrain] = (), bar: Bar | None = 
     """The plant's MJCF: the robot's, with the scene's terrain (``sim.terrain``) on the floor and the bar
     (``sim.bar``), if any."""
     return with_bar(with_terrain(robot.mjcf, terrain, robot.plant.floor_friction), bar)
-
-
-def planning_state(
-    qpos: np.ndarray, qvel: np.ndarray, q: np.ndarray, v: np.ndarray, scratch: np.ndarray | None = None
-) -> None:
-    """MuJoCo's free-joint ``(qpos, qvel)`` -> planning coordinates ``(q, v)``, written into ``q`` and ``v``:
-    quaternion (w, x, y, z) -> (x, y, z, w), world-frame -> base-frame linear velocity. ``scratch``: 9 floats
-    to reuse for the rotation matrix (allocated when None)."""
-    rotation = np.zeros(9) if scratch is None else scratch
-    mujoco.mju_quat2Mat(rotation, qpos[3:7])
-    q[:3] = qpos[:3]
-    q[3:6] = qpos[4:7]
-    q[6] = qpos[3]
-    q[7:] = qpos[7:]
-    v[:3] = rotation.reshape(3, 3).T @ qvel[:3]
-    v[3:] = qvel[3:]
 
 
 class SimulationDiverged(RuntimeError):
@@ -191,6 +176,7 @@ class MujocoPlant:
         the plant's, overwritten on the next read)."""
         state = self._state
         state.time = float(self.data.time)
+        mujoco.mju_quat2Mat(self._rotation, self.data.qpos[3:7])
         planning_state(self.data.qpos, self.data.qvel, state.q, state.v, self._rotation)
         state.contacts[:] = False
         state.foot_forces[:] = 0.0

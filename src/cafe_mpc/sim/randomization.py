@@ -23,11 +23,13 @@ data in the run config's ``plant`` section, so a trial's ``config.yaml`` re-runs
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import mujoco
 import numpy as np
 
+from cafe_mpc.config import PlantConfig, SensorNoise
 from cafe_mpc.core.measurement import Measurement
 from cafe_mpc.robots.robot import Robot
 
@@ -76,6 +78,21 @@ class PlantVariation:
         )
 
 
+def plant_variation(plant: PlantConfig) -> PlantVariation:
+    """The ``PlantVariation`` of a config's ``plant`` section."""
+
+    def scales(value: float | list[float]) -> float | tuple[float, ...]:
+        return tuple(value) if isinstance(value, list) else value
+
+    return PlantVariation(
+        plant.floor_friction,
+        plant.body_mass_scale,
+        scales(plant.link_mass_scales),
+        scales(plant.motor_strength_scales),
+        mass_scale=plant.mass_scale,
+    )
+
+
 def apply_variation(model: mujoco.MjModel, robot: Robot, variation: PlantVariation) -> np.ndarray:
     """Change a freshly loaded plant model in place; returns the per-motor strength (gear) factors.
 
@@ -117,31 +134,6 @@ def terrain_geoms(model: mujoco.MjModel) -> list[int]:
     return [i for i in range(model.ngeom) if (model.geom(i).name or "").startswith(TERRAIN_PREFIX)]
 
 
-@dataclass(frozen=True)
-class SensorNoise:
-    """Standard deviations of the zero-mean Gaussian noise on each part of the measured state."""
-
-    base_position: float = 0.0  # m
-    base_orientation: float = 0.0  # rad, per axis of a random rotation vector (base frame)
-    base_linear_velocity: float = 0.0  # m/s, base frame
-    base_angular_velocity: float = 0.0  # rad/s, base frame
-    joint_position: float = 0.0  # rad
-    joint_velocity: float = 0.0  # rad/s
-
-    @property
-    def is_zero(self) -> bool:
-        return not any(
-            (
-                self.base_position,
-                self.base_orientation,
-                self.base_linear_velocity,
-                self.base_angular_velocity,
-                self.joint_position,
-                self.joint_velocity,
-            )
-        )
-
-
 def _quaternion_times_rotation_vector(q_xyzw: np.ndarray, rotation_vector: np.ndarray) -> np.ndarray:
     """``q * exp(rotation_vector)`` for a quaternion (x, y, z, w) and a body-frame rotation vector."""
     angle = float(np.linalg.norm(rotation_vector))
@@ -170,10 +162,10 @@ class SensorModel:
     a seed gives the same noise and delays on every run.
     """
 
-    def __init__(self, noise: SensorNoise = SensorNoise(), delay_max_ticks: int = 0, seed: int = 0) -> None:
+    def __init__(self, noise: SensorNoise | None = None, delay_max_ticks: int = 0, seed: int = 0) -> None:
         if delay_max_ticks < 0:
             raise ValueError(f"delay_max_ticks must be >= 0, got {delay_max_ticks}")
-        self.noise = noise
+        self.noise = noise if noise is not None else SensorNoise()
         self.delay_max_ticks = int(delay_max_ticks)
         self.seed = int(seed)
         self.rng = np.random.default_rng(self.seed)
@@ -230,3 +222,10 @@ class SensorModel:
             "delay_ticks_mean": float(np.mean(delays)) if delays.size else 0.0,
             "delay_ticks_max": int(np.max(delays)) if delays.size else 0,
         }
+
+
+def sensor_model(plant: PlantConfig, control_rate_hz: float) -> SensorModel:
+    """The controller's ``SensorModel`` of a config's ``plant`` section (delays in whole control ticks,
+    rounded down)."""
+    ticks = math.floor(plant.measurement_delay_max * control_rate_hz + 1e-9)
+    return SensorModel(plant.sensor_noise, ticks, plant.seed)

@@ -40,39 +40,11 @@ from dataclasses import dataclass
 import mujoco
 import numpy as np
 
+from cafe_mpc.config import EncoderSpec, ImuSpec, PlantConfig
 from cafe_mpc.core.sensors import SensorReadings
 
 IMU_SITE = "imu"
 """The trunk site the IMU sits at (the robot's MJCF puts it at the base frame's origin)."""
-Vector3 = tuple[float, float, float]
-
-
-@dataclass(frozen=True)
-class ImuSpec:
-    """The IMU's imperfections (standard deviations per sample, constant biases; base frame)."""
-
-    rate_hz: float
-    gyro_noise: float  # rad/s
-    gyro_bias: Vector3  # rad/s
-    accelerometer_noise: float  # m/s^2
-    accelerometer_bias: Vector3  # m/s^2
-    orientation_noise: float  # rad, per axis of a body-frame rotation vector
-    orientation_bias: Vector3  # rad, body-frame rotation vector
-    average: bool = True
-    """Gyro and accelerometer report their mean over the sample period (every physics step's value), as an
-    IMU with an anti-aliasing filter does; False: the instantaneous value at the sample (aliases impacts)."""
-
-
-@dataclass(frozen=True)
-class EncoderSpec:
-    """The joint sensors' imperfections: Gaussian noise (std), then quantisation (0: none)."""
-
-    position_noise: float  # rad
-    velocity_noise: float  # rad/s
-    torque_noise: float  # Nm
-    position_resolution: float  # rad
-    velocity_resolution: float  # rad/s
-    torque_resolution: float  # Nm
 
 
 @dataclass(frozen=True)
@@ -85,27 +57,8 @@ class SensorSpec:
     seed: int = 0
 
     def check(self, control_rate_hz: float) -> None:
-        """Raise ``ValueError`` naming the field when a value cannot be used."""
-        scalars = {
-            "imu.gyro_noise": self.imu.gyro_noise,
-            "imu.accelerometer_noise": self.imu.accelerometer_noise,
-            "imu.orientation_noise": self.imu.orientation_noise,
-            "encoders.position_noise": self.encoders.position_noise,
-            "encoders.velocity_noise": self.encoders.velocity_noise,
-            "encoders.torque_noise": self.encoders.torque_noise,
-            "encoders.position_resolution": self.encoders.position_resolution,
-            "encoders.velocity_resolution": self.encoders.velocity_resolution,
-            "encoders.torque_resolution": self.encoders.torque_resolution,
-        }
-        for name, value in scalars.items():
-            if not (math.isfinite(value) and value >= 0.0):
-                raise ValueError(f"sensors.{name} must be finite and >= 0, got {value}")
-        for name in ("gyro_bias", "accelerometer_bias", "orientation_bias"):
-            value = getattr(self.imu, name)
-            if len(value) != 3 or not all(math.isfinite(item) for item in value):
-                raise ValueError(f"sensors.imu.{name} must be 3 finite numbers, got {value}")
-        if not (math.isfinite(self.imu.rate_hz) and self.imu.rate_hz > 0.0):
-            raise ValueError(f"sensors.imu.rate_hz must be positive, got {self.imu.rate_hz}")
+        """Raise ``ValueError`` when the spec does not fit the control rate (the values themselves are
+        validated by their models, ``config.ImuSpec`` and ``config.EncoderSpec``)."""
         if self.imu.rate_hz > control_rate_hz * (1.0 + 1e-9):
             raise ValueError(
                 f"sensors.imu.rate_hz {self.imu.rate_hz} is above the control rate {control_rate_hz}: "
@@ -113,6 +66,13 @@ class SensorSpec:
             )
         if self.delay_max_ticks < 0:
             raise ValueError(f"delay_max_ticks must be >= 0, got {self.delay_max_ticks}")
+
+
+def sensor_spec(plant: PlantConfig, control_rate_hz: float) -> SensorSpec:
+    """The robot's sensors of a config's ``plant`` section: ``sensors``, the latency jitter
+    ``measurement_delay_max`` (whole control ticks, rounded down) and ``seed``."""
+    ticks = math.floor(plant.measurement_delay_max * control_rate_hz + 1e-9)
+    return SensorSpec(plant.sensors.imu, plant.sensors.encoders, ticks, plant.seed)
 
 
 def with_sensors(mjcf: str, joint_names: Sequence[str]) -> str:

@@ -14,6 +14,7 @@ import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 
+from cafe_mpc.config import SceneConfig
 from cafe_mpc.sim.randomization import TERRAIN_PREFIX
 
 _RGBA = "0.42 0.48 0.56 1"
@@ -207,3 +208,23 @@ def with_terrain(mjcf: str, pieces: Sequence[Terrain], friction: float) -> str:
 def terrain_height(pieces: Sequence[Terrain], x: float, y: float = 0.0) -> float:
     """Highest terrain surface at world ``(x, y)`` (0: the floor)."""
     return max([0.0, *(piece.height_at(x, y) for piece in pieces)])
+
+
+def terrain_pieces(scene: SceneConfig) -> list[Terrain]:
+    """The pieces of a config's ``scene`` section (``scene.terrain``), in order."""
+    pieces: list[Terrain] = []
+    for item in scene.terrain:
+        common = {
+            "start": item.start,
+            "width": item.width,
+            "center_y": item.center_y,
+            "top_length": item.top_length,
+            "descend": item.descend,
+        }
+        if item.kind == "slope":
+            assert item.angle_deg is not None and item.length is not None
+            pieces.append(Slope(angle_deg=item.angle_deg, length=item.length, **common))
+        else:
+            assert item.count is not None and item.rise is not None and item.run is not None
+            pieces.append(Steps(count=item.count, rise=item.rise, run=item.run, **common))
+    return pieces

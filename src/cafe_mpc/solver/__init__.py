@@ -2,13 +2,20 @@
 
 from cafe_mpc.solver.ms_ilqr import MSiLQRSolver, evaluate_trajectory
 from cafe_mpc.solver.options import SolverOptions
-from cafe_mpc.solver.results import PhaseSolution, SolverResult, SolverStatistics, TrajectoryEvaluation
+from cafe_mpc.solver.results import (
+    PhaseSolution,
+    SolverResult,
+    SolverStatistics,
+    SolveStatus,
+    TrajectoryEvaluation,
+)
 from cafe_mpc.solver.workspace import PhaseWorkspace, Workspace
 
 __all__ = [
     "MSiLQRSolver",
     "PhaseSolution",
     "PhaseWorkspace",
+    "SolveStatus",
     "SolverOptions",
     "SolverResult",
     "SolverStatistics",

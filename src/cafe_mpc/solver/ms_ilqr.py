@@ -54,7 +54,14 @@ import numpy as np
 from cafe_mpc.core.interfaces import MultiPhaseProblem
 from cafe_mpc.solver.kernels import CHOLESKY_FAILED, backward_phase, linear_step, policy_step
 from cafe_mpc.solver.options import SolverOptions
-from cafe_mpc.solver.results import PhaseSolution, SolverResult, SolverStatistics, TrajectoryEvaluation
+from cafe_mpc.solver.results import (
+    PhaseSolution,
+    SolverResult,
+    SolverStatistics,
+    SolveStatus,
+    SweepOutcome,
+    TrajectoryEvaluation,
+)
 from cafe_mpc.solver.workspace import EMPTY_CONTROL, PhaseWorkspace, Workspace
 
 
@@ -148,19 +155,19 @@ class MSiLQRSolver:
             stats.linearize_time += time.perf_counter() - clock
             stats.linearizations += 1
         self._regularization = options.regularization_initial
-        status, inner_converged, policy_valid = "max_iterations", False, False
+        status, inner_converged, policy_valid = SolveStatus.MAX_ITERATIONS, False, False
         last_iteration_time = 0.0
         # step of the last accepted iteration while the data are not yet linearised at its result (the
         # linearisation is deferred to the next iteration, or replaced by a shift: ``final_policy``)
         pending_step: float | None = None
         for al_iteration in range(options.max_al_iterations):
             stats.al_iterations = al_iteration + 1
-            inner_converged, status = False, "max_iterations"
+            inner_converged, status = False, SolveStatus.MAX_ITERATIONS
             for _ in range(options.max_iterations):
                 elapsed = time.perf_counter() - start
                 budget = options.time_budget
                 if budget is not None and stats.iterations > 0 and elapsed + last_iteration_time > budget:
-                    status = "time_budget"
+                    status = SolveStatus.TIME_BUDGET
                     break
                 iteration_start = time.perf_counter()
                 if pending_step is not None:
@@ -172,16 +179,16 @@ class MSiLQRSolver:
                 clock = time.perf_counter()
                 outcome = self._backward_pass_with_regularization(workspace, stats)
                 stats.backward_time += time.perf_counter() - clock
-                policy_valid = outcome == "ok"
+                policy_valid = outcome == SweepOutcome.OK
                 if not policy_valid:
-                    status = outcome
+                    status = SolveStatus(outcome.value)
                     break
                 decrease = -(self._expected_linear + 0.5 * self._expected_quadratic)
                 if (
                     nominal.defect_max <= options.defect_tolerance
                     and decrease <= options.expected_decrease_tolerance
                 ):
-                    inner_converged, status = True, "converged"
+                    inner_converged, status = True, SolveStatus.CONVERGED
                     break
                 regularization = self._regularization
                 clock = time.perf_counter()
@@ -205,15 +212,15 @@ class MSiLQRSolver:
                 )
                 if trial is None:
                     if not self._increase_regularization():
-                        status = "regularization_limit"
+                        status = SolveStatus.REGULARIZATION_LIMIT
                         break
                 elif (
                     nominal.defect_max <= options.defect_tolerance
                     and abs(cost_change) <= options.cost_change_tolerance
                 ):
-                    inner_converged, status = True, "converged"
+                    inner_converged, status = True, SolveStatus.CONVERGED
                     break
-            if status in ("regularization_limit", "non_finite"):
+            if status in (SolveStatus.REGULARIZATION_LIMIT, SolveStatus.NON_FINITE):
                 break
             if nominal.switching_violation <= options.switching_tolerance:
                 break
@@ -222,10 +229,10 @@ class MSiLQRSolver:
             self._update_augmented_lagrangian(workspace)
             nominal = self._totals_from_nominal(workspace, nominal)
             policy_valid = False
-            if status == "time_budget":
+            if status == SolveStatus.TIME_BUDGET:
                 break
 
-        if options.final_backward_pass and not policy_valid and status != "non_finite":
+        if options.final_backward_pass and not policy_valid and status != SolveStatus.NON_FINITE:
             if pending_step is not None and options.final_policy == "shift":
                 # first-order move of the last sweep's expansion point to the accepted step's result
                 for work in workspace.phases:
@@ -239,11 +246,11 @@ class MSiLQRSolver:
                     stats.linearize_time += time.perf_counter() - clock
                     stats.linearizations += 1
                 clock = time.perf_counter()
-                policy_valid = self._backward_pass_with_regularization(workspace, stats) == "ok"
+                policy_valid = self._backward_pass_with_regularization(workspace, stats) == SweepOutcome.OK
                 stats.backward_time += time.perf_counter() - clock
         converged = inner_converged and nominal.switching_violation <= options.switching_tolerance
-        if status == "converged" and not converged:
-            status = "max_iterations"
+        if status == SolveStatus.CONVERGED and not converged:
+            status = SolveStatus.MAX_ITERATIONS
         stats.solve_time = time.perf_counter() - start
         if not data_at_nominal:
             self._recalc_running(workspace)
@@ -558,24 +565,26 @@ class MSiLQRSolver:
         return pool
 
     # -------------------------------------------------------------------------------------- backward sweep
-    def _backward_pass_with_regularization(self, workspace: Workspace, stats: SolverStatistics) -> str:
+    def _backward_pass_with_regularization(
+        self, workspace: Workspace, stats: SolverStatistics
+    ) -> SweepOutcome:
         """Run the backward sweep, raising ``mu`` after each failed Cholesky factorisation.
 
-        Returns ``"ok"``, ``"regularization_limit"`` or ``"non_finite"``.
+        Returns ``OK``, ``REGULARIZATION_LIMIT`` or ``NON_FINITE``.
         """
         while True:
             outcome = self._backward_pass(workspace)
-            if outcome != "cholesky":
+            if outcome != SweepOutcome.CHOLESKY:
                 return outcome
             stats.backward_failures += 1
             if not self._increase_regularization():
-                return "regularization_limit"
+                return SweepOutcome.REGULARIZATION_LIMIT
 
-    def _backward_pass(self, workspace: Workspace) -> str:
+    def _backward_pass(self, workspace: Workspace) -> SweepOutcome:
         """Riccati-like sweep of Eqs. (8)-(10) with defects, and Eq. (16) across reset maps (Gauss-Newton).
 
         Also accumulates the quadratic model of the cost change along the step (see the module docstring).
-        Returns ``"ok"``, ``"cholesky"`` (``Quu + mu I`` not positive definite) or ``"non_finite"``.
+        Returns ``OK``, ``CHOLESKY`` (``Quu + mu I`` not positive definite) or ``NON_FINITE``.
         """
         mu = self._regularization
         constant = 0.0
@@ -631,19 +640,19 @@ class MSiLQRSolver:
             )
             if status == CHOLESKY_FAILED:
                 if not (np.isfinite(work.Quu).all() and np.isfinite(S[n_knots]).all()):
-                    return "non_finite"
-                return "cholesky"
+                    return SweepOutcome.NON_FINITE
+                return SweepOutcome.CHOLESKY
             following = work
         first = workspace.phases[0]
         constant += float(sums[0])
         linear, quadratic = float(sums[1]), float(sums[2])
         check = constant + linear + quadratic + float(first.s[0].sum()) + float(first.S[0].sum())
         if not math.isfinite(check):
-            return "non_finite"
+            return SweepOutcome.NON_FINITE
         self._expected_constant = constant
         self._expected_linear = linear
         self._expected_quadratic = quadratic
-        return "ok"
+        return SweepOutcome.OK
 
     def _increase_regularization(self) -> bool:
         options = self.options
@@ -813,7 +822,7 @@ class MSiLQRSolver:
         workspace: Workspace,
         nominal: _Totals,
         converged: bool,
-        status: str,
+        status: SolveStatus,
         stats: SolverStatistics,
         policy_valid: bool,
     ) -> SolverResult:

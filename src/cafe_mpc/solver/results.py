@@ -6,8 +6,34 @@ All arrays are copies: the solver's workspace is reused by the next solve, a res
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from enum import StrEnum
 
 import numpy as np
+
+
+class SolveStatus(StrEnum):
+    """Why an MS-iLQR solve stopped (a ``str``: it compares, prints and serialises as its value)."""
+
+    CONVERGED = "converged"
+    """The inner loop met its tolerances and every switching constraint met ``switching_tolerance``."""
+    MAX_ITERATIONS = "max_iterations"
+    """The iteration limits ran out first."""
+    TIME_BUDGET = "time_budget"
+    """The wall-clock cap (``SolverOptions.time_budget``, the MPC's 0.9 x period) stopped it."""
+    REGULARIZATION_LIMIT = "regularization_limit"
+    """No step was accepted up to the largest regularisation."""
+    NON_FINITE = "non_finite"
+    """The backward sweep met a non-finite value."""
+
+
+class SweepOutcome(StrEnum):
+    """The result of one backward sweep (Eqs. (8)-(10), (16)) inside a solve."""
+
+    OK = "ok"
+    CHOLESKY = "cholesky"
+    """``Quu + mu I`` was not positive definite (raise ``mu`` and sweep again)."""
+    REGULARIZATION_LIMIT = "regularization_limit"
+    NON_FINITE = "non_finite"
 
 
 @dataclass
@@ -98,7 +124,7 @@ class SolverResult:
     the L1 norm of all defects (Eq. (4), (15)); ``switching_violation`` is the largest ``|g_i|``;
     ``inequality_violation`` the largest ``constraint_violation`` reported by the models. ``converged`` means
     the inner loop met its tolerances and every switching constraint met ``switching_tolerance``. ``status``
-    is one of ``converged``, ``max_iterations``, ``time_budget``, ``regularization_limit``, ``non_finite``.
+    says why the solve stopped (``SolveStatus``).
     ``policy_valid``: ``K``, ``k``, ``Qu``, ``Quu``, ``Qux``, ``S``, ``s`` come from a successful backward
     sweep at the returned trajectory (false only if that sweep failed or ``final_backward_pass`` is off).
     """
@@ -111,7 +137,7 @@ class SolverResult:
     switching_violation: float
     inequality_violation: float
     converged: bool
-    status: str
+    status: SolveStatus
     statistics: SolverStatistics
     policy_valid: bool = True
 

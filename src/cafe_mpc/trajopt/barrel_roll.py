@@ -43,6 +43,7 @@ from __future__ import annotations
 
 import math
 
+from cafe_mpc.config import DEFAULT_FRICTION
 from cafe_mpc.trajopt.task import (
     ConstraintSpec,
     KeyframeSpec,
@@ -169,7 +170,7 @@ def barrel_roll_task() -> TrajOptTask:
         switching_times=SWITCHING_TIMES,
         initial=KeyframeSpec(position=(0.0, 0.0, _z(0.2183)), joint_positions=stand),
         phases=phases,
-        constraints=ConstraintSpec(torque_limit=17.0, joint_speed_limit=20.0, friction_coefficient=0.6),
+        constraints=ConstraintSpec(joint_speed_limit=20.0, friction_coefficient=DEFAULT_FRICTION),
         solver=SolverSpec(max_iterations=10, max_al_iterations=30),
         initial_controls="static",
     )

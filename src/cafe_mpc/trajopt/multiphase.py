@@ -169,7 +169,7 @@ def build_problem(robot: Robot, task: TrajOptTask, barriers: BarrierSetSpec | No
             dt=dt,
             running_weights=spec.running.weights(),
             terminal_weights=spec.terminal.weights(),
-            constraints=task.constraints.settings(spec.minimum_height, barriers),
+            constraints=task.constraints.settings(spec.minimum_height, barriers, planning),
             base_error="world",
         )
         factory = WholeBodyModelFactory(planning, settings)
@@ -249,12 +249,12 @@ class TrajOptResult:
         return {
             "task": self.task.name,
             "converged": bool(self.converged),
-            "status": final.status,
+            "status": final.status.value,
             "roll_at_landing_rad": check.roll_at_landing,
             "landing_time_s": check.landing_time,
             "max_defect": check.max_defect,
             "max_abs_torque": check.max_abs_torque,
-            "torque_limit": self.task.constraints.torque_limit,
+            "torque_limit": self.task.constraints.torque_limit,  # null: the robot's joints.torque_limits
             "iterations": self.iterations,
             "wall_time_s": self.wall_time,
             "solver_defect_max": final.defect_max,
@@ -270,7 +270,7 @@ class TrajOptResult:
             "stages": [
                 {
                     "barriers": stage.barriers,
-                    "status": stage.result.status,
+                    "status": stage.result.status.value,
                     "converged": bool(stage.result.converged),
                     "iterations": stage.result.statistics.iterations,
                     "al_iterations": stage.result.statistics.al_iterations,

@@ -156,17 +156,18 @@ def write_plots(
     axis.legend(fontsize=8)
     paths.append(_save(figure, out_dir / "lateral_position.png"))
 
-    limit = task.constraints.torque_limit
+    limits = np.asarray(task.constraints.torque_limits(robot)).reshape(-1, 3)
     figure, axes = _subplots(4, (8, 8), sharex=True)
     for leg, axis in enumerate(axes):
         _shade_phases(axis, trajectory, label=leg == 0)
         for joint, name in enumerate(("abad", "hip", "knee")):
             axis.step(knots_t, us[:, 3 * leg + joint], where="post", label=name)
         for sign in (-1, 1):
-            axis.axhline(sign * limit, color="r", ls="--", lw=0.8)
+            for joint, limit in enumerate(limits[leg]):
+                axis.axhline(sign * limit, color=f"C{joint}", ls="--", lw=0.8)
         axis.set_ylabel(f"{LEG_NAMES[leg]} (Nm)")
     axes[0].legend(fontsize=8, ncol=3, loc="lower left")
-    axes[-1].set_xlabel(f"time (s); dashed: +-{limit:g} Nm")
+    axes[-1].set_xlabel(f"time (s); dashed: each joint's limit, up to +-{limits.max():g} Nm")
     paths.append(_save(figure, out_dir / "torques.png"))
 
     forces = trajectory.forces

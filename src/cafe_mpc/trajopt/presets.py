@@ -3,12 +3,10 @@
 from __future__ import annotations
 
 from collections.abc import Callable
-from pathlib import Path
 
-import yaml
-
+from cafe_mpc.config.loading import load_model
 from cafe_mpc.trajopt.barrel_roll import barrel_roll_task, running_barrel_roll_task
-from cafe_mpc.trajopt.task import TrajOptTask, TrajOptTaskError, parse_override, set_dotted, validate_task
+from cafe_mpc.trajopt.task import TrajOptTask, TrajOptTaskError
 
 TASKS: dict[str, Callable[[], TrajOptTask]] = {
     "barrel-roll": barrel_roll_task,
@@ -18,26 +16,15 @@ TASKS: dict[str, Callable[[], TrajOptTask]] = {
 
 
 def load_task(name_or_path: str, overrides: list[str] | None = None) -> TrajOptTask:
-    """A task preset (``TASKS``) or a task YAML file, with ``key=value`` overrides, validated."""
-    path = Path(name_or_path)
-    if name_or_path in TASKS:
-        raw = TASKS[name_or_path]().model_dump(mode="json")
-        source = f"preset {name_or_path!r}"
-    elif path.suffix in (".yaml", ".yml") or path.is_file():
-        try:
-            with open(path) as handle:
-                raw = yaml.safe_load(handle)
-        except (OSError, yaml.YAMLError) as error:
-            raise TrajOptTaskError(f"cannot read task file {path}: {error}") from error
-        if not isinstance(raw, dict):
-            raise TrajOptTaskError(f"task file {path} must be a mapping of keys to values")
-        raw = validate_task(raw, f"file {path}").model_dump(mode="json")  # fill defaults: every key settable
-        source = f"file {path}"
-    else:
-        raise TrajOptTaskError(
-            f"unknown task {name_or_path!r}; tasks: {', '.join(TASKS)} (or give a path to a task .yaml)"
-        )
-    for item in overrides or []:
-        key, value = parse_override(item)
-        set_dotted(raw, key, value)
-    return validate_task(raw, source)
+    """A task preset (``TASKS``) or a task YAML file, with ``key=value`` overrides, validated
+    (``TrajOptTaskError`` naming the key)."""
+    presets = {name: (lambda task=task: task().model_dump(mode="json")) for name, task in TASKS.items()}
+    return load_model(
+        TrajOptTask,
+        name_or_path,
+        overrides or (),
+        presets,
+        noun="task",
+        preset_noun="task",
+        error=TrajOptTaskError,
+    )

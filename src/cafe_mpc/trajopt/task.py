@@ -4,12 +4,12 @@ The offline TO of the paper's Appendix (Sec. VI-B) is a multi-phase problem whos
 sequence with switching times; each phase tracks one *keyframe* (the desired state at the end of the phase)
 with its own running and terminal weights; touchdowns are constraints (Eq. (25)); minimum base height,
 torque, joint-position, joint-speed and friction limits are inequality constraints. ``TrajOptTask`` holds all
-of it as plain values so that a task is a YAML file (``cafe-mpc optimize TASK_OR_FILE --set key=value``)
-and every written trajectory comes with the YAML that made it.
+of it as plain values so that a task is a YAML file (``cafe-mpc optimize TASK_OR_FILE --set key=value``,
+read like a run config: ``config.loading``) and every written trajectory comes with the YAML that made it.
 
 Conventions: contact codes as in ``cafe_mpc.reference.trajectory_file`` (``"FS"``, ``"FT"``, ``"FR-HR"``);
-base weights in the order ``[x, y, z, yaw, pitch, roll]`` (``cafe_mpc.ocp.costs``); keyframe orientations as
-roll, pitch, yaw (``R = Rz(yaw) Ry(pitch) Rx(roll)``) where the roll is *cumulative* (``2 pi`` = one full
+base weights in the order ``[x, y, z, yaw, pitch, roll]`` (``cafe_mpc.config.weights``); keyframe orientations
+as roll, pitch, yaw (``R = Rz(yaw) Ry(pitch) Rx(roll)``) where the roll is *cumulative* (``2 pi`` = one full
 turn), and orientation rates as roll, pitch, yaw rates; joint vectors as 3 values (abad, hip, knee; every
 leg) or 12 (leg order FL, FR, HL, HR).
 """
@@ -18,15 +18,18 @@ from __future__ import annotations
 
 import itertools
 import math
-from typing import Any, Literal
+from typing import Literal
 
 import numpy as np
 import yaml
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
+from pydantic import Field, field_validator, model_validator
 
+from cafe_mpc.config import DEFAULT_FRICTION
+from cafe_mpc.config.loading import ConfigError, StrictModel
+from cafe_mpc.config.weights import WholeBodyWeights
 from cafe_mpc.ocp.constraints import BarrierParameters, WholeBodyConstraintSettings
-from cafe_mpc.ocp.costs import WholeBodyWeights
 from cafe_mpc.reference.trajectory_file import parse_contact_code
+from cafe_mpc.robots.robot import Robot
 from cafe_mpc.solver.options import SolverOptions
 
 Vector3 = tuple[float, float, float]
@@ -34,12 +37,8 @@ Vector6 = tuple[float, float, float, float, float, float]
 TIME_TOLERANCE = 1e-9
 
 
-class TrajOptTaskError(ValueError):
+class TrajOptTaskError(ConfigError):
     """A task (preset, YAML file or override) that cannot be used; the message names the key."""
-
-
-class StrictModel(BaseModel):
-    model_config = ConfigDict(extra="forbid", validate_assignment=True)
 
 
 def _joint_vector(values: list[float], name: str) -> list[float]:
@@ -193,13 +192,23 @@ class ConstraintSpec(StrictModel):
     stall the line search when they are used from the start).
     """
 
-    torque_limit: float = Field(17.0, gt=0.0, description="|tau| limit (Nm)")
+    torque_limit: float | None = Field(
+        None, gt=0.0, description="|tau| limit of every joint, Nm (null: the robot's joints.torque_limits)"
+    )
     joint_speed_limit: float = Field(20.0, gt=0.0, description="|qdot| limit (rad/s)")
-    friction_coefficient: float = Field(0.6, gt=0.0)
+    friction_coefficient: float = Field(DEFAULT_FRICTION, gt=0.0)
     barriers: BarrierSetSpec = Field(default_factory=_authors_to_barriers)
     warm_up_barriers: BarrierSetSpec | None = Field(default_factory=_mpc_barriers)
 
-    def settings(self, minimum_height: float | None, barriers: BarrierSetSpec) -> WholeBodyConstraintSettings:
+    def torque_limits(self, robot: Robot) -> tuple[float, ...]:
+        """Per-joint ``|tau|`` limits, Nm: ``torque_limit`` on every joint, or the robot's own limits."""
+        if self.torque_limit is None:
+            return tuple(float(limit) for limit in robot.torque_limits)
+        return (float(self.torque_limit),) * robot.nu
+
+    def settings(
+        self, minimum_height: float | None, barriers: BarrierSetSpec, robot: Robot
+    ) -> WholeBodyConstraintSettings:
         """Knot constraint settings (joint speed limits come from the planning robot, see ``multiphase``)."""
         return WholeBodyConstraintSettings(
             friction_coefficient=self.friction_coefficient,
@@ -209,7 +218,7 @@ class ConstraintSpec(StrictModel):
             joint_position_barrier=barriers.joint_position.parameters(),
             joint_velocity_barrier=barriers.joint_speed.parameters(),
             base_height_barrier=barriers.height.parameters(),
-            torque_limit_values=(self.torque_limit,) * 12,
+            torque_limit_values=self.torque_limits(robot),
         )
 
 
@@ -284,60 +293,3 @@ class TrajOptTask(StrictModel):
         )
         lines = "".join(f"# {line}\n" if line else "#\n" for line in header.splitlines())
         return lines + text
-
-
-def format_validation_error(error: ValidationError) -> str:
-    """One line naming each bad key: ``key.path: message (got value)``."""
-    parts = []
-    for problem in error.errors():
-        location = ".".join(str(part) for part in problem["loc"]) or "task"
-        message = problem["msg"].removeprefix("Value error, ")
-        if problem["type"] == "extra_forbidden":
-            message = "unknown key"
-        got = problem.get("input")
-        parts.append(
-            f"{location}: {message}" if isinstance(got, dict) else f"{location}: {message} (got {got!r})"
-        )
-    return "; ".join(parts)
-
-
-def validate_task(raw: dict[str, Any], source: str) -> TrajOptTask:
-    try:
-        return TrajOptTask.model_validate(raw)
-    except ValidationError as error:
-        raise TrajOptTaskError(f"invalid task {source}: {format_validation_error(error)}") from error
-
-
-def set_dotted(raw: dict[str, Any], dotted: str, value: Any) -> None:
-    """``raw[a][b][0]... = value`` for an existing key path (list indices allowed); names the bad key."""
-    parts = dotted.split(".")
-    node: Any = raw
-    for depth, part in enumerate(parts):
-        where = ".".join(parts[:depth]) or "top level"
-        if isinstance(node, list):
-            if not part.isdigit() or int(part) >= len(node):
-                raise TrajOptTaskError(
-                    f"task key {dotted!r}: {where} is a list of {len(node)}, not index {part}"
-                )
-            key: Any = int(part)
-        elif isinstance(node, dict):
-            if part not in node:
-                raise TrajOptTaskError(f"unknown task key {dotted!r}: {where} allows {', '.join(node)}")
-            key = part
-        else:
-            raise TrajOptTaskError(f"unknown task key {dotted!r}: {where} has no sub-keys")
-        if depth == len(parts) - 1:
-            node[key] = value
-            return
-        node = node[key]
-
-
-def parse_override(item: str) -> tuple[str, Any]:
-    """``key=value`` -> (key, YAML-parsed value)."""
-    key, separator, text = item.partition("=")
-    if not separator or not key.strip():
-        raise TrajOptTaskError(f"--set expects key=value, got {item!r}")
-    try:
-        return key.strip(), yaml.safe_load(text)
-    except yaml.YAMLError as error:
-        raise TrajOptTaskError(f"--set {key}: cannot parse value {text!r}: {error}") from error

@@ -13,6 +13,7 @@ from __future__ import annotations
 import numpy as np
 import pinocchio as pin
 
+from cafe_mpc.config import DEFAULT_FRICTION
 from cafe_mpc.robots.robot import Robot
 
 
@@ -108,7 +109,9 @@ def contact_forces_for_torque(
 class FrictionConeScorer:
     """Counts ticks whose torque implies a stance force outside the friction pyramid (any controller)."""
 
-    def __init__(self, robot: Robot, mu: float = 0.6, alpha: float = 10.0, tolerance: float = 1e-3) -> None:
+    def __init__(
+        self, robot: Robot, mu: float = DEFAULT_FRICTION, alpha: float = 10.0, tolerance: float = 1e-3
+    ) -> None:
         self.robot = robot
         self.mu = float(mu)
         self.tolerance = float(tolerance)

@@ -6,9 +6,9 @@ Per control tick, with the plan interval containing ``t`` (``TemplatePlan.knot_a
 * stance legs (the plan's stance flags): the planned world GRFs mapped through the foot Jacobians,
   ``tau = g_J(q) - J_c(q)' F`` (the joint rows of the static equilibrium ``S' tau = g(q) - J_c' F`` of
   ``dynamics.statics``; ``g_J`` carries the legs' own weight);
-* swing legs: joint PD toward the leg inverse kinematics (``reference.inverse_kinematics``) of the reference
-  swing-foot position and velocity at ``t`` (cubic Bezier swings of the locomotion reference, interpolated
-  by ``TemplatePlan.feet_at``) about the *measured* base pose, plus the same leg-gravity term.
+* swing legs: joint PD toward the leg inverse kinematics (``dynamics.leg_inverse_kinematics``) of the
+  reference swing-foot position and velocity at ``t`` (cubic Bezier swings of the locomotion reference,
+  interpolated by ``TemplatePlan.feet_at``) about the *measured* base pose, plus the same leg-gravity term.
 
 There is no whole-body feedback: the body is stabilised only through the GRFs that the MPC replans at every
 update (the HKD-MPC structure), and no coordination of leg and body momentum (which is what the paper's
@@ -27,7 +27,7 @@ from cafe_mpc.core.controller import LowLevelController
 from cafe_mpc.core.measurement import Measurement
 from cafe_mpc.core.plan import Plan
 from cafe_mpc.core.template_plan import TemplatePlan
-from cafe_mpc.reference.inverse_kinematics import LegInverseKinematics
+from cafe_mpc.dynamics.leg_inverse_kinematics import LegInverseKinematics
 from cafe_mpc.robots.robot import Robot
 
 LWA = pin.ReferenceFrame.LOCAL_WORLD_ALIGNED

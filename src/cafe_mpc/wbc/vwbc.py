@@ -25,13 +25,14 @@ at zero joint acceleration. The stance set ``C`` is the plan knot's contact flag
 (``Measurement.contacts``).
 
 Solvers: one preallocated solver object and matrix set per stance pattern (sizes change with the number of
-stance feet). ProxQP (``proxsuite.proxqp.dense``, default) solves (34) as written; it is a proximal
-augmented-Lagrangian method, so its iteration counts are *not* the active-set counts the paper reports for
-qpOASES, and its own equality-constrained initial guess beats a primal warm start by about one iteration
-(measured in ``benchmarks/bench_vwbc.py``). DAQP (optional, ``solver="daqp"``), a dual active-set method
-like qpOASES, solves the same QP condensed onto ``tau`` (``qdd`` and ``F`` are affine in ``tau`` through the
-KKT system of (34b)-(34c)); its iterations are active-set changes. Warm start (paper end of Sec. V-A): the
-plan's ``[(v*_{k+1} - v*_k) / dt_k, tau*_k, F*_k]`` or the previous tick's solution.
+stance feet). ProxQP (``proxsuite.proxqp.dense``, ``solver="proxqp"``) solves (34) as written; it is a
+proximal augmented-Lagrangian method, so its iteration counts are *not* the active-set counts the paper
+reports for qpOASES, and its own equality-constrained initial guess beats a primal warm start by about one
+iteration (measured in ``benchmarks/bench_vwbc.py``). DAQP (``solver="daqp"``, the default, warm-started
+from the previous tick), a dual active-set method like qpOASES, solves the same QP condensed onto ``tau``
+(``qdd`` and ``F`` are affine in ``tau`` through the KKT system of (34b)-(34c)); its iterations are
+active-set changes. Warm start (paper end of Sec. V-A): the plan's ``[(v*_{k+1} - v*_k) / dt_k, tau*_k,
+F*_k]`` or the previous tick's solution.
 
 Fallback (when the QP is not solved, returns non-finite numbers, raises any exception — the solver's
 object for that stance pattern is then rebuilt on its next tick — or, optionally, exceeds a wall-clock
@@ -48,12 +49,13 @@ from __future__ import annotations
 import math
 import time
 from collections import Counter
-from dataclasses import dataclass
-from typing import Literal
 
 import numpy as np
 import proxsuite
+from pydantic import Field
 
+from cafe_mpc.config import DEFAULT_FRICTION, VWBCConfig
+from cafe_mpc.config.run import WarmStart
 from cafe_mpc.core.controller import LowLevelController
 from cafe_mpc.core.measurement import Measurement
 from cafe_mpc.core.plan import Plan
@@ -64,10 +66,6 @@ from cafe_mpc.wbc.contact_dynamics import (
     friction_cone_violation,
 )
 from cafe_mpc.wbc.riccati import riccati_torque, state_error
-
-WarmStart = Literal["plan", "previous", "equality", "none"]
-StanceSource = Literal["plan", "intersect"]
-Solver = Literal["proxqp", "daqp"]
 
 _PROXQP = proxsuite.proxqp
 _INITIAL_GUESS = {
@@ -82,48 +80,35 @@ _SOLVED = _PROXQP.QPSolverOutput.PROXQP_SOLVED
 REAL_TIME_BUDGET_MS = 2.0
 
 
-@dataclass
-class VWBCSettings:
-    """Parameters of the VWBC QP (34) and its solver.
+class VWBCSettings(VWBCConfig):
+    """Parameters of the VWBC QP (34) and its solver: the run config's ``vwbc`` section (``solver``,
+    ``warm_start``, ``stance_source``, with their defaults), the friction the plan assumes and the rest.
 
-    ``solver``: ``"proxqp"`` (ProxQP on (34) as is; the project's dependency) or ``"daqp"`` (DAQP, a dual
-    active-set solver, on (34) condensed onto ``tau``; optional package).
+    ``solver``: ``"daqp"`` (DAQP, a dual active-set solver, on (34) condensed onto ``tau``) or ``"proxqp"``
+    (ProxQP on (34) as is).
     ``warm_start``: ``"plan"`` (guess from the plan, the paper's choice: for ProxQP the primal
     ``[qdd_fd, tau*, F*]`` with zero multipliers, for DAQP the constraints active at ``tau*``),
     ``"previous"`` (previous tick's solution — ProxQP primal-dual, DAQP working set — when the stance
     pattern is unchanged, else the plan guess), ``"equality"`` (ProxQP's default initial guess: the
     equality-constrained QP's solution; for DAQP the same as ``"none"``) or ``"none"`` (cold start: ProxQP
     from zero, DAQP from the empty working set).
+    ``mu``: friction coefficient of the pyramid (34f) (a run's ``mpc.friction``). ``alpha``: Baumgarte gain
+    of (34c), 1/s (the reference robot's; the assembly scales it to the run's robot).
     ``time_budget_ms``: if set, a tick whose assembly + solve took longer falls back to the Riccati
     torque. Off by default because a wall-clock rule makes simulated runs depend on machine load; slow
     ticks (over ``REAL_TIME_BUDGET_MS``) are counted either way.
     """
 
-    mu: float = 0.6
-    alpha: float = 10.0
-    solver: Solver = "proxqp"
-    warm_start: WarmStart = "plan"
-    stance_source: StanceSource = "plan"
-    eps_abs: float = 1e-6
-    eps_rel: float = 0.0
-    max_iter: int = 200
-    regularization: float = 0.0  # on qdd and F (ProxQP only; DAQP's condensed QP has no qdd, F)
-    time_budget_ms: float | None = None
-    cone_tolerance: float = 1e-3  # N; a force further than this outside the pyramid counts as a violation
-
-    def __post_init__(self) -> None:
-        if self.warm_start not in _INITIAL_GUESS:
-            raise ValueError(f"warm_start must be one of {sorted(_INITIAL_GUESS)}, got {self.warm_start!r}")
-        if self.solver not in ("proxqp", "daqp"):
-            raise ValueError(f"solver must be 'proxqp' or 'daqp', got {self.solver!r}")
-        if self.stance_source not in ("plan", "intersect"):
-            raise ValueError(f"stance_source must be 'plan' or 'intersect', got {self.stance_source!r}")
-        if not self.mu > 0 or self.alpha < 0 or self.regularization < 0:
-            raise ValueError("VWBC needs mu > 0, alpha >= 0 and regularization >= 0")
-        if not self.eps_abs > 0 or self.max_iter < 1:
-            raise ValueError("VWBC needs eps_abs > 0 and max_iter >= 1")
-        if self.time_budget_ms is not None and not self.time_budget_ms > 0:
-            raise ValueError(f"time_budget_ms must be positive or None, got {self.time_budget_ms}")
+    mu: float = Field(DEFAULT_FRICTION, gt=0.0)
+    alpha: float = Field(10.0, ge=0.0)
+    eps_abs: float = Field(1e-6, gt=0.0)
+    eps_rel: float = Field(0.0, ge=0.0)
+    max_iter: int = Field(200, ge=1)
+    regularization: float = Field(0.0, ge=0.0)
+    """On qdd and F (ProxQP only; DAQP's condensed QP has no qdd, F)."""
+    time_budget_ms: float | None = Field(None, gt=0.0)
+    cone_tolerance: float = Field(1e-3, ge=0.0)
+    """N; a force further than this outside the pyramid counts as a violation."""
 
 
 class _StanceQP:

@@ -1,23 +1,20 @@
 """A run's settings carried to its robot (``scaling: robot``; the laws: ``robots.scaling``).
 
-The builders of ``experiments.controllers`` and ``experiments.tasks`` read the config's tuned values as the
-reference robot's and pass them through ``run_scale(config, robot)``: the MPC's horizons (``scaled_schedule``:
-Tw and Ts times the time scale, in whole knots), gait phase durations, swing height,
-Raibert gain and foothold box (the reference), cost weights (``scaled_weights``), the SRB force weight, the
-Baumgarte rates of the whole-body knots and the VWBC, the minimum base height, PD and template swing gains,
-and the fall height. ``scaling_block`` is what ``metrics.json`` reports of it.
+The assembly's builders read the config's tuned values as the reference robot's and pass them through
+``run_scale(config, robot)``: the MPC's horizons (``scaled_schedule``: Tw and Ts times the time scale, in
+whole knots), gait phase durations, swing height, Raibert gain and foothold box (the reference), cost
+weights (``scaled_weights``), the SRB force weight, the Baumgarte rates of the whole-body knots and the
+VWBC, the minimum base height, PD and template swing gains, and the fall height.
 """
 
 from __future__ import annotations
 
-from dataclasses import fields
-
 from cafe_mpc.config import RunConfig
+from cafe_mpc.config.weights import SRBWeights, WholeBodyWeights
 from cafe_mpc.mpc.problem import ModelSchedule
 from cafe_mpc.ocp.contact_schedule import GaitCycle, get_gait
-from cafe_mpc.ocp.costs import SRBWeights, WholeBodyWeights
 from cafe_mpc.robots.robot import Robot
-from cafe_mpc.robots.scaling import IDENTITY, RobotScale, reference_scales, robot_scale
+from cafe_mpc.robots.scaling import IDENTITY, RobotScale, robot_scale
 
 
 def run_scale(config: RunConfig, robot: Robot) -> RobotScale:
@@ -77,7 +74,7 @@ def scaled_weights(weights: WholeBodyWeights, scale: RobotScale) -> WholeBodyWei
         "swing_foot_position": _scaled_vector(weights.swing_foot_position, (foot_p,)),
         "swing_foot_velocity": _scaled_vector(weights.swing_foot_velocity, (foot_v,)),
     }
-    assert set(values) == {field.name for field in fields(WholeBodyWeights)}
+    assert set(values) == set(WholeBodyWeights.model_fields)
     return WholeBodyWeights(**values)
 
 
@@ -102,22 +99,3 @@ def srb_force_weight(scale: RobotScale, terminal: bool = False):
     """The authors' SRB GRF weight (``SRBWeights``) scaled to the robot."""
     base = SRBWeights.regular_terminal() if terminal else SRBWeights.regular_running()
     return scaled_srb_force_weight(base.force, scale)
-
-
-def scaling_block(config: RunConfig, robot: Robot) -> dict:
-    """``metrics.json``'s ``scaling``: the mode, the robot's factors against the reference robot."""
-    scale = run_scale(config, robot)
-    schedule = scaled_schedule(config.mpc.model_schedule(), scale)
-    block = {
-        "mode": config.scaling,
-        "reference": reference_scales(),
-        "robot_leg_length": robot.leg_length,
-        "robot_mass": robot.mass,
-        "factors": scale.summary(),
-        "whole_body_horizon_s": schedule.whole_body_horizon,
-        "srb_horizon_s": schedule.srb_horizon,
-    }
-    if config.gait is not None:
-        block["gait_period_s"] = scaled_gait(config.gait.name, scale).period
-        block["swing_height_m"] = scale.distance(config.gait.swing_height)
-    return block

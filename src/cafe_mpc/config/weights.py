@@ -1,28 +1,35 @@
-"""Cost terms of the whole-body and SRB knots (paper Eqs. (18) and (28)) as residual x weight.
+"""Cost weights of the whole-body and SRB knots (paper Eqs. (18) and (28)) and the authors' weight sets.
 
-Every term is ``0.5 * r' W r`` with a residual ``r(x, u)`` and a diagonal weight ``W``; a running knot
-multiplies the sum by its time step (``0.5 * dx' W dx * dt``, docs/settings.md). Derivatives are
-Gauss-Newton: ``Lx = Rx' W r``, ``Lxx = Rx' W Rx`` (and the same for ``u``). Weight sets are data
-(``WholeBodyWeights``, ``SRBWeights``), written in the authors' base order ``[x, y, z, yaw, pitch, roll]``
-and mapped here to the tangent order ``[lin x, y, z, ang x (roll), y (pitch), z (yaw)]``.
-
-Each term keeps its residual ``r`` and dense Jacobians ``Rx``, ``Ru`` in its data (tests compare them
-with finite differences); the accumulation into the knot's ``Lx, Lu, Lxx, Luu, Lux`` exploits the sparsity
-of each term. References are read from the knot's mutable reference object (see ``cafe_mpc.ocp.knots``).
+Every cost term of a knot is ``0.5 * r' W r`` with a residual ``r(x, u)`` and a diagonal weight ``W``; a
+running knot multiplies the sum by its time step (``0.5 * dx' W dx * dt``, docs/settings.md). A weight set
+(``WholeBodyWeights``, ``SRBWeights``) is the settings of those diagonals, written as in the authors' code:
+base weights in the order ``[x, y, z, yaw, pitch, roll]``, joint weights one for all joints or one per
+joint, foot weights ``(x, y, z)`` for every leg or one triple per leg. Each set gives its diagonals in the
+knots' tangent order ``[lin x, y, z, ang x (roll), y (pitch), z (yaw)]`` (``state_weights``, ...). The run
+config's ``costs`` and ``reference.costs`` sections are these models.
 """
 
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass
 from typing import Literal
 
 import numpy as np
+from pydantic import model_validator
+
+from cafe_mpc.config.loading import StrictModel
 
 BASE_WEIGHT_ORDER = ("x", "y", "z", "yaw", "pitch", "roll")
 """Order of the six base weights in the authors' code and in ``WholeBodyWeights``/``SRBWeights``."""
 
 BaseError = Literal["tangent", "world"]
+"""Whole-body base residual: tangent-space difference, or world-frame position, ``log3(R_ref' R)`` and
+world-frame linear velocity (``ocp.knots.WholeBodySettings.base_error``)."""
+
+Weights = float | tuple[float, ...]
+"""A scalar (every joint / axis) or a tuple (12 per joint, or 3 x y z shared by the legs, or 12 per leg)."""
+BaseWeights = tuple[float, float, float, float, float, float]
+"""Six base weights in ``BASE_WEIGHT_ORDER``."""
 
 
 def base_weights_to_tangent(weights: Sequence[float]) -> np.ndarray:
@@ -34,7 +41,9 @@ def base_weights_to_tangent(weights: Sequence[float]) -> np.ndarray:
     return np.array([w[0], w[1], w[2], w[5], w[4], w[3]])
 
 
-def _weight_vector(value: float | Sequence[float], size: int, name: str) -> np.ndarray:
+def weight_vector(value: float | Sequence[float], size: int, name: str) -> np.ndarray:
+    """A scalar or ``size`` weights -> ``size`` weights (``ValueError`` naming ``name`` for another shape or a
+    negative or non-finite weight)."""
     array = np.asarray(value, dtype=float)
     if array.ndim == 0:
         array = np.full(size, float(array))
@@ -45,58 +54,60 @@ def _weight_vector(value: float | Sequence[float], size: int, name: str) -> np.n
     return array
 
 
-def _leg_weights(value: float | Sequence[float], name: str) -> np.ndarray:
-    """3 weights (x, y, z) shared by the four legs, or 12 (per leg)."""
+def leg_weights(value: float | Sequence[float], name: str) -> np.ndarray:
+    """3 weights (x, y, z) shared by the four legs, or 12 (per leg) -> 12 (leg-major)."""
     array = np.asarray(value, dtype=float)
     if array.ndim == 0:
         array = np.full(3, float(array))
     if array.shape == (3,):
         array = np.tile(array, 4)
-    return _weight_vector(array, 12, name)
+    return weight_vector(array, 12, name)
 
 
-@dataclass(frozen=True)
-class WholeBodyWeights:
+class WholeBodyWeights(StrictModel):
     """Weights of the whole-body cost (18) (docs/settings.md: "Cost"; running cost is ``0.5 dx' W dx dt``).
 
     ``base_position``/``base_velocity`` are in ``BASE_WEIGHT_ORDER``; joint and torque weights are scalars
     (all joints) or 12 values; foot weights are 3 (x, y, z, every leg) or 12 values and apply to swing feet.
     """
 
-    base_position: tuple[float, ...] = (0.0, 0.0, 10.0, 1.0, 2.0, 2.0)
-    base_velocity: tuple[float, ...] = (2.0, 2.0, 2.0, 1.0, 2.0, 2.0)
-    joint_position: float | tuple[float, ...] = 1.0
-    joint_velocity: float | tuple[float, ...] = 0.01
-    torque: float | tuple[float, ...] = 0.1
-    swing_foot_position: float | tuple[float, ...] = (10.0, 10.0, 10.0)
-    swing_foot_velocity: float | tuple[float, ...] = (2.0, 2.0, 2.0)
+    base_position: BaseWeights = (0.0, 0.0, 10.0, 1.0, 2.0, 2.0)
+    base_velocity: BaseWeights = (2.0, 2.0, 2.0, 1.0, 2.0, 2.0)
+    joint_position: Weights = 1.0
+    joint_velocity: Weights = 0.01
+    torque: Weights = 0.1
+    swing_foot_position: Weights = (10.0, 10.0, 10.0)
+    swing_foot_velocity: Weights = (2.0, 2.0, 2.0)
 
-    def __post_init__(self) -> None:
+    @model_validator(mode="after")
+    def _shapes(self) -> WholeBodyWeights:
+        """Every weight of the right count, finite and non-negative (``ValueError`` naming the field)."""
         self.state_weights()
         self.torque_weights()
         self.foot_position_weights()
         self.foot_velocity_weights()
+        return self
 
     def state_weights(self) -> np.ndarray:
         """36 weights in tangent order: base (6), joints (12), base velocity (6), joint velocity (12)."""
         return np.concatenate(
             [
-                base_weights_to_tangent(_weight_vector(self.base_position, 6, "base_position")),
-                _weight_vector(self.joint_position, 12, "joint_position"),
-                base_weights_to_tangent(_weight_vector(self.base_velocity, 6, "base_velocity")),
-                _weight_vector(self.joint_velocity, 12, "joint_velocity"),
+                base_weights_to_tangent(weight_vector(self.base_position, 6, "base_position")),
+                weight_vector(self.joint_position, 12, "joint_position"),
+                base_weights_to_tangent(weight_vector(self.base_velocity, 6, "base_velocity")),
+                weight_vector(self.joint_velocity, 12, "joint_velocity"),
             ]
         )
 
     def torque_weights(self) -> np.ndarray:
-        return _weight_vector(self.torque, 12, "torque")
+        return weight_vector(self.torque, 12, "torque")
 
     def foot_position_weights(self) -> np.ndarray:
         """12 weights (leg-major, x y z per leg)."""
-        return _leg_weights(self.swing_foot_position, "swing_foot_position")
+        return leg_weights(self.swing_foot_position, "swing_foot_position")
 
     def foot_velocity_weights(self) -> np.ndarray:
-        return _leg_weights(self.swing_foot_velocity, "swing_foot_velocity")
+        return leg_weights(self.swing_foot_velocity, "swing_foot_velocity")
 
     @classmethod
     def regular_running(cls) -> WholeBodyWeights:
@@ -157,27 +168,30 @@ class WholeBodyWeights:
         )
 
 
-@dataclass(frozen=True)
-class SRBWeights:
+class SRBWeights(StrictModel):
     """Weights of the SRB cost (28): base tracking (``BASE_WEIGHT_ORDER``) and GRF regularisation."""
 
-    base_position: tuple[float, ...] = (0.0, 0.0, 10.0, 1.0, 2.0, 2.0)
-    base_velocity: tuple[float, ...] = (2.0, 2.0, 2.0, 1.0, 2.0, 2.0)
-    force: float | tuple[float, ...] = 0.01
+    base_position: BaseWeights = (0.0, 0.0, 10.0, 1.0, 2.0, 2.0)
+    base_velocity: BaseWeights = (2.0, 2.0, 2.0, 1.0, 2.0, 2.0)
+    force: Weights = 0.01
+    """GRF regularisation: one value, 3 shared by the feet, or 12."""
 
-    def __post_init__(self) -> None:
+    @model_validator(mode="after")
+    def _shapes(self) -> SRBWeights:
+        """Every weight of the right count, finite and non-negative (``ValueError`` naming the field)."""
         self.state_weights()
         self.force_weights()
+        return self
 
     def state_weights(self) -> np.ndarray:
         """12 weights in the SRB tangent order ``[position, rotation (roll, pitch, yaw), linear velocity,
         angular velocity (roll, pitch, yaw rates)]``."""
-        position = base_weights_to_tangent(_weight_vector(self.base_position, 6, "base_position"))
-        velocity = base_weights_to_tangent(_weight_vector(self.base_velocity, 6, "base_velocity"))
+        position = base_weights_to_tangent(weight_vector(self.base_position, 6, "base_position"))
+        velocity = base_weights_to_tangent(weight_vector(self.base_velocity, 6, "base_velocity"))
         return np.concatenate([position, velocity])
 
     def force_weights(self) -> np.ndarray:
-        return _leg_weights(self.force, "force")
+        return leg_weights(self.force, "force")
 
     @classmethod
     def regular_running(cls) -> SRBWeights:

@@ -16,8 +16,12 @@ The MPC asks for ~26 knots per update. Done per knot through Pinocchio that cost
 of it Python overhead, so the chains are read once from the Pinocchio model (joint placements, joint axes,
 foot placement) and all knots are solved in one compiled call (``solve_batch``, numba). The iteration is the
 same as the Pinocchio one (``_solve_pinocchio``, kept as the reference and as the fallback for models whose
-legs are not three revolute joints on the free-flyer, or when numba is missing): same iteration count,
-tolerance, damping, clipping and warm start, so the results agree to rounding.
+legs are not three revolute joints on the free-flyer): same iteration count, tolerance, damping, clipping and
+warm start, so the results agree to rounding.
+
+The number of legs is the robot's (``robot.n_feet``), each of ``JOINTS_PER_LEG`` joints; the joints of leg
+``i`` are the velocity indices ``6 + 3 i .. 8 + 3 i``. This sits with the kinematics (``dynamics``) because
+the reference, the template MPC and the template low level all use it.
 """
 
 from __future__ import annotations
@@ -26,18 +30,14 @@ import warnings
 
 import numpy as np
 import pinocchio as pin
+from numba import njit
 
 from cafe_mpc.robots.robot import Robot
-
-try:
-    import numba
-except ImportError:  # pragma: no cover - numba is optional; the Pinocchio path needs nothing extra
-    numba = None
 
 LWA = pin.ReferenceFrame.LOCAL_WORLD_ALIGNED
 
 JOINTS_PER_LEG = 3
-LEG_COUNT = 4
+"""Joints of each leg (abduction, hip, knee): the 3 x 3 Newton step per leg."""
 # One row block per joint in ``LegChains.joints``: rows 0-2 placement rotation (in the parent joint frame),
 # row 3 placement translation, row 4 the unit joint axis (in the joint frame).
 _PLACEMENT_TRANSLATION = 3
@@ -51,9 +51,7 @@ _AXIS_OF_TYPE = {
 _SELF_CHECK_TOLERANCE = 1e-9
 
 
-def _jit(function):
-    """``numba.njit(cache=True)`` when numba is installed, the plain function otherwise (then unused)."""
-    return function if numba is None else numba.njit(cache=True)(function)
+_jit = njit(cache=True)
 
 
 # ------------------------------------------------------------------------------------ compiled kernels
@@ -186,7 +184,7 @@ def _damped_solve(jacobian: np.ndarray, rhs: np.ndarray, damping: float, out: np
 def _chain_kinematics(
     joints: np.ndarray, feet: np.ndarray, angles: np.ndarray, positions: np.ndarray, jacobians: np.ndarray
 ) -> None:
-    """Base-frame foot positions (4, 3) and leg Jacobians (4, 3, 3) at the 12 joint ``angles``."""
+    """Base-frame foot positions (legs, 3) and leg Jacobians (legs, 3, 3) at the joint ``angles``."""
     work = np.empty((3, 3, 3))
     for leg in range(joints.shape[0]):
         _leg_kinematics(joints[leg], feet[leg], angles, 3 * leg, positions[leg], jacobians[leg], work)
@@ -212,8 +210,8 @@ def _solve_knots(
     """Leg inverse kinematics of ``n`` knots, each warm-started from the previous knot's solution.
 
     Per knot: the foot targets are brought into the base frame once, then up to ``iterations`` damped Newton
-    sweeps over the four legs; each sweep measures the largest world-frame foot error of all legs, steps
-    every leg, clips to ``limits`` (2, 12) and stops once that error (measured before the step) is below
+    sweeps over the legs; each sweep measures the largest world-frame foot error of all legs, steps
+    every leg, clips to ``limits`` (2, joints) and stops once that error (measured before the step) is below
     ``tolerance`` (the Pinocchio iteration exactly). Rates: ``(J^T J + damping I)^-1 J^T (v_foot - v_base
     part)`` at the solution, in the base frame (the rotation cancels in ``J^T J``); skipped (zero) when
     ``base_velocities`` has no rows.
@@ -287,21 +285,22 @@ class LegChainError(ValueError):
 def extract_leg_chains(model: pin.Model, foot_frame_ids: tuple[int, ...]) -> tuple[np.ndarray, np.ndarray]:
     """The legs' kinematic chains from the free-flyer to the feet, for the compiled solver.
 
-    Returns ``joints`` (4, 3, 5, 3): per leg and joint, the placement rotation in the parent joint frame
+    Returns ``joints`` (legs, 3, 5, 3): per leg and joint, the placement rotation in the parent joint frame
     (rows 0-2), the placement translation (row 3) and the unit axis in the joint frame (row 4); and ``feet``
-    (4, 3): each foot frame's position in its parent (the leg's last) joint frame. Raises ``LegChainError``
+    (legs, 3): each foot frame's position in its parent (the leg's last) joint frame. Raises ``LegChainError``
     unless joint 1 is the root free-flyer at the identity and each foot's chain is exactly three one-DoF
     revolute joints whose velocity indices are ``6 + 3 leg .. 8 + 3 leg`` (configuration ``7 + 3 leg ..``),
     in leg order.
     """
-    if len(foot_frame_ids) != LEG_COUNT:
-        raise LegChainError(f"expected {LEG_COUNT} feet, got {len(foot_frame_ids)}")
+    legs = len(foot_frame_ids)
+    if legs < 1:
+        raise LegChainError("the model has no feet")
     if model.njoints < 2 or model.joints[1].shortname() != "JointModelFreeFlyer" or model.parents[1] != 0:
         raise LegChainError("joint 1 is not a free-flyer on the universe")
     if not model.jointPlacements[1].isIdentity():
         raise LegChainError("the free-flyer's placement is not the identity")
-    joints = np.zeros((LEG_COUNT, JOINTS_PER_LEG, 5, 3))
-    feet = np.zeros((LEG_COUNT, 3))
+    joints = np.zeros((legs, JOINTS_PER_LEG, 5, 3))
+    feet = np.zeros((legs, 3))
     for leg, frame_id in enumerate(foot_frame_ids):
         frame = model.frames[frame_id]
         chain = []
@@ -350,13 +349,15 @@ def _check_chains(robot: Robot, joints: np.ndarray, feet: np.ndarray) -> None:
     model = robot.model
     data = model.createData()
     rng = np.random.default_rng(0)
-    positions = np.empty((LEG_COUNT, 3))
-    jacobians = np.empty((LEG_COUNT, 3, 3))
+    positions = np.empty((robot.n_feet, 3))
+    jacobians = np.empty((robot.n_feet, 3, 3))
     span = np.minimum(robot.position_upper - robot.position_lower, 2.0 * np.pi)
     for trial in range(3):
         q = pin.neutral(model)
         q[7:] = (
-            robot.q_standing[7:] if trial == 0 else robot.position_lower + rng.uniform(0.1, 0.9, 12) * span
+            robot.q_standing[7:]
+            if trial == 0
+            else robot.position_lower + rng.uniform(0.1, 0.9, robot.nu) * span
         )
         q[7:] = np.clip(q[7:], robot.position_lower, robot.position_upper)
         pin.computeJointJacobians(model, data, q)
@@ -375,7 +376,7 @@ def _check_chains(robot: Robot, joints: np.ndarray, feet: np.ndarray) -> None:
 
 # ------------------------------------------------------------------------------------ public solver
 class LegInverseKinematics:
-    """Joint angles and rates that put the four feet at given world positions/velocities for a base pose.
+    """Joint angles and rates that put the feet at given world positions/velocities for a base pose.
 
     ``fast`` tells whether the compiled path is in use; ``fallback_reason`` says why not (then every call
     goes through Pinocchio, per knot, with the same results but ~80x slower).
@@ -396,22 +397,25 @@ class LegInverseKinematics:
         self._standing_joints = np.ascontiguousarray(robot.q_standing[7:], dtype=np.float64)
         self._limits = np.ascontiguousarray(np.vstack([self.lower, self.upper]), dtype=np.float64)
         self._no_base_velocity = np.zeros((0, 6))
-        self._no_foot_velocity = np.zeros((0, LEG_COUNT, 3))
+        self.legs = robot.n_feet
+        self.n_joints = robot.nu
+        self._no_foot_velocity = np.zeros((0, self.legs, 3))
         self.fast = False
         self.fallback_reason: str | None = None
-        self._joints = np.zeros((LEG_COUNT, JOINTS_PER_LEG, 5, 3))
-        self._feet = np.zeros((LEG_COUNT, 3))
-        if numba is None:
-            self.fallback_reason = "numba is not installed"
-        else:
-            try:
-                self._joints, self._feet = extract_leg_chains(self.model, self.frame_ids)
-                if self.lower.shape != (12,) or self.upper.shape != (12,):
-                    raise LegChainError("joint limits are not 12 numbers")
-                _check_chains(robot, self._joints, self._feet)
-                self.fast = True
-            except LegChainError as error:
-                self.fallback_reason = str(error)
+        self._joints = np.zeros((self.legs, JOINTS_PER_LEG, 5, 3))
+        self._feet = np.zeros((self.legs, 3))
+        try:
+            if self.n_joints != JOINTS_PER_LEG * self.legs:
+                raise LegChainError(
+                    f"{self.n_joints} joints on {self.legs} legs, not {JOINTS_PER_LEG} per leg"
+                )
+            self._joints, self._feet = extract_leg_chains(self.model, self.frame_ids)
+            if self.lower.shape != (self.n_joints,) or self.upper.shape != (self.n_joints,):
+                raise LegChainError(f"joint limits are not {self.n_joints} numbers")
+            _check_chains(robot, self._joints, self._feet)
+            self.fast = True
+        except LegChainError as error:
+            self.fallback_reason = str(error)
         if self.fast:
             # Compile (or load from numba's cache) now, not in the first MPC update: one standing knot.
             standing = robot.q_standing[None, :7]
@@ -420,7 +424,7 @@ class LegInverseKinematics:
                 robot.foot_positions(robot.q_standing)[None],
                 None,
                 np.zeros((1, 6)),
-                np.zeros((1, LEG_COUNT, 3)),
+                np.zeros((1, self.legs, 3)),
             )
         else:
             warnings.warn(
@@ -438,10 +442,10 @@ class LegInverseKinematics:
         base_velocity: np.ndarray | None = None,
         foot_velocities: np.ndarray | None = None,
     ) -> tuple[np.ndarray, np.ndarray, float]:
-        """Joint angles (12), joint rates (12) and the largest remaining foot-position error (m).
+        """Joint angles (joints), joint rates (joints) and the largest remaining foot-position error (m).
 
-        ``base_configuration``: base position and quaternion (7); ``foot_positions``: world (4, 3);
-        ``base_velocity``: base-frame linear and angular velocity (6); ``foot_velocities``: world (4, 3).
+        ``base_configuration``: base position and quaternion (7); ``foot_positions``: world (legs, 3);
+        ``base_velocity``: base-frame linear and angular velocity (6); ``foot_velocities``: world (legs, 3).
         Feet out of reach end as close as the joint limits allow (the error is returned, not raised).
         The rates are zero unless both velocities are given.
         """
@@ -452,10 +456,10 @@ class LegInverseKinematics:
         with_rates = base_velocity is not None and foot_velocities is not None
         joints, rates, errors = self.solve_batch(
             np.reshape(base_configuration, (1, 7)),
-            np.reshape(foot_positions, (1, LEG_COUNT, 3)),
+            np.reshape(foot_positions, (1, self.legs, 3)),
             joint_guess,
             np.reshape(base_velocity, (1, 6)) if with_rates else None,
-            np.reshape(foot_velocities, (1, LEG_COUNT, 3)) if with_rates else None,
+            np.reshape(foot_velocities, (1, self.legs, 3)) if with_rates else None,
         )
         return joints[0], rates[0], float(errors[0])
 
@@ -468,35 +472,36 @@ class LegInverseKinematics:
         foot_velocities: np.ndarray | None = None,
         out: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Joint angles (n, 12), joint rates (n, 12) and largest foot errors (n) of ``n`` knots in one call.
+        """Joint angles, joint rates (n, joints) and largest foot errors (n) of ``n`` knots in one call.
 
         ``base_configurations`` (n, 7): base positions and unit quaternions ``(x, y, z, w)``;
-        ``foot_positions`` (n, 4, 3) world; ``joint_guess`` (12) warm-starts the first knot (standing
+        ``foot_positions`` (n, legs, 3) world; ``joint_guess`` (joints) warm-starts the first knot (standing
         joints when None), every later knot starts from the previous knot's solution (as a per-knot loop
-        over ``solve`` would); ``base_velocities`` (n, 6) base frame, ``foot_velocities`` (n, 4, 3) world
-        (zero rates unless both are given). ``out``: C-contiguous float64 arrays (n, 12), (n, 12), (n)
+        over ``solve`` would); ``base_velocities`` (n, 6) base frame, ``foot_velocities`` (n, legs, 3)
+        world (zero rates unless both are given). ``out``: C-contiguous float64 arrays (n, joints) twice, (n)
         to write into and return; fresh arrays otherwise.
         """
         base = np.ascontiguousarray(base_configurations, dtype=np.float64)
         feet = np.ascontiguousarray(foot_positions, dtype=np.float64)
         n = base.shape[0]
-        if base.shape != (n, 7) or feet.shape != (n, LEG_COUNT, 3):
-            raise ValueError(f"expected (n, 7) and (n, 4, 3) arrays, got {base.shape} and {feet.shape}")
+        legs, n_joints = self.legs, self.n_joints
+        if base.shape != (n, 7) or feet.shape != (n, legs, 3):
+            raise ValueError(f"expected (n, 7) and (n, {legs}, 3) arrays, got {base.shape} and {feet.shape}")
         if base_velocities is None or foot_velocities is None:
             base_velocity, foot_velocity = self._no_base_velocity, self._no_foot_velocity
         else:
             base_velocity = np.ascontiguousarray(base_velocities, dtype=np.float64)
             foot_velocity = np.ascontiguousarray(foot_velocities, dtype=np.float64)
-            if base_velocity.shape != (n, 6) or foot_velocity.shape != (n, LEG_COUNT, 3):
+            if base_velocity.shape != (n, 6) or foot_velocity.shape != (n, legs, 3):
                 raise ValueError(
-                    f"expected (n, 6) and (n, 4, 3) velocities, got {base_velocity.shape} and "
+                    f"expected (n, 6) and (n, {legs}, 3) velocities, got {base_velocity.shape} and "
                     f"{foot_velocity.shape}"
                 )
         if out is None:
-            joints, rates, errors = np.empty((n, 12)), np.empty((n, 12)), np.empty(n)
+            joints, rates, errors = np.empty((n, n_joints)), np.empty((n, n_joints)), np.empty(n)
         else:
             joints, rates, errors = out
-            for array, shape in ((joints, (n, 12)), (rates, (n, 12)), (errors, (n,))):
+            for array, shape in ((joints, (n, n_joints)), (rates, (n, n_joints)), (errors, (n,))):
                 if array.shape != shape or array.dtype != np.float64 or not array.flags.c_contiguous:
                     raise ValueError(f"out: expected C-contiguous float64 arrays of shape {shape}")
         if not self.fast:
@@ -507,7 +512,7 @@ class LegInverseKinematics:
         guess = (
             self._standing_joints
             if joint_guess is None
-            else np.ascontiguousarray(joint_guess, dtype=np.float64).reshape(12)
+            else np.ascontiguousarray(joint_guess, dtype=np.float64).reshape(n_joints)
         )
         _solve_knots(
             base,

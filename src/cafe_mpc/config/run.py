@@ -13,32 +13,17 @@ from __future__ import annotations
 import functools
 import itertools
 import math
+from collections.abc import Callable, Sequence
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Literal
+from typing import Any, Literal
 
-import yaml
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
+from pydantic import ConfigDict, Field, field_validator, model_validator
 
-from cafe_mpc.estimation.settings import KinematicKFSettings  # a plain dataclass: no heavy imports
+from cafe_mpc.config.estimation import KinematicKFSettings
+from cafe_mpc.config.loading import StrictModel, load_model, read_yaml
+from cafe_mpc.config.weights import BaseError, SRBWeights, WholeBodyWeights
 
-if TYPE_CHECKING:  # heavy modules (Pinocchio) are imported only where a value is built
-    from cafe_mpc.mpc.problem import ModelSchedule
-    from cafe_mpc.ocp.costs import WholeBodyWeights
-    from cafe_mpc.reference.locomotion import VelocityCommand
-    from cafe_mpc.robots.robot import Robot
-    from cafe_mpc.sim.randomization import PlantVariation, SensorModel
-    from cafe_mpc.sim.sensors import SensorSpec
-    from cafe_mpc.sim.terrain import Terrain
-
-PRESET_DIR = Path(__file__).parent / "configs"
-
-
-class ConfigError(ValueError):
-    """A config that cannot be used, with a message naming the bad key."""
-
-
-class StrictModel(BaseModel):
-    model_config = ConfigDict(extra="forbid", validate_assignment=True)
+PRESET_DIR = Path(__file__).parent.parent / "configs"
 
 
 class FallConfig(StrictModel):
@@ -97,13 +82,20 @@ class PDConfig(StrictModel):
     gravity_feedforward: bool = True
 
 
+WarmStart = Literal["previous", "plan", "equality", "none"]
+"""How the VWBC QP starts: the previous tick's solution, the plan's guess, the equality-constrained
+solution (ProxQP), or cold."""
+
+
 class VWBCConfig(StrictModel):
-    """The VWBC QP (34) solver (``cafe_mpc.wbc.vwbc.VWBCSettings``)."""
+    """The VWBC QP (34) solver: the run config's ``vwbc`` section, and the base of the controller's own
+    settings (``wbc.vwbc.VWBCSettings``), which adds what the assembly derives (friction, robot-scaled
+    rates) and the solvers' tolerances."""
 
     solver: Literal["daqp", "proxqp"] = Field(
         "daqp", description="daqp: dual active set on the QP condensed onto tau; proxqp: the QP as written"
     )
-    warm_start: Literal["previous", "plan", "equality", "none"] = Field(
+    warm_start: WarmStart = Field(
         "previous", description="previous tick's solution, the plan's guess, or cold"
     )
     stance_source: Literal["plan", "intersect"] = Field(
@@ -111,8 +103,21 @@ class VWBCConfig(StrictModel):
     )
 
 
-class CommandConfig(StrictModel):
-    """A velocity command from ``start`` on (heading frame): ``reference.locomotion.VelocityCommand``."""
+DEFAULT_FRICTION = 0.6
+"""Friction coefficient a controller assumes unless told otherwise: ``mpc.friction``'s default, and the one
+source of every controller-side default (plan pyramid, VWBC cone, template, trajectory optimisation)."""
+
+
+PAPER_BUDGET_FRACTION = 0.9
+"""The share of the MPC period a solve may take in measured mode (the paper's budget: 18 ms of 20 ms)."""
+
+
+class VelocityCommand(StrictModel):
+    """A velocity command from ``start`` on: speeds in the heading (yaw) frame, yaw rate and body height
+    (``reference.locomotion`` tracks it; a gait's ``commands``). Which commands a robot can follow is the
+    library's check (``reference.locomotion.validate_command``)."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
     start: float = Field(0.0, ge=0.0, description="s; the command holds until the next one starts")
     vx: float = Field(0.0, description="m/s forward in the heading frame")
@@ -121,8 +126,8 @@ class CommandConfig(StrictModel):
     height: float | None = Field(None, description="m body height; null: the robot's standing height")
 
 
-def _default_commands() -> list[CommandConfig]:
-    return [CommandConfig(vx=0.5)]
+def _default_commands() -> list[VelocityCommand]:
+    return [VelocityCommand(vx=0.5)]
 
 
 class GaitConfig(StrictModel):
@@ -141,21 +146,18 @@ class GaitConfig(StrictModel):
         description="s over which the reference moves linearly to each new command (0: steps); the robot is "
         "at rest until the gait starts (start_stance), then ramps to the first command",
     )
-    commands: list[CommandConfig] = Field(default_factory=_default_commands, min_length=1)
+    commands: list[VelocityCommand] = Field(default_factory=_default_commands, min_length=1)
 
     @field_validator("name")
     @classmethod
-    def _gait_known(cls, value: str) -> str:
-        from cafe_mpc.ocp.contact_schedule import GAITS
-
-        key = value.replace("-", "_").lower()
-        if key not in GAITS:
-            raise ValueError(f"unknown gait {value!r}; known gaits: {', '.join(sorted(GAITS))}")
-        return key
+    def _gait_key(cls, value: str) -> str:
+        """Gaits are named in snake case (``flying-trot`` -> ``flying_trot``); which exist is the library's
+        (``assembly.checks``)."""
+        return value.replace("-", "_").lower()
 
     @field_validator("commands")
     @classmethod
-    def _commands_in_order(cls, commands: list[CommandConfig]) -> list[CommandConfig]:
+    def _commands_in_order(cls, commands: list[VelocityCommand]) -> list[VelocityCommand]:
         starts = [command.start for command in commands]
         if starts[0] != 0.0:
             raise ValueError(f"the first command must start at 0 s, got {starts[0]}")
@@ -164,18 +166,39 @@ class GaitConfig(StrictModel):
         return commands
 
 
-class MpcConfig(StrictModel):
-    """Receding-horizon settings: model schedule (Tw, Ts, dt_w, dt_s), period and policy lag.
+class MpcSettings(StrictModel):
+    """Receding-horizon settings of an MPC (``mpc.planner``; docs/settings.md: "MPC loop" and "Solver").
 
-    ``schedule`` names one of the paper's schedules (S0..S20: Tw = 0.25 s, Ts = 0..2 s); for another split
-    set ``schedule: null`` and give ``whole_body_horizon`` and ``srb_horizon``. The time steps apply to both.
+    ``latency``: ``measured`` (default): a plan takes effect once its real wall-clock update time has passed
+    in simulated time (times ``compute_scale``: a computer that much slower), and the next update starts
+    from the newest measurement when the worker is free; ``fixed``: the same with a constant
+    ``fixed_latency`` (deterministic, for tests and for the paper's C++ budget). ``time_budget``: wall-clock
+    cap of one solve (the paper's 0.9 x period), applied in measured mode only so that fixed-latency runs do
+    not depend on the machine's load. ``max_iterations``: MS-iLQR iterations per update: 1, the real-time
+    iteration scheme (the paper uses 4 with ~5 ms C++ iterations; in Python, with measured latency, 4
+    iterations made 20-32 ms updates and the pace and bound presets fell, while 1 iteration keeps the latency
+    near 12 ms and all five gaits stay up: BENCHMARKS.md). ``touchdown_max_penalty``: cap of the
+    augmented-Lagrangian penalty of the touchdown constraint (25) (``SolverOptions.al_max_penalty``; the
+    authors' 1e4 when null). The penalty starts at 20 and grows x5 per update while a planned foot misses the
+    floor by more than 5 mm (the AL parameters carry over between updates); the barrel-roll preset caps it
+    at 20. ``final_policy``: ``shift`` keeps the sweep the step was taken from, moved to the new plan to
+    first order (one linearisation and one backward sweep per update); ``relinearize`` linearises and sweeps
+    again at the new plan (a third more work per preparation; with the real-time iteration both track the
+    gaits alike at fixed 20-60 ms latency, and the running barrel roll succeeds at 10-40 ms with either, at
+    50 ms only with ``relinearize``: BENCHMARKS.md). ``warm_up``: seconds of future updates whose solver data
+    (one per knot object: Pinocchio ``Data``, kinematics, buffers) are created right after the cold first
+    solve, before the clock starts, instead of inside the first update that meets each knot object (which
+    took 25-60 ms extra at the start of a gait and when the barrel roll entered the horizon). ``scheme``:
+    ``rti`` (real-time iteration: ``prepare`` before the measurement, ``feedback`` after it) or
+    ``one_phase`` (the whole update after the measurement). ``rti_line_search``: the preparation takes its
+    MS-iLQR iteration(s) on the predicted state, line search included, and the feedback only embeds the
+    measured state; or the preparation stops after the backward sweep and the feedback takes the full
+    Newton step (the classical real-time iteration, no globalisation). ``rti_feedback``: how the feedback
+    carries the measured initial state through the plan: the tangential predictor through the prepared
+    ``A``, ``B`` (``linear``) or the dynamics rolled out under the prepared policy (``nonlinear``).
+    ``threads``: threads that linearise the knots of an update (``SolverOptions.threads``).
     """
 
-    schedule: str | None = Field("S4", description="paper schedule S0..S5, S10, S15, S20; null: explicit")
-    whole_body_horizon: float | None = Field(None, gt=0.0, le=2.0, description="Tw, s (schedule: null)")
-    srb_horizon: float | None = Field(None, ge=0.0, le=5.0, description="Ts, s (schedule: null)")
-    whole_body_dt: float = Field(0.01, gt=0.0, le=0.1, description="dt_w, s")
-    srb_dt: float = Field(0.05, gt=0.0, le=0.5, description="dt_s, s")
     period: float = Field(0.02, gt=0.0, le=0.5, description="s between MPC update starts (at most)")
     latency: Literal["fixed", "measured"] = Field(
         "measured",
@@ -237,25 +260,35 @@ class MpcConfig(StrictModel):
         description="measured latency: every measured compute time is multiplied by this (a computer that "
         "many times slower)",
     )
+
+    @property
+    def budget(self) -> float | None:
+        """The wall-clock cap of an update's solve: ``time_budget`` or 0.9 x period in measured mode."""
+        if self.latency != "measured":
+            return None
+        return self.time_budget if self.time_budget is not None else PAPER_BUDGET_FRACTION * self.period
+
+
+class MpcConfig(MpcSettings):
+    """The run's MPC: its model schedule (Tw, Ts, dt_w, dt_s), the friction it assumes and its
+    receding-horizon settings (``MpcSettings``).
+
+    ``schedule`` names one of the paper's schedules (S0..S20: Tw = 0.25 s, Ts = 0..2 s); for another split
+    set ``schedule: null`` and give ``whole_body_horizon`` and ``srb_horizon``. The time steps apply to both.
+    """
+
+    schedule: str | None = Field("S4", description="paper schedule S0..S5, S10, S15, S20; null: explicit")
+    whole_body_horizon: float | None = Field(None, gt=0.0, le=2.0, description="Tw, s (schedule: null)")
+    srb_horizon: float | None = Field(None, ge=0.0, le=5.0, description="Ts, s (schedule: null)")
+    whole_body_dt: float = Field(0.01, gt=0.0, le=0.1, description="dt_w, s")
+    srb_dt: float = Field(0.05, gt=0.0, le=0.5, description="dt_s, s")
     friction: float = Field(
-        0.6,
+        DEFAULT_FRICTION,
         gt=0.0,
         le=2.0,
         description="friction coefficient the controller assumes (plan's pyramid, VWBC's cone); the plant's "
         "own is plant.floor_friction, so a mismatch between the two is explicit",
     )
-
-    @field_validator("schedule")
-    @classmethod
-    def _schedule_known(cls, value: str | None) -> str | None:
-        from cafe_mpc.mpc.problem import PAPER_SCHEDULES
-
-        if value is not None and value not in PAPER_SCHEDULES:
-            raise ValueError(
-                f"unknown model schedule {value!r}; known: {', '.join(PAPER_SCHEDULES)} "
-                "(or null with whole_body_horizon and srb_horizon)"
-            )
-        return value
 
     @model_validator(mode="after")
     def _schedule_consistent(self) -> MpcConfig:
@@ -267,117 +300,7 @@ class MpcConfig(StrictModel):
             )
         if self.schedule is None and (self.whole_body_horizon is None or self.srb_horizon is None):
             raise ValueError("with schedule null, give both whole_body_horizon and srb_horizon")
-        try:
-            self.model_schedule()
-        except ValueError as error:
-            raise ValueError(
-                f"{error} (keys whole_body_horizon, srb_horizon, whole_body_dt, srb_dt)"
-            ) from error
         return self
-
-    def model_schedule(self) -> ModelSchedule:
-        """The ``ModelSchedule`` this section describes."""
-        from cafe_mpc.mpc.problem import ModelSchedule
-
-        if self.schedule is not None:
-            return ModelSchedule.named(self.schedule, self.whole_body_dt, self.srb_dt)
-        assert self.whole_body_horizon is not None and self.srb_horizon is not None
-        return ModelSchedule(self.whole_body_horizon, self.srb_horizon, self.whole_body_dt, self.srb_dt)
-
-
-Weights = float | list[float]
-"""A scalar (every joint / axis) or a list (12 per joint, or 3 x y z shared by the legs, or 12 per leg)."""
-
-
-class WholeBodyWeightsConfig(StrictModel):
-    """The main fields of ``cafe_mpc.ocp.costs.WholeBodyWeights`` (running cost ``0.5 dx' W dx dt``).
-
-    Base weights are in the authors' order ``[x, y, z, yaw, pitch, roll]`` (docs/settings.md).
-    """
-
-    base_position: tuple[float, float, float, float, float, float]
-    base_velocity: tuple[float, float, float, float, float, float]
-    joint_position: Weights
-    joint_velocity: Weights
-    torque: Weights
-    swing_foot_position: Weights
-    swing_foot_velocity: Weights
-
-    @model_validator(mode="after")
-    def _weights_valid(self) -> WholeBodyWeightsConfig:
-        self.to_weights()  # raises ValueError naming the field (shape, negative or non-finite)
-        return self
-
-    @classmethod
-    def from_weights(cls, weights: WholeBodyWeights) -> WholeBodyWeightsConfig:
-        """From a ``WholeBodyWeights`` (tuples become lists so the YAML dump stays plain)."""
-
-        def plain(value: Any) -> Any:
-            return [float(v) for v in value] if isinstance(value, tuple | list) else float(value)
-
-        return cls(**{name: plain(getattr(weights, name)) for name in cls.model_fields})
-
-    def to_weights(self) -> WholeBodyWeights:
-        from cafe_mpc.ocp.costs import WholeBodyWeights
-
-        def value(item: Any) -> Any:
-            return tuple(item) if isinstance(item, tuple | list) else item
-
-        return WholeBodyWeights(**{name: value(getattr(self, name)) for name in type(self).model_fields})
-
-
-def _regular_running() -> WholeBodyWeightsConfig:
-    from cafe_mpc.ocp.costs import WholeBodyWeights
-
-    return WholeBodyWeightsConfig.from_weights(WholeBodyWeights.regular_running())
-
-
-def _regular_terminal() -> WholeBodyWeightsConfig:
-    from cafe_mpc.ocp.costs import WholeBodyWeights
-
-    return WholeBodyWeightsConfig.from_weights(WholeBodyWeights.regular_terminal())
-
-
-class SRBWeightsConfig(StrictModel):
-    """The fields of ``cafe_mpc.ocp.costs.SRBWeights`` (SRB cost (28), running cost ``0.5 dx' W dx dt``):
-    base weights in the authors' order ``[x, y, z, yaw, pitch, roll]``, the GRF regularisation weight (one
-    value, or 3 shared by the feet, or 12)."""
-
-    base_position: tuple[float, float, float, float, float, float]
-    base_velocity: tuple[float, float, float, float, float, float]
-    force: Weights
-
-    @model_validator(mode="after")
-    def _weights_valid(self) -> SRBWeightsConfig:
-        self.to_weights()
-        return self
-
-    @classmethod
-    def from_weights(cls, weights: Any) -> SRBWeightsConfig:
-        force = weights.force
-        return cls(
-            base_position=tuple(float(w) for w in weights.base_position),
-            base_velocity=tuple(float(w) for w in weights.base_velocity),
-            force=[float(f) for f in force] if isinstance(force, tuple | list) else float(force),
-        )
-
-    def to_weights(self) -> Any:
-        from cafe_mpc.ocp.costs import SRBWeights
-
-        force = tuple(self.force) if isinstance(self.force, list | tuple) else self.force
-        return SRBWeights(base_position=self.base_position, base_velocity=self.base_velocity, force=force)
-
-
-def _srb_running() -> SRBWeightsConfig:
-    from cafe_mpc.ocp.costs import SRBWeights
-
-    return SRBWeightsConfig.from_weights(SRBWeights.regular_running())
-
-
-def _srb_terminal() -> SRBWeightsConfig:
-    from cafe_mpc.ocp.costs import SRBWeights
-
-    return SRBWeightsConfig.from_weights(SRBWeights.regular_terminal())
 
 
 class CostsConfig(StrictModel):
@@ -386,22 +309,10 @@ class CostsConfig(StrictModel):
     set, ``SRBWeights.regular_running``, which says why the tail does not take the whole-body base weights
     as Eq. (28) does). Sources in docs/settings.md."""
 
-    running: WholeBodyWeightsConfig = Field(default_factory=_regular_running)
-    terminal: WholeBodyWeightsConfig = Field(default_factory=_regular_terminal)
-    srb_running: SRBWeightsConfig = Field(default_factory=_srb_running)
-    srb_terminal: SRBWeightsConfig = Field(default_factory=_srb_terminal)
-
-
-def _barrel_roll_running() -> WholeBodyWeightsConfig:
-    from cafe_mpc.ocp.costs import WholeBodyWeights
-
-    return WholeBodyWeightsConfig.from_weights(WholeBodyWeights.barrel_roll_running())
-
-
-def _barrel_roll_terminal() -> WholeBodyWeightsConfig:
-    from cafe_mpc.ocp.costs import WholeBodyWeights
-
-    return WholeBodyWeightsConfig.from_weights(WholeBodyWeights.barrel_roll_terminal())
+    running: WholeBodyWeights = Field(default_factory=WholeBodyWeights.regular_running)
+    terminal: WholeBodyWeights = Field(default_factory=WholeBodyWeights.regular_terminal)
+    srb_running: SRBWeights = Field(default_factory=SRBWeights.regular_running)
+    srb_terminal: SRBWeights = Field(default_factory=SRBWeights.regular_terminal)
 
 
 class TrajectoryCostsConfig(StrictModel):
@@ -409,8 +320,8 @@ class TrajectoryCostsConfig(StrictModel):
     set, ``WholeBodyWeights.barrel_roll_running/terminal``; docs/settings.md). The SRB tail uses the same base
     weights (Eq. (28))."""
 
-    running: WholeBodyWeightsConfig = Field(default_factory=_barrel_roll_running)
-    terminal: WholeBodyWeightsConfig = Field(default_factory=_barrel_roll_terminal)
+    running: WholeBodyWeights = Field(default_factory=WholeBodyWeights.barrel_roll_running)
+    terminal: WholeBodyWeights = Field(default_factory=WholeBodyWeights.barrel_roll_terminal)
 
 
 class ReferenceSegmentConfig(StrictModel):
@@ -466,7 +377,7 @@ class ReferenceConfig(StrictModel):
 
     segments: list[ReferenceSegmentConfig] = Field(min_length=1)
     costs: TrajectoryCostsConfig = Field(default_factory=TrajectoryCostsConfig)
-    base_error: Literal["tangent", "world"] = Field(
+    base_error: BaseError = Field(
         "world",
         description="whole-body base residual of the barrel_roll set: world-frame position, log3(R_ref' R) "
         "and world-frame linear velocity (world), or the tangent-space difference (tangent)",
@@ -540,27 +451,6 @@ class SceneConfig(StrictModel):
         default_factory=list, description="slopes and steps on the floor (empty: flat floor)"
     )
 
-    def terrain_pieces(self) -> list[Terrain]:
-        """The plant's ``sim.terrain`` pieces."""
-        from cafe_mpc.sim.terrain import Slope, Steps
-
-        pieces: list[Terrain] = []
-        for item in self.terrain:
-            common = {
-                "start": item.start,
-                "width": item.width,
-                "center_y": item.center_y,
-                "top_length": item.top_length,
-                "descend": item.descend,
-            }
-            if item.kind == "slope":
-                assert item.angle_deg is not None and item.length is not None
-                pieces.append(Slope(angle_deg=item.angle_deg, length=item.length, **common))
-            else:
-                assert item.count is not None and item.rise is not None and item.run is not None
-                pieces.append(Steps(count=item.count, rise=item.rise, run=item.run, **common))
-        return pieces
-
     bar_height: float | None = Field(
         None,
         ge=0.0,
@@ -589,7 +479,7 @@ class OutputConfig(StrictModel):
     render_fps: int = Field(30, ge=1, le=120)
 
 
-class SensorNoiseConfig(StrictModel):
+class SensorNoise(StrictModel):
     """Standard deviations of zero-mean Gaussian noise on the measured state (``sim.randomization``)."""
 
     base_position: float = Field(0.0, ge=0.0, le=0.1, description="m")
@@ -598,6 +488,10 @@ class SensorNoiseConfig(StrictModel):
     base_angular_velocity: float = Field(0.0, ge=0.0, le=5.0, description="rad/s, base frame")
     joint_position: float = Field(0.0, ge=0.0, le=0.2, description="rad")
     joint_velocity: float = Field(0.0, ge=0.0, le=10.0, description="rad/s")
+
+    @property
+    def is_zero(self) -> bool:
+        return not any(getattr(self, name) for name in type(self).model_fields)
 
 
 Vector3 = tuple[float, float, float]
@@ -609,8 +503,8 @@ def _bounded(name: str, value: Vector3, bound: float) -> Vector3:
     return value
 
 
-class ImuConfig(StrictModel):
-    """The IMU on the trunk (``sim.sensors.ImuSpec``): noise (standard deviation per sample, Gaussian) and
+class ImuSpec(StrictModel):
+    """The IMU on the trunk (``sim.sensors``): noise (standard deviation per sample, Gaussian) and
     constant bias of the gyro and the accelerometer, and of the orientation its attitude filter outputs (a
     body-frame rotation vector), sampled at ``rate_hz`` and held in between.
 
@@ -651,8 +545,8 @@ class ImuConfig(StrictModel):
         return _bounded("orientation_bias", value, 0.5)
 
 
-class EncoderConfig(StrictModel):
-    """The joint sensors (``sim.sensors.EncoderSpec``): Gaussian noise, then quantisation to a resolution.
+class EncoderSpec(StrictModel):
+    """The joint sensors (``sim.sensors``): Gaussian noise, then quantisation to a resolution.
 
     Default resolutions: the Mini Cheetah's motor controllers report joint angle, rate and torque over CAN as
     16-, 12- and 12-bit integers over +-12.5 rad, +-65 rad/s and +-18 Nm (``P_MIN``/``V_MIN``/``T_MIN`` and
@@ -670,8 +564,8 @@ class EncoderConfig(StrictModel):
 class SensorsConfig(StrictModel):
     """The robot's sensors in the plant (``sim.sensors``), read when ``estimator`` is not ``ground_truth``."""
 
-    imu: ImuConfig = ImuConfig()
-    encoders: EncoderConfig = EncoderConfig()
+    imu: ImuSpec = ImuSpec()
+    encoders: EncoderSpec = EncoderSpec()
 
 
 PlantScales = float | list[float]
@@ -703,7 +597,7 @@ class PlantConfig(StrictModel):
     body_mass_scale: float = Field(1.0, ge=0.5, le=1.5, description="trunk mass and inertia factor")
     link_mass_scales: PlantScales = Field(1.0, description="leg-link mass and inertia factors (0.5-1.5)")
     motor_strength_scales: PlantScales = Field(1.0, description="torque per commanded torque (0.5-1.5)")
-    sensor_noise: SensorNoiseConfig = SensorNoiseConfig()
+    sensor_noise: SensorNoise = SensorNoise()
     measurement_delay_max: float = Field(
         0.0, ge=0.0, le=0.05, description="s; latency jitter: each tick sees a state up to this old"
     )
@@ -721,116 +615,10 @@ class PlantConfig(StrictModel):
                 raise ValueError(f"factors must be in [0.5, 1.5], got {item}")
         return value
 
-    def variation(self) -> PlantVariation:
-        """The plant's ``PlantVariation``."""
-        from cafe_mpc.sim.randomization import PlantVariation
-
-        def scales(value: PlantScales) -> float | tuple[float, ...]:
-            return tuple(value) if isinstance(value, list) else value
-
-        return PlantVariation(
-            self.floor_friction,
-            self.body_mass_scale,
-            scales(self.link_mass_scales),
-            scales(self.motor_strength_scales),
-            mass_scale=self.mass_scale,
-        )
-
-    def sensor_model(self, control_rate_hz: float) -> SensorModel:
-        """The controller's ``SensorModel`` (delays in whole control ticks, rounded down)."""
-        from cafe_mpc.sim.randomization import SensorModel, SensorNoise
-
-        ticks = math.floor(self.measurement_delay_max * control_rate_hz + 1e-9)
-        return SensorModel(SensorNoise(**self.sensor_noise.model_dump()), ticks, self.seed)
-
-    def sensor_spec(self, control_rate_hz: float) -> SensorSpec:
-        """The robot's sensors (``sim.sensors.SensorSpec``): ``sensors``, the latency jitter
-        ``measurement_delay_max`` (whole control ticks, rounded down) and ``seed``."""
-        from cafe_mpc.sim.sensors import EncoderSpec, ImuSpec, SensorSpec
-
-        ticks = math.floor(self.measurement_delay_max * control_rate_hz + 1e-9)
-        imu = self.sensors.imu.model_dump()
-        return SensorSpec(ImuSpec(**imu), EncoderSpec(**self.sensors.encoders.model_dump()), ticks, self.seed)
-
     @property
     def state_noise(self) -> bool:
         """Whether ``sensor_noise`` perturbs the state (only the ground-truth estimator can have it)."""
-        return any(value != 0.0 for value in self.sensor_noise.model_dump().values())
-
-
-_KF = KinematicKFSettings()
-"""The filter's defaults (``estimation.settings``): the one source of ``KinematicKFConfig``'s."""
-
-
-class KinematicKFConfig(StrictModel):
-    """The kinematic Kalman filter (``estimator: kinematic_kf``; ``estimation.settings.KinematicKFSettings``,
-    whose defaults are MIT's Mini Cheetah tuning; docs/estimation.md)."""
-
-    imu_process_noise_position: float = Field(_KF.imu_process_noise_position, gt=0.0, le=100.0)
-    imu_process_noise_velocity: float = Field(_KF.imu_process_noise_velocity, gt=0.0, le=100.0)
-    foot_process_noise_position: float = Field(_KF.foot_process_noise_position, gt=0.0, le=100.0)
-    foot_sensor_noise_position: float = Field(_KF.foot_sensor_noise_position, gt=0.0, le=100.0)
-    foot_sensor_noise_velocity: float = Field(_KF.foot_sensor_noise_velocity, gt=0.0, le=100.0)
-    foot_height_sensor_noise: float = Field(_KF.foot_height_sensor_noise, gt=0.0, le=100.0)
-    vertical_velocity_factor: float = Field(
-        _KF.vertical_velocity_factor,
-        gt=0.0,
-        le=1e6,
-        description="x foot_sensor_noise_velocity, vertical axis",
-    )
-    trust_window: float = Field(
-        _KF.trust_window, gt=0.0, le=0.5, description="fraction of a stance over which a foot's trust ramps"
-    )
-    suspect_factor: float = Field(
-        _KF.suspect_factor, ge=0.0, le=1e6, description="noise x (1 + (1-trust) x this)"
-    )
-    rolling_foot: bool = Field(
-        _KF.rolling_foot, description="correct the leg velocity for a rolling sphere foot"
-    )
-    foot_height: bool = Field(_KF.foot_height, description="stance feet on flat ground measure the height")
-    foot_compliance: float = Field(
-        _KF.foot_compliance, ge=0.0, le=0.01, description="m/N, loaded foot sinks this much per N (0: off)"
-    )
-    contact_force_threshold: float | None = Field(
-        _KF.contact_force_threshold,
-        ge=0.0,
-        le=1000.0,
-        description="N; null: planned contact only; else planned and the torque-implied ground force above",
-    )
-    accelerometer_bias: bool = Field(_KF.accelerometer_bias, description="estimate a world-frame accel. bias")
-    bias_process_noise: float = Field(_KF.bias_process_noise, gt=0.0, le=100.0, description="(m/s^2)^2 / s")
-    initial_bias_variance: float = Field(_KF.initial_bias_variance, gt=0.0, le=100.0, description="(m/s^2)^2")
-    slip_threshold: float | None = Field(
-        _KF.slip_threshold,
-        gt=0.0,
-        le=100.0,
-        description="m/s; null: off; else a trusted foot whose leg velocity differs horizontally from the "
-        "IMU-propagated estimate by more than this is left out for the tick (slip)",
-    )
-    slip_patience: float = Field(
-        _KF.slip_patience,
-        gt=0.0,
-        le=10.0,
-        description="s; all trusted feet failing the slip test this long: used",
-    )
-    contact_height_threshold: float | None = Field(
-        _KF.contact_height_threshold,
-        gt=0.0,
-        le=1.0,
-        description="m; null: off; else a foot planned in stance higher than this above the (flat) ground "
-        "counts as not in contact",
-    )
-    initial_position_variance: float = Field(_KF.initial_position_variance, gt=0.0, le=100.0)
-    initial_velocity_variance: float = Field(_KF.initial_velocity_variance, gt=0.0, le=100.0)
-    swing_foot_variance: float = Field(_KF.swing_foot_variance, gt=0.0, le=1e6)
-
-    def settings(self) -> KinematicKFSettings:
-        return KinematicKFSettings(**self.model_dump())
-
-    @model_validator(mode="after")
-    def _settings_valid(self) -> KinematicKFConfig:
-        self.settings().check()
-        return self
+        return not self.sensor_noise.is_zero
 
 
 class TemplateConfig(StrictModel):
@@ -907,8 +695,9 @@ class RunConfig(StrictModel):
         "or kinematic_kf (the robot's sensors, plant.sensors, through the IMU + leg-kinematics Kalman filter "
         "of the MIT Mini Cheetah; estimation.estimator)",
     )
-    kinematic_kf: KinematicKFConfig = Field(
-        default_factory=KinematicKFConfig, description="the Kalman filter's tuning (estimator: kinematic_kf)"
+    kinematic_kf: KinematicKFSettings = Field(
+        default_factory=KinematicKFSettings,
+        description="the Kalman filter's tuning (estimator: kinematic_kf)",
     )
     costs: CostsConfig = Field(default_factory=CostsConfig)
     simulation: SimulationConfig = SimulationConfig()
@@ -920,17 +709,6 @@ class RunConfig(StrictModel):
         default_factory=SceneConfig, description="terrain in the plant's scene (the controller plans flat)"
     )
     output: OutputConfig = OutputConfig()
-
-    @field_validator("robot")
-    @classmethod
-    def _robot_known(cls, value: str) -> str:
-        from cafe_mpc.robots.robot import RobotLoadError, robot_file
-
-        try:
-            robot_file(value)
-        except RobotLoadError as error:
-            raise ValueError(str(error)) from error
-        return value
 
     @model_validator(mode="after")
     def _controller_matches_gait(self) -> RunConfig:
@@ -950,8 +728,6 @@ class RunConfig(StrictModel):
                 f"wbc: {self.wbc!r} runs CAFE-MPC and needs a gait section (e.g. --set gait.name=trot) "
                 "or a reference section"
             )
-        if self.reference is not None:
-            _check_reference(self.robot, self.reference)
         if self.planner == "template" and self.gait is None and self.reference is None:
             raise ValueError(
                 "planner: 'template' needs a gait section (e.g. --set gait.name=trot) or a reference section"
@@ -963,10 +739,6 @@ class RunConfig(StrictModel):
                 f"mpc.period: {self.mpc.period} s is shorter than the control period "
                 f"1/{self.simulation.control_rate_hz} s"
             )
-        if self.gait is not None:
-            _check_commands(self.robot, self.gait.commands)
-        if self.plant.kind == "gym-quadruped":
-            _check_gym_plant(self)
         if self.plant.sensors.imu.rate_hz > self.simulation.control_rate_hz * (1.0 + 1e-9):
             raise ValueError(
                 f"plant.sensors.imu.rate_hz: {self.plant.sensors.imu.rate_hz} Hz is above the control rate "
@@ -979,256 +751,18 @@ class RunConfig(StrictModel):
                 f"{self.estimator!r} does not see; set the sensors' noise in plant.sensors (or use "
                 "estimator: ground_truth)"
             )
-        for key in ("link_mass_scales", "motor_strength_scales"):
-            value = getattr(self.plant, key)
-            if isinstance(value, list) and len(value) != _cached_robot(self.robot).nu:
-                raise ValueError(
-                    f"plant.{key}: one factor or {_cached_robot(self.robot).nu} (one per joint), "
-                    f"got {len(value)}"
-                )
         return self
-
-
-def _check_gym_plant(config: RunConfig) -> None:
-    """gym-quadruped's environment simulates its own model: the robot must name it, and the run may not ask
-    for what only our plant can do (terrain, the bar, mass and motor variations)."""
-    robot = _cached_robot(config.robot)
-    if robot.gym_quadruped is None:
-        from cafe_mpc.robots.robot import known_robots
-
-        with_gym = [name for name in known_robots() if names_gym_model(name)]
-        raise ValueError(
-            f"plant.kind: gym-quadruped needs a robot with a gym-quadruped model (robot file key "
-            f"gym_quadruped.robot); {config.robot!r} has none. Shipped: {', '.join(with_gym)}"
-        )
-    unsupported = []
-    if config.estimator != "ground_truth":
-        unsupported.append(
-            f"estimator: {config.estimator} (it reads our plant's IMU and joint sensors, which "
-            "gym-quadruped's model does not carry: set estimator=ground_truth)"
-        )
-    if config.scene.terrain:
-        unsupported.append("scene.terrain (use plant.gym_scene)")
-    if config.scene.bar_height:
-        unsupported.append("scene.bar_height")
-    plant = config.plant
-    for key in ("mass_scale", "body_mass_scale", "link_mass_scales", "motor_strength_scales"):
-        value = getattr(plant, key)
-        if any(item != 1.0 for item in (value if isinstance(value, list) else [value])):
-            unsupported.append(f"plant.{key}")
-    if unsupported:
-        raise ValueError(
-            "plant.kind: gym-quadruped simulates gym-quadruped's own model and scene; not available there: "
-            + ", ".join(unsupported)
-        )
-
-
-def names_gym_model(name: str) -> bool:
-    """Whether a shipped robot file names a gym-quadruped model (read without building the robot)."""
-    from cafe_mpc.robots.robot import robot_file
-
-    with open(robot_file(name)) as handle:
-        table = yaml.safe_load(handle) or {}
-    return isinstance(table.get("gym_quadruped"), dict)
-
-
-def _check_commands(robot_name: str, commands: list[CommandConfig]) -> None:
-    """The reference's range checks (``validate_command``: speeds, yaw rate, height vs leg length)."""
-    from cafe_mpc.reference.locomotion import validate_command
-
-    robot = _cached_robot(robot_name)
-    for index, command in enumerate(commands):
-        try:
-            validate_command(velocity_command(command), robot)
-        except ValueError as error:
-            raise ValueError(f"gait.commands.{index}: {error}") from error
-
-
-def _check_reference(robot_name: str, reference: ReferenceConfig) -> None:
-    """Each trajectory segment names a readable, valid trajectory for the robot; stand heights in range."""
-    from cafe_mpc.reference.locomotion import VelocityCommand, validate_command
-
-    robot = _cached_robot(robot_name)
-    for index, segment in enumerate(reference.segments):
-        try:
-            if segment.kind == "trajectory":
-                assert segment.trajectory is not None
-                trajectory = _cached_trajectory(robot_name, segment.trajectory)
-                if segment.from_phase >= trajectory.n_phases:
-                    raise ValueError(
-                        f"from_phase {segment.from_phase}: the trajectory has {trajectory.n_phases} phases"
-                    )
-            elif segment.kind == "gait":
-                assert segment.gait is not None
-                for command in segment.gait.commands:
-                    validate_command(velocity_command(command), robot)
-            else:
-                validate_command(VelocityCommand(height=segment.height), robot)
-        except ValueError as error:
-            raise ValueError(f"reference.segments.{index}: {error}") from error
-
-
-@functools.lru_cache(maxsize=8)
-def _cached_trajectory(robot_name: str, name_or_path: str):
-    """A packaged trajectory (by name) or a trajectory file, loaded and validated once."""
-    from cafe_mpc.reference.trajectory_file import (
-        PACKAGED_TRAJECTORIES,
-        load_packaged_trajectory,
-        load_trajectory,
-    )
-
-    robot = _cached_robot(robot_name)
-    if name_or_path in PACKAGED_TRAJECTORIES:
-        return load_packaged_trajectory(name_or_path, robot)
-    if not name_or_path.endswith(".npz"):
-        raise ValueError(
-            f"unknown trajectory {name_or_path!r}: packaged {', '.join(PACKAGED_TRAJECTORIES)} or a .npz file"
-        )
-    return load_trajectory(name_or_path, robot)
-
-
-def load_reference_trajectory(robot_name: str, name_or_path: str):
-    """The ``WholeBodyTrajectory`` a trajectory segment names (``ValueError`` if it cannot be used)."""
-    return _cached_trajectory(robot_name, name_or_path)
-
-
-@functools.lru_cache(maxsize=4)
-def _cached_robot(name: str) -> Robot:
-    """The robot, loaded once per name (configs re-validate on every assignment)."""
-    from cafe_mpc.robots.robot import load_robot
-
-    return load_robot(name)
-
-
-def velocity_command(command: CommandConfig) -> VelocityCommand:
-    """The reference's ``VelocityCommand`` of a config command."""
-    from cafe_mpc.reference.locomotion import VelocityCommand
-
-    return VelocityCommand(command.start, command.vx, command.vy, command.yaw_rate, command.height)
 
 
 def available_presets() -> list[str]:
     return sorted(path.stem for path in PRESET_DIR.glob("*.yaml"))
 
 
-def _read_yaml(path: Path) -> dict[str, Any]:
-    try:
-        with open(path) as handle:
-            raw = yaml.safe_load(handle) or {}
-    except (OSError, yaml.YAMLError) as error:
-        raise ConfigError(f"cannot read config {path}: {error}") from error
-    if not isinstance(raw, dict):
-        raise ConfigError(f"config {path} must be a mapping of keys to values")
-    return raw
+def _presets() -> dict[str, Callable[[], dict[str, Any]]]:
+    """The presets' raw data by name (each file read when asked for)."""
+    return {name: functools.partial(read_yaml, PRESET_DIR / f"{name}.yaml") for name in available_presets()}
 
 
-def _set_dotted(raw: dict[str, Any], model: type[BaseModel], dotted: str, value: Any) -> None:
-    """Set ``raw[a][b]... = value`` after checking that the path exists in the config schema.
-
-    Sections missing from ``raw`` (or null, like ``gait`` of the stand preset) are created from the schema's
-    defaults, so ``--set gait.commands.0.vx=0.8`` works on any config.
-    """
-    parts = dotted.split(".")
-    node: Any = raw
-    schema: Any = model
-    for depth, part in enumerate(parts):
-        last = depth == len(parts) - 1
-        if isinstance(node, list):  # list index; the element schema stays ``schema``
-            if not part.isdigit() or int(part) >= len(node):
-                raise ConfigError(f"config key {dotted!r}: index {part} is not in a list of {len(node)}")
-            if last:
-                node[int(part)] = value
-                return
-            node = node[int(part)]
-        elif isinstance(node, dict) and isinstance(schema, type) and issubclass(schema, BaseModel):
-            if part not in schema.model_fields:
-                allowed = ", ".join(schema.model_fields)
-                where = ".".join(parts[:depth]) or "top level"
-                raise ConfigError(f"unknown config key {dotted!r}: {where} allows {allowed}")
-            field = schema.model_fields[part]
-            if last:
-                node[part] = value
-                return
-            schema = _inner_model(field.annotation)
-            if part not in node or node[part] is None:
-                default = field.get_default(call_default_factory=True)
-                if default is None and isinstance(schema, type) and issubclass(schema, BaseModel):
-                    default = {}  # an optional section (gait: null) that a sub-key override creates
-                node[part] = _plain(default)
-            node = node[part]
-        else:
-            raise ConfigError(f"unknown config key {dotted!r}: {'.'.join(parts[:depth])} has no sub-keys")
-
-
-def _plain(value: Any) -> Any:
-    """A default as plain YAML data (models and lists of models dumped)."""
-    if isinstance(value, BaseModel):
-        return value.model_dump()
-    if isinstance(value, list):
-        return [_plain(item) for item in value]
-    return value
-
-
-def _inner_model(annotation: Any) -> Any:
-    """The pydantic model inside ``Model``, ``list[Model]`` or ``Model | None`` (else the annotation)."""
-    for arg in getattr(annotation, "__args__", ()) or ():
-        if isinstance(arg, type) and issubclass(arg, BaseModel):
-            return arg
-    return annotation
-
-
-def parse_override(item: str) -> tuple[str, Any]:
-    """``key=value`` -> (key, YAML-parsed value)."""
-    if "=" not in item:
-        raise ConfigError(f"--set expects key=value, got {item!r}")
-    key, text = item.split("=", 1)
-    key = key.strip()
-    if not key:
-        raise ConfigError(f"--set expects key=value, got {item!r}")
-    try:
-        value = yaml.safe_load(text)
-    except yaml.YAMLError as error:
-        raise ConfigError(f"--set {key}: cannot parse value {text!r}: {error}") from error
-    return key, value
-
-
-def format_validation_error(error: ValidationError) -> str:
-    """One line per problem: ``key.path: message (got value)``."""
-    lines = []
-    for problem in error.errors():
-        location = ".".join(str(part) for part in problem["loc"]) or "config"
-        message = problem["msg"].removeprefix("Value error, ")
-        got = problem.get("input")
-        if problem["type"] == "extra_forbidden":
-            message = "unknown key"
-        if not problem["loc"] and isinstance(got, dict):
-            lines.append(message)  # a whole-config check: the message names its keys
-        elif isinstance(got, dict):
-            lines.append(f"{location}: {message}")
-        else:
-            lines.append(f"{location}: {message} (got {got!r})")
-    return "; ".join(lines)
-
-
-def load_config(preset_or_path: str, overrides: list[str] | None = None) -> RunConfig:
+def load_config(preset_or_path: str, overrides: Sequence[str] | None = None) -> RunConfig:
     """Load a preset name or a YAML file, apply ``key=value`` overrides, validate."""
-    path = Path(preset_or_path)
-    if path.suffix in (".yaml", ".yml") or path.is_file():
-        if not path.is_file():
-            raise ConfigError(f"config file {path} does not exist")
-        raw = _read_yaml(path)
-    else:
-        candidate = PRESET_DIR / f"{preset_or_path}.yaml"
-        if not candidate.is_file():
-            raise ConfigError(
-                f"unknown preset {preset_or_path!r}; presets: {', '.join(available_presets())} "
-                "(or give a path to a .yaml config)"
-            )
-        raw = _read_yaml(candidate)
-    for item in overrides or []:
-        key, value = parse_override(item)
-        _set_dotted(raw, RunConfig, key, value)
-    try:
-        return RunConfig.model_validate(raw)
-    except ValidationError as error:
-        raise ConfigError(f"invalid config: {format_validation_error(error)}") from error
+    return load_model(RunConfig, preset_or_path, overrides or (), _presets())

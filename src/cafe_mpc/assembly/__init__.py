@@ -1,0 +1,39 @@
+"""How a validated run config becomes a controller: the one place that builds planner, low level, fallback,
+real-time front end and estimator front end, for the command line, the experiments, the benchmarks and the
+library (``cafe_mpc.Controller``) alike. It imports no simulator.
+
+* ``checks``: the config checked against its robot and the library (robot file, gait names, schedules,
+  commands within the robot's range, trajectories, plant options), one ``ConfigError`` line naming the key;
+  ``load_run_config`` loads and checks;
+* ``scaling``: the config's tuned values (the reference robot's) carried to the run's robot;
+* ``references``: the reference the MPC tracks (locomotion, composed with stored trajectories);
+* ``problem``: the CAFE problem (model schedule, knot factories, weight sets, torque limits);
+* ``controllers``: the planners (CAFE-MPC, template MPC), the low-level controllers, the closed loop in
+  simulated time, the real-time MPC process, the state estimator in front.
+"""
+
+from cafe_mpc.assembly.checks import check_config, load_run_config
+from cafe_mpc.assembly.controllers import (
+    RunController,
+    build_controller,
+    build_low_level,
+    build_mpc,
+    build_realtime_controller,
+    build_sensing_controller,
+    build_template_mpc,
+)
+from cafe_mpc.assembly.references import build_reference, reference_profile
+
+__all__ = [
+    "RunController",
+    "build_controller",
+    "build_low_level",
+    "build_mpc",
+    "build_realtime_controller",
+    "build_reference",
+    "build_sensing_controller",
+    "build_template_mpc",
+    "check_config",
+    "load_run_config",
+    "reference_profile",
+]

@@ -1,0 +1,136 @@
+"""The reference a run config asks the MPC to track (paper Sec. VI-A, VII-C).
+
+``build_reference(config, robot)`` is the one place that turns the config's ``gait`` or ``reference``
+section into a ``Reference``:
+
+* a ``gait`` section: the heuristic locomotion reference (``reference.locomotion``, Sec. VI-A) of the gait's
+  velocity commands, with its timings, swing height, Raibert gain and foothold box scaled to the robot
+  (``assembly.scaling``);
+* a ``reference`` section: a ``ComposedReference`` (``reference.composition``) of segments joined in time:
+  ``stand`` segments are locomotion references with the gait ``stand`` (weight set ``regular``);
+  ``trajectory`` segments are stored whole-body trajectories sampled by time (``reference.trajectory``,
+  Sec. VI-B) with weight set ``TRAJECTORY_WEIGHT_SET``, optionally from a later phase on; ``gait`` segments
+  are locomotion references of a gait section, e.g. the flying pace before and after the running barrel roll.
+
+``reference_profile`` is what the run commands over time (for tracking metrics and plots).
+"""
+
+from __future__ import annotations
+
+from cafe_mpc.assembly.scaling import run_scale, scaled_gait
+from cafe_mpc.config import ConfigError, GaitConfig, ReferenceConfig, RunConfig, VelocityCommand
+from cafe_mpc.ocp.contact_schedule import get_gait
+from cafe_mpc.reference.base import Reference
+from cafe_mpc.reference.composition import ComposedReference
+from cafe_mpc.reference.locomotion import FOOTHOLD_BOX, CommandProfile, LocomotionReference
+from cafe_mpc.reference.trajectory import TrajectoryReference
+from cafe_mpc.reference.trajectory_file import (
+    PACKAGED_TRAJECTORIES,
+    WholeBodyTrajectory,
+    load_packaged_trajectory,
+    load_trajectory,
+)
+from cafe_mpc.robots.robot import Robot
+from cafe_mpc.robots.scaling import IDENTITY, RobotScale
+
+TRAJECTORY_WEIGHT_SET = "barrel_roll"
+"""Weight set of the knots inside stored trajectories (the config's ``reference.costs``)."""
+
+
+def reference_commands(config: RunConfig) -> list[VelocityCommand]:
+    """The commands the run tracks: the gait's, or standing still at the standing height (PD)."""
+    if config.gait is None:
+        return [VelocityCommand()]
+    return list(config.gait.commands)
+
+
+def reference_profile(config: RunConfig, robot: Robot) -> CommandProfile:
+    """What the run commands over time (``CommandProfile``): the gait's commands, ramped from rest after the
+    start stance when ``gait.command_ramp`` > 0; standing still for PD and composed references."""
+    gait = config.gait
+    if gait is None:
+        return CommandProfile(reference_commands(config), robot.standing_height)
+    return CommandProfile(
+        reference_commands(config), robot.standing_height, gait.command_ramp, gait.start_stance
+    )
+
+
+def locomotion_reference(gait: GaitConfig, robot: Robot, scale: RobotScale = IDENTITY) -> LocomotionReference:
+    """The heuristic locomotion reference (Sec. VI-A) of a gait section, its timings and lengths scaled to the
+    robot (``ValueError`` if it cannot be built)."""
+    return LocomotionReference(
+        robot,
+        scaled_gait(gait.name, scale),
+        list(gait.commands),
+        swing_height=scale.distance(gait.swing_height),
+        raibert_gain=scale.duration(gait.raibert_gain),
+        foothold_box=tuple(scale.distance(v) for v in FOOTHOLD_BOX),
+        start_stance=gait.start_stance,
+        command_ramp=gait.command_ramp,
+    )
+
+
+def load_reference_trajectory(robot: Robot, name_or_path: str) -> WholeBodyTrajectory:
+    """The ``WholeBodyTrajectory`` a trajectory segment names, for ``robot`` (the run's own, whether it was
+    given by name or as a file): a packaged trajectory (by name) or a ``.npz`` file, validated against the
+    robot (``ValueError`` if it cannot be used)."""
+    if name_or_path in PACKAGED_TRAJECTORIES:
+        return load_packaged_trajectory(name_or_path, robot)
+    if not name_or_path.endswith(".npz"):
+        raise ValueError(
+            f"unknown trajectory {name_or_path!r}: packaged {', '.join(PACKAGED_TRAJECTORIES)} or a .npz file"
+        )
+    return load_trajectory(name_or_path, robot)
+
+
+def task_reference(section: ReferenceConfig, robot: Robot, scale: RobotScale = IDENTITY) -> ComposedReference:
+    """The composed reference of a ``reference`` config section (see the module docstring); gait segments'
+    timings and swing heights scaled by ``scale`` (stored trajectories are the robot's own)."""
+    pieces: list[tuple[Reference, float | None]] = []
+    offsets = []
+    try:
+        for segment in section.segments:
+            if segment.kind == "trajectory":
+                assert segment.trajectory is not None
+                trajectory = load_reference_trajectory(robot, segment.trajectory)
+                trajectory = trajectory.from_phase(segment.from_phase)
+                reference: Reference = TrajectoryReference(
+                    robot, trajectory, weight_set=TRAJECTORY_WEIGHT_SET, hold_weight_set=TRAJECTORY_WEIGHT_SET
+                )
+                duration = segment.duration if segment.duration is not None else reference.end_time
+            elif segment.kind == "gait":
+                assert segment.gait is not None
+                reference = locomotion_reference(segment.gait, robot, scale)
+                duration = segment.duration
+            else:
+                reference = LocomotionReference(
+                    robot, get_gait("stand"), [VelocityCommand(height=segment.height)]
+                )
+                duration = segment.duration
+            pieces.append((reference, duration))
+            offsets.append(segment.offset)
+        return ComposedReference(
+            pieces,
+            robot.nq,
+            robot.nv,
+            robot.nu,
+            robot.n_feet,
+            offsets=offsets,
+            rejoin=section.join == "measured",
+        )
+    except ValueError as error:
+        raise ConfigError(f"reference: {error}") from error
+
+
+def build_reference(config: RunConfig, robot: Robot) -> Reference:
+    """The reference of a CAFE-MPC or template run: the gait's locomotion reference or the composed reference
+    (see the module docstring). ``ConfigError`` naming the section when it cannot be built."""
+    scale = run_scale(config, robot)  # the tuned values are the reference robot's (robots.scaling)
+    if config.reference is not None:  # a composed reference (stand, stored trajectory, ...): Sec. VII-C
+        return task_reference(config.reference, robot, scale)
+    if config.gait is None:  # RunConfig rejects this; kept for configs built with model_construct
+        raise ConfigError(f"wbc: {config.wbc!r} needs a gait section")
+    try:
+        return locomotion_reference(config.gait, robot, scale)
+    except ValueError as error:
+        raise ConfigError(f"gait: {error}") from error
