@@ -1,4 +1,4 @@
-"""Command line: ``cafe-mpc run | experiment | report | robot | bench | optimize``.
+"""Command line: ``cafe-mpc run | config | experiment | report | robot | bench | optimize``.
 
 Every user error (bad preset, key, value, robot file, NaN state) ends with one line ``cafe-mpc: error: ...``
 on stderr and a non-zero exit code, never a traceback.
@@ -51,6 +51,47 @@ def _command_run(arguments: argparse.Namespace) -> int:
         print(f"no video: {metrics['render_error']}")
     print(f"results in {result.out_dir}")
     return 0
+
+
+def _command_config(arguments: argparse.Namespace) -> int:
+    """Print a preset's or file's resolved config as YAML (what ``run`` would use), or the reference."""
+    if arguments.reference or arguments.update:
+        from cafe_mpc.config.reference import reference_markdown, update_document
+
+        if arguments.update:
+            path = Path(arguments.update)
+            try:
+                path.write_text(update_document(path.read_text()))
+            except (OSError, ValueError) as error:
+                raise _UsageError(f"config --update {path}: {error}") from error
+            print(f"updated the configuration reference in {path}")
+        else:
+            print(reference_markdown(), end="")
+        return 0
+    if arguments.config is None:
+        raise _UsageError("config: give a preset or a YAML file (or --reference)")
+    import yaml
+
+    from cafe_mpc.assembly.checks import load_run_config
+
+    config = load_run_config(arguments.config, list(arguments.set or []))
+    print(yaml.safe_dump(config.model_dump(mode="json"), sort_keys=False), end="")
+    return 0
+
+
+class _UsageError(Exception):
+    """A command used wrongly (one line, exit 2)."""
+
+
+def _version() -> str:
+    from importlib import metadata
+
+    import cafe_mpc
+
+    try:
+        return metadata.version("cafe-mpc")
+    except metadata.PackageNotFoundError:
+        return cafe_mpc.__version__
 
 
 def _experiment_listing() -> str:
@@ -308,6 +349,7 @@ def _command_optimize(arguments: argparse.Namespace) -> int:
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="cafe-mpc", description="CAFE-MPC on a simulated quadruped")
     parser.add_argument("-v", "--verbose", action="store_true", help="log at INFO level to stderr")
+    parser.add_argument("--version", action="version", version=f"cafe-mpc {_version()}")
     commands = parser.add_subparsers(dest="command", required=True)
 
     from cafe_mpc.config import available_presets
@@ -352,6 +394,37 @@ def build_parser() -> argparse.ArgumentParser:
         help="against the wall clock: plant + low-level controller at 500 Hz, the MPC in its own process",
     )
     run_parser.set_defaults(handler=_command_run)
+
+    config_parser = commands.add_parser(
+        "config",
+        help="print a preset's resolved config (YAML), or the configuration reference",
+        description=(
+            "Print the config a run would use, every key resolved, as YAML: a starting point for your own\n"
+            "file. A file may start from a preset with 'base: PRESET' and give only what it changes."
+        ),
+        epilog=(
+            "examples:\n"
+            "  cafe-mpc config trot                               # the trot preset, every key\n"
+            "  cafe-mpc config trot --set gait.commands.0.vx=0.8 > my_trot.yaml\n"
+            "  cafe-mpc config my_trot.yaml                       # a file (with base: trot) resolved\n"
+            "  cafe-mpc config --reference                        # every key, type, default, description\n"
+            "  cafe-mpc config --update docs/configuration.md     # regenerate the reference page"
+        ),
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    config_parser.add_argument("config", nargs="?", help=f"preset name ({presets}) or path to a YAML config")
+    config_parser.add_argument(
+        "--set", action="append", metavar="KEY=VALUE", help="override a config key by its dotted path"
+    )
+    config_parser.add_argument(
+        "--reference", action="store_true", help="print the configuration reference (docs/configuration.md)"
+    )
+    config_parser.add_argument(
+        "--update",
+        metavar="FILE",
+        help="rewrite the generated reference block of FILE (docs/configuration.md) from the schema",
+    )
+    config_parser.set_defaults(handler=_command_config)
 
     _add_experiment_parser(commands)
 
@@ -454,6 +527,7 @@ def main(argv: list[str] | None = None) -> int:
         FileExistsError,
         ViewerUnavailable,
         ReportError,
+        _UsageError,
     ) as error:
         print(f"cafe-mpc: error: {error}", file=sys.stderr)
         return EXIT_USAGE
