@@ -16,9 +16,37 @@ EXIT_USAGE = 2
 EXIT_FAILED = 1
 
 
+def _talk(quiet: bool) -> None:
+    """Print the stages of a run (``core.progress``) on stderr, one line each, unless ``quiet``; say when the
+    numba kernels will be compiled (the first run after an install)."""
+    from cafe_mpc.core.progress import STAGE_LOGGER, kernels_cached
+
+    stage_logger = logging.getLogger(STAGE_LOGGER)
+    if quiet:
+        return
+    from tqdm import tqdm
+
+    class StageLines(logging.Handler):
+        """Each stage on its own line of stderr, above a progress bar if one is shown (``tqdm.write``)."""
+
+        def emit(self, record: logging.LogRecord) -> None:
+            tqdm.write(self.format(record), file=sys.stderr)
+
+    handler = StageLines()
+    handler.setFormatter(logging.Formatter("cafe-mpc: %(message)s"))
+    handler.setLevel(logging.INFO)
+    stage_logger.addHandler(handler)
+    stage_logger.setLevel(logging.INFO)
+    stage_logger.propagate = True  # run.log records them too; the console handler below skips them
+    if not kernels_cached():
+        stage_logger.info("compiling numba kernels (first run only: they are cached for later runs)")
+
+
 def _command_run(arguments: argparse.Namespace) -> int:
     from cafe_mpc.assembly.checks import load_run_config
     from cafe_mpc.experiments.run import default_out_dir, run
+
+    _talk(arguments.quiet)
 
     overrides = list(arguments.set or [])
     if arguments.duration is not None:
@@ -29,7 +57,7 @@ def _command_run(arguments: argparse.Namespace) -> int:
         overrides.append("simulation.realtime=true")
     config = load_run_config(arguments.config, overrides)
     out_dir = Path(arguments.out) if arguments.out else default_out_dir(config)
-    result = run(config, out_dir, show_progress=True, viewer=arguments.viewer)
+    result = run(config, out_dir, show_progress=not arguments.quiet, viewer=arguments.viewer)
     metrics = result.metrics
     print(
         f"{config.name}: fell={metrics['fell']} base_height_mean={metrics['base_height_mean']:.3f} m "
@@ -50,6 +78,10 @@ def _command_run(arguments: argparse.Namespace) -> int:
     if "render_error" in metrics:
         print(f"no video: {metrics['render_error']}")
     print(f"results in {result.out_dir}")
+    if metrics.get("task"):  # an acrobatic task: its outcome is the last line
+        from cafe_mpc.report.task_metrics import task_summary
+
+        print(task_summary(metrics["task"]))
     return 0
 
 
@@ -393,6 +425,9 @@ def build_parser() -> argparse.ArgumentParser:
         action="store_true",
         help="against the wall clock: plant + low-level controller at 500 Hz, the MPC in its own process",
     )
+    run_parser.add_argument(
+        "-q", "--quiet", action="store_true", help="no stage lines and no progress bar (results only)"
+    )
     run_parser.set_defaults(handler=_command_run)
 
     config_parser = commands.add_parser(
@@ -507,6 +542,7 @@ def main(argv: list[str] | None = None) -> int:
     console = logging.StreamHandler()
     console.setLevel(logging.INFO if arguments.verbose else logging.WARNING)
     console.setFormatter(logging.Formatter("%(levelname)s %(name)s: %(message)s"))
+    console.addFilter(lambda record: not record.name.startswith("cafe_mpc.stage"))  # printed by _talk
     logging.getLogger().addHandler(console)
     from cafe_mpc.config import ConfigError
     from cafe_mpc.control.realtime import MpcProcessError

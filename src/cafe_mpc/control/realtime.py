@@ -43,11 +43,13 @@ from multiprocessing import shared_memory
 
 import numpy as np
 
+from cafe_mpc.control.commands import COMMAND_SIZE, CommandChannel, apply_command
 from cafe_mpc.control.plan_follower import NewestPlanFollower
 from cafe_mpc.control.update_clock import UpdateClock
 from cafe_mpc.core.controller import LowLevelController
 from cafe_mpc.core.measurement import Measurement
 from cafe_mpc.core.plan import Plan
+from cafe_mpc.core.progress import stage
 from cafe_mpc.mpc.planner import MpcStatistics, Planner
 from cafe_mpc.robots.robot import Robot
 
@@ -240,6 +242,7 @@ def _worker_main(
     plan_name: str,
     layout: PlanLayout,
     control_name: str,
+    command_name: str,
     control_period: float,
     period: float,
     parent_pid: int,
@@ -252,11 +255,13 @@ def _worker_main(
     ring = MeasurementRing(nq, nv, n_feet, measurement_name)
     plan_channel = _SeqLockArray(layout.size, plan_name)
     control = _SeqLockArray(2, control_name)  # [stop flag, ready flag]
+    command_memory = _SeqLockArray(COMMAND_SIZE, command_name)
     statistics = None
     try:
         mpc = factory()
         control.array[2] = 1.0  # ready (built; numba kernels loaded)
         worker = _Worker(mpc, ring, plan_channel, layout, control, control_period, period, parent_pid)
+        worker.commands = CommandChannel(command_memory.array)
         worker.run()
         statistics = mpc.statistics
     except BaseException as error:  # report, then exit: the main process turns it into MpcProcessError
@@ -267,7 +272,7 @@ def _worker_main(
             with contextlib.suppress(Exception):
                 results.send(("statistics", statistics))
         ring.close(unlink=False)
-        for channel in (plan_channel, control):
+        for channel in (plan_channel, control, command_memory):
             channel.close(unlink=False)
 
 
@@ -293,6 +298,8 @@ class _Worker:
         self.buffer = np.zeros(ring.slot - 2)
         self.nq, self.nv = ring.nq, ring.nv
         self.clock = UpdateClock(period, control_period)
+        self.commands: CommandChannel | None = None
+        """Runtime commands from the main process (``RealtimeMpcController.commands``)."""
 
     def running(self) -> bool:
         """Until the stop flag is set or the main process is gone (do not outlive it)."""
@@ -314,9 +321,16 @@ class _Worker:
                 continue
             last_tick = self._rti_update(last_tick) if rti else self._one_phase_update(last_tick, newest)
 
+    def _take_command(self, t: float) -> None:
+        """Apply a runtime command posted since the last update, from ``t`` on."""
+        command = self.commands.take() if self.commands is not None else None
+        if command is not None:
+            apply_command(self.mpc.reference, t, command)
+
     def _state_update(self, tick: int) -> Plan | None:
         """A one-phase update from the measurement of ``tick`` (in ``buffer``)."""
         nq, nv = self.nq, self.nv
+        self._take_command(float(self.buffer[0]))
         return self.mpc.update(
             float(self.buffer[0]), self.buffer[1 : 1 + nq], self.buffer[1 + nq : 1 + nq + nv]
         )
@@ -339,6 +353,7 @@ class _Worker:
         following = self.clock.next_update(last_tick * control_period, newest * control_period)
         tick = max(round(following / control_period), last_tick + 1)
         t_next = tick * control_period
+        self._take_command(t_next)
         predicted = mpc.predict(t_next)
         prepared = False
         if predicted is not None:
@@ -411,6 +426,9 @@ class RealtimeMpcController:
         self._measurement = MeasurementRing(nq, nv, n_feet)
         self._plan_channel = _SeqLockArray(self.layout.size)
         self._control = _SeqLockArray(2)
+        self._command_memory = _SeqLockArray(COMMAND_SIZE)
+        self.commands = CommandChannel(self._command_memory.array)
+        """Runtime commands for the MPC process (``control.commands``), taken at its next update."""
         self._plan_buffer = np.zeros(self.layout.size)
         self._plan_sequence = 0.0
         self.plan: Plan | None = None
@@ -434,6 +452,7 @@ class RealtimeMpcController:
                 self._plan_channel.name,
                 self.layout,
                 self._control.name,
+                self._command_memory.name,
                 self.control_period,
                 period,
                 os.getpid(),
@@ -461,6 +480,7 @@ class RealtimeMpcController:
         """Start the MPC on the first measurement and wait for its first plan (the cold solve runs before the
         clock starts, while the robot stands, as on hardware)."""
         deadline = time.perf_counter() + self.startup_timeout
+        stage("first (cold) MPC solve, in the MPC process")
         self.publish(0.0, measurement)
         while self.plan is None:
             self._poll_plan(0.0, record=False)
@@ -501,7 +521,7 @@ class RealtimeMpcController:
         if self._affinity is not None:
             with contextlib.suppress(OSError):
                 os.sched_setaffinity(0, self._affinity)
-        for channel in (self._measurement, self._plan_channel, self._control):
+        for channel in (self._measurement, self._plan_channel, self._control, self._command_memory):
             channel.close(unlink=True)
 
     # ------------------------------------------------------------------------------------ control tick
