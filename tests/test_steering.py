@@ -174,3 +174,16 @@ def test_the_steering_example_runs_a_command_sequence():
     )
     assert result.returncode == 0, result.stderr
     assert "commanded vx" in result.stdout and "0.50 m/s" in result.stdout
+
+
+def test_a_command_outside_the_tested_range_warns_and_still_runs(caplog):
+    from cafe_mpc.reference.tested_ranges import outside_tested_range, tested_ranges
+
+    assert set(tested_ranges()) >= {"trot", "pace", "bound", "pronk", "flying_trot"}
+    assert outside_tested_range("trot", VelocityCommand(vx=1.0)) is None
+    assert "outside the tested range 0 to 1.5 m/s" in outside_tested_range("trot", VelocityCommand(vx=2.5))
+    assert "above the tested 1 rad/s" in outside_tested_range("bound", VelocityCommand(vx=0.5, yaw_rate=2.0))
+    assert outside_tested_range("trot", VelocityCommand(vx=2.5), robot="go2") is None  # not measured
+    with Controller("trot", ["mpc.latency=fixed"]) as controller, caplog.at_level("WARNING"):
+        controller.set_command(vx=2.5)  # accepted (the legs allow 3 m/s), with a warning
+    assert "set_command: gait trot: vx = 2.5 m/s is outside the tested range" in caplog.text

@@ -26,10 +26,20 @@ def _talk(quiet: bool) -> None:
         return
     from tqdm import tqdm
 
+    compiling = not kernels_cached()
+
     class StageLines(logging.Handler):
-        """Each stage on its own line of stderr, above a progress bar if one is shown (``tqdm.write``)."""
+        """Each stage on its own line of stderr, above a progress bar if one is shown (``tqdm.write``). The
+        first stage comes once the run starts (a config error before it stays one line); on the first run
+        after an install it is preceded by the kernels' compilation notice."""
 
         def emit(self, record: logging.LogRecord) -> None:
+            nonlocal compiling
+            if compiling:
+                compiling = False
+                tqdm.write(
+                    "cafe-mpc: compiling numba kernels (first run only; cached for later runs)", sys.stderr
+                )
             tqdm.write(self.format(record), file=sys.stderr)
 
     handler = StageLines()
@@ -38,8 +48,6 @@ def _talk(quiet: bool) -> None:
     stage_logger.addHandler(handler)
     stage_logger.setLevel(logging.INFO)
     stage_logger.propagate = True  # run.log records them too; the console handler below skips them
-    if not kernels_cached():
-        stage_logger.info("compiling numba kernels (first run only: they are cached for later runs)")
 
 
 def _command_run(arguments: argparse.Namespace) -> int:

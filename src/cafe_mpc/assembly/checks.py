@@ -56,7 +56,7 @@ def check_config(config: RunConfig, robot: Robot | None = None) -> None:
 def robot_of(config: RunConfig) -> Robot:
     """A new ``Robot`` of the one ``config`` names, the config checked against it (``check_config``): what a
     run or the library front end drives."""
-    stage(f"building the run: robot {config.robot}, controller, plant")
+    stage(f"loading robot {config.robot}; building the controller and the plant")
     try:
         robot = load_robot(config.robot)
     except RobotLoadError as error:
@@ -68,7 +68,6 @@ def robot_of(config: RunConfig) -> Robot:
 @functools.lru_cache(maxsize=4)
 def _robot_named(name: str) -> Robot:
     """The robot a config names, loaded once per name (an experiment checks many configs of one robot)."""
-    stage(f"loading robot {name}")
     try:
         return load_robot(name)
     except RobotLoadError as error:

@@ -65,7 +65,7 @@ def plot_run(
     ``foot_heights`` and ``hip_knee_torques``. With ``commands``: ``velocity_tracking``. With
     ``mpc_statistics`` (a CAFE-MPC run): ``mpc_solve_times``.
     """
-    stage(f"writing plots to {out_dir}")
+    stage("writing plots")
     out_dir = Path(out_dir)
     t = log.time
     written = []

@@ -508,7 +508,7 @@ def task_summary(task: dict) -> str:
     parts.append(f"{task.get('roll_motor_torque_limit_violations', 0)} ticks over the motor limits")
     if task.get("bar_contact") is not None:
         parts.append("bar touched" if task["bar_contact"] else "bar clear")
-    if task.get("speed_after_roll_mps") is not None:
+    if task.get("resume_speed_command_mps") is not None and task.get("speed_after_roll_mps") is not None:
         parts.append(f"speed after {task['speed_after_roll_mps']:.2f} m/s")
     line = f"task {task.get('name', '')}: success={task['success']} ({', '.join(parts)})"
     if task.get("failed_criteria"):
