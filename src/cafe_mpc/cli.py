@@ -22,6 +22,8 @@ def _talk(quiet: bool) -> None:
     from cafe_mpc.core.progress import STAGE_LOGGER, kernels_cached
 
     stage_logger = logging.getLogger(STAGE_LOGGER)
+    for old in [handler for handler in stage_logger.handlers if getattr(handler, "stage_lines", False)]:
+        stage_logger.removeHandler(old)  # main() called again in one process
     if quiet:
         return
     from tqdm import tqdm
@@ -43,6 +45,7 @@ def _talk(quiet: bool) -> None:
             tqdm.write(self.format(record), file=sys.stderr)
 
     handler = StageLines()
+    handler.stage_lines = True  # type: ignore[attr-defined]
     handler.setFormatter(logging.Formatter("cafe-mpc: %(message)s"))
     handler.setLevel(logging.INFO)
     stage_logger.addHandler(handler)

@@ -109,6 +109,12 @@ class _SeqLockArray:
                 self.memory.unlink()
 
 
+COMMAND_OFFSET = 3
+"""The control block: [sequence, stop flag, ready flag], then the runtime command channel
+(``control.commands``: its own seqlock counter and ``COMMAND_SIZE`` values)."""
+CONTROL_SIZE = COMMAND_OFFSET - 1 + 1 + COMMAND_SIZE
+"""Payload floats of the control block (after its own seqlock counter)."""
+
 RING_TICKS = 256
 """Control ticks the measurement ring keeps (0.5 s at 500 Hz)."""
 
@@ -242,7 +248,6 @@ def _worker_main(
     plan_name: str,
     layout: PlanLayout,
     control_name: str,
-    command_name: str,
     control_period: float,
     period: float,
     parent_pid: int,
@@ -254,14 +259,14 @@ def _worker_main(
     nq, nv, n_feet = dimensions
     ring = MeasurementRing(nq, nv, n_feet, measurement_name)
     plan_channel = _SeqLockArray(layout.size, plan_name)
-    control = _SeqLockArray(2, control_name)  # [stop flag, ready flag]
-    command_memory = _SeqLockArray(COMMAND_SIZE, command_name)
+    control = _SeqLockArray(CONTROL_SIZE, control_name)  # [stop flag, ready flag, command channel]
     statistics = None
+    worker = None
     try:
         mpc = factory()
         control.array[2] = 1.0  # ready (built; numba kernels loaded)
         worker = _Worker(mpc, ring, plan_channel, layout, control, control_period, period, parent_pid)
-        worker.commands = CommandChannel(command_memory.array)
+        worker.commands = CommandChannel(control.array[COMMAND_OFFSET:])
         worker.run()
         statistics = mpc.statistics
     except BaseException as error:  # report, then exit: the main process turns it into MpcProcessError
@@ -272,7 +277,9 @@ def _worker_main(
             with contextlib.suppress(Exception):
                 results.send(("statistics", statistics))
         ring.close(unlink=False)
-        for channel in (plan_channel, control, command_memory):
+        if worker is not None:
+            worker.commands = None  # drop its view of the control block before closing it
+        for channel in (plan_channel, control):
             channel.close(unlink=False)
 
 
@@ -425,9 +432,8 @@ class RealtimeMpcController:
         self.layout = PlanLayout(plan_capacity, nq + nv, nu, 2 * nv, n_feet)
         self._measurement = MeasurementRing(nq, nv, n_feet)
         self._plan_channel = _SeqLockArray(self.layout.size)
-        self._control = _SeqLockArray(2)
-        self._command_memory = _SeqLockArray(COMMAND_SIZE)
-        self.commands = CommandChannel(self._command_memory.array)
+        self._control = _SeqLockArray(CONTROL_SIZE)
+        self.commands = CommandChannel(self._control.array[COMMAND_OFFSET:])
         """Runtime commands for the MPC process (``control.commands``), taken at its next update."""
         self._plan_buffer = np.zeros(self.layout.size)
         self._plan_sequence = 0.0
@@ -452,7 +458,6 @@ class RealtimeMpcController:
                 self._plan_channel.name,
                 self.layout,
                 self._control.name,
-                self._command_memory.name,
                 self.control_period,
                 period,
                 os.getpid(),
@@ -521,7 +526,8 @@ class RealtimeMpcController:
         if self._affinity is not None:
             with contextlib.suppress(OSError):
                 os.sched_setaffinity(0, self._affinity)
-        for channel in (self._measurement, self._plan_channel, self._control, self._command_memory):
+        self.commands = CommandChannel()  # a detached channel: the shared view is released before closing
+        for channel in (self._measurement, self._plan_channel, self._control):
             channel.close(unlink=True)
 
     # ------------------------------------------------------------------------------------ control tick
