@@ -328,3 +328,24 @@ def test_latency_experiment_sweeps_two_latencies_and_a_period(tmp_path):
         assert isinstance(row["success"], bool) and row["criterion"].startswith("up")
     with pytest.raises(ConfigError, match="--task PRESET is required"):
         run_experiment("latency", tmp_path / "none", duration=0.3, scheduler=INLINE)
+
+
+def test_command_ranges_experiment_judges_each_command(tmp_path):
+    """``experiment command-ranges``: one run per gait and command (speeds at yaw rate 0, yaw rates at the
+    base speed), each judged; the tested-range table in the notes; the command that reproduces it."""
+    out = tmp_path / "ranges"
+    result = run_experiment(
+        "command-ranges", out, duration=0.6, gaits="trot", speeds="0.5", yaw_rates="0.5", scheduler=INLINE
+    )
+    assert not result.errors
+    comparison = json.loads((out / "comparison.json").read_text())
+    assert comparison["command"] == (
+        "cafe-mpc experiment command-ranges --duration 0.6 --gaits trot --speeds 0.5 --yaw-rates 0.5"
+    )
+    rows = comparison["variants"]
+    assert set(rows) == {"trot-vx0.5-yaw0", "trot-vx0.5-yaw0.5"}
+    for row in rows.values():
+        assert row["timing_mode"] == "fixed" and isinstance(row["works"], bool) and not row["fell"]
+    assert "forward speed that works" in (out / "comparison.md").read_text()
+    with pytest.raises(ConfigError, match="--speeds"):
+        run_experiment("command-ranges", tmp_path / "bad", speeds="4", scheduler=INLINE)

@@ -141,8 +141,10 @@ def test_the_command_line_reports_a_dead_mpc_process(monkeypatch, tmp_path, caps
     finally:
         monkeypatch.setattr(controllers, "realtime_mpc", original)
     assert status == 1
-    error = capsys.readouterr().err.strip().splitlines()
-    assert len(error) == 1 and error[0].startswith("cafe-mpc: error:") and "MPC process" in error[0]
+    lines = capsys.readouterr().err.strip().splitlines()
+    errors = [line for line in lines if line.startswith("cafe-mpc: error:")]
+    # the run's stage lines (issue 22) come first; the error is one line, the last
+    assert errors == [lines[-1]] and "MPC process" in lines[-1]
     assert not (tmp_path / "out").exists()  # a failed run leaves no result folder
     assert not multiprocessing.active_children()
 

@@ -58,6 +58,7 @@ def test_a_run_report_holds_metrics_plots_and_video_in_one_file(run_folder):
     for block in ("steady_state", "timing", "mpc", "wbc"):
         assert f"<h3>{block}</h3>" in page
     assert "vx_rms_error" in page and "stayed up" in page
+    assert "<th>update_ms_median</th>" in page and "</td><td>ms</td></tr>" in page  # units in their column
     video = next((p for p in run_folder.glob("run.*") if p.suffix in (".mp4", ".gif")), None)
     if video is not None:  # off-screen GL was available: the video is embedded too
         assert 'src="data:video/mp4;base64,' in page or 'src="data:image/gif;base64,' in page

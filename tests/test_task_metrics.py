@@ -19,6 +19,7 @@ from cafe_mpc.report.task_metrics import (
     body_floor_clearance,
     task_from_reference,
     task_metrics,
+    task_summary,
 )
 from cafe_mpc.sim.loop import SimulationLog
 
@@ -85,7 +86,24 @@ def test_a_motor_limit_violation_during_the_roll_fails(robot):
 
 
 def test_too_short_after_landing_and_no_flight(robot):
-    assert not task_metrics(robot, roll_log(robot, duration=2.5), TASK, DT)["stayed_up"]
+    short = task_metrics(robot, roll_log(robot, duration=2.5), TASK, DT)
+    assert short["stayed_up"] is None and short["success"] is None  # ended 1.25 s after the touchdown
+    assert short["unjudged"] == {"stayed_up": "the run ended 1.25 s after the touchdown; needs 2.0 s"}
+    assert (
+        short["success_reason"]
+        == "cannot judge: stayed_up: the run ended 1.25 s after the touchdown; needs 2.0 s"
+    )
+    line = task_summary(short)
+    assert line.startswith("task roll: success=None (roll 6.28 rad, apex ") and "cannot judge" in line
+    before_touchdown = task_metrics(robot, roll_log(robot, duration=1.0), TASK, DT)
+    assert before_touchdown["success"] is None and before_touchdown["landed"] is None
+    assert set(before_touchdown["unjudged"]) == {"roll_turned", "landed", "upright_after", "stayed_up"}
+    tilted = task_metrics(robot, roll_log(robot, duration=2.5, final_roll=2.0 * math.pi - 0.5), TASK, DT)
+    assert tilted["success"] is False and tilted["failed_criteria"] == ["roll_turned", "upright_after"]
+    assert "failed: roll_turned, upright_after" in task_summary(tilted)
+    assert task_summary(task_metrics(robot, roll_log(robot), TASK, DT)).startswith(
+        "task roll: success=True ("
+    )
     log = roll_log(robot)
     log.contacts[:] = True
     metrics = task_metrics(robot, log, TASK, DT)

@@ -42,12 +42,17 @@ with the stance of the plan the controller follows; call it once per tick, befor
     ...
     torques = controller.compute(t, controller.measurement_from_sensors(t, ...))
 
+``set_command(vx=..., vy=..., yaw_rate=..., height=...)`` steers a gait config at run time (a joystick, a
+planner, a keyboard): the command is checked like a config's, written in place, and the MPC follows it from
+its next update (``control.commands``); ``set_gait(name)`` switches gait at the next cycle boundary.
 ``plan`` is the plan the low level follows now (``core.plan.Plan``), e.g. to draw it
-(``robots.plan_overlay``). ``examples/mujoco_loop.py`` runs it against a MuJoCo loop.
+(``robots.plan_overlay``). ``examples/mujoco_loop.py`` runs it against a MuJoCo loop,
+``examples/steer.py`` steers it from a command sequence given on its command line.
 """
 
 from __future__ import annotations
 
+import logging
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Literal
@@ -56,7 +61,7 @@ import numpy as np
 
 from cafe_mpc.assembly.checks import robot_of
 from cafe_mpc.assembly.controllers import build_controller, build_realtime_controller
-from cafe_mpc.config import ConfigError, RunConfig, load_config
+from cafe_mpc.config import ConfigError, RunConfig, VelocityCommand, format_validation_error, load_config
 from cafe_mpc.control.mpc_loop import CafeMpcController
 from cafe_mpc.control.realtime import RealtimeMpcController
 from cafe_mpc.core.free_joint import free_joint_qpos, planning_state
@@ -67,6 +72,8 @@ from cafe_mpc.estimation.estimator import StateEstimator
 from cafe_mpc.robots.robot import Robot
 
 __all__ = ["Controller"]
+
+logger = logging.getLogger(__name__)
 
 Mode = Literal["inline", "process"]
 
@@ -86,6 +93,10 @@ class Controller:
         overrides: Sequence[str] = (),
         mode: Mode = "inline",
     ) -> None:
+        if isinstance(overrides, str):
+            raise ConfigError(
+                f"overrides must be a list of 'key=value' strings, e.g. [{overrides!r}], not one string"
+            )
         if isinstance(config, RunConfig):
             if overrides:
                 raise ConfigError("overrides apply to a preset or a YAML file, not to a RunConfig")
@@ -107,6 +118,12 @@ class Controller:
         self._estimator: StateEstimator | None = None  # built on the first measurement_from_sensors
         self._readings = SensorReadings.zeros(self.robot.nu)
         self._closed = False
+        first = config.gait.commands[0] if config.gait is not None else VelocityCommand()
+        self._command = (first.vx, first.vy, first.yaw_rate, first.height)
+        """The last command set (initially the config's first), whose values ``set_command`` keeps."""
+        self._steered = False
+        self._gait: int | None = None
+        """The gait set by ``set_gait`` (an index of ``control.commands.GAIT_NAMES``), None: the config's."""
         if mode == "inline":
             self._inner = self._build_inline()
 
@@ -153,6 +170,8 @@ class Controller:
                 self._inner.close()
             # no run recorder around the low level (see _build_inline)
             self._inner = build_realtime_controller(self.config, self.robot)
+            if self._steered:  # the new process's reference follows the command and gait set before
+                self._inner.commands.post(*self._command, self._gait)
             self._inner.reset()
             self._inner.wait_ready(start)
 
@@ -163,6 +182,104 @@ class Controller:
             raise RuntimeError("call reset(measurement) before compute")
         torques = inner.compute(t - self._t0, self._relative(measurement, t - self._t0))
         return np.array(torques, dtype=float)
+
+    def set_command(
+        self,
+        *,
+        vx: float | None = None,
+        vy: float | None = None,
+        yaw_rate: float | None = None,
+        height: float | None = None,
+    ) -> None:
+        """Steer: follow this velocity command from the MPC's next update on (in ``inline`` mode the next
+        ``compute`` call that runs an update, in ``process`` mode the MPC process's next update).
+
+        ``vx``, ``vy``: m/s forward and to the left in the heading frame; ``yaw_rate``: rad/s; ``height``: m
+        (body height). An argument left out keeps its value from the previous ``set_command`` (initially the
+        config's first command; ``height`` then stays as it was: ``None`` is the standing height). The
+        command replaces the config's timed commands from then on and is approached like them
+        (``gait.command_ramp``). It is checked as a config command is: ``ConfigError`` (one line) for a
+        value the robot cannot follow (e.g. ``|vx| > 3 m/s``) or for a config without a gait (a composed
+        reference such as the barrel roll cannot be steered). Written in place: no allocation, safe to call
+        at the control rate."""
+        if self.config.gait is None:
+            raise ConfigError(
+                f"set_command steers a gait; config {self.config.name!r} follows a composed reference "
+                "(reference section) instead"
+            )
+        old_vx, old_vy, old_yaw_rate, old_height = self._command
+        values = (
+            old_vx if vx is None else vx,
+            old_vy if vy is None else vy,
+            old_yaw_rate if yaw_rate is None else yaw_rate,
+            old_height if height is None else height,
+        )
+        if values != self._command:
+            self._validate_command(*values)
+            self._command = values
+        if self._closed:
+            raise RuntimeError("this Controller is closed; create a new one")
+        self._steered = True
+        self._post()
+
+    def set_gait(self, name: str) -> None:
+        """Switch gait (``trot``, ``pace``, ``bound``, ``pronk``, ``flying_trot``, ``flying_pace``, ``stand``)
+        at the current gait's next cycle boundary after the MPC's next update, so that no step is cut short;
+        the velocity command stays. The config's other settings (swing height, weights, horizons) stay too:
+        the gait presets differ only in their gait. ``ConfigError`` for an unknown gait or a config without a
+        gait."""
+        from cafe_mpc.control.commands import GAIT_NAMES
+
+        if self.config.gait is None:
+            raise ConfigError(
+                f"set_gait switches a gait; config {self.config.name!r} follows a composed reference "
+                "(reference section) instead"
+            )
+        key = str(name).replace("-", "_").lower()
+        if key not in GAIT_NAMES:
+            raise ConfigError(f"invalid gait {name!r}; gaits: {', '.join(GAIT_NAMES)}")
+        if self._closed:
+            raise RuntimeError("this Controller is closed; create a new one")
+        self._gait = GAIT_NAMES.index(key)
+        self._steered = True
+        self._post()
+
+    def _post(self) -> None:
+        """Post the command and gait set so far to the MPC (in process mode before ``reset``: at reset)."""
+        channel = self._channel()
+        if channel is not None:
+            channel.post(*self._command, self._gait)
+
+    def _validate_command(self, vx: float, vy: float, yaw_rate: float, height: float | None) -> None:
+        """``ConfigError`` (one line) unless the robot can follow the command (``validate_command``)."""
+        from pydantic import ValidationError
+
+        from cafe_mpc.reference.locomotion import validate_command
+        from cafe_mpc.reference.tested_ranges import outside_tested_range
+
+        try:
+            command = VelocityCommand(vx=vx, vy=vy, yaw_rate=yaw_rate, height=height)
+        except ValidationError as error:
+            raise ConfigError(f"invalid command: {format_validation_error(error, 'command')}") from error
+        try:
+            validate_command(command, self.robot)
+        except ValueError as error:
+            raise ConfigError(f"invalid command: {error}") from error
+        gait = self.config.gait.name if self.config.gait is not None else ""
+        if self._gait is not None:
+            from cafe_mpc.control.commands import GAIT_NAMES
+
+            gait = GAIT_NAMES[self._gait]
+        untested = outside_tested_range(gait, command, self.robot.name)
+        if untested is not None:
+            logger.warning("set_command: %s; it may not work", untested)
+
+    def _channel(self):
+        """The command channel of the MPC in use (inline: its loop's; process: the shared one)."""
+        inner = self._inner
+        if self._closed or inner is None:
+            return None
+        return inner.commands
 
     def _relative(self, measurement: Measurement, t: float) -> Measurement:
         """The measurement on the controller's clock (time zero at ``reset``)."""
@@ -209,7 +326,13 @@ class Controller:
         them; default none)."""
         robot = self.robot
         q, v = np.zeros(robot.nq), np.zeros(robot.nv)
-        planning_state(np.asarray(qpos, dtype=float), np.asarray(qvel, dtype=float), q, v)
+        qpos, qvel = np.asarray(qpos, dtype=float), np.asarray(qvel, dtype=float)
+        if qpos.shape != (robot.nq,) or qvel.shape != (robot.nv,):
+            raise ValueError(
+                f"measurement: qpos must have shape ({robot.nq},) (position, quaternion w x y z, "
+                f"{robot.nu} joints) and qvel ({robot.nv},), got {qpos.shape} and {qvel.shape}"
+            )
+        planning_state(qpos, qvel, q, v)
         flags = np.zeros(robot.n_feet, dtype=bool) if contacts is None else np.asarray(contacts, dtype=bool)
         return Measurement(float(time), q, v, flags, np.zeros((robot.n_feet, 3)))
 

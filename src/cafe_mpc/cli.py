@@ -1,4 +1,4 @@
-"""Command line: ``cafe-mpc run | experiment | report | robot | bench | optimize``.
+"""Command line: ``cafe-mpc run | config | experiment | report | robot | bench | optimize``.
 
 Every user error (bad preset, key, value, robot file, NaN state) ends with one line ``cafe-mpc: error: ...``
 on stderr and a non-zero exit code, never a traceback.
@@ -16,9 +16,48 @@ EXIT_USAGE = 2
 EXIT_FAILED = 1
 
 
+def _talk(quiet: bool) -> None:
+    """Print the stages of a run (``core.progress``) on stderr, one line each, unless ``quiet``; say when the
+    numba kernels will be compiled (the first run after an install)."""
+    from cafe_mpc.core.progress import STAGE_LOGGER, kernels_cached
+
+    stage_logger = logging.getLogger(STAGE_LOGGER)
+    for old in [handler for handler in stage_logger.handlers if getattr(handler, "stage_lines", False)]:
+        stage_logger.removeHandler(old)  # main() called again in one process
+    if quiet:
+        return
+    from tqdm import tqdm
+
+    compiling = not kernels_cached()
+
+    class StageLines(logging.Handler):
+        """Each stage on its own line of stderr, above a progress bar if one is shown (``tqdm.write``). The
+        first stage comes once the run starts (a config error before it stays one line); on the first run
+        after an install it is preceded by the kernels' compilation notice."""
+
+        def emit(self, record: logging.LogRecord) -> None:
+            nonlocal compiling
+            if compiling:
+                compiling = False
+                tqdm.write(
+                    "cafe-mpc: compiling numba kernels (first run only; cached for later runs)", sys.stderr
+                )
+            tqdm.write(self.format(record), file=sys.stderr)
+
+    handler = StageLines()
+    handler.stage_lines = True  # type: ignore[attr-defined]
+    handler.setFormatter(logging.Formatter("cafe-mpc: %(message)s"))
+    handler.setLevel(logging.INFO)
+    stage_logger.addHandler(handler)
+    stage_logger.setLevel(logging.INFO)
+    stage_logger.propagate = True  # run.log records them too; the console handler below skips them
+
+
 def _command_run(arguments: argparse.Namespace) -> int:
     from cafe_mpc.assembly.checks import load_run_config
     from cafe_mpc.experiments.run import default_out_dir, run
+
+    _talk(arguments.quiet)
 
     overrides = list(arguments.set or [])
     if arguments.duration is not None:
@@ -29,7 +68,7 @@ def _command_run(arguments: argparse.Namespace) -> int:
         overrides.append("simulation.realtime=true")
     config = load_run_config(arguments.config, overrides)
     out_dir = Path(arguments.out) if arguments.out else default_out_dir(config)
-    result = run(config, out_dir, show_progress=True, viewer=arguments.viewer)
+    result = run(config, out_dir, show_progress=not arguments.quiet, viewer=arguments.viewer)
     metrics = result.metrics
     print(
         f"{config.name}: fell={metrics['fell']} base_height_mean={metrics['base_height_mean']:.3f} m "
@@ -50,7 +89,52 @@ def _command_run(arguments: argparse.Namespace) -> int:
     if "render_error" in metrics:
         print(f"no video: {metrics['render_error']}")
     print(f"results in {result.out_dir}")
+    if metrics.get("task"):  # an acrobatic task: its outcome is the last line
+        from cafe_mpc.report.task_metrics import task_summary
+
+        print(task_summary(metrics["task"]))
     return 0
+
+
+def _command_config(arguments: argparse.Namespace) -> int:
+    """Print a preset's or file's resolved config as YAML (what ``run`` would use), or the reference."""
+    if arguments.reference or arguments.update:
+        from cafe_mpc.config.reference import reference_markdown, update_document
+
+        if arguments.update:
+            path = Path(arguments.update)
+            try:
+                path.write_text(update_document(path.read_text()))
+            except (OSError, ValueError) as error:
+                raise _UsageError(f"config --update {path}: {error}") from error
+            print(f"updated the configuration reference in {path}")
+        else:
+            print(reference_markdown(), end="")
+        return 0
+    if arguments.config is None:
+        raise _UsageError("config: give a preset or a YAML file (or --reference)")
+    import yaml
+
+    from cafe_mpc.assembly.checks import load_run_config
+
+    config = load_run_config(arguments.config, list(arguments.set or []))
+    print(yaml.safe_dump(config.model_dump(mode="json"), sort_keys=False), end="")
+    return 0
+
+
+class _UsageError(Exception):
+    """A command used wrongly (one line, exit 2)."""
+
+
+def _version() -> str:
+    from importlib import metadata
+
+    import cafe_mpc
+
+    try:
+        return metadata.version("cafe-mpc")
+    except metadata.PackageNotFoundError:
+        return cafe_mpc.__version__
 
 
 def _experiment_listing() -> str:
@@ -396,6 +480,7 @@ def _command_optimize(arguments: argparse.Namespace) -> int:
 def build_parser() -> argparse.ArgumentParser:
     parser = _Parser(prog="cafe-mpc", description="CAFE-MPC on a simulated quadruped")
     parser.add_argument("-v", "--verbose", action="store_true", help="log at INFO level to stderr")
+    parser.add_argument("--version", action="version", version=f"cafe-mpc {_version()}")
     commands = parser.add_subparsers(dest="command", required=True)
 
     from cafe_mpc.config import available_presets
@@ -439,7 +524,41 @@ def build_parser() -> argparse.ArgumentParser:
         action="store_true",
         help="against the wall clock: plant + low-level controller at 500 Hz, the MPC in its own process",
     )
+    run_parser.add_argument(
+        "-q", "--quiet", action="store_true", help="no stage lines and no progress bar (results only)"
+    )
     run_parser.set_defaults(handler=_command_run)
+
+    config_parser = commands.add_parser(
+        "config",
+        help="print a preset's resolved config (YAML), or the configuration reference",
+        description=(
+            "Print the config a run would use, every key resolved, as YAML: a starting point for your own\n"
+            "file. A file may start from a preset with 'base: PRESET' and give only what it changes."
+        ),
+        epilog=(
+            "examples:\n"
+            "  cafe-mpc config trot                               # the trot preset, every key\n"
+            "  cafe-mpc config trot --set gait.commands.0.vx=0.8 > my_trot.yaml\n"
+            "  cafe-mpc config my_trot.yaml                       # a file (with base: trot) resolved\n"
+            "  cafe-mpc config --reference                        # every key, type, default, description\n"
+            "  cafe-mpc config --update docs/configuration.md     # regenerate the reference page"
+        ),
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    config_parser.add_argument("config", nargs="?", help=f"preset name ({presets}) or path to a YAML config")
+    config_parser.add_argument(
+        "--set", action="append", metavar="KEY=VALUE", help="override a config key by its dotted path"
+    )
+    config_parser.add_argument(
+        "--reference", action="store_true", help="print the configuration reference (docs/configuration.md)"
+    )
+    config_parser.add_argument(
+        "--update",
+        metavar="FILE",
+        help="rewrite the generated reference block of FILE (docs/configuration.md) from the schema",
+    )
+    config_parser.set_defaults(handler=_command_config)
 
     _add_experiment_parser(commands)
 
@@ -524,6 +643,7 @@ def main(argv: list[str] | None = None) -> int:
     console = logging.StreamHandler()
     console.setLevel(logging.INFO if arguments.verbose else logging.WARNING)
     console.setFormatter(logging.Formatter("%(levelname)s %(name)s: %(message)s"))
+    console.addFilter(lambda record: not record.name.startswith("cafe_mpc.stage"))  # printed by _talk
     logging.getLogger().addHandler(console)
     from cafe_mpc.config import ConfigError
     from cafe_mpc.control.realtime import MpcProcessError
@@ -544,6 +664,7 @@ def main(argv: list[str] | None = None) -> int:
         FileExistsError,
         ViewerUnavailable,
         ReportError,
+        _UsageError,
     ) as error:
         print(f"cafe-mpc: error: {error}", file=sys.stderr)
         return EXIT_USAGE

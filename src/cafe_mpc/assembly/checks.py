@@ -18,15 +18,20 @@ experiments and the library front end load.
 from __future__ import annotations
 
 import functools
+import logging
 from collections.abc import Sequence
 
 from cafe_mpc.assembly.problem import model_schedule
 from cafe_mpc.assembly.references import load_reference_trajectory
 from cafe_mpc.config import ConfigError, GaitConfig, RunConfig, VelocityCommand, load_config
+from cafe_mpc.core.progress import stage
 from cafe_mpc.mpc.problem import PAPER_SCHEDULES
 from cafe_mpc.ocp.contact_schedule import GAITS
 from cafe_mpc.reference.locomotion import validate_command
+from cafe_mpc.reference.tested_ranges import outside_tested_range
 from cafe_mpc.robots.robot import Robot, RobotLoadError, known_robots, load_robot, names_gym_model
+
+logger = logging.getLogger(__name__)
 
 
 def load_run_config(preset_or_path: str, overrides: Sequence[str] = ()) -> RunConfig:
@@ -51,6 +56,7 @@ def check_config(config: RunConfig, robot: Robot | None = None) -> None:
 def robot_of(config: RunConfig) -> Robot:
     """A new ``Robot`` of the one ``config`` names, the config checked against it (``check_config``): what a
     run or the library front end drives."""
+    stage(f"loading robot {config.robot}; building the controller and the plant")
     try:
         robot = load_robot(config.robot)
     except RobotLoadError as error:
@@ -98,10 +104,15 @@ def _check_schedule(config: RunConfig) -> None:
 
 
 def _check_gait(gait: GaitConfig, key: str, robot: Robot) -> None:
-    """A known gait; commands the robot can follow (``validate_command``: speeds, yaw rate, height)."""
+    """A known gait; commands the robot can follow (``validate_command``: speeds, yaw rate, height); a
+    warning for a command outside the range the gait was tested in (``reference.tested_ranges``)."""
     if gait.name not in GAITS:
         raise ValueError(f"{key}.name: unknown gait {gait.name!r}; known gaits: {', '.join(sorted(GAITS))}")
     _check_commands(gait.commands, f"{key}.commands", robot)
+    for index, command in enumerate(gait.commands):
+        untested = outside_tested_range(gait.name, command, robot.name)
+        if untested is not None:
+            logger.warning("%s.commands.%d: %s; it may not work", key, index, untested)
 
 
 def _check_commands(commands: list[VelocityCommand], key: str, robot: Robot) -> None:

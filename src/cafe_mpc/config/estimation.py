@@ -34,10 +34,18 @@ class KinematicKFSettings(StrictModel):
     planned stance and back to 0 over the last.
     """
 
-    imu_process_noise_position: float = Field(0.02, gt=0.0, le=100.0)
-    imu_process_noise_velocity: float = Field(0.02, gt=0.0, le=100.0)
-    foot_process_noise_position: float = Field(0.002, gt=0.0, le=100.0)
-    foot_sensor_noise_position: float = Field(0.001, gt=0.0, le=100.0)
+    imu_process_noise_position: float = Field(
+        0.02, gt=0.0, le=100.0, description="base position process noise (x dt / 20; MIT's value)"
+    )
+    imu_process_noise_velocity: float = Field(
+        0.02, gt=0.0, le=100.0, description="base velocity process noise (x dt 9.8 / 20; MIT's value)"
+    )
+    foot_process_noise_position: float = Field(
+        0.002, gt=0.0, le=100.0, description="foot position process noise (x dt; MIT's value)"
+    )
+    foot_sensor_noise_position: float = Field(
+        0.001, gt=0.0, le=100.0, description="stance foot position relative to the base (MIT's value)"
+    )
     foot_sensor_noise_velocity: float = Field(0.3, gt=0.0, le=100.0, description="MIT: 0.1")
     vertical_velocity_factor: float = Field(
         10.0,
@@ -47,7 +55,9 @@ class KinematicKFSettings(StrictModel):
     )
     """A compliant foot or floor moves a loaded foot vertically (it sinks at touchdown and rises back), so the
     leg's vertical velocity is its least reliable; the foot height still measures the base height."""
-    foot_height_sensor_noise: float = Field(0.001, gt=0.0, le=100.0)
+    foot_height_sensor_noise: float = Field(
+        0.001, gt=0.0, le=100.0, description="stance foot height on flat ground (MIT's value)"
+    )
     trust_window: float = Field(
         0.4,
         gt=0.0,

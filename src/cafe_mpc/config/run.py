@@ -27,22 +27,26 @@ PRESET_DIR = Path(__file__).parent.parent / "configs"
 
 
 class FallConfig(StrictModel):
+    """When a run counts as fallen (and, with ``stop_on_fall``, ends)."""
+
     min_base_height: float = Field(0.10, ge=0.0, le=1.0, description="m; below this the robot has fallen")
     max_tilt_rad: float = Field(1.2, gt=0.0, le=3.1416, description="base tilt that counts as a fall")
 
 
 class SimulationConfig(StrictModel):
+    """How long and how finely the closed loop is simulated."""
+
     duration: float = Field(5.0, gt=0.0, le=3600.0, description="simulated seconds")
     control_rate_hz: float = Field(500.0, gt=0.0, le=10000.0, description="low-level controller rate")
     plant_timestep: float = Field(0.001, gt=0.0, le=0.01, description="MuJoCo step, s")
     initial_height_offset: float = Field(0.0, ge=-0.05, le=1.0, description="start this far above standing")
-    stop_on_fall: bool = True
+    stop_on_fall: bool = Field(True, description="end the run when the robot falls (fall.*)")
     realtime: bool = Field(
         False,
         description="run against the wall clock: plant + low level at control_rate_hz in this process, "
         "the MPC in its own process (cafe-mpc run --realtime)",
     )
-    fall: FallConfig = FallConfig()
+    fall: FallConfig = Field(default_factory=FallConfig, description="what counts as a fall")
 
     @model_validator(mode="after")
     def _rate_matches_step(self) -> SimulationConfig:
@@ -60,8 +64,10 @@ class PushConfig(StrictModel):
 
     start: float = Field(ge=0.0, description="s")
     duration: float = Field(gt=0.0, le=10.0, description="s")
-    force: tuple[float, float, float] | None = None
-    velocity_change: tuple[float, float, float] | None = None
+    force: tuple[float, float, float] | None = Field(None, description="N, world frame (or velocity_change)")
+    velocity_change: tuple[float, float, float] | None = Field(
+        None, description="m/s of base velocity the push should cause, world frame (or force)"
+    )
 
     @model_validator(mode="after")
     def _one_of(self) -> PushConfig:
@@ -77,9 +83,11 @@ class PushConfig(StrictModel):
 
 
 class PDConfig(StrictModel):
+    """The standing controller (``wbc: pd``): joint PD about the standing pose."""
+
     kp: float = Field(60.0, ge=0.0, le=1000.0, description="Nm/rad")
     kd: float = Field(1.5, ge=0.0, le=100.0, description="Nm s/rad")
-    gravity_feedforward: bool = True
+    gravity_feedforward: bool = Field(True, description="add the torques that hold the standing pose")
 
 
 WarmStart = Literal["previous", "plan", "equality", "none"]
@@ -96,7 +104,9 @@ class VWBCConfig(StrictModel):
         "daqp", description="daqp: dual active set on the QP condensed onto tau; proxqp: the QP as written"
     )
     warm_start: WarmStart = Field(
-        "previous", description="previous tick's solution, the plan's guess, or cold"
+        "previous",
+        description="previous tick's solution, the plan's guess, the equality-constrained solution (proxqp), "
+        "or none (cold)",
     )
     stance_source: Literal["plan", "intersect"] = Field(
         "plan", description="plan: the plan knot's stance (the paper); intersect: planned and in contact"
@@ -474,9 +484,11 @@ class SceneConfig(StrictModel):
 
 
 class OutputConfig(StrictModel):
-    plots: bool = True
-    render: bool = False
-    render_fps: int = Field(30, ge=1, le=120)
+    """What a run writes besides metrics.json, log.npz and run.log."""
+
+    plots: bool = Field(True, description="write the PNG plots")
+    render: bool = Field(False, description="write run.mp4 (needs off-screen OpenGL: libosmesa6 or EGL)")
+    render_fps: int = Field(30, ge=1, le=120, description="frames per second of run.mp4")
 
 
 class SensorNoise(StrictModel):
@@ -659,8 +671,11 @@ class TemplateConfig(StrictModel):
 class RunConfig(StrictModel):
     """Everything a run needs; written back as ``config.yaml`` beside its results."""
 
-    name: str = "stand"
-    robot: str = "mini_cheetah"
+    name: str = Field("stand", description="the run's label (run folder, summary line); a preset's own name")
+    robot: str = Field(
+        "mini_cheetah",
+        description="a robot of robots/data (by name) or the path of a robot file (docs/robots.md)",
+    )
     scaling: Literal["robot", "none"] = Field(
         "robot",
         description="robot: the tuned settings below (gait timings, swing height, Raibert gain, cost "
@@ -671,8 +686,8 @@ class RunConfig(StrictModel):
     wbc: Literal["pd", "riccati", "vwbc"] = Field(
         "pd", description="pd: stand in place; riccati / vwbc: CAFE-MPC with that low-level controller"
     )
-    pd: PDConfig = PDConfig()
-    vwbc: VWBCConfig = VWBCConfig()
+    pd: PDConfig = Field(default_factory=PDConfig, description="gains of the standing controller (wbc: pd)")
+    vwbc: VWBCConfig = Field(default_factory=VWBCConfig, description="the VWBC QP's solver (wbc: vwbc)")
     gait: GaitConfig | None = Field(None, description="gait and commands (MPC controllers); null for pd")
     reference: ReferenceConfig | None = Field(
         None, description="a composed reference (stand, stored trajectory, ...) instead of a gait; null: gait"
@@ -700,15 +715,17 @@ class RunConfig(StrictModel):
         description="the Kalman filter's tuning (estimator: kinematic_kf)",
     )
     costs: CostsConfig = Field(default_factory=CostsConfig)
-    simulation: SimulationConfig = SimulationConfig()
-    pushes: list[PushConfig] = Field(default_factory=list)
+    simulation: SimulationConfig = Field(
+        default_factory=SimulationConfig, description="duration, rates and fall detection of the closed loop"
+    )
+    pushes: list[PushConfig] = Field(default_factory=list, description="pushes on the base during the run")
     plant: PlantConfig = Field(
         default_factory=PlantConfig, description="simulated plant and sensors (the controller never sees it)"
     )
     scene: SceneConfig = Field(
         default_factory=SceneConfig, description="terrain in the plant's scene (the controller plans flat)"
     )
-    output: OutputConfig = OutputConfig()
+    output: OutputConfig = Field(default_factory=OutputConfig, description="plots and video")
 
     @model_validator(mode="after")
     def _controller_matches_gait(self) -> RunConfig:
@@ -764,5 +781,11 @@ def _presets() -> dict[str, Callable[[], dict[str, Any]]]:
 
 
 def load_config(preset_or_path: str, overrides: Sequence[str] | None = None) -> RunConfig:
-    """Load a preset name or a YAML file, apply ``key=value`` overrides, validate."""
-    return load_model(RunConfig, preset_or_path, overrides or (), _presets())
+    """Load a preset name or a YAML file, apply ``key=value`` overrides, validate.
+
+    A file may start from a preset or another file with ``base: trot`` and give only what it changes (deep
+    merge: sections merge key by key, lists such as ``gait.commands`` are replaced whole); a file without a
+    ``name`` of its own is named after the file (``my_trot.yaml`` -> ``my_trot``)."""
+    return load_model(
+        RunConfig, preset_or_path, overrides or (), _presets(), inherit=True, name_from_file=True
+    )

@@ -15,7 +15,7 @@ from collections.abc import Sequence
 from typing import Literal
 
 import numpy as np
-from pydantic import model_validator
+from pydantic import Field, model_validator
 
 from cafe_mpc.config.loading import StrictModel
 
@@ -71,13 +71,23 @@ class WholeBodyWeights(StrictModel):
     (all joints) or 12 values; foot weights are 3 (x, y, z, every leg) or 12 values and apply to swing feet.
     """
 
-    base_position: BaseWeights = (0.0, 0.0, 10.0, 1.0, 2.0, 2.0)
-    base_velocity: BaseWeights = (2.0, 2.0, 2.0, 1.0, 2.0, 2.0)
-    joint_position: Weights = 1.0
-    joint_velocity: Weights = 0.01
-    torque: Weights = 0.1
-    swing_foot_position: Weights = (10.0, 10.0, 10.0)
-    swing_foot_velocity: Weights = (2.0, 2.0, 2.0)
+    base_position: BaseWeights = Field(
+        (0.0, 0.0, 10.0, 1.0, 2.0, 2.0),
+        description="base position and orientation: x, y, z, yaw, pitch, roll",
+    )
+    base_velocity: BaseWeights = Field(
+        (2.0, 2.0, 2.0, 1.0, 2.0, 2.0),
+        description="base linear and angular velocity: x, y, z, yaw, pitch, roll",
+    )
+    joint_position: Weights = Field(1.0, description="joint angles: one value or 12")
+    joint_velocity: Weights = Field(0.01, description="joint rates: one value or 12")
+    torque: Weights = Field(
+        0.1, description="torque (regularised toward the gait's stance torques): one value or 12"
+    )
+    swing_foot_position: Weights = Field(
+        (10.0, 10.0, 10.0), description="swing-foot position against the reference's swing: x, y, z (or 12)"
+    )
+    swing_foot_velocity: Weights = Field((2.0, 2.0, 2.0), description="swing-foot velocity: x, y, z (or 12)")
 
     @model_validator(mode="after")
     def _shapes(self) -> WholeBodyWeights:
@@ -171,10 +181,15 @@ class WholeBodyWeights(StrictModel):
 class SRBWeights(StrictModel):
     """Weights of the SRB cost (28): base tracking (``BASE_WEIGHT_ORDER``) and GRF regularisation."""
 
-    base_position: BaseWeights = (0.0, 0.0, 10.0, 1.0, 2.0, 2.0)
-    base_velocity: BaseWeights = (2.0, 2.0, 2.0, 1.0, 2.0, 2.0)
-    force: Weights = 0.01
-    """GRF regularisation: one value, 3 shared by the feet, or 12."""
+    base_position: BaseWeights = Field(
+        (0.0, 0.0, 10.0, 1.0, 2.0, 2.0),
+        description="base position and orientation: x, y, z, yaw, pitch, roll",
+    )
+    base_velocity: BaseWeights = Field(
+        (2.0, 2.0, 2.0, 1.0, 2.0, 2.0),
+        description="base linear and angular velocity: x, y, z, yaw, pitch, roll",
+    )
+    force: Weights = Field(0.01, description="GRF regularisation: one value, 3 shared by the feet, or 12")
 
     @model_validator(mode="after")
     def _shapes(self) -> SRBWeights:

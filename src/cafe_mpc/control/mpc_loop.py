@@ -37,11 +37,13 @@ import logging
 import numpy as np
 
 from cafe_mpc.config import MpcSettings
+from cafe_mpc.control.commands import CommandChannel, apply_command
 from cafe_mpc.control.plan_follower import NewestPlanFollower
 from cafe_mpc.control.update_clock import UpdateClock
 from cafe_mpc.core.controller import LowLevelController
 from cafe_mpc.core.measurement import Measurement
 from cafe_mpc.core.plan import Plan
+from cafe_mpc.core.progress import stage
 from cafe_mpc.core.template_plan import TemplatePlan
 from cafe_mpc.mpc.planner import MpcStatistics, Planner
 from cafe_mpc.mpc.problem import CafeProblemBuilder
@@ -91,6 +93,8 @@ class CafeMpcController:
         self.worker_free = 0.0
         """Simulated time at which the MPC worker finishes what it is doing (real-time iteration)."""
         self.clock = UpdateClock(self.settings.period, self.control_period)
+        self.commands = CommandChannel()
+        """Runtime commands (``cafe_mpc.Controller.set_command``, teleop), taken at the next MPC update."""
 
     @property
     def reference(self) -> Reference:
@@ -145,10 +149,14 @@ class CafeMpcController:
 
     # ----------------------------------------------------------------------------------------- updates
     def _update(self, t: float, state: Measurement) -> None:
+        command = self.commands.take()
+        if command is not None:  # from this update on (with rti: the preparation made after its feedback)
+            apply_command(self.reference, t, command)
         before_clock = not self.mpc.started
         if before_clock:
             # The cold solve runs before the clock starts: its plan acts at once, the next update follows
             # one period later (a failed cold solve is retried next period, the PD stance holds meanwhile).
+            stage("first (cold) MPC solve")
             plan = self.mpc.update(t, state.q, state.v)
             if plan is not None:
                 self.plan = plan

@@ -43,11 +43,13 @@ from multiprocessing import shared_memory
 
 import numpy as np
 
+from cafe_mpc.control.commands import COMMAND_SIZE, CommandChannel, apply_command
 from cafe_mpc.control.plan_follower import NewestPlanFollower
 from cafe_mpc.control.update_clock import UpdateClock
 from cafe_mpc.core.controller import LowLevelController
 from cafe_mpc.core.measurement import Measurement
 from cafe_mpc.core.plan import Plan
+from cafe_mpc.core.progress import stage
 from cafe_mpc.mpc.planner import MpcStatistics, Planner
 from cafe_mpc.robots.robot import Robot
 
@@ -106,6 +108,12 @@ class _SeqLockArray:
             with contextlib.suppress(FileNotFoundError):
                 self.memory.unlink()
 
+
+COMMAND_OFFSET = 3
+"""The control block: [sequence, stop flag, ready flag], then the runtime command channel
+(``control.commands``: its own seqlock counter and ``COMMAND_SIZE`` values)."""
+CONTROL_SIZE = COMMAND_OFFSET - 1 + 1 + COMMAND_SIZE
+"""Payload floats of the control block (after its own seqlock counter)."""
 
 RING_TICKS = 256
 """Control ticks the measurement ring keeps (0.5 s at 500 Hz)."""
@@ -251,12 +259,14 @@ def _worker_main(
     nq, nv, n_feet = dimensions
     ring = MeasurementRing(nq, nv, n_feet, measurement_name)
     plan_channel = _SeqLockArray(layout.size, plan_name)
-    control = _SeqLockArray(2, control_name)  # [stop flag, ready flag]
+    control = _SeqLockArray(CONTROL_SIZE, control_name)  # [stop flag, ready flag, command channel]
     statistics = None
+    worker = None
     try:
         mpc = factory()
         control.array[2] = 1.0  # ready (built; numba kernels loaded)
         worker = _Worker(mpc, ring, plan_channel, layout, control, control_period, period, parent_pid)
+        worker.commands = CommandChannel(control.array[COMMAND_OFFSET:])
         worker.run()
         statistics = mpc.statistics
     except BaseException as error:  # report, then exit: the main process turns it into MpcProcessError
@@ -267,6 +277,8 @@ def _worker_main(
             with contextlib.suppress(Exception):
                 results.send(("statistics", statistics))
         ring.close(unlink=False)
+        if worker is not None:
+            worker.commands = None  # drop its view of the control block before closing it
         for channel in (plan_channel, control):
             channel.close(unlink=False)
 
@@ -293,6 +305,8 @@ class _Worker:
         self.buffer = np.zeros(ring.slot - 2)
         self.nq, self.nv = ring.nq, ring.nv
         self.clock = UpdateClock(period, control_period)
+        self.commands: CommandChannel | None = None
+        """Runtime commands from the main process (``RealtimeMpcController.commands``)."""
 
     def running(self) -> bool:
         """Until the stop flag is set or the main process is gone (do not outlive it)."""
@@ -314,9 +328,16 @@ class _Worker:
                 continue
             last_tick = self._rti_update(last_tick) if rti else self._one_phase_update(last_tick, newest)
 
+    def _take_command(self, t: float) -> None:
+        """Apply a runtime command posted since the last update, from ``t`` on."""
+        command = self.commands.take() if self.commands is not None else None
+        if command is not None:
+            apply_command(self.mpc.reference, t, command)
+
     def _state_update(self, tick: int) -> Plan | None:
         """A one-phase update from the measurement of ``tick`` (in ``buffer``)."""
         nq, nv = self.nq, self.nv
+        self._take_command(float(self.buffer[0]))
         return self.mpc.update(
             float(self.buffer[0]), self.buffer[1 : 1 + nq], self.buffer[1 + nq : 1 + nq + nv]
         )
@@ -339,6 +360,7 @@ class _Worker:
         following = self.clock.next_update(last_tick * control_period, newest * control_period)
         tick = max(round(following / control_period), last_tick + 1)
         t_next = tick * control_period
+        self._take_command(t_next)
         predicted = mpc.predict(t_next)
         prepared = False
         if predicted is not None:
@@ -410,7 +432,9 @@ class RealtimeMpcController:
         self.layout = PlanLayout(plan_capacity, nq + nv, nu, 2 * nv, n_feet)
         self._measurement = MeasurementRing(nq, nv, n_feet)
         self._plan_channel = _SeqLockArray(self.layout.size)
-        self._control = _SeqLockArray(2)
+        self._control = _SeqLockArray(CONTROL_SIZE)
+        self.commands = CommandChannel(self._control.array[COMMAND_OFFSET:])
+        """Runtime commands for the MPC process (``control.commands``), taken at its next update."""
         self._plan_buffer = np.zeros(self.layout.size)
         self._plan_sequence = 0.0
         self.plan: Plan | None = None
@@ -461,6 +485,7 @@ class RealtimeMpcController:
         """Start the MPC on the first measurement and wait for its first plan (the cold solve runs before the
         clock starts, while the robot stands, as on hardware)."""
         deadline = time.perf_counter() + self.startup_timeout
+        stage("first (cold) MPC solve, in the MPC process")
         self.publish(0.0, measurement)
         while self.plan is None:
             self._poll_plan(0.0, record=False)
@@ -501,6 +526,7 @@ class RealtimeMpcController:
         if self._affinity is not None:
             with contextlib.suppress(OSError):
                 os.sched_setaffinity(0, self._affinity)
+        self.commands = CommandChannel()  # a detached channel: the shared view is released before closing
         for channel in (self._measurement, self._plan_channel, self._control):
             channel.close(unlink=True)
 

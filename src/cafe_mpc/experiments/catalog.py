@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from cafe_mpc.config import ConfigError
+from cafe_mpc.experiments.command_ranges import CommandRanges
 from cafe_mpc.experiments.latency import Latency
 from cafe_mpc.experiments.push import Push
 from cafe_mpc.experiments.registry import Experiment
@@ -26,6 +27,7 @@ EXPERIMENTS: tuple[type[Experiment], ...] = (
     TemplateGaits,
     Latency,
     Robots,
+    CommandRanges,
 )
 """The experiments, in the order ``cafe-mpc experiment --list`` shows them."""
 

@@ -177,9 +177,10 @@ def simulate_run(
 
 def _live_viewer(robot: Robot, controller: RunController, realtime: bool):
     """MuJoCo's passive viewer following the run, drawing the plan the controller follows now."""
-    from cafe_mpc.sim.viewer import LiveViewer
+    from cafe_mpc.sim.viewer import KeyboardTeleop, LiveViewer
 
-    return LiveViewer(robot, lambda: getattr(controller, "plan", None), realtime=realtime)
+    teleop = KeyboardTeleop.of_controller(robot, controller)  # arrow keys steer a gait run
+    return LiveViewer(robot, lambda: getattr(controller, "plan", None), realtime=realtime, teleop=teleop)
 
 
 def simulate_config(config: RunConfig, progress=None) -> tuple[Robot, SimulationLog]:
@@ -284,7 +285,7 @@ def run(
             config.simulation.duration,
         )
         progress = None
-        if show_progress and config.simulation.duration >= 3.0 and not config.simulation.realtime:
+        if show_progress and config.simulation.duration > 1.0 and not config.simulation.realtime:
             from tqdm import tqdm
 
             bar = tqdm(
@@ -374,8 +375,8 @@ def run(
                             partial / "frames.png",
                             mjcf=scene_mjcf(robot, terrain_pieces(config.scene), bar_of(config.scene)),
                         )
-                except RenderUnavailable as error:
-                    logger.warning("no video: %s", error)
+                except RenderUnavailable as error:  # said once: in metrics.json and the run's summary
+                    logger.info("no video: %s", error)
                     metrics["render_error"] = str(error)
                     with open(partial / "metrics.json", "w") as handle:
                         json.dump(metrics, handle, indent=2)

@@ -31,6 +31,7 @@ import numpy as np
 
 from cafe_mpc.config import MpcSettings
 from cafe_mpc.core.plan import Plan
+from cafe_mpc.core.progress import stage
 from cafe_mpc.mpc import collector
 from cafe_mpc.mpc.planner import (
     PLANNER_ERRORS,
@@ -186,6 +187,7 @@ class RecedingHorizonMpc(RecedingHorizonPlanner):
         start = time.perf_counter()
         period = self.settings.period
         steps = math.ceil(self.settings.warm_up / period)
+        stage(f"warm-up: solver data for the first {self.settings.warm_up:g} s of updates")
         workspace = self.solver.workspace
         grid = getattr(getattr(self.builder, "schedule", None), "whole_body_dt", period)
         for step in range(1, steps + 1):

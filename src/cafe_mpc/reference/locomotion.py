@@ -24,7 +24,7 @@ from cafe_mpc.config import VelocityCommand
 from cafe_mpc.core.physics import GRAVITY
 from cafe_mpc.dynamics.leg_inverse_kinematics import LegInverseKinematics
 from cafe_mpc.dynamics.statics import static_stance_torques
-from cafe_mpc.ocp.contact_schedule import TIME_TOLERANCE, ContactPhase, ContactSchedule, GaitCycle
+from cafe_mpc.ocp.contact_schedule import GAITS, TIME_TOLERANCE, ContactPhase, ContactSchedule, GaitCycle
 from cafe_mpc.reference.base import STANCE_TIME_EPS, Reference, ReferenceWindow, switches_inside
 from cafe_mpc.reference.kernels import sample_foot
 from cafe_mpc.robots.robot import Robot
@@ -235,6 +235,26 @@ class FootReference:
     velocity: np.ndarray
 
 
+@dataclass(frozen=True)
+class _GaitSegment:
+    """A gait in force from ``start`` on (``LocomotionReference.set_gait``), its cycles starting at
+    ``cycle_start``, with the cycle's sums made once (the per-knot hot path)."""
+
+    start: float
+    gait: GaitCycle
+    cycle_start: float
+    period: float
+    phase_ends: tuple[float, ...]
+    phase_flags: tuple[tuple[bool, ...], ...]
+    support_factor: float
+
+    @classmethod
+    def of(cls, start: float, gait: GaitCycle, cycle_start: float) -> _GaitSegment:
+        ends = tuple(float(end) for end in np.cumsum([duration for _, duration in gait.cycle]))
+        flags = tuple(flags for flags, _ in gait.cycle)
+        return cls(start, gait, cycle_start, gait.period, ends, flags, gait.support_factor)
+
+
 class LocomotionReference(Reference):
     """Base, feet and force references for a periodic gait driven by timed ``VelocityCommand`` s.
 
@@ -295,18 +315,66 @@ class LocomotionReference(Reference):
         self.inverse_kinematics = LegInverseKinematics(robot)
         self._stance_torques: dict[tuple[tuple[bool, ...], float], np.ndarray] = {}
         self._feet_stance = np.zeros((0, robot.n_feet), dtype=bool)
-        self._support_factor = gait.support_factor
-        self._period = gait.period
-        self._phase_ends = [float(end) for end in np.cumsum([duration for _, duration in gait.cycle])]
-        self._phase_flags = [flags for flags, _ in gait.cycle]
+        self._segments = [_GaitSegment.of(-math.inf, gait, self.cycle_start)]
+        """The gait in force over time: the config's, then each ``set_gait`` from its cycle boundary on."""
+        library = GAITS.get(gait.name)
+        self.time_scale = gait.period / library.period if library is not None else 1.0
+        """Phase durations of this reference's gaits relative to the library's (the robot's Froude scaling:
+        ``assembly.scaling.scaled_gait``), applied to gaits switched to by name."""
+
+    def _segment_at(self, t: float) -> _GaitSegment:
+        segments = self._segments
+        if len(segments) == 1:
+            return segments[0]
+        for segment in reversed(segments):
+            if t >= segment.start - TIME_TOLERANCE:
+                return segment
+        return segments[0]
+
+    @property
+    def target_gait(self) -> GaitCycle:
+        """The gait last switched to (in force, or from a coming cycle boundary)."""
+        return self._segments[-1].gait
+
+    def gait_at(self, t: float) -> GaitCycle:
+        """The gait in force at ``t`` (the config's, or one ``set_gait`` switched to)."""
+        return self._segment_at(t).gait
 
     def _flags_at(self, t: float) -> tuple[bool, ...]:
-        """``gait.flags_at(t, cycle_start)`` with the cycle's sums made once."""
-        tau = (t - self.cycle_start) % self._period
-        for flags, end in zip(self._phase_flags, self._phase_ends, strict=True):
+        """``gait.flags_at(t, cycle_start)`` of the gait in force, with the cycle's sums made once."""
+        segment = self._segment_at(t)
+        tau = (t - segment.cycle_start) % segment.period
+        for flags, end in zip(segment.phase_flags, segment.phase_ends, strict=True):
             if tau < end - TIME_TOLERANCE:
                 return flags
-        return self._phase_flags[0]
+        return segment.phase_flags[0]
+
+    def set_gait(self, t: float, name: str) -> float:
+        """Switch to the library gait ``name`` (``ocp.contact_schedule.GAITS``, timed like this reference's:
+        ``time_scale``) at the first cycle boundary of the gait in force at or after ``t`` (at the end of the
+        initial stand if ``t`` is before it), so that no phase is cut short; a switch requested before an
+        earlier one took effect replaces it. Returns the time of the switch. ``ValueError`` for an unknown
+        gait."""
+        key = name.replace("-", "_").lower()
+        if key not in GAITS:
+            raise ValueError(f"unknown gait {name!r}; known gaits: {', '.join(sorted(GAITS))}")
+        library = GAITS[key]
+        gait = GaitCycle(key, tuple((flags, duration * self.time_scale) for flags, duration in library.cycle))
+        if self._segments[-1].gait.cycle == gait.cycle:  # in force, or already switched to
+            return max(self._segments[-1].start, t)
+        self._segments = [segment for segment in self._segments if segment.start <= t + TIME_TOLERANCE]
+        current = self._segments[-1]
+        if current.gait.cycle == gait.cycle:  # a pending switch away from it is cancelled
+            self._schedule_window = (math.inf, -math.inf)
+            return t
+        if t < self.start_stance - TIME_TOLERANCE:
+            switch = self.start_stance
+        else:
+            cycles = math.ceil((t - current.cycle_start) / current.period - TIME_TOLERANCE)
+            switch = current.cycle_start + cycles * current.period
+        self._segments.append(_GaitSegment.of(switch, gait, switch))
+        self._schedule_window = (math.inf, -math.inf)  # rebuild the cached schedule
+        return switch
 
     # ----------------------------------------------------------------------------------------- commands
     def command_at(self, t: float) -> VelocityCommand:
@@ -316,12 +384,29 @@ class LocomotionReference(Reference):
     def height_at(self, t: float) -> float:
         return self.profile.values_at(t)[3]
 
+    def set_command(self, t: float, command: VelocityCommand) -> None:
+        """Follow ``command`` from ``t`` on (a runtime command: ``control.commands``): it replaces the timed
+        commands that start at or after ``t`` and is approached like one of them (a step, or a ramp over
+        ``command_ramp`` from the value at ``t``; before the gait starts, the robot stays at rest). Times
+        before ``t`` keep their values, so the base reference integrated from an earlier anchor is unchanged.
+        Raises ``ValueError`` for a command the robot cannot follow (``validate_command``)."""
+        validate_command(command, self.robot)
+        t = max(float(t), 0.0)
+        kept = [earlier for earlier in self.commands if earlier.start < t - 1e-12]
+        if not kept and t > 0.0:  # the first command (held before its own start) holds until t
+            kept = [self.commands[0].model_copy(update={"start": 0.0})]
+        self.commands = [*kept, command.model_copy(update={"start": t if kept else 0.0})]
+        self.profile = CommandProfile(
+            self.commands, self.robot.standing_height, self.profile.ramp, self.start_stance
+        )
+
     # --------------------------------------------------------------------------------------- schedule
     def schedule(self, t0: float, t1: float) -> ContactSchedule:
         """The gait's contact schedule covering ``[t0, t1]`` (cached; widened as needed)."""
         if not (self._schedule_window[0] <= t0 and t1 <= self._schedule_window[1]):
-            start = max(0.0, t0 - 2.0 * self.gait.period)
-            end = t1 + 4.0 * self.gait.period
+            longest = max(segment.period for segment in self._segments)
+            start = max(0.0, t0 - 2.0 * longest)
+            end = t1 + 4.0 * longest
             if start < self.start_stance - 1e-6:
                 stand = ContactPhase((True, True, True, True), start, self.start_stance)
                 gait = self.gait.schedule(self.start_stance, max(end, self.start_stance + self.gait.period))
@@ -333,9 +418,36 @@ class LocomotionReference(Reference):
                 self._schedule = ContactSchedule(phases)
             else:
                 self._schedule = self.gait.schedule(start, end, cycle_start=self.cycle_start)
+            if len(self._segments) > 1:
+                self._schedule = self._switched(self._schedule, start, end)
             self._schedule_window = (start, end)
         assert self._schedule is not None
         return self._schedule
+
+    def _switched(self, base: ContactSchedule, start: float, end: float) -> ContactSchedule:
+        """``base`` (the config's gait over ``[start, end]``) with the ``set_gait`` switches applied: each
+        later gait's own schedule from its switch on, adjacent equal phases merged."""
+        pieces: list[ContactPhase] = []
+
+        def add(stance: tuple[bool, ...], a: float, b: float) -> None:
+            if b - a <= TIME_TOLERANCE:
+                return
+            if pieces and pieces[-1].stance == stance and abs(pieces[-1].end - a) <= TIME_TOLERANCE:
+                pieces[-1] = ContactPhase(stance, pieces[-1].start, b)
+            else:
+                pieces.append(ContactPhase(stance, a, b))
+
+        bounds = [segment.start for segment in self._segments[1:]] + [math.inf]
+        first_switch = bounds[0]
+        for phase in base.phases:
+            add(phase.stance, phase.start, min(phase.end, first_switch))
+        for segment, following in zip(self._segments[1:], bounds[1:], strict=True):
+            a, b = max(segment.start, start), min(following, end)
+            if b - a <= TIME_TOLERANCE:
+                continue
+            for phase in segment.gait.schedule(a, b, cycle_start=segment.cycle_start).phases:
+                add(phase.stance, phase.start, phase.end)
+        return ContactSchedule(pieces)
 
     def switch_times(self, t0: float, t1: float) -> list[float]:
         """Contact switches in ``(t0, t1)``: the gait schedule's (the start stance's end included)."""
@@ -558,7 +670,7 @@ class LocomotionReference(Reference):
         (``GaitCycle.support_factor``: 1/2 trotting, 1 bounding); 1/4 during the initial stand."""
         if t < self.start_stance - 1e-9:
             return 1.0 / self.robot.n_feet
-        return self._support_factor
+        return self._segment_at(t).support_factor
 
     def normal_forces(self, stance: np.ndarray, times: Sequence[float] | None = None) -> np.ndarray:
         """GRF reference (n, n_feet, 3): vertical, ``support_factor * m g`` on each stance foot (the weight

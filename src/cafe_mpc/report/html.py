@@ -205,7 +205,13 @@ def _run_outcome(metrics: dict) -> str:
         return f'<span class="outcome-bad">{_e(text)}</span>' + (f" ({_e(reason)})" if reason else "")
     task = metrics.get("task") or {}
     if task.get("success") is False:
-        return '<span class="outcome-bad">task failed</span> (did not fall)'
+        failed = ", ".join(task.get("failed_criteria") or [])
+        return '<span class="outcome-bad">task failed</span> (did not fall' + (
+            f"; failed: {_e(failed)})" if failed else ")"
+        )
+    if task and task.get("success") is None:
+        reason = task.get("success_reason") or "the run was too short to judge the task"
+        return f'<span class="outcome-ok">stayed up</span>; the task was not judged: {_e(reason)}'
     return '<span class="outcome-ok">stayed up</span>' + (
         " and the task succeeded" if task.get("success") else ""
     )
@@ -252,12 +258,60 @@ def _flatten(block: dict, prefix: str = "") -> list[tuple[str, Any]]:
     return items
 
 
+UNIT_SUFFIXES = (
+    ("_rad_s", "rad/s"),
+    ("_m_s", "m/s"),
+    ("_mps", "m/s"),
+    ("_ms", "ms"),
+    ("_hz", "Hz"),
+    ("_rad", "rad"),
+    ("_nm", "Nm"),
+    ("_m", "m"),
+    ("_s", "s"),
+)
+"""Metric names end in their unit (docs/outputs.md); the report shows it in its own column."""
+
+
+KNOWN_UNITS = {
+    "vx_mean": "m/s",
+    "vx_rms_error": "m/s",
+    "vy_rms_error": "m/s",
+    "vy_error_abs_max": "m/s",
+    "yaw_rate_rms_error": "rad/s",
+    "yaw_rate_error_abs_max": "rad/s",
+    "height_rms_error": "m",
+    "pitch_rms": "rad",
+    "pitch_rate_rms": "rad/s",
+    "base_height_mean": "m",
+    "base_height_min": "m",
+    "base_height_max": "m",
+}
+"""Units of the tracking metrics whose names predate the suffix convention."""
+
+
+def unit_of(key: str) -> str:
+    """The unit a metric's name ends in (``update_ms_median`` -> ms, ``vx_mean`` -> ''), after its
+    statistic (``_median``, ``_p99``, ``_mean``, ``_max``, ``_min``)."""
+    name = key.rsplit(".", 1)[-1].lower()
+    if name in KNOWN_UNITS:
+        return KNOWN_UNITS[name]
+    for statistic in ("_median", "_p99", "_p95", "_mean", "_max", "_min"):
+        name = name.removesuffix(statistic)
+    for suffix, unit in UNIT_SUFFIXES:
+        if name.endswith(suffix):
+            return unit
+    return ""
+
+
 def _key_value_table(items: list[tuple[str, Any]]) -> str:
     rows = ["<table>"]
     for key, value in items:
         numeric = isinstance(value, int | float) and not isinstance(value, bool)
         cell = _number(value) if numeric else _e(_plain(value))
-        rows.append(f"<tr><th>{_e(key)}</th><td{' class=num' if numeric else ''}>{cell}</td></tr>")
+        unit = unit_of(key) if numeric else ""
+        rows.append(
+            f"<tr><th>{_e(key)}</th><td{' class=num' if numeric else ''}>{cell}</td><td>{_e(unit)}</td></tr>"
+        )
     rows.append("</table>")
     return "\n".join(rows)
 

@@ -35,7 +35,10 @@ are then judged on the logged closed loop alone:
   and the robot's geoms over the roll from the logged states (geometric; negative: penetration);
 * ``success``: roll turned >= target - ``ROLL_TOLERANCE_RAD``, landed, upright after, stayed up, no
   torque-limit violation at the motors during the roll, and, where they apply, no bar contact and the pace
-  resumed.
+  resumed. A criterion that the run ended too early to judge (it stopped, without a fall, before the
+  touchdown, before the upright window or the stay-up time had passed, or before the last speed window after
+  the roll) is ``null``, with its reason in ``unjudged``; ``success`` is then ``false`` if another criterion
+  failed (``failed_criteria``), else ``null`` with ``success_reason`` saying what could not be judged.
 
 The block states these thresholds in ``criteria`` so that a reader of ``metrics.json`` sees how success was
 judged.
@@ -274,6 +277,26 @@ def task_metrics(
             and not log.fell
         )
     stayed_up = touchdown is not None and stayed_up_s >= STAY_UP_S - 1e-9 and not log.fell
+    end_of_run = (float(times[-1]) + control_period) if log.ticks else 0.0
+    unjudged: dict[str, str] = {}
+    if not log.fell:  # a run that stopped early (no fall) may not have reached a criterion's window
+        if touchdown is None and end_of_run < task.touchdown + FLIGHT_SEARCH_MARGIN_S:
+            reason = (
+                f"the run ended at {end_of_run:.2f} s, before the planned touchdown ({task.touchdown:.2f} s)"
+            )
+            unjudged.update(landed=reason, upright_after=reason, stayed_up=reason)
+        elif touchdown is not None:
+            landing_time = all_feet_time if all_feet_time is not None else touchdown
+            tilt_ok_so_far = tilt_max_window is None or tilt_max_window < UPRIGHT_TILT_RAD
+            if not upright and tilt_ok_so_far and end_of_run < landing_time + UPRIGHT_WINDOW_S - 1e-9:
+                unjudged["upright_after"] = (
+                    f"the run ended {end_of_run - landing_time:.2f} s after the landing; needs "
+                    f"{UPRIGHT_WINDOW_S} s"
+                )
+            if not stayed_up:
+                unjudged["stayed_up"] = (
+                    f"the run ended {stayed_up_s:.2f} s after the touchdown; needs {STAY_UP_S} s"
+                )
     roll = (times >= task.start - 1e-9) & (times <= task.end + 1e-9)
     motor_limits = robot.plant.motor_torque_limits
     motor_violations = int(np.sum(np.any(np.abs(log.torque_command[roll]) > motor_limits + 1e-9, axis=1)))
@@ -288,6 +311,10 @@ def task_metrics(
         ticks = np.flatnonzero(roll)
         cone = friction_cone_violations_post_hoc(robot, _rows(log, ticks), stance[ticks], mu)
     roll_ok = roll_turned >= task.roll_target - ROLL_TOLERANCE_RAD
+    if not roll_ok and not log.fell and end_of_run < task.end - 1e-9:
+        unjudged["roll_turned"] = (
+            f"the run ended at {end_of_run:.2f} s, before the roll's end ({task.end:.2f} s)"
+        )
     speeds = forward_speed(log.q, log.v)
     end_time = float(times[-1]) if log.ticks else 0.0
     before = (times >= task.start - SPEED_WINDOW_S - 1e-9) & (times < task.start - 1e-9)
@@ -295,7 +322,11 @@ def task_metrics(
     speed_before = float(np.mean(speeds[before])) if before.any() else None
     speed_after = float(np.mean(speeds[last])) if last.any() else None
     pace_resumed = None
-    if task.resume_speed is not None:
+    if task.resume_speed is not None and not log.fell and end_time < task.end + SPEED_WINDOW_S:
+        unjudged["pace_resumed"] = (
+            f"the run ended {max(end_time - task.end, 0.0):.2f} s after the roll; needs {SPEED_WINDOW_S} s"
+        )
+    elif task.resume_speed is not None:
         pace_resumed = bool(
             speed_after is not None
             and end_time >= task.end + SPEED_WINDOW_S
@@ -303,25 +334,33 @@ def task_metrics(
             and speed_after * task.resume_speed > 0
         )
     bar_block = bar_metrics(robot, log, task, bar)
-    success = bool(
-        roll_ok
-        and landed
-        and upright
-        and stayed_up
-        and motor_violations == 0
-        and bar_block.get("bar_contact") is not True
-        and pace_resumed is not False
-    )
+    verdicts = {
+        "roll_turned": roll_ok,
+        "landed": landed,
+        "upright_after": upright,
+        "stayed_up": stayed_up,
+        "motor_torque_limits": motor_violations == 0,
+        "bar_contact": bar_block.get("bar_contact") is not True,
+        "pace_resumed": pace_resumed is not False,
+    }
+    failed = [name for name, ok in verdicts.items() if not ok and name not in unjudged]
+    success: bool | None = False if failed else (None if unjudged else True)
+    reason = None
+    if success is None:
+        reason = "cannot judge: " + "; ".join(f"{name}: {why}" for name, why in unjudged.items())
     return {
         "name": task.name,
         "success": success,
+        "success_reason": reason,
+        "failed_criteria": failed,
+        "unjudged": unjudged,
         "roll_turned_rad": roll_turned,
         "roll_target_rad": task.roll_target,
         "roll_turned_at_touchdown_rad": roll_at_touchdown,
         "max_base_height_m": float(np.max(log.q[:, 2])) if log.ticks else None,
-        "landed": bool(landed),
-        "upright_after": bool(upright),
-        "stayed_up": bool(stayed_up),
+        "landed": None if "landed" in unjudged else bool(landed),
+        "upright_after": None if "upright_after" in unjudged else bool(upright),
+        "stayed_up": None if "stayed_up" in unjudged else bool(stayed_up),
         "stayed_up_s": float(stayed_up_s),
         "planned_start_s": task.start,
         "planned_takeoff_s": task.takeoff,
@@ -365,7 +404,9 @@ def task_metrics(
             "tick of the run (null: no bar); bar_clearance_min_m: smallest bar-to-robot distance over the "
             "roll (trajectory start - 0.3 s to its end), from the logged states",
             "success": "roll_turned and landed and upright_after and stayed_up and no motor torque-limit "
-            "violation during the roll; with a bar, no bar contact; with a gait after the roll, pace_resumed",
+            "violation during the roll; with a bar, no bar contact; with a gait after the roll, "
+            "pace_resumed; null when a criterion could not be judged (the run ended too early: unjudged) "
+            "and none failed",
         },
     }
 
@@ -453,3 +494,28 @@ def reference_trace(
         reference.sample(window)
         out[begin : begin + len(part)] = window.state[:, :nq]
     return out
+
+
+def task_summary(task: dict) -> str:
+    """One line for the end of a run: ``task: success=True (roll 6.28 rad, apex 0.55 m, ...)``, naming the
+    failed criteria, or why the run cannot be judged (``success=None``)."""
+    parts = [f"roll {task['roll_turned_rad']:.2f} rad"]
+    if task.get("max_base_height_m") is not None:
+        parts.append(f"apex {task['max_base_height_m']:.2f} m")
+    if task.get("touchdown_s") is not None:
+        parts.append(f"touchdown {task['touchdown_s']:.2f} s")
+    if task.get("tilt_max_first_second_after_landing_rad") is not None:
+        parts.append(f"tilt after landing {task['tilt_max_first_second_after_landing_rad']:.2f} rad")
+    parts.append(f"{task.get('roll_motor_torque_limit_violations', 0)} ticks over the motor limits")
+    if task.get("bar_contact") is not None:
+        parts.append("bar touched" if task["bar_contact"] else "bar clear")
+    if task.get("resume_speed_command_mps") is not None and task.get("speed_after_roll_mps") is not None:
+        parts.append(f"speed after {task['speed_after_roll_mps']:.2f} m/s")
+    line = f"task {task.get('name', '')}: success={task['success']} ({', '.join(parts)})"
+    if task.get("failed_criteria"):
+        line += f"; failed: {', '.join(task['failed_criteria'])}"
+    if task.get("success") is None and task.get("success_reason"):
+        line += f"; {task['success_reason']}"
+    elif task.get("unjudged"):
+        line += f"; not judged: {', '.join(task['unjudged'])}"
+    return line

@@ -69,10 +69,12 @@ def plot_task(
         axis.legend(loc="best", fontsize=7)
     title = f"{task.name}: planned flight shaded"
     if metrics is not None:
-        title += (
-            f"; roll turned {metrics['roll_turned_rad']:.2f} rad, success {metrics['success']}"
-            " (red: measured touchdown)"
-        )
+        verdict = {True: "success", False: "failed", None: "not judged"}[metrics["success"]]
+        if metrics.get("failed_criteria"):
+            verdict += f" ({', '.join(metrics['failed_criteria'])})"
+        elif metrics["success"] is None and metrics.get("unjudged"):
+            verdict += f" (run too short for {', '.join(metrics['unjudged'])})"
+        title += f"; roll turned {metrics['roll_turned_rad']:.2f} rad, {verdict} (red: measured touchdown)"
     figure.suptitle(title, fontsize=10)
     return save_figure(figure, Path(path))
 

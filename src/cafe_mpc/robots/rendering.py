@@ -12,6 +12,7 @@ Creating the context here works whatever was imported before. Needs ``libosmesa6
 
 from __future__ import annotations
 
+import ctypes.util
 import os
 from collections.abc import Callable, Sequence
 from pathlib import Path
@@ -37,6 +38,11 @@ class OffscreenRenderer:
         import mujoco
 
         backend = os.environ.get("MUJOCO_GL", "osmesa").lower()
+        library = "EGL" if backend == "egl" else "OSMesa"
+        if ctypes.util.find_library(library) is None:
+            # checked first: a GL context built without its library fails inside PyOpenGL and its __del__
+            # then reports an AttributeError of its own
+            raise RuntimeError(f"no lib{library} on this machine (MUJOCO_GL={backend})")
         if backend == "egl":
             from mujoco.egl import GLContext
         else:

@@ -20,6 +20,7 @@ from typing import Protocol
 import numpy as np
 
 from cafe_mpc.core.controller import Controller
+from cafe_mpc.core.progress import stage
 from cafe_mpc.core.sensors import SensorReadings
 from cafe_mpc.robots.robot import Robot
 from cafe_mpc.sim.bar import Bar, geom_label
@@ -272,6 +273,8 @@ def simulate(
                 if stop_on_fall:
                     break
         plant.step(torques, substeps)
+        if tick == 0:  # the first tick ran the cold solve (and the warm-up): the run proper starts now
+            stage(f"running {duration:g} s of simulated time")
         if progress is not None:
             progress(control_period)
         if stop is not None and stop(t):

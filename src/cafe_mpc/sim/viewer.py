@@ -12,6 +12,12 @@ The viewer needs a display (X11 or Wayland: ``DISPLAY``, ``WAYLAND_DISPLAY``; on
 ``xvfb-run``). ``check_display()`` raises ``ViewerUnavailable`` with one line saying so before anything
 starts (GLFW's own failure inside the viewer's thread would otherwise leave the caller waiting forever).
 Drawing costs CPU (software OpenGL under Xvfb especially), which the MPC shares in measured-latency runs.
+
+Keyboard teleop (``KeyboardTeleop``, gait runs): the arrow keys change the forward speed (up, down) and the
+yaw rate (left, right), Home stops (zero speed and yaw rate), End switches to the next gait of
+``TELEOP_GAITS`` (at the gait's next cycle boundary); each key press is checked like a config command and
+posted to the MPC (``control.commands``), which follows it from its next update. The key list
+and the current command are shown in the window.
 """
 
 from __future__ import annotations
@@ -23,7 +29,11 @@ from collections.abc import Callable
 
 import numpy as np
 
+from cafe_mpc.config import VelocityCommand
+from cafe_mpc.control.commands import GAIT_NAMES, CommandChannel
 from cafe_mpc.core.plan import Plan
+from cafe_mpc.reference.locomotion import validate_command
+from cafe_mpc.reference.tested_ranges import outside_tested_range
 from cafe_mpc.robots.plan_overlay import PlanOverlay, draw_plan
 from cafe_mpc.robots.robot import Robot
 from cafe_mpc.sim.plant import MujocoPlant
@@ -63,11 +73,105 @@ def _text(message: bytes | str) -> str:
     return message.decode(errors="replace") if isinstance(message, bytes) else str(message)
 
 
+KEY_RIGHT, KEY_LEFT, KEY_DOWN, KEY_UP, KEY_HOME, KEY_END = 262, 263, 264, 265, 268, 269
+"""GLFW key codes (what MuJoCo's viewer passes to its ``key_callback``); keys MuJoCo's viewer does not use."""
+
+SPEED_STEP = 0.1
+"""m/s of forward speed per arrow-key press."""
+YAW_RATE_STEP = 0.1
+"""rad/s of yaw rate per arrow-key press."""
+TELEOP_GAITS = ("trot", "flying_trot", "pace", "bound", "pronk", "stand")
+"""The gaits End cycles through (``ocp.contact_schedule.GAITS``)."""
+
+
+class KeyboardTeleop:
+    """Arrow keys -> velocity commands for a gait run (module docstring).
+
+    ``channel``: the MPC's command channel; ``command``: the command to start from (the config's first).
+    ``key(code)`` is MuJoCo's ``key_callback`` (the viewer's thread calls it); it returns whether the key
+    was one of ours. A command the robot cannot follow (``validate_command``) is refused and said on screen.
+    """
+
+    KEYS = (
+        ("Up / Down", f"forward speed +- {SPEED_STEP} m/s"),
+        ("Left / Right", f"yaw rate +- {YAW_RATE_STEP} rad/s"),
+        ("Home", "stop (speed and yaw rate 0)"),
+        ("End", "next gait (" + ", ".join(TELEOP_GAITS) + ")"),
+    )
+
+    def __init__(
+        self, robot: Robot, channel: CommandChannel, command: VelocityCommand, gait: str = "trot"
+    ) -> None:
+        self.robot = robot
+        self.channel = channel
+        self.command = command.model_copy(update={"start": 0.0})
+        self.gait = gait
+        self._gait_posted = False
+        self.message = ""
+        self.presses = 0
+
+    @classmethod
+    def of_controller(cls, robot: Robot, controller: object) -> KeyboardTeleop | None:
+        """Teleop for a run's controller (its ``inner`` controllers searched), or None when it takes no
+        commands (PD standing, a composed reference such as the barrel roll)."""
+        channel = reference = None
+        seen = controller
+        while seen is not None and (channel is None or reference is None):
+            channel = channel if channel is not None else getattr(seen, "commands", None)
+            reference = reference if reference is not None else getattr(seen, "reference", None)
+            seen = getattr(seen, "inner", None)
+        commands = getattr(reference, "commands", None)
+        if not isinstance(channel, CommandChannel) or not hasattr(reference, "set_command") or not commands:
+            return None
+        gait = getattr(getattr(reference, "gait", None), "name", "trot")
+        return cls(robot, channel, commands[0], gait)
+
+    def key(self, code: int) -> bool:
+        command = self.command
+        if code == KEY_UP:
+            changes = {"vx": round(command.vx + SPEED_STEP, 6)}
+        elif code == KEY_DOWN:
+            changes = {"vx": round(command.vx - SPEED_STEP, 6)}
+        elif code == KEY_LEFT:
+            changes = {"yaw_rate": round(command.yaw_rate + YAW_RATE_STEP, 6)}
+        elif code == KEY_RIGHT:
+            changes = {"yaw_rate": round(command.yaw_rate - YAW_RATE_STEP, 6)}
+        elif code == KEY_HOME:
+            changes = {"vx": 0.0, "vy": 0.0, "yaw_rate": 0.0}
+        elif code == KEY_END:
+            index = TELEOP_GAITS.index(self.gait) + 1 if self.gait in TELEOP_GAITS else 0
+            self.gait, self._gait_posted = TELEOP_GAITS[index % len(TELEOP_GAITS)], True
+            changes = {}
+        else:
+            return False
+        wanted = command.model_copy(update=changes)
+        try:
+            validate_command(wanted, self.robot)
+        except ValueError as error:
+            self.message = f"refused: {error}"
+            return True
+        untested = outside_tested_range(self.gait, wanted, self.robot.name)
+        self.command, self.message = wanted, f"untested: {untested}" if untested else ""
+        self.presses += 1
+        gait = GAIT_NAMES.index(self.gait) if self._gait_posted else None
+        self.channel.post(wanted.vx, wanted.vy, wanted.yaw_rate, wanted.height, gait)
+        return True
+
+    def texts(self) -> tuple[str, str]:
+        """The key list and the current command, as two columns for the viewer's overlay."""
+        keys = "\n".join(key for key, _ in self.KEYS)
+        actions = "\n".join(action for _, action in self.KEYS)
+        command = self.command
+        status = f"{self.gait}: vx {command.vx:+.2f} m/s, yaw rate {command.yaw_rate:+.2f} rad/s"
+        return f"{keys}\n", f"{actions}\n{status}" + (f"\n{self.message}" if self.message else "")
+
+
 class LiveViewer:
     """MuJoCo's passive viewer following a run, with the plan overlay (see the module docstring).
 
     ``plan_source()`` returns the plan the controller follows now (or None); ``fps``: frames per second of
-    simulated time; ``realtime``: hold the run to the wall clock.
+    simulated time; ``realtime``: hold the run to the wall clock; ``teleop``: keyboard steering (arrow keys),
+    or None.
     """
 
     def __init__(
@@ -76,6 +180,7 @@ class LiveViewer:
         plan_source: Callable[[], Plan | object | None],
         fps: float = 30.0,
         realtime: bool = True,
+        teleop: KeyboardTeleop | None = None,
     ) -> None:
         if not fps > 0:
             raise ValueError(f"viewer fps must be positive, got {fps}")
@@ -92,6 +197,12 @@ class LiveViewer:
         self._threads: list[threading.Thread] = []
         self._overlay: PlanOverlay | None = None
         self._overlay_of: object | None = None
+        self.teleop = teleop
+
+    def key_callback(self, code: int) -> None:
+        """MuJoCo's viewer calls this with each key press (GLFW key code), in its own thread."""
+        if self.teleop is not None:
+            self.teleop.key(code)
 
     def start(self, plant: MujocoPlant) -> None:
         check_display()
@@ -100,7 +211,7 @@ class LiveViewer:
 
         before = set(threading.enumerate())
         self._handle = mujoco.viewer.launch_passive(
-            plant.model, plant.data, show_left_ui=False, show_right_ui=False
+            plant.model, plant.data, key_callback=self.key_callback, show_left_ui=False, show_right_ui=False
         )
         # the viewer's own thread: ``close`` waits for it, so that it has destroyed its window before the
         # interpreter's exit terminates GLFW (terminating under a live window crashed the process)
@@ -142,6 +253,13 @@ class LiveViewer:
             scene.ngeom = 0
             if self._overlay is not None:
                 self.overlay_geoms_max = max(self.overlay_geoms_max, draw_plan(scene, self._overlay, t))
+        if self.teleop is not None:
+            import mujoco
+
+            keys, actions = self.teleop.texts()
+            handle.set_texts(
+                (mujoco.mjtFontScale.mjFONTSCALE_150, mujoco.mjtGridPos.mjGRID_TOPLEFT, keys, actions)
+            )
         handle.sync()
         self.frames += 1
 
@@ -161,4 +279,5 @@ class LiveViewer:
             "overlay_geoms_max": int(self.overlay_geoms_max),
             "closed_by_user": bool(self.stop_reason),
             "fps": float(np.round(1.0 / self.period, 3)),
+            "teleop_key_presses": int(self.teleop.presses) if self.teleop is not None else None,
         }
