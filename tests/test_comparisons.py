@@ -189,6 +189,7 @@ def test_experiment_help_and_list_show_the_registry(capsys):
         "template-gaits",
         "latency",
         "robots",
+        "command-ranges",
     ]
     assert experiment_names() == names
     with pytest.raises(SystemExit):
