@@ -21,7 +21,7 @@ import pytest
 
 from cafe_mpc.assembly.controllers import realtime_mpc
 from cafe_mpc.config import load_config
-from cafe_mpc.control.realtime import RealtimeMpcController
+from cafe_mpc.control.realtime import RealtimeMpcController, shared_block_prefix
 from cafe_mpc.core.measurement import Measurement
 from cafe_mpc.experiments.controllers import build_recorder
 from cafe_mpc.experiments.run import run
@@ -34,7 +34,8 @@ SHM = Path("/dev/shm")
 
 
 def _shared_memory_blocks() -> set[str]:
-    return {path.name for path in SHM.glob("psm_*")} if SHM.exists() else set()
+    """This test process's shared-memory blocks (other programs' and other test sessions' are not ours)."""
+    return {path.name for path in SHM.glob(shared_block_prefix() + "*")} if SHM.exists() else set()
 
 
 def _children(pid: int) -> set[int]:

@@ -36,6 +36,7 @@ import contextlib
 import logging
 import multiprocessing
 import os
+import secrets
 import signal
 import time
 from collections.abc import Callable
@@ -64,12 +65,27 @@ class MpcProcessError(RuntimeError):
 
 
 # ------------------------------------------------------------------------------------------ channels
+def shared_block_prefix(pid: int | None = None) -> str:
+    """Prefix of the shared-memory blocks a process creates (``/dev/shm/<prefix>...`` on Linux): the
+    creator's pid in the name tells its blocks from other programs' (a test checks that none outlive a
+    run)."""
+    return f"cafe_mpc_{os.getpid() if pid is None else pid}_"
+
+
+def _new_block(name: str | None, size: int) -> shared_memory.SharedMemory:
+    """Attach to the block ``name``, or create a zero-initialised one named ``shared_block_prefix()...``."""
+    if name is not None:
+        return shared_memory.SharedMemory(name=name, create=False, size=size)
+    name = shared_block_prefix() + secrets.token_hex(6)
+    return shared_memory.SharedMemory(name=name, create=True, size=size)
+
+
 class _SeqLockArray:
     """A float64 array in shared memory with a seqlock counter in element 0 (payload from element 1)."""
 
     def __init__(self, size: int, name: str | None = None) -> None:
         create = name is None
-        self.memory = shared_memory.SharedMemory(name=name, create=create, size=8 * (size + 1))
+        self.memory = _new_block(name, 8 * (size + 1))
         self.array = np.ndarray((size + 1,), dtype=np.float64, buffer=self.memory.buf)
         if create:
             self.array[:] = 0.0
@@ -131,7 +147,7 @@ class MeasurementRing:
         self.slot = 3 + nq + nv + n_feet
         create = name is None
         size = 8 * (1 + RING_TICKS * self.slot)
-        self.memory = shared_memory.SharedMemory(name=name, create=create, size=size)
+        self.memory = _new_block(name, size)
         self.array = np.ndarray((1 + RING_TICKS * self.slot,), dtype=np.float64, buffer=self.memory.buf)
         if create:
             self.array[:] = 0.0
