@@ -477,7 +477,16 @@ def _command_optimize(arguments: argparse.Namespace) -> int:
     return 0
 
 
-def build_parser() -> argparse.ArgumentParser:
+def _command_word(argv: list[str] | None) -> str | None:
+    """The command of a command line (its first word that is not an option), if any."""
+    words = sys.argv[1:] if argv is None else argv
+    return next((word for word in words if not word.startswith("-")), None)
+
+
+def build_parser(argv: list[str] | None = None) -> argparse.ArgumentParser:
+    """The whole command line's parser. The experiments' subparsers import every experiment (and so the
+    simulator and Dask): they are built only when the command line is ``cafe-mpc experiment ...`` (or
+    ``argv`` is None), so that ``cafe-mpc --help``, ``--version`` and the other commands start fast."""
     parser = _Parser(prog="cafe-mpc", description="CAFE-MPC on a simulated quadruped")
     parser.add_argument("-v", "--verbose", action="store_true", help="log at INFO level to stderr")
     parser.add_argument("--version", action="version", version=f"cafe-mpc {_version()}")
@@ -560,7 +569,12 @@ def build_parser() -> argparse.ArgumentParser:
     )
     config_parser.set_defaults(handler=_command_config)
 
-    _add_experiment_parser(commands)
+    if argv is None or _command_word(argv) == "experiment":
+        _add_experiment_parser(commands)
+    else:
+        commands.add_parser(
+            "experiment", help="the paper's experiments, in parallel on Dask (cafe-mpc experiment --list)"
+        )
 
     report_parser = commands.add_parser(
         "report",
@@ -636,7 +650,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = build_parser()
+    parser = build_parser(sys.argv[1:] if argv is None else list(argv))
     arguments = _parse_arguments(parser, argv)
     if arguments is None:
         return EXIT_USAGE
