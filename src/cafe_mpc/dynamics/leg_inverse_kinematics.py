@@ -32,6 +32,7 @@ import numpy as np
 import pinocchio as pin
 from numba import njit
 
+from cafe_mpc.dynamics.kernels import quaternion_rotation_into
 from cafe_mpc.robots.robot import Robot
 
 LWA = pin.ReferenceFrame.LOCAL_WORLD_ALIGNED
@@ -55,26 +56,6 @@ _jit = njit(cache=True)
 
 
 # ------------------------------------------------------------------------------------ compiled kernels
-@_jit
-def _quaternion_rotation(quaternion: np.ndarray, rotation: np.ndarray) -> None:
-    """Rotation matrix of a unit quaternion ``(x, y, z, w)`` into ``rotation`` (Eigen's formula, which
-    Pinocchio's free-flyer uses too: no normalisation)."""
-    x, y, z, w = quaternion[0], quaternion[1], quaternion[2], quaternion[3]
-    tx, ty, tz = 2.0 * x, 2.0 * y, 2.0 * z
-    twx, twy, twz = tx * w, ty * w, tz * w
-    txx, txy, txz = tx * x, ty * x, tz * x
-    tyy, tyz, tzz = ty * y, tz * y, tz * z
-    rotation[0, 0] = 1.0 - (tyy + tzz)
-    rotation[0, 1] = txy - twz
-    rotation[0, 2] = txz + twy
-    rotation[1, 0] = txy + twz
-    rotation[1, 1] = 1.0 - (txx + tzz)
-    rotation[1, 2] = tyz - twx
-    rotation[2, 0] = txz - twy
-    rotation[2, 1] = tyz + twx
-    rotation[2, 2] = 1.0 - (txx + tyy)
-
-
 @_jit
 def _leg_kinematics(
     joints: np.ndarray,
@@ -229,7 +210,7 @@ def _solve_knots(
     q = joint_guess.copy()
     for i in range(n):
         base = base_configurations[i]
-        _quaternion_rotation(base[3:7], rotation)
+        quaternion_rotation_into(base[3:7], rotation)
         for leg in range(legs):
             dx = foot_positions[i, leg, 0] - base[0]
             dy = foot_positions[i, leg, 1] - base[1]

@@ -41,6 +41,7 @@ from cafe_mpc.config.estimation import KinematicKFSettings
 from cafe_mpc.core.measurement import Measurement
 from cafe_mpc.core.physics import GRAVITY_VECTOR
 from cafe_mpc.core.sensors import SensorReadings
+from cafe_mpc.dynamics.srb_kernels import quaternion_to_rotation
 from cafe_mpc.estimation.kernels import (
     NOISE_HEIGHT,
     NOISE_POSITION,
@@ -53,7 +54,6 @@ from cafe_mpc.estimation.kernels import (
     kf_update_feet,
     leg_ground_forces,
     planned_trust,
-    quaternion_to_rotation,
 )
 from cafe_mpc.robots.robot import Robot
 

@@ -21,23 +21,6 @@ from numba import njit
 
 
 @njit(cache=True, nogil=True)
-def quaternion_to_rotation(quaternion: np.ndarray, out: np.ndarray) -> None:
-    """Rotation matrix (3 x 3, base -> world) of a quaternion ``(x, y, z, w)`` (normalised here)."""
-    x, y, z, w = quaternion[0], quaternion[1], quaternion[2], quaternion[3]
-    norm = np.sqrt(x * x + y * y + z * z + w * w)
-    x, y, z, w = x / norm, y / norm, z / norm, w / norm
-    out[0, 0] = 1.0 - 2.0 * (y * y + z * z)
-    out[0, 1] = 2.0 * (x * y - z * w)
-    out[0, 2] = 2.0 * (x * z + y * w)
-    out[1, 0] = 2.0 * (x * y + z * w)
-    out[1, 1] = 1.0 - 2.0 * (x * x + z * z)
-    out[1, 2] = 2.0 * (y * z - x * w)
-    out[2, 0] = 2.0 * (x * z - y * w)
-    out[2, 1] = 2.0 * (y * z + x * w)
-    out[2, 2] = 1.0 - 2.0 * (x * x + y * y)
-
-
-@njit(cache=True, nogil=True)
 def kf_predict(
     x: np.ndarray,
     P: np.ndarray,

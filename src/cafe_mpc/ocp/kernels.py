@@ -304,23 +304,3 @@ def whole_body_derivatives(
             gradient[a] += e * height_gradient[a]
             for b in range(3):
                 hessian[a, b] += h * height_gradient[a] * height_gradient[b]
-
-
-@njit(cache=True, nogil=True)
-def quaternion_rotation_into(quaternion: np.ndarray, out: np.ndarray) -> None:
-    """Rotation matrix of the quaternion ``(x, y, z, w)`` into ``out`` (3 x 3), Eigen's
-    ``Quaternion::toRotationMatrix`` term by term (no normalisation)."""
-    x, y, z, w = quaternion[0], quaternion[1], quaternion[2], quaternion[3]
-    tx, ty, tz = 2.0 * x, 2.0 * y, 2.0 * z
-    twx, twy, twz = tx * w, ty * w, tz * w
-    txx, txy, txz = tx * x, ty * x, tz * x
-    tyy, tyz, tzz = ty * y, tz * y, tz * z
-    out[0, 0] = 1.0 - (tyy + tzz)
-    out[0, 1] = txy - twz
-    out[0, 2] = txz + twy
-    out[1, 0] = txy + twz
-    out[1, 1] = 1.0 - (txx + tzz)
-    out[1, 2] = tyz - twx
-    out[2, 0] = txz - twy
-    out[2, 1] = tyz + twx
-    out[2, 2] = 1.0 - (txx + tyy)

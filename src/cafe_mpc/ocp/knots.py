@@ -29,6 +29,7 @@ from cafe_mpc.core.contacts import ContactFlags, as_contact_flags, flags_to_stri
 from cafe_mpc.core.interfaces import ActionData, ActionModel, IdentityReset, ResetMap
 from cafe_mpc.core.kernels import same_point
 from cafe_mpc.dynamics.impact import ImpactReset
+from cafe_mpc.dynamics.kernels import quaternion_rotation_into
 from cafe_mpc.dynamics.kinematics import FootKinematics
 from cafe_mpc.dynamics.multibody_state import MultibodyState
 from cafe_mpc.dynamics.srb import SRBDynamics, SRBParameters, SRBState, quaternion_to_rotation, srb_parameters
@@ -36,7 +37,7 @@ from cafe_mpc.dynamics.srb_kernels import srb_cost, srb_cost_derivatives
 from cafe_mpc.dynamics.transition import ComposedReset, WholeBodyToSRB
 from cafe_mpc.dynamics.whole_body import IntegrationScheme, WholeBodyDynamics
 from cafe_mpc.ocp.constraints import TouchdownFootHeight, WholeBodyConstraintSettings
-from cafe_mpc.ocp.kernels import quaternion_rotation_into, whole_body_cost, whole_body_derivatives
+from cafe_mpc.ocp.kernels import whole_body_cost, whole_body_derivatives
 from cafe_mpc.ocp.knot_layout import constraint_layout, residual_layout
 from cafe_mpc.robots.robot import Robot
 
