@@ -73,22 +73,21 @@ def shared_block_prefix(pid: int | None = None) -> str:
 
 
 def _new_block(name: str | None, size: int) -> shared_memory.SharedMemory:
-    """Attach to the block ``name``, or create a zero-initialised one named ``shared_block_prefix()...``."""
+    """Attach to the block ``name``, or create a zero-filled one named ``shared_block_prefix()...``."""
     if name is not None:
         return shared_memory.SharedMemory(name=name, create=False, size=size)
     name = shared_block_prefix() + secrets.token_hex(6)
-    return shared_memory.SharedMemory(name=name, create=True, size=size)
+    block = shared_memory.SharedMemory(name=name, create=True, size=size)
+    block.buf[:size] = bytes(size)
+    return block
 
 
 class _SeqLockArray:
     """A float64 array in shared memory with a seqlock counter in element 0 (payload from element 1)."""
 
     def __init__(self, size: int, name: str | None = None) -> None:
-        create = name is None
         self.memory = _new_block(name, 8 * (size + 1))
         self.array = np.ndarray((size + 1,), dtype=np.float64, buffer=self.memory.buf)
-        if create:
-            self.array[:] = 0.0
         self.payload = self.array[1:]
 
     @property
@@ -145,12 +144,10 @@ class MeasurementRing:
     def __init__(self, nq: int, nv: int, n_feet: int, name: str | None = None) -> None:
         self.nq, self.nv, self.n_feet = nq, nv, n_feet
         self.slot = 3 + nq + nv + n_feet
-        create = name is None
         size = 8 * (1 + RING_TICKS * self.slot)
         self.memory = _new_block(name, size)
         self.array = np.ndarray((1 + RING_TICKS * self.slot,), dtype=np.float64, buffer=self.memory.buf)
-        if create:
-            self.array[:] = 0.0
+        if name is None:
             self.array[0] = -1.0
         self.slots = self.array[1:].reshape(RING_TICKS, self.slot)
 
