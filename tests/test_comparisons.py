@@ -350,3 +350,23 @@ def test_command_ranges_experiment_judges_each_command(tmp_path):
     assert "forward speed that works" in (out / "comparison.md").read_text()
     with pytest.raises(ConfigError, match="--speeds"):
         run_experiment("command-ranges", tmp_path / "bad", speeds="4", scheduler=INLINE)
+
+
+def test_command_ranges_judge_names_what_fails():
+    """A run works only when it stays up, tracks the commanded speed and tracks the yaw rate; the tested
+    range is the contiguous span of working commands from the base speed."""
+    from cafe_mpc.experiments.command_ranges import judge, tested_range
+
+    def metrics(vx_mean: float, yaw_error: float, fell: bool = False) -> dict:
+        return {"fell": fell, "steady_state": {"vx_mean": vx_mean, "yaw_rate_rms_error": yaw_error}}
+
+    assert judge(1.0, 0.0, metrics(0.95, 0.05)).works
+    assert not judge(1.0, 0.0, metrics(0.95, 0.05, fell=True)).works
+    assert not judge(1.0, 0.0, metrics(0.6, 0.05)).works  # 0.4 m/s short: beyond 0.1 + 0.2 x 1.0
+    assert not judge(0.5, 1.0, metrics(0.5, 0.5)).works  # yaw error beyond 0.1 + 0.3 x 1.0
+    runs = []
+    for vx, works in ((0.5, True), (1.0, True), (1.5, False), (2.0, True)):
+        run = judge(vx, 0.0, metrics(vx if works else 0.0, 0.0))
+        run.gait = "trot"
+        runs.append(run)
+    assert tested_range(runs, "trot")["vx"] == [0.5, 1.0]  # 2.0 worked, but not contiguously

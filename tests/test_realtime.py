@@ -118,6 +118,7 @@ def test_a_dead_or_stalled_mpc_process_holds_a_stance_and_ends_with_one_error(mo
     )
     with controller:
         controller.wait_ready(Measurement.of_state(robot.q_standing, np.zeros(robot.nv), np.ones(4, bool)))
+        assert len(_shared_memory_blocks() - before) == 3  # measurements, plans, control: named as ours
         log = simulate(robot, controller, 3.0, pacer=WallClockPacer(), stop=controller.should_stop)
     assert controller.failure is not None
     assert ("exited" in controller.failure) if mode == "crash" else ("no plan" in controller.failure)
