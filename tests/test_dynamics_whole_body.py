@@ -315,3 +315,56 @@ def test_free_fall_matches_mujoco_plant(robot):
         assert np.abs(pin.difference(robot.model, x[:19], q_plant)).max() < tolerance, integration
         assert np.abs(x[19:] - v_plant).max() < 5e-3, integration
         assert x[2] < q0[2] + 0.05  # it fell (upward initial speed 0.5 m/s is spent after ~0.05 s)
+
+
+# --------------------------------------------------------------------------------------------------
+# Foot kinematics
+# --------------------------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("robot_name", ["mini_cheetah", "go2"])
+def test_foot_kinematics_jacobians_match_pinocchio_and_finite_differences(robot_name):
+    """The compiled foot Jacobians equal ``getPointVelocityDerivatives`` (LOCAL_WORLD_ALIGNED) and central
+    differences of the foot positions and velocities on the state manifold."""
+    from cafe_mpc.dynamics.kinematics import FootKinematics
+    from cafe_mpc.robots.robot import load_robot
+
+    robot = load_robot(robot_name)
+    model, nq, nv = robot.model, robot.nq, robot.nv
+    kinematics = FootKinematics(robot, position_legs=[0, 2], velocity_legs=[1, 2, 3])
+    data = kinematics.create_data()
+    reference = model.createData()
+    rng = np.random.default_rng(3)
+    state = MultibodyState(model)
+    lwa = pin.ReferenceFrame.LOCAL_WORLD_ALIGNED
+    for _ in range(4):
+        x = random_state(robot, rng, spread=0.6, speed=2.0)
+        q, v = x[:nq], x[nq:]
+        kinematics.calc(data, q, v)
+        kinematics.calc_diff(data, q, v)
+        pin.computeForwardKinematicsDerivatives(model, reference, q, v, np.zeros(nv))
+        for leg in range(4):
+            frame = model.frames[robot.foot_frame_ids[leg]]
+            dv_dq, dv_dv = pin.getPointVelocityDerivatives(
+                model, reference, frame.parentJoint, frame.placement, lwa
+            )
+            np.testing.assert_allclose(data.position_jacobians[leg], dv_dv, atol=1e-12)
+            if leg in (1, 2, 3):
+                np.testing.assert_allclose(data.velocity_dq[leg], dv_dq, atol=1e-12)
+        fd_position = np.zeros((4, 3, nv))
+        fd_velocity = np.zeros((4, 3, nv))
+        probe = kinematics.create_data()
+        for i, e in enumerate(np.eye(nv) * EPS):
+            plus, minus = (
+                state.integrate(x, np.concatenate([e, 0 * e])),
+                state.integrate(x, np.concatenate([-e, 0 * e])),
+            )
+            kinematics.calc(probe, plus[:nq], plus[nq:])
+            p_plus, v_plus = probe.positions.copy(), probe.velocities.copy()
+            kinematics.calc(probe, minus[:nq], minus[nq:])
+            fd_position[:, :, i] = (p_plus - probe.positions) / (2 * EPS)
+            fd_velocity[:, :, i] = (v_plus - probe.velocities) / (2 * EPS)
+        for leg in (0, 1, 2, 3):
+            np.testing.assert_allclose(data.position_jacobians[leg], fd_position[leg], atol=1e-6)
+        for leg in (1, 2, 3):
+            np.testing.assert_allclose(data.velocity_dq[leg], fd_velocity[leg], atol=1e-6)

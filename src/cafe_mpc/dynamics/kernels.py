@@ -132,3 +132,71 @@ def quaternion_rotation_into(quaternion: np.ndarray, out: np.ndarray) -> None:
     out[2, 0] = txz - twy
     out[2, 1] = tyz + twx
     out[2, 2] = 1.0 - (txx + tyy)
+
+
+@njit(cache=True, nogil=True)
+def foot_point_jacobians(
+    jacobian: np.ndarray,
+    v: np.ndarray,
+    positions: np.ndarray,
+    legs: np.ndarray,
+    with_velocity: np.ndarray,
+    columns: np.ndarray,
+    joint_starts: np.ndarray,
+    n_columns: np.ndarray,
+    position_jacobians: np.ndarray,
+    velocity_dq: np.ndarray,
+) -> None:
+    """World position Jacobians of foot points and the ``q``-Jacobians of their world velocities.
+
+    ``jacobian``: Pinocchio's joint Jacobian in the WORLD frame (``data.J``, 6 x nv: linear velocity of the
+    point at the origin, angular velocity); ``positions[leg]``: the foot point in the world. For the columns
+    ``columns[leg, :n_columns[leg]]`` of the leg's kinematic chain (root first; ``joint_starts`` marks the
+    first column of each joint) it writes ``J_k = lin_k + ang_k x p`` into ``position_jacobians[leg]`` and,
+    for the legs with ``with_velocity``, ``d pdot / d q_m = w_m x (pdot - P_<m) + W_<m x J_m`` into
+    ``velocity_dq[leg]``, where ``P_<m``, ``W_<m`` are the point velocity and the angular velocity that the
+    joints before ``m``'s contribute (a column moves everything after its joint rigidly; on the free
+    flyer's own columns the right-perturbation convention of ``pin.integrate`` gives the same form). The
+    other columns are never written (zero). Equal to ``getPointVelocityDerivatives`` in
+    ``LOCAL_WORLD_ALIGNED`` (tested), without its forward-kinematics derivatives pass.
+    """
+    for index in range(legs.shape[0]):
+        leg = legs[index]
+        px, py, pz = positions[leg, 0], positions[leg, 1], positions[leg, 2]
+        out = position_jacobians[leg]
+        vx = vy = vz = 0.0
+        for c in range(n_columns[leg]):
+            m = columns[leg, c]
+            ax, ay, az = jacobian[3, m], jacobian[4, m], jacobian[5, m]
+            jx = jacobian[0, m] + ay * pz - az * py
+            jy = jacobian[1, m] + az * px - ax * pz
+            jz = jacobian[2, m] + ax * py - ay * px
+            out[0, m], out[1, m], out[2, m] = jx, jy, jz
+            vx += jx * v[m]
+            vy += jy * v[m]
+            vz += jz * v[m]
+        if not with_velocity[index]:
+            continue
+        dq = velocity_dq[leg]
+        before_x = before_y = before_z = 0.0  # point velocity from the joints before the current one
+        spin_x = spin_y = spin_z = 0.0  # angular velocity of the current joint's parent
+        through_x = through_y = through_z = 0.0  # point velocity through the current joint
+        turn_x = turn_y = turn_z = 0.0  # angular velocity through the current joint
+        for c in range(n_columns[leg]):
+            m = columns[leg, c]
+            if joint_starts[leg, c]:
+                before_x, before_y, before_z = through_x, through_y, through_z
+                spin_x, spin_y, spin_z = turn_x, turn_y, turn_z
+            wx, wy, wz = jacobian[3, m], jacobian[4, m], jacobian[5, m]
+            jx, jy, jz = out[0, m], out[1, m], out[2, m]
+            rx, ry, rz = vx - before_x, vy - before_y, vz - before_z
+            dq[0, m] = wy * rz - wz * ry + spin_y * jz - spin_z * jy
+            dq[1, m] = wz * rx - wx * rz + spin_z * jx - spin_x * jz
+            dq[2, m] = wx * ry - wy * rx + spin_x * jy - spin_y * jx
+            vm = v[m]
+            through_x += jx * vm
+            through_y += jy * vm
+            through_z += jz * vm
+            turn_x += wx * vm
+            turn_y += wy * vm
+            turn_z += wz * vm

@@ -1,11 +1,13 @@
 """Foot kinematics for costs and constraints: world positions/velocities and their tangent Jacobians.
 
 Feet are points at the foot frames (the foot-sphere centres). Jacobians are w.r.t. the whole-body tangent
-``[dq (nv), dv (nv)]`` of ``MultibodyState`` and come from Pinocchio (``LOCAL_WORLD_ALIGNED`` frame
-Jacobians and ``getPointVelocityDerivatives``; ``getFrameVelocityDerivatives`` in ``LOCAL_WORLD_ALIGNED``
-is not the derivative of the world-frame foot velocity: it omits the frame's rotation with ``q``); the
-position Jacobian does not depend on ``v`` and the
-velocity's ``v``-Jacobian equals the position Jacobian.
+``[dq (nv), dv (nv)]`` of ``MultibodyState``: one compiled pass (``kernels.foot_point_jacobians``) over
+Pinocchio's WORLD joint Jacobian (``computeJointJacobians``) gives the feet's world position Jacobians and the
+``q``-Jacobians of their world velocities, equal to ``getPointVelocityDerivatives`` in
+``LOCAL_WORLD_ALIGNED`` without its forward-kinematics derivatives pass (``getFrameVelocityDerivatives`` in
+``LOCAL_WORLD_ALIGNED`` is not the derivative of the world-frame foot velocity: it omits the frame's rotation
+with ``q``); the position Jacobian does not depend on ``v`` and the velocity's ``v``-Jacobian equals the
+position Jacobian.
 
 This uses its own Pinocchio ``Data``, separate from the dynamics' one, so that evaluating costs never
 disturbs what ``computeConstraintDynamicsDerivatives`` needs from the forward pass.
@@ -18,6 +20,7 @@ from collections.abc import Sequence
 import numpy as np
 import pinocchio as pin
 
+from cafe_mpc.dynamics.kernels import foot_point_jacobians
 from cafe_mpc.robots.robot import Robot
 
 LWA = pin.ReferenceFrame.LOCAL_WORLD_ALIGNED
@@ -33,7 +36,8 @@ class FootKinematicsData:
         self.velocities = np.zeros((n_feet, 3))
         self.position_jacobians = np.zeros((n_feet, 3, nv))
         self.velocity_dq = np.zeros((n_feet, 3, nv))
-        self._zero_acceleration = np.zeros(nv)
+        self._joint_jacobian = self.pinocchio.J
+        """Pinocchio's WORLD joint Jacobian (a view of ``data.J``, filled by ``computeJointJacobians``)."""
 
 
 class FootKinematics:
@@ -50,10 +54,9 @@ class FootKinematics:
         # Velocity Jacobians need the position Jacobians too (dv_foot/dv = J).
         self.position_legs = tuple(sorted(set(position_legs) | set(velocity_legs)))
         self.velocity_legs = tuple(sorted(set(velocity_legs)))
-        self._position_only_legs = tuple(leg for leg in self.position_legs if leg not in self.velocity_legs)
-        frames = [robot.model.frames[frame_id] for frame_id in self.frame_ids]
-        self._parent_joints = tuple(frame.parentJoint for frame in frames)
-        self._placements = tuple(frame.placement.copy() for frame in frames)
+        self._legs = np.array(self.position_legs, dtype=np.int64)
+        self._with_velocity = np.array([leg in self.velocity_legs for leg in self.position_legs], dtype=bool)
+        self._columns, self._joint_starts, self._n_columns = _chain_columns(robot)
 
     @property
     def empty(self) -> bool:
@@ -78,21 +81,41 @@ class FootKinematics:
 
     def calc_diff(self, data: FootKinematicsData, q: np.ndarray, v: np.ndarray) -> None:
         """Position Jacobians ``d p / d dq`` and velocity Jacobians ``d pdot / d dq`` (``d pdot / d v`` is the
-        position Jacobian)."""
+        position Jacobian). Assumes ``calc(data, q, v)`` ran last (it reads the foot positions)."""
         if not self.position_legs:
             return
-        pd = data.pinocchio
-        if self.velocity_legs:
-            pin.computeForwardKinematicsDerivatives(self.model, pd, q, v, data._zero_acceleration)
-        else:
-            pin.computeJointJacobians(self.model, pd, q)
-        model = self.model
-        for leg in self.velocity_legs:
-            # Derivatives of the point's world velocity; d pdot / dv is the position Jacobian.
-            dv_dq, dv_dv = pin.getPointVelocityDerivatives(
-                model, pd, self._parent_joints[leg], self._placements[leg], LWA
-            )
-            data.velocity_dq[leg] = dv_dq
-            data.position_jacobians[leg] = dv_dv
-        for leg in self._position_only_legs:
-            data.position_jacobians[leg] = pin.getFrameJacobian(model, pd, self.frame_ids[leg], LWA)[:3]
+        pin.computeJointJacobians(self.model, data.pinocchio, q)
+        foot_point_jacobians(
+            data._joint_jacobian,
+            v,
+            data.positions,
+            self._legs,
+            self._with_velocity,
+            self._columns,
+            self._joint_starts,
+            self._n_columns,
+            data.position_jacobians,
+            data.velocity_dq,
+        )
+
+
+def _chain_columns(robot: Robot) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Per foot, the velocity columns of its kinematic chain (root joint first), which of them start a
+    joint, and how many there are (rows padded with -1)."""
+    model = robot.model
+    chains = []
+    for frame_id in robot.foot_frame_ids:
+        columns, starts = [], []
+        for joint_id in list(model.supports[model.frames[frame_id].parentJoint])[1:]:  # without the universe
+            joint = model.joints[joint_id]
+            for k in range(joint.nv):
+                columns.append(joint.idx_v + k)
+                starts.append(k == 0)
+        chains.append((columns, starts))
+    width = max(len(columns) for columns, _ in chains)
+    column_table = np.full((len(chains), width), -1, dtype=np.int64)
+    start_table = np.zeros((len(chains), width), dtype=bool)
+    for leg, (columns, starts) in enumerate(chains):
+        column_table[leg, : len(columns)] = columns
+        start_table[leg, : len(starts)] = starts
+    return column_table, start_table, np.array([len(columns) for columns, _ in chains], dtype=np.int64)
