@@ -135,33 +135,24 @@ def quaternion_rotation_into(quaternion: np.ndarray, out: np.ndarray) -> None:
 
 
 @njit(cache=True, nogil=True)
-def foot_point_jacobians(
+def foot_point_velocities(
     jacobian: np.ndarray,
     v: np.ndarray,
     positions: np.ndarray,
     legs: np.ndarray,
-    with_velocity: np.ndarray,
     columns: np.ndarray,
-    joint_starts: np.ndarray,
     n_columns: np.ndarray,
     position_jacobians: np.ndarray,
-    velocity_dq: np.ndarray,
+    velocities: np.ndarray,
 ) -> None:
-    """World position Jacobians of foot points and the ``q``-Jacobians of their world velocities.
+    """World position Jacobians and world velocities of the foot points of ``legs``.
 
-    ``jacobian``: Pinocchio's joint Jacobian in the WORLD frame (``data.J``, 6 x nv: linear velocity of the
-    point at the origin, angular velocity); ``positions[leg]``: the foot point in the world. For the columns
-    ``columns[leg, :n_columns[leg]]`` of the leg's kinematic chain (root first; ``joint_starts`` marks the
-    first column of each joint) it writes ``J_k = lin_k + ang_k x p`` into ``position_jacobians[leg]`` and,
-    for the legs with ``with_velocity``, ``d pdot / d q_m = w_m x (pdot - P_<m) + W_<m x J_m`` into
-    ``velocity_dq[leg]``, where ``P_<m``, ``W_<m`` are the point velocity and the angular velocity that the
-    joints before ``m``'s contribute (a column moves everything after its joint rigidly; on the free
-    flyer's own columns the right-perturbation convention of ``pin.integrate`` gives the same form). The
-    other columns are never written (zero). Equal to ``getPointVelocityDerivatives`` in
-    ``LOCAL_WORLD_ALIGNED`` (tested), without its forward-kinematics derivatives pass.
+    ``jacobian``: Pinocchio's joint Jacobian in the WORLD frame (``data.J``, 6 x nv: velocity of the point at
+    the origin, angular velocity); ``positions[leg]``: the foot point in the world. Over the columns
+    ``columns[leg, :n_columns[leg]]`` of the leg's kinematic chain it writes ``J_k = lin_k + ang_k x p`` into
+    ``position_jacobians[leg]`` (the other columns are never written: zero) and ``pdot = sum_k J_k v_k``.
     """
-    for index in range(legs.shape[0]):
-        leg = legs[index]
+    for leg in legs:
         px, py, pz = positions[leg, 0], positions[leg, 1], positions[leg, 2]
         out = position_jacobians[leg]
         vx = vy = vz = 0.0
@@ -175,9 +166,34 @@ def foot_point_jacobians(
             vx += jx * v[m]
             vy += jy * v[m]
             vz += jz * v[m]
-        if not with_velocity[index]:
-            continue
+        velocities[leg, 0], velocities[leg, 1], velocities[leg, 2] = vx, vy, vz
+
+
+@njit(cache=True, nogil=True)
+def foot_velocity_q_jacobians(
+    jacobian: np.ndarray,
+    v: np.ndarray,
+    velocity_legs: np.ndarray,
+    columns: np.ndarray,
+    joint_starts: np.ndarray,
+    n_columns: np.ndarray,
+    position_jacobians: np.ndarray,
+    velocities: np.ndarray,
+    velocity_dq: np.ndarray,
+) -> None:
+    """``d pdot / d q`` of the feet's world velocities from ``foot_point_velocities``' results.
+
+    ``d pdot / d q_m = w_m x (pdot - P_<m) + W_<m x J_m``: a column ``m`` moves everything after its joint
+    rigidly (axis ``w_m``), which turns the part of ``pdot`` those joints make; the joints before ``m``'s
+    (velocity ``P_<m`` of the point, angular velocity ``W_<m``) see the point move by ``J_m``. On the free
+    flyer's own columns the right-perturbation convention of ``pin.integrate`` gives the same form.
+    ``joint_starts`` marks the first column of each joint. Equal to ``getPointVelocityDerivatives`` in
+    ``LOCAL_WORLD_ALIGNED`` (tested), without its forward-kinematics derivatives pass.
+    """
+    for leg in velocity_legs:
+        jp = position_jacobians[leg]
         dq = velocity_dq[leg]
+        vx, vy, vz = velocities[leg, 0], velocities[leg, 1], velocities[leg, 2]
         before_x = before_y = before_z = 0.0  # point velocity from the joints before the current one
         spin_x = spin_y = spin_z = 0.0  # angular velocity of the current joint's parent
         through_x = through_y = through_z = 0.0  # point velocity through the current joint
@@ -188,7 +204,7 @@ def foot_point_jacobians(
                 before_x, before_y, before_z = through_x, through_y, through_z
                 spin_x, spin_y, spin_z = turn_x, turn_y, turn_z
             wx, wy, wz = jacobian[3, m], jacobian[4, m], jacobian[5, m]
-            jx, jy, jz = out[0, m], out[1, m], out[2, m]
+            jx, jy, jz = jp[0, m], jp[1, m], jp[2, m]
             rx, ry, rz = vx - before_x, vy - before_y, vz - before_z
             dq[0, m] = wy * rz - wz * ry + spin_y * jz - spin_z * jy
             dq[1, m] = wz * rx - wx * rz + spin_z * jx - spin_x * jz

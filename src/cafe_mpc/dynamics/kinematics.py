@@ -1,9 +1,10 @@
 """Foot kinematics for costs and constraints: world positions/velocities and their tangent Jacobians.
 
 Feet are points at the foot frames (the foot-sphere centres). Jacobians are w.r.t. the whole-body tangent
-``[dq (nv), dv (nv)]`` of ``MultibodyState``: one compiled pass (``kernels.foot_point_jacobians``) over
-Pinocchio's WORLD joint Jacobian (``computeJointJacobians``) gives the feet's world position Jacobians and the
-``q``-Jacobians of their world velocities, equal to ``getPointVelocityDerivatives`` in
+``[dq (nv), dv (nv)]`` of ``MultibodyState``: compiled passes over Pinocchio's WORLD joint Jacobian
+(``computeJointJacobians``) give the feet's world velocities and position Jacobians
+(``kernels.foot_point_velocities``, in ``calc``) and the ``q``-Jacobians of their world velocities
+(``kernels.foot_velocity_q_jacobians``, in ``calc_diff``), equal to ``getPointVelocityDerivatives`` in
 ``LOCAL_WORLD_ALIGNED`` without its forward-kinematics derivatives pass (``getFrameVelocityDerivatives`` in
 ``LOCAL_WORLD_ALIGNED`` is not the derivative of the world-frame foot velocity: it omits the frame's rotation
 with ``q``); the position Jacobian does not depend on ``v`` and the velocity's ``v``-Jacobian equals the
@@ -20,14 +21,15 @@ from collections.abc import Sequence
 import numpy as np
 import pinocchio as pin
 
-from cafe_mpc.dynamics.kernels import foot_point_jacobians
+from cafe_mpc.dynamics.kernels import foot_point_velocities, foot_velocity_q_jacobians
 from cafe_mpc.robots.robot import Robot
 
 LWA = pin.ReferenceFrame.LOCAL_WORLD_ALIGNED
 
 
 class FootKinematicsData:
-    """Workspace of ``FootKinematics`` (arrays indexed by leg; only the requested legs are written)."""
+    """Workspace of ``FootKinematics`` (arrays indexed by leg; only the requested legs are written; the
+    position Jacobians are made by ``calc``, which the velocities need anyway)."""
 
     def __init__(self, kinematics: FootKinematics) -> None:
         nv, n_feet = kinematics.model.nv, len(kinematics.frame_ids)
@@ -55,7 +57,7 @@ class FootKinematics:
         self.position_legs = tuple(sorted(set(position_legs) | set(velocity_legs)))
         self.velocity_legs = tuple(sorted(set(velocity_legs)))
         self._legs = np.array(self.position_legs, dtype=np.int64)
-        self._with_velocity = np.array([leg in self.velocity_legs for leg in self.position_legs], dtype=bool)
+        self._velocity_legs = np.array(self.velocity_legs, dtype=np.int64)
         self._columns, self._joint_starts, self._n_columns = _chain_columns(robot)
 
     @property
@@ -66,35 +68,40 @@ class FootKinematics:
         return FootKinematicsData(self)
 
     def calc(self, data: FootKinematicsData, q: np.ndarray, v: np.ndarray) -> None:
-        """Foot positions (and velocities) at ``(q, v)``."""
+        """Foot positions and velocities (and the position Jacobians, which the velocities are made of) at
+        ``(q, v)``."""
         if not self.position_legs:
             return
-        pd = data.pinocchio
-        if self.velocity_legs:
-            pin.forwardKinematics(self.model, pd, q, v)
-        else:
-            pin.forwardKinematics(self.model, pd, q)
+        model, pd = self.model, data.pinocchio
+        pin.computeJointJacobians(model, pd, q)  # joint placements and the WORLD joint Jacobian
+        positions, frame_ids = data.positions, self.frame_ids
         for leg in self.position_legs:
-            data.positions[leg] = pin.updateFramePlacement(self.model, pd, self.frame_ids[leg]).translation
-        for leg in self.velocity_legs:
-            data.velocities[leg] = pin.getFrameVelocity(self.model, pd, self.frame_ids[leg], LWA).linear
+            positions[leg] = pin.updateFramePlacement(model, pd, frame_ids[leg]).translation
+        foot_point_velocities(
+            data._joint_jacobian,
+            v,
+            positions,
+            self._legs,
+            self._columns,
+            self._n_columns,
+            data.position_jacobians,
+            data.velocities,
+        )
 
     def calc_diff(self, data: FootKinematicsData, q: np.ndarray, v: np.ndarray) -> None:
         """Position Jacobians ``d p / d dq`` and velocity Jacobians ``d pdot / d dq`` (``d pdot / d v`` is the
-        position Jacobian). Assumes ``calc(data, q, v)`` ran last (it reads the foot positions)."""
-        if not self.position_legs:
+        position Jacobian). Assumes ``calc(data, q, v)`` ran last on ``data``."""
+        if not self.velocity_legs:
             return
-        pin.computeJointJacobians(self.model, data.pinocchio, q)
-        foot_point_jacobians(
+        foot_velocity_q_jacobians(
             data._joint_jacobian,
             v,
-            data.positions,
-            self._legs,
-            self._with_velocity,
+            self._velocity_legs,
             self._columns,
             self._joint_starts,
             self._n_columns,
             data.position_jacobians,
+            data.velocities,
             data.velocity_dq,
         )
 
