@@ -216,3 +216,110 @@ def foot_velocity_q_jacobians(
             turn_x += wx * vm
             turn_y += wy * vm
             turn_z += wz * vm
+
+
+@njit(cache=True, nogil=True)
+def _rotate(qx: float, qy: float, qz: float, qw: float, x: float, y: float, z: float) -> tuple:
+    """The vector ``(x, y, z)`` rotated by the unit quaternion ``(qx, qy, qz, qw)``."""
+    tx = 2.0 * (qy * z - qz * y)
+    ty = 2.0 * (qz * x - qx * z)
+    tz = 2.0 * (qx * y - qy * x)
+    return (
+        x + qw * tx + (qy * tz - qz * ty),
+        y + qw * ty + (qz * tx - qx * tz),
+        z + qw * tz + (qx * ty - qy * tx),
+    )
+
+
+_TAYLOR = 1e-4  # below this rotation angle (rad) the exp/log coefficients use their Taylor series
+
+
+@njit(cache=True, nogil=True)
+def free_flyer_configuration_difference(q0: np.ndarray, q1: np.ndarray, nq: int, out: np.ndarray) -> None:
+    """``out[:nq - 1] = q1 ⊖ q0`` for a free-flyer robot whose other joints are vector-space joints
+    (``q = [p (3), quaternion xyzw (4), joints]``): the base's ``log6(M0^-1 M1)`` (linear, angular, in the
+    base frame, as ``pin.difference``), then the joints' differences."""
+    x0, x1 = q0, q1
+    ax, ay, az, aw = x0[3], x0[4], x0[5], x0[6]
+    bx, by, bz, bw = x1[3], x1[4], x1[5], x1[6]
+    # relative rotation conj(a) * b and the translation in the first base frame
+    rw = aw * bw + ax * bx + ay * by + az * bz
+    rx = aw * bx - ax * bw - ay * bz + az * by
+    ry = aw * by - ay * bw - az * bx + ax * bz
+    rz = aw * bz - az * bw - ax * by + ay * bx
+    px, py, pz = _rotate(-ax, -ay, -az, aw, x1[0] - x0[0], x1[1] - x0[1], x1[2] - x0[2])
+    if rw < 0.0:  # the shortest rotation: angle in [0, pi]
+        rw, rx, ry, rz = -rw, -rx, -ry, -rz
+    norm_squared = rx * rx + ry * ry + rz * rz
+    norm = np.sqrt(norm_squared)
+    theta = 2.0 * np.arctan2(norm, rw)
+    # theta / sin(theta / 2), its series near 0
+    factor = 2.0 / rw - (2.0 / 3.0) * norm_squared / (rw * rw * rw) if theta < _TAYLOR else theta / norm
+    wx, wy, wz = factor * rx, factor * ry, factor * rz
+    t2 = wx * wx + wy * wy + wz * wz
+    if theta < 1e-2:  # (theta / 2) cot(theta / 2) and (1 - alpha) / theta^2: their closed forms cancel
+        beta = 1.0 / 12.0 + t2 / 720.0 + t2 * t2 / 30240.0
+        alpha = 1.0 - t2 * beta
+    else:
+        st, ct = np.sin(theta), np.cos(theta)
+        alpha = theta * st / (2.0 * (1.0 - ct))
+        beta = 1.0 / t2 - st / (2.0 * theta * (1.0 - ct))
+    wp = beta * (wx * px + wy * py + wz * pz)
+    out[0] = alpha * px - 0.5 * (wy * pz - wz * py) + wp * wx
+    out[1] = alpha * py - 0.5 * (wz * px - wx * pz) + wp * wy
+    out[2] = alpha * pz - 0.5 * (wx * py - wy * px) + wp * wz
+    out[3], out[4], out[5] = wx, wy, wz
+    for i in range(7, nq):
+        out[i - 1] = x1[i] - x0[i]
+
+
+@njit(cache=True, nogil=True)
+def free_flyer_state_difference(x0: np.ndarray, x1: np.ndarray, nq: int, nv: int, out: np.ndarray) -> None:
+    """``out = x1 ⊖ x0`` on the whole-body state ``[q, v]`` (``free_flyer_configuration_difference`` on
+    ``q``, the velocities subtracted)."""
+    free_flyer_configuration_difference(x0, x1, nq, out)
+    for i in range(nv):
+        out[nv + i] = x1[nq + i] - x0[nq + i]
+
+
+@njit(cache=True, nogil=True)
+def free_flyer_state_integrate(x: np.ndarray, dx: np.ndarray, nq: int, nv: int, out: np.ndarray) -> None:
+    """``out = x ⊕ dx`` on the state of ``free_flyer_state_difference``: the base ``M exp6(dx_base)`` (its
+    quaternion on the side of the input's and normalised to first order, as ``pin.integrate``), the joints
+    and the velocities added."""
+    vx, vy, vz, wx, wy, wz = dx[0], dx[1], dx[2], dx[3], dx[4], dx[5]
+    t2 = wx * wx + wy * wy + wz * wz
+    theta = np.sqrt(t2)
+    if theta < _TAYLOR:
+        alpha_cross = 0.5 - t2 / 24.0
+        alpha_v = 1.0 - t2 / 6.0
+        alpha_w = 1.0 / 6.0 - t2 / 120.0
+        half_sine = 0.5 - t2 / 48.0  # sin(theta / 2) / theta
+        half_cosine = 1.0 - t2 / 8.0
+    else:
+        st, ct = np.sin(theta), np.cos(theta)
+        alpha_cross = (1.0 - ct) / t2
+        alpha_v = st / theta
+        alpha_w = (1.0 - alpha_v) / t2
+        half_sine = np.sin(0.5 * theta) / theta
+        half_cosine = np.cos(0.5 * theta)
+    wv = alpha_w * (wx * vx + wy * vy + wz * vz)
+    tx = alpha_v * vx + wv * wx + alpha_cross * (wy * vz - wz * vy)
+    ty = alpha_v * vy + wv * wy + alpha_cross * (wz * vx - wx * vz)
+    tz = alpha_v * vz + wv * wz + alpha_cross * (wx * vy - wy * vx)
+    ax, ay, az, aw = x[3], x[4], x[5], x[6]
+    px, py, pz = _rotate(ax, ay, az, aw, tx, ty, tz)
+    out[0], out[1], out[2] = x[0] + px, x[1] + py, x[2] + pz
+    ex, ey, ez, ew = half_sine * wx, half_sine * wy, half_sine * wz, half_cosine
+    qw = aw * ew - ax * ex - ay * ey - az * ez
+    qx = aw * ex + ax * ew + ay * ez - az * ey
+    qy = aw * ey + ay * ew + az * ex - ax * ez
+    qz = aw * ez + az * ew + ax * ey - ay * ex
+    if qx * ax + qy * ay + qz * az + qw * aw < 0.0:
+        qx, qy, qz, qw = -qx, -qy, -qz, -qw
+    scale = 0.5 * (3.0 - (qx * qx + qy * qy + qz * qz + qw * qw))
+    out[3], out[4], out[5], out[6] = qx * scale, qy * scale, qz * scale, qw * scale
+    for i in range(7, nq):
+        out[i] = x[i] + dx[i - 1]
+    for i in range(nv):
+        out[nq + i] = x[nq + i] + dx[nv + i]

@@ -7,7 +7,10 @@ representable without a singularity. The tangent space (``ndx = 2 * nv = 36``) i
     [base linear (base frame, 3), base angular (base frame, 3), joints (12), v (18)]
 
 and ``integrate``/``difference`` are Pinocchio's (SE(3) exponential/logarithm on the base, plain
-addition on the joints and on the velocity), so the tangent of ``q`` has the same coordinates as ``v``.
+addition on the joints and on the velocity), so the tangent of ``q`` has the same coordinates as ``v``. For
+the usual floating-base robot (a free flyer at the root, vector-space joints after it) the in-place versions
+are compiled kernels equal to Pinocchio's to round-off (``dynamics.kernels``; a fifth of the time of the
+Python call with its slicing, on the solver's hot path).
 """
 
 from __future__ import annotations
@@ -17,6 +20,7 @@ import pinocchio as pin
 
 from cafe_mpc.core.interfaces import StateManifold
 from cafe_mpc.core.kernels import stack_columns_left_multiplied
+from cafe_mpc.dynamics.kernels import free_flyer_state_difference, free_flyer_state_integrate
 
 
 class MultibodyState(StateManifold):
@@ -41,6 +45,14 @@ class MultibodyState(StateManifold):
                 j.idx_v < self._lie_rows and j.nq == j.nv for j in model.joints[1:] if j.idx_v > 0
             ):
                 self._lie_rows = model.nv
+        root = model.joints[1] if model.njoints > 1 else None
+        self.free_flyer_root = (
+            root is not None
+            and root.shortname() == "JointModelFreeFlyer"
+            and root.idx_q == 0
+            and all(joint.nq == joint.nv for joint in model.joints[2:])
+        )
+        """A free flyer at the root and vector-space joints after it: the compiled operations apply."""
 
     def zero(self) -> np.ndarray:
         return np.concatenate([pin.neutral(self.model), np.zeros(self.nv)])
@@ -55,17 +67,13 @@ class MultibodyState(StateManifold):
         return x
 
     def integrate(self, x: np.ndarray, dx: np.ndarray) -> np.ndarray:
-        nq, nv = self.nq, self.nv
         out = np.empty(self.nx)
-        out[:nq] = pin.integrate(self.model, x[:nq], dx[:nv])
-        out[nq:] = x[nq:] + dx[nv:]
+        self.integrate_into(x, dx, out)
         return out
 
     def difference(self, x0: np.ndarray, x1: np.ndarray) -> np.ndarray:
-        nq, nv = self.nq, self.nv
         out = np.empty(self.ndx)
-        out[:nv] = pin.difference(self.model, x0[:nq], x1[:nq])
-        out[nv:] = x1[nq:] - x0[nq:]
+        self.difference_into(x0, x1, out)
         return out
 
     def jacobian_difference(self, x0: np.ndarray, x1: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -81,11 +89,17 @@ class MultibodyState(StateManifold):
 
     def difference_into(self, x0: np.ndarray, x1: np.ndarray, out: np.ndarray) -> None:
         nq, nv = self.nq, self.nv
+        if self.free_flyer_root:
+            free_flyer_state_difference(x0, x1, nq, nv, out)
+            return
         out[:nv] = pin.difference(self.model, x0[:nq], x1[:nq])
         np.subtract(x1[nq:], x0[nq:], out=out[nv:])
 
     def integrate_into(self, x: np.ndarray, dx: np.ndarray, out: np.ndarray) -> None:
         nq, nv = self.nq, self.nv
+        if self.free_flyer_root:
+            free_flyer_state_integrate(x, dx, nq, nv, out)
+            return
         out[:nq] = pin.integrate(self.model, x[:nq], dx[:nv])
         np.add(x[nq:], dx[nv:], out=out[nq:])
 

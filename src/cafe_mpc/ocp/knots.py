@@ -29,7 +29,7 @@ from cafe_mpc.core.contacts import ContactFlags, as_contact_flags, flags_to_stri
 from cafe_mpc.core.interfaces import ActionData, ActionModel, IdentityReset, ResetMap
 from cafe_mpc.core.kernels import same_point
 from cafe_mpc.dynamics.impact import ImpactReset
-from cafe_mpc.dynamics.kernels import quaternion_rotation_into
+from cafe_mpc.dynamics.kernels import free_flyer_configuration_difference, quaternion_rotation_into
 from cafe_mpc.dynamics.kinematics import FootKinematics
 from cafe_mpc.dynamics.multibody_state import MultibodyState
 from cafe_mpc.dynamics.srb import SRBDynamics, SRBParameters, SRBState, quaternion_to_rotation, srb_parameters
@@ -235,6 +235,7 @@ class WholeBodyKnot(ActionModel):
         self._has_kinematics = not self.kinematics.empty
         self._cost_velocity_rows_from = self._velocity_rows_from if self.tracks_state else 2 * nq
         self._tangent_base_error = base_error == "tangent"
+        self._free_flyer_root = self.state.free_flyer_root
         self.layout = object()
         """Identity token shared by every knot made from this one with ``with_reference``: a data object
         created by one of them can be reused by any other (``data.layout is knot.layout``)."""
@@ -280,7 +281,10 @@ class WholeBodyKnot(ActionModel):
         nq, nv = self._nq, self._nv
         x_ref = self.reference.state
         if self._tangent_base_error:
-            r[:nv] = pin.difference(model, x_ref[:nq], x[:nq])
+            if self._free_flyer_root:
+                free_flyer_configuration_difference(x_ref, x, nq, r)
+            else:
+                r[:nv] = pin.difference(model, x_ref[:nq], x[:nq])
             return  # the velocity rows v - v_ref are set by the compiled cost
         rotation = data.base_rotation
         rotation_ref = quaternion_to_rotation(x_ref[3:7])
