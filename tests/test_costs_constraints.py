@@ -454,3 +454,36 @@ def test_knots_from_one_prototype_share_data_layout(robot, factory):
     assert data.layout is b.layout
     b.calc(data, robot.x_standing, np.zeros(12))  # reusable by b
     assert np.isfinite(data.cost)
+
+
+def test_world_base_error_kernels_match_pinocchio_at_any_rotation(robot):
+    """The compiled world base error equals ``log3``/``Jlog3`` of ``R_ref' R`` and the world-frame position
+    and velocity errors, from tiny rotations to nearly a half turn (a barrel roll's tracking errors)."""
+    from cafe_mpc.dynamics.srb import quaternion_to_rotation
+    from cafe_mpc.ocp.kernels import world_base_error, world_base_error_jacobian
+
+    model, nq, nv = robot.model, robot.nq, robot.nv
+    rng = np.random.default_rng(21)
+    r, log_error, jacobian = np.zeros(2 * nv), np.zeros(4), np.zeros((9, 9))
+    for angle in (1e-8, 1e-3, 0.3, 2.0, 3.1):
+        for _ in range(10):
+            x_ref = random_state(robot, rng, 1.0, 1.0)
+            axis = rng.standard_normal(3)
+            step = np.zeros(nv)
+            step[3:6] = angle * axis / np.linalg.norm(axis)
+            step[:3] = rng.standard_normal(3)
+            step[6:] = 0.1 * rng.standard_normal(nv - 6)
+            x = np.concatenate([pin.integrate(model, x_ref[:nq], step), rng.standard_normal(nv)])
+            rotation = quaternion_to_rotation(x[3:7])
+            rotation_ref = quaternion_to_rotation(x_ref[3:7])
+            world_base_error(x, x_ref, nq, nv, rotation, r, log_error)
+            error = rotation_ref.T @ rotation
+            np.testing.assert_allclose(r[:3], x[:3] - x_ref[:3], atol=1e-14)
+            np.testing.assert_allclose(r[3:6], pin.log3(error), atol=1e-9)
+            np.testing.assert_allclose(r[6:nv], x[7:nq] - x_ref[7:nq], atol=1e-14)
+            velocity_error = rotation @ x[nq : nq + 3] - rotation_ref @ x_ref[nq : nq + 3]
+            np.testing.assert_allclose(r[nv : nv + 3], velocity_error, atol=1e-12)
+            world_base_error_jacobian(x, nq, rotation, log_error, jacobian)
+            np.testing.assert_allclose(jacobian[3:6, 3:6], pin.Jlog3(error), atol=1e-7)
+            np.testing.assert_allclose(jacobian[6:9, 3:6], -rotation @ pin.skew(x[nq : nq + 3]), atol=1e-12)
+            np.testing.assert_allclose(jacobian[0:3, 0:3], rotation, atol=0)

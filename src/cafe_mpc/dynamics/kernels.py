@@ -235,42 +235,54 @@ _TAYLOR = 1e-4  # below this rotation angle (rad) the exp/log coefficients use t
 
 
 @njit(cache=True, nogil=True)
-def free_flyer_configuration_difference(q0: np.ndarray, q1: np.ndarray, nq: int, out: np.ndarray) -> None:
-    """``out[:nq - 1] = q1 ⊖ q0`` for a free-flyer robot whose other joints are vector-space joints
-    (``q = [p (3), quaternion xyzw (4), joints]``): the base's ``log6(M0^-1 M1)`` (linear, angular, in the
-    base frame, as ``pin.difference``), then the joints' differences."""
-    x0, x1 = q0, q1
-    ax, ay, az, aw = x0[3], x0[4], x0[5], x0[6]
-    bx, by, bz, bw = x1[3], x1[4], x1[5], x1[6]
-    # relative rotation conj(a) * b and the translation in the first base frame
+def relative_rotation_log(
+    ax: float, ay: float, az: float, aw: float, bx: float, by: float, bz: float, bw: float
+) -> tuple:
+    """``(w, theta)`` with ``w = log3(R(a)^T R(b))`` (angle ``theta = |w|`` in ``[0, pi]``) from the
+    quaternions ``a``, ``b`` (xyzw; their norms cancel), as ``pin.log3`` of the rotation matrices."""
     rw = aw * bw + ax * bx + ay * by + az * bz
     rx = aw * bx - ax * bw - ay * bz + az * by
     ry = aw * by - ay * bw - az * bx + ax * bz
     rz = aw * bz - az * bw - ax * by + ay * bx
-    px, py, pz = _rotate(-ax, -ay, -az, aw, x1[0] - x0[0], x1[1] - x0[1], x1[2] - x0[2])
     if rw < 0.0:  # the shortest rotation: angle in [0, pi]
         rw, rx, ry, rz = -rw, -rx, -ry, -rz
     norm_squared = rx * rx + ry * ry + rz * rz
     norm = np.sqrt(norm_squared)
     theta = 2.0 * np.arctan2(norm, rw)
-    # theta / sin(theta / 2), its series near 0
+    # theta over the vector part's norm (scale-free), its series near 0
     factor = 2.0 / rw - (2.0 / 3.0) * norm_squared / (rw * rw * rw) if theta < _TAYLOR else theta / norm
-    wx, wy, wz = factor * rx, factor * ry, factor * rz
-    t2 = wx * wx + wy * wy + wz * wz
-    if theta < 1e-2:  # (theta / 2) cot(theta / 2) and (1 - alpha) / theta^2: their closed forms cancel
+    return factor * rx, factor * ry, factor * rz, theta
+
+
+@njit(cache=True, nogil=True)
+def log_coefficients(theta: float) -> tuple:
+    """``alpha = (theta / 2) cot(theta / 2)`` and ``beta = (1 - alpha) / theta^2``: the inverse left Jacobian
+    of SO(3), ``Jlog3 = alpha I + beta w w' + [w]x / 2``, and the translation part of ``log6``."""
+    t2 = theta * theta
+    if theta < 1e-2:  # the closed forms cancel
         beta = 1.0 / 12.0 + t2 / 720.0 + t2 * t2 / 30240.0
-        alpha = 1.0 - t2 * beta
-    else:
-        st, ct = np.sin(theta), np.cos(theta)
-        alpha = theta * st / (2.0 * (1.0 - ct))
-        beta = 1.0 / t2 - st / (2.0 * theta * (1.0 - ct))
+        return 1.0 - t2 * beta, beta
+    st, ct = np.sin(theta), np.cos(theta)
+    alpha = theta * st / (2.0 * (1.0 - ct))
+    return alpha, (1.0 - alpha) / t2
+
+
+@njit(cache=True, nogil=True)
+def free_flyer_configuration_difference(q0: np.ndarray, q1: np.ndarray, nq: int, out: np.ndarray) -> None:
+    """``out[:nq - 1] = q1 ⊖ q0`` for a free-flyer robot whose other joints are vector-space joints
+    (``q = [p (3), quaternion xyzw (4), joints]``): the base's ``log6(M0^-1 M1)`` (linear, angular, in the
+    base frame, as ``pin.difference``), then the joints' differences."""
+    ax, ay, az, aw = q0[3], q0[4], q0[5], q0[6]
+    px, py, pz = _rotate(-ax, -ay, -az, aw, q1[0] - q0[0], q1[1] - q0[1], q1[2] - q0[2])
+    wx, wy, wz, theta = relative_rotation_log(ax, ay, az, aw, q1[3], q1[4], q1[5], q1[6])
+    alpha, beta = log_coefficients(theta)
     wp = beta * (wx * px + wy * py + wz * pz)
     out[0] = alpha * px - 0.5 * (wy * pz - wz * py) + wp * wx
     out[1] = alpha * py - 0.5 * (wz * px - wx * pz) + wp * wy
     out[2] = alpha * pz - 0.5 * (wx * py - wy * px) + wp * wz
     out[3], out[4], out[5] = wx, wy, wz
     for i in range(7, nq):
-        out[i - 1] = x1[i] - x0[i]
+        out[i - 1] = q1[i] - q0[i]
 
 
 @njit(cache=True, nogil=True)

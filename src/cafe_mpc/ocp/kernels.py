@@ -24,6 +24,8 @@ import math
 import numpy as np
 from numba import njit
 
+from cafe_mpc.dynamics.kernels import log_coefficients, relative_rotation_log
+
 
 @njit(cache=True, nogil=True)
 def relaxed_barrier(
@@ -304,3 +306,68 @@ def whole_body_derivatives(
             gradient[a] += e * height_gradient[a]
             for b in range(3):
                 hessian[a, b] += h * height_gradient[a] * height_gradient[b]
+
+
+@njit(cache=True, nogil=True)
+def world_base_error(
+    x: np.ndarray,
+    x_ref: np.ndarray,
+    nq: int,
+    nv: int,
+    rotation: np.ndarray,
+    r: np.ndarray,
+    log_error: np.ndarray,
+) -> None:
+    """The ``"world"`` base residual rows: ``r[0:3] = p - p_ref``, ``r[3:6] = log3(R_ref' R)``, the joints'
+    differences in ``r[6:nv]`` and the world linear velocity error ``r[nv:nv+3] = R v - R_ref v_ref``
+    (``rotation``: ``R`` of ``x``'s quaternion; ``R_ref`` of the normalised reference quaternion). Writes
+    ``log_error = [log3(R_ref' R), angle]`` for ``world_base_error_jacobian``."""
+    for i in range(3):
+        r[i] = x[i] - x_ref[i]
+    wx, wy, wz, theta = relative_rotation_log(x_ref[3], x_ref[4], x_ref[5], x_ref[6], x[3], x[4], x[5], x[6])
+    r[3], r[4], r[5] = wx, wy, wz
+    log_error[0], log_error[1], log_error[2], log_error[3] = wx, wy, wz, theta
+    for i in range(7, nq):
+        r[i - 1] = x[i] - x_ref[i]
+    scale = 1.0 / np.sqrt(x_ref[3] ** 2 + x_ref[4] ** 2 + x_ref[5] ** 2 + x_ref[6] ** 2)
+    qx, qy, qz, qw = x_ref[3] * scale, x_ref[4] * scale, x_ref[5] * scale, x_ref[6] * scale
+    vx, vy, vz = x_ref[nq], x_ref[nq + 1], x_ref[nq + 2]
+    tx, ty, tz = 2.0 * (qy * vz - qz * vy), 2.0 * (qz * vx - qx * vz), 2.0 * (qx * vy - qy * vx)
+    reference_velocity = (
+        vx + qw * tx + (qy * tz - qz * ty),
+        vy + qw * ty + (qz * tx - qx * tz),
+        vz + qw * tz + (qx * ty - qy * tx),
+    )
+    for i in range(3):
+        velocity = rotation[i, 0] * x[nq] + rotation[i, 1] * x[nq + 1] + rotation[i, 2] * x[nq + 2]
+        r[nv + i] = velocity - reference_velocity[i]
+
+
+@njit(cache=True, nogil=True)
+def world_base_error_jacobian(
+    x: np.ndarray, nq: int, rotation: np.ndarray, log_error: np.ndarray, jacobian: np.ndarray
+) -> None:
+    """The dense blocks of the ``"world"`` base residual's Jacobian (rows position, orientation, world
+    linear velocity; columns base translation, base rotation, base linear velocity, all local): ``R``,
+    ``Jlog3(R_ref' R)`` (as ``pin.Jlog3``), ``-R [v]x`` and ``R``."""
+    wx, wy, wz = log_error[0], log_error[1], log_error[2]
+    alpha, beta = log_coefficients(log_error[3])
+    vx, vy, vz = x[nq], x[nq + 1], x[nq + 2]
+    for i in range(3):
+        ri0, ri1, ri2 = rotation[i, 0], rotation[i, 1], rotation[i, 2]
+        jacobian[i, 0], jacobian[i, 1], jacobian[i, 2] = ri0, ri1, ri2
+        jacobian[6 + i, 6], jacobian[6 + i, 7], jacobian[6 + i, 8] = ri0, ri1, ri2
+        # -R [v]x: row i of R times the columns of -[v]x
+        jacobian[6 + i, 3] = -(ri1 * vz - ri2 * vy)
+        jacobian[6 + i, 4] = -(ri2 * vx - ri0 * vz)
+        jacobian[6 + i, 5] = -(ri0 * vy - ri1 * vx)
+    log = (wx, wy, wz)
+    for i in range(3):
+        for j in range(3):
+            jacobian[3 + i, 3 + j] = beta * log[i] * log[j] + (alpha if i == j else 0.0)
+    jacobian[3, 4] -= 0.5 * wz
+    jacobian[3, 5] += 0.5 * wy
+    jacobian[4, 3] += 0.5 * wz
+    jacobian[4, 5] -= 0.5 * wx
+    jacobian[5, 3] -= 0.5 * wy
+    jacobian[5, 4] += 0.5 * wx

@@ -32,12 +32,17 @@ from cafe_mpc.dynamics.impact import ImpactReset
 from cafe_mpc.dynamics.kernels import free_flyer_configuration_difference, quaternion_rotation_into
 from cafe_mpc.dynamics.kinematics import FootKinematics
 from cafe_mpc.dynamics.multibody_state import MultibodyState
-from cafe_mpc.dynamics.srb import SRBDynamics, SRBParameters, SRBState, quaternion_to_rotation, srb_parameters
+from cafe_mpc.dynamics.srb import SRBDynamics, SRBParameters, SRBState, srb_parameters
 from cafe_mpc.dynamics.srb_kernels import srb_cost, srb_cost_derivatives
 from cafe_mpc.dynamics.transition import ComposedReset, WholeBodyToSRB
 from cafe_mpc.dynamics.whole_body import IntegrationScheme, WholeBodyDynamics
 from cafe_mpc.ocp.constraints import TouchdownFootHeight, WholeBodyConstraintSettings
-from cafe_mpc.ocp.kernels import whole_body_cost, whole_body_derivatives
+from cafe_mpc.ocp.kernels import (
+    whole_body_cost,
+    whole_body_derivatives,
+    world_base_error,
+    world_base_error_jacobian,
+)
 from cafe_mpc.ocp.knot_layout import constraint_layout, residual_layout
 from cafe_mpc.robots.robot import Robot
 
@@ -126,7 +131,8 @@ class WholeBodyKnotData(ActionData):
         self.forces = np.zeros((model.n_feet, 3))
         """World-frame ground reaction force of every foot (zero on swing feet) at the last ``calc``."""
         self.base_rotation = np.eye(3)
-        self.rotation_error = np.eye(3)
+        self.rotation_error = np.zeros(4)
+        """``[log3(R_ref' R), angle]`` of the ``"world"`` base error."""
         self.r = np.zeros(model.residual_dim)
         """Stacked residual: state (``ndx``), swing-foot positions and velocities (3 each), torque."""
         self.wr = np.zeros(model.residual_dim)
@@ -286,13 +292,7 @@ class WholeBodyKnot(ActionModel):
             else:
                 r[:nv] = pin.difference(model, x_ref[:nq], x[:nq])
             return  # the velocity rows v - v_ref are set by the compiled cost
-        rotation = data.base_rotation
-        rotation_ref = quaternion_to_rotation(x_ref[3:7])
-        data.rotation_error = rotation_ref.T @ rotation
-        np.subtract(x[0:3], x_ref[0:3], out=r[0:3])
-        r[3:6] = pin.log3(data.rotation_error)
-        np.subtract(x[7:nq], x_ref[7:nq], out=r[6:nv])
-        r[nv : nv + 3] = rotation @ x[nq : nq + 3] - rotation_ref @ x_ref[nq : nq + 3]
+        world_base_error(x, x_ref, nq, nv, data.base_rotation, r, data.rotation_error)
 
     def calc(self, data: WholeBodyKnotData, x: np.ndarray, u: np.ndarray) -> None:
         self._check_sizes(x, u)
@@ -365,11 +365,7 @@ class WholeBodyKnot(ActionModel):
                     model, self.reference.state[:nq], x[:nq], pin.ArgumentPosition.ARG1
                 )[:6, :6]
             else:
-                rotation = data.base_rotation
-                jacobian[0:3, 0:3] = rotation
-                jacobian[3:6, 3:6] = pin.Jlog3(data.rotation_error)
-                jacobian[6:9, 3:6] = -rotation @ pin.skew(x[nq : nq + 3])
-                jacobian[6:9, 6:9] = rotation
+                world_base_error_jacobian(x, nq, data.base_rotation, data.rotation_error, jacobian)
         kin = data.kinematics
         whole_body_derivatives(
             data.gradient,
