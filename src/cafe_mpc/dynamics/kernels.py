@@ -54,22 +54,30 @@ def euler_step_jacobians(
             for j in range(nu):
                 Fu[i, j] = 0.0
     else:
-        # q+ = q ⊕ (v+ dt): d q+ = Dq dq + (Dstep dt) d v+
+        # q+ = q ⊕ (v+ dt): d q+ = Dq dq + (Dstep dt) d v+, over the nonzeros of each row of Dstep (the
+        # identity outside the free flyer's block)
+        columns = np.empty(nv, dtype=np.int64)
+        coefficients = np.empty(nv)
         for i in range(nv):
+            count = 0
+            for p in range(nv):
+                if dintegrate_dstep[i, p] != 0.0:
+                    columns[count] = p
+                    coefficients[count] = dt * dintegrate_dstep[i, p]
+                    count += 1
             for j in range(nv):
                 total_q = dintegrate_dq[i, j]
                 total_v = 0.0
-                for p in range(nv):
-                    coefficient = dt * dintegrate_dstep[i, p]
-                    if coefficient != 0.0:
-                        total_q += coefficient * Fx[nv + p, j]
-                        total_v += coefficient * Fx[nv + p, nv + j]
+                for c in range(count):
+                    row = nv + columns[c]
+                    total_q += coefficients[c] * Fx[row, j]
+                    total_v += coefficients[c] * Fx[row, nv + j]
                 Fx[i, j] = total_q
                 Fx[i, nv + j] = total_v
             for j in range(nu):
                 total = 0.0
-                for p in range(nv):
-                    total += dt * dintegrate_dstep[i, p] * Fu[nv + p, j]
+                for c in range(count):
+                    total += coefficients[c] * Fu[nv + columns[c], j]
                 Fu[i, j] = total
 
 
