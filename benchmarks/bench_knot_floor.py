@@ -3,8 +3,9 @@
 For a running knot of each stance type (the presets' weights and constraints; swing feet priced), the median
 wall time of ``calc`` + ``calc_diff`` at a new point, next to the median of the Pinocchio calls that knot
 cannot do without (the floor): contact dynamics (``constraintDynamics`` or ``aba``) and their derivatives,
-``integrate`` and ``dIntegrate`` of the step, forward kinematics with its derivatives and the swing feet's
-velocity derivatives, ``difference``/``dDifference`` of the state residual. Everything between them is
+``integrate`` and ``dIntegrate`` of the step, the joint Jacobians and the swing feet's placements (their
+velocities and all their derivatives come from those in compiled code), ``difference``/``dDifference`` of
+the state residual. Everything between them is
 Python and compiled glue. Calls are timed one by one (medians), interleaved between the packages, so a
 load change on a shared machine hits all columns alike.
 
@@ -31,7 +32,6 @@ STANCES = {
     "1 stance (3 swing feet)": (True, False, False, False),
     "flight (4 swing feet)": (False, False, False, False),
 }
-LWA = pin.ReferenceFrame.LOCAL_WORLD_ALIGNED
 
 
 def knot_and_floor(package: str, stance: tuple[bool, ...]):
@@ -54,11 +54,9 @@ def knot_and_floor(package: str, stance: tuple[bool, ...]):
     tau[6:] = u
     dynamics, dynamics_data = knot.dynamics, data.dynamics
     pinocchio_data, kinematics_data = model.createData(), model.createData()
-    zero = np.zeros(robot.nv)
     step = v * dynamics.dt
     swing = [leg for leg in range(4) if not stance[leg]]
-    frames = [model.frames[robot.foot_frame_ids[leg]] for leg in swing]
-    joints = [(frame.parentJoint, frame.placement) for frame in frames]
+    swing_frames = [robot.foot_frame_ids[leg] for leg in swing]
     reference = robot.q_standing
 
     def full() -> None:
@@ -89,10 +87,9 @@ def knot_and_floor(package: str, stance: tuple[bool, ...]):
         pin.difference(model, reference, q)
         pin.dDifference(model, reference, q, pin.ArgumentPosition.ARG1)
         if swing:
-            pin.forwardKinematics(model, kinematics_data, q, v)
-            pin.computeForwardKinematicsDerivatives(model, kinematics_data, q, v, zero)
-            for joint, placement in joints:
-                pin.getPointVelocityDerivatives(model, kinematics_data, joint, placement, LWA)
+            pin.computeJointJacobians(model, kinematics_data, q)
+            for frame_id in swing_frames:
+                pin.updateFramePlacement(model, kinematics_data, frame_id)
 
     return full, floor
 
