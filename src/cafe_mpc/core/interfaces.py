@@ -77,6 +77,12 @@ class StateManifold(ABC):
         """``out = x ⊕ dx`` (in place)."""
         out[:] = self.integrate(x, dx)
 
+    def integrate_rows_into(self, xs: np.ndarray, dxs: np.ndarray, out: np.ndarray) -> None:
+        """``out[k] = xs[k] ⊕ dxs[k]`` for every row (a trajectory at once; manifolds override it with one
+        compiled loop)."""
+        for k in range(xs.shape[0]):
+            self.integrate_into(xs[k], dxs[k], out[k])
+
     def difference_jacobian_product(
         self, x0: np.ndarray, x1: np.ndarray, matrix: np.ndarray, out: np.ndarray
     ) -> None:
@@ -105,6 +111,9 @@ class EuclideanState(StateManifold):
 
     def difference(self, x0: np.ndarray, x1: np.ndarray) -> np.ndarray:
         return x1 - x0
+
+    def integrate_rows_into(self, xs: np.ndarray, dxs: np.ndarray, out: np.ndarray) -> None:
+        np.add(xs, dxs, out=out)
 
     def jacobian_difference(self, x0: np.ndarray, x1: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         return -self._eye, self._eye.copy()

@@ -343,3 +343,12 @@ def free_flyer_state_integrate(x: np.ndarray, dx: np.ndarray, nq: int, nv: int, 
         out[i] = x[i] + dx[i - 1]
     for i in range(nv):
         out[nq + i] = x[nq + i] + dx[nv + i]
+
+
+@njit(cache=True, nogil=True)
+def free_flyer_state_integrate_rows(
+    xs: np.ndarray, dxs: np.ndarray, nq: int, nv: int, out: np.ndarray
+) -> None:
+    """``free_flyer_state_integrate`` on every row of a trajectory."""
+    for k in range(xs.shape[0]):
+        free_flyer_state_integrate(xs[k], dxs[k], nq, nv, out[k])

@@ -20,7 +20,11 @@ import pinocchio as pin
 
 from cafe_mpc.core.interfaces import StateManifold
 from cafe_mpc.core.kernels import stack_columns_left_multiplied
-from cafe_mpc.dynamics.kernels import free_flyer_state_difference, free_flyer_state_integrate
+from cafe_mpc.dynamics.kernels import (
+    free_flyer_state_difference,
+    free_flyer_state_integrate,
+    free_flyer_state_integrate_rows,
+)
 
 
 class MultibodyState(StateManifold):
@@ -102,6 +106,12 @@ class MultibodyState(StateManifold):
             return
         out[:nq] = pin.integrate(self.model, x[:nq], dx[:nv])
         np.add(x[nq:], dx[nv:], out=out[nq:])
+
+    def integrate_rows_into(self, xs: np.ndarray, dxs: np.ndarray, out: np.ndarray) -> None:
+        if self.free_flyer_root:
+            free_flyer_state_integrate_rows(xs, dxs, self.nq, self.nv, out)
+            return
+        super().integrate_rows_into(xs, dxs, out)
 
     def difference_jacobian_product_stacked(
         self, x0: np.ndarray, x1: np.ndarray, left: np.ndarray, right: np.ndarray, out: np.ndarray

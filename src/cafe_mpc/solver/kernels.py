@@ -196,3 +196,42 @@ def linear_step(F: np.ndarray, dx: np.ndarray, du: np.ndarray, defect: np.ndarra
         for j in range(du.shape[0]):
             total += F[i, ndx + j] * du[j]
         out[i] = total
+
+
+@njit(cache=True, nogil=True)
+def linear_feedback_pass(
+    dx0: np.ndarray,
+    us: np.ndarray,
+    K: np.ndarray,
+    k_ff: np.ndarray,
+    A: np.ndarray,
+    B: np.ndarray,
+    defects: np.ndarray,
+    feedforward: float,
+    dxs_out: np.ndarray,
+    us_out: np.ndarray,
+) -> None:
+    """The linear forward pass of the real-time iteration's feedback over one phase (Eqs. (11), (12) in
+    tangent form): from ``dxs_out[0] = dx0``, ``du_k = a k_k + K_k dx_k``, ``u'_k = us_k + du_k``,
+    ``dx_{k+1} = A_k dx_k + B_k du_k + a d_{k+1}`` (``a = feedforward``). The states ``xs_k ⊕ dx_k`` are the
+    manifold's business (``integrate_rows_into``)."""
+    n, nu = us.shape
+    ndx = dx0.shape[0]
+    du = np.empty(nu)
+    for i in range(ndx):
+        dxs_out[0, i] = dx0[i]
+    for k in range(n):
+        dx = dxs_out[k]
+        for i in range(nu):
+            total = feedforward * k_ff[k, i]
+            for j in range(ndx):
+                total += K[k, i, j] * dx[j]
+            du[i] = total
+            us_out[k, i] = us[k, i] + total
+        for i in range(ndx):
+            total = feedforward * defects[k + 1, i]
+            for j in range(ndx):
+                total += A[k, i, j] * dx[j]
+            for j in range(nu):
+                total += B[k, i, j] * du[j]
+            dxs_out[k + 1, i] = total

@@ -52,7 +52,13 @@ from typing import Literal
 import numpy as np
 
 from cafe_mpc.core.interfaces import MultiPhaseProblem
-from cafe_mpc.solver.kernels import CHOLESKY_FAILED, backward_phase, linear_step, policy_step
+from cafe_mpc.solver.kernels import (
+    CHOLESKY_FAILED,
+    backward_phase,
+    linear_feedback_pass,
+    linear_step,
+    policy_step,
+)
 from cafe_mpc.solver.options import SolverOptions
 from cafe_mpc.solver.results import (
     PhaseSolution,
@@ -306,18 +312,19 @@ class MSiLQRSolver:
             else:
                 dx = previous.reset_jacobian @ dx + a * solution.defects[0]
                 out_x[0] = work.integrate(xs[0], dx)
-            A, B = work.A, work.B
-            for k in range(n):
-                du = a * kff[k] + K[k] @ dx
-                out_u[k] = us[k] + du
-                if nonlinear:
+            if nonlinear:
+                for k in range(n):
+                    du = a * kff[k] + K[k] @ dx
+                    out_u[k] = us[k] + du
                     model, data = work.models[k], work.running_data[k]
                     model.calc(data, out_x[k], out_u[k])
                     out_x[k + 1] = data.x_next
                     dx = work.difference(xs[k + 1], out_x[k + 1])
-                else:
-                    dx = A[k] @ dx + B[k] @ du + a * solution.defects[k + 1]
-                    out_x[k + 1] = work.integrate(xs[k + 1], dx)
+            else:
+                dxs = np.empty((n + 1, dx.shape[0]))
+                linear_feedback_pass(dx, us, K, kff, work.A, work.B, solution.defects, a, dxs, out_u)
+                work.state.integrate_rows_into(xs[1:], dxs[1:], out_x[1:])
+                dx = dxs[-1]
             previous, previous_x_end = work, out_x[-1]
             phases.append(
                 replace(solution, xs=out_x, us=out_u, k=(1.0 - a) * kff, Qu=(1.0 - a) * solution.Qu)
