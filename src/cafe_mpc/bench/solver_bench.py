@@ -13,6 +13,12 @@ made once and reused (their data persist, as in an MPC). In every round both sol
 order, so that a change of the machine's load hits both sides of that round's ratio alike; the report is
 the median over the rounds of the per-round ratio with its spread (interquartile range, min, max), and each
 side's median. On a shared machine the ratio is what to read; the absolute times move with the load.
+
+``per_knot`` breaks an iteration down per whole-body knot at the solution, timed interleaved the same way:
+Crocoddyl's ``calc`` and ``calcDiff`` over its problem divided by its knots, ours (each knot's ``calc`` and
+``calc_diff``), and the floor of ours: the Pinocchio calls of our knots' dynamics alone (contact dynamics,
+their derivatives, ``integrate`` and ``dIntegrate`` of the step). When that floor is as large as
+Crocoddyl's whole knot, per-knot Python cannot reach parity: what is left to cut is the glue.
 """
 
 from __future__ import annotations
@@ -97,6 +103,75 @@ def _cafe(robot: Robot, iterations: int) -> _Ours:
     return _Ours(built.problem, guess.xs, guess.us, iterations)
 
 
+def _median_us(function, repeats: int) -> float:
+    samples = []
+    for _ in range(repeats):
+        start = time.perf_counter()
+        function()
+        samples.append(time.perf_counter() - start)
+    return float(np.median(samples) * 1e6)
+
+
+def per_knot_costs(ours: _Ours, theirs: _Crocoddyl, rounds: int = 5, repeats: int = 40) -> dict:
+    """Microseconds per whole-body knot (medians over interleaved rounds) at each side's last solution:
+    Crocoddyl's ``calc``/``calcDiff``, our knots' ``calc``/``calc_diff`` and their dynamics' Pinocchio
+    calls (the floor)."""
+    import pinocchio as pin
+
+    solution = ours.solver.workspace
+    knots = [
+        (model, data, work.xs[k], work.us[k])
+        for work in solution.phases
+        for k, (model, data) in enumerate(zip(work.models, work.running_data, strict=True))
+    ]
+    n_theirs = theirs.problem.T
+    xs, us = list(theirs.solver.xs), list(theirs.solver.us)
+
+    def our_calc() -> None:
+        for model, data, x, u in knots:
+            model.calc(data, x, u)
+
+    def our_both() -> None:
+        for model, data, x, u in knots:
+            data.last_x[0] = np.nan  # a new point: calc_diff may not reuse calc's results
+            model.calc(data, x, u)
+            model.calc_diff(data, x, u)
+
+    def floor() -> None:
+        for model, data, x, _ in knots:
+            dynamics, dynamics_data = model.dynamics, data.dynamics
+            robot_model, nq = dynamics.model, dynamics.model.nq
+            pd = dynamics_data.pinocchio
+            pin.constraintDynamics(
+                robot_model, pd, x[:nq], x[nq:], dynamics_data.tau, dynamics.contact_models,
+                dynamics_data.contact_datas, dynamics_data.proximal,
+            )  # fmt: skip
+            pin.computeConstraintDynamicsDerivatives(
+                robot_model, pd, dynamics.contact_models, dynamics_data.contact_datas, dynamics_data.proximal
+            )
+            pin.integrate(robot_model, x[:nq], dynamics_data._step)
+            pin.dIntegrate(robot_model, x[:nq], dynamics_data._step)
+
+    samples: dict[str, list[float]] = {key: [] for key in ("crocoddyl", "ours", "floor")}
+    calc_samples: dict[str, list[float]] = {"crocoddyl": [], "ours": []}
+    for _ in range(rounds):
+        calc_samples["crocoddyl"].append(_median_us(lambda: theirs.problem.calc(xs, us), repeats) / n_theirs)
+        samples["crocoddyl"].append(
+            _median_us(lambda: (theirs.problem.calc(xs, us), theirs.problem.calcDiff(xs, us)), repeats)
+            / n_theirs
+        )
+        calc_samples["ours"].append(_median_us(our_calc, repeats) / len(knots))
+        samples["ours"].append(_median_us(our_both, repeats) / len(knots))
+        samples["floor"].append(_median_us(floor, repeats) / len(knots))
+    return {
+        "crocoddyl_calc_us": float(np.median(calc_samples["crocoddyl"])),
+        "crocoddyl_calc_and_diff_us": float(np.median(samples["crocoddyl"])),
+        "ours_calc_us": float(np.median(calc_samples["ours"])),
+        "ours_calc_and_diff_us": float(np.median(samples["ours"])),
+        "ours_dynamics_floor_us": float(np.median(samples["floor"])),
+    }
+
+
 def run_solver_benchmark(iterations: int = 10, rounds: int = 20, warm_up: int = 2) -> dict:
     """``rounds`` interleaved rounds (after ``warm_up`` unrecorded ones) of ours (WB, CAFE) and Crocoddyl
     FDDP (WB); per-round ratios ours / Crocoddyl on the same whole-body problem."""
@@ -118,6 +193,7 @@ def run_solver_benchmark(iterations: int = 10, rounds: int = 20, warm_up: int = 
             for side in (ours, theirs, cafe):
                 side.per_iteration.clear()
     ratios_array = np.asarray(ratios)
+    knot_costs = per_knot_costs(ours, theirs)
     cafe_result = _side(cafe)
     cafe_result["knots"] = {"whole_body": 25, "srb": 8}
     return {
@@ -131,6 +207,7 @@ def run_solver_benchmark(iterations: int = 10, rounds: int = 20, warm_up: int = 
             "min": float(ratios_array.min()),
             "max": float(ratios_array.max()),
         },
+        "per_knot": knot_costs,
         "paper_ms_per_iteration": 5.3,
         "settings": {"iterations": iterations, "rounds": rounds, "warm_up_rounds": warm_up, "threads": 1},
     }
@@ -149,6 +226,13 @@ def format_report(result: dict) -> str:
         f"ratio ours / Crocoddyl (whole body, 25 knots), median of {result['settings']['rounds']} "
         f"interleaved rounds: {result['ratio_vs_crocoddyl']:.3f} "
         f"(IQR {spread['q25']:.3f}-{spread['q75']:.3f}, min {spread['min']:.3f}, max {spread['max']:.3f})"
+    )
+    knot = result["per_knot"]
+    lines.append(
+        f"per whole-body knot (us, calc / calc + calc_diff): Crocoddyl {knot['crocoddyl_calc_us']:.1f} / "
+        f"{knot['crocoddyl_calc_and_diff_us']:.1f}, ours {knot['ours_calc_us']:.1f} / "
+        f"{knot['ours_calc_and_diff_us']:.1f}, of which Pinocchio's dynamics calls "
+        f"{knot['ours_dynamics_floor_us']:.1f}"
     )
     lines.append("paper (C++, 4 threads): 5.3 ms per iteration")
     return "\n".join(lines)
