@@ -70,6 +70,7 @@ def update_solve_options(settings: MpcSettings) -> SolverOptions:
         line_search_min_step=UPDATE_LINE_SEARCH_MIN_STEP,
         final_policy=settings.final_policy,
         threads=settings.threads,
+        keep_value_function=False,  # the plan carries the policy and the Q-function pieces only
     )
     if settings.touchdown_max_penalty is not None:
         options = replace(options, al_max_penalty=settings.touchdown_max_penalty)

@@ -260,7 +260,9 @@ class MSiLQRSolver:
         stats.solve_time = time.perf_counter() - start
         if not data_at_nominal:
             self._recalc_running(workspace)
-        return self._make_result(workspace, nominal, converged, status, stats, policy_valid)
+        return self._make_result(
+            workspace, nominal, converged, status, stats, policy_valid, options.keep_value_function
+        )
 
     def feedback(
         self,
@@ -832,10 +834,15 @@ class MSiLQRSolver:
         status: SolveStatus,
         stats: SolverStatistics,
         policy_valid: bool,
+        keep_value_function: bool = True,
     ) -> SolverResult:
         phases = []
         for work in workspace.phases:
             has_constraint = work.constraint is not None
+            if keep_value_function:
+                S, s = work.S.copy(), work.s.copy()
+            else:
+                S, s = np.empty((0, work.ndx, work.ndx)), np.empty((0, work.ndx))
             phases.append(
                 PhaseSolution(
                     xs=work.xs.copy(),
@@ -845,8 +852,8 @@ class MSiLQRSolver:
                     Qu=work.Qu.copy(),
                     Quu=work.Quu.copy(),
                     Qux=work.Qux.copy(),
-                    S=work.S.copy(),
-                    s=work.s.copy(),
+                    S=S,
+                    s=s,
                     defects=work.defects.copy(),
                     rollout_knots=work.rollout.copy(),
                     switching_value=work.switching_value.copy() if has_constraint else None,

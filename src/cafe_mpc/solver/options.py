@@ -50,6 +50,12 @@ class SolverOptions:
         kernels do (``nogil``), Pinocchio 4.0.0's Python bindings do not (no ``PyEval_SaveThread`` in
         them), so most of a knot's linearisation stays serial (BENCHMARKS.md measures the gain).
 
+    Result
+        ``keep_value_function``: copy the value function's quadratic model (``S``, ``s`` of Eq. (9)) into the
+        result. An MPC hands the low level the policy and the Q-function pieces only; without the copies
+        (``False``: empty ``S``, ``s``) a solve allocates a tenth of what it did (the ``S`` of a 63-knot
+        running-roll problem are 0.65 MB).
+
     Regularisation (``mu * I`` added to ``Quu``, Eq. (8e))
         Starts at ``regularization_initial`` every solve. On a failed Cholesky factorisation or a failed
         line search ``mu <- max(mu * regularization_increase, regularization_failure_min)``; the solve gives
@@ -97,6 +103,7 @@ class SolverOptions:
     final_backward_pass: bool = True
     final_policy: Literal["relinearize", "shift"] = "relinearize"
     threads: int = 1
+    keep_value_function: bool = True
     verbose: bool = False
 
     def __post_init__(self) -> None:

@@ -47,7 +47,8 @@ class PhaseSolution:
     definite) and ``K = -Quu^-1 Qux``, ``k = -Quu^-1 Qu`` hold exactly with it; at convergence ``mu`` is
     tiny (see ``SolverStatistics.regularizations``). ``S[k]``, ``s[k]`` are the Hessian and gradient of the
     quadratic value-function model at state ``k`` (Eq. (9), (10), (16)), in the tangent space at ``xs[k]``;
-    ``s[0]`` of the first phase is the gradient of the optimal cost with respect to ``x0``.
+    ``s[0]`` of the first phase is the gradient of the optimal cost with respect to ``x0`` (both empty when
+    solved with ``SolverOptions.keep_value_function=False``).
     ``defects[k]`` is ``f(xs[k-1], us[k-1]) ⊖ xs[k]`` (Eq. (4)); ``defects[0]`` is the reset defect (Eq. (15),
     zero in the first phase). ``switching_value`` is ``g_i(xs[N])`` (Eq. (2)) and ``multiplier``/``penalty``
     the augmented-Lagrangian parameters after the solve (``None`` without a switching constraint).
@@ -154,6 +155,8 @@ class SolverResult:
     @property
     def value_gradient(self) -> np.ndarray:
         """Gradient of the optimal cost with respect to the initial state (tangent space at ``x0``)."""
+        if not len(self.phases[0].s):
+            raise ValueError("this result has no value function (solved with keep_value_function=False)")
         return self.phases[0].s[0]
 
 
