@@ -151,8 +151,9 @@ def test_a_perturbed_measurement_moves_the_first_control_by_the_gain_times_the_d
     predicted = rti.predict(t)
     nq = robot.nq
     assert rti.prepare(t, predicted[:nq], predicted[nq:])
-    _, built, prepared = rti.prepared
+    _, built, prepared, template = rti.prepared
     reference_plan = rti._plan(built, prepared)
+    np.testing.assert_array_equal(template.us, reference_plan.us)  # the feedback keeps its gains
     gain = reference_plan.K[0]
     perturbation = np.zeros(2 * robot.nv)
     perturbation[2], perturbation[8] = 1e-5, -2e-5  # base height, third joint (q[7 + 2])

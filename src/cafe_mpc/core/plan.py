@@ -10,6 +10,7 @@ touchdown, a knot of the next contact phase).
 
 from __future__ import annotations
 
+import copy
 from dataclasses import dataclass
 
 import numpy as np
@@ -69,6 +70,22 @@ class Plan:
         for name in ("xs", "us", "K", "Qu", "Quu", "Qux", "forces"):
             if not np.all(np.isfinite(getattr(self, name))):
                 raise ValueError(f"plan field {name} contains NaN or inf")
+
+    def with_trajectory(self, xs: np.ndarray, us: np.ndarray, Qu: np.ndarray | None = None) -> Plan:
+        """This plan with another state and torque trajectory (and ``Qu``): what the real-time iteration's
+        feedback phase changes. The other fields were checked with this plan and are shared, so that the
+        feedback does not copy and re-check the gains and Q-function blocks (most of a plan's bytes)."""
+        plan = copy.copy(self)
+        plan.xs, plan.us = xs, us
+        if Qu is not None:
+            plan.Qu = Qu
+        n = len(self.times)
+        if len(xs) != n + 1 or len(us) != n or len(plan.Qu) != n:
+            raise ValueError(f"a trajectory for {n} knots needs {n + 1} states and {n} torques and Qu")
+        for name in ("xs", "us") if Qu is None else ("xs", "us", "Qu"):
+            if not np.all(np.isfinite(getattr(plan, name))):
+                raise ValueError(f"plan field {name} contains NaN or inf")
+        return plan
 
     @property
     def start_time(self) -> float:

@@ -78,8 +78,9 @@ class RecedingHorizonMpc(RecedingHorizonPlanner):
         self.solver.workspace = self.first_solver.workspace = self.prepare_solver.workspace = workspace
         self.warm_start = WarmStart()
         self.previous: tuple[BuiltProblem, SolverResult] | None = None
-        self.prepared: tuple[float, BuiltProblem, SolverResult] | None = None
-        """The preparation waiting for its measurement: (update time, problem, prepared solution)."""
+        self.prepared: tuple[float, BuiltProblem, SolverResult, Plan] | None = None
+        """The preparation waiting for its measurement: (update time, problem, prepared solution, the plan
+        of the prepared solution, whose gains and Q-function blocks the feedback keeps)."""
         self._projections: dict[tuple[bool, ...], tuple] = {}
 
     @property
@@ -99,8 +100,13 @@ class RecedingHorizonMpc(RecedingHorizonPlanner):
         if outcome is None:
             return False
         built, result = outcome
+        try:
+            template = self._plan(built, result)
+        except PLANNER_ERRORS as error:
+            self._failed(t, f"its plan could not be made ({error})")
+            return False
         self.statistics.prepare_times.append(self.statistics.update_times[-1])
-        self.prepared = (t, built, result)
+        self.prepared = (t, built, result, template)
         return True
 
     @collector.paused
@@ -112,7 +118,7 @@ class RecedingHorizonMpc(RecedingHorizonPlanner):
         if prepared is None or abs(prepared[0] - t) > 1e-9:
             self._failed(t, "no preparation for this time")
             return None
-        _, built, result = prepared
+        _, built, result, template = prepared
         robot = self.robot
         start = time.perf_counter()
         x = self._x
@@ -125,7 +131,12 @@ class RecedingHorizonMpc(RecedingHorizonPlanner):
                 result, x, 0.0 if settings.rti_line_search else 1.0, settings.rti_feedback
             )
             built.problem.x0[:] = x
-            plan = self._plan(built, embedded)
+            phases = [embedded.phases[i] for i in built.whole_body_phases]
+            plan = template.with_trajectory(
+                np.concatenate([phase.xs[:-1] for phase in phases] + [phases[-1].xs[-1:]]),
+                np.concatenate([phase.us for phase in phases]),
+                np.concatenate([phase.Qu for phase in phases]) if not settings.rti_line_search else None,
+            )
         except PLANNER_ERRORS as error:
             self._failed(t, f"its feedback failed ({error})")
             return None
