@@ -1,10 +1,12 @@
-"""The compiled sampling of the references agrees with a straightforward per-knot version.
+"""The compiled sampling of the references agrees with straightforward versions.
 
 ``LocomotionReference.sample`` and ``sample_feet`` run compiled kernels (``reference.kernels``) over all knots
 at once; here every field is rebuilt knot by knot from the reference's public pieces (``stance_at``,
 ``base_state``, ``support_factor``, ``stance_torque``, ``_swings``, ``foothold``, the Bezier swing of
 ``kernels.sample_foot``) and compared, across command ramps with a yaw rate (the quadrature path), an
-initial stand, a gait switch, re-anchoring, and windows with times before the anchor and out of order.
+initial stand, a gait switch, re-anchoring, and windows with times before the anchor and out of order. The
+stored trajectory's compiled ``sample`` is compared with its ``sample_python``, and a composition (offset,
+re-joined, with a weight-set override) with the composition written plainly.
 """
 
 import numpy as np
@@ -13,8 +15,11 @@ import pytest
 from cafe_mpc.core.physics import GRAVITY
 from cafe_mpc.ocp.contact_schedule import get_gait
 from cafe_mpc.reference.base import STANCE_TIME_EPS, ReferenceWindow
+from cafe_mpc.reference.composition import ComposedReference, quaternion_multiply, yaw_quaternion
 from cafe_mpc.reference.kernels import sample_foot
 from cafe_mpc.reference.locomotion import LocomotionReference, VelocityCommand
+from cafe_mpc.reference.trajectory import TrajectoryReference
+from cafe_mpc.reference.trajectory_file import load_packaged_trajectory
 
 TOLERANCE = 1e-12
 JOINT_TOLERANCE = 1e-8
@@ -148,3 +153,95 @@ def test_feet_match_the_straightforward_version(robot):
         times = t + np.linspace(-0.05, 0.9, 57)
         for got, expected in zip(reference.feet(times), straightforward_feet(reference, times), strict=True):
             np.testing.assert_allclose(got, expected, rtol=0, atol=TOLERANCE)
+
+
+def windows_over(reference_end: float, capacity: int = 90) -> list[np.ndarray]:
+    """Windows of MPC-like times (a fractional first knot, 0.01 s knots, a 0.05 s tail, two switch times
+    out of order) from before a reference's start to past its end."""
+    windows = []
+    for t in np.arange(-0.2, reference_end + 0.3, 0.0737):
+        whole_body = t + np.concatenate([[0.0, 0.0043], 0.0043 + 0.01 * np.arange(1, 55)])
+        tail = whole_body[-1] + 0.05 * np.arange(1, 9)
+        times = np.concatenate([whole_body, tail, [t + 0.21, t + 0.13]])
+        windows.append(np.maximum(times[:capacity], 0.0))
+    return windows
+
+
+def fields(window: ReferenceWindow) -> dict[str, np.ndarray]:
+    names = ("stance", "state", "torque", "forces", "foot_positions", "foot_velocities", "weight_set")
+    return {name: getattr(window, name).copy() for name in names}
+
+
+def test_compiled_trajectory_sample_matches_the_python_one(robot):
+    trajectory = load_packaged_trajectory("barrel-roll", robot)
+    reference = TrajectoryReference(
+        robot, trajectory, start=0.3, weight_set="barrel_roll", hold_weight_set="a"
+    )
+    compiled = ReferenceWindow(90, robot.nq, robot.nv, robot.nu, robot.n_feet)
+    python = ReferenceWindow(90, robot.nq, robot.nv, robot.nu, robot.n_feet)
+    knots = 0.3 + trajectory.times - trajectory.times[0]
+    for times in [*windows_over(reference.end_time), knots[:90], knots[-60:] + 1e-12, knots[:40] - 1e-9]:
+        compiled.set_times(times)
+        python.set_times(times)
+        reference.sample(compiled)
+        reference.sample_python(python)
+        for name, values in fields(python).items():
+            np.testing.assert_allclose(getattr(compiled, name), values, rtol=0, atol=TOLERANCE, err_msg=name)
+
+
+def composed_sample_python(reference, window: ReferenceWindow) -> None:
+    """``ComposedReference.sample`` written plainly: the owner segment of each time by ``segment_at``, each
+    segment's rows sampled in its own time and placed by numpy (``quaternion_multiply``)."""
+    times = window.times
+    local = ReferenceWindow(window.capacity, reference.nq, reference.nv, reference.nu, reference.n_feet)
+    owner = np.array([reference.segment_at(float(t)) for t in times])
+    for index in np.unique(owner):
+        segment = reference.segments[int(index)]
+        rows = np.flatnonzero(owner == index)
+        local.set_times(times[rows] - segment.start)
+        segment.reference.sample(local)
+        state = local.state.copy()
+        x, y, yaw = segment.offset or (0.0, 0.0, 0.0)
+        c, s = np.cos(yaw), np.sin(yaw)
+        px, py = state[:, 0].copy(), state[:, 1].copy()
+        state[:, 0], state[:, 1] = c * px - s * py + x, s * px + c * py + y
+        state[:, 3:7] = quaternion_multiply(yaw_quaternion(yaw), state[:, 3:7]) * segment.sign
+        rotation = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+        window.state[rows] = state
+        window.stance[rows] = local.stance
+        window.torque[rows] = local.torque
+        window.forces[rows] = local.forces @ rotation.T
+        window.foot_positions[rows] = local.foot_positions @ rotation.T + np.array([x, y, 0.0])
+        window.foot_velocities[rows] = local.foot_velocities @ rotation.T
+        names = segment.reference.weight_sets if segment.weight_set is None else (segment.weight_set,)
+        mapping = np.array([reference.weight_sets.index(name) for name in names])
+        window.weight_set[rows] = mapping[local.weight_set if segment.weight_set is None else 0]
+
+
+def test_compiled_composition_matches_the_plain_one(robot):
+    trajectory = load_packaged_trajectory("barrel-roll", robot)
+    pace = LocomotionReference(robot, get_gait("pace"), [VelocityCommand(vx=0.6, yaw_rate=0.3)])
+    roll = TrajectoryReference(robot, trajectory)
+    after = LocomotionReference(robot, get_gait("trot"), [VelocityCommand(vx=0.4)], start_stance=0.2)
+    composed = ComposedReference(
+        [(pace, 1.0), (roll, roll.end_time), (after, None)],
+        robot.nq,
+        robot.nv,
+        robot.nu,
+        robot.n_feet,
+        offsets=[(0.2, -0.1, 0.4), None, None],
+        weight_sets=[None, None, "after"],
+        rejoin=True,
+    )
+    compiled = ReferenceWindow(90, robot.nq, robot.nv, robot.nu, robot.n_feet)
+    plain = ReferenceWindow(90, robot.nq, robot.nv, robot.nu, robot.n_feet)
+    for times in windows_over(composed.segments[-1].start + 0.5):
+        t = float(times[0])
+        q, v = measured_state(robot, t)
+        composed.update(t, q, v)
+        compiled.set_times(times)
+        plain.set_times(times)
+        composed.sample(compiled)
+        composed_sample_python(composed, plain)
+        for name, values in fields(plain).items():
+            np.testing.assert_allclose(getattr(compiled, name), values, rtol=0, atol=TOLERANCE, err_msg=name)

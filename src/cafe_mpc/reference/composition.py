@@ -35,6 +35,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from cafe_mpc.reference.base import STANCE_TIME_EPS, Reference, ReferenceWindow, switches_inside
+from cafe_mpc.reference.kernels import place_configurations
 
 Offset = tuple[float, float, float]
 """Planar placement ``(x, y, yaw)`` of a segment (m, m, rad)."""
@@ -158,6 +159,15 @@ class ComposedReference(Reference):
                 if name not in names:
                     names.append(name)
         self.weight_sets = tuple(names)
+        self._thresholds = np.array([segment.start - 1e-12 for segment in self.segments])
+        """``segment_at``'s comparisons as an array: segment ``i`` is active from ``_thresholds[i]`` on."""
+        self._weight_maps = [
+            np.array([names.index(name) for name in segment.reference.weight_sets], dtype=np.int64)
+            if segment.weight_set is None
+            else None
+            for segment in self.segments
+        ]
+        """Per segment without a weight-set override: its weight-set indices mapped to the composition's."""
         self._windows: dict[int, ReferenceWindow] = {}
         self._probe = ReferenceWindow(1, nq, nv, nu, n_feet)
         self._resolve_offsets()
@@ -204,17 +214,10 @@ class ComposedReference(Reference):
                 previous_end = self._pose_of(segment, segment.duration)
 
     def _place_configuration(self, segment: Segment, q: np.ndarray) -> None:
-        """Rows of configurations (N, nq) from the segment's frame into the world, in place."""
+        """Rows of configurations (N, nq) from the segment's frame into the world, in place (compiled:
+        ``reference.kernels.place_configurations``)."""
         x, y, yaw = segment.offset or (0.0, 0.0, 0.0)
-        if x or y or yaw:
-            c, s = math.cos(yaw), math.sin(yaw)
-            px, py = q[:, 0].copy(), q[:, 1].copy()
-            q[:, 0] = c * px - s * py + x
-            q[:, 1] = s * px + c * py + y
-            if yaw:
-                q[:, 3:7] = quaternion_multiply(yaw_quaternion(yaw), q[:, 3:7])
-        if segment.sign < 0:
-            q[:, 3:7] *= -1.0
+        place_configurations(q, float(x), float(y), float(yaw), float(segment.sign))
 
     def offset_of(self, index: int) -> Offset:
         """The resolved ``(x, y, yaw)`` offset of segment ``index``."""
@@ -289,10 +292,20 @@ class ComposedReference(Reference):
             return
         local = self._window(window.capacity)
         nq = self.nq
-        owner = np.array([self.segment_at(float(t)) for t in times])
-        for index in np.unique(owner):
-            segment = self.segments[int(index)]
-            rows = np.flatnonzero(owner == index)
+        owner = np.searchsorted(self._thresholds, times, side="right") - 1  # segment_at of every time
+        np.maximum(owner, 0, out=owner)
+        if owner[0] == owner[-1] and bool(np.all(owner == owner[0])):
+            groups: list[tuple[int, slice | np.ndarray]] = [(int(owner[0]), slice(0, window.n))]
+        else:
+            groups = []
+            for index in np.unique(owner).tolist():
+                rows = np.flatnonzero(owner == index)
+                if rows[-1] - rows[0] + 1 == len(rows):
+                    groups.append((index, slice(int(rows[0]), int(rows[-1]) + 1)))
+                else:
+                    groups.append((index, rows))
+        for index, rows in groups:
+            segment = self.segments[index]
             local.set_times(times[rows] - segment.start)
             segment.reference.sample(local)
             state = local.state
@@ -314,6 +327,6 @@ class ComposedReference(Reference):
             if segment.weight_set is not None:
                 window.weight_set[rows] = self.weight_sets.index(segment.weight_set)
             else:
-                names = segment.reference.weight_sets
-                mapping = np.array([self.weight_sets.index(name) for name in names], dtype=np.int64)
+                mapping = self._weight_maps[index]
+                assert mapping is not None
                 window.weight_set[rows] = mapping[local.weight_set]

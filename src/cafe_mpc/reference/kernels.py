@@ -433,3 +433,156 @@ def sample_feet(
             positions,
             velocities,
         )
+
+
+# ------------------------------------------------------------------------------------ stored trajectory
+@njit(cache=True, nogil=True)
+def _dot4(a: np.ndarray, b: np.ndarray) -> float:
+    """``a . b`` of 4-vectors rounded as numpy's (OpenBLAS ``ddot``: one fused multiply-add per term, in
+    order)."""
+    total = 0.0
+    for i in range(4):
+        total = _fused_multiply_add(a[i], b[i], total)
+    return total
+
+
+@njit(cache=True, nogil=True)
+def _slerp(q0: np.ndarray, q1: np.ndarray, alpha: float, out: np.ndarray) -> None:
+    """``trajectory.quaternion_slerp`` (the same operations, rounded alike) into ``out`` (4)."""
+    dot = _dot4(q0, q1)
+    sign = 1.0 if dot >= 0.0 else -1.0
+    dot = min(abs(dot), 1.0)
+    if dot > 1.0 - 1e-9:
+        for i in range(4):
+            out[i] = q0[i] + alpha * (sign * q1[i] - q0[i])
+    else:
+        angle = math.acos(dot)
+        s = math.sin(angle)
+        a = math.sin((1.0 - alpha) * angle) / s
+        b = sign * math.sin(alpha * angle) / s
+        for i in range(4):
+            out[i] = a * q0[i] + b * q1[i]
+    norm = math.sqrt(_dot4(out, out))
+    for i in range(4):
+        out[i] = out[i] / norm
+
+
+@njit(cache=True, nogil=True)
+def sample_trajectory(
+    times: np.ndarray,
+    timing: np.ndarray,
+    n_intervals: int,
+    configurations: np.ndarray,
+    velocities: np.ndarray,
+    feet: np.ndarray,
+    feet_velocity: np.ndarray,
+    torques: np.ndarray,
+    forces: np.ndarray,
+    contacts: np.ndarray,
+    hold_configurations: np.ndarray,
+    hold_stance: np.ndarray,
+    hold_torques: np.ndarray,
+    hold_forces: np.ndarray,
+    hold_feet: np.ndarray,
+    weight_sets: np.ndarray,
+    state_out: np.ndarray,
+    stance_out: np.ndarray,
+    torque_out: np.ndarray,
+    forces_out: np.ndarray,
+    positions_out: np.ndarray,
+    velocities_out: np.ndarray,
+    weight_set_out: np.ndarray,
+) -> None:
+    """``TrajectoryReference.sample``: every field at every time, compiled.
+
+    ``timing`` = (start, dt, index tolerance, stance time eps); ``n_intervals`` intervals. Knots
+    (``configurations``, ``velocities``, ``feet``, ``feet_velocity``: one row per knot) interpolate (the
+    quaternion by ``_slerp``); intervals (``torques``, ``forces``, ``contacts``) are piecewise constant;
+    before the start and after the end the holds (row 0 and 1 of the ``hold_*`` arrays) apply.
+    ``weight_sets`` = (inside, hold).
+    """
+    start, dt, tolerance, stance_eps = timing[0], timing[1], timing[2], timing[3]
+    nq = configurations.shape[1]
+    nv = velocities.shape[1]
+    n_feet = feet.shape[1]
+    for i in range(times.shape[0]):
+        s = (times[i] - start) / dt
+        k, alpha = 0, 0.0
+        hold = -1
+        if s < -tolerance:
+            hold = 0
+        else:
+            k = math.floor(s + tolerance)
+            if k >= n_intervals:
+                if s <= n_intervals + tolerance:
+                    k, alpha = n_intervals - 1, 1.0
+                else:
+                    hold = 1
+            else:
+                alpha = min(max(s - k, 0.0), 1.0)
+        if hold >= 0:
+            for a in range(nq):
+                state_out[i, a] = hold_configurations[hold, a]
+            for a in range(nv):
+                state_out[i, nq + a] = 0.0
+            for foot in range(n_feet):
+                stance_out[i, foot] = hold_stance[hold, foot]
+                for a in range(3):
+                    forces_out[i, foot, a] = hold_forces[hold, foot, a]
+                    positions_out[i, foot, a] = hold_feet[hold, foot, a]
+                    velocities_out[i, foot, a] = 0.0
+            for a in range(torque_out.shape[1]):
+                torque_out[i, a] = hold_torques[hold, a]
+            weight_set_out[i] = weight_sets[1]
+            continue
+        q0, q1 = configurations[k], configurations[k + 1]
+        for a in range(3):
+            state_out[i, a] = q0[a] + alpha * (q1[a] - q0[a])
+        _slerp(q0[3:7], q1[3:7], alpha, state_out[i, 3:7])
+        for a in range(7, nq):
+            state_out[i, a] = q0[a] + alpha * (q1[a] - q0[a])
+        for a in range(nv):
+            state_out[i, nq + a] = velocities[k, a] + alpha * (velocities[k + 1, a] - velocities[k, a])
+        for foot in range(n_feet):
+            for a in range(3):
+                positions_out[i, foot, a] = feet[k, foot, a] + alpha * (
+                    feet[k + 1, foot, a] - feet[k, foot, a]
+                )
+                velocities_out[i, foot, a] = feet_velocity[k, foot, a] + alpha * (
+                    feet_velocity[k + 1, foot, a] - feet_velocity[k, foot, a]
+                )
+        interval = k
+        if alpha > 1.0 - stance_eps / dt:
+            interval = min(k + 1, n_intervals - 1)
+        for foot in range(n_feet):
+            stance_out[i, foot] = contacts[interval, foot]
+            for a in range(3):
+                forces_out[i, foot, a] = forces[interval, foot, a]
+        for a in range(torque_out.shape[1]):
+            torque_out[i, a] = torques[interval, a]
+        weight_set_out[i] = weight_sets[0]
+
+
+# ---------------------------------------------------------------------------------------- composition
+@njit(cache=True, nogil=True)
+def place_configurations(q: np.ndarray, x: float, y: float, yaw: float, sign: float) -> None:
+    """``ComposedReference._place_configuration``: rows of configurations (N, nq) moved by the planar offset
+    ``(x, y, yaw)`` (positions rotated and shifted, quaternions pre-multiplied by the yaw's, term for term
+    as ``composition.quaternion_multiply``) and their quaternions negated if ``sign < 0``, in place."""
+    if x != 0.0 or y != 0.0 or yaw != 0.0:
+        c, s = math.cos(yaw), math.sin(yaw)
+        ax, ay, az, aw = 0.0, 0.0, math.sin(0.5 * yaw), math.cos(0.5 * yaw)
+        for i in range(q.shape[0]):
+            px, py = q[i, 0], q[i, 1]
+            q[i, 0] = c * px - s * py + x
+            q[i, 1] = s * px + c * py + y
+            if yaw != 0.0:
+                bx, by, bz, bw = q[i, 3], q[i, 4], q[i, 5], q[i, 6]
+                q[i, 3] = aw * bx + ax * bw + ay * bz - az * by
+                q[i, 4] = aw * by - ax * bz + ay * bw + az * bx
+                q[i, 5] = aw * bz + ax * by - ay * bx + az * bw
+                q[i, 6] = aw * bw - ax * bx - ay * by - az * bz
+    if sign < 0:
+        for i in range(q.shape[0]):
+            for a in range(3, 7):
+                q[i, a] *= -1.0
