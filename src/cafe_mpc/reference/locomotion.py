@@ -345,6 +345,17 @@ class LocomotionReference(Reference):
         self._factors = np.zeros(0)
         self._keys = np.zeros(0, dtype=np.int64)
         self._data = robot.model.createData()
+        self._warm_up()
+
+    def _warm_up(self) -> None:
+        """Sample two knots once, so that the compiled kernels are compiled (or loaded from numba's cache)
+        now and not in the first MPC update; the cached schedule is put back as it was, so the samples of
+        later updates do not depend on this one."""
+        schedule, schedule_window = self._schedule, self._schedule_window
+        window = ReferenceWindow(2, self.robot.nq, self.robot.nv, self.robot.nu, self.robot.n_feet)
+        window.set_times(np.array([0.0, 0.01]))
+        self.sample(window)
+        self._schedule, self._schedule_window = schedule, schedule_window
 
     def _segment_at(self, t: float) -> _GaitSegment:
         segments = self._segments

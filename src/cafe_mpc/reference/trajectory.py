@@ -146,6 +146,10 @@ class TrajectoryReference(Reference):
             for array in (self._q, self._v, self._feet, self._feet_velocity, self._us, self._forces)
         )
         self._contact_array = np.ascontiguousarray(contacts)
+        # compile (or load from numba's cache) the sampling kernel now, not in the first MPC update
+        window = ReferenceWindow(1, robot.nq, robot.nv, robot.nu, robot.n_feet)
+        window.set_times(np.array([self.start]))
+        self.sample(window)
         changes = np.flatnonzero(np.any(contacts[1:] != contacts[:-1], axis=1)) + 1
         self._switches = [self.start + float(k) * self.dt for k in changes]
 
