@@ -173,20 +173,27 @@ class ComposedReference(Reference):
         self._resolve_offsets()
 
     # -------------------------------------------------------------------------------------- placement
-    def _pose_of(self, segment: Segment, local_time: float) -> np.ndarray:
-        """The segment's reference configuration at its own time ``local_time``, placed in the world (only its
+    def _local_pose(self, segment: Segment, local_time: float) -> np.ndarray:
+        """The segment's reference configuration at its own time ``local_time``, in its own frame (only its
         base pose matters to the joins: a reference with a closed-form ``base_state(t)``, the locomotion
         reference, is asked for that instead of a full sample with leg inverse kinematics)."""
         base_state = getattr(segment.reference, "base_state", None)
         if base_state is not None:
-            q = np.array(base_state(local_time)[0], dtype=float)
-        else:
-            probe = self._probe
-            probe.set_times(np.array([local_time]))
-            segment.reference.sample(probe)
-            q = probe.state[0, : self.nq].copy()
+            return np.array(base_state(local_time)[0], dtype=float)
+        probe = self._probe
+        probe.set_times(np.array([local_time]))
+        segment.reference.sample(probe)
+        return probe.state[0, : self.nq].copy()
+
+    def _placed(self, segment: Segment, q: np.ndarray) -> np.ndarray:
+        """A copy of the configuration ``q`` placed in the world by the segment's current offset and sign."""
+        q = q.copy()
         self._place_configuration(segment, q[None, :])
         return q
+
+    def _pose_of(self, segment: Segment, local_time: float) -> np.ndarray:
+        """The segment's reference configuration at its own time ``local_time``, placed in the world."""
+        return self._placed(segment, self._local_pose(segment, local_time))
 
     def _resolve_offsets(self, first: int = 0) -> None:
         """Offsets of the joined segments (continuous join) and the quaternion signs of the segments from
@@ -199,16 +206,19 @@ class ComposedReference(Reference):
                 previous_end = self._pose_of(segment, segment.duration)
                 continue
             segment.sign = 1.0
+            local_start = self._local_pose(segment, 0.0) if previous_end is not None else None
             if self._auto[index]:
                 segment.offset = (0.0, 0.0, 0.0)
                 if previous_end is not None:  # map this segment's start pose onto the previous end pose
-                    start = self._pose_of(segment, 0.0)
+                    assert local_start is not None
+                    start = self._placed(segment, local_start)
                     yaw = heading(previous_end[3:7]) - heading(start[3:7])
                     c, s = math.cos(yaw), math.sin(yaw)
                     xy = previous_end[:2] - np.array([[c, -s], [s, c]]) @ start[:2]
                     segment.offset = (float(xy[0]), float(xy[1]), float(yaw))
             if previous_end is not None:  # stay on the previous segment's side of the double cover
-                start = self._pose_of(segment, 0.0)
+                assert local_start is not None
+                start = self._placed(segment, local_start)
                 segment.sign = -1.0 if float(np.dot(start[3:7], previous_end[3:7])) < 0.0 else 1.0
             if index < len(self.segments) - 1:
                 previous_end = self._pose_of(segment, segment.duration)
@@ -260,7 +270,8 @@ class ComposedReference(Reference):
 
     def update(self, t: float, q: np.ndarray, v: np.ndarray) -> None:
         """Pass the measurement to the active segment, expressed in its frame (offset undone)."""
-        segment = self.segments[self.segment_at(t)]
+        index = self.segment_at(t)
+        segment = self.segments[index]
         local = np.array(q, dtype=float)
         x, y, yaw = segment.offset or (0.0, 0.0, 0.0)
         if x or y or yaw:
@@ -272,7 +283,6 @@ class ComposedReference(Reference):
         if segment.sign < 0:
             local[3:7] *= -1.0
         segment.reference.update(t - segment.start, local, v)
-        index = self.segments.index(segment)
         if self.rejoin and index < len(self.segments) - 1:
             self._resolve_offsets(index)
 
