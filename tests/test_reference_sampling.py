@@ -245,3 +245,48 @@ def test_compiled_composition_matches_the_plain_one(robot):
         composed_sample_python(composed, plain)
         for name, values in fields(plain).items():
             np.testing.assert_allclose(getattr(compiled, name), values, rtol=0, atol=TOLERANCE, err_msg=name)
+
+
+def test_joint_rows_leave_the_other_fields_and_the_first_rows_unchanged(robot):
+    """``ReferenceWindow.joint_rows``: the first rows' joints as with all rows, the later rows at the
+    nominal joints with zero rates, every other field as with all rows (also through a composition)."""
+    trajectory = load_packaged_trajectory("barrel-roll", robot)
+    for make in (
+        lambda: LocomotionReference(robot, get_gait("trot"), [VelocityCommand(vx=0.5, yaw_rate=0.2)]),
+        lambda: ComposedReference(
+            [
+                (LocomotionReference(robot, get_gait("pace"), [VelocityCommand(vx=0.4)]), 0.6),
+                (TrajectoryReference(robot, trajectory), None),
+            ],
+            robot.nq,
+            robot.nv,
+            robot.nu,
+            robot.n_feet,
+        ),
+    ):
+        full_reference, partial_reference = make(), make()
+        full = ReferenceWindow(80, robot.nq, robot.nv, robot.nu, robot.n_feet)
+        partial = ReferenceWindow(80, robot.nq, robot.nv, robot.nu, robot.n_feet)
+        nq = robot.nq
+        joints = np.r_[7:nq, nq + 6 : nq + robot.nv]
+        for times in windows_over(1.0)[::3]:
+            q, v = measured_state(robot, float(times[0]))
+            full_reference.update(float(times[0]), q, v)
+            partial_reference.update(float(times[0]), q, v)
+            rows = 40
+            full.set_times(times)
+            partial.set_times(times, joint_rows=rows)
+            assert partial.joint_rows == rows and full.joint_rows == len(times)
+            full_reference.sample(full)
+            partial_reference.sample(partial)
+            expected = fields(full)
+            got = fields(partial)
+            np.testing.assert_array_equal(got["state"][:rows], expected["state"][:rows])
+            tail = np.setdiff1d(np.arange(nq + robot.nv), joints)
+            np.testing.assert_array_equal(got["state"][rows:, tail], expected["state"][rows:, tail])
+            for name in ("stance", "torque", "forces", "foot_positions", "foot_velocities", "weight_set"):
+                np.testing.assert_array_equal(got[name], expected[name], err_msg=name)
+            if isinstance(partial_reference, LocomotionReference):  # after the rows: nominal joints, no rates
+                nominal = np.tile(robot.q_standing[7:], (len(times) - rows, 1))
+                np.testing.assert_array_equal(got["state"][rows:, 7:nq], nominal)
+                assert not got["state"][rows:, nq + 6 :].any()

@@ -316,7 +316,12 @@ class ComposedReference(Reference):
                     groups.append((index, rows))
         for index, rows in groups:
             segment = self.segments[index]
-            local.set_times(times[rows] - segment.start)
+            # the rows of a segment are in window order, so the ones that need joints come first
+            if isinstance(rows, slice):
+                joint_rows = min(rows.stop, window.joint_rows) - rows.start
+            else:
+                joint_rows = int(np.count_nonzero(rows < window.joint_rows))
+            local.set_times(times[rows] - segment.start, joint_rows)
             segment.reference.sample(local)
             state = local.state
             self._place_configuration(segment, state[:, :nq])

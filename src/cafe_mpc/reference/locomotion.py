@@ -345,6 +345,9 @@ class LocomotionReference(Reference):
         self._factors = np.zeros(0)
         self._keys = np.zeros(0, dtype=np.int64)
         self._data = robot.model.createData()
+        self._ik_joints = np.zeros((0, robot.nu))
+        self._ik_rates = np.zeros((0, robot.nu))
+        self._ik_errors = np.zeros(0)
         self._warm_up()
 
     def _warm_up(self) -> None:
@@ -760,11 +763,19 @@ class LocomotionReference(Reference):
             self._torques_into(keys, window.torque)
             window.forces[:, :, :2] = 0.0
             window.forces[:, :, 2] = window.stance * (factors * self.mass * GRAVITY)[:, None]
+        # joint references by leg inverse kinematics where they are used (``ReferenceWindow.joint_rows``;
+        # the other rows keep the nominal joints and zero rates written above)
+        m = window.joint_rows
+        if self._ik_errors.shape[0] < m:
+            self._ik_joints = np.zeros((window.capacity, self.robot.nu))
+            self._ik_rates = np.zeros((window.capacity, self.robot.nu))
+            self._ik_errors = np.zeros(window.capacity)
+        out = (self._ik_joints[:m], self._ik_rates[:m], self._ik_errors[:m])
         joints, rates, _ = self.inverse_kinematics.solve_batch(
-            state[:, :7], positions, None, state[:, nq : nq + 6], velocities
+            state[:m, :7], positions[:m], None, state[:m, nq : nq + 6], velocities[:m], out=out
         )
-        state[:, 7:nq] = joints
-        state[:, nq + 6 :] = rates
+        state[:m, 7:nq] = joints
+        state[:m, nq + 6 :] = rates
         window.weight_set[:] = 0
 
     def support_factor(self, t: float) -> float:
