@@ -717,7 +717,10 @@ class LocomotionReference(Reference):
 
     def sample(self, window: ReferenceWindow) -> None:
         """Fill ``window`` (see ``Reference.sample``): stance, feet, base from the commands, joints from leg
-        inverse kinematics, torque and GRF references from the gait's average stance load."""
+        inverse kinematics (on ``window.joint_rows``), torque and GRF references from the gait's average
+        stance load. All times at once in compiled kernels (``reference.kernels``): the values of
+        ``stance_at``, ``support_factor``, ``stance_torque`` and ``foothold``, and the base of ``base_state``
+        (rotated with plain products, where ``base_state`` uses numpy's, so equal up to the last bit)."""
         times = window.times
         nq = self.robot.nq
         positions, velocities = window.foot_positions, window.foot_velocities
