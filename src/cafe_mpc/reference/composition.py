@@ -279,7 +279,13 @@ class ComposedReference(Reference):
             dx, dy = local[0] - x, local[1] - y
             local[0] = c * dx + s * dy
             local[1] = -s * dx + c * dy
-            local[3:7] = quaternion_multiply(yaw_quaternion(-yaw), local[3:7])
+            # quaternion_multiply(yaw_quaternion(-yaw), local[3:7]) on plain floats (the same operations)
+            ax, ay, az, aw = 0.0, 0.0, math.sin(0.5 * -yaw), math.cos(0.5 * -yaw)
+            bx, by, bz, bw = (float(value) for value in local[3:7])
+            local[3] = aw * bx + ax * bw + ay * bz - az * by
+            local[4] = aw * by - ax * bz + ay * bw + az * bx
+            local[5] = aw * bz + ax * by - ay * bx + az * bw
+            local[6] = aw * bw - ax * bx - ay * by - az * bz
         if segment.sign < 0:
             local[3:7] *= -1.0
         segment.reference.update(t - segment.start, local, v)
