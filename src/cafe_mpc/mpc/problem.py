@@ -292,7 +292,7 @@ class CafeProblemBuilder:
         has_srb = n_s > 0
         window = self._window_for(len(wb_times) + len(srb_times) + len(tail_switches))
         times = np.concatenate([wb_times, srb_times, np.asarray(tail_switches, dtype=float)])
-        window.set_times(times)
+        window.set_times(times, joint_rows=n_w + 1)  # the SRB tail reads only the base of its rows
         self._names = tuple(reference.weight_sets)
         reference.sample(window)
         window.check_finite(type(reference).__name__)

@@ -47,6 +47,11 @@ class ReferenceWindow:
     feet); ``foot_positions``/``foot_velocities`` (n, n_feet, 3): world foot references (stance feet at their
     footholds, swing feet on their swing curves); ``weight_set`` (n,) int: index into the reference's
     ``weight_sets``.
+
+    ``joint_rows``: how many rows, from the first, need joint references (the joint angles and rates of
+    ``state``). A reference that solves for them (the locomotion reference's leg inverse kinematics) may
+    leave the later rows at its nominal joints with zero rates: the CAFE problem builder reads only the base
+    of its SRB-tail rows. ``set_times`` sets it to all rows unless told otherwise.
     """
 
     def __init__(self, capacity: int, nq: int, nv: int, nu: int, n_feet: int) -> None:
@@ -62,12 +67,14 @@ class ReferenceWindow:
         self._weight_set = np.zeros(capacity, dtype=np.int64)
         self.set_times(np.zeros(0))
 
-    def set_times(self, times: np.ndarray) -> None:
-        """Use the first ``len(times)`` rows for these times (views; no allocation)."""
+    def set_times(self, times: np.ndarray, joint_rows: int | None = None) -> None:
+        """Use the first ``len(times)`` rows for these times (views; no allocation); joint references for
+        the first ``joint_rows`` of them (all by default)."""
         n = len(times)
         if n > self.capacity:
             raise ValueError(f"reference window holds {self.capacity} times, asked for {n}")
         self.n = n
+        self.joint_rows = n if joint_rows is None else min(max(int(joint_rows), 0), n)
         self.times = self._times[:n]
         self.times[:] = times
         self.stance = self._stance[:n]

@@ -35,6 +35,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from cafe_mpc.reference.base import STANCE_TIME_EPS, Reference, ReferenceWindow, switches_inside
+from cafe_mpc.reference.kernels import place_configurations
 
 Offset = tuple[float, float, float]
 """Planar placement ``(x, y, yaw)`` of a segment (m, m, rad)."""
@@ -158,25 +159,41 @@ class ComposedReference(Reference):
                 if name not in names:
                     names.append(name)
         self.weight_sets = tuple(names)
+        self._thresholds = np.array([segment.start - 1e-12 for segment in self.segments])
+        """``segment_at``'s comparisons as an array: segment ``i`` is active from ``_thresholds[i]`` on."""
+        self._weight_maps = [
+            np.array([names.index(name) for name in segment.reference.weight_sets], dtype=np.int64)
+            if segment.weight_set is None
+            else None
+            for segment in self.segments
+        ]
+        """Per segment without a weight-set override: its weight-set indices mapped to the composition's."""
         self._windows: dict[int, ReferenceWindow] = {}
         self._probe = ReferenceWindow(1, nq, nv, nu, n_feet)
         self._resolve_offsets()
 
     # -------------------------------------------------------------------------------------- placement
-    def _pose_of(self, segment: Segment, local_time: float) -> np.ndarray:
-        """The segment's reference configuration at its own time ``local_time``, placed in the world (only its
+    def _local_pose(self, segment: Segment, local_time: float) -> np.ndarray:
+        """The segment's reference configuration at its own time ``local_time``, in its own frame (only its
         base pose matters to the joins: a reference with a closed-form ``base_state(t)``, the locomotion
         reference, is asked for that instead of a full sample with leg inverse kinematics)."""
         base_state = getattr(segment.reference, "base_state", None)
         if base_state is not None:
-            q = np.array(base_state(local_time)[0], dtype=float)
-        else:
-            probe = self._probe
-            probe.set_times(np.array([local_time]))
-            segment.reference.sample(probe)
-            q = probe.state[0, : self.nq].copy()
+            return np.array(base_state(local_time)[0], dtype=float)
+        probe = self._probe
+        probe.set_times(np.array([local_time]))
+        segment.reference.sample(probe)
+        return probe.state[0, : self.nq].copy()
+
+    def _placed(self, segment: Segment, q: np.ndarray) -> np.ndarray:
+        """A copy of the configuration ``q`` placed in the world by the segment's current offset and sign."""
+        q = q.copy()
         self._place_configuration(segment, q[None, :])
         return q
+
+    def _pose_of(self, segment: Segment, local_time: float) -> np.ndarray:
+        """The segment's reference configuration at its own time ``local_time``, placed in the world."""
+        return self._placed(segment, self._local_pose(segment, local_time))
 
     def _resolve_offsets(self, first: int = 0) -> None:
         """Offsets of the joined segments (continuous join) and the quaternion signs of the segments from
@@ -189,32 +206,28 @@ class ComposedReference(Reference):
                 previous_end = self._pose_of(segment, segment.duration)
                 continue
             segment.sign = 1.0
+            local_start = self._local_pose(segment, 0.0) if previous_end is not None else None
             if self._auto[index]:
                 segment.offset = (0.0, 0.0, 0.0)
                 if previous_end is not None:  # map this segment's start pose onto the previous end pose
-                    start = self._pose_of(segment, 0.0)
+                    assert local_start is not None
+                    start = self._placed(segment, local_start)
                     yaw = heading(previous_end[3:7]) - heading(start[3:7])
                     c, s = math.cos(yaw), math.sin(yaw)
                     xy = previous_end[:2] - np.array([[c, -s], [s, c]]) @ start[:2]
                     segment.offset = (float(xy[0]), float(xy[1]), float(yaw))
             if previous_end is not None:  # stay on the previous segment's side of the double cover
-                start = self._pose_of(segment, 0.0)
+                assert local_start is not None
+                start = self._placed(segment, local_start)
                 segment.sign = -1.0 if float(np.dot(start[3:7], previous_end[3:7])) < 0.0 else 1.0
             if index < len(self.segments) - 1:
                 previous_end = self._pose_of(segment, segment.duration)
 
     def _place_configuration(self, segment: Segment, q: np.ndarray) -> None:
-        """Rows of configurations (N, nq) from the segment's frame into the world, in place."""
+        """Rows of configurations (N, nq) from the segment's frame into the world, in place (compiled:
+        ``reference.kernels.place_configurations``)."""
         x, y, yaw = segment.offset or (0.0, 0.0, 0.0)
-        if x or y or yaw:
-            c, s = math.cos(yaw), math.sin(yaw)
-            px, py = q[:, 0].copy(), q[:, 1].copy()
-            q[:, 0] = c * px - s * py + x
-            q[:, 1] = s * px + c * py + y
-            if yaw:
-                q[:, 3:7] = quaternion_multiply(yaw_quaternion(yaw), q[:, 3:7])
-        if segment.sign < 0:
-            q[:, 3:7] *= -1.0
+        place_configurations(q, float(x), float(y), float(yaw), float(segment.sign))
 
     def offset_of(self, index: int) -> Offset:
         """The resolved ``(x, y, yaw)`` offset of segment ``index``."""
@@ -257,7 +270,8 @@ class ComposedReference(Reference):
 
     def update(self, t: float, q: np.ndarray, v: np.ndarray) -> None:
         """Pass the measurement to the active segment, expressed in its frame (offset undone)."""
-        segment = self.segments[self.segment_at(t)]
+        index = self.segment_at(t)
+        segment = self.segments[index]
         local = np.array(q, dtype=float)
         x, y, yaw = segment.offset or (0.0, 0.0, 0.0)
         if x or y or yaw:
@@ -265,11 +279,16 @@ class ComposedReference(Reference):
             dx, dy = local[0] - x, local[1] - y
             local[0] = c * dx + s * dy
             local[1] = -s * dx + c * dy
-            local[3:7] = quaternion_multiply(yaw_quaternion(-yaw), local[3:7])
+            # quaternion_multiply(yaw_quaternion(-yaw), local[3:7]) on plain floats (the same operations)
+            ax, ay, az, aw = 0.0, 0.0, math.sin(0.5 * -yaw), math.cos(0.5 * -yaw)
+            bx, by, bz, bw = (float(value) for value in local[3:7])
+            local[3] = aw * bx + ax * bw + ay * bz - az * by
+            local[4] = aw * by - ax * bz + ay * bw + az * bx
+            local[5] = aw * bz + ax * by - ay * bx + az * bw
+            local[6] = aw * bw - ax * bx - ay * by - az * bz
         if segment.sign < 0:
             local[3:7] *= -1.0
         segment.reference.update(t - segment.start, local, v)
-        index = self.segments.index(segment)
         if self.rejoin and index < len(self.segments) - 1:
             self._resolve_offsets(index)
 
@@ -289,11 +308,26 @@ class ComposedReference(Reference):
             return
         local = self._window(window.capacity)
         nq = self.nq
-        owner = np.array([self.segment_at(float(t)) for t in times])
-        for index in np.unique(owner):
-            segment = self.segments[int(index)]
-            rows = np.flatnonzero(owner == index)
-            local.set_times(times[rows] - segment.start)
+        owner = np.searchsorted(self._thresholds, times, side="right") - 1  # segment_at of every time
+        np.maximum(owner, 0, out=owner)
+        if owner[0] == owner[-1] and bool(np.all(owner == owner[0])):
+            groups: list[tuple[int, slice | np.ndarray]] = [(int(owner[0]), slice(0, window.n))]
+        else:
+            groups = []
+            for index in np.unique(owner).tolist():
+                rows = np.flatnonzero(owner == index)
+                if rows[-1] - rows[0] + 1 == len(rows):
+                    groups.append((index, slice(int(rows[0]), int(rows[-1]) + 1)))
+                else:
+                    groups.append((index, rows))
+        for index, rows in groups:
+            segment = self.segments[index]
+            # the rows of a segment are in window order, so the ones that need joints come first
+            if isinstance(rows, slice):
+                joint_rows = min(rows.stop, window.joint_rows) - rows.start
+            else:
+                joint_rows = int(np.count_nonzero(rows < window.joint_rows))
+            local.set_times(times[rows] - segment.start, joint_rows)
             segment.reference.sample(local)
             state = local.state
             self._place_configuration(segment, state[:, :nq])
@@ -314,6 +348,6 @@ class ComposedReference(Reference):
             if segment.weight_set is not None:
                 window.weight_set[rows] = self.weight_sets.index(segment.weight_set)
             else:
-                names = segment.reference.weight_sets
-                mapping = np.array([self.weight_sets.index(name) for name in names], dtype=np.int64)
+                mapping = self._weight_maps[index]
+                assert mapping is not None
                 window.weight_set[rows] = mapping[local.weight_set]

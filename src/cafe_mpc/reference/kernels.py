@@ -1,14 +1,29 @@
-"""Compiled (numba) sampling of the locomotion reference's swing feet.
+"""Compiled (numba) sampling of the references.
 
-Every MPC update samples the foot references at some forty knot times for four feet: in Python, the
-per-time loop with its Bezier blends took about as long as a knot's linearisation. Here it is one compiled
-call per foot over the swing segments the reference computed (``LocomotionReference.feet``).
+Every MPC update samples its reference at some forty to seventy knot times. In Python, the per-time work
+(the base integrated from the anchor, the contact flags, the swings with their Raibert footholds and Bezier
+curves, a stored trajectory's interpolation, a composition's placement) cost more than the rest of building
+the problem. Here each reference samples all its times in one or two calls:
+
+* ``sample_base`` and ``sample_feet``: ``LocomotionReference.sample`` (base, flags, loads; swings, footholds,
+  feet), the swing of one foot being ``sample_foot``;
+* ``sample_trajectory``: ``TrajectoryReference.sample``;
+* ``place_configurations``: a ``ComposedReference`` segment's configurations placed in the world.
+
+Each does the arithmetic of the Python it replaces in the same order, so the samples are the same to the
+last bit: where that Python multiplied through numpy (a 2 x 2 rotation ``@`` a vector, a quaternion ``dot``),
+the kernels round as numpy's BLAS does, with one fused multiply-add per term (``_rotate``, ``_dot4``). The
+last bit matters: the joint-rate references of a nearly straight leg amplify a foot target's last bit by up
+to 1e12.
 """
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
-from numba import njit
+from numba import njit, types
+from numba.extending import intrinsic
 
 
 @njit(cache=True, nogil=True)
@@ -73,3 +88,513 @@ def sample_foot(
             positions[i, foot, 2] = pz
             for a in range(3):
                 velocities[i, foot, a] = 0.0
+
+
+# ------------------------------------------------------------------------------- commands and base pose
+@njit(cache=True, nogil=True)
+def _command_segment(profile_times: np.ndarray, t: float) -> int:
+    """``CommandProfile._segment``: the last breakpoint at or before ``t + 1e-12`` (0 before the first)."""
+    low, high = 0, profile_times.shape[0]
+    key = t + 1e-12
+    while low < high:  # bisect_right
+        middle = (low + high) // 2
+        if key < profile_times[middle]:
+            high = middle
+        else:
+            low = middle + 1
+    return max(low - 1, 0)
+
+
+@njit(cache=True, nogil=True)
+def command_values(
+    profile_times: np.ndarray, profile_starts: np.ndarray, profile_slopes: np.ndarray, t: float, axis: int
+) -> float:
+    """``CommandProfile.values_at(t)[axis]`` (the same arithmetic, so the same floats)."""
+    index = _command_segment(profile_times, t)
+    dt = max(t - profile_times[index], 0.0)
+    return profile_starts[index, axis] + profile_slopes[index, axis] * dt
+
+
+@njit(cache=True, nogil=True)
+def displacement(
+    profile_times: np.ndarray,
+    profile_starts: np.ndarray,
+    profile_slopes: np.ndarray,
+    gauss_nodes: np.ndarray,
+    gauss_weights: np.ndarray,
+    t0: float,
+    t1: float,
+) -> tuple[float, float, float]:
+    """``CommandProfile.displacement_floats``: heading-frame ``(x, y, yaw)`` change from ``t0`` to ``t1``,
+    term for term (closed form on constant commands, Gauss-Legendre on ramps)."""
+    x = y = yaw = 0.0
+    time = t0
+    index = _command_segment(profile_times, t0)
+    count = profile_times.shape[0]
+    while time < t1 - 1e-15:
+        following = profile_times[index + 1] if index + 1 < count else np.inf
+        boundary = min(following, t1)
+        dt = boundary - time
+        if dt > 1e-15:
+            offset = max(time - profile_times[index], 0.0)
+            vx = profile_starts[index, 0] + profile_slopes[index, 0] * offset
+            vy = profile_starts[index, 1] + profile_slopes[index, 1] * offset
+            w = profile_starts[index, 2] + profile_slopes[index, 2] * offset
+            ax, ay, aw = profile_slopes[index, 0], profile_slopes[index, 1], profile_slopes[index, 2]
+            if ax == 0.0 and ay == 0.0 and aw == 0.0:
+                c0, s0 = math.cos(yaw), math.sin(yaw)
+                if abs(w) < 1e-9:
+                    x += (c0 * vx - s0 * vy) * dt
+                    y += (s0 * vx + c0 * vy) * dt
+                else:
+                    c1, s1 = math.cos(yaw + w * dt), math.sin(yaw + w * dt)
+                    x += ((s1 - s0) * vx + (c1 - c0) * vy) / w
+                    y += (-(c1 - c0) * vx + (s1 - s0) * vy) / w
+                    yaw += w * dt
+            else:
+                for g in range(gauss_nodes.shape[0]):
+                    s = 0.5 * dt * (gauss_nodes[g] + 1.0)
+                    heading = yaw + w * s + 0.5 * aw * s * s
+                    ux, uy = vx + ax * s, vy + ay * s
+                    c, si = math.cos(heading), math.sin(heading)
+                    x += 0.5 * dt * gauss_weights[g] * (c * ux - si * uy)
+                    y += 0.5 * dt * gauss_weights[g] * (si * ux + c * uy)
+                yaw += w * dt + 0.5 * aw * dt * dt
+        time = boundary
+        index += 1
+    return x, y, yaw
+
+
+@njit(cache=True, nogil=True)
+def sample_base(
+    times: np.ndarray,
+    anchor: np.ndarray,
+    profile_times: np.ndarray,
+    profile_starts: np.ndarray,
+    profile_slopes: np.ndarray,
+    gauss_nodes: np.ndarray,
+    gauss_weights: np.ndarray,
+    gaits: np.ndarray,
+    phase_ends: np.ndarray,
+    phase_flags: np.ndarray,
+    start_stance: float,
+    stance_eps: float,
+    time_tolerance: float,
+    nq: int,
+    state: np.ndarray,
+    stance: np.ndarray,
+    factors: np.ndarray,
+    keys: np.ndarray,
+) -> None:
+    """The locomotion reference's base, flags and load class at every time (``LocomotionReference.sample``).
+
+    ``anchor`` = (time, x, y, yaw); ``gaits`` (segments, 5) = (start, cycle start, period, support factor,
+    phases) of each gait in force (``_GaitSegment``), their cycles' phase ends and flags padded to
+    ``phase_ends`` (segments, phases) and ``phase_flags`` (segments, phases, feet). Writes the base pose
+    ``state[:, :7]`` and the base twist ``state[:, nq : nq + 6]``, the stance flags of the interval starting
+    at each time, the support factor and ``keys``: ``load class * 2^feet + flag bits`` (load class 0: the
+    initial stand, ``1 + s``: gait segment ``s``), the index of the knot's torque reference in the table
+    the reference keeps.
+    """
+    anchor_time, anchor_x, anchor_y, anchor_yaw = anchor[0], anchor[1], anchor[2], anchor[3]
+    cos_anchor, sin_anchor = math.cos(anchor_yaw), math.sin(anchor_yaw)
+    n_feet = stance.shape[1]
+    segments = gaits.shape[0]
+    for i in range(times.shape[0]):
+        t = times[i]
+        # contact flags a hair after t (LocomotionReference.stance_at)
+        flag_time = t + stance_eps
+        code = 0
+        if flag_time < start_stance - 1e-9:
+            for foot in range(n_feet):
+                stance[i, foot] = True
+                code |= 1 << foot
+        else:
+            segment = 0
+            if segments > 1:
+                for s in range(segments - 1, -1, -1):
+                    if flag_time >= gaits[s, 0] - time_tolerance:
+                        segment = s
+                        break
+            tau = (flag_time - gaits[segment, 1]) % gaits[segment, 2]
+            phase = 0
+            for p in range(int(gaits[segment, 4])):
+                if tau < phase_ends[segment, p] - time_tolerance:
+                    phase = p
+                    break
+            for foot in range(n_feet):
+                flag = phase_flags[segment, phase, foot]
+                stance[i, foot] = flag
+                if flag:
+                    code |= 1 << foot
+        # support factor at t (LocomotionReference.support_factor)
+        if t < start_stance - 1e-9:
+            load = 0
+            factors[i] = 1.0 / n_feet
+        else:
+            segment = 0
+            if segments > 1:
+                for s in range(segments - 1, -1, -1):
+                    if t >= gaits[s, 0] - time_tolerance:
+                        segment = s
+                        break
+            load = 1 + segment
+            factors[i] = gaits[segment, 3]
+        keys[i] = (load << n_feet) + code
+        # base pose from the anchor and the commands (LocomotionReference.base_state)
+        x, y, turn = displacement(
+            profile_times,
+            profile_starts,
+            profile_slopes,
+            gauss_nodes,
+            gauss_weights,
+            anchor_time,
+            max(t, anchor_time),
+        )
+        yaw = anchor_yaw + turn
+        index = _command_segment(profile_times, t)
+        dt = max(t - profile_times[index], 0.0)
+        state[i, 0] = anchor_x + (cos_anchor * x - sin_anchor * y)
+        state[i, 1] = anchor_y + (sin_anchor * x + cos_anchor * y)
+        state[i, 2] = profile_starts[index, 3] + profile_slopes[index, 3] * dt
+        state[i, 3] = 0.0
+        state[i, 4] = 0.0
+        state[i, 5] = math.sin(0.5 * yaw)
+        state[i, 6] = math.cos(0.5 * yaw)
+        for a in range(6):
+            state[i, nq + a] = 0.0
+        state[i, nq] = profile_starts[index, 0] + profile_slopes[index, 0] * dt
+        state[i, nq + 1] = profile_starts[index, 1] + profile_slopes[index, 1] * dt
+        state[i, nq + 5] = profile_starts[index, 2] + profile_slopes[index, 2] * dt
+
+
+# ------------------------------------------------------------------------------------- swings and feet
+@intrinsic
+def _fused_multiply_add(typingctx, a, b, c):
+    """``a * b + c`` rounded once (LLVM ``fma``)."""
+    signature = types.float64(types.float64, types.float64, types.float64)
+
+    def codegen(context, builder, sig, args):
+        return builder.fma(*args)
+
+    return signature, codegen
+
+
+@njit(cache=True, nogil=True)
+def _rotate(c: float, s: float, x: float, y: float) -> tuple[float, float]:
+    """``[[c, -s], [s, c]] @ (x, y)`` rounded as numpy's ``@`` of a 2 x 2 and a 2-vector (OpenBLAS
+    ``dgemv``: each row a product and one fused multiply-add), so that the footholds are the Python
+    ``LocomotionReference.foothold``'s to the last bit: the joint-rate references of near-singular legs
+    amplify a last-bit difference of a foot target by up to 1e12."""
+    return _fused_multiply_add(c, x, -s * y), _fused_multiply_add(s, x, c * y)
+
+
+@njit(cache=True, nogil=True)
+def _base_pose(
+    anchor: np.ndarray,
+    profile_times: np.ndarray,
+    profile_starts: np.ndarray,
+    profile_slopes: np.ndarray,
+    gauss_nodes: np.ndarray,
+    gauss_weights: np.ndarray,
+    t: float,
+) -> tuple[float, float, float]:
+    """``LocomotionReference.base_pose``: world (x, y, yaw) of the reference base at ``t`` (>= the anchor)."""
+    anchor_time, anchor_yaw = anchor[0], anchor[3]
+    t = max(t, anchor_time)
+    x, y, turn = displacement(
+        profile_times, profile_starts, profile_slopes, gauss_nodes, gauss_weights, anchor_time, t
+    )
+    dx, dy = _rotate(math.cos(anchor_yaw), math.sin(anchor_yaw), x, y)
+    return anchor[1] + dx, anchor[2] + dy, anchor_yaw + turn
+
+
+@njit(cache=True, nogil=True)
+def _foothold(
+    anchor: np.ndarray,
+    profile_times: np.ndarray,
+    profile_starts: np.ndarray,
+    profile_slopes: np.ndarray,
+    gauss_nodes: np.ndarray,
+    gauss_weights: np.ndarray,
+    offset: np.ndarray,
+    parameters: np.ndarray,
+    touchdown: float,
+    stance_duration: float,
+    out: np.ndarray,
+) -> None:
+    """``LocomotionReference.foothold``: the Raibert foothold (hip at mid-stance plus velocity feedback,
+    clamped to the box about the hip at touchdown) into ``out`` (3). ``parameters`` = (Raibert gain,
+    measured world vx, vy, box x, box y, foot radius, swing height)."""
+    ox, oy = offset[0], offset[1]
+    x, y, yaw = _base_pose(
+        anchor, profile_times, profile_starts, profile_slopes, gauss_nodes, gauss_weights, touchdown
+    )
+    c, s = math.cos(yaw), math.sin(yaw)
+    hip_x, hip_y = _rotate(c, s, ox, oy)
+    nominal_x, nominal_y = x + hip_x, y + hip_y
+    mx, my, mid_yaw = _base_pose(
+        anchor,
+        profile_times,
+        profile_starts,
+        profile_slopes,
+        gauss_nodes,
+        gauss_weights,
+        touchdown + 0.5 * stance_duration,
+    )
+    hip_x, hip_y = _rotate(math.cos(mid_yaw), math.sin(mid_yaw), ox, oy)
+    mid_x, mid_y = mx + hip_x, my + hip_y
+    vx = command_values(profile_times, profile_starts, profile_slopes, touchdown, 0)
+    vy = command_values(profile_times, profile_starts, profile_slopes, touchdown, 1)
+    gain = parameters[0]
+    commanded_x, commanded_y = _rotate(c, s, vx, vy)
+    feedback_x = gain * (parameters[1] - commanded_x)
+    feedback_y = gain * (parameters[2] - commanded_y)
+    dx, dy = mid_x + feedback_x - nominal_x, mid_y + feedback_y - nominal_y
+    step_x, step_y = _rotate(math.cos(-yaw), math.sin(-yaw), dx, dy)
+    step_x = min(max(step_x, -parameters[3]), parameters[3])
+    step_y = min(max(step_y, -parameters[4]), parameters[4])
+    move_x, move_y = _rotate(c, s, step_x, step_y)
+    out[0] = nominal_x + move_x
+    out[1] = nominal_y + move_y
+    out[2] = parameters[5]
+
+
+@njit(cache=True, nogil=True)
+def sample_feet(
+    times: np.ndarray,
+    t0: float,
+    t1: float,
+    phase_starts: np.ndarray,
+    phase_ends: np.ndarray,
+    phase_flags: np.ndarray,
+    stance_positions: np.ndarray,
+    liftoff_positions: np.ndarray,
+    anchor: np.ndarray,
+    profile_times: np.ndarray,
+    profile_starts: np.ndarray,
+    profile_slopes: np.ndarray,
+    gauss_nodes: np.ndarray,
+    gauss_weights: np.ndarray,
+    offsets: np.ndarray,
+    parameters: np.ndarray,
+    stance: np.ndarray,
+    positions: np.ndarray,
+    velocities: np.ndarray,
+) -> None:
+    """``LocomotionReference.sample_feet`` in one call: per foot, the swings of the schedule (phases
+    ``phase_starts``, ``phase_ends``, ``phase_flags`` (phases, feet)) overlapping ``[t0, t1]``, each with
+    the stance that follows it (``_swings``), their lift-off points (the measured lift-off point for a
+    swing that started by the anchor, else the previous foothold) and Raibert footholds (``_foothold``),
+    then the foot sampled at ``times`` (``sample_foot``)."""
+    count = phase_starts.shape[0]
+    liftoffs = np.empty(count)
+    touchdowns = np.empty(count)
+    starts = np.empty((count, 3))
+    ends = np.empty((count, 3))
+    for foot in range(stance_positions.shape[0]):
+        n_swings = 0
+        start_position = stance_positions[foot]
+        index = 0
+        while index < count:
+            if not phase_flags[index, foot]:
+                start = phase_starts[index]
+                end_index = index
+                while end_index + 1 < count and not phase_flags[end_index + 1, foot]:
+                    end_index += 1
+                end = phase_ends[end_index]
+                stance_duration = 0.0
+                k = end_index + 1
+                while k < count and phase_flags[k, foot]:
+                    stance_duration += phase_ends[k] - phase_starts[k]
+                    k += 1
+                if end > t0 and start < t1:
+                    j = n_swings
+                    liftoffs[j], touchdowns[j] = start, end
+                    source = liftoff_positions[foot] if start <= anchor[0] else start_position
+                    for a in range(3):
+                        starts[j, a] = source[a]
+                    _foothold(
+                        anchor,
+                        profile_times,
+                        profile_starts,
+                        profile_slopes,
+                        gauss_nodes,
+                        gauss_weights,
+                        offsets[foot],
+                        parameters,
+                        end,
+                        max(stance_duration, 1e-3),
+                        ends[j],
+                    )
+                    start_position = ends[j]
+                    n_swings += 1
+                index = end_index + 1
+            else:
+                index += 1
+        sample_foot(
+            times,
+            liftoffs[:n_swings],
+            touchdowns[:n_swings],
+            starts[:n_swings],
+            ends[:n_swings],
+            stance_positions[foot],
+            parameters[6],
+            foot,
+            stance,
+            positions,
+            velocities,
+        )
+
+
+# ------------------------------------------------------------------------------------ stored trajectory
+@njit(cache=True, nogil=True)
+def _dot4(a: np.ndarray, b: np.ndarray) -> float:
+    """``a . b`` of 4-vectors rounded as numpy's (OpenBLAS ``ddot``: one fused multiply-add per term, in
+    order)."""
+    total = 0.0
+    for i in range(4):
+        total = _fused_multiply_add(a[i], b[i], total)
+    return total
+
+
+@njit(cache=True, nogil=True)
+def _slerp(q0: np.ndarray, q1: np.ndarray, alpha: float, out: np.ndarray) -> None:
+    """``trajectory.quaternion_slerp`` (the same operations, rounded alike) into ``out`` (4)."""
+    dot = _dot4(q0, q1)
+    sign = 1.0 if dot >= 0.0 else -1.0
+    dot = min(abs(dot), 1.0)
+    if dot > 1.0 - 1e-9:
+        for i in range(4):
+            out[i] = q0[i] + alpha * (sign * q1[i] - q0[i])
+    else:
+        angle = math.acos(dot)
+        s = math.sin(angle)
+        a = math.sin((1.0 - alpha) * angle) / s
+        b = sign * math.sin(alpha * angle) / s
+        for i in range(4):
+            out[i] = a * q0[i] + b * q1[i]
+    norm = math.sqrt(_dot4(out, out))
+    for i in range(4):
+        out[i] = out[i] / norm
+
+
+@njit(cache=True, nogil=True)
+def sample_trajectory(
+    times: np.ndarray,
+    timing: np.ndarray,
+    n_intervals: int,
+    configurations: np.ndarray,
+    velocities: np.ndarray,
+    feet: np.ndarray,
+    feet_velocity: np.ndarray,
+    torques: np.ndarray,
+    forces: np.ndarray,
+    contacts: np.ndarray,
+    hold_configurations: np.ndarray,
+    hold_stance: np.ndarray,
+    hold_torques: np.ndarray,
+    hold_forces: np.ndarray,
+    hold_feet: np.ndarray,
+    weight_sets: np.ndarray,
+    state_out: np.ndarray,
+    stance_out: np.ndarray,
+    torque_out: np.ndarray,
+    forces_out: np.ndarray,
+    positions_out: np.ndarray,
+    velocities_out: np.ndarray,
+    weight_set_out: np.ndarray,
+) -> None:
+    """``TrajectoryReference.sample``: every field at every time, compiled.
+
+    ``timing`` = (start, dt, index tolerance, stance time eps); ``n_intervals`` intervals. Knots
+    (``configurations``, ``velocities``, ``feet``, ``feet_velocity``: one row per knot) interpolate (the
+    quaternion by ``_slerp``); intervals (``torques``, ``forces``, ``contacts``) are piecewise constant;
+    before the start and after the end the holds (row 0 and 1 of the ``hold_*`` arrays) apply.
+    ``weight_sets`` = (inside, hold).
+    """
+    start, dt, tolerance, stance_eps = timing[0], timing[1], timing[2], timing[3]
+    nq = configurations.shape[1]
+    nv = velocities.shape[1]
+    n_feet = feet.shape[1]
+    for i in range(times.shape[0]):
+        s = (times[i] - start) / dt
+        k, alpha = 0, 0.0
+        hold = -1
+        if s < -tolerance:
+            hold = 0
+        else:
+            k = math.floor(s + tolerance)
+            if k >= n_intervals:
+                if s <= n_intervals + tolerance:
+                    k, alpha = n_intervals - 1, 1.0
+                else:
+                    hold = 1
+            else:
+                alpha = min(max(s - k, 0.0), 1.0)
+        if hold >= 0:
+            for a in range(nq):
+                state_out[i, a] = hold_configurations[hold, a]
+            for a in range(nv):
+                state_out[i, nq + a] = 0.0
+            for foot in range(n_feet):
+                stance_out[i, foot] = hold_stance[hold, foot]
+                for a in range(3):
+                    forces_out[i, foot, a] = hold_forces[hold, foot, a]
+                    positions_out[i, foot, a] = hold_feet[hold, foot, a]
+                    velocities_out[i, foot, a] = 0.0
+            for a in range(torque_out.shape[1]):
+                torque_out[i, a] = hold_torques[hold, a]
+            weight_set_out[i] = weight_sets[1]
+            continue
+        q0, q1 = configurations[k], configurations[k + 1]
+        for a in range(3):
+            state_out[i, a] = q0[a] + alpha * (q1[a] - q0[a])
+        _slerp(q0[3:7], q1[3:7], alpha, state_out[i, 3:7])
+        for a in range(7, nq):
+            state_out[i, a] = q0[a] + alpha * (q1[a] - q0[a])
+        for a in range(nv):
+            state_out[i, nq + a] = velocities[k, a] + alpha * (velocities[k + 1, a] - velocities[k, a])
+        for foot in range(n_feet):
+            for a in range(3):
+                positions_out[i, foot, a] = feet[k, foot, a] + alpha * (
+                    feet[k + 1, foot, a] - feet[k, foot, a]
+                )
+                velocities_out[i, foot, a] = feet_velocity[k, foot, a] + alpha * (
+                    feet_velocity[k + 1, foot, a] - feet_velocity[k, foot, a]
+                )
+        interval = k
+        if alpha > 1.0 - stance_eps / dt:
+            interval = min(k + 1, n_intervals - 1)
+        for foot in range(n_feet):
+            stance_out[i, foot] = contacts[interval, foot]
+            for a in range(3):
+                forces_out[i, foot, a] = forces[interval, foot, a]
+        for a in range(torque_out.shape[1]):
+            torque_out[i, a] = torques[interval, a]
+        weight_set_out[i] = weight_sets[0]
+
+
+# ---------------------------------------------------------------------------------------- composition
+@njit(cache=True, nogil=True)
+def place_configurations(q: np.ndarray, x: float, y: float, yaw: float, sign: float) -> None:
+    """``ComposedReference._place_configuration``: rows of configurations (N, nq) moved by the planar offset
+    ``(x, y, yaw)`` (positions rotated and shifted, quaternions pre-multiplied by the yaw's, term for term
+    as ``composition.quaternion_multiply``) and their quaternions negated if ``sign < 0``, in place."""
+    if x != 0.0 or y != 0.0 or yaw != 0.0:
+        c, s = math.cos(yaw), math.sin(yaw)
+        ax, ay, az, aw = 0.0, 0.0, math.sin(0.5 * yaw), math.cos(0.5 * yaw)
+        for i in range(q.shape[0]):
+            px, py = q[i, 0], q[i, 1]
+            q[i, 0] = c * px - s * py + x
+            q[i, 1] = s * px + c * py + y
+            if yaw != 0.0:
+                bx, by, bz, bw = q[i, 3], q[i, 4], q[i, 5], q[i, 6]
+                q[i, 3] = aw * bx + ax * bw + ay * bz - az * by
+                q[i, 4] = aw * by - ax * bz + ay * bw + az * bx
+                q[i, 5] = aw * bz + ax * by - ay * bx + az * bw
+                q[i, 6] = aw * bw - ax * bx - ay * by - az * bz
+    if sign < 0:
+        for i in range(q.shape[0]):
+            for a in range(3, 7):
+                q[i, a] *= -1.0

@@ -19,6 +19,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
+import pinocchio as pin
 
 from cafe_mpc.config import VelocityCommand
 from cafe_mpc.core.physics import GRAVITY
@@ -26,7 +27,7 @@ from cafe_mpc.dynamics.leg_inverse_kinematics import LegInverseKinematics
 from cafe_mpc.dynamics.statics import static_stance_torques
 from cafe_mpc.ocp.contact_schedule import GAITS, TIME_TOLERANCE, ContactPhase, ContactSchedule, GaitCycle
 from cafe_mpc.reference.base import STANCE_TIME_EPS, Reference, ReferenceWindow, switches_inside
-from cafe_mpc.reference.kernels import sample_foot
+from cafe_mpc.reference.kernels import sample_base, sample_feet
 from cafe_mpc.robots.robot import Robot
 
 FOOTHOLD_BOX = (0.10, 0.06)
@@ -120,6 +121,10 @@ class CommandProfile:
                 self._slopes.append(tuple(float(x) for x in (values[index + 1] - values[index]) / span))
             else:
                 self._slopes.append((0.0, 0.0, 0.0, 0.0))
+        # the same as arrays, for the compiled sampling (``reference.kernels``)
+        self.time_array = np.array(self._times, dtype=float)
+        self.start_array = np.array(self._starts, dtype=float).reshape(-1, 4)
+        self.slope_array = np.array(self._slopes, dtype=float).reshape(-1, 4)
 
     @property
     def breakpoints(self) -> np.ndarray:
@@ -203,6 +208,7 @@ class CommandProfile:
 
 
 _GAUSS_NODES, _GAUSS_WEIGHTS = (values.tolist() for values in np.polynomial.legendre.leggauss(8))
+_GAUSS_NODE_ARRAY, _GAUSS_WEIGHT_ARRAY = np.array(_GAUSS_NODES), np.array(_GAUSS_WEIGHTS)
 
 
 def _yaw_rotation(yaw: float) -> np.ndarray:
@@ -321,6 +327,38 @@ class LocomotionReference(Reference):
         self.time_scale = gait.period / library.period if library is not None else 1.0
         """Phase durations of this reference's gaits relative to the library's (the robot's Froude scaling:
         ``assembly.scaling.scaled_gait``), applied to gaits switched to by name."""
+        # what the compiled sampling (``reference.kernels``) reads, kept between updates: the gaits in force
+        # as arrays and the torque references of their stances (remade when ``_segments`` changes), the
+        # schedule's phases as arrays (remade with the schedule), and per-update scratch
+        self._tables_of: tuple[_GaitSegment, ...] = ()
+        self._gaits = np.zeros((0, 5))
+        self._gait_phase_ends = np.zeros((0, 0))
+        self._gait_phase_flags = np.zeros((0, 0, robot.n_feet), dtype=bool)
+        self._torque_table = np.zeros((0, robot.nu))
+        self._torque_filled = np.zeros(0, dtype=bool)
+        self._phases_of: ContactSchedule | None = None
+        self._phase_starts = np.zeros(0)
+        self._phase_ends = np.zeros(0)
+        self._phase_flags = np.zeros((0, robot.n_feet), dtype=bool)
+        self._anchor = np.zeros(4)
+        self._feet_parameters = np.zeros(7)
+        self._factors = np.zeros(0)
+        self._keys = np.zeros(0, dtype=np.int64)
+        self._data = robot.model.createData()
+        self._ik_joints = np.zeros((0, robot.nu))
+        self._ik_rates = np.zeros((0, robot.nu))
+        self._ik_errors = np.zeros(0)
+        self._warm_up()
+
+    def _warm_up(self) -> None:
+        """Sample two knots once, so that the compiled kernels are compiled (or loaded from numba's cache)
+        now and not in the first MPC update; the cached schedule is put back as it was, so the samples of
+        later updates do not depend on this one."""
+        schedule, schedule_window = self._schedule, self._schedule_window
+        window = ReferenceWindow(2, self.robot.nq, self.robot.nv, self.robot.nu, self.robot.n_feet)
+        window.set_times(np.array([0.0, 0.01]))
+        self.sample(window)
+        self._schedule, self._schedule_window = schedule, schedule_window
 
     def _segment_at(self, t: float) -> _GaitSegment:
         segments = self._segments
@@ -459,6 +497,60 @@ class LocomotionReference(Reference):
             return (True, True, True, True)
         return self._flags_at(t)
 
+    # ---------------------------------------------------------------------------------- compiled tables
+    def _gait_tables(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The gaits in force as arrays for ``kernels.sample_base``: (start, cycle start, period, support
+        factor, phases) per segment, the phases' ends and flags padded; made again when ``set_gait`` has
+        changed the segments (the torque table with them: its load classes are the segments)."""
+        segments = self._segments
+        cached = self._tables_of
+        if len(cached) != len(segments) or any(a is not b for a, b in zip(cached, segments, strict=False)):
+            phases = max(len(segment.phase_ends) for segment in segments)
+            n_feet = self.robot.n_feet
+            self._gaits = np.array(
+                [(s.start, s.cycle_start, s.period, s.support_factor, len(s.phase_ends)) for s in segments],
+                dtype=float,
+            )
+            self._gait_phase_ends = np.full((len(segments), phases), np.inf)
+            self._gait_phase_flags = np.zeros((len(segments), phases, n_feet), dtype=bool)
+            for index, segment in enumerate(segments):
+                self._gait_phase_ends[index, : len(segment.phase_ends)] = segment.phase_ends
+                self._gait_phase_flags[index, : len(segment.phase_flags)] = segment.phase_flags
+            rows = (len(segments) + 1) << n_feet
+            self._torque_table = np.zeros((rows, self.robot.nu))
+            self._torque_filled = np.zeros(rows, dtype=bool)
+            self._tables_of = tuple(segments)
+        return self._gaits, self._gait_phase_ends, self._gait_phase_flags
+
+    def _torques_into(self, keys: np.ndarray, out: np.ndarray) -> None:
+        """The torque reference of each knot (``stance_torque`` of its flags and support factor) from the
+        table of ``_gait_tables``, indexed by the keys of ``kernels.sample_base``; missing rows are made on
+        first use."""
+        table, filled = self._torque_table, self._torque_filled
+        if not filled[keys].all():
+            n_feet = self.robot.n_feet
+            for key in np.unique(keys[~filled[keys]]).tolist():
+                load, code = key >> n_feet, key & ((1 << n_feet) - 1)
+                factor = 1.0 / n_feet if load == 0 else self._segments[load - 1].support_factor
+                flags = tuple(bool(code >> foot & 1) for foot in range(n_feet))
+                table[key] = self.stance_torque(flags, factor)
+                filled[key] = True
+        np.take(table, keys, axis=0, out=out)
+
+    def _phase_arrays(self, t0: float, t1: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Starts, ends and stance flags (phases, feet) of the phases of ``schedule(t0, t1)`` (remade with
+        the schedule)."""
+        schedule = self.schedule(t0, t1)
+        if schedule is not self._phases_of:
+            phases = schedule.phases
+            self._phase_starts = np.array([phase.start for phase in phases], dtype=float)
+            self._phase_ends = np.array([phase.end for phase in phases], dtype=float)
+            self._phase_flags = np.array([phase.stance for phase in phases], dtype=bool).reshape(
+                len(phases), self.robot.n_feet
+            )
+            self._phases_of = schedule
+        return self._phase_starts, self._phase_ends, self._phase_flags
+
     # ------------------------------------------------------------------------------------------ update
     def update(self, t: float, q: np.ndarray, v: np.ndarray) -> None:
         """Re-anchor on the measured state: base x, y, yaw and velocity; stance feet positions."""
@@ -467,13 +559,15 @@ class LocomotionReference(Reference):
         self.anchor_yaw = yaw_from_quaternion(q[3:7])
         rotation = _quaternion_matrix(q[3:7])
         self.measured_velocity_xy = (rotation @ v[:3])[:2]
-        feet = self.robot.foot_positions(q)
+        robot, data = self.robot, self._data
+        pin.framesForwardKinematics(robot.model, data, q)
         stance = self.stance_at(t)
-        for foot in range(self.robot.n_feet):
+        for foot, frame_id in enumerate(robot.foot_frame_ids):
             if stance[foot]:
-                self.stance_positions[foot] = feet[foot]
-                self.stance_positions[foot, 2] = self.robot.foot_radius
-                self.liftoff_positions[foot] = feet[foot]
+                position = data.oMf[frame_id].translation
+                self.stance_positions[foot] = position
+                self.stance_positions[foot, 2] = robot.foot_radius
+                self.liftoff_positions[foot] = position
 
     # ------------------------------------------------------------------------------------------- base
     def base_pose(self, t: float) -> tuple[np.ndarray, float]:
@@ -563,32 +657,47 @@ class LocomotionReference(Reference):
         positions: np.ndarray,
         velocities: np.ndarray,
     ) -> None:
-        """``feet`` into given arrays: the swings overlapping ``[t0, t1]`` with their Raibert footholds, then
-        each foot sampled by the compiled ``reference.kernels.sample_foot``."""
-        for foot in range(self.robot.n_feet):
-            start_position = self.stance_positions[foot]
-            swings = self._swings(foot, t0, t1)
-            n_swings = len(swings)
-            liftoffs, touchdowns = np.empty(n_swings), np.empty(n_swings)
-            starts, ends = np.empty((n_swings, 3)), np.empty((n_swings, 3))
-            for j, (liftoff, touchdown, stance_duration) in enumerate(swings):
-                liftoffs[j], touchdowns[j] = liftoff, touchdown
-                starts[j] = self.liftoff_positions[foot] if liftoff <= self.anchor_time else start_position
-                ends[j] = self.foothold(foot, touchdown, stance_duration)
-                start_position = ends[j]
-            sample_foot(
-                times,
-                liftoffs,
-                touchdowns,
-                starts,
-                ends,
-                self.stance_positions[foot],
-                self.swing_height,
-                foot,
-                stance,
-                positions,
-                velocities,
-            )
+        """``feet`` into given arrays: the swings overlapping ``[t0, t1]`` (``_swings``) with their Raibert
+        footholds (``foothold``) and Bezier curves, all feet in one compiled call
+        (``reference.kernels.sample_feet``)."""
+        phase_starts, phase_ends, phase_flags = self._phase_arrays(t0, t1)
+        self._set_anchor()
+        parameters = self._feet_parameters
+        parameters[0] = self.raibert_gain
+        parameters[1:3] = self.measured_velocity_xy
+        parameters[3:5] = self.foothold_box
+        parameters[5] = self.robot.foot_radius
+        parameters[6] = self.swing_height
+        profile = self.profile
+        sample_feet(
+            np.ascontiguousarray(times, dtype=float),
+            t0,
+            t1,
+            phase_starts,
+            phase_ends,
+            phase_flags,
+            self.stance_positions,
+            self.liftoff_positions,
+            self._anchor,
+            profile.time_array,
+            profile.start_array,
+            profile.slope_array,
+            _GAUSS_NODE_ARRAY,
+            _GAUSS_WEIGHT_ARRAY,
+            np.ascontiguousarray(self.offsets, dtype=float),
+            parameters,
+            stance,
+            positions,
+            velocities,
+        )
+
+    def _set_anchor(self) -> None:
+        """``(anchor_time, x, y, yaw)`` into the array the kernels read."""
+        anchor = self._anchor
+        anchor[0] = self.anchor_time
+        anchor[1] = self.anchor_xy[0]
+        anchor[2] = self.anchor_xy[1]
+        anchor[3] = self.anchor_yaw
 
     def stance_torque(self, stance: Sequence[bool], support_factor: float) -> np.ndarray:
         """Torques holding the standing pose with ``support_factor * m g`` on each stance foot (zero in
@@ -608,7 +717,10 @@ class LocomotionReference(Reference):
 
     def sample(self, window: ReferenceWindow) -> None:
         """Fill ``window`` (see ``Reference.sample``): stance, feet, base from the commands, joints from leg
-        inverse kinematics, torque and GRF references from the gait's average stance load."""
+        inverse kinematics (on ``window.joint_rows``), torque and GRF references from the gait's average
+        stance load. All times at once in compiled kernels (``reference.kernels``): the values of
+        ``stance_at``, ``support_factor``, ``stance_torque`` and ``foothold``, and the base of ``base_state``
+        (rotated with plain products, where ``base_state`` uses numpy's, so equal up to the last bit)."""
         times = window.times
         nq = self.robot.nq
         positions, velocities = window.foot_positions, window.foot_velocities
@@ -620,49 +732,53 @@ class LocomotionReference(Reference):
             t1 = float(max(times[-1], times[0]))
             self.sample_feet(times, t0, t1, self._feet_stance, positions, velocities)
         state = window.state
-        cos_anchor, sin_anchor = math.cos(self.anchor_yaw), math.sin(self.anchor_yaw)
-        anchor_x, anchor_y = float(self.anchor_xy[0]), float(self.anchor_xy[1])
-        anchor_time, anchor_yaw = self.anchor_time, self.anchor_yaw
-        profile = self.profile
-        # base_state(t) of every time as plain floats, then one array write per block
-        flags_rows, bases, velocities_xy, yaw_rates, factors, torques = [], [], [], [], [], []
-        for t in times.tolist():
-            flags = self.stance_at(t + STANCE_TIME_EPS)
-            x, y, turn = profile.displacement_floats(anchor_time, max(t, anchor_time))
-            yaw = anchor_yaw + turn
-            vx, vy, yaw_rate, height = profile.values_at(t)
-            bases.append(
-                (
-                    anchor_x + (cos_anchor * x - sin_anchor * y),
-                    anchor_y + (sin_anchor * x + cos_anchor * y),
-                    height,
-                    0.0,
-                    0.0,
-                    math.sin(0.5 * yaw),
-                    math.cos(0.5 * yaw),
-                )
-            )
-            velocities_xy.append((vx, vy))
-            yaw_rates.append(yaw_rate)
-            factor = self.support_factor(t)
-            factors.append(factor)
-            flags_rows.append(flags)
-            torques.append(self.stance_torque(flags, factor))
         if n:
-            state[:, :7] = bases
+            # base_state, stance_at, support_factor and stance_torque of every time, compiled
+            if self._keys.shape[0] < n:
+                self._factors = np.zeros(window.capacity)
+                self._keys = np.zeros(window.capacity, dtype=np.int64)
+            factors, keys = self._factors[:n], self._keys[:n]
+            gaits, phase_ends, phase_flags = self._gait_tables()
+            self._set_anchor()
+            profile = self.profile
+            state[:, nq + 6 :] = 0.0
+            sample_base(
+                times,
+                self._anchor,
+                profile.time_array,
+                profile.start_array,
+                profile.slope_array,
+                _GAUSS_NODE_ARRAY,
+                _GAUSS_WEIGHT_ARRAY,
+                gaits,
+                phase_ends,
+                phase_flags,
+                self.start_stance,
+                STANCE_TIME_EPS,
+                TIME_TOLERANCE,
+                nq,
+                state,
+                window.stance,
+                factors,
+                keys,
+            )
             state[:, 7:nq] = self.nominal_joints
-            state[:, nq:] = 0.0
-            state[:, nq : nq + 2] = velocities_xy
-            state[:, nq + 5] = yaw_rates
-            window.stance[:] = flags_rows
-            window.torque[:] = torques
+            self._torques_into(keys, window.torque)
             window.forces[:, :, :2] = 0.0
-            window.forces[:, :, 2] = window.stance * (np.asarray(factors) * self.mass * GRAVITY)[:, None]
+            window.forces[:, :, 2] = window.stance * (factors * self.mass * GRAVITY)[:, None]
+        # joint references by leg inverse kinematics where they are used (``ReferenceWindow.joint_rows``;
+        # the other rows keep the nominal joints and zero rates written above)
+        m = window.joint_rows
+        if self._ik_errors.shape[0] < m:
+            self._ik_joints = np.zeros((window.capacity, self.robot.nu))
+            self._ik_rates = np.zeros((window.capacity, self.robot.nu))
+            self._ik_errors = np.zeros(window.capacity)
+        out = (self._ik_joints[:m], self._ik_rates[:m], self._ik_errors[:m])
         joints, rates, _ = self.inverse_kinematics.solve_batch(
-            state[:, :7], positions, None, state[:, nq : nq + 6], velocities
+            state[:m, :7], positions[:m], None, state[:m, nq : nq + 6], velocities[:m], out=out
         )
-        state[:, 7:nq] = joints
-        state[:, nq + 6 :] = rates
+        state[:m, 7:nq] = joints
+        state[:m, nq + 6 :] = rates
         window.weight_set[:] = 0
 
     def support_factor(self, t: float) -> float:

@@ -39,6 +39,7 @@ import pinocchio as pin
 from cafe_mpc.core.physics import GRAVITY
 from cafe_mpc.dynamics.statics import static_stance_torques
 from cafe_mpc.reference.base import STANCE_TIME_EPS, Reference, ReferenceWindow, switches_inside
+from cafe_mpc.reference.kernels import sample_trajectory
 from cafe_mpc.reference.trajectory_file import WholeBodyTrajectory
 from cafe_mpc.robots.robot import Robot
 
@@ -134,6 +135,21 @@ class TrajectoryReference(Reference):
             forces[stance, 2] = robot.total_mass * GRAVITY / stance.sum()
             self._holds.append((q, tuple(bool(s) for s in stance), torque, forces, self._feet[index].copy()))
         self._quaternion = np.zeros(4)
+        # the same as arrays for the compiled sampling (``reference.kernels.sample_trajectory``)
+        self._timing = np.array([self.start, self.dt, INDEX_TOLERANCE, STANCE_TIME_EPS])
+        self._weight_set_array = np.array([self._inside, self._hold], dtype=np.int64)
+        self._hold_arrays = tuple(
+            np.ascontiguousarray(np.array([hold[field] for hold in self._holds])) for field in (0, 1, 2, 3, 4)
+        )
+        self._knot_arrays = tuple(
+            np.ascontiguousarray(array, dtype=float)
+            for array in (self._q, self._v, self._feet, self._feet_velocity, self._us, self._forces)
+        )
+        self._contact_array = np.ascontiguousarray(contacts)
+        # compile (or load from numba's cache) the sampling kernel now, not in the first MPC update
+        window = ReferenceWindow(1, robot.nq, robot.nv, robot.nu, robot.n_feet)
+        window.set_times(np.array([self.start]))
+        self.sample(window)
         changes = np.flatnonzero(np.any(contacts[1:] != contacts[:-1], axis=1)) + 1
         self._switches = [self.start + float(k) * self.dt for k in changes]
 
@@ -171,7 +187,38 @@ class TrajectoryReference(Reference):
 
     # ------------------------------------------------------------------------------------------ sample
     def sample(self, window: ReferenceWindow) -> None:
-        """Fill ``window`` at its times (see the module docstring for each field)."""
+        """Fill ``window`` at its times (see the module docstring for each field): one compiled call
+        (``reference.kernels.sample_trajectory``, the arithmetic of ``sample_python``)."""
+        q, v, feet, feet_velocity, us, forces = self._knot_arrays
+        hold_q, hold_stance, hold_torque, hold_forces, hold_feet = self._hold_arrays
+        sample_trajectory(
+            window.times,
+            self._timing,
+            self.n_intervals,
+            q,
+            v,
+            feet,
+            feet_velocity,
+            us,
+            forces,
+            self._contact_array,
+            hold_q,
+            hold_stance,
+            hold_torque,
+            hold_forces,
+            hold_feet,
+            self._weight_set_array,
+            window.state,
+            window.stance,
+            window.torque,
+            window.forces,
+            window.foot_positions,
+            window.foot_velocities,
+            window.weight_set,
+        )
+
+    def sample_python(self, window: ReferenceWindow) -> None:
+        """``sample`` knot by knot in Python (the straightforward version the tests compare with)."""
         nq = self.robot.nq
         quaternion = self._quaternion
         for i, t in enumerate(window.times):
