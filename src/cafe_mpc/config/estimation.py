@@ -105,9 +105,9 @@ class KinematicKFSettings(StrictModel):
     at 8 mm while still loaded: a static compliance read that stance's height 6 mm high and the front feet's
     (landing at 0.7 m/s, loaded as they push off) 3 mm low, and the bound rode 1 cm higher than with the
     true state. MuJoCo's contact is this spring exactly: ``r'' = -b r' - k d r - R f`` with ``k d`` = 1 /
-    (0.95 x 0.02^2) = 2632 s^-2 (51.3 rad/s) and ``b`` = 2 / (0.95 x 0.02) = 105 s^-1 (``foot_contact_damping``
-    1.03). The foot's sink speed also corrects the legs' vertical velocity measurement (the foot is not at
-    rest while it sinks or rises back)."""
+    (0.95 x 0.02^2) = 2632 s^-2 (51.3 rad/s) and ``b`` = 2 / (0.95 x 0.02) = 105 s^-1
+    (``foot_contact_damping`` 1.03). The foot's sink speed also corrects the legs' vertical velocity
+    measurement (the foot is not at rest while it sinks or rises back)."""
     foot_contact_damping: float = Field(
         1.03, gt=0.0, le=100.0, description="damping ratio of the foot's sink (foot_contact_frequency)"
     )

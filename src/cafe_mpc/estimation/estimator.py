@@ -22,6 +22,9 @@ Differences from MIT's code, on purpose: the measurements are applied one scalar
 28-row batch update, ``R`` being diagonal) so that skipped feet cost nothing and nothing is allocated;
 ``p`` integrates ``dt^2 a / 2`` too; the foot's velocity is corrected for a spherical foot rolling on the
 ground (``rolling_foot``: the contact point is at rest, not the sphere's centre; MIT's feet are points);
+a foot in contact is not at rest vertically but sinks into a compliant floor (``foot_compliance``,
+``foot_contact_frequency``: a spring-damper from its landing speed, driven by its load; MIT: rigid), which
+the foot-height and vertical-velocity measurements account for;
 MIT's covariance reset of the unobservable x-y position is not done (it only bounds ``P``).
 Contacts come from the plan (``kernels.planned_trust``), optionally gated by the ground force the joint
 torques imply (``contact_force_threshold``).
