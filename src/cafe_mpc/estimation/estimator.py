@@ -198,7 +198,8 @@ class StateEstimator:
         self.foot_height = float(robot.foot_radius)
         """Height of a foot frame (the foot sphere's centre) standing on the ground, unloaded."""
         self.ground_height = np.full(n_feet, self.foot_height)
-        """Height of each foot frame standing on the ground under its estimated load (``foot_compliance``)."""
+        """Height of each foot frame standing on the ground under its estimated load (``foot_compliance``;
+        with ``foot_contact_frequency``: below it by the foot's sink, ``sink``)."""
         self.legs = LegKinematics(robot, robot.foot_radius)
         self.contacts = PlannedContacts(n_feet, settings.trust_window)
         self.feet_start = 9 if settings.accelerometer_bias else 6
