@@ -84,13 +84,33 @@ class KinematicKFSettings(StrictModel):
     foot_height: bool = Field(True, description="stance feet on flat ground measure the height")
     """Flat ground assumed, as MIT's filter does. Off: the base height is not observable (it drifts)."""
     foot_compliance: float = Field(
-        1.2e-4, ge=0.0, le=0.01, description="m/N, loaded foot sinks this much per N (0: off)"
+        9.3e-5, ge=0.0, le=0.01, description="m/N, a loaded foot at rest sinks this much per N (0: off)"
     )
     """How far a loaded foot's frame sinks below its unloaded height, per newton of the ground force its
-    joint torques imply (``-J^-T tau``); the foot-height measurement subtracts it. Calibrated on this
-    simulator's plant (MuJoCo's soft contact: 0.12-0.15 mm/N over trot and bound, median 4-7 mm; a rubber
-    foot compresses too); MIT's filter: 0. Without it the base height read 5-8 mm high while bounding,
-    enough to make the push test fall (docs/estimation.md). Needs joint torques."""
+    joint torques imply (``-J^-T tau``), once settled; the foot-height measurement subtracts the sink
+    (``foot_contact_frequency``: how it gets there). Calibrated on this simulator's plant: MuJoCo's soft
+    contact (``solref`` 0.02 s / 1, ``solimp`` 0.9-0.95) holds a foot at ``(1 - d) / d^2 x invweight / k`` =
+    0.05 / 0.95^2 x 4.67 kg^-1 / 2770 s^-2 = 9.3e-5 m/N (``d`` = 0.95 its impedance, ``k`` = 1 / (0.95 x
+    0.02)^2 its stiffness, ``invweight`` the foot body's ``body_invweight0``); a rubber foot compresses too.
+    MIT's filter: 0. Needs joint torques."""
+    foot_contact_frequency: float | None = Field(
+        51.3,
+        gt=0.0,
+        le=1e4,
+        description="rad/s; null: a foot's sink follows its load at once; else a spring-damper of "
+        "this natural frequency driven by the load, starting at touchdown with the speed the foot hits the "
+        "floor with",
+    )
+    """A foot that lands at 2.5 m/s (the bound's hind feet) sinks 20 mm under a 100 N load before it settles
+    at 8 mm while still loaded: a static compliance read that stance's height 6 mm high and the front feet's
+    (landing at 0.7 m/s, loaded as they push off) 3 mm low, and the bound rode 1 cm higher than with the
+    true state. MuJoCo's contact is this spring exactly: ``r'' = -b r' - k d r - R f`` with ``k d`` = 1 /
+    (0.95 x 0.02^2) = 2632 s^-2 (51.3 rad/s) and ``b`` = 2 / (0.95 x 0.02) = 105 s^-1
+    (``foot_contact_damping`` 1.03). The foot's sink speed also corrects the legs' vertical velocity
+    measurement (the foot is not at rest while it sinks or rises back)."""
+    foot_contact_damping: float = Field(
+        1.03, gt=0.0, le=100.0, description="damping ratio of the foot's sink (foot_contact_frequency)"
+    )
     contact_force_threshold: float | None = Field(
         None,
         ge=0.0,
@@ -146,4 +166,5 @@ class KinematicKFSettings(StrictModel):
             slip_threshold=None,
             contact_height_threshold=None,
             foot_compliance=0.0,
+            foot_contact_frequency=None,
         )

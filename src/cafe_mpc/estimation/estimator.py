@@ -22,6 +22,9 @@ Differences from MIT's code, on purpose: the measurements are applied one scalar
 28-row batch update, ``R`` being diagonal) so that skipped feet cost nothing and nothing is allocated;
 ``p`` integrates ``dt^2 a / 2`` too; the foot's velocity is corrected for a spherical foot rolling on the
 ground (``rolling_foot``: the contact point is at rest, not the sphere's centre; MIT's feet are points);
+a foot in contact is not at rest vertically but sinks into a compliant floor (``foot_compliance``,
+``foot_contact_frequency``: a spring-damper from its landing speed, driven by its load; MIT: rigid), which
+the foot-height and vertical-velocity measurements account for;
 MIT's covariance reset of the unobservable x-y position is not done (it only bounds ``P``).
 Contacts come from the plan (``kernels.planned_trust``), optionally gated by the ground force the joint
 torques imply (``contact_force_threshold``).
@@ -50,6 +53,7 @@ from cafe_mpc.estimation.kernels import (
     SUSPECT,
     SWING_VARIANCE,
     VERTICAL_FACTOR,
+    foot_sink_step,
     kf_predict,
     kf_update_feet,
     leg_ground_forces,
@@ -194,7 +198,8 @@ class StateEstimator:
         self.foot_height = float(robot.foot_radius)
         """Height of a foot frame (the foot sphere's centre) standing on the ground, unloaded."""
         self.ground_height = np.full(n_feet, self.foot_height)
-        """Height of each foot frame standing on the ground under its estimated load (``foot_compliance``)."""
+        """Height of each foot frame standing on the ground under its estimated load (``foot_compliance``;
+        with ``foot_contact_frequency``: below it by the foot's sink, ``sink``)."""
         self.legs = LegKinematics(robot, robot.foot_radius)
         self.contacts = PlannedContacts(n_feet, settings.trust_window)
         self.feet_start = 9 if settings.accelerometer_bias else 6
@@ -212,6 +217,13 @@ class StateEstimator:
         self.slipping = np.zeros(n_feet, dtype=np.bool_)
         """Trusted feet the slip test left out at the last update (``KinematicKFSettings.slip_threshold``)."""
         self.forces = np.zeros((n_feet, 3))
+        self.sink = np.zeros(n_feet)
+        """How far each foot in contact has sunk into the floor (m; ``foot_contact_frequency``)."""
+        self.sink_rate = np.zeros(n_feet)
+        """How fast (m/s, down positive)."""
+        self._touching = np.zeros(n_feet, dtype=np.bool_)
+        self._start_sink = np.zeros(n_feet)
+        self._start_rate = np.zeros(n_feet)
         self._q_feet = np.zeros(n_feet)
         self._slip_streak = np.zeros(1, dtype=np.int64)
         self._slip_patience = 0  # ticks; set from the tick period at the first prediction
@@ -282,6 +294,8 @@ class StateEstimator:
                     self.in_contact[foot] = False
                     self.trust[foot] = 0.0
         np.negative(self.legs.velocity, out=self.base_velocity)
+        if need_forces and settings.foot_compliance > 0.0 and settings.foot_contact_frequency is not None:
+            self._sink_dynamics(t)
         if not self._started:
             self._initialise(t)
         else:
@@ -332,6 +346,45 @@ class StateEstimator:
                 )
         self._last_time = t
         return self._write(readings)
+
+    def _sink_dynamics(self, t: float) -> None:
+        """The feet's sink as a spring-damper driven by their load (``kernels.foot_sink_step``): the height
+        each foot in contact stands at and the legs' vertical velocity measurement (the foot moves down at
+        the sink's rate: ``v = -R (w x r + J qd) - s' z``)."""
+        settings = self.settings
+        relative, velocity = self.legs.relative, self.legs.velocity
+        if not self._started:  # standing: each foot settled under its load
+            for foot in range(self.n_feet):
+                self._touching[foot] = self.in_contact[foot]
+                self.sink[foot] = settings.foot_compliance * max(self.forces[foot, 2], 0.0)
+                self.sink_rate[foot] = 0.0
+        else:
+            dt = t - self._last_time
+            if dt <= 0.0:
+                return
+            height, vertical = self.x[2] + dt * self.x[5], self.x[5]
+            for foot in range(self.n_feet):  # where and how fast a foot touching down now hits the floor
+                self._start_sink[foot] = self.foot_height - (height + relative[foot, 2])
+                self._start_rate[foot] = -(vertical + velocity[foot, 2])
+            foot_sink_step(
+                self.sink,
+                self.sink_rate,
+                self._touching,
+                self.forces[:, 2],
+                self.in_contact,
+                self._start_sink,
+                self._start_rate,
+                dt,
+                settings.foot_compliance,
+                settings.foot_contact_frequency,
+                settings.foot_contact_damping,
+            )
+        for foot in range(self.n_feet):
+            if self.in_contact[foot]:
+                self.ground_height[foot] = self.foot_height - self.sink[foot]
+                self.base_velocity[foot, 2] -= self.sink_rate[foot]
+            else:
+                self.ground_height[foot] = self.foot_height
 
     def _initialise(self, t: float) -> None:
         """The robot standing: base height from the feet in planned stance (all if none), velocity zero."""

@@ -268,3 +268,51 @@ def leg_ground_forces(
         out[leg, 2] = (
             a00 * (a11 * b2 - b1 * a21) - a01 * (a10 * b2 - b1 * a20) + b0 * (a10 * a21 - a11 * a20)
         ) / det
+
+
+@njit(cache=True, nogil=True)
+def foot_sink_step(
+    sink: np.ndarray,
+    rate: np.ndarray,
+    touching: np.ndarray,
+    load: np.ndarray,
+    in_contact: np.ndarray,
+    start_sink: np.ndarray,
+    start_rate: np.ndarray,
+    dt: float,
+    compliance: float,
+    frequency: float,
+    damping: float,
+) -> None:
+    """How far each foot in contact has sunk into a compliant floor (``sink``, m, down positive) and how fast
+    (``rate``, m/s), advanced over ``dt``: a spring-damper of natural frequency ``frequency`` (rad/s) and
+    damping ratio ``damping`` driven by the foot's normal load ``load`` (N; ``compliance`` m/N at rest),
+
+        s'' = frequency^2 (compliance max(load, 0) - s) - 2 damping frequency s'.
+
+    A foot that comes into contact (``in_contact`` now, not ``touching`` before) starts from ``start_sink``
+    and ``start_rate`` (where and how fast it hits the floor, each at least 0); a foot out of contact has
+    ``sink`` and ``rate`` 0. ``touching`` (in/out) is the contact of the previous call. Semi-implicit Euler
+    in steps of at most 0.05 / frequency."""
+    steps = max(int(np.ceil(dt * frequency / 0.05)), 1)
+    h = dt / steps
+    w2 = frequency * frequency
+    c = 2.0 * damping * frequency
+    for foot in range(sink.shape[0]):
+        if not in_contact[foot]:
+            sink[foot] = 0.0
+            rate[foot] = 0.0
+            touching[foot] = False
+            continue
+        if not touching[foot]:
+            touching[foot] = True
+            sink[foot] = max(start_sink[foot], 0.0)
+            rate[foot] = max(start_rate[foot], 0.0)
+            continue
+        target = compliance * max(load[foot], 0.0)
+        s, r = sink[foot], rate[foot]
+        for _ in range(steps):
+            r += h * (w2 * (target - s) - c * r)
+            s += h * r
+        sink[foot] = s
+        rate[foot] = r
