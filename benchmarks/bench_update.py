@@ -21,6 +21,7 @@ Usage::
     python benchmarks/make_baseline.sh 0d59906   # -> /tmp/cafe_mpc_baseline/cafe_mpc_0d59906
     python benchmarks/bench_update.py --preset trot --baseline /tmp/cafe_mpc_baseline/cafe_mpc_0d59906
     python benchmarks/bench_update.py --preset trot --profile   # pyinstrument, each variant's preparations
+    python benchmarks/bench_update.py --preset trot --allocations   # + tracemalloc peak per update
 
 Variant syntax: ``NAME:override,override`` (this tree) or ``NAME@PACKAGE_DIR:override,...`` (a package
 directory on disk, imported under its directory name).
@@ -227,6 +228,9 @@ def run(arguments: argparse.Namespace) -> dict:
                 gc.collect()
                 gc.freeze()
     gc.callbacks.remove(collections)
+    allocations: dict[str, float] = {}
+    if arguments.allocations:
+        allocations = allocation_peaks(variants, calls)
     reference = variants[0]
     result = {
         "date": started,
@@ -253,6 +257,8 @@ def run(arguments: argparse.Namespace) -> dict:
             "feedback_ms": summary(variant.feedback_ms),
             "parts_ms_median": {p: summary(v)["median"] for p, v in variant.parts_ms.items()},
         }
+        if variant.name in allocations:
+            entry["update_allocation_peak_kb_median"] = allocations[variant.name]
         if variant is not reference and len(variant.prepare_ms) == len(reference.prepare_ms):
             for key, mine, theirs in (
                 ("ratio_to_first", variant.prepare_ms, reference.prepare_ms),
@@ -271,6 +277,24 @@ def run(arguments: argparse.Namespace) -> dict:
             for name, profiler in profilers.items()
         }
     return result
+
+
+def allocation_peaks(variants: list[Variant], calls: list[Call]) -> dict[str, float]:
+    """Per variant, the median over a further replay of the peak memory Python allocates during an update,
+    its preparation and its feedback (``tracemalloc``, which slows the calls: a separate pass, not timed)."""
+    import tracemalloc
+
+    peaks: dict[str, list[float]] = {variant.name: [] for variant in variants}
+    for variant in variants:  # one variant after the other: an update's window spans two calls
+        variant.mpc.reset()
+        for call in calls:
+            if call.method == "prepare":
+                tracemalloc.start()
+            replay_step(variant, call, record_times=False)
+            if call.method == "feedback" and tracemalloc.is_tracing():
+                peaks[variant.name].append(tracemalloc.get_traced_memory()[1] / 1e3)
+                tracemalloc.stop()
+    return {name: float(np.median(values)) for name, values in peaks.items() if values}
 
 
 def format_report(result: dict) -> str:
@@ -299,6 +323,12 @@ def format_report(result: dict) -> str:
         )
     collections = result["collections_inside_updates"]
     lines += ["", f"garbage collections inside updates (all variants): {collections}"]
+    for entry in result["variants"]:
+        if "update_allocation_peak_kb_median" in entry:
+            lines.append(
+                f"allocation peak per update (preparation + feedback), median (tracemalloc, separate "
+                f"pass), {entry['name']}: {entry['update_allocation_peak_kb_median']:.0f} kB"
+            )
     for name, profile in result.get("profiles", {}).items():
         lines += ["", f"pyinstrument, preparations of {name}:", "```", profile, "```"]
     return "\n".join(lines)
@@ -316,6 +346,9 @@ def main() -> None:
     parser.add_argument("--variant", action="append", help="NAME[@PACKAGE_DIR]:override,override")
     parser.add_argument("--gc", choices=["default", "freeze", "collect-between"], default="default")
     parser.add_argument("--profile", action="store_true", help="pyinstrument, each variant's preparations")
+    parser.add_argument(
+        "--allocations", action="store_true", help="a further pass: tracemalloc peak of each update"
+    )
     parser.add_argument("--json", action="store_true")
     arguments = parser.parse_args()
     result = run(arguments)
