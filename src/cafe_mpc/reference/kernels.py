@@ -166,6 +166,15 @@ def displacement(
 
 
 @njit(cache=True, nogil=True)
+def _gait_segment(gaits: np.ndarray, segments: int, t: float, time_tolerance: float) -> int:
+    """The last gait segment (row of ``gaits``, start time in column 0) started by ``t``; 0 before any."""
+    for segment in range(segments - 1, 0, -1):
+        if t >= gaits[segment, 0] - time_tolerance:
+            return segment
+    return 0
+
+
+@njit(cache=True, nogil=True)
 def sample_base(
     times: np.ndarray,
     anchor: np.ndarray,
@@ -210,12 +219,7 @@ def sample_base(
                 stance[i, foot] = True
                 code |= 1 << foot
         else:
-            segment = 0
-            if segments > 1:
-                for s in range(segments - 1, -1, -1):
-                    if flag_time >= gaits[s, 0] - time_tolerance:
-                        segment = s
-                        break
+            segment = _gait_segment(gaits, segments, flag_time, time_tolerance)
             tau = (flag_time - gaits[segment, 1]) % gaits[segment, 2]
             phase = 0
             for p in range(int(gaits[segment, 4])):
@@ -232,12 +236,7 @@ def sample_base(
             load = 0
             factors[i] = 1.0 / n_feet
         else:
-            segment = 0
-            if segments > 1:
-                for s in range(segments - 1, -1, -1):
-                    if t >= gaits[s, 0] - time_tolerance:
-                        segment = s
-                        break
+            segment = _gait_segment(gaits, segments, t, time_tolerance)
             load = 1 + segment
             factors[i] = gaits[segment, 3]
         keys[i] = (load << n_feet) + code
