@@ -21,7 +21,7 @@ from cafe_mpc.assembly.scaling import (
     srb_force_weight,
 )
 from cafe_mpc.config import ConfigError, MpcConfig, RunConfig
-from cafe_mpc.config.weights import SRBWeights
+from cafe_mpc.config.weights import SRBWeights, WholeBodyWeights
 from cafe_mpc.dynamics.srb import srb_parameters
 from cafe_mpc.mpc.problem import CafeProblemBuilder, ModelSchedule
 from cafe_mpc.ocp.constraints import WholeBodyConstraintSettings
@@ -74,29 +74,47 @@ def build_problem(config: RunConfig, robot: Robot) -> CafeProblemBuilder:
     except ValueError as error:
         raise ConfigError(f"costs: {error}") from error
     limits = None if config.torque_limits == "plan" else tuple(torque_limits_of(config, robot).tolist())
+    constraints = WholeBodyConstraintSettings(
+        friction_coefficient=config.mpc.friction,
+        torque_limit_values=limits,
+        minimum_base_height=minimum_base_height(scale),
+    )
+    whole_body, srb = _knot_factories(
+        robot, scale, schedule, (running, terminal), (srb_running, srb_terminal), constraints
+    )
+    return CafeProblemBuilder(whole_body, srb, schedule, weights=task_weight_sets(config, robot, schedule))
+
+
+def _knot_factories(
+    robot: Robot,
+    scale: RobotScale,
+    schedule: ModelSchedule,
+    weights: tuple[WholeBodyWeights, WholeBodyWeights],
+    srb_weights: tuple[SRBWeights, SRBWeights],
+    constraints: WholeBodyConstraintSettings,
+    base_error: str = "tangent",
+) -> tuple[WholeBodyModelFactory, SRBModelFactory]:
+    """The whole-body and SRB knot factories of one weight set (running, terminal weights of each)."""
     whole_body = WholeBodyModelFactory(
         robot,
         WholeBodySettings(
             dt=schedule.whole_body_dt,
             baumgarte_alpha=scale.rate(WholeBodySettings().baumgarte_alpha),
-            running_weights=running,
-            terminal_weights=terminal,
-            constraints=WholeBodyConstraintSettings(
-                friction_coefficient=config.mpc.friction,
-                torque_limit_values=limits,
-                minimum_base_height=minimum_base_height(scale),
-            ),
+            running_weights=weights[0],
+            terminal_weights=weights[1],
+            constraints=constraints,
+            base_error=base_error,
         ),
     )
     srb = SRBModelFactory(
         SRBSettings(
             dt=schedule.srb_dt,
             parameters=srb_parameters(robot),
-            running_weights=srb_running,
-            terminal_weights=srb_terminal,
+            running_weights=srb_weights[0],
+            terminal_weights=srb_weights[1],
         )
     )
-    return CafeProblemBuilder(whole_body, srb, schedule, weights=task_weight_sets(config, robot, schedule))
+    return whole_body, srb
 
 
 def task_weight_sets(
@@ -121,23 +139,13 @@ def task_weight_sets(
         )
     except ValueError as error:
         raise ConfigError(f"reference: {error}") from error
-    whole_body = WholeBodyModelFactory(
+    whole_body, srb = _knot_factories(
         robot,
-        WholeBodySettings(
-            dt=schedule.whole_body_dt,
-            baumgarte_alpha=scale.rate(WholeBodySettings().baumgarte_alpha),
-            running_weights=running,
-            terminal_weights=terminal,
-            constraints=constraints,
-            base_error=section.base_error,
-        ),
-    )
-    srb = SRBModelFactory(
-        SRBSettings(
-            dt=schedule.srb_dt,
-            parameters=srb_parameters(robot),
-            running_weights=srb_running,
-            terminal_weights=srb_terminal,
-        )
+        scale,
+        schedule,
+        (running, terminal),
+        (srb_running, srb_terminal),
+        constraints,
+        section.base_error,
     )
     return {TRAJECTORY_WEIGHT_SET: (whole_body, srb)}
