@@ -186,6 +186,23 @@ def test_value_gradient_matches_finite_differences() -> None:
     np.testing.assert_allclose(result.value_gradient, gradient, rtol=1e-5, atol=1e-7)
 
 
+def test_a_result_without_the_value_function_has_the_same_policy() -> None:
+    """``keep_value_function=False`` (the MPC's updates) leaves ``S``, ``s`` out of the result and nothing
+    else: the same trajectory, gains and Q-function blocks; the value gradient says why it is missing."""
+    x0 = np.array([0.3, -0.5])
+    kept = MSiLQRSolver(SolverOptions(max_iterations=5)).solve(two_phase_pendulum(x0))
+    lean = MSiLQRSolver(SolverOptions(max_iterations=5, keep_value_function=False)).solve(
+        two_phase_pendulum(x0)
+    )
+    for mine, theirs in zip(lean.phases, kept.phases, strict=True):
+        assert mine.S.shape[0] == 0 and mine.s.shape[0] == 0
+        assert theirs.S.shape[0] == len(theirs.xs)
+        for name in ("xs", "us", "K", "k", "Qu", "Quu", "Qux"):
+            np.testing.assert_array_equal(getattr(mine, name), getattr(theirs, name), err_msg=name)
+    with pytest.raises(ValueError, match="keep_value_function"):
+        _ = lean.value_gradient
+
+
 def random_rotation(rng: np.random.Generator, scale: float) -> np.ndarray:
     return pin.exp3(scale * rng.standard_normal(3))
 

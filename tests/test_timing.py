@@ -209,6 +209,16 @@ def test_the_low_level_uses_the_knot_whose_interval_contains_the_time():
         dt=np.array([0.004, 0.01, 0.01, 0.01]),
     )
     assert plan.knot_at(0.0399) == 1 and plan.knot_at(0.04) == 2
+    # the feedback phase's plan: a new trajectory over the prepared gains, checked at the boundary
+    moved = plan.with_trajectory(np.ones((n + 1, 37)), np.ones((n, 12)))
+    assert moved.xs[0, 0] == 1.0 and plan.xs[0, 0] == 0.0 and moved.K is plan.K and moved.Qu is plan.Qu
+    assert plan.with_trajectory(plan.xs, plan.us, np.ones((n, 12))).Qu[0, 0] == 1.0
+    with pytest.raises(ValueError, match="needs"):
+        plan.with_trajectory(np.zeros((n, 37)), plan.us)
+    bad = plan.us.copy()
+    bad[1, 3] = np.nan
+    with pytest.raises(ValueError, match="us contains NaN"):
+        plan.with_trajectory(plan.xs, bad)
 
 
 def test_time_quantum_rounds_first_knots_to_few_durations(robot):

@@ -131,12 +131,8 @@ class RecedingHorizonMpc(RecedingHorizonPlanner):
                 result, x, 0.0 if settings.rti_line_search else 1.0, settings.rti_feedback
             )
             built.problem.x0[:] = x
-            phases = [embedded.phases[i] for i in built.whole_body_phases]
-            plan = template.with_trajectory(
-                np.concatenate([phase.xs[:-1] for phase in phases] + [phases[-1].xs[-1:]]),
-                np.concatenate([phase.us for phase in phases]),
-                np.concatenate([phase.Qu for phase in phases]) if not settings.rti_line_search else None,
-            )
+            xs, us, Qu = whole_body_trajectory(built, embedded, with_qu=not settings.rti_line_search)
+            plan = template.with_trajectory(xs, us, Qu)
         except PLANNER_ERRORS as error:
             self._failed(t, f"its feedback failed ({error})")
             return None
@@ -230,24 +226,35 @@ class RecedingHorizonMpc(RecedingHorizonPlanner):
         return plan_from_solution(built, result)
 
 
+def whole_body_trajectory(
+    built: BuiltProblem, result: SolverResult, with_qu: bool = True
+) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+    """States (the knots' and the last one), torques and (``with_qu``) ``Qu`` of the whole-body phases of a
+    solution, each stacked over its knots: what a ``Plan`` carries of the trajectory."""
+    phases = [result.phases[i] for i in built.whole_body_phases]
+    xs = np.concatenate([phase.xs[:-1] for phase in phases] + [phases[-1].xs[-1:]])
+    us = np.concatenate([phase.us for phase in phases])
+    return xs, us, np.concatenate([phase.Qu for phase in phases]) if with_qu else None
+
+
 def plan_from_solution(built: BuiltProblem, result: SolverResult) -> Plan:
     """The whole-body part of a solution as the low-level controller's ``Plan`` (knot times, states, torques,
     gains, Q-function pieces, contacts, planned GRFs)."""
     indices = built.whole_body_phases
     phases = [result.phases[i] for i in indices]
     infos = [built.phases[i] for i in indices]
+    xs, us, Qu = whole_body_trajectory(built, result)
     times = np.concatenate([info.times[:-1] for info in infos])
     dts = np.concatenate([np.diff(info.times) for info in infos])
     contacts = np.concatenate(
         [np.tile(np.asarray(info.stance, dtype=bool), (len(info.times) - 1, 1)) for info in infos]
     )
-    xs = np.concatenate([phase.xs[:-1] for phase in phases] + [phases[-1].xs[-1:]])
     return Plan(
         times=times,
         xs=xs,
-        us=np.concatenate([phase.us for phase in phases]),
+        us=us,
         K=np.concatenate([phase.K for phase in phases]),
-        Qu=np.concatenate([phase.Qu for phase in phases]),
+        Qu=Qu,
         Quu=np.concatenate([phase.Quu for phase in phases]),
         Qux=np.concatenate([phase.Qux for phase in phases]),
         contacts=contacts,

@@ -328,9 +328,12 @@ class MSiLQRSolver:
                 work.state.integrate_rows_into(xs[1:], dxs[1:], out_x[1:])
                 dx = dxs[-1]
             previous, previous_x_end = work, out_x[-1]
-            phases.append(
-                replace(solution, xs=out_x, us=out_u, k=(1.0 - a) * kff, Qu=(1.0 - a) * solution.Qu)
-            )
+            if a == 0.0:  # no step taken here: the feed-forward and Qu stay the prepared ones
+                phases.append(replace(solution, xs=out_x, us=out_u))
+            else:
+                phases.append(
+                    replace(solution, xs=out_x, us=out_u, k=(1.0 - a) * kff, Qu=(1.0 - a) * solution.Qu)
+                )
         return replace(prepared, phases=phases)
 
     def evaluate(
