@@ -84,8 +84,11 @@ def proximal_settings(damping: float) -> pin.ProximalSettings:
 class WholeBodyDynamicsData:
     """Per-knot workspace of ``WholeBodyDynamics`` (one Pinocchio ``Data`` each; created once, reused)."""
 
-    def __init__(self, dynamics: WholeBodyDynamics) -> None:
+    def __init__(self, dynamics: WholeBodyDynamics, force_derivatives: bool = True) -> None:
         model = dynamics.model
+        self.force_derivatives = force_derivatives
+        """Whether ``calc_diff`` writes ``dforces_dx``/``dforces_du`` (each costs Pinocchio copies of its
+        ``dlambda_*``; left zero without)."""
         nv, nu, nf = model.nv, dynamics.nu, dynamics.n_forces
         self.pinocchio = model.createData()
         self.contact_datas = pin.StdVec_RigidConstraintData()
@@ -173,8 +176,10 @@ class WholeBodyDynamics:
     def __repr__(self) -> str:
         return f"WholeBodyDynamics({flags_to_string(self.stance)}, dt={self.dt}, {self.integration})"
 
-    def create_data(self) -> WholeBodyDynamicsData:
-        return WholeBodyDynamicsData(self)
+    def create_data(self, force_derivatives: bool = True) -> WholeBodyDynamicsData:
+        """A workspace; ``force_derivatives=False`` for a user of ``x_next``, ``Fx``, ``Fu`` and the forces
+        only (``calc_diff`` then leaves ``dforces_dx``/``dforces_du`` zero)."""
+        return WholeBodyDynamicsData(self, force_derivatives)
 
     def force_index(self, leg: int) -> int:
         """Offset of ``leg``'s force in ``data.forces`` (``ValueError`` for a swing leg)."""
@@ -222,9 +227,10 @@ class WholeBodyDynamics:
                 model, pd, self.contact_models, data.contact_datas, data.proximal
             )
             da_dtau = data.ddq_dtau
-            copy_force_derivatives(
-                pd.dlambda_dq, pd.dlambda_dv, pd.dlambda_dtau, data.dforces_dx, data.dforces_du
-            )
+            if data.force_derivatives:
+                copy_force_derivatives(
+                    pd.dlambda_dq, pd.dlambda_dv, pd.dlambda_dtau, data.dforces_dx, data.dforces_du
+                )
         else:
             pin.computeABADerivatives(model, pd)  # reuses the WORLD-convention ABA of calc
             da_dtau = data.Minv  # d qdd / d tau; Pinocchio fills only its upper triangle
