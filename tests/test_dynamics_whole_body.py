@@ -450,3 +450,34 @@ def test_compiled_free_flyer_step_matches_pinocchio_integrate(robot, stance, int
         scale = np.abs(dg.Fx).max()
         np.testing.assert_allclose(dc.Fx, dg.Fx, rtol=0, atol=1e-13 * scale)
         np.testing.assert_allclose(dc.Fu, dg.Fu, rtol=0, atol=1e-13 * np.abs(dg.Fu).max())
+
+
+def test_compiled_difference_jacobian_products_match_pinocchio_and_series(robot):
+    """``∂(x1 ⊖ x0)/∂x1 [left | right]`` (the solver's transport of ``[Fx | Fu]``) and ``∂(x1 ⊖ x0)/∂x1 M``
+    of the free-flyer state equal Pinocchio's ``dDifference`` path at large rotations and the exact
+    ``Jlog6`` (inverse of the power series of ``ad``) at small ones."""
+    rng = np.random.default_rng(8)
+    compiled, generic = MultibodyState(robot.model), MultibodyState(robot.model)
+    generic.free_flyer_root = False
+    assert compiled.free_flyer_root
+    left, right = rng.standard_normal((36, 36)), rng.standard_normal((36, 12))
+    for angle in (1e-3, 2e-2, 0.7, 2.0):
+        x0 = random_state(robot, rng, spread=1.0)
+        step = np.concatenate([rng.standard_normal(18), np.zeros(18)])
+        axis = rng.standard_normal(3)
+        step[3:6] = angle * axis / np.linalg.norm(axis)
+        x1 = compiled.integrate(x0, step)
+        out, expected = np.zeros((36, 48)), np.zeros((36, 48))
+        compiled.difference_jacobian_product_stacked(x0, x1, left, right, out)
+        product, expected_product = np.zeros((36, 36)), np.zeros((36, 36))
+        compiled.difference_jacobian_product(x0, x1, left, product)
+        if angle > 0.5:
+            generic.difference_jacobian_product_stacked(x0, x1, left, right, expected)
+            generic.difference_jacobian_product(x0, x1, left, expected_product)
+        else:
+            jacobian = np.eye(36)
+            jacobian[:6, :6] = np.linalg.inv(_right_jacobian_series(compiled.difference(x0, x1)[:6], 1))
+            expected = jacobian @ np.hstack([left, right])
+            expected_product = jacobian @ left
+        np.testing.assert_allclose(out, expected, rtol=0, atol=1e-12 * np.abs(expected).max())
+        np.testing.assert_allclose(product, expected_product, rtol=0, atol=1e-12 * np.abs(expected).max())

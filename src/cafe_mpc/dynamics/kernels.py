@@ -10,6 +10,8 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+from cafe_mpc.core.kernels import stack_columns_left_multiplied
+
 
 @njit(cache=True, nogil=True)
 def euler_step_jacobians(
@@ -607,3 +609,14 @@ def free_flyer_difference_jacobian(q0: np.ndarray, q1: np.ndarray, out: np.ndarr
             out[i, 3 + j] = (
                 coupling[i, 0] * out[0, j] + coupling[i, 1] * out[1, j] + coupling[i, 2] * out[2, j]
             )
+
+
+@njit(cache=True, nogil=True)
+def free_flyer_difference_jacobian_product_stacked(
+    x0: np.ndarray, x1: np.ndarray, left: np.ndarray, right: np.ndarray, out: np.ndarray
+) -> None:
+    """``out = ∂(x1 ⊖ x0)/∂x1 [left | right]`` on the state of ``free_flyer_state_difference``: the base's
+    ``Jlog6`` (``free_flyer_difference_jacobian``) on the first 6 rows, the identity on the others."""
+    jacobian = np.empty((6, 6))
+    free_flyer_difference_jacobian(x0, x1, jacobian)
+    stack_columns_left_multiplied(jacobian, 6, left, right, out)
