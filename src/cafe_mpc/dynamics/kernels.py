@@ -105,13 +105,17 @@ def free_flyer_euler_step_jacobians(
     first_actuated = nv - nu
     dq_block, dstep_block = blocks[:, :6], blocks[:, 6:]
     free_flyer_integrate_jacobians(step, dq_block, dstep_block)
-    for i in range(nv):
-        for j in range(nv):
+    # velocity rows, column by column (Pinocchio's matrices are column-major)
+    for j in range(nv):
+        for i in range(nv):
             Fx[nv + i, j] = dt * da_dq[i, j]
+        for i in range(nv):
             Fx[nv + i, nv + j] = dt * da_dv[i, j]
+    for i in range(nv):
         Fx[nv + i, nv + i] += 1.0
-        for j in range(nu):
-            c = first_actuated + j
+    for j in range(nu):
+        c = first_actuated + j
+        for i in range(nv):
             if symmetric_upper and c < i:
                 Fu[nv + i, j] = dt * da_dtau[c, i]
             else:
@@ -131,26 +135,23 @@ def free_flyer_euler_step_jacobians(
             Fx[i, i] = 1.0
             Fx[i, nv + i] = dt
         return
-    # q+ = q ⊕ (v+ dt): d q+ = Dq dq + (Dstep dt) d v+
+    # q+ = q ⊕ (v+ dt): d q+ = Dq dq + (Dstep dt) d v+, accumulated over the nonzeros of Dstep's row in
+    # order, each a contiguous pass over the columns
     for i in range(6):
         for j in range(nv):
-            total_q = dq_block[i, j] if j < 6 else 0.0
-            total_v = 0.0
-            for p in range(6):
-                coefficient = dstep_block[i, p]
-                if coefficient != 0.0:
-                    coefficient *= dt
-                    total_q += coefficient * Fx[nv + p, j]
-                    total_v += coefficient * Fx[nv + p, nv + j]
-            Fx[i, j] = total_q
-            Fx[i, nv + j] = total_v
+            Fx[i, j] = dq_block[i, j] if j < 6 else 0.0
+            Fx[i, nv + j] = 0.0
         for j in range(nu):
-            total = 0.0
-            for p in range(6):
-                coefficient = dstep_block[i, p]
-                if coefficient != 0.0:
-                    total += (dt * coefficient) * Fu[nv + p, j]
-            Fu[i, j] = total
+            Fu[i, j] = 0.0
+        for p in range(6):
+            coefficient = dstep_block[i, p]
+            if coefficient == 0.0:
+                continue
+            coefficient *= dt
+            for j in range(2 * nv):
+                Fx[i, j] += coefficient * Fx[nv + p, j]
+            for j in range(nu):
+                Fu[i, j] += coefficient * Fu[nv + p, j]
     for i in range(6, nv):
         for j in range(nv):
             Fx[i, j] = dt * Fx[nv + i, j]
