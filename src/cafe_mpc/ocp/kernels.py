@@ -10,11 +10,12 @@ A whole-body knot (``cafe_mpc.ocp.knots.WholeBodyKnot``) stacks everything it pr
   foot, box rows ``sign * z + offset`` on one coordinate of ``x`` or ``u`` (torque, joint-position and
   joint-speed limits), and the base-height row.
 
-``whole_body_cost`` fills the residual rows that need no Pinocchio call (feet, torque), the constraint values,
-and returns cost and worst violation; ``whole_body_derivatives`` forms the gradient ``J' (w r) + G' B'`` and
-the Gauss-Newton Hessian ``J' diag(w) J + G' diag(B'') G`` in one pass, exploiting which rows have an
-identity Jacobian (most of them) and which are dense (the base block, the feet, the friction rows).
-Doing this in one compiled call replaces about forty small numpy calls per knot.
+``whole_body_cost`` fills the residual rows (the state rows too, for a free-flyer robot or the ``"world"``
+base error), the constraint values, and returns cost and worst violation; ``whole_body_derivatives`` forms
+the base Jacobian, the gradient ``J' (w r) + G' B'`` and the Gauss-Newton Hessian
+``J' diag(w) J + G' diag(B'') G`` in one pass, exploiting which rows have an identity Jacobian (most of them)
+and which are dense (the base block, the feet, the friction rows). Doing this in one compiled call replaces
+about forty small numpy calls per knot.
 """
 
 from __future__ import annotations
