@@ -370,6 +370,57 @@ def test_fused_knot_equals_term_by_term(robot, base_error, stance, terminal):
         np.testing.assert_allclose(data.Fx, term_data.Fx, atol=1e-12)
 
 
+@pytest.mark.parametrize("base_error", ["tangent", "world"])
+@pytest.mark.parametrize("integration", ["explicit", "semi_implicit"])
+@pytest.mark.parametrize("stance", [(1, 0, 0, 1), (0, 0, 0, 0)])
+def test_knot_of_a_robot_without_compiled_free_flyer_equals_the_compiled_one(
+    robot, base_error, integration, stance
+):
+    """A knot whose state is not treated as a free-flyer root (other robots: ``pin.difference``,
+    ``pin.dDifference``, ``pin.integrate``, ``pin.dIntegrate``) gives the same results as the compiled
+    free-flyer path (at rotations where Pinocchio's closed forms are accurate)."""
+    from cafe_mpc.dynamics.whole_body import WholeBodyDynamics
+
+    rng = np.random.default_rng(4)
+    settings = WholeBodySettings(base_error=base_error, integration=integration)
+    factory = WholeBodyModelFactory(robot, settings)
+    reference = random_reference(robot, rng)
+    compiled = factory.running_knot(stance, reference)
+    dynamics = WholeBodyDynamics(robot, stance, settings.dt, integration=integration)
+    dynamics.state.free_flyer_root = False
+    dynamics._free_flyer = False
+    generic = WholeBodyKnot(
+        robot, dynamics, settings.running_weights, settings.constraints, reference, base_error=base_error
+    )
+    assert compiled.dynamics._free_flyer
+    data, generic_data = compiled.create_data(), generic.create_data()
+    for _ in range(3):
+        x = random_state(robot, rng, 0.5, 30.0)  # base rotation steps of some 0.3 rad
+        u = 5.0 * rng.standard_normal(12)
+        for model, model_data in ((compiled, data), (generic, generic_data)):
+            model.calc(model_data, x, u)
+            model.calc_diff(model_data, x, u)
+        assert data.cost == pytest.approx(generic_data.cost, rel=1e-12)
+        for name in ("r", "g", "x_next", "Fx", "Fu", "forces", "gradient", "hessian"):
+            expected = getattr(generic_data, name)
+            scale = max(1.0, float(np.abs(expected).max()))
+            actual = getattr(data, name)
+            np.testing.assert_allclose(actual, expected, rtol=0, atol=1e-12 * scale, err_msg=name)
+
+
+def test_terminal_knot_has_no_forces_and_force_derivatives_only_where_priced(robot):
+    factory = WholeBodyModelFactory(robot)
+    terminal = factory.terminal_knot((1, 1, 1, 1))
+    data = terminal.create_data()
+    terminal.calc(data, robot.x_standing, np.zeros(0))
+    np.testing.assert_array_equal(data.forces, 0.0)
+    assert factory.running_knot((1, 1, 1, 1)).create_data().dynamics.force_derivatives
+    unconstrained = WholeBodyModelFactory(
+        robot, WholeBodySettings(constraints=WholeBodyConstraintSettings.unconstrained())
+    )
+    assert not unconstrained.running_knot((1, 1, 1, 1)).create_data().dynamics.force_derivatives
+
+
 def test_running_cost_is_half_weighted_square_times_dt(robot):
     factory = WholeBodyModelFactory(
         robot, WholeBodySettings(constraints=WholeBodyConstraintSettings.unconstrained())

@@ -10,6 +10,8 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+from cafe_mpc.core.kernels import stack_columns_left_multiplied
+
 
 @njit(cache=True, nogil=True)
 def euler_step_jacobians(
@@ -82,6 +84,84 @@ def euler_step_jacobians(
 
 
 @njit(cache=True, nogil=True)
+def free_flyer_euler_step_jacobians(
+    da_dq: np.ndarray,
+    da_dv: np.ndarray,
+    da_dtau: np.ndarray,
+    symmetric_upper: bool,
+    step: np.ndarray,
+    dt: float,
+    explicit: bool,
+    blocks: np.ndarray,
+    Fx: np.ndarray,
+    Fu: np.ndarray,
+) -> None:
+    """``euler_step_jacobians`` for a free-flyer robot (``free_flyer_configuration_integrate``): the Jacobians
+    of ``q ⊕ step`` are the identity but for the base's 6 x 6 blocks (``free_flyer_integrate_jacobians``,
+    written into ``blocks``, 6 x 12), so the configuration rows are formed over those blocks only; the same
+    values as with ``pin.dIntegrate``'s full matrices."""
+    nv = da_dq.shape[0]
+    nu = Fu.shape[1]
+    first_actuated = nv - nu
+    dq_block, dstep_block = blocks[:, :6], blocks[:, 6:]
+    free_flyer_integrate_jacobians(step, dq_block, dstep_block)
+    # velocity rows, column by column (Pinocchio's matrices are column-major)
+    for j in range(nv):
+        for i in range(nv):
+            Fx[nv + i, j] = dt * da_dq[i, j]
+        for i in range(nv):
+            Fx[nv + i, nv + j] = dt * da_dv[i, j]
+    for i in range(nv):
+        Fx[nv + i, nv + i] += 1.0
+    for j in range(nu):
+        c = first_actuated + j
+        for i in range(nv):
+            if symmetric_upper and c < i:
+                Fu[nv + i, j] = dt * da_dtau[c, i]
+            else:
+                Fu[nv + i, j] = dt * da_dtau[i, c]
+    if explicit:
+        for i in range(nv):
+            for j in range(nv):
+                Fx[i, j] = 0.0
+                Fx[i, nv + j] = 0.0
+            for j in range(nu):
+                Fu[i, j] = 0.0
+        for i in range(6):
+            for j in range(6):
+                Fx[i, j] = dq_block[i, j]
+                Fx[i, nv + j] = dt * dstep_block[i, j]
+        for i in range(6, nv):
+            Fx[i, i] = 1.0
+            Fx[i, nv + i] = dt
+        return
+    # q+ = q ⊕ (v+ dt): d q+ = Dq dq + (Dstep dt) d v+, accumulated over the nonzeros of Dstep's row in
+    # order, each a contiguous pass over the columns
+    for i in range(6):
+        for j in range(nv):
+            Fx[i, j] = dq_block[i, j] if j < 6 else 0.0
+            Fx[i, nv + j] = 0.0
+        for j in range(nu):
+            Fu[i, j] = 0.0
+        for p in range(6):
+            coefficient = dstep_block[i, p]
+            if coefficient == 0.0:
+                continue
+            coefficient *= dt
+            for j in range(2 * nv):
+                Fx[i, j] += coefficient * Fx[nv + p, j]
+            for j in range(nu):
+                Fu[i, j] += coefficient * Fu[nv + p, j]
+    for i in range(6, nv):
+        for j in range(nv):
+            Fx[i, j] = dt * Fx[nv + i, j]
+            Fx[i, nv + j] = dt * Fx[nv + i, nv + j]
+        Fx[i, i] += 1.0
+        for j in range(nu):
+            Fu[i, j] = dt * Fu[nv + i, j]
+
+
+@njit(cache=True, nogil=True)
 def copy_force_derivatives(
     dlambda_dq: np.ndarray,
     dlambda_dv: np.ndarray,
@@ -101,24 +181,36 @@ def copy_force_derivatives(
 
 
 @njit(cache=True, nogil=True)
-def euler_velocity_step(
+def euler_step(
     acceleration: np.ndarray,
-    v: np.ndarray,
+    contact_forces: np.ndarray,
+    x: np.ndarray,
     dt: float,
     explicit: bool,
+    nq: int,
+    free_flyer: bool,
     acceleration_out: np.ndarray,
-    v_next: np.ndarray,
+    forces: np.ndarray,
+    x_next: np.ndarray,
     step: np.ndarray,
 ) -> bool:
-    """``v+ = v + qdd dt`` and the configuration step of Eq. (23) (``v dt`` explicit, ``v+ dt``
-    semi-implicit); ``False`` if the acceleration is not finite."""
-    for i in range(v.shape[0]):
+    """One Euler step (23) after the contact dynamics: ``v+ = v + qdd dt``, the configuration step ``step``
+    (``v dt`` explicit, ``v+ dt`` semi-implicit) and, for a free-flyer robot (``free_flyer``), ``q+ = q ⊕
+    step`` (``free_flyer_configuration_integrate``; otherwise the caller integrates). Copies the acceleration
+    and the contact forces out of Pinocchio's data. ``False`` if the acceleration is not finite."""
+    v_next = x_next[nq:]
+    for i in range(step.shape[0]):
         a = acceleration[i]
         if not np.isfinite(a):
             return False
+        v = x[nq + i]
         acceleration_out[i] = a
-        v_next[i] = v[i] + a * dt
-        step[i] = (v[i] if explicit else v_next[i]) * dt
+        v_next[i] = v + a * dt
+        step[i] = (v if explicit else v_next[i]) * dt
+    for i in range(forces.shape[0]):
+        forces[i] = contact_forces[i]
+    if free_flyer:
+        free_flyer_configuration_integrate(x, step, nq, x_next)
     return True
 
 
@@ -303,11 +395,11 @@ def free_flyer_state_difference(x0: np.ndarray, x1: np.ndarray, nq: int, nv: int
 
 
 @njit(cache=True, nogil=True)
-def free_flyer_state_integrate(x: np.ndarray, dx: np.ndarray, nq: int, nv: int, out: np.ndarray) -> None:
-    """``out = x ⊕ dx`` on the state of ``free_flyer_state_difference``: the base ``M exp6(dx_base)`` (its
-    quaternion on the side of the input's and normalised to first order, as ``pin.integrate``), the joints
-    and the velocities added."""
-    vx, vy, vz, wx, wy, wz = dx[0], dx[1], dx[2], dx[3], dx[4], dx[5]
+def free_flyer_configuration_integrate(q: np.ndarray, dq: np.ndarray, nq: int, out: np.ndarray) -> None:
+    """``out[:nq] = q ⊕ dq`` for the configuration of ``free_flyer_configuration_difference``: the base
+    ``M exp6(dq_base)`` (its quaternion on the side of the input's and normalised to first order, as
+    ``pin.integrate``), the joints added."""
+    vx, vy, vz, wx, wy, wz = dq[0], dq[1], dq[2], dq[3], dq[4], dq[5]
     t2 = wx * wx + wy * wy + wz * wz
     theta = np.sqrt(t2)
     if theta < _TAYLOR:
@@ -327,9 +419,9 @@ def free_flyer_state_integrate(x: np.ndarray, dx: np.ndarray, nq: int, nv: int, 
     tx = alpha_v * vx + wv * wx + alpha_cross * (wy * vz - wz * vy)
     ty = alpha_v * vy + wv * wy + alpha_cross * (wz * vx - wx * vz)
     tz = alpha_v * vz + wv * wz + alpha_cross * (wx * vy - wy * vx)
-    ax, ay, az, aw = x[3], x[4], x[5], x[6]
+    ax, ay, az, aw = q[3], q[4], q[5], q[6]
     px, py, pz = _rotate(ax, ay, az, aw, tx, ty, tz)
-    out[0], out[1], out[2] = x[0] + px, x[1] + py, x[2] + pz
+    out[0], out[1], out[2] = q[0] + px, q[1] + py, q[2] + pz
     ex, ey, ez, ew = half_sine * wx, half_sine * wy, half_sine * wz, half_cosine
     qw = aw * ew - ax * ex - ay * ey - az * ez
     qx = aw * ex + ax * ew + ay * ez - az * ey
@@ -340,7 +432,14 @@ def free_flyer_state_integrate(x: np.ndarray, dx: np.ndarray, nq: int, nv: int, 
     scale = 0.5 * (3.0 - (qx * qx + qy * qy + qz * qz + qw * qw))
     out[3], out[4], out[5], out[6] = qx * scale, qy * scale, qz * scale, qw * scale
     for i in range(7, nq):
-        out[i] = x[i] + dx[i - 1]
+        out[i] = q[i] + dq[i - 1]
+
+
+@njit(cache=True, nogil=True)
+def free_flyer_state_integrate(x: np.ndarray, dx: np.ndarray, nq: int, nv: int, out: np.ndarray) -> None:
+    """``out = x ⊕ dx`` on the state of ``free_flyer_state_difference``: the configuration's
+    ``free_flyer_configuration_integrate``, the velocities added."""
+    free_flyer_configuration_integrate(x, dx, nq, out)
     for i in range(nv):
         out[nq + i] = x[nq + i] + dx[nv + i]
 
@@ -352,3 +451,173 @@ def free_flyer_state_integrate_rows(
     """``free_flyer_state_integrate`` on every row of a trajectory."""
     for k in range(xs.shape[0]):
         free_flyer_state_integrate(xs[k], dxs[k], nq, nv, out[k])
+
+
+@njit(cache=True, nogil=True)
+def exp_coefficients(theta: float) -> tuple:
+    """``(sin t / t, (1 - cos t) / t^2, (1 - sin t / t) / t^2)`` at ``t = theta`` without cancellation
+    (series below 1e-2 rad, the half-angle form of ``1 - cos``): the coefficients of ``exp3`` and of its
+    right Jacobian ``Jexp3(w) = a I - b [w]x + c w w'``."""
+    t2 = theta * theta
+    if theta < 1e-2:
+        return (
+            1.0 - t2 / 6.0 + t2 * t2 / 120.0,
+            0.5 - t2 / 24.0 + t2 * t2 / 720.0,
+            1.0 / 6.0 - t2 / 120.0 + t2 * t2 / 5040.0,
+        )
+    sine = np.sin(theta) / theta
+    half = np.sin(0.5 * theta)
+    return sine, 2.0 * half * half / t2, (1.0 - sine) / t2
+
+
+@njit(cache=True, nogil=True)
+def se3_log_coefficients(theta: float) -> tuple:
+    """``(alpha, beta, beta'(t) / t)`` at ``t = theta`` with ``alpha = (t / 2) cot(t / 2)`` and ``beta = (1 -
+    alpha) / t^2`` (as ``log_coefficients``): the coefficients of ``Jlog3`` and of the coupling blocks of
+    ``Jlog6`` and ``Jexp6``. Their closed forms cancel (``beta'/t`` to ``2 eps / t^6``: 1 % off at 1e-2 rad),
+    so below 0.3 rad ``beta`` and ``beta'/t`` are the series ``beta = sum c_k t^(2k)``, ``beta'/t = sum 2k c_k
+    t^(2k-2)`` (``c_k`` from the Bernoulli numbers, truncated below 1e-16 relative) and ``alpha = 1 - t^2
+    beta``; above, ``alpha`` from the half angle."""
+    t2 = theta * theta
+    if theta < 0.3:
+        tail = 1.0 / 1209600.0 + t2 * (1.0 / 47900160.0 + t2 * (691.0 / 1307674368000.0))
+        beta = 1.0 / 12.0 + t2 * (1.0 / 720.0 + t2 * (1.0 / 30240.0 + t2 * tail))
+        beta_dot = 1.0 / 360.0 + t2 * (
+            1.0 / 7560.0 + t2 * (1.0 / 201600.0 + t2 * (1.0 / 5987520.0 + t2 * (6910.0 / 1307674368000.0)))
+        )
+        return 1.0 - t2 * beta, beta, beta_dot
+    half = 0.5 * theta
+    alpha = half * np.cos(half) / np.sin(half)
+    st, ct = np.sin(theta), np.cos(theta)
+    return alpha, (1.0 - alpha) / t2, -2.0 / (t2 * t2) + (1.0 + st / theta) / t2 / (2.0 * (1.0 - ct))
+
+
+@njit(cache=True, nogil=True)
+def _set_skew_block(out: np.ndarray, row: int, column: int, a: float, x: float, y: float, z: float) -> None:
+    """``out[row:row+3, column:column+3] += a [(x, y, z)]x``."""
+    out[row, column + 1] -= a * z
+    out[row + 1, column] += a * z
+    out[row, column + 2] += a * y
+    out[row + 2, column] -= a * y
+    out[row + 1, column + 2] -= a * x
+    out[row + 2, column + 1] += a * x
+
+
+@njit(cache=True, nogil=True)
+def _se3_coupling(
+    beta: float, beta_dot: float, w: tuple, p: tuple, theta2: float, scratch: np.ndarray
+) -> None:
+    """``scratch = [p]x / 2 + (beta_dot w.p) w w' - (t^2 beta_dot + 2 beta) p w' + beta (w.p I + w p')``:
+    the matrix that, times the rotation block, gives the coupling block of ``Jlog6`` (``Jexp6``: minus)."""
+    w_p = w[0] * p[0] + w[1] * p[1] + w[2] * p[2]
+    ww = beta_dot * w_p
+    pw = theta2 * beta_dot + 2.0 * beta
+    for i in range(3):
+        for j in range(3):
+            scratch[i, j] = (ww * w[i] - pw * p[i]) * w[j] + beta * w[i] * p[j]
+        scratch[i, i] += w_p * beta
+    _set_skew_block(scratch, 0, 0, 0.5, p[0], p[1], p[2])
+
+
+@njit(cache=True, nogil=True)
+def free_flyer_integrate_jacobians(step: np.ndarray, dq_block: np.ndarray, dstep_block: np.ndarray) -> None:
+    """The free flyer's 6 x 6 blocks of ``pin.dIntegrate(q, s)`` for the base step ``s = step[:6]`` (linear,
+    angular; they do not depend on ``q``): ``d(q ⊕ s)/dq = Ad(exp6(s)^-1)`` into ``dq_block`` and the right
+    Jacobian ``d(q ⊕ s)/ds = Jexp6(s)`` into ``dstep_block`` (Pinocchio's ``Jexp6`` formula), with the
+    coefficients of ``exp_coefficients`` and ``se3_log_coefficients``: accurate at every angle, where
+    Pinocchio's closed forms lose up to 1e-5 between 1e-4 and 1e-2 rad."""
+    vx, vy, vz, wx, wy, wz = step[0], step[1], step[2], step[3], step[4], step[5]
+    w = (wx, wy, wz)
+    t2 = wx * wx + wy * wy + wz * wz
+    theta = np.sqrt(t2)
+    a, b, c = exp_coefficients(theta)
+    # exp6(s) = (R, p): R = cos t I + a [w]x + b w w', p = a v + c (w.v) w + b w x v
+    cosine = 1.0 - b * t2
+    wv = c * (wx * vx + wy * vy + wz * vz)
+    px = a * vx + wv * wx + b * (wy * vz - wz * vy)
+    py = a * vy + wv * wy + b * (wz * vx - wx * vz)
+    pz = a * vz + wv * wz + b * (wx * vy - wy * vx)
+    # Ad(exp6(s)^-1) = [[R', -R' [p]x], [0, R']]
+    for i in range(3):
+        for j in range(3):
+            value = b * w[i] * w[j]
+            dq_block[i, j] = value
+            dq_block[3 + i, 3 + j] = value
+            dq_block[3 + i, j] = 0.0
+        dq_block[i, i] += cosine
+        dq_block[3 + i, 3 + i] += cosine
+    _set_skew_block(dq_block, 0, 0, -a, wx, wy, wz)
+    _set_skew_block(dq_block, 3, 3, -a, wx, wy, wz)
+    for i in range(3):
+        r0, r1, r2 = dq_block[i, 0], dq_block[i, 1], dq_block[i, 2]
+        dq_block[i, 3] = -(r1 * pz - r2 * py)
+        dq_block[i, 4] = -(r2 * px - r0 * pz)
+        dq_block[i, 5] = -(r0 * py - r1 * px)
+    # Jexp6(s) = [[J3, -J3 X], [0, J3]], J3 = Jexp3(w) = a I - b [w]x + c w w', X of p3 = J3' v
+    for i in range(3):
+        for j in range(3):
+            value = c * w[i] * w[j]
+            dstep_block[i, j] = value
+            dstep_block[3 + i, 3 + j] = value
+            dstep_block[3 + i, j] = 0.0
+        dstep_block[i, i] += a
+        dstep_block[3 + i, 3 + i] += a
+    _set_skew_block(dstep_block, 0, 0, -b, wx, wy, wz)
+    _set_skew_block(dstep_block, 3, 3, -b, wx, wy, wz)
+    p3 = (
+        dstep_block[0, 0] * vx + dstep_block[1, 0] * vy + dstep_block[2, 0] * vz,
+        dstep_block[0, 1] * vx + dstep_block[1, 1] * vy + dstep_block[2, 1] * vz,
+        dstep_block[0, 2] * vx + dstep_block[1, 2] * vy + dstep_block[2, 2] * vz,
+    )
+    _, beta, beta_dot = se3_log_coefficients(theta)
+    coupling = np.empty((3, 3))
+    _se3_coupling(beta, beta_dot, w, p3, t2, coupling)
+    for i in range(3):
+        for j in range(3):
+            dstep_block[i, 3 + j] = -(
+                dstep_block[i, 0] * coupling[0, j]
+                + dstep_block[i, 1] * coupling[1, j]
+                + dstep_block[i, 2] * coupling[2, j]
+            )
+
+
+@njit(cache=True, nogil=True)
+def free_flyer_difference_jacobian(q0: np.ndarray, q1: np.ndarray, out: np.ndarray) -> None:
+    """``out`` (6 x 6) = the free flyer's block of ``pin.dDifference(q0, q1, ARG1)``: the right Jacobian
+    ``Jlog6(M0^-1 M1) = [[J3, C J3], [0, J3]]`` with ``J3 = Jlog3 = alpha I + beta w w' + [w]x / 2`` and
+    Pinocchio's ``C`` of the translation ``p = R0' (p1 - p0)``; the rotation log from the quaternions as in
+    ``free_flyer_configuration_difference``, the coefficients by ``se3_log_coefficients`` (accurate at every
+    angle, where Pinocchio's lose up to 1e-5)."""
+    ax, ay, az, aw = q0[3], q0[4], q0[5], q0[6]
+    px, py, pz = _rotate(-ax, -ay, -az, aw, q1[0] - q0[0], q1[1] - q0[1], q1[2] - q0[2])
+    wx, wy, wz, theta = relative_rotation_log(ax, ay, az, aw, q1[3], q1[4], q1[5], q1[6])
+    alpha, beta, beta_dot = se3_log_coefficients(theta)
+    w = (wx, wy, wz)
+    for i in range(3):
+        for j in range(3):
+            value = beta * w[i] * w[j]
+            out[i, j] = value
+            out[3 + i, 3 + j] = value
+            out[3 + i, j] = 0.0
+        out[i, i] += alpha
+        out[3 + i, 3 + i] += alpha
+    _set_skew_block(out, 0, 0, 0.5, wx, wy, wz)
+    _set_skew_block(out, 3, 3, 0.5, wx, wy, wz)
+    coupling = np.empty((3, 3))
+    _se3_coupling(beta, beta_dot, w, (px, py, pz), theta * theta, coupling)
+    for i in range(3):
+        for j in range(3):
+            out[i, 3 + j] = (
+                coupling[i, 0] * out[0, j] + coupling[i, 1] * out[1, j] + coupling[i, 2] * out[2, j]
+            )
+
+
+@njit(cache=True, nogil=True)
+def free_flyer_difference_jacobian_product_stacked(
+    x0: np.ndarray, x1: np.ndarray, left: np.ndarray, right: np.ndarray, out: np.ndarray
+) -> None:
+    """``out = ∂(x1 ⊖ x0)/∂x1 [left | right]`` on the state of ``free_flyer_state_difference``: the base's
+    ``Jlog6`` (``free_flyer_difference_jacobian``) on the first 6 rows, the identity on the others."""
+    jacobian = np.empty((6, 6))
+    free_flyer_difference_jacobian(x0, x1, jacobian)
+    stack_columns_left_multiplied(jacobian, 6, left, right, out)

@@ -21,6 +21,8 @@ import pinocchio as pin
 from cafe_mpc.core.interfaces import StateManifold
 from cafe_mpc.core.kernels import stack_columns_left_multiplied
 from cafe_mpc.dynamics.kernels import (
+    free_flyer_difference_jacobian,
+    free_flyer_difference_jacobian_product_stacked,
     free_flyer_state_difference,
     free_flyer_state_integrate,
     free_flyer_state_integrate_rows,
@@ -116,6 +118,9 @@ class MultibodyState(StateManifold):
     def difference_jacobian_product_stacked(
         self, x0: np.ndarray, x1: np.ndarray, left: np.ndarray, right: np.ndarray, out: np.ndarray
     ) -> None:
+        if self.free_flyer_root:
+            free_flyer_difference_jacobian_product_stacked(x0, x1, left, right, out)
+            return
         rows = self._lie_rows or self.nv
         nq = self.nq
         jacobian = pin.dDifference(self.model, x0[:nq], x1[:nq], pin.ArgumentPosition.ARG1)
@@ -128,7 +133,11 @@ class MultibodyState(StateManifold):
         differ from the identity, so only those rows are multiplied."""
         nq = self.nq
         out[:] = matrix
-        if self._lie_rows:
+        if self.free_flyer_root:
+            jacobian = np.empty((6, 6))
+            free_flyer_difference_jacobian(x0, x1, jacobian)
+            np.matmul(jacobian, matrix[:6], out=out[:6])
+        elif self._lie_rows:
             rows = self._lie_rows
             jacobian = pin.dDifference(self.model, x0[:nq], x1[:nq], pin.ArgumentPosition.ARG1)
             np.matmul(jacobian[:rows, :rows], matrix[:rows], out=out[:rows])

@@ -31,7 +31,12 @@ import numpy as np
 import pinocchio as pin
 
 from cafe_mpc.core.contacts import as_contact_flags, flags_to_string
-from cafe_mpc.dynamics.kernels import copy_force_derivatives, euler_step_jacobians, euler_velocity_step
+from cafe_mpc.dynamics.kernels import (
+    copy_force_derivatives,
+    euler_step,
+    euler_step_jacobians,
+    free_flyer_euler_step_jacobians,
+)
 from cafe_mpc.dynamics.multibody_state import MultibodyState
 from cafe_mpc.robots.robot import Robot
 
@@ -79,8 +84,11 @@ def proximal_settings(damping: float) -> pin.ProximalSettings:
 class WholeBodyDynamicsData:
     """Per-knot workspace of ``WholeBodyDynamics`` (one Pinocchio ``Data`` each; created once, reused)."""
 
-    def __init__(self, dynamics: WholeBodyDynamics) -> None:
+    def __init__(self, dynamics: WholeBodyDynamics, force_derivatives: bool = True) -> None:
         model = dynamics.model
+        self.force_derivatives = force_derivatives
+        """Whether ``calc_diff`` writes ``dforces_dx``/``dforces_du`` (each costs Pinocchio copies of its
+        ``dlambda_*``; left zero without)."""
         nv, nu, nf = model.nv, dynamics.nu, dynamics.n_forces
         self.pinocchio = model.createData()
         self.contact_datas = pin.StdVec_RigidConstraintData()
@@ -102,6 +110,9 @@ class WholeBodyDynamicsData:
         self.acceleration = np.zeros(nv)
         self.forces = np.zeros(nf)
         """Stance-foot ground reaction forces (world frame, 3 per stance foot, leg order)."""
+        self._actuated_tau = self.tau[nv - nu :]
+        self._contact_forces = self.lambda_c if dynamics.n_contacts else self.forces
+        self._integrate_blocks = np.zeros((6, 12))
         self.x_next = np.zeros(model.nq + nv)
         self.Fx = np.zeros((2 * nv, 2 * nv))
         self.Fu = np.zeros((2 * nv, nu))
@@ -158,14 +169,17 @@ class WholeBodyDynamics:
         self.n_forces = 3 * self.n_contacts
         self.contact_models = foot_contact_models(robot, self.stance, self.baumgarte_alpha)
         self._nq = robot.model.nq
-        self._eye_nv = np.eye(robot.model.nv)
-        self._strict_lower = np.tril_indices(robot.model.nv, -1)
+        self._free_flyer = self.state.free_flyer_root
+        """A free flyer at the root: the step and its Jacobians are compiled (``euler_step``,
+        ``free_flyer_euler_step_jacobians``) instead of ``pin.integrate`` and ``pin.dIntegrate``."""
 
     def __repr__(self) -> str:
         return f"WholeBodyDynamics({flags_to_string(self.stance)}, dt={self.dt}, {self.integration})"
 
-    def create_data(self) -> WholeBodyDynamicsData:
-        return WholeBodyDynamicsData(self)
+    def create_data(self, force_derivatives: bool = True) -> WholeBodyDynamicsData:
+        """A workspace; ``force_derivatives=False`` for a user of ``x_next``, ``Fx``, ``Fu`` and the forces
+        only (``calc_diff`` then leaves ``dforces_dx``/``dforces_du`` zero)."""
+        return WholeBodyDynamicsData(self, force_derivatives)
 
     def force_index(self, leg: int) -> int:
         """Offset of ``leg``'s force in ``data.forces`` (``ValueError`` for a swing leg)."""
@@ -175,40 +189,66 @@ class WholeBodyDynamics:
 
     def calc(self, data: WholeBodyDynamicsData, x: np.ndarray, u: np.ndarray) -> None:
         """Write ``data.acceleration``, ``data.forces`` and ``data.x_next``."""
-        model, nq, dt = self.model, self._nq, self.dt
+        model, nq = self.model, self._nq
         q, v = x[:nq], x[nq:]
-        data.tau[6:] = u
+        data._actuated_tau[:] = u
         if self.n_contacts:
             acceleration = pin.constraintDynamics(
                 model, data.pinocchio, q, v, data.tau, self.contact_models, data.contact_datas, data.proximal
             )
-            data.forces[:] = data.lambda_c
         else:
             # WORLD convention: what computeABADerivatives(model, data) reuses in calc_diff.
             acceleration = pin.aba(model, data.pinocchio, q, v, data.tau, pin.Convention.WORLD)
-        if not euler_velocity_step(
-            acceleration, v, dt, self._explicit, data.acceleration, data.x_next[nq:], data._step
+        free_flyer = self._free_flyer
+        if not euler_step(
+            acceleration,
+            data._contact_forces,
+            x,
+            self.dt,
+            self._explicit,
+            nq,
+            free_flyer,
+            data.acceleration,
+            data.forces,
+            data.x_next,
+            data._step,
         ):
             self._raise_non_finite(x, u)
-        data.x_next[:nq] = pin.integrate(model, q, data._step)
+        if not free_flyer:
+            data.x_next[:nq] = pin.integrate(model, q, data._step)
 
     def calc_diff(self, data: WholeBodyDynamicsData, x: np.ndarray, u: np.ndarray) -> None:
         """Write ``data.Fx``, ``data.Fu`` (tangent Jacobians of ``x_next``) and ``data.dforces_dx``,
         ``data.dforces_du``. Assumes ``calc(data, x, u)`` ran last on this data."""
-        model, nq = self.model, self._nq
+        model = self.model
         pd = data.pinocchio
         if self.n_contacts:
             pin.computeConstraintDynamicsDerivatives(
                 model, pd, self.contact_models, data.contact_datas, data.proximal
             )
             da_dtau = data.ddq_dtau
-            copy_force_derivatives(
-                pd.dlambda_dq, pd.dlambda_dv, pd.dlambda_dtau, data.dforces_dx, data.dforces_du
-            )
+            if data.force_derivatives:
+                copy_force_derivatives(
+                    pd.dlambda_dq, pd.dlambda_dv, pd.dlambda_dtau, data.dforces_dx, data.dforces_du
+                )
         else:
             pin.computeABADerivatives(model, pd)  # reuses the WORLD-convention ABA of calc
             da_dtau = data.Minv  # d qdd / d tau; Pinocchio fills only its upper triangle
-        dintegrate_dq, dintegrate_dstep = pin.dIntegrate(model, x[:nq], data._step)
+        if self._free_flyer:
+            free_flyer_euler_step_jacobians(
+                data.ddq_dq,
+                data.ddq_dv,
+                da_dtau,
+                self.n_contacts == 0,
+                data._step,
+                self.dt,
+                self._explicit,
+                data._integrate_blocks,
+                data.Fx,
+                data.Fu,
+            )
+            return
+        dintegrate_dq, dintegrate_dstep = pin.dIntegrate(model, x[: self._nq], data._step)
         euler_step_jacobians(
             data.ddq_dq,
             data.ddq_dv,
@@ -217,7 +257,7 @@ class WholeBodyDynamics:
             dintegrate_dq,
             dintegrate_dstep,
             self.dt,
-            self.integration == "explicit",
+            self._explicit,
             data.Fx,
             data.Fu,
         )

@@ -10,11 +10,12 @@ A whole-body knot (``cafe_mpc.ocp.knots.WholeBodyKnot``) stacks everything it pr
   foot, box rows ``sign * z + offset`` on one coordinate of ``x`` or ``u`` (torque, joint-position and
   joint-speed limits), and the base-height row.
 
-``whole_body_cost`` fills the residual rows that need no Pinocchio call (feet, torque), the constraint values,
-and returns cost and worst violation; ``whole_body_derivatives`` forms the gradient ``J' (w r) + G' B'`` and
-the Gauss-Newton Hessian ``J' diag(w) J + G' diag(B'') G`` in one pass, exploiting which rows have an
-identity Jacobian (most of them) and which are dense (the base block, the feet, the friction rows).
-Doing this in one compiled call replaces about forty small numpy calls per knot.
+``whole_body_cost`` fills the residual rows (the state rows too, for a free-flyer robot or the ``"world"``
+base error), the constraint values, and returns cost and worst violation; ``whole_body_derivatives`` forms
+the base Jacobian, the gradient ``J' (w r) + G' B'`` and the Gauss-Newton Hessian
+``J' diag(w) J + G' diag(B'') G`` in one pass, exploiting which rows have an identity Jacobian (most of them)
+and which are dense (the base block, the feet, the friction rows). Doing this in one compiled call replaces
+about forty small numpy calls per knot.
 """
 
 from __future__ import annotations
@@ -24,7 +25,13 @@ import math
 import numpy as np
 from numba import njit
 
-from cafe_mpc.dynamics.kernels import log_coefficients, relative_rotation_log
+from cafe_mpc.dynamics.kernels import (
+    free_flyer_configuration_difference,
+    free_flyer_difference_jacobian,
+    log_coefficients,
+    quaternion_rotation_into,
+    relative_rotation_log,
+)
 
 
 @njit(cache=True, nogil=True)
@@ -48,62 +55,119 @@ def relaxed_barrier(
     return total
 
 
+# A knot's constants are packed into one integer and one float array, and its data's outputs live in one
+# float buffer (``WholeBodyKnot._pack_parameters``): the compiled calls then take a dozen arrays instead of
+# some forty arguments, each of which costs its unboxing on every call. The integer array starts with the
+# header: the integer scalars, then the start of every section of the integer array (after the header), of
+# the float array (after its scalars) and of the workspace, each followed by the end of its last section.
+FEET_ROW, TORQUE_ROW, N_FRICTION, HEIGHT_INDEX, VELOCITY_ROWS_FROM, NQ, NV, NU_TORQUE, BASE_ERROR = range(9)
+NO_STATE, TANGENT_FREE_FLYER, TANGENT_GENERIC, WORLD = range(4)
+"""``BASE_ERROR``: no state tracking; ``x ⊖ x_ref`` of a free-flyer robot (compiled); of another robot (the
+caller sets the rows ``r[:nv]`` and the base Jacobian); the ``"world"`` base error."""
+INT_SECTIONS = 16
+POSITION_LEGS, VELOCITY_LEGS, BOX_ON_CONTROL, BOX_INDEX, BOX_COLUMN = range(5)
+STANCE_LEGS, BASE_ROWS, BASE_MASK = range(5, 8)
+FLOAT_SECTIONS = INT_SECTIONS + 9
+MU, MINIMUM_HEIGHT, SCALE = range(3)
+"""The float scalars, before the float sections."""
+WEIGHTS, BOX_SIGN, BOX_OFFSET, DELTA, EPS = range(5)
+WORK_SECTIONS = FLOAT_SECTIONS + 6
+R, WR, G, D1, D2, VALUES, LAST_X, LAST_U, FORCES, BASE_ROTATION, ROTATION_ERROR, BASE_JACOBIAN = range(12)
+HEADER = WORK_SECTIONS + 13
+
+
+def pack_sections(header: np.ndarray, first: int, sections: list, dtype) -> np.ndarray:
+    """The concatenation of ``sections`` (flattened), their starts and its end written into
+    ``header[first:]``."""
+    starts = np.cumsum([0] + [np.size(section) for section in sections])
+    header[first : first + len(sections) + 1] = starts
+    return np.concatenate([np.asarray(section, dtype=dtype).ravel() for section in sections])
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _section(values: np.ndarray, header: np.ndarray, first: int, k: int, offset: int) -> np.ndarray:
+    """Section ``k`` of ``values`` (its starts at ``header[first:]``) after ``offset`` leading entries."""
+    return values[offset + header[first + k] : offset + header[first + k + 1]]
+
+
+@njit(cache=True, nogil=True)
+def same_inputs(x: np.ndarray, u: np.ndarray, last_x: np.ndarray, last_u: np.ndarray) -> bool:
+    """``x == last_x`` and ``u == last_u`` element-wise (``calc_diff`` after ``calc`` at the same point)."""
+    for i in range(x.shape[0]):
+        if x[i] != last_x[i]:
+            return False
+    for i in range(u.shape[0]):  # noqa: SIM110 - an explicit loop compiles to a tight, early-exit loop
+        if u[i] != last_u[i]:
+            return False
+    return True
+
+
 @njit(cache=True, nogil=True)
 def whole_body_cost(
-    u: np.ndarray,
     x: np.ndarray,
-    r: np.ndarray,
-    w: np.ndarray,
-    wr: np.ndarray,
-    foot_positions: np.ndarray,
-    foot_velocities: np.ndarray,
+    u: np.ndarray,
+    x_reference: np.ndarray,
     ref_positions: np.ndarray,
     ref_velocities: np.ndarray,
-    position_legs: np.ndarray,
-    velocity_legs: np.ndarray,
-    feet_row: int,
     ref_torque: np.ndarray,
-    torque_row: int,
+    integers: np.ndarray,
+    floats: np.ndarray,
+    work: np.ndarray,
     forces: np.ndarray,
-    mu: float,
-    n_friction: int,
-    box_on_control: np.ndarray,
-    box_index: np.ndarray,
-    box_sign: np.ndarray,
-    box_offset: np.ndarray,
-    height_index: int,
-    minimum_height: float,
-    g: np.ndarray,
-    delta: np.ndarray,
-    eps: np.ndarray,
-    d1: np.ndarray,
-    d2: np.ndarray,
-    scale: float,
-    out: np.ndarray,
-    velocity_rows_from: int,
-    x_reference: np.ndarray,
-    nq: int,
-    nv: int,
-    stance_legs: np.ndarray,
-    foot_forces: np.ndarray,
-    last_x: np.ndarray,
-    last_u: np.ndarray,
+    foot_positions: np.ndarray,
+    foot_velocities: np.ndarray,
 ) -> None:
-    """Cost of one knot. The caller sets the state rows ``r[:velocity_rows_from]`` (the base needs Lie-group
-    maths); the plain velocity rows ``r[velocity_rows_from:2 nv] = v - v_ref``, the feet and torque rows and
-    ``g`` are set here. Also scatters the stance forces into ``foot_forces`` (n_feet x 3, zero on swing feet)
-    and remembers the evaluation point in ``last_x``/``last_u``.
+    """Cost of one knot from its packed parameters (``integers``, ``floats``; see ``HEADER``) into its
+    workspace ``work`` (residual ``r``, weighted ``wr``, constraint values ``g`` and the barrier's ``d1``,
+    ``d2``, ``values``, the evaluation point ``last_x``/``last_u``, the feet's forces, the base rotation).
 
-    ``out[0]`` = ``scale * (0.5 r' W r + sum eps B(g))``, ``out[1]`` = worst violation ``max(0, -min g)``.
+    The state rows of ``r``: ``x ⊖ x_ref`` of a free-flyer robot (``free_flyer_configuration_difference``)
+    or the ``"world"`` error (``world_base_error``) here; for another robot the caller sets ``r[:nv]``. The
+    plain velocity rows ``v - v_ref``, the feet and torque rows and ``g`` follow. The stance forces
+    (``forces``, 3 per stance foot) are scattered into the feet's forces (zero on swing feet).
+
+    ``values[0]`` = ``scale * (0.5 r' W r + sum eps B(g))``, ``values[1]`` = worst violation
+    ``max(0, -min g)``.
     """
+    h = integers
+    feet_row, torque_row, n_friction = h[FEET_ROW], h[TORQUE_ROW], h[N_FRICTION]
+    height_index, velocity_rows_from, nq, nv = h[HEIGHT_INDEX], h[VELOCITY_ROWS_FROM], h[NQ], h[NV]
+    base_error = h[BASE_ERROR]
+    position_legs = _section(h, h, INT_SECTIONS, POSITION_LEGS, HEADER)
+    velocity_legs = _section(h, h, INT_SECTIONS, VELOCITY_LEGS, HEADER)
+    box_on_control = _section(h, h, INT_SECTIONS, BOX_ON_CONTROL, HEADER)
+    box_index = _section(h, h, INT_SECTIONS, BOX_INDEX, HEADER)
+    stance_legs = _section(h, h, INT_SECTIONS, STANCE_LEGS, HEADER)
+    mu, minimum_height, scale = floats[MU], floats[MINIMUM_HEIGHT], floats[SCALE]
+    w = _section(floats, h, FLOAT_SECTIONS, WEIGHTS, 3)
+    box_sign = _section(floats, h, FLOAT_SECTIONS, BOX_SIGN, 3)
+    box_offset = _section(floats, h, FLOAT_SECTIONS, BOX_OFFSET, 3)
+    delta = _section(floats, h, FLOAT_SECTIONS, DELTA, 3)
+    eps = _section(floats, h, FLOAT_SECTIONS, EPS, 3)
+    r = _section(work, h, WORK_SECTIONS, R, 0)
+    wr = _section(work, h, WORK_SECTIONS, WR, 0)
+    g = _section(work, h, WORK_SECTIONS, G, 0)
+    d1 = _section(work, h, WORK_SECTIONS, D1, 0)
+    d2 = _section(work, h, WORK_SECTIONS, D2, 0)
+    out = _section(work, h, WORK_SECTIONS, VALUES, 0)
+    last_x = _section(work, h, WORK_SECTIONS, LAST_X, 0)
+    last_u = _section(work, h, WORK_SECTIONS, LAST_U, 0)
+    foot_forces = _section(work, h, WORK_SECTIONS, FORCES, 0)
+    rotation = _section(work, h, WORK_SECTIONS, BASE_ROTATION, 0).reshape((3, 3))
+    rotation_error = _section(work, h, WORK_SECTIONS, ROTATION_ERROR, 0)
+    if base_error == WORLD or height_index >= 0:
+        quaternion_rotation_into(x[3:7], rotation)
+    if base_error == TANGENT_FREE_FLYER:
+        free_flyer_configuration_difference(x_reference, x, nq, r)
+    elif base_error == WORLD:
+        world_base_error(x, x_reference, nq, nv, rotation, r, rotation_error)
     for i in range(velocity_rows_from, 2 * nv):
         r[i] = x[nq + i - nv] - x_reference[nq + i - nv]
     for i in range(foot_forces.shape[0]):
+        foot_forces[i] = 0.0
+    for c in range(min(stance_legs.shape[0], forces.shape[0] // 3)):
         for a in range(3):
-            foot_forces[i, a] = 0.0
-    for c in range(stance_legs.shape[0]):
-        for a in range(3):
-            foot_forces[stance_legs[c], a] = forces[3 * c + a]
+            foot_forces[3 * stance_legs[c] + a] = forces[3 * c + a]
     for i in range(x.shape[0]):
         last_x[i] = x[i]
     for i in range(u.shape[0]):
@@ -156,40 +220,50 @@ def whole_body_cost(
 def whole_body_derivatives(
     gradient: np.ndarray,
     hessian: np.ndarray,
-    scale: float,
-    w: np.ndarray,
-    wr: np.ndarray,
-    ndx: int,
-    nv: int,
-    base_mask: np.ndarray,
-    base_rows: np.ndarray,
-    base_jacobian: np.ndarray,
-    position_legs: np.ndarray,
-    velocity_legs: np.ndarray,
-    feet_row: int,
+    x: np.ndarray,
+    x_reference: np.ndarray,
+    integers: np.ndarray,
+    floats: np.ndarray,
+    work: np.ndarray,
     position_jacobians: np.ndarray,
     velocity_dq: np.ndarray,
-    torque_row: int,
-    nu_torque: int,
-    n_friction: int,
-    mu: float,
     dforces_dx: np.ndarray,
     dforces_du: np.ndarray,
-    box_column: np.ndarray,
-    box_sign: np.ndarray,
-    height_index: int,
-    height_gradient: np.ndarray,
-    d1: np.ndarray,
-    d2: np.ndarray,
 ) -> None:
-    """Gradient (``ndx + nu``) and Gauss-Newton Hessian of one knot over ``[tangent x | u]``.
+    """Gradient (``ndx + nu``) and Gauss-Newton Hessian of one knot over ``[tangent x | u]`` from its packed
+    parameters and the workspace of the last ``whole_body_cost`` at ``x``.
 
-    ``base_mask[i]``: state row ``i`` has a non-identity Jacobian, given by ``base_jacobian`` on the rows and
-    columns ``base_rows`` (the floating base). Foot rows use the Pinocchio foot Jacobians (velocity rows:
-    ``[d v_foot / dq | J]``). Friction rows: ``G = P dF/d(x, u)``; box rows: one column with a sign; the
-    height row: ``height_gradient`` on the three base-position columns. ``d1``/``d2``: the barrier
-    derivatives of the last ``whole_body_cost``.
+    The base rows ``base_rows`` (``base_mask``) have a dense Jacobian ``base_jacobian``: ``Jlog6`` of the
+    free flyer's ``x_ref ⊖ x`` (``free_flyer_difference_jacobian``) or the ``"world"`` error's
+    (``world_base_error_jacobian``) made here, another robot's set by the caller; the other state rows are
+    the identity. Foot rows use the Pinocchio foot Jacobians (velocity rows: ``[d v_foot / dq | J]``).
+    Friction rows: ``G = P dF/d(x, u)``; box rows: one column with a sign; the height row: the third row of
+    the base rotation on the three base-position columns. ``d1``/``d2``: the barrier derivatives.
     """
+    h = integers
+    nv, feet_row, torque_row, nu_torque = h[NV], h[FEET_ROW], h[TORQUE_ROW], h[NU_TORQUE]
+    n_friction, height_index, base_error = h[N_FRICTION], h[HEIGHT_INDEX], h[BASE_ERROR]
+    ndx = 2 * nv
+    position_legs = _section(h, h, INT_SECTIONS, POSITION_LEGS, HEADER)
+    velocity_legs = _section(h, h, INT_SECTIONS, VELOCITY_LEGS, HEADER)
+    box_column = _section(h, h, INT_SECTIONS, BOX_COLUMN, HEADER)
+    base_rows = _section(h, h, INT_SECTIONS, BASE_ROWS, HEADER)
+    base_mask = _section(h, h, INT_SECTIONS, BASE_MASK, HEADER)
+    mu, scale = floats[MU], floats[SCALE]
+    w = _section(floats, h, FLOAT_SECTIONS, WEIGHTS, 3)
+    box_sign = _section(floats, h, FLOAT_SECTIONS, BOX_SIGN, 3)
+    wr = _section(work, h, WORK_SECTIONS, WR, 0)
+    d1 = _section(work, h, WORK_SECTIONS, D1, 0)
+    d2 = _section(work, h, WORK_SECTIONS, D2, 0)
+    rotation = _section(work, h, WORK_SECTIONS, BASE_ROTATION, 0).reshape((3, 3))
+    rotation_error = _section(work, h, WORK_SECTIONS, ROTATION_ERROR, 0)
+    nb = base_rows.shape[0]
+    base_jacobian = _section(work, h, WORK_SECTIONS, BASE_JACOBIAN, 0).reshape((nb, nb))
+    if base_error == TANGENT_FREE_FLYER:
+        free_flyer_difference_jacobian(x_reference, x, base_jacobian)
+    elif base_error == WORLD:
+        world_base_error_jacobian(x, h[NQ], rotation, rotation_error, base_jacobian)
+    height_gradient = rotation[2]
     n = gradient.shape[0]
     for i in range(n):
         gradient[i] = 0.0
@@ -197,7 +271,7 @@ def whole_body_derivatives(
             hessian[i, j] = 0.0
     # state tracking: identity rows
     for i in range(ndx):
-        if not base_mask[i]:
+        if base_mask[i] == 0:
             gradient[i] += scale * wr[i]
             hessian[i, i] += scale * w[i]
     # state tracking: the base block

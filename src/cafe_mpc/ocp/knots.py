@@ -29,20 +29,15 @@ from cafe_mpc.core.contacts import ContactFlags, as_contact_flags, flags_to_stri
 from cafe_mpc.core.interfaces import ActionData, ActionModel, IdentityReset, ResetMap
 from cafe_mpc.core.kernels import same_point
 from cafe_mpc.dynamics.impact import ImpactReset
-from cafe_mpc.dynamics.kernels import free_flyer_configuration_difference, quaternion_rotation_into
 from cafe_mpc.dynamics.kinematics import FootKinematics
 from cafe_mpc.dynamics.multibody_state import MultibodyState
 from cafe_mpc.dynamics.srb import SRBDynamics, SRBParameters, SRBState, srb_parameters
 from cafe_mpc.dynamics.srb_kernels import srb_cost, srb_cost_derivatives
 from cafe_mpc.dynamics.transition import ComposedReset, WholeBodyToSRB
 from cafe_mpc.dynamics.whole_body import IntegrationScheme, WholeBodyDynamics
+from cafe_mpc.ocp import kernels as packed
 from cafe_mpc.ocp.constraints import TouchdownFootHeight, WholeBodyConstraintSettings
-from cafe_mpc.ocp.kernels import (
-    whole_body_cost,
-    whole_body_derivatives,
-    world_base_error,
-    world_base_error_jacobian,
-)
+from cafe_mpc.ocp.kernels import same_inputs, whole_body_cost, whole_body_derivatives
 from cafe_mpc.ocp.knot_layout import constraint_layout, residual_layout
 from cafe_mpc.robots.robot import Robot
 
@@ -110,12 +105,17 @@ class WholeBodyReference:
 
 class WholeBodyKnotData(ActionData):
     """Per-knot workspace: dynamics data (its ``x_next``/``Fx``/``Fu`` are this data's), foot kinematics, and
-    the stacked residual, constraint values and barrier derivatives of the fused evaluation."""
+    the stacked residual, constraint values and barrier derivatives of the fused evaluation (views of one
+    buffer, ``work``, that the compiled calls take whole)."""
 
     def __init__(self, model: WholeBodyKnot) -> None:
         super().__init__(model)
         ndx, nu = model.state.ndx, model.nu
-        self.dynamics = model.dynamics.create_data() if model.dynamics is not None else None
+        self.dynamics = (
+            model.dynamics.create_data(force_derivatives=model.n_friction > 0)
+            if model.dynamics is not None
+            else None
+        )
         if self.dynamics is not None:
             self.x_next = self.dynamics.x_next
             self.Fx = self.dynamics.Fx
@@ -128,20 +128,24 @@ class WholeBodyKnotData(ActionData):
             self.dforces_du = np.zeros((0, nu))
             self.stance_forces = np.zeros(0)
         self.kinematics = model.kinematics.create_data()
-        self.forces = np.zeros((model.n_feet, 3))
+        self.work = np.zeros(model._work_size)
+        section = model._work_section
+        self.forces = section(self.work, packed.FORCES).reshape(model.n_feet, 3)
         """World-frame ground reaction force of every foot (zero on swing feet) at the last ``calc``."""
-        self.base_rotation = np.eye(3)
-        self.rotation_error = np.zeros(4)
+        self.base_rotation = section(self.work, packed.BASE_ROTATION).reshape(3, 3)
+        self.base_rotation[:] = np.eye(3)
+        self.rotation_error = section(self.work, packed.ROTATION_ERROR)
         """``[log3(R_ref' R), angle]`` of the ``"world"`` base error."""
-        self.r = np.zeros(model.residual_dim)
+        self.r = section(self.work, packed.R)
         """Stacked residual: state (``ndx``), swing-foot positions and velocities (3 each), torque."""
-        self.wr = np.zeros(model.residual_dim)
-        self.g = np.zeros(model.constraint_dim)
+        self.wr = section(self.work, packed.WR)
+        self.g = section(self.work, packed.G)
         """Stacked constraint values ``g >= 0``: friction rows, box rows, base height."""
-        self.d1 = np.zeros(model.constraint_dim)
-        self.d2 = np.zeros(model.constraint_dim)
-        self.base_jacobian = np.zeros((len(model.base_rows), len(model.base_rows)))
-        if len(model.base_rows) == 12:
+        self.d1 = section(self.work, packed.D1)
+        self.d2 = section(self.work, packed.D2)
+        nb = len(model.base_rows)
+        self.base_jacobian = section(self.work, packed.BASE_JACOBIAN).reshape(nb, nb)
+        if nb == 12:
             self.base_jacobian[9:12, 9:12] = np.eye(3)
         # Derivatives over [x | u]; Lx, Lu, Lxx, Luu, Lux are views of these (the solver rebinds all of them
         # to its stacked arrays, keeping the same relation).
@@ -152,9 +156,11 @@ class WholeBodyKnotData(ActionData):
         self.Lxx = self.hessian[:ndx, :ndx]
         self.Luu = self.hessian[ndx:, ndx:]
         self.Lux = self.hessian[ndx:, :ndx]
-        self.values = np.zeros(2)
-        self.last_x = np.full(model.state.nx, np.nan)
-        self.last_u = np.full(nu, np.nan)
+        self.values = section(self.work, packed.VALUES)
+        self.last_x = section(self.work, packed.LAST_X)
+        self.last_x[:] = np.nan
+        self.last_u = section(self.work, packed.LAST_U)
+        self.last_u[:] = np.nan
         self.layout = model.layout
 
 
@@ -234,14 +240,11 @@ class WholeBodyKnot(ActionModel):
         self.barrier_delta, self.barrier_eps = limits.barrier_delta, limits.barrier_eps
         self.constraint_dim = limits.dim
         self._stance_legs = np.array([leg for leg in range(self.n_feet) if self.stance[leg]], dtype=np.int64)
-        self._velocity_rows_from = nv if base_error == "tangent" else nv + 3
-        self._needs_rotation = base_error == "world" or self.height_index >= 0
         self._nq, self._nv = nq, nv
         self._x_shape, self._u_shape = (nq + nv,), (self.nu,)
         self._has_kinematics = not self.kinematics.empty
-        self._cost_velocity_rows_from = self._velocity_rows_from if self.tracks_state else 2 * nq
-        self._tangent_base_error = base_error == "tangent"
-        self._free_flyer_root = self.state.free_flyer_root
+        self._has_velocity_kinematics = bool(self.kinematics.velocity_legs)
+        self._pack_parameters()
         self.layout = object()
         """Identity token shared by every knot made from this one with ``with_reference``: a data object
         created by one of them can be reused by any other (``data.layout is knot.layout``)."""
@@ -281,120 +284,122 @@ class WholeBodyKnot(ActionModel):
         if u.shape != (self.nu,):
             raise ValueError(f"{self!r}: u must have shape ({self.nu},), got {u.shape}")
 
-    def _state_residual(self, data: WholeBodyKnotData, x: np.ndarray) -> None:
-        """Rows ``r[:ndx]``: ``x ⊖ x_ref`` (tangent) or the world-frame base error (see ``BaseError``)."""
-        model, r = self.model, data.r
+    def _pack_parameters(self) -> None:
+        """The knot's constants in two arrays and the layout of its data's workspace (``ocp.kernels``: the
+        header, the sections), for the compiled calls."""
         nq, nv = self._nq, self._nv
-        x_ref = self.reference.state
-        if self._tangent_base_error:
-            if self._free_flyer_root:
-                free_flyer_configuration_difference(x_ref, x, nq, r)
-            else:
-                r[:nv] = pin.difference(model, x_ref[:nq], x[:nq])
-            return  # the velocity rows v - v_ref are set by the compiled cost
-        world_base_error(x, x_ref, nq, nv, data.base_rotation, r, data.rotation_error)
+        if not self.tracks_state:
+            base_error = packed.NO_STATE
+        elif self.base_error == "world":
+            base_error = packed.WORLD
+        elif self.state.free_flyer_root:
+            base_error = packed.TANGENT_FREE_FLYER
+        else:
+            base_error = packed.TANGENT_GENERIC
+        self._generic_base_error = base_error == packed.TANGENT_GENERIC
+        velocity_rows_from = nv if self.base_error == "tangent" else nv + 3
+        header = np.zeros(packed.HEADER, dtype=np.int64)
+        header[packed.FEET_ROW] = self.feet_row
+        header[packed.TORQUE_ROW] = self.torque_row
+        header[packed.N_FRICTION] = self.n_friction
+        header[packed.HEIGHT_INDEX] = self.height_index
+        header[packed.VELOCITY_ROWS_FROM] = velocity_rows_from if self.tracks_state else 2 * nv
+        header[packed.NQ], header[packed.NV] = nq, nv
+        header[packed.NU_TORQUE] = self.nu_torque
+        header[packed.BASE_ERROR] = base_error
+        integers = packed.pack_sections(
+            header,
+            packed.INT_SECTIONS,
+            [
+                self.position_legs,
+                self.velocity_legs,
+                self.box_on_control,
+                self.box_index,
+                self.box_column,
+                self._stance_legs,
+                self.base_rows,
+                self.base_mask,
+            ],
+            np.int64,
+        )
+        floats = packed.pack_sections(
+            header,
+            packed.FLOAT_SECTIONS,
+            [self.residual_weights, self.box_sign, self.box_offset, self.barrier_delta, self.barrier_eps],
+            float,
+        )
+        nb = len(self.base_rows)
+        sizes = [self.residual_dim] * 2 + [self.constraint_dim] * 3
+        sizes += [2, nq + nv, self.nu, 3 * self.n_feet, 9, 4, nb * nb]
+        self._work_size = int(np.sum(sizes))
+        packed.pack_sections(header, packed.WORK_SECTIONS, [np.zeros(size) for size in sizes], float)
+        self._integers = np.concatenate([header, integers])
+        self._floats = np.concatenate(
+            [[self.friction_coefficient, self.minimum_height, self.cost_scale], floats]
+        )
+
+    def _work_section(self, work: np.ndarray, section: int) -> np.ndarray:
+        """The view of a data's workspace ``work`` holding ``section`` (``ocp.kernels.R`` etc.)."""
+        first = self._integers[packed.WORK_SECTIONS + section]
+        return work[first : self._integers[packed.WORK_SECTIONS + section + 1]]
 
     def calc(self, data: WholeBodyKnotData, x: np.ndarray, u: np.ndarray) -> None:
         self._check_sizes(x, u)
-        nq = self._nq
         if self.dynamics is not None:
             self.dynamics.calc(data.dynamics, x, u)
-        if self._needs_rotation:
-            quaternion_rotation_into(x[3:7], data.base_rotation)
+        kinematics = data.kinematics
         if self._has_kinematics:
-            self.kinematics.calc(data.kinematics, x[:nq], x[nq:])
-        if self.tracks_state:
-            self._state_residual(data, x)
-        reference, kin = self.reference, data.kinematics
+            nq = self._nq
+            self.kinematics.calc(kinematics, x[:nq], x[nq:])
+        reference = self.reference
+        if self._generic_base_error:
+            nq = self._nq
+            data.r[: self._nv] = pin.difference(self.model, reference.state[:nq], x[:nq])
         whole_body_cost(
-            u,
             x,
-            data.r,
-            self.residual_weights,
-            data.wr,
-            kin.positions,
-            kin.velocities,
+            u,
+            reference.state,
             reference.foot_positions,
             reference.foot_velocities,
-            self.position_legs,
-            self.velocity_legs,
-            self.feet_row,
             reference.torque,
-            self.torque_row,
+            self._integers,
+            self._floats,
+            data.work,
             data.stance_forces,
-            self.friction_coefficient,
-            self.n_friction,
-            self.box_on_control,
-            self.box_index,
-            self.box_sign,
-            self.box_offset,
-            self.height_index,
-            self.minimum_height,
-            data.g,
-            self.barrier_delta,
-            self.barrier_eps,
-            data.d1,
-            data.d2,
-            self.cost_scale,
-            data.values,
-            self._cost_velocity_rows_from,
-            reference.state,
-            nq,
-            self._nv,
-            self._stance_legs,
-            data.forces,
-            data.last_x,
-            data.last_u,
+            kinematics.positions,
+            kinematics.velocities,
         )
-        data.cost = float(data.values[0])
-        data.constraint_violation = float(data.values[1])
+        values = data.values
+        data.cost = float(values[0])
+        data.constraint_violation = float(values[1])
 
     def calc_diff(self, data: WholeBodyKnotData, x: np.ndarray, u: np.ndarray) -> None:
-        if not (same_point(x, data.last_x) and same_point(u, data.last_u)):
+        if not same_inputs(x, u, data.last_x, data.last_u):
             self.calc(data, x, u)  # keep the forward pass consistent with (x, u)
-        model = self.model
-        nq, nv = self._nq, self._nv
         if self.dynamics is not None:
             self.dynamics.calc_diff(data.dynamics, x, u)
-        if self._has_kinematics:
-            self.kinematics.calc_diff(data.kinematics, x[:nq], x[nq:])
-        jacobian = data.base_jacobian
-        if self.tracks_state:
-            if self._tangent_base_error:
-                jacobian[:, :] = pin.dDifference(
-                    model, self.reference.state[:nq], x[:nq], pin.ArgumentPosition.ARG1
-                )[:6, :6]
-            else:
-                world_base_error_jacobian(x, nq, data.base_rotation, data.rotation_error, jacobian)
-        kin = data.kinematics
+        kinematics = data.kinematics
+        if self._has_velocity_kinematics:
+            nq = self._nq
+            self.kinematics.calc_diff(kinematics, x[:nq], x[nq:])
+        reference = self.reference
+        if self._generic_base_error:
+            nq = self._nq
+            data.base_jacobian[:, :] = pin.dDifference(
+                self.model, reference.state[:nq], x[:nq], pin.ArgumentPosition.ARG1
+            )[:6, :6]
         whole_body_derivatives(
             data.gradient,
             data.hessian,
-            self.cost_scale,
-            self.residual_weights,
-            data.wr,
-            2 * nv,
-            nv,
-            self.base_mask,
-            self.base_rows,
-            jacobian,
-            self.position_legs,
-            self.velocity_legs,
-            self.feet_row,
-            kin.position_jacobians,
-            kin.velocity_dq,
-            self.torque_row,
-            self.nu_torque,
-            self.n_friction,
-            self.friction_coefficient,
+            x,
+            reference.state,
+            self._integers,
+            self._floats,
+            data.work,
+            kinematics.position_jacobians,
+            kinematics.velocity_dq,
             data.dforces_dx,
             data.dforces_du,
-            self.box_column,
-            self.box_sign,
-            self.height_index,
-            data.base_rotation[2],
-            data.d1,
-            data.d2,
         )
 
 
