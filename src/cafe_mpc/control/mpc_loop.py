@@ -16,6 +16,11 @@ The closed-loop composition of the MPC (``cafe_mpc.mpc.RecedingHorizonMpc``) and
   least one period has passed since the previous start; the whole update runs after the measurement, and
   the worker is busy until its plan takes effect (a slow update delays the next one).
 
+With a fixed latency the real-time iteration compensates it (``MpcSettings.delay_compensation``, default
+on): the update measured at ``t`` is prepared for ``t + fixed_latency``, when its plan takes effect, and
+its feedback embeds the measured state carried there by ``control.delay_compensation.DelayPredictor``
+along the plans in effect meanwhile.
+
 Latency: **measured** (default): each phase takes its measured wall-clock time in simulated time
 (times ``compute_scale``: a computer that much slower), what a robot sees when the MPC runs beside it; or
 **fixed**: a plan takes effect ``fixed_latency`` after its measurement (deterministic; in the real-time
@@ -33,6 +38,7 @@ process is ``cafe_mpc.control.realtime``. The same loop runs the template-MPC ba
 from __future__ import annotations
 
 import logging
+import math
 import time
 
 import numpy as np
@@ -57,6 +63,9 @@ from cafe_mpc.robots.robot import Robot
 __all__ = ["CafeMpcController", "MpcSettings", "MpcStatistics"]
 
 logger = logging.getLogger(__name__)
+
+GRID_TOLERANCE = 1e-6
+"""Fraction of a knot below which a time counts as on the knot grid."""
 
 
 class CafeMpcController:
@@ -113,6 +122,16 @@ class CafeMpcController:
     @property
     def statistics(self) -> MpcStatistics:
         return self.mpc.statistics
+
+    def _problem_start(self, t: float) -> float:
+        """Where the problem of the update measured at ``t`` starts: ``t`` without delay compensation; with
+        it, the last whole-body knot time at or before the plan takes effect (``t + delay``), not before
+        ``t``: the plan's first knot is then a whole one and holds the time the plan takes effect."""
+        if self.delay <= 0:
+            return t
+        grid = self.builder.schedule.whole_body_dt
+        on_grid = math.floor((t + self.delay) / grid + GRID_TOLERANCE) * grid
+        return max(t, on_grid)
 
     def _compensated_delay(self) -> float:
         settings = self.settings
@@ -196,7 +215,7 @@ class CafeMpcController:
         then the preparation of the next update (module docstring)."""
         mpc, settings, statistics = self.mpc, self.settings, self.statistics
         measured = settings.latency == "measured"
-        start = t + self.delay
+        start = self._problem_start(t)
         prepared = mpc.prepared is not None and abs(mpc.prepared[0] - start) <= 1e-9
         if prepared:
             plan = self._feedback(t, start, state)
@@ -250,7 +269,7 @@ class CafeMpcController:
 
     def _prepare(self, t_next: float) -> None:
         """Prepare the update at ``t_next`` from the newest plan's prediction (the worker is busy then)."""
-        start = t_next + self.delay
+        start = self._problem_start(t_next)
         predicted = self.mpc.predict(start)
         if predicted is None:
             return
