@@ -265,9 +265,10 @@ class MpcSettings(StrictModel):
     )
     delay_compensation: bool = Field(
         True,
-        description="rti with fixed latency: each update is prepared for the time its plan takes effect "
-        "(measurement + fixed_latency) and its feedback embeds the measured state carried there with the "
-        "planning model under the plans in effect meanwhile (control.delay_compensation)",
+        description="rti with fixed latency: each update's problem starts at the last whole-body knot time "
+        "at or before its plan takes effect (measurement + fixed_latency) and its feedback embeds the "
+        "measured state carried there by the planning model under the plans in effect meanwhile "
+        "(control.delay_compensation)",
     )
     compute_scale: float = Field(
         1.0,

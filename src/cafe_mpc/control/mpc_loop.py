@@ -17,9 +17,10 @@ The closed-loop composition of the MPC (``cafe_mpc.mpc.RecedingHorizonMpc``) and
   the worker is busy until its plan takes effect (a slow update delays the next one).
 
 With a fixed latency the real-time iteration compensates it (``MpcSettings.delay_compensation``, default
-on): the update measured at ``t`` is prepared for ``t + fixed_latency``, when its plan takes effect, and
-its feedback embeds the measured state carried there by ``control.delay_compensation.DelayPredictor``
-along the plans in effect meanwhile.
+on): the problem of the update measured at ``t`` starts at the last whole-body knot time at or before
+``t + fixed_latency``, when its plan takes effect (``_problem_start``), and its feedback embeds the
+measured state carried there by ``control.delay_compensation.DelayPredictor`` along the plans in effect
+meanwhile.
 
 Latency: **measured** (default): each phase takes its measured wall-clock time in simulated time
 (times ``compute_scale``: a computer that much slower), what a robot sees when the MPC runs beside it; or
