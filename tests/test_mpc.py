@@ -177,13 +177,14 @@ class _RecordingRiccati(RiccatiController):
         return super().compute(t, measurement, plan)
 
 
-@pytest.mark.parametrize("scheme", ["one_phase", "rti"])
+@pytest.mark.parametrize(("scheme", "compensated"), [("one_phase", False), ("rti", False), ("rti", True)])
 @pytest.mark.parametrize("latency", [0.02, 0.05])
-def test_plans_take_effect_after_their_latency(robot, latency, scheme):
-    """Policy lag: each plan drives the robot from ``start + latency`` on. One-phase (one worker busy until
-    its plan acts): the next update starts when the worker is free, at most once per period (0.05 s latency:
-    updates 0.05 s apart). Real-time iteration: a fixed latency is a transport delay, updates stay one period
-    apart and several plans may be in flight."""
+def test_plans_take_effect_after_their_latency(robot, latency, scheme, compensated):
+    """Policy lag: each plan drives the robot from ``measurement + latency`` on. One-phase (one worker busy
+    until its plan acts): the next update starts when the worker is free, at most once per period (0.05 s
+    latency: updates 0.05 s apart). Real-time iteration: a fixed latency is a transport delay, updates stay
+    one period apart and several plans may be in flight; with delay compensation each plan starts at the
+    time it takes effect, without it at its measurement's time."""
     reference = LocomotionReference(robot, get_gait("stand"), [VelocityCommand()])
     low_level = _RecordingRiccati(robot)
     controller = CafeMpcController(
@@ -191,19 +192,26 @@ def test_plans_take_effect_after_their_latency(robot, latency, scheme):
         reference,
         _builder(robot, ModelSchedule.named("S0")),
         low_level,
-        MpcSettings(period=0.02, latency="fixed", fixed_latency=latency, scheme=scheme),
+        MpcSettings(
+            period=0.02,
+            latency="fixed",
+            fixed_latency=latency,
+            scheme=scheme,
+            delay_compensation=compensated,
+        ),
     )
     log = simulate(robot, controller, 0.2)
     assert not log.fell
     first, *later = low_level.activations
     assert first == (pytest.approx(0.0), pytest.approx(0.0))  # the cold solve runs before the clock starts
     assert len(later) >= 3
+    offset = latency if compensated else 0.0  # the plan's start after its measurement
     for start, applied in later:
-        assert applied == pytest.approx(start + latency, abs=1e-9)
+        assert applied == pytest.approx(start - offset + latency, abs=1e-9)
     starts = [start for start, _ in low_level.activations]
     spacing = max(latency, 0.02) if scheme == "one_phase" else 0.02
     np.testing.assert_allclose(np.diff(starts[1:]), spacing, atol=1e-9)
-    assert starts[1] == pytest.approx(0.02)
+    assert starts[1] == pytest.approx(0.02 + offset)
     # latencies are recorded, one per plan that took effect
     np.testing.assert_allclose(controller.statistics.latencies, [0.0] + [latency] * len(later), atol=1e-9)
     # the low-level controller sees the plant's measured contacts on every tick

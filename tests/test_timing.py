@@ -1,6 +1,8 @@
 """Robustness to timing: problems built at any start time, warm starts by time, the real-time iteration's
 prepare/feedback split and the low level's zero-order hold."""
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
@@ -244,3 +246,73 @@ def test_the_update_clock_keeps_the_period_and_leaves_room_for_slow_preparations
         clock.record_preparation(0.031)
     assert clock.next_update(0.1, 0.101) == pytest.approx(0.132)  # 0.101 + 0.031, on the next tick
     assert clock.tick_at_or_after(0.1320000001) == pytest.approx(0.132)
+
+
+# ------------------------------------------------------------------------------------ delay compensation
+def test_the_delay_predictor_carries_the_planned_state_along_its_own_plan(robot):
+    """A measurement on the plan, carried with the plan's own knots (step = their dt) across a touchdown,
+    lands on the plan: the roll-out is the plan's dynamics (19)-(23), impacts (22) and Riccati law (33)."""
+    from cafe_mpc.control.delay_compensation import DelayPredictor
+    from cafe_mpc.mpc.planner import first_solve_options
+    from cafe_mpc.solver import MSiLQRSolver
+
+    builder = _builder(robot, ModelSchedule.named("S1"))
+    settings = MpcSettings(latency="fixed", warm_up=0.0)
+    mpc = RecedingHorizonMpc(robot, _reference(robot, "bound", start_stance=0.02), builder, settings)
+    mpc.first_solver = MSiLQRSolver(replace(first_solve_options(), defect_tolerance=1e-10, max_iterations=60))
+    plan = mpc.update(0.0, robot.q_standing, np.zeros(robot.nv))
+    assert plan is not None
+    touchdowns = np.flatnonzero(np.any(plan.contacts[1:] & ~plan.contacts[:-1], axis=1)) + 1
+    assert len(touchdowns), "the plan has a touchdown to carry across"
+    end = touchdowns[0] + 2
+    assert np.allclose(plan.dt[:end], plan.dt[0])
+    predictor = DelayPredictor(robot, builder.whole_body)
+    predictor.limits[:] = np.inf  # the cold plan asks for more than the limits at the touchdown: no clamp
+    nq = robot.nq
+    carried = predictor.carry(
+        plan.xs[0][:nq], plan.xs[0][nq:], plan.times[0], plan.times[end], lambda t: plan
+    )
+    error = builder.whole_body.state.difference(plan.xs[end], carried)
+    assert np.max(np.abs(error)) < 1e-8
+    # and the roll-out moves: it is not the measurement handed back
+    assert np.max(np.abs(builder.whole_body.state.difference(plan.xs[0], carried))) > 1e-2
+
+
+@pytest.mark.parametrize(("latency", "first_knot"), [(0.03, 0.03), (0.025, 0.02)])
+def test_a_compensated_plan_starts_from_the_measurement_carried_to_its_start(robot, latency, first_knot):
+    """Delay compensation in the closed loop: an update measured at ``t`` is prepared for the last knot time
+    at or before ``t + L`` (its first knot is whole and holds the time it takes effect) and its plan starts
+    there from the measured state carried there along the plan in effect meanwhile."""
+    from cafe_mpc.control.delay_compensation import DelayPredictor
+    from cafe_mpc.control.mpc_loop import CafeMpcController
+    from cafe_mpc.core.measurement import Measurement
+    from cafe_mpc.wbc.riccati import RiccatiController
+
+    period = 0.02
+    builder = _builder(robot, ModelSchedule.named("S1"))
+    controller = CafeMpcController(
+        robot,
+        _reference(robot, "trot"),
+        builder,
+        RiccatiController(robot),
+        MpcSettings(latency="fixed", fixed_latency=latency, warm_up=0.0, period=period),
+    )
+    assert controller.delay == latency
+    q, v = robot.q_standing.copy(), np.zeros(robot.nv)
+    contacts = np.ones(robot.n_feet, dtype=bool)
+    controller.start(0.0, Measurement.of_state(q, v, contacts))
+    cold = controller.plan
+    assert controller.mpc.prepared[0] == pytest.approx(period + first_knot)
+    q[2] += 0.01  # the next update's measurement: 1 cm above the plan
+    v[0] = 0.1
+    controller.compute(period, Measurement.of_state(q, v, contacts, period))
+    (effective, measured_at, plan), *_ = controller.pending
+    assert (effective, measured_at) == (pytest.approx(period + latency), pytest.approx(period))
+    assert plan.start_time == pytest.approx(period + first_knot)
+    assert plan.knot_at(effective) == 0
+    expected = DelayPredictor(robot, builder.whole_body).carry(
+        q, v, period, period + first_knot, lambda t: cold
+    )
+    np.testing.assert_allclose(plan.xs[0][: robot.nq], expected[: robot.nq], atol=1e-9)
+    # the carried state is not the measured one: 20-30 ms at 0.1 m/s moved the base
+    assert abs(expected[0] - q[0]) > 1e-3

@@ -263,6 +263,13 @@ class MpcSettings(StrictModel):
         description="rti: the measured state carried through the prepared policy by the linearised dynamics "
         "or by the dynamics themselves",
     )
+    delay_compensation: bool = Field(
+        True,
+        description="rti with fixed latency: each update's problem starts at the last whole-body knot time "
+        "at or before its plan takes effect (measurement + fixed_latency) and its feedback embeds the "
+        "measured state carried there by the planning model under the plans in effect meanwhile "
+        "(control.delay_compensation)",
+    )
     compute_scale: float = Field(
         1.0,
         gt=0.0,

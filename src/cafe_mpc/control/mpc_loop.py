@@ -16,6 +16,12 @@ The closed-loop composition of the MPC (``cafe_mpc.mpc.RecedingHorizonMpc``) and
   least one period has passed since the previous start; the whole update runs after the measurement, and
   the worker is busy until its plan takes effect (a slow update delays the next one).
 
+With a fixed latency the real-time iteration compensates it (``MpcSettings.delay_compensation``, default
+on): the problem of the update measured at ``t`` starts at the last whole-body knot time at or before
+``t + fixed_latency``, when its plan takes effect (``_problem_start``), and its feedback embeds the
+measured state carried there by ``control.delay_compensation.DelayPredictor`` along the plans in effect
+meanwhile.
+
 Latency: **measured** (default): each phase takes its measured wall-clock time in simulated time
 (times ``compute_scale``: a computer that much slower), what a robot sees when the MPC runs beside it; or
 **fixed**: a plan takes effect ``fixed_latency`` after its measurement (deterministic; in the real-time
@@ -33,11 +39,14 @@ process is ``cafe_mpc.control.realtime``. The same loop runs the template-MPC ba
 from __future__ import annotations
 
 import logging
+import math
+import time
 
 import numpy as np
 
 from cafe_mpc.config import MpcSettings
 from cafe_mpc.control.commands import CommandChannel, apply_command
+from cafe_mpc.control.delay_compensation import DelayPredictor
 from cafe_mpc.control.plan_follower import NewestPlanFollower
 from cafe_mpc.control.update_clock import UpdateClock
 from cafe_mpc.core.controller import LowLevelController
@@ -45,7 +54,7 @@ from cafe_mpc.core.measurement import Measurement
 from cafe_mpc.core.plan import Plan
 from cafe_mpc.core.progress import stage
 from cafe_mpc.core.template_plan import TemplatePlan
-from cafe_mpc.mpc.planner import MpcStatistics, Planner
+from cafe_mpc.mpc.planner import PLANNER_ERRORS, MpcStatistics, Planner
 from cafe_mpc.mpc.problem import CafeProblemBuilder
 from cafe_mpc.mpc.receding_horizon import RecedingHorizonMpc
 from cafe_mpc.mpc.template import TemplateProblemBuilder
@@ -55,6 +64,9 @@ from cafe_mpc.robots.robot import Robot
 __all__ = ["CafeMpcController", "MpcSettings", "MpcStatistics"]
 
 logger = logging.getLogger(__name__)
+
+GRID_TOLERANCE = 1e-6
+"""Fraction of a knot below which a time counts as on the knot grid."""
 
 
 class CafeMpcController:
@@ -93,6 +105,10 @@ class CafeMpcController:
         self.worker_free = 0.0
         """Simulated time at which the MPC worker finishes what it is doing (real-time iteration)."""
         self.clock = UpdateClock(self.settings.period, self.control_period)
+        self.delay = self._compensated_delay()
+        """How long after its measurement an update's problem starts: the fixed latency when it is
+        compensated (``MpcSettings.delay_compensation``), else 0."""
+        self.predictor = DelayPredictor(robot, self.builder.whole_body) if self.delay > 0 else None
         self.commands = CommandChannel()
         """Runtime commands (``cafe_mpc.Controller.set_command``, teleop), taken at the next MPC update."""
 
@@ -107,6 +123,21 @@ class CafeMpcController:
     @property
     def statistics(self) -> MpcStatistics:
         return self.mpc.statistics
+
+    def _problem_start(self, t: float) -> float:
+        """Where the problem of the update measured at ``t`` starts: ``t`` without delay compensation; with
+        it, the last whole-body knot time at or before the plan takes effect (``t + delay``), not before
+        ``t``: the plan's first knot is then a whole one and holds the time the plan takes effect."""
+        if self.delay <= 0:
+            return t
+        grid = self.builder.schedule.whole_body_dt
+        on_grid = math.floor((t + self.delay) / grid + GRID_TOLERANCE) * grid
+        return max(t, on_grid)
+
+    def _compensated_delay(self) -> float:
+        settings = self.settings
+        compensated = settings.delay_compensation and settings.latency == "fixed" and self.scheme == "rti"
+        return settings.fixed_latency if compensated else 0.0
 
     @property
     def _scale(self) -> float:
@@ -185,9 +216,10 @@ class CafeMpcController:
         then the preparation of the next update (module docstring)."""
         mpc, settings, statistics = self.mpc, self.settings, self.statistics
         measured = settings.latency == "measured"
-        prepared = mpc.prepared is not None and abs(mpc.prepared[0] - t) <= 1e-9
+        start = self._problem_start(t)
+        prepared = mpc.prepared is not None and abs(mpc.prepared[0] - start) <= 1e-9
         if prepared:
-            plan = mpc.feedback(t, state.q, state.v)
+            plan = self._feedback(t, start, state)
             work = statistics.feedback_times[-1] if plan is not None else 0.0
         else:
             plan = mpc.update(t, state.q, state.v)
@@ -205,13 +237,45 @@ class CafeMpcController:
         self._prepare(following)
         self.next_update = following
 
+    def _feedback(self, t: float, start: float, state: Measurement) -> Plan | TemplatePlan | None:
+        """The feedback phase of the update prepared for ``start``, from the measurement of ``t``: with
+        delay compensation, the measured state carried to ``start`` first (``DelayPredictor``; its time
+        counts in the feedback's). A failed carry falls back to the measured state, and says so."""
+        if self.predictor is None:
+            return self.mpc.feedback(start, state.q, state.v)
+        began = time.perf_counter()
+        q, v = state.q, state.v
+        try:
+            carried = self.predictor.carry(q, v, t, start, self._plan_in_effect)
+            if np.all(np.isfinite(carried)):
+                q, v = carried[: self.robot.nq], carried[self.robot.nq :]
+            else:
+                logger.warning("delay compensation at t = %.3f s: non-finite state; using the measured", t)
+        except PLANNER_ERRORS as error:
+            logger.warning("delay compensation at t = %.3f s failed (%s); using the measured state", t, error)
+        carry_time = time.perf_counter() - began
+        plan = self.mpc.feedback(start, q, v)
+        if plan is not None:
+            self.statistics.feedback_times[-1] += carry_time
+            self.statistics.update_times[-1] += carry_time
+        return plan
+
+    def _plan_in_effect(self, t: float) -> Plan | None:
+        """The plan the low level follows at ``t`` given the plans published and in flight now."""
+        plan = self.plan
+        for effective, _, pending in self.pending:
+            if effective <= t + 1e-9 and pending is not None:
+                plan = pending
+        return plan if isinstance(plan, Plan) else None
+
     def _prepare(self, t_next: float) -> None:
         """Prepare the update at ``t_next`` from the newest plan's prediction (the worker is busy then)."""
-        predicted = self.mpc.predict(t_next)
+        start = self._problem_start(t_next)
+        predicted = self.mpc.predict(start)
         if predicted is None:
             return
         nq = self.robot.nq
-        prepared = self.mpc.prepare(t_next, predicted[:nq], predicted[nq:])
+        prepared = self.mpc.prepare(start, predicted[:nq], predicted[nq:])
         if prepared and self.settings.latency == "measured":  # fixed: the update times are the period's
             elapsed = self.statistics.prepare_times[-1] * self._scale
             self.clock.record_preparation(elapsed)
