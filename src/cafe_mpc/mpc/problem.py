@@ -44,6 +44,9 @@ from cafe_mpc.solver.results import SolverResult
 
 TIME_EPS = 1e-7
 
+PHASE_CACHE_SIZE = 512
+"""Phases (and problems) the builder keeps for reuse; past it the oldest is dropped."""
+
 SPARE_SLOTS = 8
 """Whole-body knot slots beyond the schedule's ``n_wb + 1`` whose references are rows of the builder's
 stacked storage (each contact switch inside the horizon adds a knot); a slot past them (many switches in
@@ -186,6 +189,8 @@ class CafeProblemBuilder:
         self._srb_rows = _SRBRows(n_srb + 1 if n_srb else 0, robot.n_feet)
         self._srb_ratio: dict[str, float] = {}
         self._running: dict[tuple, WholeBodyKnot] = {}
+        self._phases: dict[tuple, Phase] = {}
+        self._problems: dict[tuple[int, ...], MultiPhaseProblem] = {}
         self._terminal: dict[tuple, WholeBodyKnot] = {}
         self._srb_running: dict[tuple, SRBKnot] = {}
         self._srb_terminal: dict[str, SRBKnot] = {}
@@ -301,6 +306,46 @@ class CafeProblemBuilder:
             self._srb_terminal[weight_set] = knot
         return knot
 
+    def _phase(
+        self,
+        index: int,
+        running: list,
+        terminal: WholeBodyKnot | SRBKnot,
+        reset: object | None,
+        switching: object | None,
+    ) -> Phase:
+        """The ``Phase`` of whole-body phase ``index`` (``-1``: the SRB tail) with these knots, reset map and
+        touchdown constraint: made (and validated) once, then the same object whenever the same knots come
+        back (a gait's phases do, at every cycle)."""
+        key = (index, terminal, reset, switching, *running)
+        phase = self._phases.get(key)
+        if phase is None:
+            schedule = self.schedule
+            if index < 0:
+                phase = Phase(running, terminal, dt=schedule.srb_dt, name="srb")
+            else:
+                dt, name = schedule.whole_body_dt, f"wb{index}"
+                phase = Phase(running, terminal, reset, switching, dt=dt, name=name)
+            if len(self._phases) >= PHASE_CACHE_SIZE:
+                del self._phases[next(iter(self._phases))]
+            self._phases[key] = phase
+        return phase
+
+    def _problem(self, phases: list[Phase], x0: np.ndarray) -> MultiPhaseProblem:
+        """The ``MultiPhaseProblem`` of these phases from ``x0``: made (and validated) once per sequence of
+        phase objects; one that comes back gets a new array ``x0`` (an array taken from it before is left as
+        it was). The solver's workspace then recognises it at once (``Workspace.setup``)."""
+        key = tuple(id(phase) for phase in phases)  # phases compare by value; the cached problem holds them
+        problem = self._problems.get(key)
+        if problem is None:
+            problem = MultiPhaseProblem(np.asarray(x0, dtype=float), list(phases))
+            if len(self._problems) >= PHASE_CACHE_SIZE:
+                del self._problems[next(iter(self._problems))]
+            self._problems[key] = problem
+        else:
+            problem.x0 = np.array(x0, dtype=float)
+        return problem
+
     def _srb_weight_ratio(self, weight_set: int) -> float:
         """The SRB model's weight over the robot's (scales the reference's forces to the SRB tail)."""
         name = self._names[weight_set]
@@ -344,8 +389,10 @@ class CafeProblemBuilder:
         An SRB knot whose interval a switch falls inside gets per-foot stance fractions (the share of the
         interval each foot stands: the SRB's impulse over the interval is then that of the schedule) and,
         for a foot that lands inside it, the foothold it lands on.
+
+        Like the knots, the returned problem's objects are the builder's: a problem stays valid until the
+        next ``build`` (whose problem may be the very same object, with its own ``x0``).
         """
-        schedule = self.schedule
         wb_times, srb_times, tail_switches = self.knot_times(t0, reference)
         n_w, n_s = len(wb_times) - 1, max(len(srb_times) - 1, 0)
         has_srb = n_s > 0
@@ -400,9 +447,7 @@ class CafeProblemBuilder:
             else:
                 reset, switching = self._switch(stance, next_stance, to_srb=is_last)
             entered_by_impact = index > 0 and _touches_down(groups[index - 1][0], stance)
-            phases.append(
-                Phase(running, terminal, reset, switching, dt=schedule.whole_body_dt, name=f"wb{index}")
-            )
+            phases.append(self._phase(index, running, terminal, reset, switching))
             infos.append(
                 PhaseInfo(
                     "whole_body",
@@ -421,7 +466,7 @@ class CafeProblemBuilder:
                 for j in range(n_s)
             ]
             terminal = self._srb_terminal_knot(weight_set[offset + n_s])
-            phases.append(Phase(running, terminal, dt=schedule.srb_dt, name="srb"))
+            phases.append(self._phase(-1, running, terminal, None, None))
             entered = _touches_down(groups[-1][0], stance_rows[offset])
             srb_stance = window.stance[offset : offset + n_s]
             infos.append(
@@ -429,7 +474,7 @@ class CafeProblemBuilder:
             )
         else:
             srb_forces = np.zeros((0, 3 * self.robot.n_feet))
-        problem = MultiPhaseProblem(np.asarray(x0, dtype=float), phases)
+        problem = self._problem(phases, x0)
         torque_reference = rows.torque[:n_rows] if n_rows <= rows.capacity else torque[:n_rows].copy()
         return BuiltProblem(problem, infos, t0, srb_forces, torque_reference)
 
@@ -478,7 +523,10 @@ class CafeProblemBuilder:
         if not switch_rows:
             return fractions, rows
         switch_times = sorted(switch_rows)
-        for j in range(n_s):
+        intervals = np.searchsorted(srb_times, switch_times, side="left") - 1
+        for j in sorted(set(intervals.tolist())):
+            if not 0 <= j < n_s:
+                continue
             a, b = float(srb_times[j]), float(srb_times[j + 1])
             inside = [(s, switch_rows[s]) for s in switch_times if a < s < b]
             if not inside:
