@@ -414,7 +414,7 @@ class CafeProblemBuilder:
         rows.torque[:stacked] = torque[:stacked]
         stance_rows = [tuple(row) for row in window.stance.tolist()]
         weight_set = window.weight_set.tolist()
-        steps = np.maximum(np.rint(np.diff(wb_times) / TIME_QUANTUM), 1.0).tolist()
+        steps = np.maximum(np.rint(np.diff(wb_times) / TIME_QUANTUM), 1.0).astype(np.int64).tolist()
         groups: list[tuple[tuple[bool, ...], int, int]] = []  # (stance, first knot, last knot + 1)
         start = 0
         for k in range(1, n_w + 1):
@@ -425,9 +425,7 @@ class CafeProblemBuilder:
         infos: list[PhaseInfo] = []
         stance_array = window.stance[:n_rows]
         for index, (stance, first, last) in enumerate(groups):
-            running = [
-                self._running_knot(k, stance, weight_set[k], int(steps[k])) for k in range(first, last)
-            ]
+            running = [self._running_knot(k, stance, weight_set[k], steps[k]) for k in range(first, last)]
             for k in range(max(first, stacked), last):
                 ref = running[k - first].reference
                 ref.state[:] = state[k]
@@ -459,7 +457,9 @@ class CafeProblemBuilder:
                 )
             )
         if has_srb:
-            srb_forces, fractions = self._write_srb_tail(window, srb_times, tail_switches, n_rows)
+            srb_forces, fractions = self._write_srb_tail(
+                window, srb_times, tail_switches, n_rows, stance_rows
+            )
             offset = n_rows
             running = [
                 self._srb_knot(j, weight_set[offset + j], int(quanta(float(srb_times[j + 1] - srb_times[j]))))
@@ -479,7 +479,12 @@ class CafeProblemBuilder:
         return BuiltProblem(problem, infos, t0, srb_forces, torque_reference)
 
     def _write_srb_tail(
-        self, window: ReferenceWindow, srb_times: np.ndarray, tail_switches: list[float], offset: int
+        self,
+        window: ReferenceWindow,
+        srb_times: np.ndarray,
+        tail_switches: list[float],
+        offset: int,
+        stance_rows: list[tuple[bool, ...]],
     ) -> tuple[np.ndarray, np.ndarray]:
         """The SRB tail's rows (``_SRBRows``) from the window rows ``offset ...``: states (projection (32)),
         per-foot stance fractions and the footholds and GRF targets (28) of the rows they come from
@@ -490,7 +495,9 @@ class CafeProblemBuilder:
         if n_s + 1 != srb.capacity:
             raise RuntimeError(f"the SRB tail has {n_s} knots, the schedule {srb.capacity - 1}")
         switch_rows = {float(s): offset + n_s + 1 + i for i, s in enumerate(tail_switches)}
-        fractions, sample_rows = self._stance_fractions(srb_times, offset, switch_rows, window.stance)
+        fractions, sample_rows = self._stance_fractions(
+            srb_times, offset, switch_rows, window.stance, stance_rows
+        )
         nq = self.robot.nq
         _srb_states_into(
             window.state[offset : offset + n_s + 1], nq, srb.rotations, srb.velocities, srb.state
@@ -508,13 +515,19 @@ class CafeProblemBuilder:
         return srb.forces[:n_s], fractions
 
     def _stance_fractions(
-        self, srb_times: np.ndarray, offset: int, switch_rows: dict[float, int], stance: np.ndarray
+        self,
+        srb_times: np.ndarray,
+        offset: int,
+        switch_rows: dict[float, int],
+        stance: np.ndarray,
+        stance_rows: list[tuple[bool, ...]],
     ) -> tuple[np.ndarray, np.ndarray]:
         """Per SRB knot and foot: the share of the knot's interval in stance, and the window row whose foot
         position and force the knot uses (the knot's own row, or the row of the switch at which the foot's
         first stance inside the interval starts). A knot without a switch inside its interval stands as its
-        own row does over all of it (fraction 0 or 1); the others are summed piece by piece. The result is
-        a new fractions array (kept by the phase's ``PhaseInfo``) and the stack's row indices."""
+        own row does over all of it (fraction 0 or 1); the others are summed piece by piece (``stance_rows``:
+        the window's stance flags as tuples). The result is a new fractions array (kept by the phase's
+        ``PhaseInfo``) and the stack's row indices."""
         n_s = len(srb_times) - 1
         n_feet = self.robot.n_feet
         fractions = stance[offset : offset + n_s].astype(float)
@@ -532,16 +545,19 @@ class CafeProblemBuilder:
             if not inside:
                 continue
             starts = [(a, offset + j), *inside]
-            fractions[j] = 0.0
-            chosen = np.zeros(n_feet, dtype=bool)
+            shares, sample = [0.0] * n_feet, [-1] * n_feet
             for index, (start, row) in enumerate(starts):
                 end = starts[index + 1][0] if index + 1 < len(starts) else b
-                flags = stance[row]
-                fractions[j] += flags * ((end - start) / (b - a))
-                for foot in range(n_feet):
-                    if flags[foot] and not chosen[foot]:
-                        rows[j, foot] = row
-                        chosen[foot] = True
+                share = (end - start) / (b - a)
+                for foot, flag in enumerate(stance[row]):
+                    if flag:
+                        shares[foot] += share
+                        if sample[foot] < 0:
+                            sample[foot] = row
+            fractions[j] = shares
+            for foot, row in enumerate(sample):
+                if row >= 0:
+                    rows[j, foot] = row
         fractions[fractions < 1e-9] = 0.0  # round-off of the interval sums
         fractions[fractions > 1.0 - 1e-9] = 1.0
         return fractions, rows
