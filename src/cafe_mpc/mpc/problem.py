@@ -22,6 +22,7 @@ import math
 from dataclasses import dataclass, field, replace
 
 import numpy as np
+from numba import njit
 
 from cafe_mpc.config.weights import WholeBodyWeights
 from cafe_mpc.core.interfaces import MultiPhaseProblem, Phase
@@ -573,28 +574,37 @@ def _srb_states_into(
     states: np.ndarray, nq: int, rotations: np.ndarray, velocities: np.ndarray, out: np.ndarray
 ) -> None:
     """``whole_body_to_srb_state`` (32) of every row of ``states`` into ``out``: the rotation matrices by
-    the element formulas of ``pin.Quaternion.toRotationMatrix`` and the world velocities by one stacked
-    ``matmul`` (the products of the one-row function, so the same bits)."""
+    the element formulas of ``pin.Quaternion.toRotationMatrix`` (``_rotation_matrices``) and the world
+    velocities by one stacked ``matmul`` (the products of the one-row function, so the same bits)."""
     n = len(states)
     rotation, velocity = rotations[:n], velocities[:n]
-    x, y, z, w = states[:, 3], states[:, 4], states[:, 5], states[:, 6]
-    tx, ty, tz = 2.0 * x, 2.0 * y, 2.0 * z
-    twx, twy, twz = tx * w, ty * w, tz * w
-    txx, txy, txz = tx * x, ty * x, tz * x
-    tyy, tyz, tzz = ty * y, tz * y, tz * z
-    rotation[:, 0, 0] = 1.0 - (tyy + tzz)
-    rotation[:, 0, 1] = txy - twz
-    rotation[:, 0, 2] = txz + twy
-    rotation[:, 1, 0] = txy + twz
-    rotation[:, 1, 1] = 1.0 - (txx + tzz)
-    rotation[:, 1, 2] = tyz - twx
-    rotation[:, 2, 0] = txz - twy
-    rotation[:, 2, 1] = tyz + twx
-    rotation[:, 2, 2] = 1.0 - (txx + tyy)
+    _rotation_matrices(states, rotation)
     velocity[:, :, 0] = states[:, nq : nq + 3]
     out[:n, 0:7] = states[:, 0:7]
     np.matmul(rotation, velocity, out=out[:n, 7:10, None])
     out[:n, 10:13] = states[:, nq + 3 : nq + 6]
+
+
+@njit(cache=True, nogil=True)
+def _rotation_matrices(states: np.ndarray, out: np.ndarray) -> None:
+    """The rotation matrix of each row's base quaternion ``states[i, 3:7]`` (x, y, z, w) into ``out[i]``:
+    the element formulas and operation order of Eigen's ``Quaternion::toRotationMatrix`` (no fused
+    multiply-adds: the same bits as ``pin.Quaternion(q).toRotationMatrix()``)."""
+    for i in range(states.shape[0]):
+        x, y, z, w = states[i, 3], states[i, 4], states[i, 5], states[i, 6]
+        tx, ty, tz = 2.0 * x, 2.0 * y, 2.0 * z
+        twx, twy, twz = tx * w, ty * w, tz * w
+        txx, txy, txz = tx * x, ty * x, tz * x
+        tyy, tyz, tzz = ty * y, tz * y, tz * z
+        out[i, 0, 0] = 1.0 - (tyy + tzz)
+        out[i, 0, 1] = txy - twz
+        out[i, 0, 2] = txz + twy
+        out[i, 1, 0] = txy + twz
+        out[i, 1, 1] = 1.0 - (txx + tzz)
+        out[i, 1, 2] = tyz - twx
+        out[i, 2, 0] = txz - twy
+        out[i, 2, 1] = tyz + twx
+        out[i, 2, 2] = 1.0 - (txx + tyy)
 
 
 class _KnotRows:
