@@ -189,6 +189,11 @@ class CafeProblemBuilder:
         self._rows = _KnotRows(n_wb + 1 + SPARE_SLOTS, robot.nq + robot.nv, robot.n_feet, robot.nu)
         self._srb_rows = _SRBRows(n_srb + 1 if n_srb else 0, robot.n_feet)
         self._srb_ratio: dict[str, float] = {}
+        n_feet = robot.n_feet
+        self._foot_bits = 1 << np.arange(n_feet, dtype=np.int64)
+        self._stance_tuples = [
+            tuple(bool(code >> foot & 1) for foot in range(n_feet)) for code in range(1 << n_feet)
+        ]
         self._running: dict[tuple, WholeBodyKnot] = {}
         self._phases: dict[tuple, Phase] = {}
         self._problems: dict[tuple[int, ...], MultiPhaseProblem] = {}
@@ -413,7 +418,9 @@ class CafeProblemBuilder:
         rows.foot_positions[:stacked] = positions[:stacked]
         rows.foot_velocities[:stacked] = velocities[:stacked]
         rows.torque[:stacked] = torque[:stacked]
-        stance_rows = [tuple(row) for row in window.stance.tolist()]
+        # the stance flags of every row as the builder's one tuple per stance (keys of its knot caches)
+        stance_of = self._stance_tuples
+        stance_rows = [stance_of[code] for code in window.stance.dot(self._foot_bits).tolist()]
         weight_set = window.weight_set.tolist()
         steps = np.maximum(np.rint(np.diff(wb_times) / TIME_QUANTUM), 1.0).astype(np.int64).tolist()
         groups: list[tuple[tuple[bool, ...], int, int]] = []  # (stance, first knot, last knot + 1)
