@@ -26,7 +26,7 @@ from cafe_mpc.mpc import problem as problem_module
 from cafe_mpc.mpc.problem import BuiltProblem, CafeProblemBuilder, ModelSchedule
 from cafe_mpc.ocp.contact_schedule import get_gait
 from cafe_mpc.ocp.knots import SRBModelFactory, WholeBodyModelFactory
-from cafe_mpc.reference.base import ReferenceWindow
+from cafe_mpc.reference.base import ReferenceWindow, switches_inside
 from cafe_mpc.reference.locomotion import LocomotionReference
 
 REFERENCE_FIELDS = ("state", "foot_positions", "foot_velocities", "torque", "contacts", "forces")
@@ -239,3 +239,32 @@ def test_problem_objects_come_back_when_the_knots_do(robot):
     np.testing.assert_array_equal(second.problem.x0, other)
     third = builder.build(0.51, other, reference)
     assert third.problem is not second.problem
+
+
+@pytest.mark.parametrize("gait", ["trot", "bound", "flying_pace"])
+def test_locomotion_switch_times_equal_those_of_the_whole_schedule(robot, gait):
+    """``LocomotionReference.switch_times`` looks only at the cached schedule's switches between ``t0`` and
+    ``t1``: the same as ``switches_inside`` of all of them, for windows on and off the switch times."""
+    reference = LocomotionReference(robot, get_gait(gait), [VelocityCommand(start=0.0, vx=0.5)])
+    reference.update(0.0, robot.q_standing, np.zeros(robot.nv))
+    for t0 in np.arange(0.0, 2.0, 0.0125):
+        for length in (0.05, 0.3, 0.95):
+            t0, t1 = float(t0), float(t0 + length)
+            expected = switches_inside(reference.schedule(t0, t1).switch_times(), t0, t1)
+            assert reference.switch_times(t0, t1) == expected
+
+
+def test_composed_reference_joins_equal_those_made_without_kept_poses(robot):
+    """The running roll's composed reference keeps its stored trajectory's poses between re-joins; the
+    offsets and signs after each update equal those of a re-join that samples them again."""
+    config = load_run_config("running-barrel-roll", ["simulation.duration=4"])
+    reference = build_reference(config, robot)
+    x = robot.x_standing.copy()
+    roll_start = reference.segments[1].start
+    for t in np.arange(roll_start - 0.6, roll_start + 1.6, 0.1):
+        x[0], x[1] = 0.8 * t, 0.01 * t
+        reference.update(float(t), x[: robot.nq], x[robot.nq :])
+        kept = [(segment.offset, segment.sign) for segment in reference.segments]
+        reference._trajectory_poses.clear()
+        reference._resolve_offsets(reference.segment_at(float(t)))
+        assert [(segment.offset, segment.sign) for segment in reference.segments] == kept
