@@ -18,16 +18,18 @@ import pytest
 from cafe_mpc.assembly import load_run_config
 from cafe_mpc.assembly.problem import build_problem
 from cafe_mpc.assembly.references import build_reference
-from cafe_mpc.config import VelocityCommand
+from cafe_mpc.config import MpcSettings, VelocityCommand
 from cafe_mpc.core.contacts import touchdown_flags
 from cafe_mpc.core.physics import GRAVITY
 from cafe_mpc.dynamics.transition import whole_body_to_srb_state
 from cafe_mpc.mpc import problem as problem_module
-from cafe_mpc.mpc.problem import BuiltProblem, CafeProblemBuilder, ModelSchedule
+from cafe_mpc.mpc.planner import update_solve_options
+from cafe_mpc.mpc.problem import BuiltProblem, CafeProblemBuilder, ModelSchedule, WarmStart
 from cafe_mpc.ocp.contact_schedule import get_gait
 from cafe_mpc.ocp.knots import SRBModelFactory, WholeBodyModelFactory
 from cafe_mpc.reference.base import ReferenceWindow, switches_inside
 from cafe_mpc.reference.locomotion import LocomotionReference
+from cafe_mpc.solver import MSiLQRSolver
 
 REFERENCE_FIELDS = ("state", "foot_positions", "foot_velocities", "torque", "contacts", "forces")
 
@@ -268,3 +270,35 @@ def test_composed_reference_joins_equal_those_made_without_kept_poses(robot):
         reference._trajectory_poses.clear()
         reference._resolve_offsets(reference.segment_at(float(t)))
         assert [(segment.offset, segment.sign) for segment in reference.segments] == kept
+
+
+def test_warm_start_reusing_its_buffers_equals_a_new_one(robot):
+    """One ``WarmStart`` along receding-horizon updates (its guess arrays are reused buffers) gives the
+    guesses a new ``WarmStart`` gives at every update: states, controls, roll-out masks, AL parameters."""
+    builder = _builder(robot, "S2")
+    reference = LocomotionReference(robot, get_gait("bound"), [VelocityCommand(start=0.0, vx=0.5)])
+    reference.update(0.0, robot.q_standing, np.zeros(robot.nv))
+    warm_start = WarmStart()
+    solver = MSiLQRSolver(update_solve_options(MpcSettings(latency="fixed")))
+    x, previous = robot.x_standing.copy(), (None, None)
+    rollouts = 0
+    for i in range(10):
+        built = builder.build(0.03 * i, x, reference)
+        guess = warm_start.guess(built, *previous)
+        expected = WarmStart().guess(built, *previous)
+        for name in ("xs", "us", "rollout"):
+            for a, b in zip(getattr(guess, name), getattr(expected, name), strict=True):
+                np.testing.assert_array_equal(a, b)
+        assert guess.penalties == expected.penalties
+        rollouts += sum(int(mask.sum()) for mask in guess.rollout)
+        result = solver.solve(
+            built.problem,
+            guess.xs,
+            guess.us,
+            guess.rollout,
+            initial_multipliers=guess.multipliers,
+            initial_penalties=guess.penalties,
+        )
+        previous = (built, result)
+        x = result.phases[0].xs[min(3, len(result.phases[0].xs) - 1)].copy()
+    assert rollouts > 0  # roll-out knots came and went: the reused masks were cleared

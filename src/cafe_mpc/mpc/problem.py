@@ -658,9 +658,23 @@ class InitialGuess:
 
 @dataclass
 class WarmStart:
-    """Maps a previous solution onto a new problem by time (Sec. VI-C, Fig. 5; ``time_grid``)."""
+    """Maps a previous solution onto a new problem by time (Sec. VI-C, Fig. 5; ``time_grid``).
+
+    The arrays of a guess are this object's buffers (one per phase position and kind, grown when a phase
+    is longer): valid until its next ``guess``. The solver copies them into its workspace.
+    """
 
     srb_state: SRBState = field(default_factory=SRBState)
+    _buffers: dict[tuple, np.ndarray] = field(default_factory=dict, init=False, repr=False, compare=False)
+
+    def _rows(self, key: tuple, rows: int, width: int | None, dtype: type = float) -> np.ndarray:
+        """The first ``rows`` rows of buffer ``key`` (``width`` columns; a vector for ``None``)."""
+        columns = () if width is None else (width,)
+        buffer = self._buffers.get(key)
+        if buffer is None or buffer.shape[0] < rows or buffer.shape[1:] != columns:
+            buffer = np.empty((max(rows, 8), *columns), dtype=dtype)
+            self._buffers[key] = buffer
+        return buffer[:rows]
 
     def guess(
         self, built: BuiltProblem, previous: BuiltProblem | None, solution: SolverResult | None
@@ -702,9 +716,11 @@ class WarmStart:
         for info in built.phases:
             n = len(info.times) - 1
             if info.kind == "whole_body":
-                phase_x = np.empty((n + 1, len(x0)))
-                phase_u = np.empty((n, torque_reference.shape[1]))
-                phase_rollout = np.zeros(n + 1, dtype=bool)
+                position = len(xs)
+                phase_x = self._rows(("x", position), n + 1, len(x0))
+                phase_u = self._rows(("u", position), n, torque_reference.shape[1])
+                phase_rollout = self._rows(("rollout", position), n + 1, None, bool)
+                phase_rollout[:] = False
                 new_phase_after_impact = info.entered_by_impact and info.times[0] > previous_end - tolerance
                 same_stance = [trajectory for stance, trajectory in previous_wb if stance == info.stance]
                 for k, t in enumerate(info.times):
@@ -724,8 +740,9 @@ class WarmStart:
                 us.append(phase_u)
                 rollout.append(phase_rollout)
             else:
-                phase_x = np.empty((n + 1, self.srb_state.nx))
-                phase_u = np.empty((n, built.srb_forces.shape[1]))
+                position = len(xs)
+                phase_x = self._rows(("srb x", position), n + 1, self.srb_state.nx)
+                phase_u = self._rows(("srb u", position), n, built.srb_forces.shape[1])
                 wb_end = xs[-1][-1] if xs else x0
                 for j, t in enumerate(info.times):
                     t = float(t)
@@ -740,7 +757,9 @@ class WarmStart:
                             phase_u[j] = built.srb_forces[j]
                 xs.append(phase_x)
                 us.append(phase_u)
-                rollout.append(np.zeros(n + 1, dtype=bool))
+                srb_rollout = self._rows(("srb rollout", position), n + 1, None, bool)
+                srb_rollout[:] = False
+                rollout.append(srb_rollout)
         multipliers, penalties = _augmented_lagrangian_guess(built, previous, solution)
         return InitialGuess(xs, us, rollout, multipliers, penalties)
 
