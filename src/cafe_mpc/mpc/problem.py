@@ -22,20 +22,36 @@ import math
 from dataclasses import dataclass, field, replace
 
 import numpy as np
+from numba import njit
 
 from cafe_mpc.config.weights import WholeBodyWeights
-from cafe_mpc.core.contacts import touchdown_flags
 from cafe_mpc.core.interfaces import MultiPhaseProblem, Phase
 from cafe_mpc.core.physics import GRAVITY
 from cafe_mpc.dynamics.srb import SRBState
 from cafe_mpc.dynamics.statics import static_stance_torques
 from cafe_mpc.dynamics.transition import whole_body_to_srb_state
 from cafe_mpc.mpc.time_grid import TIME_QUANTUM, PiecewiseTrajectory, grid_times, quanta
-from cafe_mpc.ocp.knots import SRBKnot, SRBModelFactory, WholeBodyKnot, WholeBodyModelFactory
+from cafe_mpc.ocp.knots import (
+    SRBKnot,
+    SRBModelFactory,
+    SRBReference,
+    WholeBodyKnot,
+    WholeBodyModelFactory,
+    WholeBodyReference,
+    weight_split_forces,
+)
 from cafe_mpc.reference.base import Reference, ReferenceWindow
 from cafe_mpc.solver.results import SolverResult
 
 TIME_EPS = 1e-7
+
+PHASE_CACHE_SIZE = 512
+"""Phases (and problems) the builder keeps for reuse; past it the oldest is dropped."""
+
+SPARE_SLOTS = 8
+"""Whole-body knot slots beyond the schedule's ``n_wb + 1`` whose references are rows of the builder's
+stacked storage (each contact switch inside the horizon adds a knot); a slot past them (many switches in
+one horizon) has its own reference, written knot by knot."""
 
 PAPER_SCHEDULES: dict[str, float] = {
     "S0": 0.0,
@@ -110,9 +126,11 @@ class BuiltProblem:
     phases: list[PhaseInfo]
     start_time: float
     srb_forces: np.ndarray
-    """GRF targets of the SRB knots (n_srb, 3 n_feet): also their warm-start guess."""
+    """GRF targets of the SRB knots (n_srb, 3 n_feet): also their warm-start guess. Like the knots'
+    references, the builder's storage: valid until its next ``build``."""
     torque_reference: np.ndarray
-    """Torque references of the whole-body knots (n_wb + 1, nu): the guess of appended knots."""
+    """Torque references of the whole-body knots (n_wb + 1, nu): the guess of appended knots (valid until
+    the builder's next ``build``)."""
 
     @property
     def whole_body_phases(self) -> list[int]:
@@ -129,6 +147,11 @@ class CafeProblemBuilder:
     every update and the solver reuses their data (Pinocchio ``Data`` included) and its workspace; what is
     re-made per update is only the list structure (``Phase`` objects holding existing knots), because the
     contact phases move through the fixed horizon.
+
+    The references of all knots of a slot are views of one row of stacked arrays (``_KnotRows``; the SRB
+    tail's likewise): an update writes the sampled window into the stack with one copy per field, and the
+    SRB tail's states, footholds, stance fractions and force targets with a few whole-array operations,
+    instead of writing every knot's reference on its own.
 
     ``weights``: the weight sets a reference may ask for by name (``Reference.weight_sets``), each a
     ``(WholeBodyModelFactory, SRBModelFactory)`` pair; the default set is the given ``whole_body``/``srb``.
@@ -163,7 +186,17 @@ class CafeProblemBuilder:
         self.window = ReferenceWindow(
             n_wb + 1 + (n_srb + 1 if n_srb else 0) + 16, robot.nq, robot.nv, robot.nu, robot.n_feet
         )
+        self._rows = _KnotRows(n_wb + 1 + SPARE_SLOTS, robot.nq + robot.nv, robot.n_feet, robot.nu)
+        self._srb_rows = _SRBRows(n_srb + 1 if n_srb else 0, robot.n_feet)
+        self._srb_ratio: dict[str, float] = {}
+        n_feet = robot.n_feet
+        self._foot_bits = 1 << np.arange(n_feet, dtype=np.int64)
+        self._stance_tuples = [
+            tuple(bool(code >> foot & 1) for foot in range(n_feet)) for code in range(1 << n_feet)
+        ]
         self._running: dict[tuple, WholeBodyKnot] = {}
+        self._phases: dict[tuple, Phase] = {}
+        self._problems: dict[tuple[int, ...], MultiPhaseProblem] = {}
         self._terminal: dict[tuple, WholeBodyKnot] = {}
         self._srb_running: dict[tuple, SRBKnot] = {}
         self._srb_terminal: dict[str, SRBKnot] = {}
@@ -200,9 +233,25 @@ class CafeProblemBuilder:
         knot = self._running.get(key)
         if knot is None:
             _, factory, _ = self._factories(weight_set)
-            knot = factory.running_knot(stance, factory.default_reference(), duration * TIME_QUANTUM)
+            knot = factory.running_knot(stance, self._slot_reference(slot, factory), duration * TIME_QUANTUM)
             self._running[key] = knot
         return knot
+
+    def _slot_reference(
+        self, slot: int, factory: WholeBodyModelFactory, torque: bool = True
+    ) -> WholeBodyReference:
+        """The reference of a new knot of slot ``slot``: the slot's rows of ``_KnotRows`` (the torque row
+        only for a running knot: a terminal knot keeps its zero torque target), or its own arrays for a slot
+        past the stack."""
+        rows = self._rows
+        if slot >= rows.capacity:
+            return factory.default_reference()
+        return WholeBodyReference.of_rows(
+            rows.state[slot],
+            rows.foot_positions[slot],
+            rows.foot_velocities[slot],
+            rows.torque[slot] if torque else np.zeros(self.robot.nu),
+        )
 
     def _terminal_knot(
         self, slot: int, stance: tuple[bool, ...], weight_set: int, last: bool
@@ -212,7 +261,7 @@ class CafeProblemBuilder:
         if knot is None:
             name, factory, _ = self._factories(weight_set)
             source = factory if last else self._intermediate[name]
-            knot = source.terminal_knot(stance, source.default_reference())
+            knot = source.terminal_knot(stance, self._slot_reference(slot, source, torque=False))
             self._terminal[key] = knot
         return knot
 
@@ -236,20 +285,81 @@ class CafeProblemBuilder:
         knot = self._srb_running.get(key)
         if knot is None:
             _, _, srb = self._factories(weight_set)
-            n_feet = self.robot.n_feet
-            reference = srb.reference(srb.state.zero(), np.zeros((n_feet, 3)), (True,) * n_feet)
+            rows = self._srb_rows
+            reference = SRBReference.of_rows(
+                rows.state[slot],
+                rows.foot_positions[slot],
+                rows.contacts[slot],
+                rows.forces[slot],
+                srb.weight,
+            )
             knot = srb.running_knot(reference, duration * TIME_QUANTUM)
             self._srb_running[key] = knot
         return knot
 
     def _srb_terminal_knot(self, weight_set: int) -> SRBKnot:
+        """The SRB terminal knot of a weight set: the last row of the SRB stack (its own force target, the
+        weight split over four stance feet: the terminal cost has no force term)."""
         knot = self._srb_terminal.get(weight_set)
         if knot is None:
             _, _, srb = self._factories(weight_set)
-            n_feet = self.robot.n_feet
-            knot = srb.terminal_knot(srb.reference(srb.state.zero(), np.zeros((n_feet, 3)), (True,) * n_feet))
+            rows, last = self._srb_rows, self._srb_rows.capacity - 1
+            forces = weight_split_forces(np.ones(self.robot.n_feet), srb.weight)
+            reference = SRBReference.of_rows(
+                rows.state[last], rows.foot_positions[last], rows.contacts[last], forces, srb.weight
+            )
+            knot = srb.terminal_knot(reference)
             self._srb_terminal[weight_set] = knot
         return knot
+
+    def _phase(
+        self,
+        index: int,
+        running: list,
+        terminal: WholeBodyKnot | SRBKnot,
+        reset: object | None,
+        switching: object | None,
+    ) -> Phase:
+        """The ``Phase`` of whole-body phase ``index`` (``-1``: the SRB tail) with these knots, reset map and
+        touchdown constraint: made (and validated) once, then the same object whenever the same knots come
+        back (a gait's phases do, at every cycle)."""
+        key = (index, terminal, reset, switching, *running)
+        phase = self._phases.get(key)
+        if phase is None:
+            schedule = self.schedule
+            if index < 0:
+                phase = Phase(running, terminal, dt=schedule.srb_dt, name="srb")
+            else:
+                dt, name = schedule.whole_body_dt, f"wb{index}"
+                phase = Phase(running, terminal, reset, switching, dt=dt, name=name)
+            if len(self._phases) >= PHASE_CACHE_SIZE:
+                del self._phases[next(iter(self._phases))]
+            self._phases[key] = phase
+        return phase
+
+    def _problem(self, phases: list[Phase], x0: np.ndarray) -> MultiPhaseProblem:
+        """The ``MultiPhaseProblem`` of these phases from ``x0``: made (and validated) once per sequence of
+        phase objects; one that comes back gets a new array ``x0`` (an array taken from it before is left as
+        it was). The solver's workspace then recognises it at once (``Workspace.setup``)."""
+        key = tuple(id(phase) for phase in phases)  # phases compare by value; the cached problem holds them
+        problem = self._problems.get(key)
+        if problem is None:
+            problem = MultiPhaseProblem(np.asarray(x0, dtype=float), list(phases))
+            if len(self._problems) >= PHASE_CACHE_SIZE:
+                del self._problems[next(iter(self._problems))]
+            self._problems[key] = problem
+        else:
+            problem.x0 = np.array(x0, dtype=float)
+        return problem
+
+    def _srb_weight_ratio(self, weight_set: int) -> float:
+        """The SRB model's weight over the robot's (scales the reference's forces to the SRB tail)."""
+        name = self._names[weight_set]
+        ratio = self._srb_ratio.get(name)
+        if ratio is None:
+            ratio = self._factories(weight_set)[2].weight / self._total_weight
+            self._srb_ratio[name] = ratio
+        return ratio
 
     # ------------------------------------------------------------------------------------------- build
     def _window_for(self, rows: int) -> ReferenceWindow:
@@ -285,8 +395,10 @@ class CafeProblemBuilder:
         An SRB knot whose interval a switch falls inside gets per-foot stance fractions (the share of the
         interval each foot stands: the SRB's impulse over the interval is then that of the schedule) and,
         for a foot that lands inside it, the foothold it lands on.
+
+        Like the knots, the returned problem's objects are the builder's: a problem stays valid until the
+        next ``build`` (whose problem may be the very same object, with its own ``x0``).
         """
-        schedule = self.schedule
         wb_times, srb_times, tail_switches = self.knot_times(t0, reference)
         n_w, n_s = len(wb_times) - 1, max(len(srb_times) - 1, 0)
         has_srb = n_s > 0
@@ -296,45 +408,52 @@ class CafeProblemBuilder:
         self._names = tuple(reference.weight_sets)
         reference.sample(window)
         window.check_finite(type(reference).__name__)
-        stance_rows = [tuple(row) for row in window.stance.tolist()]
+        state, torque = window.state, window.torque
+        positions, velocities = window.foot_positions, window.foot_velocities
+        # every whole-body slot's reference at once (knots past the stack are written below, one by one)
+        rows = self._rows
+        n_rows = n_w + 1
+        stacked = min(n_rows, rows.capacity)
+        rows.state[:stacked] = state[:stacked]
+        rows.foot_positions[:stacked] = positions[:stacked]
+        rows.foot_velocities[:stacked] = velocities[:stacked]
+        rows.torque[:stacked] = torque[:stacked]
+        # the stance flags of every row as the builder's one tuple per stance (keys of its knot caches)
+        stance_of = self._stance_tuples
+        stance_rows = [stance_of[code] for code in window.stance.dot(self._foot_bits).tolist()]
+        weight_set = window.weight_set.tolist()
+        steps = np.maximum(np.rint(np.diff(wb_times) / TIME_QUANTUM), 1.0).astype(np.int64).tolist()
         groups: list[tuple[tuple[bool, ...], int, int]] = []  # (stance, first knot, last knot + 1)
         start = 0
         for k in range(1, n_w + 1):
             if k == n_w or stance_rows[k] != stance_rows[start]:
                 groups.append((stance_rows[start], start, k))
                 start = k
-        state, torque = window.state, window.torque
-        positions, velocities = window.foot_positions, window.foot_velocities
-        weight_set = window.weight_set
-        durations = np.diff(wb_times)
         phases: list[Phase] = []
         infos: list[PhaseInfo] = []
-        stance_array = np.asarray(window.stance[: n_w + 1], dtype=bool)
+        stance_array = window.stance[:n_rows]
         for index, (stance, first, last) in enumerate(groups):
-            running = []
-            for k in range(first, last):
-                knot = self._running_knot(k, stance, int(weight_set[k]), quanta(float(durations[k])))
-                ref = knot.reference
+            running = [self._running_knot(k, stance, weight_set[k], steps[k]) for k in range(first, last)]
+            for k in range(max(first, stacked), last):
+                ref = running[k - first].reference
                 ref.state[:] = state[k]
                 ref.foot_positions[:] = positions[k]
                 ref.foot_velocities[:] = velocities[k]
                 ref.torque[:] = torque[k]
-                running.append(knot)
             is_last = index == len(groups) - 1
             next_stance = groups[index + 1][0] if not is_last else stance_rows[n_w + 1 if has_srb else n_w]
-            terminal = self._terminal_knot(last, stance, int(weight_set[last]), is_last)
-            ref = terminal.reference
-            ref.state[:] = state[last]
-            ref.foot_positions[:] = positions[last]
-            ref.foot_velocities[:] = velocities[last]
+            terminal = self._terminal_knot(last, stance, weight_set[last], is_last)
+            if last >= stacked:
+                ref = terminal.reference
+                ref.state[:] = state[last]
+                ref.foot_positions[:] = positions[last]
+                ref.foot_velocities[:] = velocities[last]
             if is_last and not has_srb:
                 reset, switching = None, None
             else:
                 reset, switching = self._switch(stance, next_stance, to_srb=is_last)
-            entered_by_impact = index > 0 and any(touchdown_flags(groups[index - 1][0], stance))
-            phases.append(
-                Phase(running, terminal, reset, switching, dt=schedule.whole_body_dt, name=f"wb{index}")
-            )
+            entered_by_impact = index > 0 and _touches_down(groups[index - 1][0], stance)
+            phases.append(self._phase(index, running, terminal, reset, switching))
             infos.append(
                 PhaseInfo(
                     "whole_body",
@@ -346,70 +465,184 @@ class CafeProblemBuilder:
                 )
             )
         if has_srb:
-            offset = n_w + 1
-            switch_rows = {float(s): offset + n_s + 1 + i for i, s in enumerate(tail_switches)}
-            srb_stance = np.asarray(window.stance[offset : offset + n_s + 1], dtype=bool)
-            fractions, sample_rows = self._stance_fractions(srb_times, offset, switch_rows, window.stance)
-            running = []
-            srb_forces = np.zeros((n_s, 3 * self.robot.n_feet))
-            for j in range(n_s):
-                row = offset + j
-                knot = self._srb_knot(j, int(weight_set[row]), quanta(float(srb_times[j + 1] - srb_times[j])))
-                srb_factory = self._factories(int(weight_set[row]))[2]
-                to_srb_weight = srb_factory.weight / self._total_weight
-                ref = knot.reference
-                ref.state[:] = whole_body_to_srb_state(state[row])
-                ref.contacts[:] = fractions[j]
-                for foot in range(self.robot.n_feet):
-                    sample = sample_rows[j, foot]
-                    ref.foot_positions[foot] = positions[sample, foot]
-                    # GRF target (28): the reference's stance force of the foot, for the SRB's own weight
-                    srb_forces[j, 3 * foot : 3 * foot + 3] = window.forces[sample, foot] * to_srb_weight
-                ref.forces[:] = srb_forces[j]
-                running.append(knot)
-            last_row = offset + n_s
-            terminal = self._srb_terminal_knot(int(weight_set[last_row]))
-            ref = terminal.reference
-            ref.state[:] = whole_body_to_srb_state(state[last_row])
-            ref.foot_positions[:] = positions[last_row]
-            ref.contacts[:] = window.stance[last_row]
-            phases.append(Phase(running, terminal, dt=schedule.srb_dt, name="srb"))
-            entered = any(touchdown_flags(groups[-1][0], stance_rows[offset]))
+            srb_forces, fractions = self._write_srb_tail(
+                window, srb_times, tail_switches, n_rows, stance_rows
+            )
+            offset = n_rows
+            running = [
+                self._srb_knot(j, weight_set[offset + j], int(quanta(float(srb_times[j + 1] - srb_times[j]))))
+                for j in range(n_s)
+            ]
+            terminal = self._srb_terminal_knot(weight_set[offset + n_s])
+            phases.append(self._phase(-1, running, terminal, None, None))
+            entered = _touches_down(groups[-1][0], stance_rows[offset])
+            srb_stance = window.stance[offset : offset + n_s]
             infos.append(
-                PhaseInfo("srb", None, np.array(srb_times), srb_stance[:-1].copy(), entered, 0, fractions)
+                PhaseInfo("srb", None, np.array(srb_times), srb_stance.copy(), entered, 0, fractions)
             )
         else:
             srb_forces = np.zeros((0, 3 * self.robot.n_feet))
-        problem = MultiPhaseProblem(np.asarray(x0, dtype=float), phases)
-        return BuiltProblem(problem, infos, t0, srb_forces, torque[: n_w + 1].copy())
+        problem = self._problem(phases, x0)
+        torque_reference = rows.torque[:n_rows] if n_rows <= rows.capacity else torque[:n_rows].copy()
+        return BuiltProblem(problem, infos, t0, srb_forces, torque_reference)
+
+    def _write_srb_tail(
+        self,
+        window: ReferenceWindow,
+        srb_times: np.ndarray,
+        tail_switches: list[float],
+        offset: int,
+        stance_rows: list[tuple[bool, ...]],
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """The SRB tail's rows (``_SRBRows``) from the window rows ``offset ...``: states (projection (32)),
+        per-foot stance fractions and the footholds and GRF targets (28) of the rows they come from
+        (``_stance_fractions``); the terminal row takes its own row's feet and stance. Returns the running
+        knots' GRF targets (n_s, 3 n_feet), rows of the stack, and the stance fractions."""
+        n_s = len(srb_times) - 1
+        srb = self._srb_rows
+        if n_s + 1 != srb.capacity:
+            raise RuntimeError(f"the SRB tail has {n_s} knots, the schedule {srb.capacity - 1}")
+        switch_rows = {float(s): offset + n_s + 1 + i for i, s in enumerate(tail_switches)}
+        fractions, sample_rows = self._stance_fractions(
+            srb_times, offset, switch_rows, window.stance, stance_rows
+        )
+        nq = self.robot.nq
+        _srb_states_into(
+            window.state[offset : offset + n_s + 1], nq, srb.rotations, srb.velocities, srb.state
+        )
+        feet = srb.feet_index
+        srb.foot_positions[:n_s] = window.foot_positions[sample_rows, feet]
+        srb.foot_positions[n_s] = window.foot_positions[offset + n_s]
+        srb.contacts[:n_s] = fractions
+        srb.contacts[n_s] = window.stance[offset + n_s]
+        ratios = srb.ratios
+        for j, weight_set in enumerate(window.weight_set[offset : offset + n_s].tolist()):
+            ratios[j] = self._srb_weight_ratio(weight_set)
+        # GRF target (28): the reference's stance force of the foot, for the SRB's own weight
+        np.multiply(window.forces[sample_rows, feet], ratios[:n_s, None, None], out=srb.force_rows[:n_s])
+        return srb.forces[:n_s], fractions
 
     def _stance_fractions(
-        self, srb_times: np.ndarray, offset: int, switch_rows: dict[float, int], stance: np.ndarray
+        self,
+        srb_times: np.ndarray,
+        offset: int,
+        switch_rows: dict[float, int],
+        stance: np.ndarray,
+        stance_rows: list[tuple[bool, ...]],
     ) -> tuple[np.ndarray, np.ndarray]:
         """Per SRB knot and foot: the share of the knot's interval in stance, and the window row whose foot
         position and force the knot uses (the knot's own row, or the row of the switch at which the foot's
-        first stance inside the interval starts)."""
+        first stance inside the interval starts). A knot without a switch inside its interval stands as its
+        own row does over all of it (fraction 0 or 1); the others are summed piece by piece (``stance_rows``:
+        the window's stance flags as tuples). The result is a new fractions array (kept by the phase's
+        ``PhaseInfo``) and the stack's row indices."""
         n_s = len(srb_times) - 1
         n_feet = self.robot.n_feet
-        fractions = np.zeros((n_s, n_feet))
-        rows = np.zeros((n_s, n_feet), dtype=np.int64)
+        fractions = stance[offset : offset + n_s].astype(float)
+        rows = self._srb_rows.sample_rows[:n_s]
+        rows[:] = self._srb_rows.own_rows[:n_s] + offset
+        if not switch_rows:
+            return fractions, rows
         switch_times = sorted(switch_rows)
-        for j in range(n_s):
+        intervals = np.searchsorted(srb_times, switch_times, side="left") - 1
+        for j in sorted(set(intervals.tolist())):
+            if not 0 <= j < n_s:
+                continue
             a, b = float(srb_times[j]), float(srb_times[j + 1])
-            starts = [(a, offset + j)] + [(s, switch_rows[s]) for s in switch_times if a < s < b]
-            rows[j] = offset + j
-            chosen = np.zeros(n_feet, dtype=bool)
+            inside = [(s, switch_rows[s]) for s in switch_times if a < s < b]
+            if not inside:
+                continue
+            starts = [(a, offset + j), *inside]
+            shares, sample = [0.0] * n_feet, [-1] * n_feet
             for index, (start, row) in enumerate(starts):
                 end = starts[index + 1][0] if index + 1 < len(starts) else b
-                flags = stance[row]
-                fractions[j] += flags * ((end - start) / (b - a))
-                for foot in range(n_feet):
-                    if flags[foot] and not chosen[foot]:
-                        rows[j, foot] = row
-                        chosen[foot] = True
+                share = (end - start) / (b - a)
+                for foot, flag in enumerate(stance[row]):
+                    if flag:
+                        shares[foot] += share
+                        if sample[foot] < 0:
+                            sample[foot] = row
+            fractions[j] = shares
+            for foot, row in enumerate(sample):
+                if row >= 0:
+                    rows[j, foot] = row
         fractions[fractions < 1e-9] = 0.0  # round-off of the interval sums
         fractions[fractions > 1.0 - 1e-9] = 1.0
         return fractions, rows
+
+
+def _touches_down(before: tuple[bool, ...], after: tuple[bool, ...]) -> bool:
+    """Whether a foot in swing in ``before`` is in stance in ``after`` (``touchdown_flags`` of validated
+    flags, without validating them again)."""
+    return any(a and not b for b, a in zip(before, after, strict=True))
+
+
+def _srb_states_into(
+    states: np.ndarray, nq: int, rotations: np.ndarray, velocities: np.ndarray, out: np.ndarray
+) -> None:
+    """``whole_body_to_srb_state`` (32) of every row of ``states`` into ``out``: the rotation matrices by
+    the element formulas of ``pin.Quaternion.toRotationMatrix`` (``_rotation_matrices``) and the world
+    velocities by one stacked ``matmul`` (the products of the one-row function, so the same bits)."""
+    n = len(states)
+    rotation, velocity = rotations[:n], velocities[:n]
+    _rotation_matrices(states, rotation)
+    velocity[:, :, 0] = states[:, nq : nq + 3]
+    out[:n, 0:7] = states[:, 0:7]
+    np.matmul(rotation, velocity, out=out[:n, 7:10, None])
+    out[:n, 10:13] = states[:, nq + 3 : nq + 6]
+
+
+@njit(cache=True, nogil=True)
+def _rotation_matrices(states: np.ndarray, out: np.ndarray) -> None:
+    """The rotation matrix of each row's base quaternion ``states[i, 3:7]`` (x, y, z, w) into ``out[i]``:
+    the element formulas and operation order of Eigen's ``Quaternion::toRotationMatrix`` (no fused
+    multiply-adds: the same bits as ``pin.Quaternion(q).toRotationMatrix()``)."""
+    for i in range(states.shape[0]):
+        x, y, z, w = states[i, 3], states[i, 4], states[i, 5], states[i, 6]
+        tx, ty, tz = 2.0 * x, 2.0 * y, 2.0 * z
+        twx, twy, twz = tx * w, ty * w, tz * w
+        txx, txy, txz = tx * x, ty * x, tz * x
+        tyy, tyz, tzz = ty * y, tz * y, tz * z
+        out[i, 0, 0] = 1.0 - (tyy + tzz)
+        out[i, 0, 1] = txy - twz
+        out[i, 0, 2] = txz + twy
+        out[i, 1, 0] = txy + twz
+        out[i, 1, 1] = 1.0 - (txx + tzz)
+        out[i, 1, 2] = tyz - twx
+        out[i, 2, 0] = txz - twy
+        out[i, 2, 1] = tyz + twx
+        out[i, 2, 2] = 1.0 - (txx + tyy)
+
+
+class _KnotRows:
+    """Stacked references of the whole-body knot slots: row ``k`` is the reference of every knot object of
+    slot ``k`` (``WholeBodyReference.of_rows``)."""
+
+    def __init__(self, capacity: int, nx: int, n_feet: int, nu: int) -> None:
+        self.capacity = capacity
+        self.state = np.zeros((capacity, nx))
+        self.foot_positions = np.zeros((capacity, n_feet, 3))
+        self.foot_velocities = np.zeros((capacity, n_feet, 3))
+        self.torque = np.zeros((capacity, nu))
+
+
+class _SRBRows:
+    """Stacked references of the SRB tail's knots (row ``j``: running knot ``j``; the last row: the
+    terminal knot) and the workspace of writing them."""
+
+    def __init__(self, capacity: int, n_feet: int) -> None:
+        self.capacity = capacity
+        self.state = np.zeros((capacity, 13))
+        self.foot_positions = np.zeros((capacity, n_feet, 3))
+        self.contacts = np.zeros((capacity, n_feet))
+        self.forces = np.zeros((capacity, 3 * n_feet))
+        self.force_rows = self.forces.reshape(capacity, n_feet, 3)
+        self.ratios = np.zeros(capacity)
+        self.rotations = np.zeros((capacity, 3, 3))
+        self.velocities = np.zeros((capacity, 3, 1))
+        self.sample_rows = np.zeros((capacity, n_feet), dtype=np.int64)
+        self.own_rows = np.repeat(np.arange(capacity, dtype=np.int64)[:, None], n_feet, axis=1)
+        self.feet_index = np.arange(n_feet)
 
 
 @dataclass
@@ -425,9 +658,23 @@ class InitialGuess:
 
 @dataclass
 class WarmStart:
-    """Maps a previous solution onto a new problem by time (Sec. VI-C, Fig. 5; ``time_grid``)."""
+    """Maps a previous solution onto a new problem by time (Sec. VI-C, Fig. 5; ``time_grid``).
+
+    The arrays of a guess are this object's buffers (one per phase position and kind, grown when a phase
+    is longer): valid until its next ``guess``. The solver copies them into its workspace.
+    """
 
     srb_state: SRBState = field(default_factory=SRBState)
+    _buffers: dict[tuple, np.ndarray] = field(default_factory=dict, init=False, repr=False, compare=False)
+
+    def _rows(self, key: tuple, rows: int, width: int | None, dtype: type = float) -> np.ndarray:
+        """The first ``rows`` rows of buffer ``key`` (``width`` columns; a vector for ``None``)."""
+        columns = () if width is None else (width,)
+        buffer = self._buffers.get(key)
+        if buffer is None or buffer.shape[0] < rows or buffer.shape[1:] != columns:
+            buffer = np.empty((max(rows, 8), *columns), dtype=dtype)
+            self._buffers[key] = buffer
+        return buffer[:rows]
 
     def guess(
         self, built: BuiltProblem, previous: BuiltProblem | None, solution: SolverResult | None
@@ -469,9 +716,11 @@ class WarmStart:
         for info in built.phases:
             n = len(info.times) - 1
             if info.kind == "whole_body":
-                phase_x = np.empty((n + 1, len(x0)))
-                phase_u = np.empty((n, torque_reference.shape[1]))
-                phase_rollout = np.zeros(n + 1, dtype=bool)
+                position = len(xs)
+                phase_x = self._rows(("x", position), n + 1, len(x0))
+                phase_u = self._rows(("u", position), n, torque_reference.shape[1])
+                phase_rollout = self._rows(("rollout", position), n + 1, None, bool)
+                phase_rollout[:] = False
                 new_phase_after_impact = info.entered_by_impact and info.times[0] > previous_end - tolerance
                 same_stance = [trajectory for stance, trajectory in previous_wb if stance == info.stance]
                 for k, t in enumerate(info.times):
@@ -491,8 +740,9 @@ class WarmStart:
                 us.append(phase_u)
                 rollout.append(phase_rollout)
             else:
-                phase_x = np.empty((n + 1, self.srb_state.nx))
-                phase_u = np.empty((n, built.srb_forces.shape[1]))
+                position = len(xs)
+                phase_x = self._rows(("srb x", position), n + 1, self.srb_state.nx)
+                phase_u = self._rows(("srb u", position), n, built.srb_forces.shape[1])
                 wb_end = xs[-1][-1] if xs else x0
                 for j, t in enumerate(info.times):
                     t = float(t)
@@ -507,7 +757,9 @@ class WarmStart:
                             phase_u[j] = built.srb_forces[j]
                 xs.append(phase_x)
                 us.append(phase_u)
-                rollout.append(np.zeros(n + 1, dtype=bool))
+                srb_rollout = self._rows(("srb rollout", position), n + 1, None, bool)
+                srb_rollout[:] = False
+                rollout.append(srb_rollout)
         multipliers, penalties = _augmented_lagrangian_guess(built, previous, solution)
         return InitialGuess(xs, us, rollout, multipliers, penalties)
 

@@ -102,6 +102,37 @@ class WholeBodyReference:
     def copy(self) -> WholeBodyReference:
         return WholeBodyReference(self.state, self.foot_positions, self.foot_velocities, self.torque)
 
+    @classmethod
+    def of_rows(
+        cls,
+        state: np.ndarray,
+        foot_positions: np.ndarray,
+        foot_velocities: np.ndarray,
+        torque: np.ndarray,
+    ) -> WholeBodyReference:
+        """A reference whose parts *are* the given arrays (no copies): rows of a caller's stacked storage,
+        so that one write of the stack updates every knot reading it. Shapes and dtype are checked here,
+        once, because the rows are then written without ``set``'s checks."""
+        parts = (
+            ("reference state", state, None),
+            ("reference foot positions", foot_positions, (4, 3)),
+            ("reference foot velocities", foot_velocities, (4, 3)),
+            ("reference torque", torque, (12,)),
+        )
+        for name, array, shape in parts:
+            if not isinstance(array, np.ndarray) or array.dtype != np.float64:
+                raise ValueError(f"{name} must be a float64 array")
+            if shape is not None and array.shape != shape:
+                raise ValueError(f"{name} must have shape {shape}, got {array.shape}")
+        if state.ndim != 1:
+            raise ValueError("reference state must be a vector")
+        reference = cls.__new__(cls)
+        reference.state = state
+        reference.foot_positions = foot_positions
+        reference.foot_velocities = foot_velocities
+        reference.torque = torque
+        return reference
+
 
 class WholeBodyKnotData(ActionData):
     """Per-knot workspace: dynamics data (its ``x_next``/``Fx``/``Fu`` are this data's), foot kinematics, and
@@ -459,6 +490,36 @@ class SRBReference:
     @property
     def contact_flags(self) -> ContactFlags:
         return as_contact_flags(self.contacts > 0.5)
+
+    @classmethod
+    def of_rows(
+        cls,
+        state: np.ndarray,
+        foot_positions: np.ndarray,
+        contacts: np.ndarray,
+        forces: np.ndarray,
+        weight: float,
+    ) -> SRBReference:
+        """A reference whose parts *are* the given arrays (no copies): rows of a caller's stacked storage,
+        written in place by its owner. Shapes and dtype are checked here, once."""
+        if not (math.isfinite(weight) and weight > 0):
+            raise ValueError(f"weight (m g) must be positive, got {weight}")
+        parts = (
+            ("SRB reference state", state, (13,)),
+            ("SRB foot positions", foot_positions, (4, 3)),
+            ("SRB contact flags", contacts, (4,)),
+            ("SRB reference forces", forces, (12,)),
+        )
+        for name, array, shape in parts:
+            if not isinstance(array, np.ndarray) or array.dtype != np.float64 or array.shape != shape:
+                raise ValueError(f"{name} must be a float64 array of shape {shape}")
+        reference = cls.__new__(cls)
+        reference.weight = float(weight)
+        reference.state = state
+        reference.foot_positions = foot_positions
+        reference.contacts = contacts
+        reference.forces = forces
+        return reference
 
 
 def weight_split_forces(contacts: Sequence[float], weight: float) -> np.ndarray:

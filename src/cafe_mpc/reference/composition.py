@@ -36,6 +36,7 @@ import numpy as np
 
 from cafe_mpc.reference.base import STANCE_TIME_EPS, Reference, ReferenceWindow, switches_inside
 from cafe_mpc.reference.kernels import place_configurations
+from cafe_mpc.reference.trajectory import TrajectoryReference
 
 Offset = tuple[float, float, float]
 """Planar placement ``(x, y, yaw)`` of a segment (m, m, rad)."""
@@ -170,6 +171,8 @@ class ComposedReference(Reference):
         """Per segment without a weight-set override: its weight-set indices mapped to the composition's."""
         self._windows: dict[int, ReferenceWindow] = {}
         self._probe = ReferenceWindow(1, nq, nv, nu, n_feet)
+        self._trajectory_poses: dict[tuple[int, float], np.ndarray] = {}
+        """``_local_pose`` of the stored-trajectory segments by (reference id, local time): fixed poses."""
         self._resolve_offsets()
 
     # -------------------------------------------------------------------------------------- placement
@@ -180,10 +183,18 @@ class ComposedReference(Reference):
         base_state = getattr(segment.reference, "base_state", None)
         if base_state is not None:
             return np.array(base_state(local_time)[0], dtype=float)
+        fixed = isinstance(segment.reference, TrajectoryReference)
+        if fixed:  # a stored trajectory: the same pose at every update (the re-joins ask at every one)
+            pose = self._trajectory_poses.get((id(segment.reference), local_time))
+            if pose is not None:
+                return pose.copy()
         probe = self._probe
         probe.set_times(np.array([local_time]))
         segment.reference.sample(probe)
-        return probe.state[0, : self.nq].copy()
+        pose = probe.state[0, : self.nq].copy()
+        if fixed:
+            self._trajectory_poses[(id(segment.reference), local_time)] = pose.copy()
+        return pose
 
     def _placed(self, segment: Segment, q: np.ndarray) -> np.ndarray:
         """A copy of the configuration ``q`` placed in the world by the segment's current offset and sign."""

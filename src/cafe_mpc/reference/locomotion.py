@@ -337,6 +337,9 @@ class LocomotionReference(Reference):
         self._torque_table = np.zeros((0, robot.nu))
         self._torque_filled = np.zeros(0, dtype=bool)
         self._phases_of: ContactSchedule | None = None
+        self._switches_of: ContactSchedule | None = None
+        self._sorted_switches: list[float] = []
+        """``switch_times`` of the cached schedule ``_switches_of``, sorted (remade with the schedule)."""
         self._phase_starts = np.zeros(0)
         self._phase_ends = np.zeros(0)
         self._phase_flags = np.zeros((0, robot.n_feet), dtype=bool)
@@ -490,7 +493,12 @@ class LocomotionReference(Reference):
     def switch_times(self, t0: float, t1: float) -> list[float]:
         """Contact switches in ``(t0, t1)``: the gait schedule's (the start stance's end included)."""
         schedule = self.schedule(max(t0, 0.0), max(t1, t0 + 1e-6))
-        return switches_inside(schedule.switch_times(), t0, t1)
+        if schedule is not self._switches_of:
+            self._sorted_switches = sorted(float(t) for t in schedule.switch_times())
+            self._switches_of = schedule
+        times = self._sorted_switches
+        # only the times strictly between t0 and t1 can be inside: the same result as from all of them
+        return switches_inside(times[bisect.bisect_right(times, t0) : bisect.bisect_left(times, t1)], t0, t1)
 
     def stance_at(self, t: float) -> tuple[bool, bool, bool, bool]:
         if t < self.start_stance - 1e-9:
