@@ -16,9 +16,9 @@ side's median. On a shared machine the ratio is what to read; the absolute times
 
 ``per_knot`` breaks an iteration down per whole-body knot at the solution, timed interleaved the same way:
 Crocoddyl's ``calc`` and ``calcDiff`` over its problem divided by its knots, ours (each knot's ``calc`` and
-``calc_diff``), and the floor of ours: the Pinocchio calls of our knots' dynamics alone (contact dynamics,
-their derivatives, ``integrate`` and ``dIntegrate`` of the step). When that floor is as large as
-Crocoddyl's whole knot, per-knot Python cannot reach parity: what is left to cut is the glue.
+``calc_diff``), and the floor of ours: the Pinocchio calls of our knots' dynamics alone (the contact
+dynamics and their derivatives; the free-flyer step and its Jacobians are compiled kernels). What a knot
+takes beyond that floor is glue and costs.
 """
 
 from __future__ import annotations
@@ -149,8 +149,6 @@ def per_knot_costs(ours: _Ours, theirs: _Crocoddyl, rounds: int = 5, repeats: in
             pin.computeConstraintDynamicsDerivatives(
                 robot_model, pd, dynamics.contact_models, dynamics_data.contact_datas, dynamics_data.proximal
             )
-            pin.integrate(robot_model, x[:nq], dynamics_data._step)
-            pin.dIntegrate(robot_model, x[:nq], dynamics_data._step)
 
     samples: dict[str, list[float]] = {key: [] for key in ("crocoddyl", "ours", "floor")}
     calc_samples: dict[str, list[float]] = {"crocoddyl": [], "ours": []}
