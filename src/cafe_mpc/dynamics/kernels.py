@@ -504,6 +504,25 @@ def _set_skew_block(out: np.ndarray, row: int, column: int, a: float, x: float, 
 
 
 @njit(cache=True, nogil=True)
+def _rotation_blocks(
+    out: np.ndarray, diagonal: float, outer: float, skew: float, wx: float, wy: float, wz: float
+) -> None:
+    """Both 3 x 3 diagonal blocks of the 6 x 6 ``out`` set to ``diagonal I + outer w w' + skew [w]x`` and the
+    lower-left block to zero: the rotation-shaped blocks of ``Ad``, ``Jexp6`` and ``Jlog6``."""
+    w = (wx, wy, wz)
+    for i in range(3):
+        for j in range(3):
+            value = outer * w[i] * w[j]
+            out[i, j] = value
+            out[3 + i, 3 + j] = value
+            out[3 + i, j] = 0.0
+        out[i, i] += diagonal
+        out[3 + i, 3 + i] += diagonal
+    _set_skew_block(out, 0, 0, skew, wx, wy, wz)
+    _set_skew_block(out, 3, 3, skew, wx, wy, wz)
+
+
+@njit(cache=True, nogil=True)
 def _se3_coupling(
     beta: float, beta_dot: float, w: tuple, p: tuple, theta2: float, scratch: np.ndarray
 ) -> None:
@@ -538,32 +557,14 @@ def free_flyer_integrate_jacobians(step: np.ndarray, dq_block: np.ndarray, dstep
     py = a * vy + wv * wy + b * (wz * vx - wx * vz)
     pz = a * vz + wv * wz + b * (wx * vy - wy * vx)
     # Ad(exp6(s)^-1) = [[R', -R' [p]x], [0, R']]
-    for i in range(3):
-        for j in range(3):
-            value = b * w[i] * w[j]
-            dq_block[i, j] = value
-            dq_block[3 + i, 3 + j] = value
-            dq_block[3 + i, j] = 0.0
-        dq_block[i, i] += cosine
-        dq_block[3 + i, 3 + i] += cosine
-    _set_skew_block(dq_block, 0, 0, -a, wx, wy, wz)
-    _set_skew_block(dq_block, 3, 3, -a, wx, wy, wz)
+    _rotation_blocks(dq_block, cosine, b, -a, wx, wy, wz)
     for i in range(3):
         r0, r1, r2 = dq_block[i, 0], dq_block[i, 1], dq_block[i, 2]
         dq_block[i, 3] = -(r1 * pz - r2 * py)
         dq_block[i, 4] = -(r2 * px - r0 * pz)
         dq_block[i, 5] = -(r0 * py - r1 * px)
     # Jexp6(s) = [[J3, -J3 X], [0, J3]], J3 = Jexp3(w) = a I - b [w]x + c w w', X of p3 = J3' v
-    for i in range(3):
-        for j in range(3):
-            value = c * w[i] * w[j]
-            dstep_block[i, j] = value
-            dstep_block[3 + i, 3 + j] = value
-            dstep_block[3 + i, j] = 0.0
-        dstep_block[i, i] += a
-        dstep_block[3 + i, 3 + i] += a
-    _set_skew_block(dstep_block, 0, 0, -b, wx, wy, wz)
-    _set_skew_block(dstep_block, 3, 3, -b, wx, wy, wz)
+    _rotation_blocks(dstep_block, a, c, -b, wx, wy, wz)
     p3 = (
         dstep_block[0, 0] * vx + dstep_block[1, 0] * vy + dstep_block[2, 0] * vz,
         dstep_block[0, 1] * vx + dstep_block[1, 1] * vy + dstep_block[2, 1] * vz,
@@ -593,16 +594,7 @@ def free_flyer_difference_jacobian(q0: np.ndarray, q1: np.ndarray, out: np.ndarr
     wx, wy, wz, theta = relative_rotation_log(ax, ay, az, aw, q1[3], q1[4], q1[5], q1[6])
     alpha, beta, beta_dot = se3_log_coefficients(theta)
     w = (wx, wy, wz)
-    for i in range(3):
-        for j in range(3):
-            value = beta * w[i] * w[j]
-            out[i, j] = value
-            out[3 + i, 3 + j] = value
-            out[3 + i, j] = 0.0
-        out[i, i] += alpha
-        out[3 + i, 3 + i] += alpha
-    _set_skew_block(out, 0, 0, 0.5, wx, wy, wz)
-    _set_skew_block(out, 3, 3, 0.5, wx, wy, wz)
+    _rotation_blocks(out, alpha, beta, 0.5, wx, wy, wz)
     coupling = np.empty((3, 3))
     _se3_coupling(beta, beta_dot, w, (px, py, pz), theta * theta, coupling)
     for i in range(3):
