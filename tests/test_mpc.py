@@ -1,6 +1,7 @@
 """CAFE problem construction (Sec. IV-D), warm start (Fig. 5) and a short MPC closed loop."""
 
 import itertools
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -102,7 +103,8 @@ def _mpc_updates(robot, builder_for, solver_for, updates=8, gait="trot"):
             initial_multipliers=guess.multipliers,
             initial_penalties=guess.penalties,
         )
-        results.append(result)
+        # the updates' results borrow the solver's policy arrays (``copy_policy=False``): keep the gains
+        results.append(replace(result, phases=[replace(phase, K=phase.K.copy()) for phase in result.phases]))
         previous = (built, result)
         x = result.phases[0].xs[2].copy()
     return results

@@ -203,6 +203,30 @@ def test_a_result_without_the_value_function_has_the_same_policy() -> None:
         _ = lean.value_gradient
 
 
+def test_a_result_that_borrows_the_policy_has_the_same_policy_until_the_next_solve() -> None:
+    """``copy_policy=False`` (the MPC's updates): the result's ``K``, ``k``, ``Qu``, ``Quu``, ``Qux`` are the
+    solver workspace's arrays, equal to an owning result's; the next solve overwrites them (an owning
+    result keeps its own)."""
+    x0 = np.array([0.3, -0.5])
+    owning = MSiLQRSolver(SolverOptions(max_iterations=5)).solve(two_phase_pendulum(x0))
+    solver = MSiLQRSolver(SolverOptions(max_iterations=5, copy_policy=False))
+    borrowing = solver.solve(two_phase_pendulum(x0))
+    names = ("K", "k", "Qu", "Quu", "Qux")
+    for mine, theirs, work in zip(borrowing.phases, owning.phases, solver.workspace.phases, strict=True):
+        for name in names:
+            np.testing.assert_array_equal(getattr(mine, name), getattr(theirs, name), err_msg=name)
+            assert getattr(mine, name) is getattr(work, name)
+        assert not np.shares_memory(mine.xs, work.xs)  # the trajectory is always the result's own
+    kept = [[getattr(phase, name).copy() for name in names] for phase in borrowing.phases]
+    solver.solve(two_phase_pendulum(np.array([-0.4, 0.2])))
+    changed = any(
+        not np.array_equal(getattr(phase, name), before)
+        for phase, arrays in zip(borrowing.phases, kept, strict=True)
+        for name, before in zip(names, arrays, strict=True)
+    )
+    assert changed
+
+
 def random_rotation(rng: np.random.Generator, scale: float) -> np.ndarray:
     return pin.exp3(scale * rng.standard_normal(3))
 

@@ -316,3 +316,24 @@ def test_a_compensated_plan_starts_from_the_measurement_carried_to_its_start(rob
     np.testing.assert_allclose(plan.xs[0][: robot.nq], expected[: robot.nq], atol=1e-9)
     # the carried state is not the measured one: 20-30 ms at 0.1 m/s moved the base
     assert abs(expected[0] - q[0]) > 1e-3
+
+
+def test_a_published_plan_keeps_its_gains_through_later_updates(robot):
+    """The updates' results borrow the solver's policy arrays (``SolverOptions.copy_policy=False``); a plan
+    must own its copies: the next preparation and feedback leave a published plan unchanged."""
+    rti = _started_mpc(robot, "rti")
+    nq = robot.nq
+    predicted = rti.predict(0.02)
+    assert rti.prepare(0.02, predicted[:nq], predicted[nq:])
+    plan = rti.feedback(0.02, predicted[:nq], predicted[nq:])
+    names = ("xs", "us", "K", "Qu", "Quu", "Qux", "forces")
+    before = {name: getattr(plan, name).copy() for name in names}
+    for t in (0.04, 0.06):
+        predicted = rti.predict(t)
+        assert rti.prepare(t, predicted[:nq], predicted[nq:])
+        q = predicted[:nq].copy()
+        q[:3] += 1e-3  # a measurement off the prediction: the feedback moves the trajectory
+        later = rti.feedback(t, q, predicted[nq:])
+        assert later is not None
+    for name in names:
+        np.testing.assert_array_equal(getattr(plan, name), before[name], err_msg=name)

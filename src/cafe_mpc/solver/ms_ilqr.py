@@ -261,7 +261,14 @@ class MSiLQRSolver:
         if not data_at_nominal:
             self._recalc_running(workspace)
         return self._make_result(
-            workspace, nominal, converged, status, stats, policy_valid, options.keep_value_function
+            workspace,
+            nominal,
+            converged,
+            status,
+            stats,
+            policy_valid,
+            options.keep_value_function,
+            options.copy_policy,
         )
 
     def feedback(
@@ -838,7 +845,11 @@ class MSiLQRSolver:
         stats: SolverStatistics,
         policy_valid: bool,
         keep_value_function: bool = True,
+        copy_policy: bool = True,
     ) -> SolverResult:
+        """The solution in the workspace as a result (``SolverOptions``: ``keep_value_function``,
+        ``copy_policy``: without it the policy arrays are the workspace's own)."""
+        owned = np.copy if copy_policy else _same
         phases = []
         for work in workspace.phases:
             has_constraint = work.constraint is not None
@@ -850,11 +861,11 @@ class MSiLQRSolver:
                 PhaseSolution(
                     xs=work.xs.copy(),
                     us=work.us.copy(),
-                    K=work.K.copy(),
-                    k=work.k.copy(),
-                    Qu=work.Qu.copy(),
-                    Quu=work.Quu.copy(),
-                    Qux=work.Qux.copy(),
+                    K=owned(work.K),
+                    k=owned(work.k),
+                    Qu=owned(work.Qu),
+                    Quu=owned(work.Quu),
+                    Qux=owned(work.Qux),
                     S=S,
                     s=s,
                     defects=work.defects.copy(),
@@ -879,6 +890,11 @@ class MSiLQRSolver:
             statistics=stats,
             policy_valid=policy_valid,
         )
+
+
+def _same(array: np.ndarray) -> np.ndarray:
+    """The array itself (the result borrows the workspace's: ``SolverOptions.copy_policy``)."""
+    return array
 
 
 def _linearize_knots(work: PhaseWorkspace, first: int, last: int) -> None:
