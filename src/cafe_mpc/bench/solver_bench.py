@@ -2,7 +2,13 @@
 
 Three problems, each solved from the same initial guess in every round:
 
-* ``whole_body_25``: the 25-knot (10 ms) whole-body trot-cycle problem of ``bench.problems`` (ours);
+* ``whole_body_25``: the 25-knot (10 ms) whole-body trot-cycle problem of ``bench.problems`` (ours), with
+  the policy the MPC uses (``final_policy="shift"``): one linearisation, one backward sweep and one line
+  search per iteration, which is the work of Crocoddyl's ``solve`` too (its returned gains are those of
+  its last sweep);
+* ``whole_body_25_relinearize``: the same with our offline default (``final_policy="relinearize"``): after
+  the last step one more linearisation and sweep, so that the returned gains and Q-function belong to the
+  returned trajectory (an 11th linearisation for 10 iterations);
 * ``crocoddyl_fddp_25``: the same problem in Crocoddyl (FDDP, one thread);
 * ``cafe_s4``: the CAFE problem of one MPC update: 25 whole-body knots at 10 ms + SRB tail 0.4 s at 50 ms,
   trotting at 0.5 m/s, all constraints on the whole-body part (ours only).
@@ -35,9 +41,11 @@ from cafe_mpc.solver import MSiLQRSolver, SolverOptions
 class _Ours:
     """One of our problems with its initial guess and a persistent solver."""
 
-    def __init__(self, problem, xs, us, iterations: int) -> None:
+    def __init__(self, problem, xs, us, iterations: int, final_policy: str = "shift") -> None:
         self.problem, self.xs, self.us = problem, xs, us
-        self.solver = MSiLQRSolver(SolverOptions(max_iterations=iterations, max_al_iterations=1))
+        self.solver = MSiLQRSolver(
+            SolverOptions(max_iterations=iterations, max_al_iterations=1, final_policy=final_policy)
+        )
         self.per_iteration: list[float] = []
         self.iterations = 0
         self.cost = float("nan")
@@ -170,41 +178,53 @@ def per_knot_costs(ours: _Ours, theirs: _Crocoddyl, rounds: int = 5, repeats: in
     }
 
 
+def _spread(ratios: list[float]) -> dict:
+    values = np.asarray(ratios)
+    return {
+        "q25": float(np.percentile(values, 25)),
+        "q75": float(np.percentile(values, 75)),
+        "min": float(values.min()),
+        "max": float(values.max()),
+    }
+
+
 def run_solver_benchmark(iterations: int = 10, rounds: int = 20, warm_up: int = 2) -> dict:
-    """``rounds`` interleaved rounds (after ``warm_up`` unrecorded ones) of ours (WB, CAFE) and Crocoddyl
-    FDDP (WB); per-round ratios ours / Crocoddyl on the same whole-body problem."""
+    """``rounds`` interleaved rounds (after ``warm_up`` unrecorded ones) of ours (WB with each final
+    policy, CAFE) and Crocoddyl FDDP (WB); per-round ratios ours / Crocoddyl on the same whole-body
+    problem. The three whole-body solves of a round run in a rotating order."""
     robot = load_robot("mini_cheetah")
     peer = whole_body_problem(robot, TROT_CYCLE)
-    ours = _Ours(peer.problem, peer.initial_xs, peer.initial_us, iterations)
+    ours = _Ours(peer.problem, peer.initial_xs, peer.initial_us, iterations, final_policy="shift")
+    relinearizing = _Ours(peer.problem, peer.initial_xs, peer.initial_us, iterations, "relinearize")
     theirs = _Crocoddyl(robot, peer, iterations)
     cafe = _cafe(robot, iterations)
-    ratios = []
+    sides = [ours, relinearizing, theirs]
+    ratios: list[float] = []
+    relinearized_ratios: list[float] = []
     for index in range(warm_up + rounds):
-        if index % 2 == 0:
-            mine, peer_time = ours.run(), theirs.run()
-        else:
-            peer_time, mine = theirs.run(), ours.run()
+        times = {}
+        for offset in range(len(sides)):
+            side = sides[(index + offset) % len(sides)]
+            times[id(side)] = side.run()
         cafe.run()
         if index >= warm_up:
-            ratios.append(mine / peer_time)
+            ratios.append(times[id(ours)] / times[id(theirs)])
+            relinearized_ratios.append(times[id(relinearizing)] / times[id(theirs)])
         else:
-            for side in (ours, theirs, cafe):
+            for side in (*sides, cafe):
                 side.per_iteration.clear()
-    ratios_array = np.asarray(ratios)
     knot_costs = per_knot_costs(ours, theirs)
     cafe_result = _side(cafe)
     cafe_result["knots"] = {"whole_body": 25, "srb": 8}
     return {
         "whole_body_25": _side(ours),
+        "whole_body_25_relinearize": _side(relinearizing),
         "cafe_s4": cafe_result,
         "crocoddyl_fddp_25": _side(theirs),
-        "ratio_vs_crocoddyl": float(np.median(ratios_array)),
-        "ratio_spread": {
-            "q25": float(np.percentile(ratios_array, 25)),
-            "q75": float(np.percentile(ratios_array, 75)),
-            "min": float(ratios_array.min()),
-            "max": float(ratios_array.max()),
-        },
+        "ratio_vs_crocoddyl": float(np.median(ratios)),
+        "ratio_spread": _spread(ratios),
+        "ratio_vs_crocoddyl_relinearize": float(np.median(relinearized_ratios)),
+        "ratio_spread_relinearize": _spread(relinearized_ratios),
         "per_knot": knot_costs,
         "paper_ms_per_iteration": 5.3,
         "settings": {"iterations": iterations, "rounds": rounds, "warm_up_rounds": warm_up, "threads": 1},
@@ -212,19 +232,24 @@ def run_solver_benchmark(iterations: int = 10, rounds: int = 20, warm_up: int = 
 
 
 def format_report(result: dict) -> str:
-    lines = ["problem              ms/iteration (median)   iterations   cost"]
-    for key in ("whole_body_25", "crocoddyl_fddp_25", "cafe_s4"):
+    lines = ["problem                     ms/iteration (median)   iterations   cost"]
+    for key in ("whole_body_25", "whole_body_25_relinearize", "crocoddyl_fddp_25", "cafe_s4"):
         entry = result[key]
         lines.append(
-            f"{key:<20} {entry['iteration_ms_median']:>10.2f}              {entry['iterations']:>4}    "
+            f"{key:<27} {entry['iteration_ms_median']:>10.2f}              {entry['iterations']:>4}    "
             f"{entry['cost']:.6f}"
         )
-    spread = result["ratio_spread"]
-    lines.append(
-        f"ratio ours / Crocoddyl (whole body, 25 knots), median of {result['settings']['rounds']} "
-        f"interleaved rounds: {result['ratio_vs_crocoddyl']:.3f} "
-        f"(IQR {spread['q25']:.3f}-{spread['q75']:.3f}, min {spread['min']:.3f}, max {spread['max']:.3f})"
-    )
+    rounds = result["settings"]["rounds"]
+    for label, key, spread_key in (
+        ("as Crocoddyl's solve (final_policy shift)", "ratio_vs_crocoddyl", "ratio_spread"),
+        ("with a final re-linearisation", "ratio_vs_crocoddyl_relinearize", "ratio_spread_relinearize"),
+    ):
+        spread = result[spread_key]
+        lines.append(
+            f"ratio ours / Crocoddyl (whole body, 25 knots), {label}, median of {rounds} interleaved "
+            f"rounds: {result[key]:.3f} (IQR {spread['q25']:.3f}-{spread['q75']:.3f}, "
+            f"min {spread['min']:.3f}, max {spread['max']:.3f})"
+        )
     knot = result["per_knot"]
     lines.append(
         f"per whole-body knot (us, calc / calc + calc_diff): Crocoddyl {knot['crocoddyl_calc_us']:.1f} / "
