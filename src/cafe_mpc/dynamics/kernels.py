@@ -14,6 +14,38 @@ from cafe_mpc.core.kernels import stack_columns_left_multiplied
 
 
 @njit(cache=True, nogil=True)
+def euler_velocity_rows(
+    da_dq: np.ndarray,
+    da_dv: np.ndarray,
+    da_dtau: np.ndarray,
+    symmetric_upper: bool,
+    dt: float,
+    Fx: np.ndarray,
+    Fu: np.ndarray,
+) -> None:
+    """The velocity rows of an Euler step's Jacobians (Eq. (23), ``v+ = v + qdd dt``): ``Fx[nv:] = [dt
+    da_dq | I + dt da_dv]``, ``Fu[nv:] = dt da_dtau[:, actuated]`` (``da_dtau`` read symmetrically from its
+    upper triangle with ``symmetric_upper``), column by column (Pinocchio's matrices are column-major)."""
+    nv = da_dq.shape[0]
+    nu = Fu.shape[1]
+    first_actuated = nv - nu
+    for j in range(nv):
+        for i in range(nv):
+            Fx[nv + i, j] = dt * da_dq[i, j]
+        for i in range(nv):
+            Fx[nv + i, nv + j] = dt * da_dv[i, j]
+    for i in range(nv):
+        Fx[nv + i, nv + i] += 1.0
+    for j in range(nu):
+        c = first_actuated + j
+        for i in range(nv):
+            if symmetric_upper and c < i:
+                Fu[nv + i, j] = dt * da_dtau[c, i]
+            else:
+                Fu[nv + i, j] = dt * da_dtau[i, c]
+
+
+@njit(cache=True, nogil=True)
 def euler_step_jacobians(
     da_dq: np.ndarray,
     da_dv: np.ndarray,
@@ -34,19 +66,7 @@ def euler_step_jacobians(
     """
     nv = da_dq.shape[0]
     nu = Fu.shape[1]
-    first_actuated = nv - nu
-    # velocity rows
-    for i in range(nv):
-        for j in range(nv):
-            Fx[nv + i, j] = dt * da_dq[i, j]
-            Fx[nv + i, nv + j] = dt * da_dv[i, j]
-        Fx[nv + i, nv + i] += 1.0
-        for j in range(nu):
-            c = first_actuated + j
-            if symmetric_upper and c < i:
-                Fu[nv + i, j] = dt * da_dtau[c, i]
-            else:
-                Fu[nv + i, j] = dt * da_dtau[i, c]
+    euler_velocity_rows(da_dq, da_dv, da_dtau, symmetric_upper, dt, Fx, Fu)
     # configuration rows
     if explicit:
         for i in range(nv):
@@ -102,24 +122,9 @@ def free_flyer_euler_step_jacobians(
     values as with ``pin.dIntegrate``'s full matrices."""
     nv = da_dq.shape[0]
     nu = Fu.shape[1]
-    first_actuated = nv - nu
     dq_block, dstep_block = blocks[:, :6], blocks[:, 6:]
     free_flyer_integrate_jacobians(step, dq_block, dstep_block)
-    # velocity rows, column by column (Pinocchio's matrices are column-major)
-    for j in range(nv):
-        for i in range(nv):
-            Fx[nv + i, j] = dt * da_dq[i, j]
-        for i in range(nv):
-            Fx[nv + i, nv + j] = dt * da_dv[i, j]
-    for i in range(nv):
-        Fx[nv + i, nv + i] += 1.0
-    for j in range(nu):
-        c = first_actuated + j
-        for i in range(nv):
-            if symmetric_upper and c < i:
-                Fu[nv + i, j] = dt * da_dtau[c, i]
-            else:
-                Fu[nv + i, j] = dt * da_dtau[i, c]
+    euler_velocity_rows(da_dq, da_dv, da_dtau, symmetric_upper, dt, Fx, Fu)
     if explicit:
         for i in range(nv):
             for j in range(nv):
