@@ -276,6 +276,21 @@ def test_the_delay_predictor_carries_the_planned_state_along_its_own_plan(robot)
     assert np.max(np.abs(error)) < 1e-8
     # and the roll-out moves: it is not the measurement handed back
     assert np.max(np.abs(builder.whole_body.state.difference(plan.xs[0], carried))) > 1e-2
+    # off the plan, a knot's torque is the Riccati law (33) of the deviation, clamped to the limits
+    predictor.limits[:] = robot.torque_limits
+    measured = plan.xs[3].copy()
+    measured[2] += 0.01  # 1 cm above the plan
+    measured[nq + 2] -= 0.2  # falling 0.2 m/s faster
+    carried = predictor.carry(
+        measured[:nq], measured[nq:], plan.times[3], plan.times[4], lambda t: plan
+    ).copy()
+    deviation = builder.whole_body.state.difference(plan.xs[3], measured)
+    torque = np.clip(plan.us[3] + plan.K[3] @ deviation, -robot.torque_limits, robot.torque_limits)
+    assert np.max(np.abs(torque - plan.us[3])) > 0.1  # the feedback matters here
+    dynamics = builder.whole_body.dynamics(tuple(bool(c) for c in plan.contacts[3]), float(plan.dt[3]))
+    data = dynamics.create_data()
+    dynamics.calc(data, measured, torque)
+    np.testing.assert_allclose(carried, data.x_next, atol=1e-12)
 
 
 @pytest.mark.parametrize(("latency", "first_knot"), [(0.03, 0.03), (0.025, 0.02)])
