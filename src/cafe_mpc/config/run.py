@@ -323,8 +323,8 @@ class MpcConfig(MpcSettings):
 class CostsConfig(StrictModel):
     """Cost weights of the whole-body plan (``running``, ``terminal``: the authors' "regular" set,
     ``WholeBodyWeights``) and of the SRB tail (``srb_running``, ``srb_terminal``: the authors' SRB tracking
-    set, ``SRBWeights.regular_running``, which says why the tail does not take the whole-body base weights
-    as Eq. (28) does). Sources in docs/settings.md."""
+    set with ten times its height weight, ``SRBWeights.regular_running``, which says why, and why the tail
+    does not take the whole-body base weights as Eq. (28) does). Sources in docs/settings.md."""
 
     running: WholeBodyWeights = Field(default_factory=WholeBodyWeights.regular_running)
     terminal: WholeBodyWeights = Field(default_factory=WholeBodyWeights.regular_terminal)

@@ -210,26 +210,33 @@ class SRBWeights(StrictModel):
 
     @classmethod
     def regular_running(cls) -> SRBWeights:
-        """The SRB tail's running set of the authors' code (its ``SRB_Tracking_Cost``; docs/settings.md):
-        height 50, pitch 10, roll 5, velocities (2, 3, 3), angular rates 0.5, GRF regularisation 0.01.
+        """The SRB tail's running set: the authors' code's (its ``SRB_Tracking_Cost``; docs/settings.md) with
+        the height weight 500 instead of 50: pitch 10, roll 5, velocities (2, 3, 3), angular rates 0.5, GRF
+        regularisation 0.01.
 
-        Not the whole-body base weights (paper Eq. (28) takes them from ``W_q``): with those (height 10,
-        angular rates 2) the tail's cheapest way to keep a bounding body from pitching, with its stance pair
-        0.19 m ahead of or behind the centre of mass, was to stand tall (the horizontal force that cancels
-        the moment is 0.19 / h of the vertical one, and the GRF regularisation prices it): the bound rode
-        at 0.32-0.34 m against its 0.25 m reference, the pace at 0.29 m. With this set: 0.256 and 0.267 m
-        (BENCHMARKS.md)."""
+        The tail has nothing but this weight to hold its height (the whole body also has its joints'
+        posture), and the GRF regularisation, in newtons, prices what height changes: a bounding tail keeps
+        its body from pitching with horizontal forces that shrink as it stands taller (0.19 / h of the
+        vertical one for a stance pair 0.19 m from the centre of mass). With height 50 the tail's plans rode
+        3-4 cm above the 0.25 m reference (0.28-0.29 m mean over its knots, fixed 50 ms) and pulled the
+        whole-body plan up with them through the tail's value function, so the bound's height depended on
+        little else: 0.258-0.281 m with where the updates fell relative to its contact switches (a whole-
+        body height weight of 30 instead of 10 moved it by 1 mm). With 500 the bound rides at 0.240-0.260 m
+        at every latency from 0 to 60 ms and period from 15 to 40 ms (BENCHMARKS.md, issue 19).
+
+        Not the whole-body base weights either (paper Eq. (28) takes them from ``W_q``): with those (height
+        10, angular rates 2) the bound rode at 0.32-0.34 m and the pace at 0.29 m."""
         return cls(
-            base_position=(0.0, 0.0, 50.0, 0.0, 10.0, 5.0),
+            base_position=(0.0, 0.0, 500.0, 0.0, 10.0, 5.0),
             base_velocity=(2.0, 3.0, 3.0, 0.5, 0.5, 0.5),
             force=0.01,
         )
 
     @classmethod
     def regular_terminal(cls) -> SRBWeights:
-        """Half the running state weights, no GRF term (the authors' code)."""
+        """Half the running state weights, no GRF term (the authors' code's proportion)."""
         return cls(
-            base_position=(0.0, 0.0, 25.0, 0.0, 5.0, 2.5),
+            base_position=(0.0, 0.0, 250.0, 0.0, 5.0, 2.5),
             base_velocity=(1.0, 1.5, 1.5, 0.25, 0.25, 0.25),
             force=0.0,
         )
