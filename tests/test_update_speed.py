@@ -15,6 +15,7 @@ from cafe_mpc.mpc import collector
 from cafe_mpc.mpc.problem import CafeProblemBuilder, ModelSchedule
 from cafe_mpc.ocp.contact_schedule import get_gait
 from cafe_mpc.ocp.knots import SRBModelFactory, WholeBodyModelFactory
+from cafe_mpc.reference.base import ReferenceWindow
 from cafe_mpc.reference.locomotion import LocomotionReference
 from cafe_mpc.sim.loop import simulate
 from cafe_mpc.solver import MSiLQRSolver, SolverOptions
@@ -138,3 +139,20 @@ def test_reused_plan_arrays_never_change_a_plan_in_use(robot) -> None:
         for name in PLAN_FIELDS:
             np.testing.assert_array_equal(a[name], b[name])
     np.testing.assert_array_equal(np.array(reused.torques), np.array(fresh.torques))
+
+
+@pytest.mark.parametrize("field", ["state", "torque", "forces", "foot_positions", "foot_velocities"])
+@pytest.mark.parametrize("value", [np.nan, np.inf, -np.inf])
+def test_reference_window_check_finds_any_non_finite_entry(field: str, value: float) -> None:
+    """The window check (compiled, no temporaries) flags a NaN or an infinity anywhere in its rows, and
+    nothing past them (rows beyond the window's ``n`` are not the references of this update)."""
+    window = ReferenceWindow(6, 19, 18, 12, 4)
+    window.set_times(np.linspace(0.0, 0.1, 4))
+    window.check_finite("test")
+    rows = getattr(window, field)
+    rows[-1].reshape(-1)[-1] = value
+    with pytest.raises(ValueError, match=field):
+        window.check_finite("test")
+    rows[-1].reshape(-1)[-1] = 0.0
+    getattr(window, f"_{field}")[5].reshape(-1)[0] = value  # a row past ``n``
+    window.check_finite("test")
