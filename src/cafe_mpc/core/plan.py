@@ -127,10 +127,6 @@ class PlanBuffers:
     plan gets fresh ones, as without buffers).
     """
 
-    _OWN_REFERENCES = 3
-    """References to a kept array that nothing outside holds, while ``_free`` looks at it: the set's dict, the
-    generator's variable, ``sys.getrefcount``'s argument."""
-
     def __init__(self, capacity: int = 6) -> None:
         self.capacity = capacity
         self._sets: list[dict[str, np.ndarray]] = []
@@ -161,7 +157,17 @@ class PlanBuffers:
 
     def _free(self, arrays: dict[str, np.ndarray]) -> bool:
         """Whether nothing outside this object refers to any array of the set ``arrays``."""
-        return all(sys.getrefcount(array) <= self._OWN_REFERENCES for array in arrays.values())
+        return max(_reference_counts(arrays)) <= _OWN_REFERENCES
+
+
+def _reference_counts(arrays: dict[str, np.ndarray]) -> list[int]:
+    """``sys.getrefcount`` of each array of ``arrays``."""
+    return [sys.getrefcount(array) for array in arrays.values()]
+
+
+_OWN_REFERENCES = _reference_counts({"probe": np.empty(0)})[0]
+"""What ``_reference_counts`` gives for an array that only its dict holds (the count includes the
+comprehension's variable and the call's argument; measured, not assumed, as the interpreter decides them)."""
 
 
 def _plan_shapes(n: int, nx: int, nu: int, ndx: int, n_feet: int) -> dict[str, tuple[int, ...]]:
