@@ -13,6 +13,7 @@ from cafe_mpc.control.mpc_loop import CafeMpcController
 from cafe_mpc.core.plan import PLAN_FIELDS, Plan, PlanBuffers
 from cafe_mpc.mpc import collector
 from cafe_mpc.mpc.problem import CafeProblemBuilder, ModelSchedule
+from cafe_mpc.mpc.time_grid import TIME_QUANTUM, PiecewiseTrajectory
 from cafe_mpc.ocp.contact_schedule import get_gait
 from cafe_mpc.ocp.knots import SRBModelFactory, WholeBodyModelFactory
 from cafe_mpc.reference.base import ReferenceWindow
@@ -156,3 +157,25 @@ def test_reference_window_check_finds_any_non_finite_entry(field: str, value: fl
     rows[-1].reshape(-1)[-1] = 0.0
     getattr(window, f"_{field}")[5].reshape(-1)[0] = value  # a row past ``n``
     window.check_finite("test")
+
+
+def test_trajectory_state_written_in_place_is_the_knot_or_the_interpolation() -> None:
+    """``PiecewiseTrajectory.state_into`` (the warm start's, into its guess buffers): a knot's own state
+    within half a quantum of its time, the tangent-space interpolation between knots, the ends past them;
+    ``out`` is fully written and no knot state changes."""
+    times = np.array([0.0, 0.01, 0.025, 0.03])
+    xs = np.arange(12.0).reshape(4, 3) ** 2
+    trajectory = PiecewiseTrajectory(times, xs, np.zeros((3, 2)), lambda a, b: b - a, lambda x, d: x + d)
+    kept = xs.copy()
+    out = np.full(3, np.nan)
+    for t, expected in [
+        (0.01 + 0.4 * TIME_QUANTUM, xs[1]),
+        (-0.02, xs[0]),
+        (0.5, xs[3]),
+        (0.0175, xs[1] + (0.0175 - 0.01) / (0.025 - 0.01) * (xs[2] - xs[1])),
+    ]:
+        out[:] = np.nan
+        trajectory.state_into(t, out)
+        np.testing.assert_array_equal(out, expected)
+        np.testing.assert_array_equal(trajectory.state_at(t), expected)
+    np.testing.assert_array_equal(xs, kept)
