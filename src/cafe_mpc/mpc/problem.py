@@ -557,17 +557,16 @@ class CafeProblemBuilder:
             for index, (start, row) in enumerate(starts):
                 end = starts[index + 1][0] if index + 1 < len(starts) else b
                 share = (end - start) / (b - a)
-                for foot, flag in enumerate(stance[row]):
+                for foot, flag in enumerate(stance_rows[row]):
                     if flag:
                         shares[foot] += share
                         if sample[foot] < 0:
                             sample[foot] = row
-            fractions[j] = shares
+            # round-off of the interval sums (the other rows are whole 0s and 1s)
+            fractions[j] = [0.0 if x < 1e-9 else 1.0 if x > 1.0 - 1e-9 else x for x in shares]
             for foot, row in enumerate(sample):
                 if row >= 0:
                     rows[j, foot] = row
-        fractions[fractions < 1e-9] = 0.0  # round-off of the interval sums
-        fractions[fractions > 1.0 - 1e-9] = 1.0
         return fractions, rows
 
 
