@@ -122,12 +122,13 @@ class PlanBuffers:
     predictor, or be kept by any consumer for as long as it likes: its arrays must never change. A set of
     arrays is therefore lent again only when nothing but this object refers to any of its arrays (CPython's
     reference counts: a plan made of them, one of the arrays or a view of one held anywhere keeps the set
-    busy). The MPC loop keeps three sets busy (the plan in effect, the one in flight, the prepared one).
-    With ``capacity`` sets busy, ``take`` returns new arrays that are not kept (a consumer that keeps every
-    plan gets fresh ones, as without buffers).
+    busy). The MPC loop keeps three sets busy with a latency up to a period (the plan in effect, the one in
+    flight, the prepared one), one more per further period of latency. With ``capacity`` sets busy, ``take``
+    returns new arrays that are not kept (a consumer that keeps every plan gets fresh ones, as without
+    buffers).
     """
 
-    def __init__(self, capacity: int = 6) -> None:
+    def __init__(self, capacity: int = 8) -> None:
         self.capacity = capacity
         self._sets: list[dict[str, np.ndarray]] = []
 
