@@ -8,8 +8,19 @@ import numpy as np
 import pytest
 
 from cafe_mpc.bench.problems import TROT_CYCLE, whole_body_problem
+from cafe_mpc.config import MpcSettings, VelocityCommand
+from cafe_mpc.control.mpc_loop import CafeMpcController
+from cafe_mpc.core.plan import PLAN_FIELDS, Plan, PlanBuffers
 from cafe_mpc.mpc import collector
+from cafe_mpc.mpc.problem import CafeProblemBuilder, ModelSchedule
+from cafe_mpc.mpc.time_grid import TIME_QUANTUM, PiecewiseTrajectory
+from cafe_mpc.ocp.contact_schedule import get_gait
+from cafe_mpc.ocp.knots import SRBModelFactory, WholeBodyModelFactory
+from cafe_mpc.reference.base import ReferenceWindow
+from cafe_mpc.reference.locomotion import LocomotionReference
+from cafe_mpc.sim.loop import simulate
 from cafe_mpc.solver import MSiLQRSolver, SolverOptions
+from cafe_mpc.wbc.riccati import RiccatiController
 
 
 def _solve(peer, **options):
@@ -53,3 +64,118 @@ def test_the_collector_is_paused_inside_and_restored_after() -> None:
         if was_enabled:
             gc.enable()
     assert seen == [False, False, False]
+
+
+def test_plan_buffers_lend_only_arrays_no_plan_uses() -> None:
+    """A set of plan arrays is lent again once nothing holds the arrays lent, one of them or a view of one;
+    past the capacity, sets are new and not kept; a free set of other shapes is replaced."""
+    buffers = PlanBuffers(capacity=2)
+    lent = buffers.take(3, 5, 2, 4, 2)
+    assert lent["K"].shape == (3, 2, 4) and lent["contacts"].dtype == bool
+    first = {name: id(array) for name, array in lent.items()}
+    assert {name: id(array) for name, array in buffers.take(3, 5, 2, 4, 2).items()} != first  # held
+    view = lent["Qux"][1:]
+    del lent
+    held = buffers.take(3, 5, 2, 4, 2)
+    assert {id(array) for array in held.values()}.isdisjoint(first.values())  # the view keeps it busy
+    assert buffers.kept == 2
+    beyond = buffers.take(3, 5, 2, 4, 2)  # two sets busy: new arrays, not kept
+    assert buffers.kept == 2 and beyond["K"] is not held["K"] and id(beyond["K"]) != first["K"]
+    del view
+    assert {name: id(array) for name, array in buffers.take(3, 5, 2, 4, 2).items()} == first
+    assert buffers.take(4, 5, 2, 4, 2)["times"].shape == (4,)  # the free first set, replaced
+    assert buffers.kept == 2
+
+
+class _CheckingRiccati(RiccatiController):
+    """Keeps a copy of the arrays of each plan it is given (not the plan: it holds the one in effect only,
+    as a low level does); each tick, the plan must still equal its copy."""
+
+    def __init__(self, robot) -> None:
+        super().__init__(robot)
+        self.plan: Plan | None = None
+        self.copies: list[dict[str, np.ndarray]] = []
+        self.array_ids: set[int] = set()
+        self.torques: list[np.ndarray] = []
+
+    def compute(self, t, measurement, plan):
+        if plan is not self.plan:
+            self.plan = plan
+            self.copies.append({name: getattr(plan, name).copy() for name in PLAN_FIELDS})
+            self.array_ids.add(id(plan.K))
+        for name, values in self.copies[-1].items():
+            np.testing.assert_array_equal(getattr(plan, name), values, err_msg=f"{name} at t = {t}")
+        torques = super().compute(t, measurement, plan)
+        self.torques.append(torques.copy())
+        return torques
+
+
+def _closed_loop_with_plan_buffers(robot, capacity: int) -> _CheckingRiccati:
+    reference = LocomotionReference(robot, get_gait("trot"), [VelocityCommand(start=0.0, vx=0.4)])
+    low_level = _CheckingRiccati(robot)
+    controller = CafeMpcController(
+        robot,
+        reference,
+        CafeProblemBuilder(
+            WholeBodyModelFactory(robot), SRBModelFactory(robot=robot), ModelSchedule.named("S1")
+        ),
+        low_level,
+        # plans in flight for 2.5 periods, read by the delay predictor too
+        MpcSettings(period=0.02, latency="fixed", fixed_latency=0.05, scheme="rti", delay_compensation=True),
+    )
+    controller.mpc.plan_buffers = PlanBuffers(capacity)
+    simulate(robot, controller, 0.3)
+    assert controller.mpc.plan_buffers.kept <= capacity
+    return low_level
+
+
+def test_reused_plan_arrays_never_change_a_plan_in_use(robot) -> None:
+    """Closed loop with several plans in flight: no plan changes while the low level follows it, and the
+    run with reused plan arrays is the run with new arrays for every plan, bit for bit."""
+    reused = _closed_loop_with_plan_buffers(robot, capacity=6)
+    fresh = _closed_loop_with_plan_buffers(robot, capacity=0)
+    assert len(reused.copies) == len(fresh.copies) >= 10
+    assert len(reused.array_ids) <= 6  # the plans' arrays were reused
+    for a, b in zip(reused.copies, fresh.copies, strict=True):
+        for name in PLAN_FIELDS:
+            np.testing.assert_array_equal(a[name], b[name])
+    np.testing.assert_array_equal(np.array(reused.torques), np.array(fresh.torques))
+
+
+@pytest.mark.parametrize("field", ["state", "torque", "forces", "foot_positions", "foot_velocities"])
+@pytest.mark.parametrize("value", [np.nan, np.inf, -np.inf])
+def test_reference_window_check_finds_any_non_finite_entry(field: str, value: float) -> None:
+    """The window check (compiled, no temporaries) flags a NaN or an infinity anywhere in its rows, and
+    nothing past them (rows beyond the window's ``n`` are not the references of this update)."""
+    window = ReferenceWindow(6, 19, 18, 12, 4)
+    window.set_times(np.linspace(0.0, 0.1, 4))
+    window.check_finite("test")
+    rows = getattr(window, field)
+    rows[-1].reshape(-1)[-1] = value
+    with pytest.raises(ValueError, match=field):
+        window.check_finite("test")
+    rows[-1].reshape(-1)[-1] = 0.0
+    getattr(window, f"_{field}")[5].reshape(-1)[0] = value  # a row past ``n``
+    window.check_finite("test")
+
+
+def test_trajectory_state_written_in_place_is_the_knot_or_the_interpolation() -> None:
+    """``PiecewiseTrajectory.state_into`` (the warm start's, into its guess buffers): a knot's own state
+    within half a quantum of its time, the tangent-space interpolation between knots, the ends past them;
+    ``out`` is fully written and no knot state changes."""
+    times = np.array([0.0, 0.01, 0.025, 0.03])
+    xs = np.arange(12.0).reshape(4, 3) ** 2
+    trajectory = PiecewiseTrajectory(times, xs, np.zeros((3, 2)), lambda a, b: b - a, lambda x, d: x + d)
+    kept = xs.copy()
+    out = np.full(3, np.nan)
+    for t, expected in [
+        (0.01 + 0.4 * TIME_QUANTUM, xs[1]),
+        (-0.02, xs[0]),
+        (0.5, xs[3]),
+        (0.0175, xs[1] + (0.0175 - 0.01) / (0.025 - 0.01) * (xs[2] - xs[1])),
+    ]:
+        out[:] = np.nan
+        trajectory.state_into(t, out)
+        np.testing.assert_array_equal(out, expected)
+        np.testing.assert_array_equal(trajectory.state_at(t), expected)
+    np.testing.assert_array_equal(xs, kept)

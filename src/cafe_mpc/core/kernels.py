@@ -16,6 +16,16 @@ def same_point(a: np.ndarray, b: np.ndarray) -> bool:
 
 
 @njit(cache=True, nogil=True)
+def all_finite(values: np.ndarray) -> bool:
+    """Whether every entry of the vector ``values`` is finite (``np.isfinite(values).all()`` without its
+    temporary array of flags)."""
+    for i in range(values.shape[0]):  # noqa: SIM110 - an explicit loop compiles to a tight, early-exit loop
+        if not np.isfinite(values[i]):
+            return False
+    return True
+
+
+@njit(cache=True, nogil=True)
 def stack_columns(left: np.ndarray, right: np.ndarray, out: np.ndarray) -> None:
     """``out = [left | right]`` (same number of rows)."""
     n_left = left.shape[1]

@@ -6,14 +6,25 @@ Q-function pieces ``Qu, Quu, Qux`` (paper Eq. (6)-(8)), stance flags and planned
 ``[t_k, t_k+1)`` contains ``t`` (zero-order hold: its torque acts over that interval in the plan's own
 discretisation, as in the authors' controller; the nearest knot would pick, half an interval before a
 touchdown, a knot of the next contact phase).
+
+``PlanBuffers`` lends the arrays an MPC writes its plans into, so that an update allocates no plan, and
+never lends arrays a published plan still uses.
 """
 
 from __future__ import annotations
 
 import copy
+import sys
 from dataclasses import dataclass
 
 import numpy as np
+
+from cafe_mpc.core.kernels import all_finite
+
+PLAN_FIELDS = ("times", "xs", "us", "K", "Qu", "Quu", "Qux", "contacts", "forces", "dt")
+"""The array fields of a ``Plan``, in the order of its constructor."""
+PLAN_DTYPES = {"contacts": bool}
+"""The fields that are not float arrays, and their types."""
 
 
 def nearest_knot(times: np.ndarray, t: float) -> int:
@@ -68,8 +79,7 @@ class Plan:
         if len(self.xs) != n + 1:
             raise ValueError(f"plan xs needs {n + 1} states, got {len(self.xs)}")
         for name in ("xs", "us", "K", "Qu", "Quu", "Qux", "forces"):
-            if not np.all(np.isfinite(getattr(self, name))):
-                raise ValueError(f"plan field {name} contains NaN or inf")
+            _check_finite(name, getattr(self, name))
 
     def with_trajectory(self, xs: np.ndarray, us: np.ndarray, Qu: np.ndarray | None = None) -> Plan:
         """This plan with another state and torque trajectory (and ``Qu``): what the real-time iteration's
@@ -83,8 +93,7 @@ class Plan:
         if len(xs) != n + 1 or len(us) != n or len(plan.Qu) != n:
             raise ValueError(f"a trajectory for {n} knots needs {n + 1} states and {n} torques and Qu")
         for name in ("xs", "us") if Qu is None else ("xs", "us", "Qu"):
-            if not np.all(np.isfinite(getattr(plan, name))):
-                raise ValueError(f"plan field {name} contains NaN or inf")
+            _check_finite(name, getattr(plan, name))
         return plan
 
     @property
@@ -98,3 +107,81 @@ class Plan:
     def knot_at(self, t: float) -> int:
         """Index of the knot whose interval contains ``t`` (clamped to the plan; module docstring)."""
         return interval_at(self.times, t)
+
+
+def _check_finite(name: str, values: np.ndarray) -> None:
+    """Raise ``ValueError`` if the plan field ``name`` holds a NaN or an infinity."""
+    if not all_finite(np.asarray(values, dtype=float).reshape(-1)):
+        raise ValueError(f"plan field {name} contains NaN or inf")
+
+
+class PlanBuffers:
+    """The arrays an MPC writes its plans into, reused from update to update (no plan allocated per update).
+
+    A published plan may be followed by the low level, wait in flight (the latency), be read by the delay
+    predictor, or be kept by any consumer for as long as it likes: its arrays must never change. A set of
+    arrays is therefore lent again only when nothing but this object refers to any of its arrays (CPython's
+    reference counts: a plan made of them, one of the arrays or a view of one held anywhere keeps the set
+    busy). The MPC loop keeps three sets busy with a latency up to a period (the plan in effect, the one in
+    flight, the prepared one), one more per further period of latency. With ``capacity`` sets busy, ``take``
+    returns new arrays that are not kept (a consumer that keeps every plan gets fresh ones, as without
+    buffers).
+    """
+
+    def __init__(self, capacity: int = 8) -> None:
+        self.capacity = capacity
+        self._sets: list[dict[str, np.ndarray]] = []
+
+    def take(self, n: int, nx: int, nu: int, ndx: int, n_feet: int) -> dict[str, np.ndarray]:
+        """Arrays (uninitialised, keyed by ``PLAN_FIELDS``) for a plan of ``n`` knots that no plan in use
+        shares: a free kept set of these shapes, else a free set of other shapes replaced, else a new set
+        (kept while fewer than ``capacity`` are)."""
+        shapes = _plan_shapes(n, nx, nu, ndx, n_feet)
+        replaceable = None
+        for index, arrays in enumerate(self._sets):
+            if not self._free(arrays):
+                continue
+            if all(arrays[name].shape == shape for name, shape in shapes.items()):
+                return dict(arrays)  # a dict of the caller's: holding it keeps the set busy
+            replaceable = index
+        arrays = {name: np.empty(shape, dtype=PLAN_DTYPES.get(name, float)) for name, shape in shapes.items()}
+        if replaceable is not None:
+            self._sets[replaceable] = arrays
+        elif len(self._sets) < self.capacity:
+            self._sets.append(arrays)
+        return dict(arrays)
+
+    @property
+    def kept(self) -> int:
+        """How many sets of arrays are kept for reuse."""
+        return len(self._sets)
+
+    def _free(self, arrays: dict[str, np.ndarray]) -> bool:
+        """Whether nothing outside this object refers to any array of the set ``arrays``."""
+        return max(_reference_counts(arrays)) <= _OWN_REFERENCES
+
+
+def _reference_counts(arrays: dict[str, np.ndarray]) -> list[int]:
+    """``sys.getrefcount`` of each array of ``arrays``."""
+    return [sys.getrefcount(array) for array in arrays.values()]
+
+
+_OWN_REFERENCES = _reference_counts({"probe": np.empty(0)})[0]
+"""What ``_reference_counts`` gives for an array that only its dict holds (the count includes the
+comprehension's variable and the call's argument; measured, not assumed, as the interpreter decides them)."""
+
+
+def _plan_shapes(n: int, nx: int, nu: int, ndx: int, n_feet: int) -> dict[str, tuple[int, ...]]:
+    """The array shapes of a plan of ``n`` knots (``Plan``'s field comments)."""
+    return {
+        "times": (n,),
+        "xs": (n + 1, nx),
+        "us": (n, nu),
+        "K": (n, nu, ndx),
+        "Qu": (n, nu),
+        "Quu": (n, nu, nu),
+        "Qux": (n, nu, ndx),
+        "contacts": (n, n_feet),
+        "forces": (n, n_feet, 3),
+        "dt": (n,),
+    }

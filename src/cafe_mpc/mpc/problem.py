@@ -557,17 +557,16 @@ class CafeProblemBuilder:
             for index, (start, row) in enumerate(starts):
                 end = starts[index + 1][0] if index + 1 < len(starts) else b
                 share = (end - start) / (b - a)
-                for foot, flag in enumerate(stance[row]):
+                for foot, flag in enumerate(stance_rows[row]):
                     if flag:
                         shares[foot] += share
                         if sample[foot] < 0:
                             sample[foot] = row
-            fractions[j] = shares
+            # round-off of the interval sums (the other rows are whole 0s and 1s)
+            fractions[j] = [0.0 if x < 1e-9 else 1.0 if x > 1.0 - 1e-9 else x for x in shares]
             for foot, row in enumerate(sample):
                 if row >= 0:
                     rows[j, foot] = row
-        fractions[fractions < 1e-9] = 0.0  # round-off of the interval sums
-        fractions[fractions > 1.0 - 1e-9] = 1.0
         return fractions, rows
 
 
@@ -723,11 +722,10 @@ class WarmStart:
                 phase_rollout[:] = False
                 new_phase_after_impact = info.entered_by_impact and info.times[0] > previous_end - tolerance
                 same_stance = [trajectory for stance, trajectory in previous_wb if stance == info.stance]
-                for k, t in enumerate(info.times):
-                    t = float(t)
+                for k, t in enumerate(info.times.tolist()):
                     source = _covering(same_stance, t, k, n)
                     if source is not None:
-                        phase_x[k] = source.state_at(t)
+                        source.state_into(t, phase_x[k])
                         control = source.control_at(t) if k < n else None
                         if k < n:
                             phase_u[k] = torque_reference[info.first_knot + k] if control is None else control
@@ -744,10 +742,9 @@ class WarmStart:
                 phase_x = self._rows(("srb x", position), n + 1, self.srb_state.nx)
                 phase_u = self._rows(("srb u", position), n, built.srb_forces.shape[1])
                 wb_end = xs[-1][-1] if xs else x0
-                for j, t in enumerate(info.times):
-                    t = float(t)
+                for j, t in enumerate(info.times.tolist()):
                     if previous_srb is not None:
-                        phase_x[j] = previous_srb.state_at(t)
+                        previous_srb.state_into(t, phase_x[j])
                         control = previous_srb.control_at(t) if j < n else None
                         if j < n:
                             phase_u[j] = control if control is not None else built.srb_forces[j]

@@ -30,7 +30,7 @@ import time
 import numpy as np
 
 from cafe_mpc.config import MpcSettings
-from cafe_mpc.core.plan import Plan
+from cafe_mpc.core.plan import Plan, PlanBuffers
 from cafe_mpc.core.progress import stage
 from cafe_mpc.mpc import collector
 from cafe_mpc.mpc.planner import (
@@ -82,6 +82,8 @@ class RecedingHorizonMpc(RecedingHorizonPlanner):
         """The preparation waiting for its measurement: (update time, problem, prepared solution, the plan
         of the prepared solution, whose gains and Q-function blocks the feedback keeps)."""
         self._projections: dict[tuple[bool, ...], tuple] = {}
+        self.plan_buffers = PlanBuffers()
+        """The arrays of the plans this MPC publishes, reused once no plan made of them is in use."""
 
     @property
     def supports_rti(self) -> bool:
@@ -131,8 +133,10 @@ class RecedingHorizonMpc(RecedingHorizonPlanner):
                 result, x, 0.0 if settings.rti_line_search else 1.0, settings.rti_feedback
             )
             built.problem.x0[:] = x
-            xs, us, Qu = whole_body_trajectory(built, embedded, with_qu=not settings.rti_line_search)
-            plan = template.with_trajectory(xs, us, Qu)
+            # the template's arrays are this update's alone (``PlanBuffers``): the trajectory goes into them
+            Qu = None if settings.rti_line_search else template.Qu
+            write_whole_body_trajectory(built, embedded, template.xs, template.us, Qu)
+            plan = template.with_trajectory(template.xs, template.us, Qu)
         except PLANNER_ERRORS as error:
             self._failed(t, f"its feedback failed ({error})")
             return None
@@ -223,41 +227,42 @@ class RecedingHorizonMpc(RecedingHorizonPlanner):
         )
 
     def _plan(self, built, result: SolverResult) -> Plan:
-        return plan_from_solution(built, result)
+        return plan_from_solution(built, result, self.plan_buffers)
 
 
-def whole_body_trajectory(
-    built: BuiltProblem, result: SolverResult, with_qu: bool = True
-) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
-    """States (the knots' and the last one), torques and (``with_qu``) ``Qu`` of the whole-body phases of a
-    solution, each stacked over its knots: what a ``Plan`` carries of the trajectory."""
+def write_whole_body_trajectory(
+    built: BuiltProblem, result: SolverResult, xs: np.ndarray, us: np.ndarray, Qu: np.ndarray | None = None
+) -> None:
+    """Write the states (the knots' and the last one), torques and (unless ``Qu`` is ``None``) ``Qu`` of the
+    whole-body phases of a solution, each stacked over its knots, into ``xs``, ``us`` and ``Qu``: what a
+    ``Plan`` carries of the trajectory."""
     phases = [result.phases[i] for i in built.whole_body_phases]
-    xs = np.concatenate([phase.xs[:-1] for phase in phases] + [phases[-1].xs[-1:]])
-    us = np.concatenate([phase.us for phase in phases])
-    return xs, us, np.concatenate([phase.Qu for phase in phases]) if with_qu else None
+    np.concatenate([phase.xs[:-1] for phase in phases] + [phases[-1].xs[-1:]], out=xs)
+    np.concatenate([phase.us for phase in phases], out=us)
+    if Qu is not None:
+        np.concatenate([phase.Qu for phase in phases], out=Qu)
 
 
-def plan_from_solution(built: BuiltProblem, result: SolverResult) -> Plan:
+def plan_from_solution(built: BuiltProblem, result: SolverResult, buffers: PlanBuffers | None = None) -> Plan:
     """The whole-body part of a solution as the low-level controller's ``Plan`` (knot times, states, torques,
-    gains, Q-function pieces, contacts, planned GRFs)."""
+    gains, Q-function pieces, contacts, planned GRFs), written into arrays from ``buffers`` (none: new
+    arrays)."""
     indices = built.whole_body_phases
     phases = [result.phases[i] for i in indices]
     infos = [built.phases[i] for i in indices]
-    xs, us, Qu = whole_body_trajectory(built, result)
-    times = np.concatenate([info.times[:-1] for info in infos])
-    dts = np.concatenate([np.diff(info.times) for info in infos])
-    contacts = np.concatenate(
-        [np.tile(np.asarray(info.stance, dtype=bool), (len(info.times) - 1, 1)) for info in infos]
-    )
-    return Plan(
-        times=times,
-        xs=xs,
-        us=us,
-        K=np.concatenate([phase.K for phase in phases]),
-        Qu=Qu,
-        Quu=np.concatenate([phase.Quu for phase in phases]),
-        Qux=np.concatenate([phase.Qux for phase in phases]),
-        contacts=contacts,
-        forces=np.concatenate([phase.forces for phase in phases]),
-        dt=dts,
-    )
+    first = phases[0]
+    n = sum(len(info.times) - 1 for info in infos)
+    _, nu, ndx = first.K.shape
+    arrays = (buffers or PlanBuffers(capacity=0)).take(n, first.xs.shape[1], nu, ndx, len(infos[0].stance))
+    write_whole_body_trajectory(built, result, arrays["xs"], arrays["us"], arrays["Qu"])
+    for name in ("K", "Quu", "Qux", "forces"):
+        np.concatenate([getattr(phase, name) for phase in phases], out=arrays[name])
+    times, dt, contacts = arrays["times"], arrays["dt"], arrays["contacts"]
+    row = 0
+    for info in infos:
+        knots = len(info.times) - 1
+        times[row : row + knots] = info.times[:-1]
+        np.subtract(info.times[1:], info.times[:-1], out=dt[row : row + knots])
+        contacts[row : row + knots] = info.stance
+        row += knots
+    return Plan(**arrays)

@@ -714,7 +714,7 @@ class TemplateMpc(RecedingHorizonPlanner):
         for k in range(n + 1):
             t = float(built.times[k])
             if k > 0:
-                xs[k] = trajectory.state_at(t)
+                trajectory.state_into(t, xs[k])
             control = trajectory.control_at(t) if k < n else None
             if control is not None:
                 us[k] = control

@@ -93,38 +93,39 @@ class PiecewiseTrajectory:
         difference: Callable[[np.ndarray, np.ndarray], np.ndarray],
         integrate: Callable[[np.ndarray, np.ndarray], np.ndarray],
     ) -> None:
-        self.times = [float(t) for t in times]
+        self.times: list[float] = np.asarray(times, dtype=float).tolist()
+        self.start = self.times[0]
+        self.end = self.times[-1]
         self.xs = xs
         self.us = us
         self._difference = difference
         self._integrate = integrate
-
-    @property
-    def start(self) -> float:
-        return self.times[0]
-
-    @property
-    def end(self) -> float:
-        return self.times[-1]
 
     def covers(self, t: float) -> bool:
         tolerance = 0.5 * TIME_QUANTUM
         return self.times[0] - tolerance <= t <= self.times[-1] + tolerance
 
     def state_at(self, t: float) -> np.ndarray:
-        """The state at ``t`` (a copy): a knot's own state within half a quantum of its time, else the linear
-        interpolation in the tangent space between the knots around ``t``; clamped to the ends."""
+        """The state at ``t`` (a new array; ``state_into``)."""
+        out = np.empty(self.xs.shape[1])
+        self.state_into(t, out)
+        return out
+
+    def state_into(self, t: float, out: np.ndarray) -> None:
+        """Write the state at ``t`` into ``out``: a knot's own state within half a quantum of its time, else
+        the linear interpolation in the tangent space between the knots around ``t``; clamped to the ends."""
         times = self.times
         tolerance = 0.5 * TIME_QUANTUM
         index = bisect.bisect_left(times, t - tolerance)
         if index >= len(times):
-            return self.xs[-1].copy()
-        if abs(times[index] - t) <= tolerance or index == 0:
-            return self.xs[index].copy()
-        t_a, t_b = times[index - 1], times[index]
-        alpha = (t - t_a) / (t_b - t_a)
-        x_a = self.xs[index - 1]
-        return self._integrate(x_a, alpha * self._difference(x_a, self.xs[index]))
+            out[:] = self.xs[-1]
+        elif abs(times[index] - t) <= tolerance or index == 0:
+            out[:] = self.xs[index]
+        else:
+            t_a, t_b = times[index - 1], times[index]
+            alpha = (t - t_a) / (t_b - t_a)
+            x_a = self.xs[index - 1]
+            out[:] = self._integrate(x_a, alpha * self._difference(x_a, self.xs[index]))
 
     def control_at(self, t: float) -> np.ndarray | None:
         """The control of the interval that contains ``t`` (``None`` outside the trajectory)."""

@@ -21,6 +21,8 @@ from abc import ABC, abstractmethod
 
 import numpy as np
 
+from cafe_mpc.core.kernels import all_finite
+
 STANCE_TIME_EPS = 1e-7
 """Stance flags of a knot are the schedule's a hair after the knot time (the interval the knot starts)."""
 
@@ -88,7 +90,7 @@ class ReferenceWindow:
     def check_finite(self, source: str) -> None:
         """One clear error if a reference produced a NaN/inf (instead of a NaN torque later)."""
         for name in ("state", "torque", "forces", "foot_positions", "foot_velocities"):
-            if not np.all(np.isfinite(getattr(self, name))):
+            if not all_finite(getattr(self, name).reshape(-1)):
                 raise ValueError(f"{source}: reference field {name!r} is not finite over the window")
 
 
