@@ -1,4 +1,5 @@
-"""Compiled inner loops of MS-iLQR (numba): the backward sweep of one phase over stacked arrays.
+"""Compiled inner loops of MS-iLQR (numba): the backward sweep of one phase over stacked arrays, and the
+forward roll-out's work between two knots' ``calc``.
 
 The per-knot algebra of the backward sweep (Eqs. (8), (9)) is a dozen products of 36 x 36 and 36 x 12
 matrices and one 12 x 12 Cholesky factorisation. In Python each of them is a separate numpy call with its
@@ -10,12 +11,19 @@ solutions): Gauss-Newton (no second-order dynamics terms), defects through ``ŝ 
 ``mu I`` added to ``Quu`` (8e), the gains of Eq. (7) and the value-function update of Eq. (9) written with
 the unregularised ``Quu`` so that the expected cost change of the quadratic model stays exact for
 ``mu > 0``.
+
+The forward roll-out (Eqs. (11)-(13)) cannot be one compiled call per phase (each knot's ``calc`` is the
+model's, e.g. Pinocchio's), but everything between two ``calc`` calls is: ``rollout_knot_end`` takes the
+state the knot's model produced, sets the next trial state and defect, and forms the next knot's control,
+with the manifold's compiled ``⊕``/``⊖`` (``dynamics.state_kernels``), in place of five separate calls.
 """
 
 from __future__ import annotations
 
 import numpy as np
 from numba import njit
+
+from cafe_mpc.dynamics.state_kernels import state_difference, state_integrate
 
 CHOLESKY_FAILED = 1
 """Status of ``backward_phase`` when ``Quu + mu I`` is not positive definite (or not finite)."""
@@ -196,6 +204,74 @@ def linear_step(F: np.ndarray, dx: np.ndarray, du: np.ndarray, defect: np.ndarra
         for j in range(du.shape[0]):
             total += F[i, ndx + j] * du[j]
         out[i] = total
+
+
+@njit(cache=True, nogil=True)
+def rollout_policy(
+    kind: int,
+    nq: int,
+    nv: int,
+    k: int,
+    alpha: float,
+    xs: np.ndarray,
+    xs_try: np.ndarray,
+    us: np.ndarray,
+    us_try: np.ndarray,
+    kff: np.ndarray,
+    K: np.ndarray,
+    dx: np.ndarray,
+    du: np.ndarray,
+) -> None:
+    """The trial control of knot ``k`` (Eq. (11)): ``dx = xs_try[k] ⊖ xs[k]``, then ``policy_step``
+    (``us_try[k]``, ``du``). ``kind``, ``nq``, ``nv``: the state manifold's compiled operations
+    (``StateManifold.kernel``)."""
+    state_difference(kind, nq, nv, xs[k], xs_try[k], dx)
+    policy_step(us[k], kff[k], K[k], dx, alpha, us_try[k], du)
+
+
+@njit(cache=True, nogil=True)
+def rollout_knot_end(
+    kind: int,
+    nq: int,
+    nv: int,
+    k: int,
+    alpha: float,
+    x_next: np.ndarray,
+    rollout: np.ndarray,
+    xs: np.ndarray,
+    xs_try: np.ndarray,
+    us: np.ndarray,
+    us_try: np.ndarray,
+    kff: np.ndarray,
+    K: np.ndarray,
+    F: np.ndarray,
+    defects: np.ndarray,
+    defects_try: np.ndarray,
+    dx: np.ndarray,
+    du: np.ndarray,
+    step: np.ndarray,
+) -> None:
+    """The roll-out after knot ``k``'s ``calc`` produced ``x_next = f(x'_k, u'_k)``, with ``dx``, ``du`` the
+    knot's ``δx``, ``δu`` (``rollout_policy``).
+
+    A roll-out knot ``k + 1`` (``rollout[k + 1]``) takes ``x_next`` (Eq. (13)) and no defect; a shooting knot
+    follows the linearised dynamics with the full defect (Eq. (12) in the tangent space at the next nominal
+    state: ``xs_try[k + 1] = xs[k + 1] ⊕ (A δx + B δu + d̄_{k+1})``) and keeps the defect
+    ``x_next ⊖ xs_try[k + 1]``. Then, unless ``k + 1`` is the phase's last state, the control of knot
+    ``k + 1`` (``rollout_policy``; ``dx``, ``du`` are overwritten). ``step`` is scratch.
+    """
+    j = k + 1
+    if rollout[j]:
+        for i in range(x_next.shape[0]):
+            xs_try[j, i] = x_next[i]  # Eq. (13)
+        for i in range(defects_try.shape[1]):
+            defects_try[j, i] = 0.0
+    else:
+        linear_step(F[k], dx, du, defects[j], step)  # Eq. (12)
+        state_integrate(kind, nq, nv, xs[j], step, xs_try[j])
+        state_difference(kind, nq, nv, xs_try[j], x_next, defects_try[j])
+    if j < us.shape[0]:
+        rollout_policy(kind, nq, nv, j, alpha, xs, xs_try, us, us_try, kff, K, dx, du)
 
 
 @njit(cache=True, nogil=True)
