@@ -124,7 +124,10 @@ def backward_phase(
         F_k = F[k]
         np.dot(S_next, F_k, SF)
         np.dot(F_k.T, SF, Q)  # F' S F: Eqs. (8d)-(8f), Gauss-Newton
-        Q += H[k]
+        H_k = H[k]
+        for i in range(n):  # Q += H[k] (explicit loops compile to tighter code than the array expression)
+            for j in range(n):
+                Q[i, j] += H_k[i, j]
         np.dot(F_k.T, s_hat, q)  # F' ŝ: Eqs. (8b), (8c)
         q += G[k]
         for i in range(nu):
@@ -132,10 +135,14 @@ def backward_phase(
             rhs[i, 0] = q[ndx + i]
             for j in range(ndx):
                 rhs[i, j + 1] = Q[ndx + i, j]
-        Qu[k] = q[ndx:]
-        Quu[k] = Q[ndx:, ndx:]
-        Qux[k] = Q[ndx:, :ndx]
-        if not cholesky_solve(Quu[k], rhs, lower):
+        Qu_k, Quu_k, Qux_k = Qu[k], Quu[k], Qux[k]
+        for i in range(nu):
+            Qu_k[i] = q[ndx + i]
+            for j in range(nu):
+                Quu_k[i, j] = Q[ndx + i, ndx + j]
+            for j in range(ndx):
+                Qux_k[i, j] = Q[ndx + i, j]
+        if not cholesky_solve(Quu_k, rhs, lower):
             return CHOLESKY_FAILED
         K_k = K[k]
         k_ff = kff[k]
