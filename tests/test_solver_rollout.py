@@ -29,6 +29,7 @@ from cafe_mpc.dynamics.state_kernels import state_difference, state_integrate
 from cafe_mpc.ocp.knots import SRBModelFactory, WholeBodyModelFactory, weight_split_forces
 from cafe_mpc.robots.robot import load_robot
 from cafe_mpc.solver import MSiLQRSolver, SolverOptions
+from cafe_mpc.solver.kernels import linear_step, policy_step
 from toy_models import PendulumImpactReset, PendulumModel
 
 TROT = [((True, False, False, True), 6), ((False, True, True, False), 5)]
@@ -133,3 +134,31 @@ def test_a_subclass_of_the_euclidean_state_uses_its_own_methods() -> None:
 
     assert EuclideanState(2).kernel == STATE_EUCLIDEAN
     assert Wrapped(2).kernel == STATE_PYTHON
+
+
+@pytest.mark.parametrize("rows", [1, 4, 7, 12, 36])
+def test_policy_and_linear_steps_sum_each_row_in_order(rows: int) -> None:
+    """Eqs. (11), (12): four rows at a time, each row summed as a plain loop over the columns would."""
+    rng = np.random.default_rng(rows)
+    ndx, nu = 9, 5
+    M, dx, du, offset = (rng.standard_normal(shape) for shape in ((rows, ndx + nu), ndx, nu, rows))
+    out = np.empty(rows)
+    linear_step(M, dx, du, offset, out)
+    expected = np.empty(rows)
+    for i in range(rows):
+        total = offset[i]
+        for j, value in enumerate(np.concatenate([dx, du])):
+            total += M[i, j] * value
+        expected[i] = total
+    np.testing.assert_array_equal(out, expected)
+    np.testing.assert_allclose(out, M @ np.concatenate([dx, du]) + offset, rtol=1e-12, atol=1e-12)
+    K, u = M[:, :ndx], rng.standard_normal(rows)
+    u_out, du_out = np.empty(rows), np.empty(rows)
+    policy_step(u, offset, K, dx, 0.3, u_out, du_out)
+    for i in range(rows):
+        total = 0.3 * offset[i]
+        for j in range(ndx):
+            total += K[i, j] * dx[j]
+        expected[i] = total
+    np.testing.assert_array_equal(du_out, expected)
+    np.testing.assert_array_equal(u_out, u + expected)

@@ -191,26 +191,55 @@ def policy_step(
     u_out: np.ndarray,
     du_out: np.ndarray,
 ) -> None:
-    """Eq. (11): ``u' = ū + α k + K (x' ⊖ x̄)``; also writes ``δu = u' - ū``."""
+    """Eq. (11): ``u' = ū + α k + K (x' ⊖ x̄)``; also writes ``δu = u' - ū``.
+
+    Four rows at a time (``_affine_rows``): each row's sum keeps its order, the rows overlap in the
+    pipeline."""
+    _affine_rows(K, dx, dx[:0], k_ff, alpha, du_out)
     for i in range(u.shape[0]):
-        total = alpha * k_ff[i]
-        for j in range(dx.shape[0]):
-            total += K[i, j] * dx[j]
-        du_out[i] = total
-        u_out[i] = u[i] + total
+        u_out[i] = u[i] + du_out[i]
 
 
 @njit(cache=True, nogil=True)
 def linear_step(F: np.ndarray, dx: np.ndarray, du: np.ndarray, defect: np.ndarray, out: np.ndarray) -> None:
-    """Eq. (12) in tangent form: ``out = A δx + B δu + d̄`` with ``F = [A | B]``."""
-    ndx = dx.shape[0]
-    for i in range(F.shape[0]):
-        total = defect[i]
-        for j in range(ndx):
-            total += F[i, j] * dx[j]
-        for j in range(du.shape[0]):
-            total += F[i, ndx + j] * du[j]
-        out[i] = total
+    """Eq. (12) in tangent form: ``out = A δx + B δu + d̄`` with ``F = [A | B]`` (``_affine_rows``)."""
+    _affine_rows(F, dx, du, defect, 1.0, out)
+
+
+@njit(cache=True, nogil=True)
+def _affine_rows(
+    M: np.ndarray, a: np.ndarray, b: np.ndarray, c: np.ndarray, scale: float, out: np.ndarray
+) -> None:
+    """``out = scale c + M [a; b]``, each row summed in the order ``scale c_i``, then the columns left to
+    right; four rows share one pass over the columns (independent sums the processor overlaps; a row at a
+    time waits on every addition)."""
+    na, nb = a.shape[0], b.shape[0]
+    rows = M.shape[0]
+    i = 0
+    while i + 4 <= rows:
+        M0, M1, M2, M3 = M[i], M[i + 1], M[i + 2], M[i + 3]
+        t0, t1, t2, t3 = scale * c[i], scale * c[i + 1], scale * c[i + 2], scale * c[i + 3]
+        for j in range(na):
+            value = a[j]
+            t0 += M0[j] * value
+            t1 += M1[j] * value
+            t2 += M2[j] * value
+            t3 += M3[j] * value
+        for j in range(nb):
+            value = b[j]
+            t0 += M0[na + j] * value
+            t1 += M1[na + j] * value
+            t2 += M2[na + j] * value
+            t3 += M3[na + j] * value
+        out[i], out[i + 1], out[i + 2], out[i + 3] = t0, t1, t2, t3
+        i += 4
+    for r in range(i, rows):
+        total = scale * c[r]
+        for j in range(na):
+            total += M[r, j] * a[j]
+        for j in range(nb):
+            total += M[r, na + j] * b[j]
+        out[r] = total
 
 
 @njit(cache=True, nogil=True)
