@@ -103,8 +103,10 @@ def backward_phase(
     two matrix products. Writes ``S[0..N-1]``, ``s[0..N-1]``, the gains ``K``, ``kff`` (Eq. (7)) and ``Qu``,
     ``Quu`` (regularised), ``Qux``. Adds to ``sums`` the terms of the expected cost change
     ``ΔJ(α) = c0 + α g + ½ α² h``: ``sums[0] += Σ (s'd + ½ d'S d)``, ``sums[1] += Σ Qu'k``,
-    ``sums[2] += Σ (-Qu'k - mu k'k)``. ``rhs``, ``lower``, ``SF``, ``Q``, ``q``, ``s_hat``, ``gains`` are
-    scratch. Returns 0, or ``CHOLESKY_FAILED`` (the caller raises ``mu`` and restarts the sweep).
+    ``sums[2] += Σ (-Qu'k - mu k'k)``, and sets ``sums[3]`` to the sum of the entries of ``s[0]`` and
+    ``S[0]`` (finite iff they all are, short of an overflow: the caller's check of the sweep). ``rhs``,
+    ``lower``, ``SF``, ``Q``, ``q``, ``s_hat``, ``gains`` are scratch. Returns 0, or ``CHOLESKY_FAILED`` (the
+    caller raises ``mu`` and restarts the sweep).
     """
     n_knots = F.shape[0]
     ndx = F.shape[1]
@@ -178,6 +180,13 @@ def backward_phase(
     sums[0] += constant
     sums[1] += linear
     sums[2] += quadratic
+    total = 0.0
+    S_0, s_0 = S[0], s[0]
+    for i in range(ndx):
+        total += s_0[i]
+        for j in range(ndx):
+            total += S_0[i, j]
+    sums[3] = total
     return 0
 
 

@@ -111,7 +111,7 @@ class MSiLQRSolver:
         self._expected_constant = 0.0
         self._expected_linear = 0.0
         self._expected_quadratic = 0.0
-        self._sums = np.zeros(3)  # per-phase sums of the compiled backward sweep
+        self._sums = np.zeros(4)  # sums of the compiled backward sweep (``backward_phase``)
 
     # ---------------------------------------------------------------------------------------------- public
     def solve(
@@ -662,10 +662,9 @@ class MSiLQRSolver:
                     return SweepOutcome.NON_FINITE
                 return SweepOutcome.CHOLESKY
             following = work
-        first = workspace.phases[0]
         constant += float(sums[0])
         linear, quadratic = float(sums[1]), float(sums[2])
-        check = constant + linear + quadratic + float(first.s[0].sum()) + float(first.S[0].sum())
+        check = constant + linear + quadratic + float(sums[3])  # sums[3]: s[0], S[0] of the first phase
         if not math.isfinite(check):
             return SweepOutcome.NON_FINITE
         self._expected_constant = constant
