@@ -25,7 +25,7 @@ from cafe_mpc.core.interfaces import (
     Phase,
 )
 from cafe_mpc.dynamics.srb import SRBState
-from cafe_mpc.dynamics.state_kernels import state_difference, state_integrate
+from cafe_mpc.dynamics.state_kernels import state_difference, state_integrate, state_transport_stacked
 from cafe_mpc.ocp.knots import SRBModelFactory, WholeBodyModelFactory, weight_split_forces
 from cafe_mpc.robots.robot import load_robot
 from cafe_mpc.solver import MSiLQRSolver, SolverOptions
@@ -125,6 +125,16 @@ def test_state_kernels_equal_the_manifold_methods(robot) -> None:
             tangent = np.empty(state.ndx)
             state_difference(kind, nq, nv, x, expected, tangent)
             np.testing.assert_array_equal(tangent, state.difference(x, expected))
+            # [A | B] in the tangent space at a nominal state (the identity at the same point)
+            left, right = rng.standard_normal((state.ndx, state.ndx)), rng.standard_normal((state.ndx, 3))
+            plain = np.hstack([left, right])
+            for y in (expected, x.copy()):
+                stacked, reference = np.empty_like(plain), np.empty_like(plain)
+                state_transport_stacked(kind, x, y, left, right, stacked)
+                state.difference_jacobian_product_stacked(x, y, left, right, reference)
+                np.testing.assert_array_equal(stacked, reference)
+                same = y is not expected or kind == STATE_EUCLIDEAN
+                assert np.array_equal(stacked, plain) == same
 
 
 def test_a_subclass_of_the_euclidean_state_uses_its_own_methods() -> None:

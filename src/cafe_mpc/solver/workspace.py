@@ -26,6 +26,7 @@ import numpy as np
 
 from cafe_mpc.core.interfaces import (
     STATE_FREE_FLYER,
+    STATE_PYTHON,
     ActionData,
     ConstraintData,
     EuclideanState,
@@ -35,6 +36,7 @@ from cafe_mpc.core.interfaces import (
     StateManifold,
 )
 from cafe_mpc.core.kernels import same_point, stack_columns
+from cafe_mpc.dynamics.state_kernels import state_transport_stacked
 from cafe_mpc.solver.kernels import linear_step, policy_step
 
 EMPTY_CONTROL = np.zeros(0)
@@ -226,7 +228,9 @@ class PhaseWorkspace:
         self, x_nominal: np.ndarray, y: np.ndarray, Fx: np.ndarray, Fu: np.ndarray, out: np.ndarray
     ) -> None:
         """``out = ∂(y ⊖ x̄)/∂y @ [Fx | Fu]``: the knot's ``[A | B]`` (the identity map without a defect)."""
-        if self.euclidean or same_point(x_nominal, y):
+        if self.state_kernel != STATE_PYTHON:
+            state_transport_stacked(self.state_kernel, x_nominal, y, Fx, Fu, out)
+        elif same_point(x_nominal, y):
             stack_columns(Fx, Fu, out)
         else:
             self.state.difference_jacobian_product_stacked(x_nominal, y, Fx, Fu, out)
