@@ -3,9 +3,9 @@
 ``StateManifold.kernel`` (``core.interfaces``) names which compiled operations equal a manifold's
 ``integrate``/``difference``: plain ``+``/``-`` (``STATE_EUCLIDEAN``), the free-flyer robot's
 (``STATE_FREE_FLYER``, ``dynamics.kernels``) or the SRB state's (``STATE_SRB``, ``dynamics.srb_kernels``).
-Compiled callers (the solver's forward roll-out) take the code and the dimensions as arguments and call
-these, so one compiled call can do several manifold operations and the algebra between them;
-``state_transport_stacked`` is the solver's per-knot ``[A | B]`` in one call.
+Compiled callers (the solver's forward roll-out) take the code as an argument and call these, so one
+compiled call can do several manifold operations and the algebra between them; ``state_transport_stacked``
+is the solver's per-knot ``[A | B]`` in one call.
 """
 
 from __future__ import annotations
@@ -24,26 +24,29 @@ from cafe_mpc.dynamics.srb_kernels import srb_difference, srb_difference_jacobia
 
 
 @njit(cache=True, nogil=True)
-def state_difference(kind: int, nq: int, nv: int, x0: np.ndarray, x1: np.ndarray, out: np.ndarray) -> None:
-    """``out = x1 ⊖ x0`` on the manifold ``kind`` (``nq``, ``nv``: the free-flyer state's sizes; a code
-    without compiled operations is the caller's error and is not checked)."""
+def state_difference(kind: int, x0: np.ndarray, x1: np.ndarray, out: np.ndarray) -> None:
+    """``out = x1 ⊖ x0`` on the manifold ``kind`` (a code without compiled operations is the caller's error
+    and is not checked). The free-flyer state's sizes follow from the arrays': ``ndx = 2 nv``,
+    ``nx = nq + nv``."""
     if kind == STATE_EUCLIDEAN:
         for i in range(out.shape[0]):
             out[i] = x1[i] - x0[i]
     elif kind == STATE_FREE_FLYER:
-        free_flyer_state_difference(x0, x1, nq, nv, out)
+        nv = out.shape[0] // 2
+        free_flyer_state_difference(x0, x1, x0.shape[0] - nv, nv, out)
     else:
         srb_difference(x0, x1, out)
 
 
 @njit(cache=True, nogil=True)
-def state_integrate(kind: int, nq: int, nv: int, x: np.ndarray, dx: np.ndarray, out: np.ndarray) -> None:
+def state_integrate(kind: int, x: np.ndarray, dx: np.ndarray, out: np.ndarray) -> None:
     """``out = x ⊕ dx`` on the manifold ``kind`` (as ``state_difference``)."""
     if kind == STATE_EUCLIDEAN:
         for i in range(out.shape[0]):
             out[i] = x[i] + dx[i]
     elif kind == STATE_FREE_FLYER:
-        free_flyer_state_integrate(x, dx, nq, nv, out)
+        nv = dx.shape[0] // 2
+        free_flyer_state_integrate(x, dx, x.shape[0] - nv, nv, out)
     else:
         srb_integrate(x, dx, out)
 

@@ -254,8 +254,6 @@ def _affine_rows(
 @njit(cache=True, nogil=True)
 def rollout_policy(
     kind: int,
-    nq: int,
-    nv: int,
     k: int,
     alpha: float,
     xs: np.ndarray,
@@ -268,17 +266,14 @@ def rollout_policy(
     du: np.ndarray,
 ) -> None:
     """The trial control of knot ``k`` (Eq. (11)): ``dx = xs_try[k] ⊖ xs[k]``, then ``policy_step``
-    (``us_try[k]``, ``du``). ``kind``, ``nq``, ``nv``: the state manifold's compiled operations
-    (``StateManifold.kernel``)."""
-    state_difference(kind, nq, nv, xs[k], xs_try[k], dx)
+    (``us_try[k]``, ``du``). ``kind``: the state manifold's compiled operations (``StateManifold.kernel``)."""
+    state_difference(kind, xs[k], xs_try[k], dx)
     policy_step(us[k], kff[k], K[k], dx, alpha, us_try[k], du)
 
 
 @njit(cache=True, nogil=True)
 def rollout_knot_end(
     kind: int,
-    nq: int,
-    nv: int,
     k: int,
     alpha: float,
     x_next: np.ndarray,
@@ -313,10 +308,10 @@ def rollout_knot_end(
             defects_try[j, i] = 0.0
     else:
         linear_step(F[k], dx, du, defects[j], step)  # Eq. (12)
-        state_integrate(kind, nq, nv, xs[j], step, xs_try[j])
-        state_difference(kind, nq, nv, xs_try[j], x_next, defects_try[j])
+        state_integrate(kind, xs[j], step, xs_try[j])
+        state_difference(kind, xs_try[j], x_next, defects_try[j])
     if j < us.shape[0]:
-        rollout_policy(kind, nq, nv, j, alpha, xs, xs_try, us, us_try, kff, K, dx, du)
+        rollout_policy(kind, j, alpha, xs, xs_try, us, us_try, kff, K, dx, du)
 
 
 @njit(cache=True, nogil=True)

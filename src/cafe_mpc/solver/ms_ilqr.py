@@ -748,14 +748,14 @@ class MSiLQRSolver:
                 else:
                     xs_try[0] = work.integrate(xs[0], previous.reset_jacobian @ dx_end + defects[0])
                     defects_try[0] = work.difference(xs_try[0], reset_state)
-            kind, nq, nv = work.state_kernel, work.state_nq, work.state_nv
+            kind = work.state_kernel
             us, kff, K, F = work.us, work.k, work.K, work.F
             dx, du, step = work.dx, work.du, work.step
             if work.horizon:
                 if kind == STATE_PYTHON:
                     work.rollout_policy(0, alpha)
                 else:
-                    rollout_policy(kind, nq, nv, 0, alpha, xs, xs_try, us, us_try, kff, K, dx, du)  # Eq. (11)
+                    rollout_policy(kind, 0, alpha, xs, xs_try, us, us_try, kff, K, dx, du)  # Eq. (11)
             cost, violation = totals.cost, totals.inequality_violation
             for k, (model, data) in enumerate(zip(work.models, work.running_data, strict=True)):
                 model.calc(data, xs_try[k], us_try[k])
@@ -766,7 +766,7 @@ class MSiLQRSolver:
                     work.rollout_knot_end(k, alpha, data.x_next, rollout)
                 else:  # Eqs. (12), (13), then (11) for knot k + 1
                     rollout_knot_end(
-                        kind, nq, nv, k, alpha, data.x_next, rollout, xs, xs_try, us, us_try, kff, K, F,
+                        kind, k, alpha, data.x_next, rollout, xs, xs_try, us, us_try, kff, K, F,
                         defects, defects_try, dx, du, step,
                     )  # fmt: skip
             totals.cost, totals.inequality_violation = cost, violation

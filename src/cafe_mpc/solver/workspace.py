@@ -25,7 +25,6 @@ from collections.abc import Iterable, Sequence
 import numpy as np
 
 from cafe_mpc.core.interfaces import (
-    STATE_FREE_FLYER,
     STATE_PYTHON,
     ActionData,
     ConstraintData,
@@ -123,9 +122,6 @@ class PhaseWorkspace:
         self.euclidean = type(self.state) is EuclideanState
         self.state_kernel = self.state.kernel
         """The manifold's compiled operations (``StateManifold.kernel``), for the roll-out's kernels."""
-        free_flyer = self.state_kernel == STATE_FREE_FLYER
-        self.state_nq = self.state.nq if free_flyer else 0
-        self.state_nv = self.state.nv if free_flyer else 0
         self.running_data = running_data
         self.terminal_data = terminal_data
         self.reset_map = phase.reset_map if has_next_phase else None
