@@ -120,7 +120,8 @@ def backward_phase(
         s_hat[:] = s[k + 1]
         if not rollout[k + 1]:
             defect = defects[k + 1]
-            S_defect = S_next @ defect
+            S_defect = q[:ndx]  # scratch until q is formed below
+            np.dot(S_next, defect, S_defect)
             s_hat += S_defect  # Eq. (8a)
             constant += s[k + 1] @ defect + 0.5 * (defect @ S_defect)
         F_k = F[k]
