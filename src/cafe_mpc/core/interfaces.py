@@ -34,12 +34,29 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+STATE_PYTHON = 0
+"""``StateManifold.kernel`` of a manifold without compiled operations (the solver calls its methods)."""
+STATE_EUCLIDEAN = 1
+"""``StateManifold.kernel``: ``R^n`` (``+``, ``-``)."""
+STATE_FREE_FLYER = 2
+"""``StateManifold.kernel``: ``[q, v]`` of a robot with a free flyer at the root and vector-space joints after
+it (``dynamics.kernels``)."""
+STATE_SRB = 3
+"""``StateManifold.kernel``: the SRB state ``[c, quaternion, c_dot, omega]`` (``dynamics.srb_kernels``)."""
+
 
 class StateManifold(ABC):
-    """A state space with ``nx`` coordinates and an ``ndx``-dimensional tangent space."""
+    """A state space with ``nx`` coordinates and an ``ndx``-dimensional tangent space.
+
+    ``kernel`` names the compiled ``integrate``/``difference`` that equal this manifold's methods bit for bit
+    (``STATE_EUCLIDEAN``, ...; ``dynamics.state_kernels`` dispatches on it), so that the solver's forward
+    roll-out can run them inside its own compiled calls; ``STATE_PYTHON`` (the default): none, the methods
+    are called. A subclass that overrides ``integrate``/``difference`` must set it back to ``STATE_PYTHON``.
+    """
 
     nx: int
     ndx: int
+    kernel: int = STATE_PYTHON
 
     @abstractmethod
     def zero(self) -> np.ndarray:
@@ -101,6 +118,8 @@ class EuclideanState(StateManifold):
             raise ValueError(f"EuclideanState dimension must be positive, got {n}")
         self.nx = n
         self.ndx = n
+        # a subclass may override difference/integrate (e.g. angle wrapping)
+        self.kernel = STATE_EUCLIDEAN if type(self) is EuclideanState else STATE_PYTHON
         self._eye = np.eye(n)
 
     def zero(self) -> np.ndarray:

@@ -23,6 +23,7 @@ import pinocchio as pin
 
 from cafe_mpc.core.contacts import as_contact_flags, flags_to_string
 from cafe_mpc.core.interfaces import ResetData, ResetMap
+from cafe_mpc.core.kernels import same_point
 from cafe_mpc.dynamics.multibody_state import MultibodyState
 from cafe_mpc.dynamics.whole_body import ContactDynamicsError, foot_contact_models, proximal_settings
 from cafe_mpc.robots.robot import Robot
@@ -95,7 +96,7 @@ class ImpactReset(ResetMap):
         data.last_x[:] = x
 
     def calc_diff(self, data: ImpactData, x: np.ndarray) -> None:
-        if not np.array_equal(x, data.last_x):
+        if not same_point(x, data.last_x):
             self.calc(data, x)  # the derivatives reuse the forward pass of calc
         nv = self.model.nv
         pd = data.pinocchio

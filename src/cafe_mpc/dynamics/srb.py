@@ -31,7 +31,7 @@ import numpy as np
 import pinocchio as pin
 
 from cafe_mpc.core.contacts import N_FEET
-from cafe_mpc.core.interfaces import StateManifold
+from cafe_mpc.core.interfaces import STATE_SRB, StateManifold
 from cafe_mpc.core.physics import GRAVITY
 from cafe_mpc.dynamics.srb_kernels import (
     srb_difference,
@@ -67,6 +67,7 @@ class SRBState(StateManifold):
 
     nx = 13
     ndx = 12
+    kernel = STATE_SRB
 
     def zero(self) -> np.ndarray:
         x = np.zeros(13)

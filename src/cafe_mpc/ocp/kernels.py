@@ -116,7 +116,7 @@ def whole_body_cost(
     forces: np.ndarray,
     foot_positions: np.ndarray,
     foot_velocities: np.ndarray,
-) -> None:
+) -> tuple[float, float]:
     """Cost of one knot from its packed parameters (``integers``, ``floats``; see ``HEADER``) into its
     workspace ``work`` (residual ``r``, weighted ``wr``, constraint values ``g`` and the barrier's ``d1``,
     ``d2``, ``values``, the evaluation point ``last_x``/``last_u``, the feet's forces, the base rotation).
@@ -127,7 +127,7 @@ def whole_body_cost(
     (``forces``, 3 per stance foot) are scattered into the feet's forces (zero on swing feet).
 
     ``values[0]`` = ``scale * (0.5 r' W r + sum eps B(g))``, ``values[1]`` = worst violation
-    ``max(0, -min g)``.
+    ``max(0, -min g)``; both are also returned (the knot's ``cost``, ``constraint_violation``).
     """
     h = integers
     feet_row, torque_row, n_friction = h[FEET_ROW], h[TORQUE_ROW], h[N_FRICTION]
@@ -214,6 +214,7 @@ def whole_body_cost(
                 violation = -g[i]
     out[0] = scale * (cost + barrier)
     out[1] = violation
+    return out[0], violation
 
 
 @njit(cache=True, nogil=True)

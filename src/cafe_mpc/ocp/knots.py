@@ -308,8 +308,7 @@ class WholeBodyKnot(ActionModel):
         return WholeBodyKnotData(self)
 
     def _check_sizes(self, x: np.ndarray, u: np.ndarray) -> None:
-        if x.shape == self._x_shape and u.shape == self._u_shape:
-            return
+        """The ``ValueError`` naming the wrong size (``calc`` calls it on an unexpected shape)."""
         if x.shape != (self.state.nx,):
             raise ValueError(f"{self!r}: x must have shape ({self.state.nx},), got {x.shape}")
         if u.shape != (self.nu,):
@@ -375,7 +374,8 @@ class WholeBodyKnot(ActionModel):
         return work[first : self._integers[packed.WORK_SECTIONS + section + 1]]
 
     def calc(self, data: WholeBodyKnotData, x: np.ndarray, u: np.ndarray) -> None:
-        self._check_sizes(x, u)
+        if x.shape != self._x_shape or u.shape != self._u_shape:
+            self._check_sizes(x, u)
         if self.dynamics is not None:
             self.dynamics.calc(data.dynamics, x, u)
         kinematics = data.kinematics
@@ -386,7 +386,7 @@ class WholeBodyKnot(ActionModel):
         if self._generic_base_error:
             nq = self._nq
             data.r[: self._nv] = pin.difference(self.model, reference.state[:nq], x[:nq])
-        whole_body_cost(
+        data.cost, data.constraint_violation = whole_body_cost(
             x,
             u,
             reference.state,
@@ -400,9 +400,6 @@ class WholeBodyKnot(ActionModel):
             kinematics.positions,
             kinematics.velocities,
         )
-        values = data.values
-        data.cost = float(values[0])
-        data.constraint_violation = float(values[1])
 
     def calc_diff(self, data: WholeBodyKnotData, x: np.ndarray, u: np.ndarray) -> None:
         if not same_inputs(x, u, data.last_x, data.last_u):

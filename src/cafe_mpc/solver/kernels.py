@@ -1,4 +1,5 @@
-"""Compiled inner loops of MS-iLQR (numba): the backward sweep of one phase over stacked arrays.
+"""Compiled inner loops of MS-iLQR (numba): the backward sweep of one phase over stacked arrays, and the
+forward roll-out's work between two knots' ``calc``.
 
 The per-knot algebra of the backward sweep (Eqs. (8), (9)) is a dozen products of 36 x 36 and 36 x 12
 matrices and one 12 x 12 Cholesky factorisation. In Python each of them is a separate numpy call with its
@@ -10,12 +11,19 @@ solutions): Gauss-Newton (no second-order dynamics terms), defects through ``ŝ 
 ``mu I`` added to ``Quu`` (8e), the gains of Eq. (7) and the value-function update of Eq. (9) written with
 the unregularised ``Quu`` so that the expected cost change of the quadratic model stays exact for
 ``mu > 0``.
+
+The forward roll-out (Eqs. (11)-(13)) cannot be one compiled call per phase (each knot's ``calc`` is the
+model's, e.g. Pinocchio's), but everything between two ``calc`` calls is: ``rollout_knot_end`` takes the
+state the knot's model produced, sets the next trial state and defect, and forms the next knot's control,
+with the manifold's compiled ``⊕``/``⊖`` (``dynamics.state_kernels``), in place of five separate calls.
 """
 
 from __future__ import annotations
 
 import numpy as np
 from numba import njit
+
+from cafe_mpc.dynamics.state_kernels import state_difference, state_integrate
 
 CHOLESKY_FAILED = 1
 """Status of ``backward_phase`` when ``Quu + mu I`` is not positive definite (or not finite)."""
@@ -95,8 +103,10 @@ def backward_phase(
     two matrix products. Writes ``S[0..N-1]``, ``s[0..N-1]``, the gains ``K``, ``kff`` (Eq. (7)) and ``Qu``,
     ``Quu`` (regularised), ``Qux``. Adds to ``sums`` the terms of the expected cost change
     ``ΔJ(α) = c0 + α g + ½ α² h``: ``sums[0] += Σ (s'd + ½ d'S d)``, ``sums[1] += Σ Qu'k``,
-    ``sums[2] += Σ (-Qu'k - mu k'k)``. ``rhs``, ``lower``, ``SF``, ``Q``, ``q``, ``s_hat``, ``gains`` are
-    scratch. Returns 0, or ``CHOLESKY_FAILED`` (the caller raises ``mu`` and restarts the sweep).
+    ``sums[2] += Σ (-Qu'k - mu k'k)``, and sets ``sums[3]`` to the sum of the entries of ``s[0]`` and
+    ``S[0]`` (finite iff they all are, short of an overflow: the caller's check of the sweep). ``rhs``,
+    ``lower``, ``SF``, ``Q``, ``q``, ``s_hat``, ``gains`` are scratch. Returns 0, or ``CHOLESKY_FAILED`` (the
+    caller raises ``mu`` and restarts the sweep).
     """
     n_knots = F.shape[0]
     ndx = F.shape[1]
@@ -110,13 +120,17 @@ def backward_phase(
         s_hat[:] = s[k + 1]
         if not rollout[k + 1]:
             defect = defects[k + 1]
-            S_defect = S_next @ defect
+            S_defect = q[:ndx]  # scratch until q is formed below
+            np.dot(S_next, defect, S_defect)
             s_hat += S_defect  # Eq. (8a)
             constant += s[k + 1] @ defect + 0.5 * (defect @ S_defect)
         F_k = F[k]
         np.dot(S_next, F_k, SF)
         np.dot(F_k.T, SF, Q)  # F' S F: Eqs. (8d)-(8f), Gauss-Newton
-        Q += H[k]
+        H_k = H[k]
+        for i in range(n):  # Q += H[k] (explicit loops compile to tighter code than the array expression)
+            for j in range(n):
+                Q[i, j] += H_k[i, j]
         np.dot(F_k.T, s_hat, q)  # F' ŝ: Eqs. (8b), (8c)
         q += G[k]
         for i in range(nu):
@@ -124,10 +138,14 @@ def backward_phase(
             rhs[i, 0] = q[ndx + i]
             for j in range(ndx):
                 rhs[i, j + 1] = Q[ndx + i, j]
-        Qu[k] = q[ndx:]
-        Quu[k] = Q[ndx:, ndx:]
-        Qux[k] = Q[ndx:, :ndx]
-        if not cholesky_solve(Quu[k], rhs, lower):
+        Qu_k, Quu_k, Qux_k = Qu[k], Quu[k], Qux[k]
+        for i in range(nu):
+            Qu_k[i] = q[ndx + i]
+            for j in range(nu):
+                Quu_k[i, j] = Q[ndx + i, ndx + j]
+            for j in range(ndx):
+                Qux_k[i, j] = Q[ndx + i, j]
+        if not cholesky_solve(Quu_k, rhs, lower):
             return CHOLESKY_FAILED
         K_k = K[k]
         k_ff = kff[k]
@@ -163,6 +181,13 @@ def backward_phase(
     sums[0] += constant
     sums[1] += linear
     sums[2] += quadratic
+    total = 0.0
+    S_0, s_0 = S[0], s[0]
+    for i in range(ndx):
+        total += s_0[i]
+        for j in range(ndx):
+            total += S_0[i, j]
+    sums[3] = total
     return 0
 
 
@@ -176,26 +201,118 @@ def policy_step(
     u_out: np.ndarray,
     du_out: np.ndarray,
 ) -> None:
-    """Eq. (11): ``u' = ū + α k + K (x' ⊖ x̄)``; also writes ``δu = u' - ū``."""
+    """Eq. (11): ``u' = ū + α k + K (x' ⊖ x̄)``; also writes ``δu = u' - ū``.
+
+    Four rows at a time (``_affine_rows``): each row's sum keeps its order, the rows overlap in the
+    pipeline."""
+    _affine_rows(K, dx, dx[:0], k_ff, alpha, du_out)
     for i in range(u.shape[0]):
-        total = alpha * k_ff[i]
-        for j in range(dx.shape[0]):
-            total += K[i, j] * dx[j]
-        du_out[i] = total
-        u_out[i] = u[i] + total
+        u_out[i] = u[i] + du_out[i]
 
 
 @njit(cache=True, nogil=True)
 def linear_step(F: np.ndarray, dx: np.ndarray, du: np.ndarray, defect: np.ndarray, out: np.ndarray) -> None:
-    """Eq. (12) in tangent form: ``out = A δx + B δu + d̄`` with ``F = [A | B]``."""
-    ndx = dx.shape[0]
-    for i in range(F.shape[0]):
-        total = defect[i]
-        for j in range(ndx):
-            total += F[i, j] * dx[j]
-        for j in range(du.shape[0]):
-            total += F[i, ndx + j] * du[j]
-        out[i] = total
+    """Eq. (12) in tangent form: ``out = A δx + B δu + d̄`` with ``F = [A | B]`` (``_affine_rows``)."""
+    _affine_rows(F, dx, du, defect, 1.0, out)
+
+
+@njit(cache=True, nogil=True)
+def _affine_rows(
+    M: np.ndarray, a: np.ndarray, b: np.ndarray, c: np.ndarray, scale: float, out: np.ndarray
+) -> None:
+    """``out = scale c + M [a; b]``, each row summed in the order ``scale c_i``, then the columns left to
+    right; four rows share one pass over the columns (independent sums the processor overlaps; a row at a
+    time waits on every addition)."""
+    na, nb = a.shape[0], b.shape[0]
+    rows = M.shape[0]
+    i = 0
+    while i + 4 <= rows:
+        M0, M1, M2, M3 = M[i], M[i + 1], M[i + 2], M[i + 3]
+        t0, t1, t2, t3 = scale * c[i], scale * c[i + 1], scale * c[i + 2], scale * c[i + 3]
+        for j in range(na):
+            value = a[j]
+            t0 += M0[j] * value
+            t1 += M1[j] * value
+            t2 += M2[j] * value
+            t3 += M3[j] * value
+        for j in range(nb):
+            value = b[j]
+            t0 += M0[na + j] * value
+            t1 += M1[na + j] * value
+            t2 += M2[na + j] * value
+            t3 += M3[na + j] * value
+        out[i], out[i + 1], out[i + 2], out[i + 3] = t0, t1, t2, t3
+        i += 4
+    for r in range(i, rows):
+        total = scale * c[r]
+        for j in range(na):
+            total += M[r, j] * a[j]
+        for j in range(nb):
+            total += M[r, na + j] * b[j]
+        out[r] = total
+
+
+@njit(cache=True, nogil=True)
+def rollout_policy(
+    kind: int,
+    k: int,
+    alpha: float,
+    xs: np.ndarray,
+    xs_try: np.ndarray,
+    us: np.ndarray,
+    us_try: np.ndarray,
+    kff: np.ndarray,
+    K: np.ndarray,
+    dx: np.ndarray,
+    du: np.ndarray,
+) -> None:
+    """The trial control of knot ``k`` (Eq. (11)): ``dx = xs_try[k] ⊖ xs[k]``, then ``policy_step``
+    (``us_try[k]``, ``du``). ``kind``: the state manifold's compiled operations (``StateManifold.kernel``)."""
+    state_difference(kind, xs[k], xs_try[k], dx)
+    policy_step(us[k], kff[k], K[k], dx, alpha, us_try[k], du)
+
+
+@njit(cache=True, nogil=True)
+def rollout_knot_end(
+    kind: int,
+    k: int,
+    alpha: float,
+    x_next: np.ndarray,
+    rollout: np.ndarray,
+    xs: np.ndarray,
+    xs_try: np.ndarray,
+    us: np.ndarray,
+    us_try: np.ndarray,
+    kff: np.ndarray,
+    K: np.ndarray,
+    F: np.ndarray,
+    defects: np.ndarray,
+    defects_try: np.ndarray,
+    dx: np.ndarray,
+    du: np.ndarray,
+    step: np.ndarray,
+) -> None:
+    """The roll-out after knot ``k``'s ``calc`` produced ``x_next = f(x'_k, u'_k)``, with ``dx``, ``du`` the
+    knot's ``δx``, ``δu`` (``rollout_policy``).
+
+    A roll-out knot ``k + 1`` (``rollout[k + 1]``) takes ``x_next`` (Eq. (13)) and no defect; a shooting knot
+    follows the linearised dynamics with the full defect (Eq. (12) in the tangent space at the next nominal
+    state: ``xs_try[k + 1] = xs[k + 1] ⊕ (A δx + B δu + d̄_{k+1})``) and keeps the defect
+    ``x_next ⊖ xs_try[k + 1]``. Then, unless ``k + 1`` is the phase's last state, the control of knot
+    ``k + 1`` (``rollout_policy``; ``dx``, ``du`` are overwritten). ``step`` is scratch.
+    """
+    j = k + 1
+    if rollout[j]:
+        for i in range(x_next.shape[0]):
+            xs_try[j, i] = x_next[i]  # Eq. (13)
+        for i in range(defects_try.shape[1]):
+            defects_try[j, i] = 0.0
+    else:
+        linear_step(F[k], dx, du, defects[j], step)  # Eq. (12)
+        state_integrate(kind, xs[j], step, xs_try[j])
+        state_difference(kind, xs_try[j], x_next, defects_try[j])
+    if j < us.shape[0]:
+        rollout_policy(kind, j, alpha, xs, xs_try, us, us_try, kff, K, dx, du)
 
 
 @njit(cache=True, nogil=True)

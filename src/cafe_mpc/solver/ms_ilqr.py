@@ -51,13 +51,13 @@ from typing import Literal
 
 import numpy as np
 
-from cafe_mpc.core.interfaces import MultiPhaseProblem
+from cafe_mpc.core.interfaces import STATE_PYTHON, MultiPhaseProblem
 from cafe_mpc.solver.kernels import (
     CHOLESKY_FAILED,
     backward_phase,
     linear_feedback_pass,
-    linear_step,
-    policy_step,
+    rollout_knot_end,
+    rollout_policy,
 )
 from cafe_mpc.solver.options import SolverOptions
 from cafe_mpc.solver.results import (
@@ -111,7 +111,7 @@ class MSiLQRSolver:
         self._expected_constant = 0.0
         self._expected_linear = 0.0
         self._expected_quadratic = 0.0
-        self._sums = np.zeros(3)  # per-phase sums of the compiled backward sweep
+        self._sums = np.zeros(4)  # sums of the compiled backward sweep (``backward_phase``)
 
     # ---------------------------------------------------------------------------------------------- public
     def solve(
@@ -662,10 +662,9 @@ class MSiLQRSolver:
                     return SweepOutcome.NON_FINITE
                 return SweepOutcome.CHOLESKY
             following = work
-        first = workspace.phases[0]
         constant += float(sums[0])
         linear, quadratic = float(sums[1]), float(sums[2])
-        check = constant + linear + quadratic + float(first.s[0].sum()) + float(first.S[0].sum())
+        check = constant + linear + quadratic + float(sums[3])  # sums[3]: s[0], S[0] of the first phase
         if not math.isfinite(check):
             return SweepOutcome.NON_FINITE
         self._expected_constant = constant
@@ -727,16 +726,17 @@ class MSiLQRSolver:
     def _try_step(self, workspace: Workspace, x0: np.ndarray, alpha: float, nonlinear: bool) -> _Totals:
         """Hybrid forward roll-out, Eqs. (11)-(13), through reset maps (Eq. (15)); writes the trial arrays.
 
-        ``nonlinear``: treat every knot as a roll-out knot (Eq. (13) everywhere).
+        ``nonlinear``: treat every knot as a roll-out knot (Eq. (13) everywhere). Between two knots' ``calc``
+        one compiled call (``rollout_knot_end``) does the rest of the roll-out on manifolds with compiled
+        operations; on others the workspace's Python equivalent.
         """
         totals = _Totals()
         previous: PhaseWorkspace | None = None
         dx_end = EMPTY_CONTROL
         for work in workspace.phases:
-            xs, us, defects = work.xs, work.us, work.defects
+            xs, defects = work.xs, work.defects
             xs_try, us_try, defects_try = work.xs_try, work.us_try, work.defects_try
             rollout = work.all_rollout if nonlinear else work.rollout
-            K, kff = work.K, work.k
             if previous is None:
                 xs_try[0] = xs[0]
                 defects_try[0] = 0.0
@@ -748,23 +748,30 @@ class MSiLQRSolver:
                 else:
                     xs_try[0] = work.integrate(xs[0], previous.reset_jacobian @ dx_end + defects[0])
                     defects_try[0] = work.difference(xs_try[0], reset_state)
-            F, dx, du, step = work.F, work.dx, work.du, work.step
-            for k, (model, data) in enumerate(zip(work.models, work.running_data, strict=True)):
-                work.difference_into(xs[k], xs_try[k], dx)
-                policy_step(us[k], kff[k], K[k], dx, alpha, us_try[k], du)  # Eq. (11)
-                model.calc(data, xs_try[k], us_try[k])
-                totals.cost += data.cost
-                if data.constraint_violation > totals.inequality_violation:
-                    totals.inequality_violation = data.constraint_violation
-                if rollout[k + 1]:
-                    xs_try[k + 1] = data.x_next  # Eq. (13)
-                    defects_try[k + 1] = 0.0
+            kind = work.state_kernel
+            us, kff, K, F = work.us, work.k, work.K, work.F
+            dx, du, step = work.dx, work.du, work.step
+            if work.horizon:
+                if kind == STATE_PYTHON:
+                    work.rollout_policy(0, alpha)
                 else:
-                    # Eq. (12) in the tangent space at the next nominal state.
-                    linear_step(F[k], dx, du, defects[k + 1], step)
-                    work.integrate_into(xs[k + 1], step, xs_try[k + 1])
-                    work.difference_into(xs_try[k + 1], data.x_next, defects_try[k + 1])
-            dx_end = work.difference(xs[-1], xs_try[-1])
+                    rollout_policy(kind, 0, alpha, xs, xs_try, us, us_try, kff, K, dx, du)  # Eq. (11)
+            cost, violation = totals.cost, totals.inequality_violation
+            for k, (model, data) in enumerate(zip(work.models, work.running_data, strict=True)):
+                model.calc(data, xs_try[k], us_try[k])
+                cost += data.cost
+                if data.constraint_violation > violation:
+                    violation = data.constraint_violation
+                if kind == STATE_PYTHON:
+                    work.rollout_knot_end(k, alpha, data.x_next, rollout)
+                else:  # Eqs. (12), (13), then (11) for knot k + 1
+                    rollout_knot_end(
+                        kind, k, alpha, data.x_next, rollout, xs, xs_try, us, us_try, kff, K, F,
+                        defects, defects_try, dx, du, step,
+                    )  # fmt: skip
+            totals.cost, totals.inequality_violation = cost, violation
+            dx_end = work.dx_end
+            work.difference_into(xs[-1], xs_try[-1], dx_end)
             self._evaluate_phase_end(work, xs_try[-1], work.switching_value_try, totals)
             previous = work
             if not math.isfinite(totals.cost):

@@ -25,6 +25,7 @@ from collections.abc import Iterable, Sequence
 import numpy as np
 
 from cafe_mpc.core.interfaces import (
+    STATE_PYTHON,
     ActionData,
     ConstraintData,
     EuclideanState,
@@ -34,6 +35,8 @@ from cafe_mpc.core.interfaces import (
     StateManifold,
 )
 from cafe_mpc.core.kernels import same_point, stack_columns
+from cafe_mpc.dynamics.state_kernels import state_transport_stacked
+from cafe_mpc.solver.kernels import linear_step, policy_step
 
 EMPTY_CONTROL = np.zeros(0)
 """The control of terminal knots (size 0; writable so compiled kernels see one array type)."""
@@ -90,6 +93,7 @@ class PhaseWorkspace:
         self.dx = np.zeros(ndx)
         self.du = np.zeros(nu)
         self.step = np.zeros(ndx)
+        self.dx_end = np.zeros(ndx)
         self.phase: Phase | None = None
         self.horizon = 0
 
@@ -116,6 +120,8 @@ class PhaseWorkspace:
         self.state: StateManifold = phase.state
         # Exact type: a subclass may override difference/integrate (e.g. angle wrapping).
         self.euclidean = type(self.state) is EuclideanState
+        self.state_kernel = self.state.kernel
+        """The manifold's compiled operations (``StateManifold.kernel``), for the roll-out's kernels."""
         self.running_data = running_data
         self.terminal_data = terminal_data
         self.reset_map = phase.reset_map if has_next_phase else None
@@ -193,11 +199,34 @@ class PhaseWorkspace:
         else:
             self.state.integrate_into(x, dx, out)
 
+    def rollout_policy(self, k: int, alpha: float) -> None:
+        """``solver.kernels.rollout_policy`` with the manifold's methods (a manifold without compiled
+        operations): the trial control of knot ``k`` (Eq. (11)) into ``us_try[k]``, ``dx``, ``du``."""
+        self.difference_into(self.xs[k], self.xs_try[k], self.dx)
+        policy_step(self.us[k], self.k[k], self.K[k], self.dx, alpha, self.us_try[k], self.du)
+
+    def rollout_knot_end(self, k: int, alpha: float, x_next: np.ndarray, rollout: np.ndarray) -> None:
+        """``solver.kernels.rollout_knot_end`` with the manifold's methods: the trial state and defect of
+        knot ``k + 1`` from ``x_next = f(x'_k, u'_k)`` (Eq. (13) on a roll-out knot, Eq. (12) on a shooting
+        knot), then the control of knot ``k + 1``."""
+        j = k + 1
+        if rollout[j]:
+            self.xs_try[j] = x_next  # Eq. (13)
+            self.defects_try[j] = 0.0
+        else:
+            linear_step(self.F[k], self.dx, self.du, self.defects[j], self.step)  # Eq. (12)
+            self.integrate_into(self.xs[j], self.step, self.xs_try[j])
+            self.difference_into(self.xs_try[j], x_next, self.defects_try[j])
+        if j < self.horizon:
+            self.rollout_policy(j, alpha)
+
     def transport_stacked(
         self, x_nominal: np.ndarray, y: np.ndarray, Fx: np.ndarray, Fu: np.ndarray, out: np.ndarray
     ) -> None:
         """``out = ∂(y ⊖ x̄)/∂y @ [Fx | Fu]``: the knot's ``[A | B]`` (the identity map without a defect)."""
-        if self.euclidean or same_point(x_nominal, y):
+        if self.state_kernel != STATE_PYTHON:
+            state_transport_stacked(self.state_kernel, x_nominal, y, Fx, Fu, out)
+        elif same_point(x_nominal, y):
             stack_columns(Fx, Fu, out)
         else:
             self.state.difference_jacobian_product_stacked(x_nominal, y, Fx, Fu, out)
