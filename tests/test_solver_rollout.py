@@ -24,6 +24,7 @@ from cafe_mpc.core.interfaces import (
     MultiPhaseProblem,
     Phase,
 )
+from cafe_mpc.dynamics.multibody_state import MultibodyState
 from cafe_mpc.dynamics.srb import SRBState
 from cafe_mpc.dynamics.state_kernels import state_difference, state_integrate, state_transport_stacked
 from cafe_mpc.ocp.knots import SRBModelFactory, WholeBodyModelFactory, weight_split_forces
@@ -136,13 +137,32 @@ def test_state_kernels_equal_the_manifold_methods(robot) -> None:
                 assert np.array_equal(stacked, plain) == same
 
 
-def test_a_subclass_of_the_euclidean_state_uses_its_own_methods() -> None:
+def test_a_subclass_that_overrides_an_operation_uses_its_own_methods(robot) -> None:
+    """A manifold's compiled kernel stands for its own operations only: a subclass that overrides one of
+    them (angle wrapping, say) is rolled out through its methods, one that does not keeps the kernel."""
+
     class Wrapped(EuclideanState):
         def difference(self, x0: np.ndarray, x1: np.ndarray) -> np.ndarray:
             return np.mod(x1 - x0 + np.pi, 2 * np.pi) - np.pi
 
+    class Named(EuclideanState):
+        label = "plain"
+
+    class Shifted(MultibodyState):
+        def integrate_into(self, x: np.ndarray, dx: np.ndarray, out: np.ndarray) -> None:
+            super().integrate_into(x, dx, out)
+
+    class Logged(SRBState):
+        def integrate(self, x: np.ndarray, dx: np.ndarray) -> np.ndarray:
+            return super().integrate(x, dx)
+
     assert EuclideanState(2).kernel == STATE_EUCLIDEAN
     assert Wrapped(2).kernel == STATE_PYTHON
+    assert Named(2).kernel == STATE_EUCLIDEAN
+    assert MultibodyState(robot.model).kernel == STATE_FREE_FLYER
+    assert Shifted(robot.model).kernel == STATE_PYTHON
+    assert SRBState().kernel == STATE_SRB
+    assert Logged().kernel == STATE_PYTHON
 
 
 @pytest.mark.parametrize("rows", [1, 4, 7, 12, 36])

@@ -51,7 +51,8 @@ class StateManifold(ABC):
     ``kernel`` names the compiled ``integrate``/``difference`` that equal this manifold's methods bit for bit
     (``STATE_EUCLIDEAN``, ...; ``dynamics.state_kernels`` dispatches on it), so that the solver's forward
     roll-out can run them inside its own compiled calls; ``STATE_PYTHON`` (the default): none, the methods
-    are called. A subclass that overrides ``integrate``/``difference`` must set it back to ``STATE_PYTHON``.
+    are called. A manifold sets it with ``own_operations`` so that a subclass overriding ``integrate``,
+    ``difference`` or their ``_into`` forms falls back to ``STATE_PYTHON`` by itself.
     """
 
     nx: int
@@ -110,6 +111,17 @@ class StateManifold(ABC):
         np.matmul(self.jacobian_difference(x0, x1)[1], matrix, out=out)
 
 
+STATE_OPERATIONS = ("integrate", "difference", "integrate_into", "difference_into")
+"""The operations a compiled ``StateManifold.kernel`` stands for."""
+
+
+def own_operations(manifold: StateManifold, owner: type) -> bool:
+    """Whether ``manifold``'s ``STATE_OPERATIONS`` are ``owner``'s own (no subclass overrides one), i.e.
+    whether the compiled kernel written for ``owner`` computes them."""
+    cls = type(manifold)
+    return all(getattr(cls, name, None) is getattr(owner, name, None) for name in STATE_OPERATIONS)
+
+
 class EuclideanState(StateManifold):
     """``R^n`` with ``integrate = +`` and ``difference = -``."""
 
@@ -119,7 +131,7 @@ class EuclideanState(StateManifold):
         self.nx = n
         self.ndx = n
         # a subclass may override difference/integrate (e.g. angle wrapping)
-        self.kernel = STATE_EUCLIDEAN if type(self) is EuclideanState else STATE_PYTHON
+        self.kernel = STATE_EUCLIDEAN if own_operations(self, EuclideanState) else STATE_PYTHON
         self._eye = np.eye(n)
 
     def zero(self) -> np.ndarray:

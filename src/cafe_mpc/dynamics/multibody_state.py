@@ -18,7 +18,7 @@ from __future__ import annotations
 import numpy as np
 import pinocchio as pin
 
-from cafe_mpc.core.interfaces import STATE_FREE_FLYER, STATE_PYTHON, StateManifold
+from cafe_mpc.core.interfaces import STATE_FREE_FLYER, STATE_PYTHON, StateManifold, own_operations
 from cafe_mpc.core.kernels import stack_columns_left_multiplied
 from cafe_mpc.dynamics.kernels import (
     free_flyer_difference_jacobian,
@@ -59,7 +59,8 @@ class MultibodyState(StateManifold):
             and all(joint.nq == joint.nv for joint in model.joints[2:])
         )
         """A free flyer at the root and vector-space joints after it: the compiled operations apply."""
-        self.kernel = STATE_FREE_FLYER if self.free_flyer_root else STATE_PYTHON
+        compiled = self.free_flyer_root and own_operations(self, MultibodyState)
+        self.kernel = STATE_FREE_FLYER if compiled else STATE_PYTHON
 
     def zero(self) -> np.ndarray:
         return np.concatenate([pin.neutral(self.model), np.zeros(self.nv)])

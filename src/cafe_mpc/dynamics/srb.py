@@ -31,7 +31,7 @@ import numpy as np
 import pinocchio as pin
 
 from cafe_mpc.core.contacts import N_FEET
-from cafe_mpc.core.interfaces import STATE_SRB, StateManifold
+from cafe_mpc.core.interfaces import STATE_PYTHON, STATE_SRB, StateManifold, own_operations
 from cafe_mpc.core.physics import GRAVITY
 from cafe_mpc.dynamics.srb_kernels import (
     srb_difference,
@@ -67,7 +67,9 @@ class SRBState(StateManifold):
 
     nx = 13
     ndx = 12
-    kernel = STATE_SRB
+
+    def __init__(self) -> None:
+        self.kernel = STATE_SRB if own_operations(self, SRBState) else STATE_PYTHON
 
     def zero(self) -> np.ndarray:
         x = np.zeros(13)
