@@ -227,6 +227,55 @@ def test_a_result_that_borrows_the_policy_has_the_same_policy_until_the_next_sol
     assert changed
 
 
+TRAJECTORY_FIELDS = ("xs", "us", "defects", "rollout_knots", "switching_value", "multiplier", "forces")
+
+
+def _trajectory_arrays(result) -> list[np.ndarray]:
+    return [
+        getattr(phase, name)
+        for phase in result.phases
+        for name in TRAJECTORY_FIELDS
+        if getattr(phase, name) is not None
+    ]
+
+
+def test_lent_results_are_the_owning_ones_and_never_change_while_held() -> None:
+    """``lend_results=True`` (the MPC's updates): the results of ``solve`` and ``feedback`` equal an owning
+    solver's bit for bit, share no memory with the workspace, stay unchanged through later solves and
+    feedbacks while they are held, and their buffers are reused once they are dropped. The default
+    results own their arrays (no base array)."""
+    first_x0, second_x0 = np.array([0.3, -0.5]), np.array([-0.4, 0.2])
+    owner = MSiLQRSolver(SolverOptions(max_iterations=5))
+    lender = MSiLQRSolver(SolverOptions(max_iterations=5, lend_results=True))
+    owned = owner.solve(two_phase_pendulum(first_x0))
+    lent = lender.solve(two_phase_pendulum(first_x0))
+    assert all(array.base is None for array in _trajectory_arrays(owned))
+    workspace_arrays = [
+        getattr(work, name)
+        for work in lender.workspace.phases
+        for name in ("xs", "xs_try", "us", "us_try", "defects", "defects_try", "rollout", "multiplier")
+    ]
+    for mine, theirs in zip(_trajectory_arrays(lent), _trajectory_arrays(owned), strict=True):
+        np.testing.assert_array_equal(mine, theirs)
+        assert mine.base is not None  # rows of a lent buffer
+        assert not any(np.shares_memory(mine, work) for work in workspace_arrays)
+    embedded_x0 = first_x0 + np.array([0.01, -0.02])
+    owned_feedback = owner.feedback(owned, embedded_x0, feedforward=0.5)
+    lent_feedback = lender.feedback(lent, embedded_x0, feedforward=0.5)
+    for mine, theirs in zip(lent_feedback.phases, owned_feedback.phases, strict=True):
+        for name in ("xs", "us", "k", "Qu"):
+            np.testing.assert_array_equal(getattr(mine, name), getattr(theirs, name), err_msg=name)
+    held = [array.copy() for array in _trajectory_arrays(lent) + _trajectory_arrays(lent_feedback)]
+    later = lender.solve(two_phase_pendulum(second_x0))
+    lender.feedback(later, second_x0, feedforward=1.0)
+    for array, before in zip(_trajectory_arrays(lent) + _trajectory_arrays(lent_feedback), held, strict=True):
+        np.testing.assert_array_equal(array, before)
+    buffers = {id(array.base) for array in _trajectory_arrays(lent)}
+    del lent, lent_feedback, later, array, mine, theirs  # nothing refers to the lent rows any more
+    again = lender.solve(two_phase_pendulum(second_x0))
+    assert {id(array.base) for array in _trajectory_arrays(again)} <= buffers
+
+
 def random_rotation(rng: np.random.Generator, scale: float) -> np.ndarray:
     return pin.exp3(scale * rng.standard_normal(3))
 
