@@ -347,6 +347,33 @@ def test_workspace_is_reused_and_warm_start_is_cheap() -> None:
     assert np.any(solver.workspace.phases[0].xs != 0.0)
 
 
+def _bounce(n_flight: int, n_rebound: int) -> MultiPhaseProblem:
+    flight = Phase([PointMassFlight(0.02)] * n_flight, PointMassFlight(None), name="flight")
+    flight.switching_constraint = TouchdownConstraint()
+    flight.reset_map = BounceReset(restitution=0.7)
+    rebound = Phase(
+        [PointMassFlight(0.02)] * n_rebound, PointMassFlight(None, target_height=0.4), name="rebound"
+    )
+    return MultiPhaseProblem(x0=np.array([1.0, 0.0]), phases=[flight, rebound])
+
+
+def test_a_workspace_serving_phases_of_changing_shapes_solves_as_a_new_one() -> None:
+    """Phase workspaces move between phases of other lengths, with and without a reset map and a switching
+    constraint (their views of each length and their arrays of each shape are kept, holding the values of
+    an earlier phase): every solve equals a new solver's, bit for bit."""
+    options = SolverOptions(max_iterations=6, max_al_iterations=2)
+    solver = MSiLQRSolver(options)
+    names = ("xs", "us", "K", "k", "Qu", "Quu", "Qux", "S", "s", "defects", "multiplier", "switching_value")
+    for lengths in ((20, 20), (10, 30), (30, 10), (20, 20), (10, 30), (30, 10)):
+        mine = solver.solve(_bounce(*lengths))
+        new = MSiLQRSolver(options).solve(_bounce(*lengths))
+        assert mine.cost == new.cost and mine.statistics.iterations == new.statistics.iterations
+        for a, b in zip(mine.phases, new.phases, strict=True):
+            for name in names:
+                if getattr(b, name) is not None:
+                    np.testing.assert_array_equal(getattr(a, name), getattr(b, name), err_msg=name)
+
+
 def test_time_budget_and_options_are_respected() -> None:
     problem = pendulum_problem(np.array([0.0, 0.0]), horizon=60)
     result = MSiLQRSolver(SolverOptions(max_iterations=3, max_al_iterations=1)).solve(problem)
