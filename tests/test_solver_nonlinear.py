@@ -9,6 +9,7 @@ import pytest
 from cafe_mpc.core.interfaces import ActionModel, MultiPhaseProblem, Phase
 from cafe_mpc.ocp.barrier import RelaxedBarrier
 from cafe_mpc.solver import MSiLQRSolver, SolverOptions, evaluate_trajectory
+from cafe_mpc.solver.workspace import Workspace
 from toy_models import (
     BounceReset,
     OrientationVelocityState,
@@ -372,6 +373,22 @@ def test_a_workspace_serving_phases_of_changing_shapes_solves_as_a_new_one() -> 
             for name in names:
                 if getattr(b, name) is not None:
                     np.testing.assert_array_equal(getattr(a, name), getattr(b, name), err_msg=name)
+
+
+def test_data_pool_gives_one_data_per_occurrence_and_the_same_ones_again() -> None:
+    """A model object used several times in a problem gets one data object per occurrence; a later problem
+    with the same objects (in another order of phases) gets the same data objects back, none new."""
+    workspace = Workspace()
+    shared = PendulumModel(0.05, target=1.0)
+    terminal = PendulumModel(None, target=1.0, terminal_weight=1.0)
+    long_phase, short_phase = Phase([shared] * 6, terminal), Phase([shared] * 3, terminal)
+    workspace.setup(MultiPhaseProblem(x0=np.zeros(2), phases=[long_phase]))
+    first = [id(data) for data in workspace.phases[0].running_data]
+    assert len(set(first)) == 6
+    workspace.setup(MultiPhaseProblem(x0=np.zeros(2), phases=[short_phase]))
+    assert [id(data) for data in workspace.phases[0].running_data] == first[:3]
+    workspace.setup(MultiPhaseProblem(x0=np.zeros(2), phases=[long_phase]))
+    assert [id(data) for data in workspace.phases[0].running_data] == first
 
 
 def test_time_budget_and_options_are_respected() -> None:

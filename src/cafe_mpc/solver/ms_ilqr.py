@@ -529,7 +529,7 @@ class MSiLQRSolver:
     @staticmethod
     def _sum_defects(workspace: Workspace, totals: _Totals, trial: bool) -> None:
         for work in workspace.phases:
-            magnitudes = np.abs(work.defects_try if trial else work.defects)
+            magnitudes = np.abs(work.defects_try if trial else work.defects, out=work.magnitudes)
             if magnitudes.size:
                 totals.defect_l1 += float(magnitudes.sum())
                 totals.defect_max = max(totals.defect_max, float(magnitudes.max()))
@@ -632,7 +632,9 @@ class MSiLQRSolver:
             if work.constraint is not None:
                 jacobian = work.constraint_data.Hx
                 s_end += jacobian.T @ (work.multiplier + work.penalty * work.switching_value)
-                S_end += work.penalty * (jacobian.T @ jacobian)
+                product = np.matmul(jacobian.T, jacobian, out=work.kept("switching Hessian", S_end.shape))
+                product *= work.penalty
+                S_end += product
             if following is not None:
                 # Eq. (16): value function across the reset map (second-order term of (16c) dropped).
                 S0, s0 = following.S[0], following.s[0]
@@ -645,7 +647,8 @@ class MSiLQRSolver:
                     constant += float(s0 @ defect) + 0.5 * float(defect @ S_defect)
                 P = work.reset_jacobian
                 s_end += P.T @ s_hat
-                S_end += P.T @ (S0 @ P)
+                S0_P = np.matmul(S0, P, out=work.kept("S0 P", P.shape))
+                S_end += np.matmul(P.T, S0_P, out=work.kept("P' S0 P", S_end.shape))
             status = backward_phase(
                 S,
                 s,
@@ -877,7 +880,7 @@ class MSiLQRSolver:
             if keep_value_function:
                 S, s = work.S.copy(), work.s.copy()
             else:
-                S, s = np.empty((0, work.ndx, work.ndx)), np.empty((0, work.ndx))
+                S, s = work.no_value_function
             phases.append(
                 PhaseSolution(
                     xs=_copy(work.xs, arrays, ("xs", i)),

@@ -56,6 +56,7 @@ class _Buffers:
         self.xs_try = np.zeros((n + 1, nx))
         self.us_try = np.zeros((n, nu))
         self.defects_try = np.zeros((n + 1, ndx))
+        self.magnitudes = np.zeros((n + 1, ndx))  # |defects| (scratch of the defect norms)
         self.rollout = np.zeros(n + 1, dtype=bool)
         self.all_rollout = np.ones(n + 1, dtype=bool)
         # Stacked over [x | u]: F = [A | B], G = [Lx | Lu], H = [[Lxx, .], [Lux, Luu]] (views below).
@@ -106,7 +107,7 @@ class _Buffers:
         return views
 
 
-_STATE_ROWS = ("xs", "defects", "xs_try", "defects_try", "rollout", "all_rollout", "S", "s")
+_STATE_ROWS = ("xs", "defects", "xs_try", "defects_try", "magnitudes", "rollout", "all_rollout", "S", "s")
 """The ``_Buffers`` arrays with a row per state (``N + 1``)."""
 _CONTROL_ROWS = ("us", "us_try", "F", "G", "H", "K", "k", "Qu", "Quu", "Qux")
 """The ``_Buffers`` arrays with a row per running knot (``N``)."""
@@ -137,6 +138,10 @@ class PhaseWorkspace:
         self.du = np.zeros(nu)
         self.step = np.zeros(ndx)
         self.dx_end = np.zeros(ndx)
+        # the value function of a result without one (``keep_value_function=False``): empty, read-only
+        self.no_value_function = (np.empty((0, ndx, ndx)), np.empty((0, ndx)))
+        for empty in self.no_value_function:
+            empty.flags.writeable = False
         self.phase: Phase | None = None
         self.horizon = 0
         self._by_shape: dict[tuple[str, tuple[int, ...]], np.ndarray] = {}
@@ -184,18 +189,19 @@ class PhaseWorkspace:
                 data.hessian = hessian
         ndx_next = self.reset_map.next_state.ndx if self.reset_map is not None else 0
         if getattr(self, "reset_jacobian", None) is None or self.reset_jacobian.shape != (ndx_next, self.ndx):
-            self.reset_jacobian = self._kept("reset_jacobian", (ndx_next, self.ndx))
+            self.reset_jacobian = self.kept("reset_jacobian", (ndx_next, self.ndx))
         dim = self.constraint.dim if self.constraint is not None else 0
         if getattr(self, "multiplier", None) is None or self.multiplier.shape != (dim,):
-            self.switching_value = self._kept("switching_value", (dim,))
-            self.switching_value_try = self._kept("switching_value_try", (dim,))
-            self.multiplier = self._kept("multiplier", (dim,))
+            self.switching_value = self.kept("switching_value", (dim,))
+            self.switching_value_try = self.kept("switching_value_try", (dim,))
+            self.multiplier = self.kept("multiplier", (dim,))
         self.penalty = 0.0
 
-    def _kept(self, name: str, shape: tuple[int, ...]) -> np.ndarray:
+    def kept(self, name: str, shape: tuple[int, ...]) -> np.ndarray:
         """The array ``name`` of this shape, kept from an earlier phase of the same dimensions (zeros when
-        new). Each solve writes these before it reads them (the reset Jacobian in the linearisation, the
-        switching values in the evaluation, the multipliers in the set-up)."""
+        new; no allocation once seen). Each solve writes these before it reads them (the reset Jacobian in
+        the linearisation, the switching values in the evaluation, the multipliers in the set-up, the
+        backward sweep's scratch where it uses it)."""
         array = self._by_shape.get((name, shape))
         if array is None:
             array = np.zeros(shape)
@@ -295,15 +301,22 @@ class _DataPool:
     def __init__(self) -> None:
         self._entries: dict[tuple[int, int], tuple[object, object, int]] = {}
         self._generation = 0
+        self._seen: dict[int, int] = {}
+        """Per owner (``id``), ``_base`` plus its occurrences so far in the current problem; a value from an
+        earlier problem (at most ``_base``) counts as none. Kept across problems (no dict made per set-up),
+        pruned with the entries."""
+        self._base = 0
 
     def start(self) -> None:
         self._generation += 1
-        self._seen: dict[int, int] = {}
+        self._base = self._generation << 32
 
     def get(self, owner, create):
         """The data of ``owner``'s next occurrence in the current problem (created on first use)."""
-        occurrence = self._seen.get(id(owner), 0)
-        self._seen[id(owner)] = occurrence + 1
+        base = self._base
+        mark = self._seen.get(id(owner), base)
+        occurrence = mark - base if mark > base else 0
+        self._seen[id(owner)] = base + occurrence + 1
         key = (id(owner), occurrence)
         entry = self._entries.get(key)
         data = create() if entry is None or entry[0] is not owner else entry[1]
@@ -319,6 +332,8 @@ class _DataPool:
             return
         ordered = sorted(self._entries.items(), key=lambda item: item[1][2], reverse=True)
         self._entries = dict(ordered[: limit // 2])
+        owners = {owner for owner, _ in self._entries}
+        self._seen = {owner: mark for owner, mark in self._seen.items() if owner in owners}
 
     def __len__(self) -> int:
         return len(self._entries)
