@@ -15,18 +15,14 @@ import numpy as np
 
 
 def unreferenced(arrays: dict) -> bool:
-    """Whether nothing outside the dict ``arrays`` (and its owner) refers to any of its arrays."""
-    return max(_reference_counts(arrays), default=_OWN_REFERENCES) <= _OWN_REFERENCES
+    """Whether nothing outside the dict ``arrays`` (and its owner) refers to any of its arrays (stops at the
+    first array that is referred to)."""
+    return all(sys.getrefcount(array) <= _OWN_REFERENCES for array in arrays.values())
 
 
-def _reference_counts(arrays: dict) -> list[int]:
-    """``sys.getrefcount`` of each array of ``arrays``."""
-    return [sys.getrefcount(array) for array in arrays.values()]
-
-
-_OWN_REFERENCES = _reference_counts({"probe": np.empty(0)})[0]
-"""What ``_reference_counts`` gives for an array that only its dict holds (the count includes the
-comprehension's variable and the call's argument; measured, not assumed, as the interpreter decides them)."""
+_OWN_REFERENCES = next(sys.getrefcount(array) for array in {"probe": np.empty(0)}.values())
+"""What ``unreferenced`` sees for an array that only its dict holds (the count includes the generator's
+variable and the call's argument; measured in the same form, not assumed, as the interpreter decides it)."""
 
 
 class ArraySet:
@@ -44,7 +40,7 @@ class ArraySet:
     ) -> np.ndarray:
         """The first ``rows`` rows of the buffer ``key`` (rows of ``shape`` and ``dtype``, uninitialised):
         grown (replaced, at least 8 rows) when shorter; the key includes the row shape and type."""
-        full_key = (*key, shape, np.dtype(dtype).str)
+        full_key = (*key, shape, dtype)
         buffer = self._arrays.get(full_key)
         if buffer is None or len(buffer) < rows:
             buffer = np.empty((max(rows, 8), *shape), dtype=dtype)

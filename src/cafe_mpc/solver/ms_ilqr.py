@@ -115,6 +115,8 @@ class MSiLQRSolver:
         self._sums = np.zeros(4)  # sums of the compiled backward sweep (``backward_phase``)
         self._lender = ArrayLender()
         """The buffers of the results' trajectories (``SolverOptions.lend_results``)."""
+        self._feedback_lender = ArrayLender()
+        """The buffers of the feedbacks' trajectories (``SolverOptions.lend_results``)."""
 
     # ---------------------------------------------------------------------------------------------- public
     def solve(
@@ -306,7 +308,7 @@ class MSiLQRSolver:
             raise ValueError(f"x0 has shape {x0.shape}, the first phase's state needs ({first.nx},)")
         a = float(feedforward)
         nonlinear = rollout == "nonlinear"
-        arrays = self._lender.take() if self.options.lend_results else None
+        arrays = self._feedback_lender.take() if self.options.lend_results else None
         phases = []
         dx = first.difference(prepared.phases[0].xs[0], x0)
         previous: PhaseWorkspace | None = None
