@@ -9,6 +9,7 @@ import pytest
 from cafe_mpc.core.interfaces import ActionModel, MultiPhaseProblem, Phase
 from cafe_mpc.ocp.barrier import RelaxedBarrier
 from cafe_mpc.solver import MSiLQRSolver, SolverOptions, evaluate_trajectory
+from cafe_mpc.solver.workspace import Workspace
 from toy_models import (
     BounceReset,
     OrientationVelocityState,
@@ -227,6 +228,55 @@ def test_a_result_that_borrows_the_policy_has_the_same_policy_until_the_next_sol
     assert changed
 
 
+TRAJECTORY_FIELDS = ("xs", "us", "defects", "rollout_knots", "switching_value", "multiplier", "forces")
+
+
+def _trajectory_arrays(result) -> list[np.ndarray]:
+    return [
+        getattr(phase, name)
+        for phase in result.phases
+        for name in TRAJECTORY_FIELDS
+        if getattr(phase, name) is not None
+    ]
+
+
+def test_lent_results_are_the_owning_ones_and_never_change_while_held() -> None:
+    """``lend_results=True`` (the MPC's updates): the results of ``solve`` and ``feedback`` equal an owning
+    solver's bit for bit, share no memory with the workspace, stay unchanged through later solves and
+    feedbacks while they are held, and their buffers are reused once they are dropped. The default
+    results own their arrays (no base array)."""
+    first_x0, second_x0 = np.array([0.3, -0.5]), np.array([-0.4, 0.2])
+    owner = MSiLQRSolver(SolverOptions(max_iterations=5))
+    lender = MSiLQRSolver(SolverOptions(max_iterations=5, lend_results=True))
+    owned = owner.solve(two_phase_pendulum(first_x0))
+    lent = lender.solve(two_phase_pendulum(first_x0))
+    assert all(array.base is None for array in _trajectory_arrays(owned))
+    workspace_arrays = [
+        getattr(work, name)
+        for work in lender.workspace.phases
+        for name in ("xs", "xs_try", "us", "us_try", "defects", "defects_try", "rollout", "multiplier")
+    ]
+    for mine, theirs in zip(_trajectory_arrays(lent), _trajectory_arrays(owned), strict=True):
+        np.testing.assert_array_equal(mine, theirs)
+        assert mine.base is not None  # rows of a lent buffer
+        assert not any(np.shares_memory(mine, work) for work in workspace_arrays)
+    embedded_x0 = first_x0 + np.array([0.01, -0.02])
+    owned_feedback = owner.feedback(owned, embedded_x0, feedforward=0.5)
+    lent_feedback = lender.feedback(lent, embedded_x0, feedforward=0.5)
+    for mine, theirs in zip(lent_feedback.phases, owned_feedback.phases, strict=True):
+        for name in ("xs", "us", "k", "Qu"):
+            np.testing.assert_array_equal(getattr(mine, name), getattr(theirs, name), err_msg=name)
+    held = [array.copy() for array in _trajectory_arrays(lent) + _trajectory_arrays(lent_feedback)]
+    later = lender.solve(two_phase_pendulum(second_x0))
+    lender.feedback(later, second_x0, feedforward=1.0)
+    for array, before in zip(_trajectory_arrays(lent) + _trajectory_arrays(lent_feedback), held, strict=True):
+        np.testing.assert_array_equal(array, before)
+    buffers = {id(array.base) for array in _trajectory_arrays(lent)}
+    del lent, lent_feedback, later, array, mine, theirs  # nothing refers to the lent rows any more
+    again = lender.solve(two_phase_pendulum(second_x0))
+    assert {id(array.base) for array in _trajectory_arrays(again)} <= buffers
+
+
 def random_rotation(rng: np.random.Generator, scale: float) -> np.ndarray:
     return pin.exp3(scale * rng.standard_normal(3))
 
@@ -296,6 +346,49 @@ def test_workspace_is_reused_and_warm_start_is_cheap() -> None:
     # A result never aliases the workspace.
     second.xs[0][:] = 0.0
     assert np.any(solver.workspace.phases[0].xs != 0.0)
+
+
+def _bounce(n_flight: int, n_rebound: int) -> MultiPhaseProblem:
+    flight = Phase([PointMassFlight(0.02)] * n_flight, PointMassFlight(None), name="flight")
+    flight.switching_constraint = TouchdownConstraint()
+    flight.reset_map = BounceReset(restitution=0.7)
+    rebound = Phase(
+        [PointMassFlight(0.02)] * n_rebound, PointMassFlight(None, target_height=0.4), name="rebound"
+    )
+    return MultiPhaseProblem(x0=np.array([1.0, 0.0]), phases=[flight, rebound])
+
+
+def test_a_workspace_serving_phases_of_changing_shapes_solves_as_a_new_one() -> None:
+    """Phase workspaces move between phases of other lengths, with and without a reset map and a switching
+    constraint (their views of each length and their arrays of each shape are kept, holding the values of
+    an earlier phase): every solve equals a new solver's, bit for bit."""
+    options = SolverOptions(max_iterations=6, max_al_iterations=2)
+    solver = MSiLQRSolver(options)
+    names = ("xs", "us", "K", "k", "Qu", "Quu", "Qux", "S", "s", "defects", "multiplier", "switching_value")
+    for lengths in ((20, 20), (10, 30), (30, 10), (20, 20), (10, 30), (30, 10)):
+        mine = solver.solve(_bounce(*lengths))
+        new = MSiLQRSolver(options).solve(_bounce(*lengths))
+        assert mine.cost == new.cost and mine.statistics.iterations == new.statistics.iterations
+        for a, b in zip(mine.phases, new.phases, strict=True):
+            for name in names:
+                if getattr(b, name) is not None:
+                    np.testing.assert_array_equal(getattr(a, name), getattr(b, name), err_msg=name)
+
+
+def test_data_pool_gives_one_data_per_occurrence_and_the_same_ones_again() -> None:
+    """A model object used several times in a problem gets one data object per occurrence; a later problem
+    with the same objects (in another order of phases) gets the same data objects back, none new."""
+    workspace = Workspace()
+    shared = PendulumModel(0.05, target=1.0)
+    terminal = PendulumModel(None, target=1.0, terminal_weight=1.0)
+    long_phase, short_phase = Phase([shared] * 6, terminal), Phase([shared] * 3, terminal)
+    workspace.setup(MultiPhaseProblem(x0=np.zeros(2), phases=[long_phase]))
+    first = [id(data) for data in workspace.phases[0].running_data]
+    assert len(set(first)) == 6
+    workspace.setup(MultiPhaseProblem(x0=np.zeros(2), phases=[short_phase]))
+    assert [id(data) for data in workspace.phases[0].running_data] == first[:3]
+    workspace.setup(MultiPhaseProblem(x0=np.zeros(2), phases=[long_phase]))
+    assert [id(data) for data in workspace.phases[0].running_data] == first
 
 
 def test_time_budget_and_options_are_respected() -> None:

@@ -10,6 +10,7 @@ import pytest
 from cafe_mpc.bench.problems import TROT_CYCLE, whole_body_problem
 from cafe_mpc.config import MpcSettings, VelocityCommand
 from cafe_mpc.control.mpc_loop import CafeMpcController
+from cafe_mpc.core.buffers import ArrayLender
 from cafe_mpc.core.plan import PLAN_FIELDS, Plan, PlanBuffers
 from cafe_mpc.mpc import collector
 from cafe_mpc.mpc.problem import CafeProblemBuilder, ModelSchedule
@@ -87,6 +88,32 @@ def test_plan_buffers_lend_only_arrays_no_plan_uses() -> None:
     assert buffers.kept == 2
 
 
+def test_array_lender_lends_only_sets_nothing_refers_to() -> None:
+    """A set of buffers is lent again once no row view of it is alive; a short buffer grows; past the
+    capacity, sets are new and not kept."""
+    lender = ArrayLender(capacity=2)
+    first = lender.take()
+    rows = first.rows(("xs", 0), 3, (5,))
+    assert rows.shape == (3, 5) and rows.base.shape == (8, 5)
+    flags = first.rows(("rollout", 0), 4, (), bool)
+    assert flags.dtype == bool
+    second = lender.take()  # ``rows`` and ``flags`` keep the first set busy
+    other = second.rows(("xs", 0), 3, (5,))
+    assert not np.shares_memory(other, rows)
+    beyond = lender.take().rows(("xs", 0), 3, (5,))  # two sets busy: a new one, not kept
+    assert lender.kept == 2 and not np.shares_memory(beyond, rows) and not np.shares_memory(beyond, other)
+    buffer = rows.base
+    del rows
+    assert not np.shares_memory(lender.take().rows(("xs", 0), 3, (5,)), buffer)  # ``flags`` still held
+    address = buffer.__array_interface__["data"][0]
+    del flags, buffer
+    reused = lender.take().rows(("xs", 0), 3, (5,))
+    assert reused.__array_interface__["data"][0] == address  # the first set again
+    del reused
+    grown = lender.take().rows(("xs", 0), 20, (5,))
+    assert grown.shape == (20, 5) and grown.__array_interface__["data"][0] != address
+
+
 class _CheckingRiccati(RiccatiController):
     """Keeps a copy of the arrays of each plan it is given (not the plan: it holds the one in effect only,
     as a low level does); each tick, the plan must still equal its copy."""
@@ -110,7 +137,9 @@ class _CheckingRiccati(RiccatiController):
         return torques
 
 
-def _closed_loop_with_plan_buffers(robot, capacity: int) -> _CheckingRiccati:
+def _trot_loop(robot) -> tuple[CafeMpcController, _CheckingRiccati]:
+    """A trotting real-time-iteration loop whose plans are in flight for 2.5 periods and read by the delay
+    predictor (``predict``), its low level checking that no plan changes while in use."""
     reference = LocomotionReference(robot, get_gait("trot"), [VelocityCommand(start=0.0, vx=0.4)])
     low_level = _CheckingRiccati(robot)
     controller = CafeMpcController(
@@ -123,6 +152,11 @@ def _closed_loop_with_plan_buffers(robot, capacity: int) -> _CheckingRiccati:
         # plans in flight for 2.5 periods, read by the delay predictor too
         MpcSettings(period=0.02, latency="fixed", fixed_latency=0.05, scheme="rti", delay_compensation=True),
     )
+    return controller, low_level
+
+
+def _closed_loop_with_plan_buffers(robot, capacity: int) -> _CheckingRiccati:
+    controller, low_level = _trot_loop(robot)
     controller.mpc.plan_buffers = PlanBuffers(capacity)
     simulate(robot, controller, 0.3)
     assert controller.mpc.plan_buffers.kept <= capacity
@@ -140,6 +174,52 @@ def test_reused_plan_arrays_never_change_a_plan_in_use(robot) -> None:
         for name in PLAN_FIELDS:
             np.testing.assert_array_equal(a[name], b[name])
     np.testing.assert_array_equal(np.array(reused.torques), np.array(fresh.torques))
+
+
+def _closed_loop_with_lent_results(robot, lend: bool) -> tuple[_CheckingRiccati, int]:
+    """The trot loop with the solvers' results lent (``SolverOptions.lend_results``) or new; before and
+    after every call to the MPC, the solution it keeps (``previous``: read by ``predict`` and by the next
+    warm start) must equal what it was when it was made. Returns the low level and the number of checks."""
+    controller, low_level = _trot_loop(robot)
+    mpc = controller.mpc
+    for solver in (mpc.solver, mpc.prepare_solver):
+        solver.options.lend_results = lend
+    kept: list[list[np.ndarray]] = []
+    checks = [0]
+
+    def snapshot() -> list[np.ndarray]:
+        _, result = mpc.previous
+        return [getattr(phase, name).copy() for phase in result.phases for name in ("xs", "us")]
+
+    def checked(method):
+        def call(t, q, v):
+            if kept:
+                for array, before in zip(snapshot(), kept[-1], strict=True):
+                    np.testing.assert_array_equal(array, before, err_msg=f"kept solution at t = {t}")
+                checks[0] += 1
+            outcome = method(t, q, v)
+            kept.append(snapshot())
+            return outcome
+
+        return call
+
+    for name in ("update", "prepare", "feedback"):
+        setattr(mpc, name, checked(getattr(mpc, name)))
+    simulate(robot, controller, 0.3)
+    return low_level, checks[0]
+
+
+def test_lent_solver_results_never_change_a_solution_in_use(robot) -> None:
+    """Closed loop with the MPC's solver results lent: the solution the MPC keeps never changes while it is
+    kept, and the run equals the one with new result arrays, plan for plan and torque for torque."""
+    lent, lent_checks = _closed_loop_with_lent_results(robot, lend=True)
+    new, new_checks = _closed_loop_with_lent_results(robot, lend=False)
+    assert lent_checks == new_checks >= 20
+    assert len(lent.copies) == len(new.copies) >= 10
+    for a, b in zip(lent.copies, new.copies, strict=True):
+        for name in PLAN_FIELDS:
+            np.testing.assert_array_equal(a[name], b[name])
+    np.testing.assert_array_equal(np.array(lent.torques), np.array(new.torques))
 
 
 @pytest.mark.parametrize("field", ["state", "torque", "forces", "foot_positions", "foot_velocities"])

@@ -14,11 +14,11 @@ never lends arrays a published plan still uses.
 from __future__ import annotations
 
 import copy
-import sys
 from dataclasses import dataclass
 
 import numpy as np
 
+from cafe_mpc.core.buffers import unreferenced
 from cafe_mpc.core.kernels import all_finite
 
 PLAN_FIELDS = ("times", "xs", "us", "K", "Qu", "Quu", "Qux", "contacts", "forces", "dt")
@@ -120,12 +120,12 @@ class PlanBuffers:
 
     A published plan may be followed by the low level, wait in flight (the latency), be read by the delay
     predictor, or be kept by any consumer for as long as it likes: its arrays must never change. A set of
-    arrays is therefore lent again only when nothing but this object refers to any of its arrays (CPython's
-    reference counts: a plan made of them, one of the arrays or a view of one held anywhere keeps the set
-    busy). The MPC loop keeps three sets busy with a latency up to a period (the plan in effect, the one in
-    flight, the prepared one), one more per further period of latency. With ``capacity`` sets busy, ``take``
-    returns new arrays that are not kept (a consumer that keeps every plan gets fresh ones, as without
-    buffers).
+    arrays is therefore lent again only when nothing but this object refers to any of its arrays
+    (``core.buffers.unreferenced``, CPython's reference counts: a plan made of them, one of the arrays or a
+    view of one held anywhere keeps the set busy). The MPC loop keeps three sets busy with a latency up to a
+    period (the plan in effect, the one in flight, the prepared one), one more per further period of
+    latency. With ``capacity`` sets busy, ``take`` returns new arrays that are not kept (a consumer that
+    keeps every plan gets fresh ones, as without buffers).
     """
 
     def __init__(self, capacity: int = 8) -> None:
@@ -156,19 +156,10 @@ class PlanBuffers:
         """How many sets of arrays are kept for reuse."""
         return len(self._sets)
 
-    def _free(self, arrays: dict[str, np.ndarray]) -> bool:
+    @staticmethod
+    def _free(arrays: dict[str, np.ndarray]) -> bool:
         """Whether nothing outside this object refers to any array of the set ``arrays``."""
-        return max(_reference_counts(arrays)) <= _OWN_REFERENCES
-
-
-def _reference_counts(arrays: dict[str, np.ndarray]) -> list[int]:
-    """``sys.getrefcount`` of each array of ``arrays``."""
-    return [sys.getrefcount(array) for array in arrays.values()]
-
-
-_OWN_REFERENCES = _reference_counts({"probe": np.empty(0)})[0]
-"""What ``_reference_counts`` gives for an array that only its dict holds (the count includes the
-comprehension's variable and the call's argument; measured, not assumed, as the interpreter decides them)."""
+        return unreferenced(arrays)
 
 
 def _plan_shapes(n: int, nx: int, nu: int, ndx: int, n_feet: int) -> dict[str, tuple[int, ...]]:

@@ -72,6 +72,7 @@ def update_solve_options(settings: MpcSettings) -> SolverOptions:
         threads=settings.threads,
         keep_value_function=False,  # the plan carries the policy and the Q-function pieces only
         copy_policy=False,  # the plan copies them; the feedback reads them before the next preparation
+        lend_results=True,  # the trajectories written into lent buffers, reused once no result holds them
     )
     if settings.touchdown_max_penalty is not None:
         options = replace(options, al_max_penalty=settings.touchdown_max_penalty)

@@ -51,6 +51,7 @@ from typing import Literal
 
 import numpy as np
 
+from cafe_mpc.core.buffers import ArrayLender, ArraySet
 from cafe_mpc.core.interfaces import STATE_PYTHON, MultiPhaseProblem
 from cafe_mpc.solver.kernels import (
     CHOLESKY_FAILED,
@@ -112,6 +113,10 @@ class MSiLQRSolver:
         self._expected_linear = 0.0
         self._expected_quadratic = 0.0
         self._sums = np.zeros(4)  # sums of the compiled backward sweep (``backward_phase``)
+        self._lender = ArrayLender()
+        """The buffers of the results' trajectories (``SolverOptions.lend_results``)."""
+        self._feedback_lender = ArrayLender()
+        """The buffers of the feedbacks' trajectories (``SolverOptions.lend_results``)."""
 
     # ---------------------------------------------------------------------------------------------- public
     def solve(
@@ -269,6 +274,7 @@ class MSiLQRSolver:
             policy_valid,
             options.keep_value_function,
             options.copy_policy,
+            self._lender.take() if options.lend_results else None,
         )
 
     def feedback(
@@ -302,15 +308,16 @@ class MSiLQRSolver:
             raise ValueError(f"x0 has shape {x0.shape}, the first phase's state needs ({first.nx},)")
         a = float(feedforward)
         nonlinear = rollout == "nonlinear"
+        arrays = self._feedback_lender.take() if self.options.lend_results else None
         phases = []
         dx = first.difference(prepared.phases[0].xs[0], x0)
         previous: PhaseWorkspace | None = None
         previous_x_end: np.ndarray | None = None
-        for work, solution in zip(workspace.phases, prepared.phases, strict=True):
+        for i, (work, solution) in enumerate(zip(workspace.phases, prepared.phases, strict=True)):
             xs, us, K, kff = solution.xs, solution.us, solution.K, solution.k
             n = len(us)
-            out_x = np.empty_like(xs)
-            out_u = np.empty_like(us)
+            out_x = _empty_like(xs, arrays, ("feedback xs", i))
+            out_u = _empty_like(us, arrays, ("feedback us", i))
             if previous is None:
                 out_x[0] = x0
             elif nonlinear:
@@ -330,7 +337,12 @@ class MSiLQRSolver:
                     out_x[k + 1] = data.x_next
                     dx = work.difference(xs[k + 1], out_x[k + 1])
             else:
-                dxs = np.empty((n + 1, dx.shape[0]))
+                ndx = dx.shape[0]
+                dxs = (
+                    np.empty((n + 1, ndx))
+                    if arrays is None
+                    else arrays.rows(("feedback dxs", i), n + 1, (ndx,))
+                )
                 linear_feedback_pass(dx, us, K, kff, work.A, work.B, solution.defects, a, dxs, out_u)
                 work.state.integrate_rows_into(xs[1:], dxs[1:], out_x[1:])
                 dx = dxs[-1]
@@ -338,9 +350,11 @@ class MSiLQRSolver:
             if a == 0.0:  # no step taken here: the feed-forward and Qu stay the prepared ones
                 phases.append(replace(solution, xs=out_x, us=out_u))
             else:
-                phases.append(
-                    replace(solution, xs=out_x, us=out_u, k=(1.0 - a) * kff, Qu=(1.0 - a) * solution.Qu)
-                )
+                out_k = _empty_like(kff, arrays, ("feedback k", i))
+                out_Qu = _empty_like(solution.Qu, arrays, ("feedback Qu", i))
+                np.multiply(1.0 - a, kff, out=out_k)
+                np.multiply(1.0 - a, solution.Qu, out=out_Qu)
+                phases.append(replace(solution, xs=out_x, us=out_u, k=out_k, Qu=out_Qu))
         return replace(prepared, phases=phases)
 
     def evaluate(
@@ -517,7 +531,7 @@ class MSiLQRSolver:
     @staticmethod
     def _sum_defects(workspace: Workspace, totals: _Totals, trial: bool) -> None:
         for work in workspace.phases:
-            magnitudes = np.abs(work.defects_try if trial else work.defects)
+            magnitudes = np.abs(work.defects_try if trial else work.defects, out=work.magnitudes)
             if magnitudes.size:
                 totals.defect_l1 += float(magnitudes.sum())
                 totals.defect_max = max(totals.defect_max, float(magnitudes.max()))
@@ -620,7 +634,9 @@ class MSiLQRSolver:
             if work.constraint is not None:
                 jacobian = work.constraint_data.Hx
                 s_end += jacobian.T @ (work.multiplier + work.penalty * work.switching_value)
-                S_end += work.penalty * (jacobian.T @ jacobian)
+                product = np.matmul(jacobian.T, jacobian, out=work.kept("switching Hessian", S_end.shape))
+                product *= work.penalty
+                S_end += product
             if following is not None:
                 # Eq. (16): value function across the reset map (second-order term of (16c) dropped).
                 S0, s0 = following.S[0], following.s[0]
@@ -633,7 +649,8 @@ class MSiLQRSolver:
                     constant += float(s0 @ defect) + 0.5 * float(defect @ S_defect)
                 P = work.reset_jacobian
                 s_end += P.T @ s_hat
-                S_end += P.T @ (S0 @ P)
+                S0_P = np.matmul(S0, P, out=work.kept("S0 P", P.shape))
+                S_end += np.matmul(P.T, S0_P, out=work.kept("P' S0 P", S_end.shape))
             status = backward_phase(
                 S,
                 s,
@@ -853,21 +870,23 @@ class MSiLQRSolver:
         policy_valid: bool,
         keep_value_function: bool = True,
         copy_policy: bool = True,
+        arrays: ArraySet | None = None,
     ) -> SolverResult:
         """The solution in the workspace as a result (``SolverOptions``: ``keep_value_function``,
-        ``copy_policy``: without it the policy arrays are the workspace's own)."""
+        ``copy_policy``: without it the policy arrays are the workspace's own; ``arrays``: the lent buffers
+        the trajectory is copied into, ``lend_results``)."""
         owned = np.copy if copy_policy else _same
         phases = []
-        for work in workspace.phases:
+        for i, work in enumerate(workspace.phases):
             has_constraint = work.constraint is not None
             if keep_value_function:
                 S, s = work.S.copy(), work.s.copy()
             else:
-                S, s = np.empty((0, work.ndx, work.ndx)), np.empty((0, work.ndx))
+                S, s = work.no_value_function
             phases.append(
                 PhaseSolution(
-                    xs=work.xs.copy(),
-                    us=work.us.copy(),
+                    xs=_copy(work.xs, arrays, ("xs", i)),
+                    us=_copy(work.us, arrays, ("us", i)),
                     K=owned(work.K),
                     k=owned(work.k),
                     Qu=owned(work.Qu),
@@ -875,13 +894,15 @@ class MSiLQRSolver:
                     Qux=owned(work.Qux),
                     S=S,
                     s=s,
-                    defects=work.defects.copy(),
-                    rollout_knots=work.rollout.copy(),
-                    switching_value=work.switching_value.copy() if has_constraint else None,
-                    multiplier=work.multiplier.copy() if has_constraint else None,
+                    defects=_copy(work.defects, arrays, ("defects", i)),
+                    rollout_knots=_copy(work.rollout, arrays, ("rollout", i)),
+                    switching_value=_copy(work.switching_value, arrays, ("switching", i))
+                    if has_constraint
+                    else None,
+                    multiplier=_copy(work.multiplier, arrays, ("multiplier", i)) if has_constraint else None,
                     penalty=work.penalty if has_constraint else None,
                     name=work.phase.name,
-                    forces=_stacked_forces(work),
+                    forces=_stacked_forces(work, arrays, ("forces", i)),
                 )
             )
         return SolverResult(
@@ -904,6 +925,23 @@ def _same(array: np.ndarray) -> np.ndarray:
     return array
 
 
+def _empty_like(source: np.ndarray, arrays: ArraySet | None, key: tuple) -> np.ndarray:
+    """An uninitialised array of ``source``'s shape and type: new, or rows lent by ``arrays``
+    (``SolverOptions.lend_results``)."""
+    if arrays is None:
+        return np.empty_like(source)
+    return arrays.rows(key, len(source), source.shape[1:], source.dtype)
+
+
+def _copy(source: np.ndarray, arrays: ArraySet | None, key: tuple) -> np.ndarray:
+    """A copy of ``source`` (``_empty_like``)."""
+    if arrays is None:
+        return source.copy()
+    out = _empty_like(source, arrays, key)
+    out[...] = source
+    return out
+
+
 def _linearize_knots(work: PhaseWorkspace, first: int, last: int) -> None:
     """``calc_diff`` of the running knots ``first..last-1`` of a phase and their ``[A_k | B_k]``."""
     xs, us, F = work.xs, work.us, work.F
@@ -915,14 +953,19 @@ def _linearize_knots(work: PhaseWorkspace, first: int, last: int) -> None:
         transport(xs[k + 1], data.x_next, data.Fx, data.Fu, F[k])  # [A_k | B_k]
 
 
-def _stacked_forces(work: PhaseWorkspace) -> np.ndarray | None:
-    """``data.forces`` of every running knot (model-defined layout), stacked; ``None`` if the models have
-    none."""
+def _stacked_forces(
+    work: PhaseWorkspace, arrays: ArraySet | None = None, key: tuple = ()
+) -> np.ndarray | None:
+    """``data.forces`` of every running knot (model-defined layout), stacked (into rows lent by ``arrays``
+    under ``key``, if given); ``None`` if the models have none."""
     datas = work.running_data
     if not datas or getattr(datas[0], "forces", None) is None:
         return None
     first = np.asarray(datas[0].forces)
-    out = np.empty((len(datas), *first.shape))
+    if arrays is None:
+        out = np.empty((len(datas), *first.shape))
+    else:
+        out = arrays.rows(key, len(datas), first.shape)
     for k, data in enumerate(datas):
         out[k] = data.forces
     return out

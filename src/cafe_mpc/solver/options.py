@@ -60,6 +60,13 @@ class SolverOptions:
         solve, for a caller that copies what it keeps (an MPC's plan copies the whole-body part; the
         real-time iteration's feedback reads them before the next preparation). Saves about half a
         megabyte per running-roll update.
+        ``lend_results``: the trajectory arrays of a result (``xs``, ``us``, ``defects``, the roll-out flags,
+        ``forces``, switching values and multipliers) and those ``feedback`` makes (``xs``, ``us``, and the
+        scaled ``k``, ``Qu``) are written into row buffers the solver lends (``core.buffers.ArrayLender``)
+        instead of new arrays. A buffer is written again only once nothing refers to it (no result, array
+        or view made of it is alive), so such a result, unlike a borrowed policy, stays valid for as long as
+        it is kept; a caller that keeps many results at once gets new arrays. For a loop that keeps one or
+        two results at a time (an MPC): no trajectory allocated per update.
 
     Regularisation (``mu * I`` added to ``Quu``, Eq. (8e))
         Starts at ``regularization_initial`` every solve. On a failed Cholesky factorisation or a failed
@@ -110,6 +117,7 @@ class SolverOptions:
     threads: int = 1
     keep_value_function: bool = True
     copy_policy: bool = True
+    lend_results: bool = False
     verbose: bool = False
 
     def __post_init__(self) -> None:

@@ -1,6 +1,8 @@
 """What the MS-iLQR solver hands back: the plan, the local policy/Q-function per knot and statistics.
 
-All arrays are copies: the solver's workspace is reused by the next solve, a result never aliases it.
+The solver's workspace is reused by the next solve: a result's trajectory arrays are copies (new arrays, or
+rows of buffers the solver lends and writes again only once nothing refers to them,
+``SolverOptions.lend_results``), and so is its policy unless it was solved with ``copy_policy=False``.
 """
 
 from __future__ import annotations

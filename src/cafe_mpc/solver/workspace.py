@@ -9,7 +9,9 @@ with some spare capacity. Between solves nothing is reallocated:
   appears again (a receding-horizon problem that keeps its knot objects never creates data after its first
   solves); a model used twice in one problem gets one data object per occurrence;
 * **phase arrays** are drawn from a pool by dimensions and capacity, so phases that change length from one
-  MPC update to the next (the contact phases move through a fixed horizon) only re-slice views;
+  MPC update to the next (the contact phases move through a fixed horizon) only take other views, which
+  are kept per length (and per row for the data bindings), as are the reset Jacobians and switching arrays
+  per shape: a set-up allocates nothing once the lengths and shapes have been seen;
 * each running knot's cost derivatives are **bound** to the phase's stacked arrays over ``[x | u]``
   (``data.Lx = G[k, :ndx]``, ``data.Lxx = H[k, :ndx, :ndx]``, ...; and ``data.gradient = G[k]``,
   ``data.hessian = H[k]`` for data that keep the combined derivatives), so ``calc_diff`` writes straight into
@@ -54,6 +56,7 @@ class _Buffers:
         self.xs_try = np.zeros((n + 1, nx))
         self.us_try = np.zeros((n, nu))
         self.defects_try = np.zeros((n + 1, ndx))
+        self.magnitudes = np.zeros((n + 1, ndx))  # |defects| (scratch of the defect norms)
         self.rollout = np.zeros(n + 1, dtype=bool)
         self.all_rollout = np.ones(n + 1, dtype=bool)
         # Stacked over [x | u]: F = [A | B], G = [Lx | Lu], H = [[Lxx, .], [Lux, Luu]] (views below).
@@ -67,6 +70,47 @@ class _Buffers:
         self.Qux = np.zeros((n, nu, ndx))
         self.S = np.zeros((n + 1, ndx, ndx))
         self.s = np.zeros((n + 1, ndx))
+        self._views: dict[int, dict[str, np.ndarray]] = {}
+        self._row_views: dict[int, tuple[np.ndarray, ...]] = {}
+
+    def views(self, n_knots: int) -> dict[str, np.ndarray]:
+        """The arrays of a phase of ``n_knots`` running knots, by ``PhaseWorkspace`` attribute: views of the
+        first rows, and ``A``, ``B`` of ``F``. Made once per length and kept (the contact phases move
+        through the horizon: a phase workspace serves a few lengths again and again)."""
+        views = self._views.get(n_knots)
+        if views is None:
+            views = {name: getattr(self, name)[: n_knots + 1] for name in _STATE_ROWS}
+            views.update({name: getattr(self, name)[:n_knots] for name in _CONTROL_ROWS})
+            ndx = self.defects.shape[1]
+            views["A"] = views["F"][:, :, :ndx]
+            views["B"] = views["F"][:, :, ndx:]
+            self._views[n_knots] = views
+        return views
+
+    def row_views(self, k: int) -> tuple[np.ndarray, ...]:
+        """``G[k]``, ``H[k]`` and their blocks ``Lx``, ``Lu``, ``Lxx``, ``Luu``, ``Lux``: what a knot's data
+        are bound to (made once per row and kept)."""
+        views = self._row_views.get(k)
+        if views is None:
+            ndx = self.defects.shape[1]
+            gradient, hessian = self.G[k], self.H[k]
+            views = (
+                gradient,
+                hessian,
+                gradient[:ndx],
+                gradient[ndx:],
+                hessian[:ndx, :ndx],
+                hessian[ndx:, ndx:],
+                hessian[ndx:, :ndx],
+            )
+            self._row_views[k] = views
+        return views
+
+
+_STATE_ROWS = ("xs", "defects", "xs_try", "defects_try", "magnitudes", "rollout", "all_rollout", "S", "s")
+"""The ``_Buffers`` arrays with a row per state (``N + 1``)."""
+_CONTROL_ROWS = ("us", "us_try", "F", "G", "H", "K", "k", "Qu", "Quu", "Qux")
+"""The ``_Buffers`` arrays with a row per running knot (``N``)."""
 
 
 class PhaseWorkspace:
@@ -94,8 +138,13 @@ class PhaseWorkspace:
         self.du = np.zeros(nu)
         self.step = np.zeros(ndx)
         self.dx_end = np.zeros(ndx)
+        # the value function of a result without one (``keep_value_function=False``): empty, read-only
+        self.no_value_function = (np.empty((0, ndx, ndx)), np.empty((0, ndx)))
+        for empty in self.no_value_function:
+            empty.flags.writeable = False
         self.phase: Phase | None = None
         self.horizon = 0
+        self._by_shape: dict[tuple[str, tuple[int, ...]], np.ndarray] = {}
 
     @property
     def capacity(self) -> int:
@@ -128,36 +177,36 @@ class PhaseWorkspace:
         self.reset_data = reset_data
         self.constraint = phase.switching_constraint
         self.constraint_data = constraint_data
-        for name in ("xs", "defects", "xs_try", "defects_try", "rollout", "S", "s"):
-            setattr(self, name, getattr(buffers, name)[: n_knots + 1])
-        self.all_rollout = buffers.all_rollout[: n_knots + 1]
-        for name in ("us", "us_try", "F", "G", "H", "K", "k", "Qu", "Quu", "Qux"):
-            setattr(self, name, getattr(buffers, name)[:n_knots])
-        ndx = self.ndx
-        self.A = self.F[:, :, :ndx]
-        self.B = self.F[:, :, ndx:]
+        for name, view in buffers.views(n_knots).items():
+            setattr(self, name, view)
         for k, data in enumerate(running_data):
             if getattr(data, "_bound_to", None) is buffers and data._bound_index == k:
                 continue  # bound to this very row at an earlier update (the arrays never move)
             data._bound_to, data._bound_index = buffers, k
-            gradient, hessian = self.G[k], self.H[k]
+            gradient, hessian, data.Lx, data.Lu, data.Lxx, data.Luu, data.Lux = buffers.row_views(k)
             if hasattr(data, "gradient"):
                 data.gradient = gradient
                 data.hessian = hessian
-            data.Lx = gradient[:ndx]
-            data.Lu = gradient[ndx:]
-            data.Lxx = hessian[:ndx, :ndx]
-            data.Luu = hessian[ndx:, ndx:]
-            data.Lux = hessian[ndx:, :ndx]
         ndx_next = self.reset_map.next_state.ndx if self.reset_map is not None else 0
         if getattr(self, "reset_jacobian", None) is None or self.reset_jacobian.shape != (ndx_next, self.ndx):
-            self.reset_jacobian = np.zeros((ndx_next, self.ndx))
+            self.reset_jacobian = self.kept("reset_jacobian", (ndx_next, self.ndx))
         dim = self.constraint.dim if self.constraint is not None else 0
         if getattr(self, "multiplier", None) is None or self.multiplier.shape != (dim,):
-            self.switching_value = np.zeros(dim)
-            self.switching_value_try = np.zeros(dim)
-            self.multiplier = np.zeros(dim)
+            self.switching_value = self.kept("switching_value", (dim,))
+            self.switching_value_try = self.kept("switching_value_try", (dim,))
+            self.multiplier = self.kept("multiplier", (dim,))
         self.penalty = 0.0
+
+    def kept(self, name: str, shape: tuple[int, ...]) -> np.ndarray:
+        """The array ``name`` of this shape, kept from an earlier phase of the same dimensions (zeros when
+        new; no allocation once seen). Each solve writes these before it reads them (the reset Jacobian in
+        the linearisation, the switching values in the evaluation, the multipliers in the set-up, the
+        backward sweep's scratch where it uses it)."""
+        array = self._by_shape.get((name, shape))
+        if array is None:
+            array = np.zeros(shape)
+            self._by_shape[(name, shape)] = array
+        return array
 
     def matches(self, phase: Phase, has_next_phase: bool) -> bool:
         """Whether this workspace currently serves exactly these model objects."""
@@ -252,15 +301,22 @@ class _DataPool:
     def __init__(self) -> None:
         self._entries: dict[tuple[int, int], tuple[object, object, int]] = {}
         self._generation = 0
+        self._seen: dict[int, int] = {}
+        """Per owner (``id``), ``_base`` plus its occurrences so far in the current problem; a value from an
+        earlier problem (at most ``_base``) counts as none. Kept across problems (no dict made per set-up),
+        pruned with the entries."""
+        self._base = 0
 
     def start(self) -> None:
         self._generation += 1
-        self._seen: dict[int, int] = {}
+        self._base = self._generation << 32
 
     def get(self, owner, create):
         """The data of ``owner``'s next occurrence in the current problem (created on first use)."""
-        occurrence = self._seen.get(id(owner), 0)
-        self._seen[id(owner)] = occurrence + 1
+        base = self._base
+        mark = self._seen.get(id(owner), base)
+        occurrence = mark - base if mark > base else 0
+        self._seen[id(owner)] = base + occurrence + 1
         key = (id(owner), occurrence)
         entry = self._entries.get(key)
         data = create() if entry is None or entry[0] is not owner else entry[1]
@@ -276,6 +332,8 @@ class _DataPool:
             return
         ordered = sorted(self._entries.items(), key=lambda item: item[1][2], reverse=True)
         self._entries = dict(ordered[: limit // 2])
+        owners = {owner for owner, _ in self._entries}
+        self._seen = {owner: mark for owner, mark in self._seen.items() if owner in owners}
 
     def __len__(self) -> int:
         return len(self._entries)
