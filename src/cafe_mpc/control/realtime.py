@@ -49,7 +49,7 @@ from cafe_mpc.control.plan_follower import NewestPlanFollower
 from cafe_mpc.control.update_clock import UpdateClock
 from cafe_mpc.core.controller import LowLevelController
 from cafe_mpc.core.measurement import Measurement
-from cafe_mpc.core.plan import Plan
+from cafe_mpc.core.plan import Plan, plan_shapes
 from cafe_mpc.core.progress import stage
 from cafe_mpc.mpc.planner import MpcStatistics, Planner
 from cafe_mpc.robots.robot import Robot
@@ -199,19 +199,7 @@ class PlanLayout:
 
     def __init__(self, capacity: int, nx: int, nu: int, ndx: int, n_feet: int) -> None:
         self.capacity, self.nx, self.nu, self.ndx, self.n_feet = capacity, nx, nu, ndx, n_feet
-        n = capacity
-        shapes = {
-            "times": (n,),
-            "dt": (n,),
-            "xs": (n + 1, nx),
-            "us": (n, nu),
-            "K": (n, nu, ndx),
-            "Qu": (n, nu),
-            "Quu": (n, nu, nu),
-            "Qux": (n, nu, ndx),
-            "contacts": (n, n_feet),
-            "forces": (n, n_feet, 3),
-        }
+        shapes = plan_shapes(capacity, nx, nu, ndx, n_feet)
         self.fields: dict[str, tuple[int, tuple[int, ...]]] = {}
         offset = self.HEADER
         for name, shape in shapes.items():

@@ -18,7 +18,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from cafe_mpc.core.buffers import unreferenced
+from cafe_mpc.core.buffers import ArrayLender
 from cafe_mpc.core.kernels import all_finite
 
 PLAN_FIELDS = ("times", "xs", "us", "K", "Qu", "Quu", "Qux", "contacts", "forces", "dt")
@@ -129,40 +129,29 @@ class PlanBuffers:
     """
 
     def __init__(self, capacity: int = 8) -> None:
-        self.capacity = capacity
-        self._sets: list[dict[str, np.ndarray]] = []
+        self._lender = ArrayLender(capacity)
 
     def take(self, n: int, nx: int, nu: int, ndx: int, n_feet: int) -> dict[str, np.ndarray]:
         """Arrays (uninitialised, keyed by ``PLAN_FIELDS``) for a plan of ``n`` knots that no plan in use
-        shares: a free kept set of these shapes, else a free set of other shapes replaced, else a new set
-        (kept while fewer than ``capacity`` are)."""
-        shapes = _plan_shapes(n, nx, nu, ndx, n_feet)
-        replaceable = None
-        for index, arrays in enumerate(self._sets):
-            if not self._free(arrays):
-                continue
-            if all(arrays[name].shape == shape for name, shape in shapes.items()):
-                return dict(arrays)  # a dict of the caller's: holding it keeps the set busy
-            replaceable = index
-        arrays = {name: np.empty(shape, dtype=PLAN_DTYPES.get(name, float)) for name, shape in shapes.items()}
-        if replaceable is not None:
-            self._sets[replaceable] = arrays
-        elif len(self._sets) < self.capacity:
-            self._sets.append(arrays)
-        return dict(arrays)
+        shares: row views of a free set of the lender (grown when shorter), else of a new set (kept while
+        fewer than ``capacity`` are)."""
+        loan = self._lender.take()
+        return {
+            name: loan.rows((name,), shape[0], shape[1:], PLAN_DTYPES.get(name, float))
+            for name, shape in plan_shapes(n, nx, nu, ndx, n_feet).items()
+        }
+
+    @property
+    def capacity(self) -> int:
+        return self._lender.capacity
 
     @property
     def kept(self) -> int:
         """How many sets of arrays are kept for reuse."""
-        return len(self._sets)
-
-    @staticmethod
-    def _free(arrays: dict[str, np.ndarray]) -> bool:
-        """Whether nothing outside this object refers to any array of the set ``arrays``."""
-        return unreferenced(arrays)
+        return self._lender.kept
 
 
-def _plan_shapes(n: int, nx: int, nu: int, ndx: int, n_feet: int) -> dict[str, tuple[int, ...]]:
+def plan_shapes(n: int, nx: int, nu: int, ndx: int, n_feet: int) -> dict[str, tuple[int, ...]]:
     """The array shapes of a plan of ``n`` knots (``Plan``'s field comments)."""
     return {
         "times": (n,),
