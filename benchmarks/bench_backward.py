@@ -1,6 +1,6 @@
 """The backward sweep of MS-iLQR on the ``bench solver`` problem: microseconds per sweep and per knot.
 
-The 25-knot whole-body trot problem of ``cafe_mpc.bench.problems`` is solved once; then its last
+The 25-knot whole-body trot problem of ``cafe_mpc_lab.bench.problems`` is solved once; then its last
 linearisation is swept backward repeatedly (``MSiLQRSolver._backward_pass``, Eqs. (8)-(10), (16)), and the
 two matrix products of one knot (``S F`` and ``F' S F``, the compiled kernel's BLAS calls) are timed alone.
 Medians over rounds; compare against the iteration time ``cafe-mpc bench solver`` reports.
@@ -17,9 +17,9 @@ import time
 import numpy as np
 from numba import njit
 
-from cafe_mpc.bench.problems import TROT_CYCLE, whole_body_problem
 from cafe_mpc.robots.robot import load_robot
 from cafe_mpc.solver import MSiLQRSolver, SolverOptions
+from cafe_mpc_lab.bench.problems import TROT_CYCLE, whole_body_problem
 
 
 @njit(cache=True)

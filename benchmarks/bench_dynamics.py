@@ -52,7 +52,7 @@ def median_microseconds(function: Callable[[], None], repeats: int, warmup: int 
 
 
 def crocoddyl_action(robot: Robot, stance: tuple[bool, ...], dt: float):
-    from cafe_mpc.bench.crocoddyl_peer import crocoddyl_contact_action
+    from cafe_mpc_lab.bench.crocoddyl_peer import crocoddyl_contact_action
 
     return crocoddyl_contact_action(robot, stance, dt)
 

@@ -27,7 +27,7 @@ from cafe_mpc.core.measurement import Measurement
 from cafe_mpc.core.sensors import SensorReadings
 from cafe_mpc.estimation.estimator import StateEstimator
 from cafe_mpc.robots.robot import load_robot
-from cafe_mpc.sim.loop import Push, simulate
+from cafe_mpc_lab.sim.loop import Push, simulate
 
 
 @dataclass

@@ -11,7 +11,7 @@ from __future__ import annotations
 import argparse
 import json
 
-from cafe_mpc.bench.mpc_bench import format_report, run_mpc_benchmark
+from cafe_mpc_lab.bench.mpc_bench import format_report, run_mpc_benchmark
 
 
 def main() -> None:

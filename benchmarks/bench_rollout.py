@@ -1,8 +1,8 @@
 """The line search's roll-out of MS-iLQR on the ``bench solver`` problem: microseconds per knot and trial.
 
-The 25-knot whole-body trot problem of ``cafe_mpc.bench.problems`` is solved once and swept backward at its
-solution; then one trial step is rolled out repeatedly (``MSiLQRSolver._try_step``, Eqs. (11)-(13) through
-the impact, Eq. (15)), with the hybrid roll-out (every knot shooting: Eq. (12)) and the nonlinear one
+The 25-knot whole-body trot problem of ``cafe_mpc_lab.bench.problems`` is solved once and swept backward
+at its solution; then one trial step is rolled out repeatedly (``MSiLQRSolver._try_step``, Eqs. (11)-(13)
+through the impact, Eq. (15)), with the hybrid roll-out (every knot shooting: Eq. (12)) and the nonlinear one
 (Eq. (13) everywhere), against the knots' ``calc`` alone at the same points (what the roll-out cannot do
 without). Interleaved rounds, medians; compare with Crocoddyl's ``forwardPass`` per knot.
 
@@ -17,9 +17,9 @@ import time
 
 import numpy as np
 
-from cafe_mpc.bench.problems import TROT_CYCLE, whole_body_problem
 from cafe_mpc.robots.robot import load_robot
 from cafe_mpc.solver import MSiLQRSolver, SolverOptions
+from cafe_mpc_lab.bench.problems import TROT_CYCLE, whole_body_problem
 
 
 def main(rounds: int = 15, calls: int = 20) -> None:

@@ -15,8 +15,8 @@ import os
 import numpy as np
 
 from cafe_mpc.config import load_config
-from cafe_mpc.experiments.run import run_metrics, simulate_run
-from cafe_mpc.report.metrics import body_rates
+from cafe_mpc_lab.experiments.run import run_metrics, simulate_run
+from cafe_mpc_lab.report.metrics import body_rates
 
 OLD = {"trot": ["gait.start_stance=0"], "pace": ["gait.start_stance=0"]}
 """What the old start differs in besides the ramp (the other gaits already stood for 0.2 s)."""

@@ -18,8 +18,8 @@ import argparse
 import numpy as np
 
 from cafe_mpc.config import load_config
-from cafe_mpc.experiments.run import simulate_run
 from cafe_mpc.mpc.receding_horizon import RecedingHorizonMpc
+from cafe_mpc_lab.experiments.run import simulate_run
 
 START = 1.5
 """s: the start of the window (after the gait's start and its command ramp)."""

@@ -9,8 +9,8 @@ import pytest
 
 from cafe_mpc.assembly import load_run_config
 from cafe_mpc.config import ConfigError
-from cafe_mpc.experiments.run import run
 from cafe_mpc.mpc.planner import update_solve_options
+from cafe_mpc_lab.experiments.run import run
 
 
 def test_preset_loads_with_its_reference_section():

@@ -11,9 +11,9 @@ import numpy as np
 import pytest
 
 from cafe_mpc.config import VelocityCommand, load_config
-from cafe_mpc.experiments.run import run, run_metrics, simulate_run
 from cafe_mpc.reference.locomotion import CommandProfile, LocomotionReference
-from cafe_mpc.report.metrics import body_rates, commanded_at
+from cafe_mpc_lab.experiments.run import run, run_metrics, simulate_run
+from cafe_mpc_lab.report.metrics import body_rates, commanded_at
 
 COMMANDS = [
     VelocityCommand(start=0.0, vx=0.5, vy=0.1, yaw_rate=0.3),

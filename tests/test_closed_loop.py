@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from cafe_mpc.config import load_config
-from cafe_mpc.experiments.run import run_metrics, simulate_run
+from cafe_mpc_lab.experiments.run import run_metrics, simulate_run
 
 DURATION = 1.5
 

@@ -11,14 +11,14 @@ import json
 
 import pytest
 
-from cafe_mpc.cli import main
 from cafe_mpc.config import ConfigError
-from cafe_mpc.experiments.catalog import experiment_names, get_experiment
-from cafe_mpc.experiments.comparison import COMPARISON_FILES
-from cafe_mpc.experiments.registry import ExperimentPlan, PlanContext
-from cafe_mpc.experiments.results_table import RESULTS_FILE, ResultsTable
-from cafe_mpc.experiments.sweep import run_experiment
-from cafe_mpc.experiments.warm_start import iteration_shares
+from cafe_mpc_lab.cli import main
+from cafe_mpc_lab.experiments.catalog import experiment_names, get_experiment
+from cafe_mpc_lab.experiments.comparison import COMPARISON_FILES
+from cafe_mpc_lab.experiments.registry import ExperimentPlan, PlanContext
+from cafe_mpc_lab.experiments.results_table import RESULTS_FILE, ResultsTable
+from cafe_mpc_lab.experiments.sweep import run_experiment
+from cafe_mpc_lab.experiments.warm_start import iteration_shares
 
 RUN_FILES = ("config.yaml", "metrics.json", "log.npz", "run.log")
 NO_PLOTS = ["output.plots=false"]  # per-variant plots cost more than the 0.2 s runs; one test keeps them
@@ -280,8 +280,8 @@ def test_experiment_refuses_a_used_folder(tmp_path):
 
 
 def test_a_variant_that_errors_is_recorded_and_the_others_still_run(tmp_path, capsys, monkeypatch):
-    from cafe_mpc.experiments import execution
-    from cafe_mpc.sim.plant import SimulationDiverged
+    from cafe_mpc_lab.experiments import execution
+    from cafe_mpc_lab.sim.plant import SimulationDiverged
 
     def diverging(config, out_dir, show_progress=False):
         raise SimulationDiverged("non-finite state at t = 0.1 s")
@@ -355,7 +355,7 @@ def test_command_ranges_experiment_judges_each_command(tmp_path):
 def test_command_ranges_judge_names_what_fails():
     """A run works only when it stays up, tracks the commanded speed and tracks the yaw rate; the tested
     range is the contiguous span of working commands from the base speed."""
-    from cafe_mpc.experiments.command_ranges import judge, tested_range
+    from cafe_mpc_lab.experiments.command_ranges import judge, tested_range
 
     def metrics(vx_mean: float, yaw_error: float, fell: bool = False) -> dict:
         return {"fell": fell, "steady_state": {"vx_mean": vx_mean, "yaw_rate_rms_error": yaw_error}}

@@ -6,8 +6,8 @@ import pytest
 import yaml
 
 from cafe_mpc.assembly import load_run_config
-from cafe_mpc.cli import main
 from cafe_mpc.config import ConfigError
+from cafe_mpc_lab.cli import main
 
 
 def test_preset_loads_and_overrides_apply():

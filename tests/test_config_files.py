@@ -4,8 +4,8 @@
 import pytest
 import yaml
 
-from cafe_mpc.cli import main
 from cafe_mpc.config import ConfigError, load_config
+from cafe_mpc_lab.cli import main
 
 
 def test_base_inherits_a_preset_and_overrides_only_what_it_lists(tmp_path):

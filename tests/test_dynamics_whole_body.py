@@ -259,7 +259,7 @@ def test_invalid_construction_raises(robot, kwargs):
 def test_semi_implicit_matches_crocoddyl(robot, stance):
     """Same problem as Crocoddyl's contact forward dynamics (ContactModel3D, LOCAL_WORLD_ALIGNED, gains
     [0, alpha]) wrapped in IntegratedActionModelEuler: identical next state and Jacobians."""
-    from cafe_mpc.bench.crocoddyl_peer import crocoddyl_contact_action
+    from cafe_mpc_lab.bench.crocoddyl_peer import crocoddyl_contact_action
 
     integrated = crocoddyl_contact_action(robot, stance, 0.01)
     croc_data = integrated.createData()

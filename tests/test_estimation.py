@@ -21,8 +21,8 @@ from cafe_mpc.assembly import load_run_config
 from cafe_mpc.config import ConfigError, EncoderSpec, ImuSpec, KinematicKFSettings
 from cafe_mpc.core.sensors import SensorReadings
 from cafe_mpc.estimation.estimator import StateEstimator, leg_velocity_indices
-from cafe_mpc.sim.plant import MujocoPlant
-from cafe_mpc.sim.sensors import SensorSpec, SensorSuite, sensor_spec
+from cafe_mpc_lab.sim.plant import MujocoPlant
+from cafe_mpc_lab.sim.sensors import SensorSpec, SensorSuite, sensor_spec
 
 DT = 0.002
 LWA = pin.ReferenceFrame.LOCAL_WORLD_ALIGNED
@@ -259,7 +259,7 @@ def test_estimator_config_is_validated_at_the_boundary():
 
 
 def test_orientation_from_the_imu_matches_the_truth_in_a_short_closed_loop(robot):
-    from cafe_mpc.experiments.run import run_metrics, simulate_run
+    from cafe_mpc_lab.experiments.run import run_metrics, simulate_run
 
     config = load_run_config(
         "stand", ["estimator=kinematic_kf", "simulation.duration=0.6", "output.plots=false"]
@@ -280,7 +280,7 @@ def test_orientation_from_the_imu_matches_the_truth_in_a_short_closed_loop(robot
 
 def test_the_controller_gets_the_estimate_not_the_plant_state(robot):
     from cafe_mpc.estimation.controller import SensingController
-    from cafe_mpc.sim.loop import simulate
+    from cafe_mpc_lab.sim.loop import simulate
 
     seen = []
 
@@ -310,7 +310,7 @@ def test_the_controller_gets_the_estimate_not_the_plant_state(robot):
 
 @pytest.mark.slow
 def test_a_closed_loop_trot_with_the_estimator_stays_up():
-    from cafe_mpc.experiments.run import run_metrics, simulate_run
+    from cafe_mpc_lab.experiments.run import run_metrics, simulate_run
 
     duration = 1.5
     config = load_run_config(
@@ -337,7 +337,7 @@ def test_the_library_controller_runs_from_a_users_sensor_readings():
     import mujoco
 
     from cafe_mpc.api import Controller
-    from cafe_mpc.sim.sensors import with_sensors
+    from cafe_mpc_lab.sim.sensors import with_sensors
 
     with Controller("trot", ["mpc.latency=fixed"]) as controller:
         robot = controller.robot
@@ -458,7 +458,7 @@ def test_the_bounds_height_estimate_follows_its_landing_feet(dynamic):
     """The bound's hind feet land at 2.5 m/s and sink 20 mm: with the sink's dynamics the height estimate is
     within 2 mm RMS of the truth (1.1 mm); the static compliance read it 6 mm high in hind stance and 3 mm
     low in front stance (3.7 mm RMS), and the bound rode 1 cm higher than with the true state."""
-    from cafe_mpc.experiments.run import run_metrics, simulate_run
+    from cafe_mpc_lab.experiments.run import run_metrics, simulate_run
 
     overrides = [
         "estimator=kinematic_kf",

@@ -14,27 +14,27 @@ import pytest
 
 from cafe_mpc.assembly import load_run_config
 from cafe_mpc.assembly.problem import model_schedule
-from cafe_mpc.cli import main
 from cafe_mpc.config import ConfigError, VelocityCommand, available_presets
 from cafe_mpc.control.mpc_loop import CafeMpcController
 from cafe_mpc.core.measurement import Measurement
 from cafe_mpc.dynamics.srb import srb_parameters
-from cafe_mpc.experiments.controllers import LowLevelRecorder, build_run_controller, low_level_of
-from cafe_mpc.experiments.run import run
 from cafe_mpc.reference.locomotion import quaternion_from_yaw
-from cafe_mpc.report.metrics import (
+from cafe_mpc.robots.robot import load_robot
+from cafe_mpc.wbc.pd import PDController
+from cafe_mpc.wbc.riccati import RiccatiController
+from cafe_mpc.wbc.synthetic import synthetic_plan
+from cafe_mpc.wbc.vwbc import VWBCController
+from cafe_mpc_lab.cli import main
+from cafe_mpc_lab.experiments.controllers import LowLevelRecorder, build_run_controller, low_level_of
+from cafe_mpc_lab.experiments.run import run
+from cafe_mpc_lab.report.metrics import (
     METRICS_WINDOW_START_S,
     foot_slip_max,
     foot_trajectories,
     tracking_metrics,
     wbc_metrics,
 )
-from cafe_mpc.robots.robot import load_robot
-from cafe_mpc.sim.loop import SimulationLog
-from cafe_mpc.wbc.pd import PDController
-from cafe_mpc.wbc.riccati import RiccatiController
-from cafe_mpc.wbc.synthetic import synthetic_plan
-from cafe_mpc.wbc.vwbc import VWBCController
+from cafe_mpc_lab.sim.loop import SimulationLog
 
 GAIT_PRESETS = ["trot", "pace", "bound", "pronk", "flying-trot", "trot-commands", "bound-push"]
 
@@ -343,9 +343,9 @@ def test_imports_and_runs_leave_global_state_alone(tmp_path):
     its folder restores the package logger's level."""
     code = (
         "import matplotlib\n"
-        "import cafe_mpc.experiments.catalog, cafe_mpc.experiments.sweep, cafe_mpc.report.plots\n"
-        "import cafe_mpc.cli\n"
-        "cafe_mpc.experiments.catalog.experiments()\n"
+        "import cafe_mpc_lab.experiments.catalog, cafe_mpc_lab.experiments.sweep, cafe_mpc_lab.report.plots\n"
+        "import cafe_mpc_lab.cli\n"
+        "cafe_mpc_lab.experiments.catalog.experiments()\n"
         "print(matplotlib.get_backend())\n"
     )
     environment = {**os.environ, "MPLBACKEND": "svg"}

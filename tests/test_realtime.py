@@ -23,9 +23,9 @@ from cafe_mpc.assembly.controllers import realtime_mpc
 from cafe_mpc.config import load_config
 from cafe_mpc.control.realtime import RealtimeMpcController, shared_block_prefix
 from cafe_mpc.core.measurement import Measurement
-from cafe_mpc.experiments.controllers import build_recorder
-from cafe_mpc.experiments.run import run
-from cafe_mpc.sim.loop import WallClockPacer, simulate
+from cafe_mpc_lab.experiments.controllers import build_recorder
+from cafe_mpc_lab.experiments.run import run
+from cafe_mpc_lab.sim.loop import WallClockPacer, simulate
 
 pytestmark = pytest.mark.realtime
 """Every test here runs the MPC in its own process on the wall clock."""
@@ -134,7 +134,7 @@ def test_a_dead_or_stalled_mpc_process_holds_a_stance_and_ends_with_one_error(mo
 def test_the_command_line_reports_a_dead_mpc_process(monkeypatch, tmp_path, capsys):
     """``cafe-mpc run --realtime`` ends with one line and a non-zero status when the MPC process dies."""
     import cafe_mpc.assembly.controllers as controllers
-    from cafe_mpc.cli import main
+    from cafe_mpc_lab.cli import main
 
     original = controllers.realtime_mpc
     monkeypatch.setattr(controllers, "realtime_mpc", _crashing_realtime_mpc)
@@ -158,7 +158,7 @@ def _crashing_realtime_mpc(config_data: dict) -> CrashingMpc:
 @pytest.mark.slow
 def test_ctrl_c_stops_the_run_and_leaves_no_process(tmp_path):
     """SIGINT (Ctrl-C) during a real-time run: exit status 130 and no MPC process left behind."""
-    command = [sys.executable, "-m", "cafe_mpc.cli", "run", "trot", "--realtime", "--duration", "30"]
+    command = [sys.executable, "-m", "cafe_mpc_lab.cli", "run", "trot", "--realtime", "--duration", "30"]
     process = subprocess.Popen(
         [*command, "--out", str(tmp_path / "out")], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
     )
@@ -191,7 +191,7 @@ def test_bench_mpc_reports_each_gait_as_json(capsys):
     timing is asserted)."""
     import json
 
-    from cafe_mpc.cli import main
+    from cafe_mpc_lab.cli import main
 
     assert main(["bench", "mpc", "--gaits", "trot", "--duration", "0.4", "--json"]) == 0
     rows = json.loads(capsys.readouterr().out)

@@ -12,11 +12,11 @@ from pathlib import Path
 
 import pytest
 
-from cafe_mpc.cli import main
 from cafe_mpc.config import load_config
-from cafe_mpc.experiments.run import run
-from cafe_mpc.experiments.sweep import run_experiment
-from cafe_mpc.report.html import ReportError, write_report
+from cafe_mpc_lab.cli import main
+from cafe_mpc_lab.experiments.run import run
+from cafe_mpc_lab.experiments.sweep import run_experiment
+from cafe_mpc_lab.report.html import ReportError, write_report
 
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 
@@ -135,7 +135,7 @@ def test_reports_render_in_headless_chromium_with_every_image_loaded(
 
 def test_report_command_prints_where_it_wrote(run_folder):
     result = subprocess.run(
-        [sys.executable, "-m", "cafe_mpc.cli", "report", str(run_folder)],
+        [sys.executable, "-m", "cafe_mpc_lab.cli", "report", str(run_folder)],
         capture_output=True,
         text=True,
         timeout=120,

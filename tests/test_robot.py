@@ -5,7 +5,7 @@ import pinocchio as pin
 import pytest
 
 from cafe_mpc.robots.robot import LEG_NAMES, RobotLoadError, load_robot
-from cafe_mpc.sim.consistency import check_consistency
+from cafe_mpc_lab.sim.consistency import check_consistency
 
 
 def test_mini_cheetah_planning_model(mini_cheetah):

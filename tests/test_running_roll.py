@@ -10,11 +10,11 @@ import pytest
 from cafe_mpc.assembly import load_run_config
 from cafe_mpc.assembly.references import task_reference
 from cafe_mpc.config import ConfigError
-from cafe_mpc.experiments.sweep import run_experiment
-from cafe_mpc.report.metrics import roll_pitch_yaw
-from cafe_mpc.report.task_metrics import reference_trace, task_from_reference
-from cafe_mpc.sim.bar import Bar, bar_of
-from cafe_mpc.sim.plant import scene_mjcf
+from cafe_mpc_lab.experiments.sweep import run_experiment
+from cafe_mpc_lab.report.metrics import roll_pitch_yaw
+from cafe_mpc_lab.report.task_metrics import reference_trace, task_from_reference
+from cafe_mpc_lab.sim.bar import Bar, bar_of
+from cafe_mpc_lab.sim.plant import scene_mjcf
 
 DT = 0.005
 

@@ -9,9 +9,9 @@ import pytest
 
 from cafe_mpc.assembly import build_controller, build_low_level, build_mpc, load_run_config
 from cafe_mpc.config import ConfigError
-from cafe_mpc.sim.plant import MujocoPlant, scene_mjcf
-from cafe_mpc.sim.randomization import PlantVariation, plant_variation, terrain_geoms
-from cafe_mpc.sim.terrain import Slope, Steps, terrain_height, terrain_pieces
+from cafe_mpc_lab.sim.plant import MujocoPlant, scene_mjcf
+from cafe_mpc_lab.sim.randomization import PlantVariation, plant_variation, terrain_geoms
+from cafe_mpc_lab.sim.terrain import Slope, Steps, terrain_height, terrain_pieces
 
 
 def _ray_height(plant: MujocoPlant, x: float, y: float = 0.0) -> float:
@@ -104,7 +104,7 @@ def test_mpc_friction_is_the_controllers_own_and_independent_of_the_plant(robot)
 @pytest.mark.slow
 def test_a_trot_climbs_low_steps(tmp_path):
     """Terrain in a closed loop: 2 cm steps under a flat-ground plan; the feet stand on them, nobody falls."""
-    from cafe_mpc.experiments.run import simulate_run
+    from cafe_mpc_lab.experiments.run import simulate_run
 
     config = load_run_config(
         "trot",

@@ -4,9 +4,9 @@ import numpy as np
 import pytest
 
 from cafe_mpc.robots.robot import load_robot
-from cafe_mpc.sim.loop import ControllerError, Push, simulate
-from cafe_mpc.sim.plant import MujocoPlant, SimulationDiverged
 from cafe_mpc.wbc.pd import PDController
+from cafe_mpc_lab.sim.loop import ControllerError, Push, simulate
+from cafe_mpc_lab.sim.plant import MujocoPlant, SimulationDiverged
 
 
 def test_state_round_trip_in_planning_coordinates(robot):

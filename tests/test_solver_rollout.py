@@ -14,7 +14,6 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from cafe_mpc.bench.problems import whole_body_problem
 from cafe_mpc.core.interfaces import (
     STATE_EUCLIDEAN,
     STATE_FREE_FLYER,
@@ -31,6 +30,7 @@ from cafe_mpc.ocp.knots import SRBModelFactory, WholeBodyModelFactory, weight_sp
 from cafe_mpc.robots.robot import load_robot
 from cafe_mpc.solver import MSiLQRSolver, SolverOptions
 from cafe_mpc.solver.kernels import linear_step, policy_step
+from cafe_mpc_lab.bench.problems import whole_body_problem
 from toy_models import PendulumImpactReset, PendulumModel
 
 TROT = [((True, False, False, True), 6), ((False, True, True, False), 5)]

@@ -4,8 +4,8 @@ import crocoddyl
 import numpy as np
 import pytest
 
-from cafe_mpc.bench.problems import STAND, TROT_CYCLE, whole_body_problem
 from cafe_mpc.solver import MSiLQRSolver, SolverOptions, evaluate_trajectory
+from cafe_mpc_lab.bench.problems import STAND, TROT_CYCLE, whole_body_problem
 
 
 @pytest.mark.parametrize(("name", "phases"), [("stand", STAND), ("trot", TROT_CYCLE)])
@@ -29,7 +29,7 @@ def test_same_cost_as_crocoddyl_fddp(robot, name, phases):
 def test_the_solver_benchmark_times_both_final_policies_on_the_same_problem():
     """``cafe-mpc bench solver``: ours with the MPC's policy (the work of Crocoddyl's solve) and with the
     final re-linearisation reach the same cost as Crocoddyl in its 10 iterations; both ratios reported."""
-    from cafe_mpc.bench.solver_bench import format_report, run_solver_benchmark
+    from cafe_mpc_lab.bench.solver_bench import format_report, run_solver_benchmark
 
     result = run_solver_benchmark(iterations=10, rounds=1, warm_up=0)
     shift, relinearize = result["whole_body_25"], result["whole_body_25_relinearize"]

@@ -18,12 +18,12 @@ from pathlib import Path
 import psutil
 import pytest
 
-from cafe_mpc.cli import main
-from cafe_mpc.experiments import sweep
-from cafe_mpc.experiments.cluster import available_cores
-from cafe_mpc.experiments.registry import SweepError
-from cafe_mpc.experiments.results_table import RESULTS_FILE, ResultsTable
-from cafe_mpc.experiments.sweep import run_experiment
+from cafe_mpc_lab.cli import main
+from cafe_mpc_lab.experiments import sweep
+from cafe_mpc_lab.experiments.cluster import available_cores
+from cafe_mpc_lab.experiments.registry import SweepError
+from cafe_mpc_lab.experiments.results_table import RESULTS_FILE, ResultsTable
+from cafe_mpc_lab.experiments.sweep import run_experiment
 
 FAST = ["output.plots=false", "mpc.latency=fixed"]
 SCHEDULES = {"schedules": "S0,S1,S2", "srb_dts": "0.05"}

@@ -14,14 +14,14 @@ from cafe_mpc.reference.composition import ComposedReference
 from cafe_mpc.reference.locomotion import LocomotionReference
 from cafe_mpc.reference.trajectory import TrajectoryReference
 from cafe_mpc.reference.trajectory_file import load_packaged_trajectory
-from cafe_mpc.report.task_metrics import (
+from cafe_mpc_lab.report.task_metrics import (
     AcrobaticTask,
     body_floor_clearance,
     task_from_reference,
     task_metrics,
     task_summary,
 )
-from cafe_mpc.sim.loop import SimulationLog
+from cafe_mpc_lab.sim.loop import SimulationLog
 
 DT = 0.002
 TASK = AcrobaticTask("roll", start=0.5, takeoff=0.83, touchdown=1.25, end=1.75)

@@ -14,7 +14,7 @@ from cafe_mpc.assembly import build_controller
 from cafe_mpc.config import VelocityCommand, load_config
 from cafe_mpc.control.commands import GAIT_NAMES, CommandChannel
 from cafe_mpc.robots.robot import load_robot
-from cafe_mpc.sim.viewer import KEY_DOWN, KEY_END, KEY_HOME, KEY_LEFT, KEY_UP, KeyboardTeleop
+from cafe_mpc_lab.sim.viewer import KEY_DOWN, KEY_END, KEY_HOME, KEY_LEFT, KEY_UP, KeyboardTeleop
 from test_viewer_render import _with_display, xvfb_display  # noqa: F401  (the X display fixture)
 
 
@@ -51,8 +51,8 @@ def test_teleop_finds_the_command_channel_of_a_gait_run_only():
 
 PRESS_KEYS = """
 from cafe_mpc.config import load_config
-from cafe_mpc.experiments.run import simulate_run
-from cafe_mpc.sim import viewer as viewer_module
+from cafe_mpc_lab.experiments.run import simulate_run
+from cafe_mpc_lab.sim import viewer as viewer_module
 
 original = viewer_module.LiveViewer.update
 pressed = []

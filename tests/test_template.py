@@ -19,9 +19,6 @@ from cafe_mpc.core.measurement import Measurement
 from cafe_mpc.core.physics import GRAVITY
 from cafe_mpc.core.template_plan import TemplatePlan
 from cafe_mpc.dynamics.statics import static_stance_torques
-from cafe_mpc.experiments.run import run_metrics, simulate_run
-from cafe_mpc.experiments.sweep import run_experiment
-from cafe_mpc.experiments.template_gaits import pitch_swing, vertical_force_capacity
 from cafe_mpc.mpc.template import (
     ConstrainedSRBKnot,
     TemplateMpc,
@@ -33,6 +30,9 @@ from cafe_mpc.mpc.template import (
 from cafe_mpc.ocp.contact_schedule import GAITS
 from cafe_mpc.robots.robot import load_robot
 from cafe_mpc.wbc.template_low_level import TemplateLowLevelController, stance_torques
+from cafe_mpc_lab.experiments.run import run_metrics, simulate_run
+from cafe_mpc_lab.experiments.sweep import run_experiment
+from cafe_mpc_lab.experiments.template_gaits import pitch_swing, vertical_force_capacity
 
 LWA = pin.ReferenceFrame.LOCAL_WORLD_ALIGNED
 

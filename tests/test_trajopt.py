@@ -13,7 +13,6 @@ import numpy as np
 import pinocchio as pin
 import pytest
 
-from cafe_mpc.cli import main
 from cafe_mpc.reference.trajectory_file import load_packaged_trajectory, packaged_trajectory_path
 from cafe_mpc.solver import MSiLQRSolver
 from cafe_mpc.trajopt.barrel_roll import barrel_roll_task
@@ -21,6 +20,7 @@ from cafe_mpc.trajopt.multiphase import build_problem, check_trajectory, roll_tu
 from cafe_mpc.trajopt.outputs import cumulative_roll, write_plots
 from cafe_mpc.trajopt.presets import load_task
 from cafe_mpc.trajopt.task import TrajOptTaskError
+from cafe_mpc_lab.cli import main
 
 TWO_PI = 2.0 * np.pi
 

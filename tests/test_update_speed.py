@@ -7,7 +7,6 @@ import gc
 import numpy as np
 import pytest
 
-from cafe_mpc.bench.problems import TROT_CYCLE, whole_body_problem
 from cafe_mpc.config import MpcSettings, VelocityCommand
 from cafe_mpc.control.mpc_loop import CafeMpcController
 from cafe_mpc.core.buffers import ArrayLender
@@ -19,9 +18,10 @@ from cafe_mpc.ocp.contact_schedule import get_gait
 from cafe_mpc.ocp.knots import SRBModelFactory, WholeBodyModelFactory
 from cafe_mpc.reference.base import ReferenceWindow
 from cafe_mpc.reference.locomotion import LocomotionReference
-from cafe_mpc.sim.loop import simulate
 from cafe_mpc.solver import MSiLQRSolver, SolverOptions
 from cafe_mpc.wbc.riccati import RiccatiController
+from cafe_mpc_lab.bench.problems import TROT_CYCLE, whole_body_problem
+from cafe_mpc_lab.sim.loop import simulate
 
 
 def _solve(peer, **options):

@@ -20,10 +20,10 @@ import numpy as np
 import pytest
 
 from cafe_mpc.config import load_config
-from cafe_mpc.experiments.run import run
 from cafe_mpc.robots.plan_overlay import PlanOverlay, draw_plan
+from cafe_mpc_lab.experiments.run import run
 
-CLI = [sys.executable, "-m", "cafe_mpc.cli"]
+CLI = [sys.executable, "-m", "cafe_mpc_lab.cli"]
 
 
 @pytest.fixture(scope="module")
@@ -145,8 +145,8 @@ def test_viewer_follows_a_run_under_xvfb_with_the_plan_drawn(tmp_path, xvfb_disp
 CLOSE_WINDOW = """
 import time
 from cafe_mpc.robots.robot import load_robot
-from cafe_mpc.sim.plant import MujocoPlant
-from cafe_mpc.sim.viewer import LiveViewer
+from cafe_mpc_lab.sim.plant import MujocoPlant
+from cafe_mpc_lab.sim.viewer import LiveViewer
 
 robot = load_robot("mini_cheetah")
 plant = MujocoPlant(robot)
@@ -208,8 +208,8 @@ def test_render_draws_the_plan_into_the_video(tmp_path, robot):
     _offscreen_gl_or_skip()
     import imageio.v2 as imageio
 
-    from cafe_mpc.experiments.controllers import recorder_of
-    from cafe_mpc.report.video import render_run
+    from cafe_mpc_lab.experiments.controllers import recorder_of
+    from cafe_mpc_lab.report.video import render_run
 
     config = load_config(
         "trot",

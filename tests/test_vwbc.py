@@ -13,7 +13,6 @@ import pytest
 from cafe_mpc.control.plan_follower import PlanFollower
 from cafe_mpc.core.measurement import Measurement
 from cafe_mpc.core.plan import Plan
-from cafe_mpc.sim.loop import simulate
 from cafe_mpc.wbc.contact_dynamics import (
     FrictionConeScorer,
     contact_forces_for_torque,
@@ -22,6 +21,7 @@ from cafe_mpc.wbc.contact_dynamics import (
 from cafe_mpc.wbc.riccati import RiccatiController
 from cafe_mpc.wbc.synthetic import synthetic_plan
 from cafe_mpc.wbc.vwbc import VWBCController, VWBCSettings
+from cafe_mpc_lab.sim.loop import simulate
 
 HAS_DAQP = importlib.util.find_spec("daqp") is not None
 SOLVERS = ["proxqp", pytest.param("daqp", marks=pytest.mark.skipif(not HAS_DAQP, reason="daqp missing"))]

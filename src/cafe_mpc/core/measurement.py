@@ -1,6 +1,6 @@
 """What a controller measures at a control tick, in the planning model's coordinates.
 
-The simulator (``cafe_mpc.sim.plant``) writes it; every controller reads it. Coordinates are Pinocchio's
+The simulator (``cafe_mpc_lab.sim.plant``) writes it; every controller reads it. Coordinates are Pinocchio's
 free-flyer convention: ``q = [base position, base quaternion (x, y, z, w), joint angles]``,
 ``v = [base linear velocity (base frame), base angular velocity (base frame), joint rates]``.
 """

@@ -8,8 +8,8 @@ A real robot has no measurement of its base pose and velocity; it has
 * **joint encoders**: joint angles and rates (the motor controllers' estimates, quantised by the bus);
 * **joint torques**: the motor controllers' current-based torque estimates.
 
-The simulator (``cafe_mpc.sim.sensors``) fills a ``SensorReadings`` from MuJoCo's sensors with noise, bias and
-quantisation; a state estimator (``cafe_mpc.estimation``) turns readings into the ``Measurement`` the
+The simulator (``cafe_mpc_lab.sim.sensors``) fills a ``SensorReadings`` from MuJoCo's sensors with noise,
+bias and quantisation; a state estimator (``cafe_mpc.estimation``) turns readings into the ``Measurement`` the
 controllers read. On a robot, fill one from the hardware drivers
 (``cafe_mpc.Controller.measurement_from_sensors`` does it from plain arrays). Conventions are the planning
 model's: quaternion ``(x, y, z, w)`` (base to world), joints in the robot's joint order.

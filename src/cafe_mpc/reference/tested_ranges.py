@@ -2,7 +2,7 @@
 warning a command outside it gets.
 
 The schema accepts any command the robot's legs allow (|vx| <= 3 m/s, ``validate_command``); what a gait
-tracks is less. The file is written by the sweep ``python -m cafe_mpc.experiments.command_ranges --write``
+tracks is less. The file is written by the sweep ``python -m cafe_mpc_lab.experiments.command_ranges --write``
 (fixed latency, Mini Cheetah): per gait the forward speeds that worked (``vx``: low and high, m/s, at yaw rate
 0) and the largest yaw rate that worked at 0.5 m/s (``yaw_rate_max``, rad/s), with the date and the command.
 A command outside is still run, with a warning (``outside_tested_range``): it may work, it was not tested.

@@ -1,0 +1,420 @@
+"""One run: config -> controller -> closed-loop simulation -> config, metrics, log and plots on disk.
+
+The controller comes from the assembly (``assembly.build_controller``: PD standing, or CAFE-MPC over the
+Riccati or VWBC low level), its low level recorded (``experiments.controllers``); metrics from
+``report.metrics``, plots from ``report.plots``.
+
+Results are written to a hidden ``.<name>.partial`` folder and renamed only when everything succeeded,
+so a failed run never leaves a folder that looks like a result.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import shutil
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import yaml
+
+from cafe_mpc.assembly.checks import robot_of
+from cafe_mpc.assembly.controllers import RunController, build_sensing_controller
+from cafe_mpc.assembly.problem import model_schedule, torque_limits_of
+from cafe_mpc.assembly.references import reference_profile
+from cafe_mpc.assembly.scaling import run_scale, scaled_gait, scaled_schedule
+from cafe_mpc.config import RunConfig
+from cafe_mpc.control.realtime import MpcProcessError
+from cafe_mpc.core.measurement import Measurement
+from cafe_mpc.robots.robot import Robot
+from cafe_mpc.robots.scaling import reference_scales
+from cafe_mpc_lab import LOGGERS
+from cafe_mpc_lab.experiments.controllers import (
+    build_run_controller,
+    build_run_realtime_controller,
+    low_level_of,
+    mpc_statistics_of,
+    mpc_summary,
+    recorder_of,
+    reference_of,
+    timing_of,
+)
+from cafe_mpc_lab.sim.bar import bar_of
+from cafe_mpc_lab.sim.loop import FallCriteria, Push, SimulationLog, WallClockPacer, simulate
+from cafe_mpc_lab.sim.randomization import plant_variation, sensor_model
+from cafe_mpc_lab.sim.sensors import SensorSuite, sensor_spec
+from cafe_mpc_lab.sim.terrain import terrain_pieces
+
+logger = logging.getLogger(__name__)
+
+
+@dataclass
+class RunResult:
+    config: RunConfig
+    robot: Robot
+    log: SimulationLog
+    metrics: dict
+    out_dir: Path | None
+    controller: RunController | None = None
+
+
+def simulate_run(
+    config: RunConfig, progress=None, viewer: bool = False
+) -> tuple[Robot, RunController, SimulationLog]:
+    """Build robot and controller from ``config`` and run the closed loop (no files written).
+
+    ``config.estimator``: ``ground_truth`` hands the controller the plant's state; ``kinematic_kf`` hands it
+    the robot's sensor readings (``config.plant.sensors``, ``sim.sensors``) through the state estimator
+    (``estimation``), in every timing mode and in real time; the log's ``extra`` then holds the estimate of
+    every tick (``estimate_q``, ``estimate_v``, ``estimated_contacts``, ``estimate_trust``; ``log.npz``:
+    ``extra_<name>``). The returned controller is the one behind the estimator.
+
+    ``config.simulation.realtime``: against the wall clock with the MPC in its own process (the process is
+    stopped before this returns, also on errors). For CAFE-MPC runs the log's ``extra`` holds per-tick
+    ``torque_requested`` (before clamping), ``planned_stance`` (the plan knot's stance used by the low-level
+    controller) and ``gait_stance`` (the reference's contact schedule); they are saved in ``log.npz`` as
+    ``extra_<name>``. Raises ``MpcProcessError`` when the real-time MPC process died or stalled (the robot
+    was held in a damped stance once the last plan ran out). ``config.plant`` varies the simulated robot and
+    its sensors only (``sim.randomization``); the controller is built from the nominal robot.
+
+    ``viewer``: watch the run in MuJoCo's viewer with the current plan drawn (``sim.viewer.LiveViewer``;
+    ``ViewerUnavailable`` without a display, before anything is built); ``log.extra["viewer"]`` then says
+    what it showed.
+    """
+    live = None
+    if viewer:
+        from cafe_mpc_lab.sim.viewer import check_display
+
+        check_display()
+    robot = robot_of(config)  # a config built in code gets the same checks as a loaded one
+    q0 = robot.q_standing.copy()
+    q0[2] += config.simulation.initial_height_offset
+    pushes = [Push(p.start, p.duration, p.force_on(robot.total_mass)) for p in config.pushes]
+    options = {
+        "control_rate_hz": config.simulation.control_rate_hz,
+        "q0": q0,
+        "pushes": pushes,
+        "plant_timestep": config.simulation.plant_timestep,
+        "fall": FallCriteria(
+            run_scale(config, robot).distance(config.simulation.fall.min_base_height),
+            config.simulation.fall.max_tilt_rad,
+        ),
+        "stop_on_fall": config.simulation.stop_on_fall,
+        "progress": progress,
+        # the plant's deviations and the sensors (domain randomisation): the controller's robot stays nominal
+        "variation": plant_variation(config.plant),
+        "sensor": sensor_model(config.plant, config.simulation.control_rate_hz),
+        "terrain": terrain_pieces(config.scene),  # slopes and steps: the plant's scene only
+        "bar": bar_of(config.scene),  # the bar to jump over (sim.bar): the plant's scene only
+    }
+    if config.plant.kind == "gym-quadruped":  # an external plant: gym-quadruped's environment (sim.gym_plant)
+        from cafe_mpc_lab.sim.gym_plant import GymQuadrupedPlant
+
+        options["plant"] = GymQuadrupedPlant(
+            robot, config.simulation.plant_timestep, config.plant.floor_friction, config.plant.gym_scene
+        )
+    estimating = config.estimator != "ground_truth"
+    if estimating:  # the controller reads the robot's sensors; the state noise model does not apply
+        rate = config.simulation.control_rate_hz
+        options["sensor"] = None
+        options["sensors"] = SensorSuite(robot.nu, sensor_spec(config.plant, rate), rate)
+    sensing = None
+    if config.simulation.realtime:
+        with build_run_realtime_controller(config, robot) as controller:
+            standing = Measurement.of_state(q0, np.zeros(robot.nv), np.ones(robot.n_feet, dtype=bool))
+            controller.wait_ready(standing)
+            if viewer:  # the pacer holds the wall clock already
+                live = options["observer"] = _live_viewer(robot, controller, realtime=False)
+            if estimating:
+                sensing = build_sensing_controller(config, robot, controller, (float(q0[0]), float(q0[1])))
+            try:
+                log = simulate(
+                    robot,
+                    controller if sensing is None else sensing,
+                    config.simulation.duration,
+                    pacer=WallClockPacer(),
+                    stop=controller.should_stop,
+                    **options,
+                )
+            finally:
+                if live is not None:
+                    live.close()
+        if controller.failure is not None:
+            raise MpcProcessError(
+                f"{controller.failure}; the robot was held in a damped stance once the last plan ran out "
+                f"(at t = {log.time[-1]:.2f} s)"
+            )
+    else:
+        controller = build_run_controller(config, robot)
+        if estimating:
+            sensing = build_sensing_controller(config, robot, controller, (float(q0[0]), float(q0[1])))
+        if viewer:
+            live = options["observer"] = _live_viewer(robot, controller, realtime=True)
+        try:
+            log = simulate(
+                robot, controller if sensing is None else sensing, config.simulation.duration, **options
+            )
+        finally:
+            if live is not None:
+                live.close()
+    if live is not None:
+        log.extra["viewer"] = live.summary()
+    log.extra["estimator"] = config.estimator
+    if sensing is not None:
+        log.extra.update({name: values[: log.ticks] for name, values in sensing.trace().items()})
+    recorder = recorder_of(controller)
+    if recorder is not None:
+        requested, planned = recorder.traces(log.time)
+        log.extra["torque_requested"] = requested
+        log.extra["planned_stance"] = planned
+    reference = reference_of(controller)
+    if reference is not None:
+        stance = [reference.stance_at(float(t)) for t in log.time]
+        log.extra["gait_stance"] = np.array(stance, dtype=bool).reshape(-1, robot.n_feet)
+    return robot, controller, log
+
+
+def _live_viewer(robot: Robot, controller: RunController, realtime: bool):
+    """MuJoCo's passive viewer following the run, drawing the plan the controller follows now."""
+    from cafe_mpc_lab.sim.viewer import KeyboardTeleop, LiveViewer
+
+    teleop = KeyboardTeleop.of_controller(robot, controller)  # arrow keys steer a gait run
+    return LiveViewer(robot, lambda: getattr(controller, "plan", None), realtime=realtime, teleop=teleop)
+
+
+def simulate_config(config: RunConfig, progress=None) -> tuple[Robot, SimulationLog]:
+    """Build robot and controller from ``config`` and run the closed loop (no files written)."""
+    robot, _, log = simulate_run(config, progress)
+    return robot, log
+
+
+def run_metrics(config: RunConfig, robot: Robot, controller: RunController, log: SimulationLog) -> dict:
+    """Everything ``metrics.json`` reports: base metrics, tracking, the ``mpc`` and ``wbc`` blocks."""
+    from cafe_mpc_lab.report.metrics import (
+        METRICS_WINDOW_START_S,
+        base_metrics,
+        tracking_metrics,
+        wbc_metrics,
+    )
+
+    metrics = base_metrics(robot, log, 1.0 / config.simulation.control_rate_hz)
+    metrics["robot"] = robot.name
+    metrics["controller"] = config.wbc if config.planner == "cafe" else "template"
+    metrics["planner"] = config.planner
+    metrics["gait"] = config.gait.name if config.gait is not None else None
+    profile = reference_profile(config, robot)
+    metrics.update(tracking_metrics(robot, log, profile))  # the whole run, start included
+    steady = tracking_metrics(robot, log, profile, window_start=METRICS_WINDOW_START_S)
+    metrics["steady_state"] = steady  # the paper's steady-state window (the start from rest skipped)
+    metrics["timing"] = timing_of(config, controller)
+    metrics["scaling"] = scaling_block(config, robot)
+    metrics["mpc"] = mpc_summary(controller, log)
+    if "realtime" in log.extra:
+        metrics["realtime"] = log.extra["realtime"]
+    if "sensor" in log.extra:
+        metrics["sensor"] = log.extra["sensor"]
+    if "viewer" in log.extra:
+        metrics["viewer"] = log.extra["viewer"]
+    from cafe_mpc_lab.report.estimation import estimator_metrics
+
+    metrics["estimator"] = estimator_metrics(config.estimator, log)
+    metrics["wbc"] = wbc_metrics(
+        robot,
+        log,
+        metrics["controller"],
+        low_level_statistics=low_level_of(controller).statistics(),
+        planned_stance=log.extra.get("planned_stance"),
+        torque_limits=torque_limits_of(config, robot),
+        mu=config.mpc.friction,
+    )
+    if config.reference is not None:  # acrobatic task (stored trajectory with a flight): report.task_metrics
+        from cafe_mpc_lab.experiments.tasks import task_block
+
+        metrics["task"] = task_block(config, robot, log, reference_of(controller))
+    return metrics
+
+
+def scaling_block(config: RunConfig, robot: Robot) -> dict:
+    """``metrics.json``'s ``scaling``: the mode, the robot's factors against the reference robot."""
+    scale = run_scale(config, robot)
+    schedule = scaled_schedule(model_schedule(config.mpc), scale)
+    block = {
+        "mode": config.scaling,
+        "reference": reference_scales(),
+        "robot_leg_length": robot.leg_length,
+        "robot_mass": robot.mass,
+        "factors": scale.summary(),
+        "whole_body_horizon_s": schedule.whole_body_horizon,
+        "srb_horizon_s": schedule.srb_horizon,
+    }
+    if config.gait is not None:
+        block["gait_period_s"] = scaled_gait(config.gait.name, scale).period
+        block["swing_height_m"] = scale.distance(config.gait.swing_height)
+    return block
+
+
+def _release_loggers(
+    loggers: list[logging.Logger], levels: list[int], handler: logging.Handler | None
+) -> None:
+    """Detach a run's log file from the package loggers and restore their levels."""
+    for package_logger, level in zip(loggers, levels, strict=True):
+        if handler is not None:
+            package_logger.removeHandler(handler)
+        package_logger.setLevel(level)
+    if handler is not None:
+        handler.close()
+
+
+def default_out_dir(config: RunConfig, root: Path = Path("runs")) -> Path:
+    return root / f"{time.strftime('%Y%m%d-%H%M%S')}-{config.name}"
+
+
+def run(
+    config: RunConfig, out_dir: Path | None, show_progress: bool = False, viewer: bool = False
+) -> RunResult:
+    """Run ``config``; when ``out_dir`` is given write config.yaml, metrics.json, log.npz, run.log, plots.
+    ``viewer``: watch it live in MuJoCo's viewer (``simulate_run``)."""
+    partial: Path | None = None
+    handler: logging.Handler | None = None
+    package_loggers = [logging.getLogger(name) for name in LOGGERS]
+    previous_levels = [package_logger.level for package_logger in package_loggers]
+    if out_dir is not None:
+        out_dir = Path(out_dir)
+        if out_dir.exists() and any(out_dir.iterdir()):
+            raise FileExistsError(f"output folder {out_dir} exists and is not empty; choose another --out")
+        partial = out_dir.parent / f".{out_dir.name}.partial"
+        shutil.rmtree(partial, ignore_errors=True)
+        partial.mkdir(parents=True)
+        handler = logging.FileHandler(partial / "run.log")
+        handler.setFormatter(logging.Formatter("%(asctime)s %(levelname)s %(name)s: %(message)s"))
+        handler.setLevel(logging.INFO)
+        for package_logger in package_loggers:
+            package_logger.addHandler(handler)
+            if package_logger.getEffectiveLevel() > logging.INFO:  # restored in ``finally``
+                package_logger.setLevel(logging.INFO)
+    bar = None
+    try:
+        logger.info(
+            "run %s: robot %s, controller %s, %.2f s",
+            config.name,
+            config.robot,
+            config.wbc,
+            config.simulation.duration,
+        )
+        progress = None
+        if show_progress and config.simulation.duration > 1.0 and not config.simulation.realtime:
+            from tqdm import tqdm
+
+            bar = tqdm(
+                total=round(config.simulation.duration, 3),
+                unit="sim s",
+                bar_format="{l_bar}{bar}| {n:.2f}/{total:.2f} sim s [{elapsed}<{remaining}]",
+            )
+
+            def progress(dt: float, bar=bar) -> None:
+                # float steps add up past the total by rounding: tqdm warned "clamping frac to range [0, 1]"
+                bar.update(min(dt, max(bar.total - bar.n, 0.0)))
+
+        robot, controller, log = simulate_run(config, progress, viewer=viewer)
+        metrics = run_metrics(config, robot, controller, log)
+        logger.info(
+            "metrics: fell=%s, base height mean %.3f m, vx mean %.3f m/s, real-time factor %.2f",
+            metrics["fell"],
+            metrics["base_height_mean"] or float("nan"),
+            metrics["vx_mean"] if metrics["vx_mean"] is not None else float("nan"),
+            metrics["real_time_factor"] or float("nan"),
+        )
+        if metrics["mpc"] is not None:
+            logger.info("mpc: %s", metrics["mpc"])
+        logger.info("wbc: %s", metrics["wbc"])
+        if partial is not None:
+            with open(partial / "config.yaml", "w") as handle:
+                yaml.safe_dump(config.model_dump(mode="json"), handle, sort_keys=False)
+            with open(partial / "metrics.json", "w") as handle:
+                json.dump(metrics, handle, indent=2)
+            log.save(str(partial / "log.npz"))
+            if config.output.plots and log.ticks > 1:
+                from cafe_mpc_lab.report.plots import plot_run
+
+                plot_run(
+                    robot,
+                    log,
+                    partial,
+                    commands=reference_profile(config, robot),
+                    mpc_statistics=mpc_statistics_of(controller),
+                    mpc_period=config.mpc.period,
+                )
+                if "estimate_q" in log.extra:  # estimator: kinematic_kf
+                    from cafe_mpc_lab.report.estimation import plot_estimate
+
+                    plot_estimate(robot, log, partial / "estimator.png")
+                if metrics.get("task"):
+                    from cafe_mpc_lab.report.task_metrics import task_from_reference
+                    from cafe_mpc_lab.report.task_plots import plot_task, plot_task_torques
+
+                    reference = reference_of(controller)
+                    task = task_from_reference(reference)
+                    if reference is not None and task is not None:
+                        plot_task(
+                            robot,
+                            log,
+                            reference,
+                            task,
+                            partial / "task.png",
+                            metrics["task"],
+                            1.0 / config.simulation.control_rate_hz,
+                        )
+                        plot_task_torques(
+                            robot, log, task, partial / "task_torques.png", torque_limits_of(config, robot)
+                        )
+            if config.output.render:
+                from cafe_mpc_lab.report.video import RenderUnavailable, render_run
+                from cafe_mpc_lab.sim.plant import scene_mjcf
+
+                try:
+                    recorder = recorder_of(controller)
+                    video = render_run(
+                        robot,
+                        log,
+                        partial / "run.mp4",
+                        config.output.render_fps,
+                        plans=recorder.plans if recorder is not None else None,
+                        mjcf=scene_mjcf(robot, terrain_pieces(config.scene), bar_of(config.scene)),
+                    )
+                    logger.info("video written to %s", video.name)
+                    if metrics.get("task"):  # acrobatic task: a strip of frames across the roll
+                        from cafe_mpc_lab.report.task_plots import render_task_frames
+
+                        render_task_frames(
+                            robot,
+                            log,
+                            metrics["task"],
+                            partial / "frames.png",
+                            mjcf=scene_mjcf(robot, terrain_pieces(config.scene), bar_of(config.scene)),
+                        )
+                except RenderUnavailable as error:  # said once: in metrics.json and the run's summary
+                    logger.info("no video: %s", error)
+                    metrics["render_error"] = str(error)
+                    with open(partial / "metrics.json", "w") as handle:
+                        json.dump(metrics, handle, indent=2)
+        if bar is not None:
+            bar.close()
+            bar = None
+        if handler is not None:
+            _release_loggers(package_loggers, previous_levels, handler)
+            handler = None
+        if partial is not None and out_dir is not None:
+            if out_dir.exists():
+                out_dir.rmdir()
+            partial.rename(out_dir)
+        return RunResult(config, robot, log, metrics, out_dir, controller)
+    except BaseException:
+        if partial is not None:
+            shutil.rmtree(partial, ignore_errors=True)
+        raise
+    finally:
+        if bar is not None:
+            bar.close()
+        _release_loggers(package_loggers, previous_levels, handler)

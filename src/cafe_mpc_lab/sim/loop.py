@@ -1,0 +1,365 @@
+"""Closed-loop simulation: a controller called at a fixed rate around the MuJoCo plant.
+
+The controller sees only a ``Measurement`` (planning coordinates) and returns joint torques, which are held
+(zero-order hold) until its next call. Push disturbances are world-frame forces on the base over time
+intervals. Every control tick is logged into preallocated arrays. A ``PlantVariation`` changes the plant
+(friction, masses, motor strengths) and a ``SensorModel`` what the controller measures (noise, latency
+jitter); the log records the plant's true state (``sim.randomization``). With a ``SensorSuite``
+(``sim.sensors``) the controller gets the robot's sensor readings instead of a state (IMU and encoders;
+``estimation.controller.SensingController`` estimates the state from them).
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from typing import Protocol
+
+import numpy as np
+
+from cafe_mpc.core.controller import Controller
+from cafe_mpc.core.progress import stage
+from cafe_mpc.core.sensors import SensorReadings
+from cafe_mpc.robots.robot import Robot
+from cafe_mpc_lab.sim.bar import Bar, geom_label
+from cafe_mpc_lab.sim.plant import MujocoPlant
+from cafe_mpc_lab.sim.randomization import PlantVariation, SensorModel
+from cafe_mpc_lab.sim.sensors import SensorSuite
+from cafe_mpc_lab.sim.terrain import Terrain
+
+logger = logging.getLogger(__name__)
+
+
+class SensorController(Protocol):
+    """A controller fed by sensor readings (``estimation.controller.SensingController``): ``reset()`` once,
+    then ``compute(t, readings)`` at the control rate."""
+
+    def reset(self) -> None: ...
+
+    def compute(self, t: float, readings: SensorReadings) -> np.ndarray: ...
+
+
+class ControllerError(RuntimeError):
+    """A controller returned something that cannot be sent to the motors (wrong size, NaN)."""
+
+
+class Observer(Protocol):
+    """Watches the plant during a run (``sim.viewer.LiveViewer``): ``start(plant)`` once before the first
+    tick, ``update(t, plant)`` after every control tick; ``update`` returning False ends the run early
+    (``stop_reason`` says why, e.g. the viewer window was closed)."""
+
+    stop_reason: str
+
+    def start(self, plant: MujocoPlant) -> None: ...
+
+    def update(self, t: float, plant: MujocoPlant) -> bool: ...
+
+
+@dataclass(frozen=True)
+class Push:
+    """A world-frame force (N) on the base during ``[start, start + duration)`` seconds."""
+
+    start: float
+    duration: float
+    force: tuple[float, float, float]
+
+    def active(self, t: float) -> bool:
+        return self.start <= t < self.start + self.duration
+
+
+@dataclass
+class SimulationLog:
+    """States, torques and contact forces at every control tick (rows), trimmed to ``ticks``."""
+
+    time: np.ndarray
+    q: np.ndarray
+    v: np.ndarray
+    torque_command: np.ndarray
+    torque_applied: np.ndarray
+    foot_forces: np.ndarray
+    contacts: np.ndarray
+    external_force: np.ndarray
+    ticks: int = 0
+    fell: bool = False
+    fall_time: float | None = None
+    fall_reason: str = ""
+    wall_time: float = 0.0
+    extra: dict = field(default_factory=dict)
+
+    @classmethod
+    def allocate(cls, ticks: int, nq: int, nv: int, nu: int, n_feet: int) -> SimulationLog:
+        return cls(
+            time=np.zeros(ticks),
+            q=np.zeros((ticks, nq)),
+            v=np.zeros((ticks, nv)),
+            torque_command=np.zeros((ticks, nu)),
+            torque_applied=np.zeros((ticks, nu)),
+            foot_forces=np.zeros((ticks, n_feet, 3)),
+            contacts=np.zeros((ticks, n_feet), dtype=bool),
+            external_force=np.zeros((ticks, 3)),
+        )
+
+    def trimmed(self) -> SimulationLog:
+        n = self.ticks
+        return SimulationLog(
+            self.time[:n],
+            self.q[:n],
+            self.v[:n],
+            self.torque_command[:n],
+            self.torque_applied[:n],
+            self.foot_forces[:n],
+            self.contacts[:n],
+            self.external_force[:n],
+            n,
+            self.fell,
+            self.fall_time,
+            self.fall_reason,
+            self.wall_time,
+            self.extra,
+        )
+
+    def save(self, path: str) -> None:
+        """Write the log as a compressed ``.npz`` file (per-tick arrays of ``extra`` as ``extra_<name>``)."""
+        extras = {
+            f"extra_{name}": value[: self.ticks]
+            for name, value in self.extra.items()
+            if isinstance(value, np.ndarray) and value.ndim >= 1 and len(value) >= self.ticks
+        }
+        np.savez_compressed(
+            path,
+            **extras,
+            time=self.time[: self.ticks],
+            q=self.q[: self.ticks],
+            v=self.v[: self.ticks],
+            torque_command=self.torque_command[: self.ticks],
+            torque_applied=self.torque_applied[: self.ticks],
+            foot_forces=self.foot_forces[: self.ticks],
+            contacts=self.contacts[: self.ticks],
+            external_force=self.external_force[: self.ticks],
+        )
+
+
+@dataclass(frozen=True)
+class FallCriteria:
+    """When the run counts as a fall: base too low, tilted too far, or the trunk hit the floor."""
+
+    min_base_height: float = 0.10
+    max_tilt_rad: float = 1.2  # angle between base z axis and world z
+
+
+def base_tilt(q: np.ndarray) -> float:
+    """Angle (rad) between the base's z axis and the world z axis, from the quaternion (x, y, z, w)."""
+    x, y = q[3], q[4]
+    z_axis_z = 1.0 - 2.0 * (x * x + y * y)
+    return float(np.arccos(np.clip(z_axis_z, -1.0, 1.0)))
+
+
+def simulate(
+    robot: Robot,
+    controller: Controller | SensorController,
+    duration: float,
+    control_rate_hz: float = 500.0,
+    q0: np.ndarray | None = None,
+    v0: np.ndarray | None = None,
+    pushes: Sequence[Push] = (),
+    plant_timestep: float | None = None,
+    fall: FallCriteria | None = FallCriteria(),
+    stop_on_fall: bool = True,
+    progress: Callable[[float], None] | None = None,
+    pacer: WallClockPacer | None = None,
+    stop: Callable[[float], bool] | None = None,
+    variation: PlantVariation | None = None,
+    sensor: SensorModel | None = None,
+    terrain: Sequence[Terrain] = (),
+    observer: Observer | None = None,
+    bar: Bar | None = None,
+    plant: MujocoPlant | None = None,
+    sensors: SensorSuite | None = None,
+) -> SimulationLog:
+    """Run ``controller`` on the MuJoCo plant for ``duration`` seconds of simulated time.
+
+    ``pacer``: run against the wall clock (tick ``k`` starts at ``k / control_rate_hz`` seconds after the
+    clock starts; see ``WallClockPacer``), the real-time mode; without it the simulation runs as fast as it
+    can. ``stop(t)``: end the run early when it returns true (checked after each tick). ``variation``: the
+    plant's deviations from the robot table; ``sensor``: the controller measures through it (noise, delay).
+    ``bar``: a bar in the scene (``sim.bar``); the log's ``extra`` then holds ``bar_contact`` (per tick: a
+    robot geom touched it) and ``bar`` (``touched_by``: those geoms).
+    ``terrain``: slopes and steps in the scene (``sim.terrain``). ``observer``: watches the plant after every
+    tick (the live viewer) and may end the run early. ``plant``: a plant built by the caller instead of the
+    MuJoCo plant of ``robot`` (e.g. ``sim.gym_plant.GymQuadrupedPlant``, the same interface); then
+    ``plant_timestep``, ``variation``, ``terrain`` and ``bar`` are the caller's business.
+    ``sensors``: the controller is a ``SensorController`` and gets the robot's sensor readings
+    (``sim.sensors``; ``sensor`` must then be None or ideal: the suite has its own noise and latency jitter);
+    the log's ``extra`` holds ``sensors`` (their summary).
+    """
+    if not duration > 0:
+        raise ValueError(f"duration must be positive, got {duration}")
+    if not control_rate_hz > 0:
+        raise ValueError(f"control rate must be positive, got {control_rate_hz}")
+    if sensors is not None and sensor is not None and not sensor.is_identity:
+        raise ValueError(
+            "a run with sensor readings (sensors) cannot also perturb the true state (sensor): the readings "
+            "carry their own noise and latency jitter"
+        )
+    if plant is None:
+        plant = MujocoPlant(robot, plant_timestep, variation, terrain, bar)
+    control_period = 1.0 / control_rate_hz
+    substeps = round(control_period / plant.timestep)
+    if substeps < 1 or abs(substeps * plant.timestep - control_period) > 1e-9:
+        raise ValueError(
+            f"control period {control_period} s must be a whole multiple of the plant step {plant.timestep} s"
+        )
+    for push in pushes:
+        if push.duration <= 0 or push.start < 0 or not np.all(np.isfinite(push.force)):
+            raise ValueError(f"invalid push {push}: start >= 0, duration > 0 and a finite force required")
+    plant.reset(robot.q_standing if q0 is None else q0, v0)
+    if observer is not None:
+        observer.start(plant)
+    controller.reset()
+    if sensor is not None:
+        sensor.reset()
+    if sensors is not None:
+        sensors.reset()
+    ticks = round(duration * control_rate_hz)
+    log = SimulationLog.allocate(ticks, robot.nq, robot.nv, robot.nu, robot.n_feet)
+    bar_contact = np.zeros(ticks, dtype=bool)
+    if bar is not None:  # sim.bar: which ticks a robot geom touched the bar (log.npz extra_bar_contact)
+        log.extra["bar_contact"] = bar_contact
+    external = np.zeros(3)
+    if pacer is not None:
+        pacer.start(control_period, ticks)
+    start_wall = time.perf_counter()
+    for tick in range(ticks):
+        t = tick * control_period
+        if pacer is not None:
+            pacer.wait(tick)
+        state = plant.read_state()
+        if sensors is not None:  # the controller sees the sensors, never the plant's state
+            torques = np.asarray(controller.compute(t, sensors.read(plant)), dtype=float)  # type: ignore[arg-type]
+        else:
+            measured = state if sensor is None else sensor.observe(tick, state)
+            torques = np.asarray(controller.compute(t, measured), dtype=float)  # type: ignore[arg-type]
+        if torques.shape != (robot.nu,) or not np.all(np.isfinite(torques)):
+            raise ControllerError(f"controller returned invalid torques at t = {t:.3f} s: {torques}")
+        external[:] = 0.0
+        for push in pushes:
+            if push.active(t):
+                external += push.force
+        plant.set_external_force(external)
+        log.time[tick] = t
+        log.q[tick] = state.q
+        log.v[tick] = state.v
+        log.contacts[tick] = state.contacts
+        log.foot_forces[tick] = state.foot_forces
+        log.torque_command[tick] = torques
+        log.torque_applied[tick] = plant.applied(torques)
+        log.external_force[tick] = external
+        if bar is not None:
+            bar_contact[tick] = plant.bar_in_contact
+        log.ticks = tick + 1
+        if fall is not None and not log.fell:
+            reason = ""
+            if state.q[2] < fall.min_base_height:
+                reason = f"base height {state.q[2]:.3f} m below {fall.min_base_height} m"
+            elif base_tilt(state.q) > fall.max_tilt_rad:
+                reason = f"base tilt {base_tilt(state.q):.2f} rad above {fall.max_tilt_rad} rad"
+            elif plant.trunk_touched_floor:
+                reason = "trunk touched the floor"
+            if reason:
+                log.fell, log.fall_time, log.fall_reason = True, t, reason
+                logger.warning("robot fell at t = %.3f s: %s", t, reason)
+                if stop_on_fall:
+                    break
+        plant.step(torques, substeps)
+        if tick == 0:  # the first tick ran the cold solve (and the warm-up): the run proper starts now
+            stage(f"running {duration:g} s of simulated time")
+        if progress is not None:
+            progress(control_period)
+        if stop is not None and stop(t):
+            break
+        if observer is not None and not observer.update(t + control_period, plant):
+            logger.warning("run stopped at t = %.3f s: %s", t + control_period, observer.stop_reason)
+            break
+    log.wall_time = time.perf_counter() - start_wall
+    if pacer is not None:
+        log.extra["realtime"] = pacer.summary(log.ticks)
+    if sensor is not None and not sensor.is_identity:
+        log.extra["sensor"] = sensor.summary()
+    if sensors is not None:
+        log.extra["sensors"] = sensors.summary()
+    if bar is not None:
+        geoms = sorted(plant.bar_contact_geoms)
+        log.extra["bar"] = {"touched_by": [geom_label(plant.model, geom) for geom in geoms]}
+    return log.trimmed()
+
+
+class WallClockPacer:
+    """Starts each control tick at its wall-clock time and records how late each tick started.
+
+    Sleeps until shortly before the tick (``spin``), then spins: ``time.sleep`` alone overshoots, and a busy
+    machine wakes a sleeping process late by a millisecond or more (measured: with a 0.4 ms spin window, 1-8
+    of 5000 ticks started 1.5-5.7 ms late while the MPC process ran on the other core). A tick that starts
+    more than ``miss_threshold`` after its slot counts as missed; the simulation still advances one control
+    period per tick (the plant is not slowed down to hide it). ``work`` records how long each tick's own work
+    took, which tells a tick that was too slow from a process that was not scheduled. Python's garbage
+    collector is paused during the run (``gc.freeze`` keeps the objects made during set-up out of later
+    collections).
+    """
+
+    def __init__(self, miss_threshold: float = 0.001, spin: float = 0.0015) -> None:
+        self.miss_threshold = miss_threshold
+        self.spin = spin
+        self.lateness = np.zeros(0)
+        self._period = 0.0
+        self._start = 0.0
+        self._gc_was_enabled = False
+
+    def start(self, period: float, ticks: int) -> None:
+        import gc
+
+        self._period = period
+        self.lateness = np.zeros(ticks)
+        self.work = np.zeros(ticks)
+        """Wall time each tick's own work took (state read, controller, log, plant step)."""
+        self._gc_was_enabled = gc.isenabled()
+        gc.collect()
+        gc.freeze()
+        gc.disable()
+        self._start = time.perf_counter()
+
+    def wait(self, tick: int) -> None:
+        target = self._start + tick * self._period
+        if tick > 0:
+            self.work[tick - 1] = time.perf_counter() - (target - self._period + self.lateness[tick - 1])
+        remaining = target - time.perf_counter()
+        if remaining > self.spin:
+            time.sleep(remaining - self.spin)
+        while time.perf_counter() < target:
+            pass
+        self.lateness[tick] = time.perf_counter() - target
+
+    def summary(self, ticks: int) -> dict:
+        import gc
+
+        if self._gc_was_enabled:
+            gc.enable()
+        gc.unfreeze()
+        lateness = self.lateness[:ticks]
+        work = self.work[: max(ticks - 1, 0)]
+        missed = lateness > self.miss_threshold
+        # a late tick whose predecessor's own work fitted in the period: the process was not running
+        # (another process or the host had the CPU), not too slow
+        preempted = missed[1:] & (work < self._period) if ticks > 1 else np.zeros(0, dtype=bool)
+        return {
+            "control_rate_hz": 1.0 / self._period if self._period else None,
+            "ticks": int(ticks),
+            "missed_ticks": int(np.sum(missed)),
+            "missed_ticks_not_scheduled": int(np.sum(preempted)),
+            "tick_work_ms_median": float(np.median(work)) * 1e3 if work.size else None,
+            "tick_work_ms_max": float(np.max(work)) * 1e3 if work.size else None,
+            "tick_lateness_ms_median": float(np.median(lateness)) * 1e3 if ticks else None,
+            "tick_lateness_ms_p99": float(np.percentile(lateness, 99)) * 1e3 if ticks else None,
+            "tick_lateness_ms_max": float(np.max(lateness)) * 1e3 if ticks else None,
+        }
