@@ -17,7 +17,8 @@ from cafe_mpc.ocp.knots import SRBModelFactory, WholeBodyModelFactory
 from cafe_mpc.reference.locomotion import LocomotionReference
 from cafe_mpc.solver import MSiLQRSolver
 from cafe_mpc.wbc.riccati import RiccatiController
-from cafe_mpc_lab.sim.loop import simulate
+from cafe_mpc_lab.sim.loop import SimulationOptions, simulate
+from cafe_mpc_lab.sim.mujoco_plant import MujocoPlant
 
 
 def _builder(robot, schedule):
@@ -152,7 +153,7 @@ def test_mpc_closed_loop_stands(robot, scheme):
         RiccatiController(robot),
         MpcSettings(period=0.02, latency="fixed", scheme=scheme),  # deterministic: 15 updates in 0.3 s
     )
-    log = simulate(robot, controller, 0.3)
+    log = simulate(MujocoPlant(robot), controller, SimulationOptions(0.3))
     assert not log.fell
     statistics = controller.statistics
     assert len(statistics.latencies) == 14 and statistics.failures == 0  # the last plan acts at 0.3 s
@@ -202,7 +203,7 @@ def test_plans_take_effect_after_their_latency(robot, latency, scheme, compensat
             delay_compensation=compensated,
         ),
     )
-    log = simulate(robot, controller, 0.2)
+    log = simulate(MujocoPlant(robot), controller, SimulationOptions(0.2))
     assert not log.fell
     first, *later = low_level.activations
     assert first == (pytest.approx(0.0), pytest.approx(0.0))  # the cold solve runs before the clock starts
@@ -234,7 +235,7 @@ def test_measured_latency_never_uses_a_plan_before_it_exists(robot):
         low_level,
         MpcSettings(period=0.02, latency="measured", scheme="one_phase"),
     )
-    log = simulate(robot, controller, 0.3)
+    log = simulate(MujocoPlant(robot), controller, SimulationOptions(0.3))
     assert not log.fell
     statistics = controller.statistics
     update_times = dict(zip(statistics.start_times, statistics.update_times, strict=True))
@@ -265,7 +266,7 @@ def test_measured_real_time_iteration_pays_its_feedback_and_its_preparations(rob
         low_level,
         MpcSettings(period=0.02, latency="measured", compute_scale=compute_scale),
     )
-    log = simulate(robot, controller, 0.3)
+    log = simulate(MujocoPlant(robot), controller, SimulationOptions(0.3))
     assert not log.fell
     statistics = controller.statistics
     feedbacks = statistics.feedback_times

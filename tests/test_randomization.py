@@ -26,7 +26,7 @@ from cafe_mpc_lab.experiments.reliability import (
 from cafe_mpc_lab.experiments.results_table import RESULTS_FILE, ResultsTable
 from cafe_mpc_lab.experiments.run import simulate_run
 from cafe_mpc_lab.experiments.sweep import run_experiment
-from cafe_mpc_lab.sim.plant import MujocoPlant
+from cafe_mpc_lab.sim.mujoco_plant import MujocoPlant
 from cafe_mpc_lab.sim.randomization import PlantVariation, SensorModel
 
 

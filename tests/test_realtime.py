@@ -25,7 +25,8 @@ from cafe_mpc.control.realtime import RealtimeMpcController, shared_block_prefix
 from cafe_mpc.core.measurement import Measurement
 from cafe_mpc_lab.experiments.controllers import build_recorder
 from cafe_mpc_lab.experiments.run import run
-from cafe_mpc_lab.sim.loop import WallClockPacer, simulate
+from cafe_mpc_lab.sim.loop import SimulationOptions, WallClockPacer, simulate
+from cafe_mpc_lab.sim.mujoco_plant import MujocoPlant
 
 pytestmark = pytest.mark.realtime
 """Every test here runs the MPC in its own process on the wall clock."""
@@ -119,7 +120,8 @@ def test_a_dead_or_stalled_mpc_process_holds_a_stance_and_ends_with_one_error(mo
     with controller:
         controller.wait_ready(Measurement.of_state(robot.q_standing, np.zeros(robot.nv), np.ones(4, bool)))
         assert len(_shared_memory_blocks() - before) == 3  # measurements, plans, control: named as ours
-        log = simulate(robot, controller, 3.0, pacer=WallClockPacer(), stop=controller.should_stop)
+        options = SimulationOptions(3.0, pacer=WallClockPacer(), stop=controller.should_stop)
+        log = simulate(MujocoPlant(robot), controller, options)
     assert controller.failure is not None
     assert ("exited" in controller.failure) if mode == "crash" else ("no plan" in controller.failure)
     assert controller.statistics.fallback_ticks > 0  # the damped stance held the robot after the plan ran out

@@ -21,7 +21,8 @@ from cafe_mpc.reference.locomotion import LocomotionReference
 from cafe_mpc.solver import MSiLQRSolver, SolverOptions
 from cafe_mpc.wbc.riccati import RiccatiController
 from cafe_mpc_lab.bench.problems import TROT_CYCLE, whole_body_problem
-from cafe_mpc_lab.sim.loop import simulate
+from cafe_mpc_lab.sim.loop import SimulationOptions, simulate
+from cafe_mpc_lab.sim.mujoco_plant import MujocoPlant
 
 
 def _solve(peer, **options):
@@ -163,7 +164,7 @@ def _trot_loop(robot) -> tuple[CafeMpcController, _CheckingRiccati]:
 def _closed_loop_with_plan_buffers(robot, capacity: int) -> _CheckingRiccati:
     controller, low_level = _trot_loop(robot)
     controller.mpc.plan_buffers = PlanBuffers(capacity)
-    simulate(robot, controller, 0.3)
+    simulate(MujocoPlant(robot), controller, SimulationOptions(0.3))
     assert controller.mpc.plan_buffers.kept <= capacity
     return low_level
 
@@ -210,7 +211,7 @@ def _closed_loop_with_lent_results(robot, lend: bool) -> tuple[_CheckingRiccati,
 
     for name in ("update", "prepare", "feedback"):
         setattr(mpc, name, checked(getattr(mpc, name)))
-    simulate(robot, controller, 0.3)
+    simulate(MujocoPlant(robot), controller, SimulationOptions(0.3))
     return low_level, checks[0]
 
 
