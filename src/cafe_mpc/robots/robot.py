@@ -159,16 +159,6 @@ class Robot:
         pin.framesForwardKinematics(self.model, data, q)
         return np.array([data.oMf[i].translation.copy() for i in self.foot_frame_ids])
 
-    def hip_positions(self) -> np.ndarray:
-        """Positions of the first joint of each leg in the base frame (n_feet x 3, leg order)."""
-        positions = []
-        for frame_id in self.foot_frame_ids:
-            joint_id = self.model.frames[frame_id].parentJoint
-            while self.model.parents[joint_id] != 1:
-                joint_id = self.model.parents[joint_id]
-            positions.append(self.model.jointPlacements[joint_id].translation.copy())
-        return np.array(positions)
-
     def summary(self) -> dict:
         """Masses, limits and feet as plain data (for ``cafe-mpc robot NAME --json``)."""
         bodies = {
