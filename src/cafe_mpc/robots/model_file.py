@@ -34,10 +34,10 @@ from typing import TYPE_CHECKING
 import numpy as np
 import pinocchio as pin
 
+from cafe_mpc.robots.description import PlantParameters
+
 if TYPE_CHECKING:
     import mujoco
-
-    from cafe_mpc.robots.robot import Robot
 
 PACKAGE_SCHEME = "package://"
 MODEL_SOURCES = ("urdf", "mjcf")
@@ -182,22 +182,36 @@ FOOT_SITE_TOLERANCE = 1e-6
 """m; a foot geom's centre must be this close to its foot frame (the robot file pairs them)."""
 
 
-def plant_mjcf(robot: Robot) -> str:
+def plant_mjcf(
+    name: str,
+    model: pin.Model,
+    path: Path,
+    source: str,
+    plant: PlantParameters,
+    joint_names: tuple[str, ...],
+    foot_frame_names: tuple[str, ...],
+    foot_geoms: tuple[str, ...] | None,
+) -> str:
     """MJCF of the MuJoCo plant of a model-file robot (see the module docstring for what it holds).
+
+    ``name``: the robot's (it names the plant); ``model``: the planning model read from ``path``; ``plant``,
+    the joint names, foot frames and foot geoms (``plant.foot_geoms``, MJCF only): the robot file's.
 
     An MJCF is edited as XML text (every number stays as the file wrote it); a URDF is read by MuJoCo's
     compiler and written back by ``MjSpec.to_xml``, which keeps 6 significant digits (the consistency check
     allows that for URDF robots).
     """
-    path = robot.model_path
-    if path is None:
-        raise ModelFileError(f"robot {robot.name!r} has no model file")
-    text = _urdf_plant(robot, path) if robot.source == "urdf" else _mjcf_plant(robot, path)
-    _check_plant(text, robot, path)
+    if source == "urdf":
+        text = _urdf_plant(name, model, path, plant, joint_names, foot_frame_names)
+    else:
+        text = _mjcf_plant(name, model, path, plant, joint_names, foot_frame_names, foot_geoms)
+    _check_plant(text, path, foot_frame_names, foot_geoms)
     return text
 
 
-def _check_plant(text: str, robot: Robot, path: Path) -> None:
+def _check_plant(
+    text: str, path: Path, foot_frame_names: tuple[str, ...], foot_geoms: tuple[str, ...] | None
+) -> None:
     """The plant compiles, and each foot geom's centre is at its foot frame (the site)."""
     import mujoco
 
@@ -207,11 +221,11 @@ def _check_plant(text: str, robot: Robot, path: Path) -> None:
         raise ModelFileError(f"the plant built from {path} does not compile: {error}") from error
     data = mujoco.MjData(model)
     mujoco.mj_kinematics(model, data)
-    for index, name in enumerate(robot.foot_frame_names):
+    for index, name in enumerate(foot_frame_names):
         geom_centre = data.geom_xpos[model.geom(name).id]
         distance = float(np.linalg.norm(geom_centre - data.site_xpos[model.site(name + "_site").id]))
         if distance > FOOT_SITE_TOLERANCE:
-            geom = name if robot.plant_foot_geoms is None else robot.plant_foot_geoms[index]
+            geom = name if foot_geoms is None else foot_geoms[index]
             raise ModelFileError(
                 f"foot geom {geom!r} is {distance:.4f} m from foot frame {name!r}: foot_frames and "
                 "plant.foot_geoms must name the same points"
@@ -227,7 +241,15 @@ def _fmt(values) -> str:
     return " ".join(f"{float(v):.17g}" for v in values)
 
 
-def _mjcf_plant(robot: Robot, path: Path) -> str:
+def _mjcf_plant(
+    name: str,
+    model: pin.Model,
+    path: Path,
+    plant: PlantParameters,
+    joint_names: tuple[str, ...],
+    foot_frame_names: tuple[str, ...],
+    foot_geoms: tuple[str, ...] | None,
+) -> str:
     """The MJCF file edited as XML (lossless): see the module docstring."""
     import xml.etree.ElementTree as ElementTree
 
@@ -238,7 +260,7 @@ def _mjcf_plant(robot: Robot, path: Path) -> str:
     if root.tag != "mujoco":
         raise ModelFileError(f"{path} is not an MJCF file (root element <{root.tag}>)")
     folder = path.parent
-    root.set("model", robot.name)
+    root.set("model", name)
     for include in root.iter("include"):
         include.set("file", _absolute(folder, include.get("file", "")))
     compilers = root.findall("compiler")
@@ -268,8 +290,8 @@ def _mjcf_plant(robot: Robot, path: Path) -> str:
     old_name = base.get("name")
     base.set("name", "base")
     renamed_geoms: dict[str, str] = {}
-    if robot.plant_foot_geoms is not None:
-        renamed_geoms = dict(zip(robot.plant_foot_geoms, robot.foot_frame_names, strict=True))
+    if foot_geoms is not None:
+        renamed_geoms = dict(zip(foot_geoms, foot_frame_names, strict=True))
     for contact in root.findall("contact"):
         for element in contact:
             for key in ("body1", "body2"):
@@ -279,44 +301,43 @@ def _mjcf_plant(robot: Robot, path: Path) -> str:
                 if element.get(key) in renamed_geoms:
                     element.set(key, renamed_geoms[element.get(key)])
     joints = {element.get("name"): element for element in worldbody.iter("joint")}
-    plant = robot.plant
-    for index, name in enumerate(robot.joint_names):
-        joint = joints.get(name)
+    for index, joint_name in enumerate(joint_names):
+        joint = joints.get(joint_name)
         if joint is None:
-            raise ModelFileError(f"joint {name!r} is not an element of {path}")
+            raise ModelFileError(f"joint {joint_name!r} is not an element of {path}")
         joint.set("armature", f"{float(plant.armature[index]):.17g}")
         joint.set("damping", f"{float(np.asarray(plant.joint_damping)[index]):.17g}")
         joint.set("frictionloss", f"{float(np.asarray(plant.joint_friction)[index]):.17g}")
         joint.set("actuatorfrclimited", "false")  # the motors' ctrlrange is the one saturation
     geoms = {element.get("name"): element for element in worldbody.iter("geom") if element.get("name")}
-    if robot.plant_foot_geoms is None:
+    if foot_geoms is None:
         raise ModelFileError("an MJCF robot needs plant.foot_geoms (the model file's foot geoms, leg order)")
-    pin_data = robot.model.createData()
-    pin.framesForwardKinematics(robot.model, pin_data, pin.neutral(robot.model))
-    for frame_name, geom_name in zip(robot.foot_frame_names, robot.plant_foot_geoms, strict=True):
+    pin_data = model.createData()
+    pin.framesForwardKinematics(model, pin_data, pin.neutral(model))
+    for frame_name, geom_name in zip(foot_frame_names, foot_geoms, strict=True):
         geom = geoms.get(geom_name)
         if geom is None:
             raise ModelFileError(f"foot geom {geom_name!r} is not in {path}")
         geom.set("name", frame_name)
         body = parents[geom]
         body_name = body.get("name")
-        if body_name is None or not robot.model.existFrame(body_name, pin.FrameType.BODY):
+        if body_name is None or not model.existFrame(body_name, pin.FrameType.BODY):
             raise ModelFileError(f"foot geom {geom_name!r} must sit in a named body ({path})")
-        body_placement = pin_data.oMf[robot.model.getFrameId(body_name, pin.FrameType.BODY)]
-        foot_placement = pin_data.oMf[robot.model.getFrameId(frame_name)]
+        body_placement = pin_data.oMf[model.getFrameId(body_name, pin.FrameType.BODY)]
+        foot_placement = pin_data.oMf[model.getFrameId(frame_name)]
         local = body_placement.actInv(foot_placement.translation)
         ElementTree.SubElement(body, "site", {"name": f"{frame_name}_site", "pos": _fmt(local)})
     if not any(site.get("name") == "imu" for site in worldbody.iter("site")):
         ElementTree.SubElement(base, "site", {"name": "imu", "pos": "0 0 0"})
     actuator = ElementTree.SubElement(root, "actuator")
-    for index, name in enumerate(robot.joint_names):
+    for index, joint_name in enumerate(joint_names):
         limit = float(plant.motor_torque_limits[index])
         ElementTree.SubElement(
             actuator,
             "motor",
             {
-                "name": f"{name}_motor",
-                "joint": name,
+                "name": f"{joint_name}_motor",
+                "joint": joint_name,
                 "gear": "1",
                 "ctrllimited": "true",
                 "ctrlrange": f"{-limit:.17g} {limit:.17g}",
@@ -379,7 +400,14 @@ def _free_body_element(worldbody):
     raise ModelFileError(f"the MJCF needs a top-level body with a <freejoint/> (the trunk), found {names}")
 
 
-def _urdf_plant(robot: Robot, path: Path) -> str:
+def _urdf_plant(
+    name: str,
+    model: pin.Model,
+    path: Path,
+    plant: PlantParameters,
+    joint_names: tuple[str, ...],
+    foot_frame_names: tuple[str, ...],
+) -> str:
     """The URDF through MuJoCo's compiler (``MjSpec``), edited and written back: see the module docstring."""
     import mujoco
 
@@ -390,7 +418,7 @@ def _urdf_plant(robot: Robot, path: Path) -> str:
     folder = path.parent
     spec.meshdir = _absolute(folder, spec.meshdir or ".")
     spec.texturedir = _absolute(folder, spec.texturedir or ".")
-    spec.modelname = robot.name
+    spec.modelname = name
     for element in [*spec.sensors, *spec.actuators, *spec.keys, *spec.lights, *spec.cameras]:
         spec.delete(element)
     bodies = list(spec.worldbody.bodies)
@@ -407,20 +435,19 @@ def _urdf_plant(robot: Robot, path: Path) -> str:
         if exclude.bodyname2 == old_name:
             exclude.bodyname2 = "base"
     base.add_site(name="imu", pos=[0.0, 0.0, 0.0])
-    plant = robot.plant
-    for index, name in enumerate(robot.joint_names):
-        joint = spec.joint(name)
+    for index, joint_name in enumerate(joint_names):
+        joint = spec.joint(joint_name)
         if joint is None:
-            raise ModelFileError(f"joint {name!r} is not in MuJoCo's reading of {path}")
+            raise ModelFileError(f"joint {joint_name!r} is not in MuJoCo's reading of {path}")
         joint.armature = float(plant.armature[index])
         damping = np.zeros(3)  # MuJoCo 4: [viscous damping, two further damping coefficients]
         damping[0] = float(np.asarray(plant.joint_damping)[index])
         joint.damping = damping
         joint.frictionloss = float(np.asarray(plant.joint_friction)[index])
         joint.actfrclimited = mujoco.mjtLimited.mjLIMITED_FALSE
-    for frame_name, frame_id in zip(robot.foot_frame_names, robot.foot_frame_ids, strict=True):
-        frame = robot.model.frames[frame_id]
-        body = spec.joint(robot.model.names[frame.parentJoint]).parent
+    for frame_name in foot_frame_names:
+        frame = model.frames[model.getFrameId(frame_name)]
+        body = spec.joint(model.names[frame.parentJoint]).parent
         position = list(frame.placement.translation)  # URDF: a MuJoCo body's frame is its joint's frame
         body.add_geom(
             name=frame_name,
@@ -445,12 +472,12 @@ def _urdf_plant(robot: Robot, path: Path) -> str:
             mass=0.0,
             rgba=[0.75, 0.2, 0.2, 1.0],
         )
-    for index, name in enumerate(robot.joint_names):
+    for index, joint_name in enumerate(joint_names):
         limit = float(plant.motor_torque_limits[index])
         actuator = spec.add_actuator()
         actuator.set_to_motor()
-        actuator.name = f"{name}_motor"
-        actuator.target = name
+        actuator.name = f"{joint_name}_motor"
+        actuator.target = joint_name
         actuator.trntype = mujoco.mjtTrn.mjTRN_JOINT
         actuator.ctrllimited = mujoco.mjtLimited.mjLIMITED_TRUE
         actuator.ctrlrange = [-limit, limit]

@@ -141,7 +141,17 @@ class Robot:
         """MJCF text of the MuJoCo plant (same kinematics/inertias plus the plant extras)."""
         if self.source in MODEL_SOURCES:
             try:
-                return plant_mjcf(self)
+                assert self.model_path is not None
+                return plant_mjcf(
+                    self.name,
+                    self.model,
+                    self.model_path,
+                    self.source,
+                    self.plant,
+                    self.joint_names,
+                    self.foot_frame_names,
+                    self.plant_foot_geoms,
+                )
             except ModelFileError as error:
                 raise RobotLoadError(f"robot {self.name!r}: {error}") from error
         return mjcf_from_model(
