@@ -186,7 +186,7 @@ FOOT_SITE_TOLERANCE = 1e-6
 def plant_mjcf(
     name: str,
     model: pin.Model,
-    path: Path,
+    path: Path | None,
     source: str,
     plant: PlantParameters,
     joint_names: tuple[str, ...],
@@ -202,6 +202,8 @@ def plant_mjcf(
     compiler and written back by ``MjSpec.to_xml``, which keeps 6 significant digits (the consistency check
     allows that for URDF robots).
     """
+    if path is None:
+        raise ModelFileError(f"robot {name!r} has no model file")
     if source == "urdf":
         text = _urdf_plant(name, model, path, plant, joint_names, foot_frame_names)
     else:

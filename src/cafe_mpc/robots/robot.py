@@ -142,7 +142,6 @@ class Robot:
         """MJCF text of the MuJoCo plant (same kinematics/inertias plus the plant extras)."""
         if self.source in MODEL_SOURCES:
             try:
-                assert self.model_path is not None
                 return plant_mjcf(
                     self.name,
                     self.model,
