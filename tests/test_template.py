@@ -20,7 +20,6 @@ from cafe_mpc.core.physics import GRAVITY
 from cafe_mpc.core.template_plan import TemplatePlan
 from cafe_mpc.dynamics.statics import static_stance_torques
 from cafe_mpc.mpc.template import (
-    ConstrainedSRBKnot,
     TemplateMpc,
     TemplateProblemBuilder,
     TemplateSettings,
@@ -220,30 +219,6 @@ def test_latency_prediction_runs_the_plan_in_effect(robot):
     for t in (0.02, 0.04, 0.06):
         measured.update(t, robot.q_standing, np.zeros(robot.nv))
     assert measured.expected_latency() == pytest.approx(np.median(measured.statistics.update_times[1:]))
-
-
-def test_constraint_barrier_gradient_matches_finite_differences(robot):
-    mpc = _template_mpc(robot)
-    built = mpc.builder.build(0.0, robot.x_standing, mpc.reference)
-    mpc.builder.update_torque_maps(built, built.reference_states)
-    knot: ConstrainedSRBKnot = built.knots[0]
-    data = knot.create_data()
-    x = built.reference_states[0]
-    u = np.tile([3.0, -2.0, 60.0], 4)  # inside the cone, near the torque limits
-    knot.calc(data, x, u)
-    knot.calc_diff(data, x, u)
-    gradient = data.Lu.copy()
-    step = 1e-6
-    numeric = np.zeros(12)
-    for i in range(12):
-        up, down = u.copy(), u.copy()
-        up[i] += step
-        down[i] -= step
-        knot.calc(data, x, up)
-        cost_up = data.cost
-        knot.calc(data, x, down)
-        numeric[i] = (cost_up - data.cost) / (2 * step)
-    np.testing.assert_allclose(gradient, numeric, rtol=1e-5, atol=1e-7)
 
 
 def test_standing_plan_carries_the_weight_inside_the_cone(robot):

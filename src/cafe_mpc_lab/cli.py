@@ -483,18 +483,8 @@ def _command_word(argv: list[str] | None) -> str | None:
     return next((word for word in words if not word.startswith("-")), None)
 
 
-def build_parser(argv: list[str] | None = None) -> argparse.ArgumentParser:
-    """The whole command line's parser. The experiments' subparsers import every experiment (and so the
-    simulator and Dask): they are built only when the command line is ``cafe-mpc experiment ...`` (or
-    ``argv`` is None), so that ``cafe-mpc --help``, ``--version`` and the other commands start fast."""
-    parser = _Parser(prog="cafe-mpc", description="CAFE-MPC on a simulated quadruped")
-    parser.add_argument("-v", "--verbose", action="store_true", help="log at INFO level to stderr")
-    parser.add_argument("--version", action="version", version=f"cafe-mpc {_version()}")
-    commands = parser.add_subparsers(dest="command", required=True)
-
-    from cafe_mpc.config import available_presets
-
-    presets = ", ".join(available_presets())
+def _add_run_parser(commands: argparse._SubParsersAction, presets: str) -> None:
+    """``cafe-mpc run``: a preset or a config file in simulation."""
     run_parser = commands.add_parser(
         "run",
         help="run a preset or a YAML config in simulation",
@@ -538,6 +528,9 @@ def build_parser(argv: list[str] | None = None) -> argparse.ArgumentParser:
     )
     run_parser.set_defaults(handler=_command_run)
 
+
+def _add_config_parser(commands: argparse._SubParsersAction, presets: str) -> None:
+    """``cafe-mpc config``: a resolved config as YAML, or the configuration reference."""
     config_parser = commands.add_parser(
         "config",
         help="print a preset's resolved config (YAML), or the configuration reference",
@@ -569,13 +562,9 @@ def build_parser(argv: list[str] | None = None) -> argparse.ArgumentParser:
     )
     config_parser.set_defaults(handler=_command_config)
 
-    if argv is None or _command_word(argv) == "experiment":
-        _add_experiment_parser(commands)
-    else:
-        commands.add_parser(
-            "experiment", help="the paper's experiments, in parallel on Dask (cafe-mpc experiment --list)"
-        )
 
+def _add_report_parser(commands: argparse._SubParsersAction) -> None:
+    """``cafe-mpc report``: the self-contained index.html of a run or an experiment folder."""
     report_parser = commands.add_parser(
         "report",
         help="write index.html for a run or an experiment folder (metrics, plots, video; self-contained)",
@@ -591,12 +580,18 @@ def build_parser(argv: list[str] | None = None) -> argparse.ArgumentParser:
     report_parser.add_argument("folder", help="a run folder (metrics.json) or an experiment folder")
     report_parser.set_defaults(handler=_command_report)
 
+
+def _add_robot_parser(commands: argparse._SubParsersAction) -> None:
+    """``cafe-mpc robot``: a robot's summary and its Pinocchio/MuJoCo consistency check."""
     robot_parser = commands.add_parser("robot", help="robot summary and Pinocchio/MuJoCo consistency check")
     robot_parser.add_argument("name", help="robot name (mini_cheetah, go1) or robot YAML file")
     robot_parser.add_argument("--json", action="store_true", help="print one JSON object")
     robot_parser.add_argument("--samples", type=int, default=5, help="random configurations to compare")
     robot_parser.set_defaults(handler=_command_robot)
 
+
+def _add_bench_parser(commands: argparse._SubParsersAction) -> None:
+    """``cafe-mpc bench``: the solver and MPC benchmarks."""
     bench_parser = commands.add_parser(
         "bench", help="benchmarks (solver: MS-iLQR vs Crocoddyl FDDP; mpc: closed-loop update times per gait)"
     )
@@ -613,6 +608,9 @@ def build_parser(argv: list[str] | None = None) -> argparse.ArgumentParser:
     )
     bench_parser.set_defaults(handler=_command_bench)
 
+
+def _add_optimize_parser(commands: argparse._SubParsersAction) -> None:
+    """``cafe-mpc optimize``: offline whole-body trajectory optimisation of a task."""
     from cafe_mpc.trajopt.presets import TASKS
 
     optimize_parser = commands.add_parser(
@@ -646,6 +644,32 @@ def build_parser(argv: list[str] | None = None) -> argparse.ArgumentParser:
         "--verbose-solver", action="store_true", help="print one line per MS-iLQR iteration"
     )
     optimize_parser.set_defaults(handler=_command_optimize)
+
+
+def build_parser(argv: list[str] | None = None) -> argparse.ArgumentParser:
+    """The whole command line's parser. The experiments' subparsers import every experiment (and so the
+    simulator and Dask): they are built only when the command line is ``cafe-mpc experiment ...`` (or
+    ``argv`` is None), so that ``cafe-mpc --help``, ``--version`` and the other commands start fast."""
+    parser = _Parser(prog="cafe-mpc", description="CAFE-MPC on a simulated quadruped")
+    parser.add_argument("-v", "--verbose", action="store_true", help="log at INFO level to stderr")
+    parser.add_argument("--version", action="version", version=f"cafe-mpc {_version()}")
+    commands = parser.add_subparsers(dest="command", required=True)
+
+    from cafe_mpc.config import available_presets
+
+    presets = ", ".join(available_presets())
+    _add_run_parser(commands, presets)
+    _add_config_parser(commands, presets)
+    if argv is None or _command_word(argv) == "experiment":
+        _add_experiment_parser(commands)
+    else:
+        commands.add_parser(
+            "experiment", help="the paper's experiments, in parallel on Dask (cafe-mpc experiment --list)"
+        )
+    _add_report_parser(commands)
+    _add_robot_parser(commands)
+    _add_bench_parser(commands)
+    _add_optimize_parser(commands)
     return parser
 
 

@@ -184,29 +184,6 @@ class SensorSuite:
         self._model: mujoco.MjModel | None = None
         self.reset()
 
-    @property
-    def is_ideal(self) -> bool:
-        """No noise, bias, quantisation, averaging or delay: the readings are MuJoCo's values at the tick."""
-        imu, encoders = self.spec.imu, self.spec.encoders
-        return (
-            self.spec.delay_max_ticks == 0
-            and not imu.average
-            and not any(self._gyro_bias)
-            and not any(self._accelerometer_bias)
-            and not any(self._orientation_bias)
-            and imu.gyro_noise == imu.accelerometer_noise == imu.orientation_noise == 0.0
-            and not any(
-                (
-                    encoders.position_noise,
-                    encoders.velocity_noise,
-                    encoders.torque_noise,
-                    encoders.position_resolution,
-                    encoders.velocity_resolution,
-                    encoders.torque_resolution,
-                )
-            )
-        )
-
     def reset(self) -> None:
         """Restart the random stream, the IMU sampling clock and the delay history."""
         self.rng = np.random.default_rng(self.spec.seed)
