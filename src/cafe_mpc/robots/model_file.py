@@ -5,7 +5,7 @@ a free-flyer root); the MuJoCo plant is what MuJoCo compiles from the *same* fil
 through MuJoCo's URDF compiler), edited with ``mujoco.MjSpec`` into the plant's conventions and given the
 extras the robot file sets. The two never share an object: each reads the file on its own.
 
-The plant's conventions (what ``sim.plant.MujocoPlant`` and the scene functions rely on):
+The plant's conventions (what ``sim.mujoco_plant.MujocoPlant`` and the scene functions rely on):
 
 * the body of the free joint is named ``base``; the robot's collision geoms on it are the trunk;
 * the world has a plane ``floor`` (friction ``plant.floor_friction``) and a light;
