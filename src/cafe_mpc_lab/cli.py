@@ -56,6 +56,7 @@ def _talk(quiet: bool) -> None:
 def _command_run(arguments: argparse.Namespace) -> int:
     from cafe_mpc.assembly.checks import load_run_config
     from cafe_mpc_lab.experiments.run import default_out_dir, run
+    from cafe_mpc_lab.report.summary import summarize
 
     _talk(arguments.quiet)
 
@@ -70,22 +71,9 @@ def _command_run(arguments: argparse.Namespace) -> int:
     out_dir = Path(arguments.out) if arguments.out else default_out_dir(config)
     result = run(config, out_dir, show_progress=not arguments.quiet, viewer=arguments.viewer)
     metrics = result.metrics
-    print(
-        f"{config.name}: fell={metrics['fell']} base_height_mean={metrics['base_height_mean']:.3f} m "
-        f"sim {metrics['sim_time_s']:.2f} s in {metrics['wall_time_s']:.2f} s "
-        f"(real-time factor {metrics['real_time_factor']:.2f})"
-    )
-    if config.gait is not None:
-        print(_gait_summary(metrics))
-    estimator = metrics.get("estimator") or {}
-    if estimator.get("velocity_rms_error_m_s") is not None:
-        print(
-            f"estimator {estimator['kind']}: velocity error RMS "
-            f"{_number(estimator['velocity_rms_error_m_s'], 4)} m/s (max "
-            f"{_number(estimator['velocity_error_max_m_s'])}), height RMS "
-            f"{_number(estimator['height_rms_error_m'] * 1e3, 1)} mm, orientation RMS "
-            f"{_number(estimator['orientation_rms_error_rad'], 4)} rad"
-        )
+    # the verdict, then the numbers that matter in words with units: the top of the HTML report, as text
+    for line in summarize(metrics, config.model_dump(mode="json"), config.name).lines():
+        print(line)
     if "render_error" in metrics:
         print(f"no video: {metrics['render_error']}")
     print(f"results in {result.out_dir}")
@@ -337,29 +325,6 @@ def _unknown_arguments(arguments: argparse.Namespace, extra: list[str]) -> str:
             f" (it takes {flags})" if flags else ""
         )
     return f"unrecognized arguments: {' '.join(extra)}"
-
-
-def _number(value: float | None, digits: int = 3) -> str:
-    return "n/a" if value is None else f"{value:.{digits}f}"
-
-
-def _gait_summary(metrics: dict) -> str:
-    """One line of tracking, MPC and low-level numbers for a gait run."""
-    mpc, wbc = metrics.get("mpc") or {}, metrics.get("wbc") or {}
-    return (
-        f"vx_mean={_number(metrics.get('vx_mean'))} m/s (whole run; "
-        f"{_number((metrics.get('steady_state') or {}).get('vx_mean'))} from "
-        f"{(metrics.get('steady_state') or {}).get('metrics_window_start_s')} s) "
-        f"vx_rms_error={_number(metrics.get('vx_rms_error'))} "
-        f"pitch_rms={_number(metrics.get('pitch_rms'))} rad; "
-        f"mpc ({(metrics.get('timing') or {}).get('mode')} latency) solves={mpc.get('solves')} "
-        f"failures={mpc.get('failures')} update median {_number(mpc.get('update_ms_median'), 1)} ms "
-        f"latency median {_number(mpc.get('latency_ms_median'), 1)} ms "
-        f"rate {_number(mpc.get('rate_hz'), 1)} Hz; "
-        f"{wbc.get('controller')}: torque limit violations {wbc.get('torque_limit_violations')}, "
-        f"friction cone violations {wbc.get('friction_cone_violations')}, "
-        f"foot slip max {_number(wbc.get('foot_slip_max_m'), 4)} m"
-    )
 
 
 def _command_report(arguments: argparse.Namespace) -> int:
