@@ -335,11 +335,42 @@ def _command_report(arguments: argparse.Namespace) -> int:
     return 0
 
 
+def _command_robot_init(arguments: argparse.Namespace) -> int:
+    """``cafe-mpc robot --init MODEL_FILE``: write a starting robot file, then load it."""
+    from cafe_mpc.robots.robot import load_robot
+    from cafe_mpc.robots.starting_file import StartingFileError, starting_robot_file
+
+    model_file = Path(arguments.init)
+    out = Path(arguments.out) if arguments.out else Path(f"{model_file.stem.replace('-', '_')}.yaml")
+    if out.suffix not in (".yaml", ".yml"):
+        raise _UsageError(f"--out {out}: a robot file ends in .yaml")
+    if out.exists():
+        raise FileExistsError(f"{out} exists; give another --out")
+    try:
+        text = starting_robot_file(model_file, arguments.name)
+    except StartingFileError as error:
+        raise _UsageError(f"robot --init {model_file}: {error}") from error
+    out.write_text(text)
+    to_fill = sum("# FILL IN" in line for line in text.splitlines())
+    print(f"wrote {out}: {to_fill} line(s) marked FILL IN (values the model file does not give)")
+    robot = load_robot(str(out))
+    print(
+        f"it loads: {robot.name}, {robot.total_mass:.3f} kg, legs {', '.join(robot.leg_names)} = feet "
+        f"{', '.join(robot.foot_frame_names)}, standing height {robot.standing_height:.3f} m; next: "
+        f"cafe-mpc robot {out}"
+    )
+    return 0
+
+
 def _command_robot(arguments: argparse.Namespace) -> int:
     from cafe_mpc.dynamics.srb import lumped_inertia, srb_parameters
     from cafe_mpc.robots.robot import load_robot
     from cafe_mpc_lab.sim.consistency import check_consistency
 
+    if arguments.init is not None:
+        return _command_robot_init(arguments)
+    if arguments.name is None:
+        raise _UsageError("cafe-mpc robot needs a robot name or file (or --init MODEL_FILE)")
     robot = load_robot(arguments.name)
     summary = robot.summary()
     srb = srb_parameters(robot)
@@ -351,6 +382,12 @@ def _command_robot(arguments: argparse.Namespace) -> int:
         print(json.dumps(summary, indent=2))
     else:
         print(f"{robot.name}: total mass {robot.total_mass:.3f} kg, feet {', '.join(robot.foot_frame_names)}")
+        feet = zip(robot.leg_names, robot.foot_frame_names, strict=True)
+        legs = ", ".join(f"{leg} {foot}" for leg, foot in feet)
+        print(
+            f"legs (named by {robot.legs_named_by}): {legs}; the model file's order "
+            f"{', '.join(robot.model_leg_order)}"
+        )
         origin = f" ({robot.model_path})" if robot.model_path is not None else ""
         print(
             f"source {robot.source}{origin}; leg length {robot.leg_length:.3f} m, standing height "
@@ -549,7 +586,20 @@ def _add_report_parser(commands: argparse._SubParsersAction) -> None:
 def _add_robot_parser(commands: argparse._SubParsersAction) -> None:
     """``cafe-mpc robot``: a robot's summary and its Pinocchio/MuJoCo consistency check."""
     robot_parser = commands.add_parser("robot", help="robot summary and Pinocchio/MuJoCo consistency check")
-    robot_parser.add_argument("name", help="robot name (mini_cheetah, go1) or robot YAML file")
+    robot_parser.add_argument(
+        "name",
+        nargs="?",
+        help="robot name (mini_cheetah, go1) or robot YAML file; with --init: the new robot's name",
+    )
+    robot_parser.add_argument(
+        "--init",
+        metavar="MODEL_FILE",
+        help="write a starting robot file for a URDF or MJCF (legs, feet and limits found, what is missing "
+        "marked FILL IN) to --out, then load it",
+    )
+    robot_parser.add_argument(
+        "--out", help="with --init: the robot file to write (default ./<model file>.yaml)"
+    )
     robot_parser.add_argument("--json", action="store_true", help="print one JSON object")
     robot_parser.add_argument("--samples", type=int, default=5, help="random configurations to compare")
     robot_parser.set_defaults(handler=_command_robot)
