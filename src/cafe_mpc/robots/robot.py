@@ -449,6 +449,12 @@ def _planning_model(table: dict, name: str, source: str, path: Path | None) -> t
     return model, urdf, None
 
 
+def planning_model_of(table: dict, path: Path | None = None) -> pin.Model:
+    """The planning model of a robot file's table (``path``: the file, for relative model files) as its
+    source's parser orders the legs, before ``robots.legs`` puts them in ``LEG_NAMES`` order."""
+    return _planning_model(table, str(table["name"]), table.get("source", "parameters"), path)[0]
+
+
 def _optional_names(table: dict, key: str) -> tuple[str, ...] | None:
     value = table.get(key)
     if value is None:
