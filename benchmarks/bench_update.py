@@ -97,7 +97,7 @@ def _import(package: str, module: str):
 def record(preset: str, duration: float, overrides: list[str]) -> list[Call]:
     """The MPC calls of a fixed-latency closed-loop run of ``preset`` (this tree's code)."""
     from cafe_mpc.config import load_config
-    from cafe_mpc.mpc.receding_horizon import RecedingHorizonMpc
+    from cafe_mpc.planners.cafe.planner import RecedingHorizonMpc
     from cafe_mpc_lab.experiments.run import simulate_run
 
     calls: list[Call] = []

@@ -18,12 +18,12 @@ from cafe_mpc.config import ConfigError, VelocityCommand, available_presets
 from cafe_mpc.control.mpc_loop import CafeMpcController
 from cafe_mpc.core.measurement import Measurement
 from cafe_mpc.dynamics.srb import srb_parameters
+from cafe_mpc.low_level.pd import PDController
+from cafe_mpc.low_level.riccati import RiccatiController
+from cafe_mpc.low_level.synthetic import synthetic_plan
+from cafe_mpc.low_level.vwbc import VWBCController
 from cafe_mpc.reference.locomotion import quaternion_from_yaw
 from cafe_mpc.robots.robot import load_robot
-from cafe_mpc.wbc.pd import PDController
-from cafe_mpc.wbc.riccati import RiccatiController
-from cafe_mpc.wbc.synthetic import synthetic_plan
-from cafe_mpc.wbc.vwbc import VWBCController
 from cafe_mpc_lab.cli import main
 from cafe_mpc_lab.experiments.controllers import LowLevelRecorder, build_run_controller, low_level_of
 from cafe_mpc_lab.experiments.run import run

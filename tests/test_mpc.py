@@ -10,13 +10,13 @@ from cafe_mpc.config import VelocityCommand
 from cafe_mpc.control.mpc_loop import CafeMpcController, MpcSettings
 from cafe_mpc.core.measurement import Measurement
 from cafe_mpc.dynamics.statics import static_stance_torques
-from cafe_mpc.mpc.planner import first_solve_options, update_solve_options
-from cafe_mpc.mpc.problem import CafeProblemBuilder, ModelSchedule, WarmStart
+from cafe_mpc.low_level.riccati import RiccatiController
 from cafe_mpc.ocp.contact_schedule import get_gait
 from cafe_mpc.ocp.knots import SRBModelFactory, WholeBodyModelFactory
+from cafe_mpc.planners.base import first_solve_options, update_solve_options
+from cafe_mpc.planners.cafe.problem import CafeProblemBuilder, ModelSchedule, WarmStart
 from cafe_mpc.reference.locomotion import LocomotionReference
 from cafe_mpc.solver import MSiLQRSolver
-from cafe_mpc.wbc.riccati import RiccatiController
 from cafe_mpc_lab.sim.loop import simulate
 
 

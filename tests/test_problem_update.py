@@ -22,11 +22,11 @@ from cafe_mpc.config import MpcSettings, VelocityCommand
 from cafe_mpc.core.contacts import touchdown_flags
 from cafe_mpc.core.physics import GRAVITY
 from cafe_mpc.dynamics.transition import whole_body_to_srb_state
-from cafe_mpc.mpc import problem as problem_module
-from cafe_mpc.mpc.planner import update_solve_options
-from cafe_mpc.mpc.problem import BuiltProblem, CafeProblemBuilder, ModelSchedule, WarmStart
 from cafe_mpc.ocp.contact_schedule import get_gait
 from cafe_mpc.ocp.knots import SRBModelFactory, WholeBodyModelFactory
+from cafe_mpc.planners.base import update_solve_options
+from cafe_mpc.planners.cafe import problem as problem_module
+from cafe_mpc.planners.cafe.problem import BuiltProblem, CafeProblemBuilder, ModelSchedule, WarmStart
 from cafe_mpc.reference.base import ReferenceWindow, switches_inside
 from cafe_mpc.reference.locomotion import LocomotionReference
 from cafe_mpc.solver import MSiLQRSolver

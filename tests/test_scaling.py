@@ -12,8 +12,8 @@ from cafe_mpc.assembly import build_low_level, build_mpc
 from cafe_mpc.assembly.scaling import run_scale, scaled_gait, scaled_schedule, scaled_weights
 from cafe_mpc.config import load_config
 from cafe_mpc.config.weights import WholeBodyWeights
-from cafe_mpc.mpc.problem import ModelSchedule
 from cafe_mpc.ocp.contact_schedule import get_gait
+from cafe_mpc.planners.cafe.problem import ModelSchedule
 from cafe_mpc.robots.robot import load_robot
 from cafe_mpc.robots.scaling import RobotScale, robot_scale
 

@@ -1,7 +1,7 @@
 """The template-MPC baseline (paper Sec. VII-C): stance torque map, plan message, SRB problem, closed loop.
 
-``planner: template`` plans over the SRB only (``mpc.template``) and follows the plan with planned GRFs on
-the stance legs and joint PD on the swing legs (``wbc.template_low_level``).
+``planner: template`` plans over the SRB only (``planners.template.problem``) and follows the plan with planned GRFs on
+the stance legs and joint PD on the swing legs (``planners.template.low_level``).
 """
 
 from __future__ import annotations
@@ -17,19 +17,19 @@ from cafe_mpc.assembly.controllers import build_mpc
 from cafe_mpc.config import ConfigError
 from cafe_mpc.core.measurement import Measurement
 from cafe_mpc.core.physics import GRAVITY
-from cafe_mpc.core.template_plan import TemplatePlan
 from cafe_mpc.dynamics.statics import static_stance_torques
-from cafe_mpc.mpc.template import (
+from cafe_mpc.ocp.contact_schedule import GAITS
+from cafe_mpc.planners.template.low_level import TemplateLowLevelController, stance_torques
+from cafe_mpc.planners.template.plan import TemplatePlan
+from cafe_mpc.planners.template.planner import TemplateMpc
+from cafe_mpc.planners.template.problem import (
     ConstrainedSRBKnot,
-    TemplateMpc,
     TemplateProblemBuilder,
     TemplateSettings,
     VerticalOscillation,
     template_srb,
 )
-from cafe_mpc.ocp.contact_schedule import GAITS
 from cafe_mpc.robots.robot import load_robot
-from cafe_mpc.wbc.template_low_level import TemplateLowLevelController, stance_torques
 from cafe_mpc_lab.experiments.run import run_metrics, simulate_run
 from cafe_mpc_lab.experiments.sweep import run_experiment
 from cafe_mpc_lab.experiments.template_gaits import pitch_swing, vertical_force_capacity

@@ -10,16 +10,16 @@ import pytest
 from cafe_mpc.config import MpcSettings, VelocityCommand
 from cafe_mpc.control.mpc_loop import CafeMpcController
 from cafe_mpc.core.buffers import ArrayLender
-from cafe_mpc.core.plan import PLAN_FIELDS, Plan, PlanBuffers
-from cafe_mpc.mpc import collector
-from cafe_mpc.mpc.problem import CafeProblemBuilder, ModelSchedule
-from cafe_mpc.mpc.time_grid import TIME_QUANTUM, PiecewiseTrajectory
+from cafe_mpc.low_level.riccati import RiccatiController
 from cafe_mpc.ocp.contact_schedule import get_gait
 from cafe_mpc.ocp.knots import SRBModelFactory, WholeBodyModelFactory
+from cafe_mpc.planners import collector
+from cafe_mpc.planners.cafe.plan import PLAN_FIELDS, Plan, PlanBuffers
+from cafe_mpc.planners.cafe.problem import CafeProblemBuilder, ModelSchedule
+from cafe_mpc.planners.time_grid import TIME_QUANTUM, PiecewiseTrajectory
 from cafe_mpc.reference.base import ReferenceWindow
 from cafe_mpc.reference.locomotion import LocomotionReference
 from cafe_mpc.solver import MSiLQRSolver, SolverOptions
-from cafe_mpc.wbc.riccati import RiccatiController
 from cafe_mpc_lab.bench.problems import TROT_CYCLE, whole_body_problem
 from cafe_mpc_lab.sim.loop import simulate
 

@@ -45,7 +45,7 @@ with the stance of the plan the controller follows; call it once per tick, befor
 ``set_command(vx=..., vy=..., yaw_rate=..., height=...)`` steers a gait config at run time (a joystick, a
 planner, a keyboard): the command is checked like a config's, written in place, and the MPC follows it from
 its next update (``control.commands``); ``set_gait(name)`` switches gait at the next cycle boundary.
-``plan`` is the plan the low level follows now (``core.plan.Plan``), e.g. to draw it
+``plan`` is the plan the low level follows now (``planners.cafe.plan.Plan``), e.g. to draw it
 (``robots.plan_overlay``). ``examples/mujoco_loop.py`` runs it against a MuJoCo loop,
 ``examples/steer.py`` steers it from a command sequence given on its command line.
 """
@@ -66,9 +66,9 @@ from cafe_mpc.control.mpc_loop import CafeMpcController
 from cafe_mpc.control.realtime import RealtimeMpcController
 from cafe_mpc.core.free_joint import free_joint_qpos, planning_state
 from cafe_mpc.core.measurement import Measurement
-from cafe_mpc.core.plan import Plan
 from cafe_mpc.core.sensors import SensorReadings
 from cafe_mpc.estimation.estimator import StateEstimator
+from cafe_mpc.planners.cafe.plan import Plan
 from cafe_mpc.robots.robot import Robot
 
 __all__ = ["Controller"]

@@ -2,10 +2,10 @@
 
 Each builder turns config sections into objects once:
 
-* ``build_mpc``: the CAFE-MPC planner (``mpc.receding_horizon.RecedingHorizonMpc``): the reference
+* ``build_mpc``: the CAFE-MPC planner (``planners.cafe.planner.RecedingHorizonMpc``): the reference
   (``assembly.references``, Sec. VI-A), the CAFE problem with its model schedule (``assembly.problem``,
   Sec. IV-D) and the receding-horizon settings (the ``mpc`` section itself: ``config.MpcSettings``);
-* ``build_template_mpc``: the template-MPC baseline (``mpc.template.TemplateMpc``, Sec. VII-C);
+* ``build_template_mpc``: the template-MPC baseline (``planners.template.planner.TemplateMpc``, Sec. VII-C);
 * ``build_low_level``: what follows the plan at the control rate: PD standing, Riccati feedback (33), the
   VWBC QP (34), or the template's stance ``J' F`` / swing PD;
 * ``build_controller``: the closed loop in simulated time (``control.mpc_loop.CafeMpcController``, one
@@ -35,14 +35,15 @@ from cafe_mpc.control.realtime import RealtimeMpcController
 from cafe_mpc.core.controller import Controller, LowLevelController
 from cafe_mpc.estimation.controller import SensingController
 from cafe_mpc.estimation.estimator import StateEstimator
-from cafe_mpc.mpc.receding_horizon import RecedingHorizonMpc
-from cafe_mpc.mpc.template import TemplateMpc, TemplateProblemBuilder, TemplateSettings, template_srb
+from cafe_mpc.low_level.pd import PDController
+from cafe_mpc.low_level.riccati import RiccatiController
+from cafe_mpc.low_level.vwbc import VWBCController, VWBCSettings
+from cafe_mpc.planners.cafe.planner import RecedingHorizonMpc
+from cafe_mpc.planners.template.low_level import TemplateLowLevelController, TemplateLowLevelSettings
+from cafe_mpc.planners.template.planner import TemplateMpc
+from cafe_mpc.planners.template.problem import TemplateProblemBuilder, TemplateSettings, template_srb
 from cafe_mpc.reference.base import Reference
 from cafe_mpc.robots.robot import Robot, load_robot
-from cafe_mpc.wbc.pd import PDController
-from cafe_mpc.wbc.riccati import RiccatiController
-from cafe_mpc.wbc.template_low_level import TemplateLowLevelController, TemplateLowLevelSettings
-from cafe_mpc.wbc.vwbc import VWBCController, VWBCSettings
 
 RunController = PDController | CafeMpcController | RealtimeMpcController
 """What a run config builds: PD standing, or an MPC loop in simulated or wall-clock time."""
@@ -58,7 +59,7 @@ def build_mpc(config: RunConfig, robot: Robot, reference: Reference | None = Non
 
 def build_template_mpc(config: RunConfig, robot: Robot, reference: Reference | None = None) -> TemplateMpc:
     """The template-MPC baseline (``planner: template``, paper Sec. VII-C): the SRB-only plan
-    (``mpc.template``) of the CAFE run's reference and receding-horizon settings (period, latency,
+    (``planners.template.problem``) of the CAFE run's reference and receding-horizon settings (period, latency,
     iterations)."""
     if reference is None:
         reference = build_reference(config, robot)

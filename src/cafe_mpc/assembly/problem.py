@@ -23,9 +23,9 @@ from cafe_mpc.assembly.scaling import (
 from cafe_mpc.config import ConfigError, MpcConfig, RunConfig
 from cafe_mpc.config.weights import SRBWeights, WholeBodyWeights
 from cafe_mpc.dynamics.srb import srb_parameters
-from cafe_mpc.mpc.problem import CafeProblemBuilder, ModelSchedule
 from cafe_mpc.ocp.constraints import WholeBodyConstraintSettings
 from cafe_mpc.ocp.knots import SRBModelFactory, SRBSettings, WholeBodyModelFactory, WholeBodySettings
+from cafe_mpc.planners.cafe.problem import CafeProblemBuilder, ModelSchedule
 from cafe_mpc.robots.robot import Robot
 from cafe_mpc.robots.scaling import RobotScale
 

@@ -11,8 +11,8 @@ from __future__ import annotations
 
 from cafe_mpc.config import RunConfig
 from cafe_mpc.config.weights import SRBWeights, WholeBodyWeights
-from cafe_mpc.mpc.problem import ModelSchedule
 from cafe_mpc.ocp.contact_schedule import GaitCycle, get_gait
+from cafe_mpc.planners.cafe.problem import ModelSchedule
 from cafe_mpc.robots.robot import Robot
 from cafe_mpc.robots.scaling import IDENTITY, RobotScale, robot_scale
 

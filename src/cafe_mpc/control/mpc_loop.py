@@ -19,7 +19,7 @@ The closed-loop composition of the MPC (``cafe_mpc.mpc.RecedingHorizonMpc``) and
 With a fixed latency the real-time iteration compensates it (``MpcSettings.delay_compensation``, default
 on): the problem of the update measured at ``t`` starts at the last whole-body knot time at or before
 ``t + fixed_latency``, when its plan takes effect (``_problem_start``), and its feedback embeds the
-measured state carried there by ``control.delay_compensation.DelayPredictor`` along the plans in effect
+measured state carried there by ``planners.cafe.prediction.DelayPredictor`` along the plans in effect
 meanwhile.
 
 Latency: **measured** (default): each phase takes its measured wall-clock time in simulated time
@@ -33,7 +33,7 @@ The low-level controller follows the newest plan at every tick. A failed update 
 with no plan, or once the plan's horizon has run out, the robot is held by the PD standing controller
 (damped stance), counted in ``pd_fallback_ticks``. The wall-clock real-time mode with the MPC in its own
 process is ``cafe_mpc.control.realtime``. The same loop runs the template-MPC baseline (one-phase updates:
-``mpc.template.TemplateMpc``, whose ``TemplatePlan`` its own low level ``wbc.template_low_level`` follows).
+``planners.template.planner.TemplateMpc``, whose ``TemplatePlan`` its own low level ``planners.template.low_level`` follows).
 """
 
 from __future__ import annotations
@@ -46,18 +46,18 @@ import numpy as np
 
 from cafe_mpc.config import MpcSettings
 from cafe_mpc.control.commands import CommandChannel, apply_command
-from cafe_mpc.control.delay_compensation import DelayPredictor
 from cafe_mpc.control.plan_follower import NewestPlanFollower
 from cafe_mpc.control.update_clock import UpdateClock
 from cafe_mpc.core.controller import LowLevelController
 from cafe_mpc.core.measurement import Measurement
-from cafe_mpc.core.plan import Plan
 from cafe_mpc.core.progress import stage
-from cafe_mpc.core.template_plan import TemplatePlan
-from cafe_mpc.mpc.planner import PLANNER_ERRORS, MpcStatistics, Planner
-from cafe_mpc.mpc.problem import CafeProblemBuilder
-from cafe_mpc.mpc.receding_horizon import RecedingHorizonMpc
-from cafe_mpc.mpc.template import TemplateProblemBuilder
+from cafe_mpc.planners.base import PLANNER_ERRORS, MpcStatistics, Planner
+from cafe_mpc.planners.cafe.plan import Plan
+from cafe_mpc.planners.cafe.planner import RecedingHorizonMpc
+from cafe_mpc.planners.cafe.prediction import DelayPredictor
+from cafe_mpc.planners.cafe.problem import CafeProblemBuilder
+from cafe_mpc.planners.template.plan import TemplatePlan
+from cafe_mpc.planners.template.problem import TemplateProblemBuilder
 from cafe_mpc.reference.base import Reference
 from cafe_mpc.robots.robot import Robot
 

@@ -11,10 +11,10 @@ import numpy as np
 
 from cafe_mpc.core.controller import LowLevelController
 from cafe_mpc.core.measurement import Measurement
-from cafe_mpc.core.plan import Plan
-from cafe_mpc.core.template_plan import TemplatePlan
+from cafe_mpc.low_level.pd import PDController
+from cafe_mpc.planners.cafe.plan import Plan
+from cafe_mpc.planners.template.plan import TemplatePlan
 from cafe_mpc.robots.robot import Robot
-from cafe_mpc.wbc.pd import PDController
 
 
 class NewestPlanFollower:

@@ -49,9 +49,9 @@ from cafe_mpc.control.plan_follower import NewestPlanFollower
 from cafe_mpc.control.update_clock import UpdateClock
 from cafe_mpc.core.controller import LowLevelController
 from cafe_mpc.core.measurement import Measurement
-from cafe_mpc.core.plan import Plan, plan_shapes
 from cafe_mpc.core.progress import stage
-from cafe_mpc.mpc.planner import MpcStatistics, Planner
+from cafe_mpc.planners.base import MpcStatistics, Planner
+from cafe_mpc.planners.cafe.plan import Plan, plan_shapes
 from cafe_mpc.robots.robot import Robot
 
 logger = logging.getLogger(__name__)

@@ -19,12 +19,14 @@ the control rate). A ``LowLevelController`` that needs no plan (PD) is one; the 
 from __future__ import annotations
 
 from abc import ABC, abstractmethod
-from typing import Protocol
+from typing import TYPE_CHECKING, Protocol
 
 import numpy as np
 
 from cafe_mpc.core.measurement import Measurement
-from cafe_mpc.core.plan import Plan
+
+if TYPE_CHECKING:
+    from cafe_mpc.planners.cafe.plan import Plan
 
 
 class LowLevelController(ABC):

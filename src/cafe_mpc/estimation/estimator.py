@@ -65,7 +65,7 @@ LWA = pin.ReferenceFrame.LOCAL_WORLD_ALIGNED
 
 
 class ContactPlan(Protocol):
-    """What the estimator reads from a plan (``core.plan.Plan``, ``core.template_plan.TemplatePlan``): knot
+    """What the estimator reads from a plan (``planners.cafe.plan.Plan``, ``planners.template.plan.TemplatePlan``): knot
     start times, durations and stance flags (leg order)."""
 
     times: np.ndarray

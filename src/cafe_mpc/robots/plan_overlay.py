@@ -19,12 +19,16 @@ from __future__ import annotations
 
 import itertools
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import mujoco
 import numpy as np
 
-from cafe_mpc.core.plan import Plan, nearest_knot
+from cafe_mpc.core.plan import nearest_knot
 from cafe_mpc.robots.robot import Robot
+
+if TYPE_CHECKING:
+    from cafe_mpc.planners.cafe.plan import Plan
 
 BASE_RGBA = np.array([0.15, 0.45, 0.95, 0.9], dtype=np.float32)
 SWING_RGBA = np.array([1.0, 0.55, 0.1, 0.9], dtype=np.float32)

@@ -27,7 +27,7 @@ from cafe_mpc.control.realtime import RealtimeMpcController
 from cafe_mpc.core.contacts import N_FEET
 from cafe_mpc.core.controller import LowLevelController
 from cafe_mpc.core.measurement import Measurement
-from cafe_mpc.core.plan import Plan
+from cafe_mpc.planners.cafe.plan import Plan
 from cafe_mpc.robots.robot import Robot
 
 

@@ -85,7 +85,7 @@ class Schedules(Experiment):
     reports_timing = True
 
     def plan(self, options: SchedulesOptions, context: PlanContext) -> ExperimentPlan:
-        from cafe_mpc.mpc.problem import PAPER_SCHEDULES
+        from cafe_mpc.planners.cafe.problem import PAPER_SCHEDULES
 
         schedules, dts = options.schedules, options.srb_dts
         variants = [

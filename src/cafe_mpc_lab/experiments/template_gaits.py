@@ -1,7 +1,7 @@
 """``cafe-mpc experiment template-gaits``: CAFE-MPC and the template MPC on every gait, with the paper's
 timing and with MIT Cheetah-Software's convex-MPC timing, and the bounding push test.
 
-The template MPC (``planner: template``, ``mpc.template``) stands for the convex / kinodynamic SRB MPC the
+The template MPC (``planner: template``, ``planners.template.problem``) stands for the convex / kinodynamic SRB MPC the
 paper compares with (Sec. VII-C). Whether it is a fair stand-in depends on whether it does what such
 controllers do on the Mini Cheetah: trot, pace, bound and pronk at 0.5 m/s, and take the push. Each gait
 (``GAITS``) runs once with each planner (``--planners``) from its family's preset with ``gait.name`` set:
@@ -124,7 +124,7 @@ def pitch_swing(gait: GaitCycle, robot: Robot, friction: float) -> tuple[float, 
     ``friction * h`` per unit of vertical impulse (``h`` the centre of mass's height); the rest, divided by
     the SRB's pitch inertia (``template_srb``), is the pitch-rate change the phase cannot avoid. Zero for
     gaits whose front and hind feet share every stance (trot, pace, pronk)."""
-    from cafe_mpc.mpc.template import template_srb
+    from cafe_mpc.planners.template.problem import template_srb
 
     parameters, offset = template_srb(robot)
     inertia = float(np.asarray(parameters.inertia)[1, 1])

@@ -31,7 +31,7 @@ import numpy as np
 
 from cafe_mpc.config import VelocityCommand
 from cafe_mpc.control.commands import GAIT_NAMES, CommandChannel
-from cafe_mpc.core.plan import Plan
+from cafe_mpc.planners.cafe.plan import Plan
 from cafe_mpc.reference.locomotion import validate_command
 from cafe_mpc.reference.tested_ranges import outside_tested_range
 from cafe_mpc.robots.plan_overlay import PlanOverlay, draw_plan

@@ -11,8 +11,8 @@ import numpy as np
 
 from cafe_mpc.core.controller import LowLevelController
 from cafe_mpc.core.measurement import Measurement
-from cafe_mpc.core.plan import Plan
 from cafe_mpc.dynamics.statics import static_stance_torques
+from cafe_mpc.planners.cafe.plan import Plan
 from cafe_mpc.robots.robot import Robot
 
 

@@ -13,8 +13,8 @@ A planner turns measured (or predicted) states into plans for the low-level cont
 
 ``RecedingHorizonPlanner`` is the shared part: the one-phase update (reference re-anchored, problem built,
 solver run, plan made; failures counted and logged and the previous plan kept) over three hooks, ``_build``,
-``_solve`` and ``_plan``. ``mpc.receding_horizon.RecedingHorizonMpc`` (CAFE-MPC, with the real-time
-iteration) and ``mpc.template.TemplateMpc`` (the SRB-only baseline) implement them.
+``_solve`` and ``_plan``. ``planners.cafe.planner.RecedingHorizonMpc`` (CAFE-MPC, with the real-time
+iteration) and ``planners.template.planner.TemplateMpc`` (the SRB-only baseline) implement them.
 """
 
 from __future__ import annotations
@@ -27,9 +27,9 @@ from typing import Protocol
 import numpy as np
 
 from cafe_mpc.config import MpcSettings
-from cafe_mpc.core.plan import Plan
-from cafe_mpc.core.template_plan import TemplatePlan
-from cafe_mpc.mpc import collector
+from cafe_mpc.planners import collector
+from cafe_mpc.planners.cafe.plan import Plan
+from cafe_mpc.planners.template.plan import TemplatePlan
 from cafe_mpc.reference.base import Reference
 from cafe_mpc.robots.robot import Robot
 from cafe_mpc.solver import MSiLQRSolver, SolverOptions, SolverResult, SolveStatus
@@ -264,7 +264,7 @@ class RecedingHorizonPlanner:
     def update(self, t: float, q: np.ndarray, v: np.ndarray) -> Plan | TemplatePlan | None:
         """One one-phase update from the state measured at ``t``; ``None`` (counted and logged) if it
         failed. The first update of a run is the cold solve (``first_solve_options``); after it (and the
-        warm-up) the objects alive are frozen out of the garbage collector's reach (``mpc.collector``)."""
+        warm-up) the objects alive are frozen out of the garbage collector's reach (``planners.collector``)."""
         first = self.previous is None
         self.prepared = None
         if first:

@@ -13,7 +13,7 @@ import pinocchio as pin
 
 from cafe_mpc.core.controller import LowLevelController
 from cafe_mpc.core.measurement import Measurement
-from cafe_mpc.core.plan import Plan
+from cafe_mpc.planners.cafe.plan import Plan, riccati_torque
 from cafe_mpc.robots.robot import Robot
 
 
@@ -26,13 +26,6 @@ def state_error(
     out = np.empty(2 * nv) if out is None else out
     out[:nv] = pin.difference(model, x_plan[:nq], q)
     np.subtract(v, x_plan[nq:], out=out[nv:])
-    return out
-
-
-def riccati_torque(plan: Plan, k: int, dx: np.ndarray, out: np.ndarray) -> np.ndarray:
-    """Eq. (33) at knot ``k``: ``out = tau*_k + K_k dx`` (unclamped), ``dx = x ⊖ x*_k``."""
-    np.matmul(plan.K[k], dx, out=out)
-    out += plan.us[k]
     return out
 
 

@@ -30,18 +30,18 @@ import time
 import numpy as np
 
 from cafe_mpc.config import MpcSettings
-from cafe_mpc.core.plan import Plan, PlanBuffers
 from cafe_mpc.core.progress import stage
-from cafe_mpc.mpc import collector
-from cafe_mpc.mpc.planner import (
+from cafe_mpc.planners import collector
+from cafe_mpc.planners.base import (
     PLANNER_ERRORS,
     UPDATE_LINE_SEARCH_MIN_STEP,
     MpcStatistics,
     RecedingHorizonPlanner,
     prepare_solve_options,
 )
-from cafe_mpc.mpc.problem import BuiltProblem, CafeProblemBuilder, WarmStart
-from cafe_mpc.mpc.time_grid import TIME_QUANTUM, PiecewiseTrajectory
+from cafe_mpc.planners.cafe.plan import Plan, PlanBuffers
+from cafe_mpc.planners.cafe.problem import BuiltProblem, CafeProblemBuilder, WarmStart
+from cafe_mpc.planners.time_grid import TIME_QUANTUM, PiecewiseTrajectory
 from cafe_mpc.reference.base import Reference
 from cafe_mpc.robots.robot import Robot
 from cafe_mpc.solver import MSiLQRSolver, SolverResult

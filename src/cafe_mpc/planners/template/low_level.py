@@ -25,9 +25,9 @@ import pinocchio as pin
 
 from cafe_mpc.core.controller import LowLevelController
 from cafe_mpc.core.measurement import Measurement
-from cafe_mpc.core.plan import Plan
-from cafe_mpc.core.template_plan import TemplatePlan
 from cafe_mpc.dynamics.leg_inverse_kinematics import LegInverseKinematics
+from cafe_mpc.planners.cafe.plan import Plan
+from cafe_mpc.planners.template.plan import TemplatePlan
 from cafe_mpc.robots.robot import Robot
 
 LWA = pin.ReferenceFrame.LOCAL_WORLD_ALIGNED

@@ -2,7 +2,7 @@
 low-level controller.
 
 The template MPC plans over the single rigid body (SRB, Eqs. (29), (30)) only, so its plan has no joint
-torques, gains or Q-function pieces (unlike ``core.plan.Plan``). Per knot interval ``[times[k], times[k] +
+torques, gains or Q-function pieces (unlike ``planners.cafe.plan.Plan``). Per knot interval ``[times[k], times[k] +
 dt[k])``: the stance flags and the planned world-frame ground reaction forces (held constant over the
 interval, as the SRB model applies them); per knot time (``n + 1``, the last one ends the plan): the planned
 SRB state and the reference foot positions and velocities (stance feet at their footholds, swing feet on

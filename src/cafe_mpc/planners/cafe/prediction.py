@@ -21,11 +21,10 @@ from collections.abc import Callable
 
 import numpy as np
 
-from cafe_mpc.core.plan import Plan
 from cafe_mpc.dynamics.multibody_state import MultibodyState
 from cafe_mpc.ocp.knots import WholeBodyModelFactory
+from cafe_mpc.planners.cafe.plan import Plan, riccati_torque
 from cafe_mpc.robots.robot import Robot
-from cafe_mpc.wbc.riccati import riccati_torque
 
 TIME_TOLERANCE = 1e-9
 """s: two times closer than this are the same instant."""
