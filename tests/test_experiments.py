@@ -13,7 +13,6 @@ import numpy as np
 import pytest
 
 from cafe_mpc.assembly import load_run_config
-from cafe_mpc.assembly.problem import model_schedule
 from cafe_mpc.config import ConfigError, VelocityCommand, available_presets
 from cafe_mpc.control.mpc_loop import CafeMpcController
 from cafe_mpc.core.measurement import Measurement
@@ -22,6 +21,7 @@ from cafe_mpc.low_level.pd import PDController
 from cafe_mpc.low_level.riccati import RiccatiController
 from cafe_mpc.low_level.synthetic import synthetic_plan
 from cafe_mpc.low_level.vwbc import VWBCController
+from cafe_mpc.planners.cafe.setup import model_schedule
 from cafe_mpc.reference.locomotion import quaternion_from_yaw
 from cafe_mpc.robots.robot import load_robot
 from cafe_mpc_lab.cli import main

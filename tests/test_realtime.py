@@ -23,6 +23,7 @@ from cafe_mpc.assembly.controllers import realtime_mpc
 from cafe_mpc.config import load_config
 from cafe_mpc.control.realtime import RealtimeMpcController, shared_block_prefix
 from cafe_mpc.core.measurement import Measurement
+from cafe_mpc.planners.cafe.plan import plan_format
 from cafe_mpc_lab.experiments.controllers import build_recorder
 from cafe_mpc_lab.experiments.run import run
 from cafe_mpc_lab.sim.loop import WallClockPacer, simulate
@@ -113,8 +114,9 @@ def test_a_dead_or_stalled_mpc_process_holds_a_stance_and_ends_with_one_error(mo
     before = _shared_memory_blocks()
     config = load_config("trot", ["simulation.duration=3.0", "output.plots=false"])
     factory = functools.partial(crashing_mpc, config.model_dump(mode="json"), 5, mode)
+    plans = plan_format(25, robot.nq + robot.nv, robot.nu, 2 * robot.nv, robot.n_feet)
     controller = RealtimeMpcController(
-        robot, factory, build_recorder(config, robot), 0.02, 25, stall_timeout=0.3
+        robot, factory, build_recorder(config, robot), 0.02, plans, stall_timeout=0.3
     )
     with controller:
         controller.wait_ready(Measurement.of_state(robot.q_standing, np.zeros(robot.nv), np.ones(4, bool)))

@@ -1,7 +1,7 @@
 """The template-MPC baseline (paper Sec. VII-C): stance torque map, plan message, SRB problem, closed loop.
 
-``planner: template`` plans over the SRB only (``planners.template.problem``) and follows the plan with planned GRFs on
-the stance legs and joint PD on the swing legs (``planners.template.low_level``).
+``planner: template`` plans over the SRB only (``planners.template``) and follows the plan with planned GRFs
+on the stance legs and joint PD on the swing legs (``planners.template.low_level``).
 """
 
 from __future__ import annotations
@@ -13,7 +13,7 @@ import pinocchio as pin
 import pytest
 
 from cafe_mpc.assembly import load_run_config
-from cafe_mpc.assembly.controllers import build_mpc
+from cafe_mpc.assembly.controllers import build_planner
 from cafe_mpc.config import ConfigError
 from cafe_mpc.core.measurement import Measurement
 from cafe_mpc.core.physics import GRAVITY
@@ -112,7 +112,7 @@ def _template_mpc(robot, preset="trot", overrides=()):
     config = load_run_config(preset, ["mpc.latency=fixed", *overrides])
     parameters, offset = template_srb(robot)
     builder = TemplateProblemBuilder(robot, TemplateSettings(parameters=parameters), offset)
-    return TemplateMpc(robot, build_mpc(config, robot).reference, builder, config.mpc)
+    return TemplateMpc(robot, build_planner(config, robot).reference, builder, config.mpc)
 
 
 def test_knots_lie_on_the_absolute_grid_and_switch_with_the_gait(robot):

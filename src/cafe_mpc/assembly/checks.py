@@ -21,12 +21,12 @@ import functools
 import logging
 from collections.abc import Sequence
 
-from cafe_mpc.assembly.problem import model_schedule
 from cafe_mpc.assembly.references import load_reference_trajectory
 from cafe_mpc.config import ConfigError, GaitConfig, RunConfig, VelocityCommand, load_config
 from cafe_mpc.core.progress import stage
 from cafe_mpc.ocp.contact_schedule import GAITS
 from cafe_mpc.planners.cafe.problem import PAPER_SCHEDULES
+from cafe_mpc.planners.cafe.setup import model_schedule
 from cafe_mpc.reference.locomotion import validate_command
 from cafe_mpc.reference.tested_ranges import outside_tested_range
 from cafe_mpc.robots.robot import Robot, RobotLoadError, known_robots, load_robot, names_gym_model

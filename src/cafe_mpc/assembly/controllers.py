@@ -1,18 +1,21 @@
-"""The closed-loop controller of a run config: PD standing, or an MPC (CAFE or template) over its low level.
+"""The closed-loop controller of a run config: PD standing, or a planner's MPC loop over its low level.
 
-Each builder turns config sections into objects once:
+Each builder turns config sections into objects once, through the registries (``planners.registry``: the
+``planner`` key; ``low_level.registry``: the ``wbc`` key), from the run's ``RunContext``
+(``assembly.context``: robot, scale, torque limits):
 
-* ``build_mpc``: the CAFE-MPC planner (``planners.cafe.planner.RecedingHorizonMpc``): the reference
-  (``assembly.references``, Sec. VI-A), the CAFE problem with its model schedule (``assembly.problem``,
-  Sec. IV-D) and the receding-horizon settings (the ``mpc`` section itself: ``config.MpcSettings``);
-* ``build_template_mpc``: the template-MPC baseline (``planners.template.planner.TemplateMpc``, Sec. VII-C);
-* ``build_low_level``: what follows the plan at the control rate: PD standing, Riccati feedback (33), the
-  VWBC QP (34), or the template's stance ``J' F`` / swing PD;
+* ``build_planner``: the planner the config names (CAFE-MPC, Sec. IV and VI; the template baseline, Sec.
+  VII-C) tracking the run's reference (``assembly.references``, Sec. VI-A) with the ``mpc`` section's
+  receding-horizon settings;
+* ``build_low_level``: what follows the plan at the control rate: the planner's own low level (the
+  template's stance ``J' F`` / swing PD), else the one ``wbc`` names (PD standing, Riccati feedback (33), the
+  VWBC QP (34));
 * ``build_controller``: the closed loop in simulated time (``control.mpc_loop.CafeMpcController``, one
-  MPC worker, fixed or measured latency) over the low level, or the PD controller alone;
+  MPC worker, fixed or measured latency) over the low level, or the PD controller alone (a ``wbc`` that
+  follows no plan);
 * ``build_realtime_controller``: the MPC in its own process against the wall clock (``control.realtime``;
   the process builds its planner with ``realtime_mpc``);
-* ``build_sensing_controller``: a controller behind the state estimator (``estimation.controller``), for
+* ``build_estimator`` / ``build_sensing_controller``: the state estimator, and a controller behind it, for
   runs that read the robot's sensors.
 
 A builder that is given a ``low_level`` uses it (the experiment harness passes one wrapped in its recorder);
@@ -26,120 +29,64 @@ import functools
 
 import numpy as np
 
-from cafe_mpc.assembly.problem import build_problem, run_schedule, torque_limits_of
+from cafe_mpc.assembly.context import run_context
 from cafe_mpc.assembly.references import build_reference
-from cafe_mpc.assembly.scaling import run_scale
 from cafe_mpc.config import ConfigError, RunConfig
 from cafe_mpc.control.mpc_loop import CafeMpcController
 from cafe_mpc.control.realtime import RealtimeMpcController
 from cafe_mpc.core.controller import Controller, LowLevelController
 from cafe_mpc.estimation.controller import SensingController
 from cafe_mpc.estimation.estimator import StateEstimator
-from cafe_mpc.low_level.pd import PDController
-from cafe_mpc.low_level.riccati import RiccatiController
-from cafe_mpc.low_level.vwbc import VWBCController, VWBCSettings
-from cafe_mpc.planners.cafe.planner import RecedingHorizonMpc
-from cafe_mpc.planners.template.low_level import TemplateLowLevelController, TemplateLowLevelSettings
-from cafe_mpc.planners.template.planner import TemplateMpc
-from cafe_mpc.planners.template.problem import TemplateProblemBuilder, TemplateSettings, template_srb
+from cafe_mpc.low_level import registry as low_levels
+from cafe_mpc.low_level.registry import LOW_LEVELS
+from cafe_mpc.planners.base import Planner
+from cafe_mpc.planners.registry import PLANNERS
 from cafe_mpc.reference.base import Reference
 from cafe_mpc.robots.robot import Robot, load_robot
 
-RunController = PDController | CafeMpcController | RealtimeMpcController
-"""What a run config builds: PD standing, or an MPC loop in simulated or wall-clock time."""
+RunController = LowLevelController | CafeMpcController | RealtimeMpcController
+"""What a run config builds: a low level that runs alone (PD standing), or an MPC loop in simulated or
+wall-clock time."""
 
 
-def build_mpc(config: RunConfig, robot: Robot, reference: Reference | None = None) -> RecedingHorizonMpc:
-    """The CAFE-MPC planner of a run: reference (Sec. VI-A; ``reference`` if given), CAFE problem builder
-    with its model schedule (Sec. IV-D), receding-horizon settings."""
+def runs_alone(config: RunConfig) -> bool:
+    """Whether the config's ``wbc`` follows no plan and drives the robot by itself, with no planner (PD
+    standing)."""
+    return not LOW_LEVELS.get(config.wbc).needs_plan
+
+
+def low_level_name(config: RunConfig) -> str:
+    """How a run's records name its low level: the planner's name when its slice brings its own (the
+    template's), else ``wbc``."""
+    return config.planner if PLANNERS.get(config.planner).low_level is not None else config.wbc
+
+
+def build_planner(config: RunConfig, robot: Robot, reference: Reference | None = None) -> Planner:
+    """The planner of a run (``planner``): tracking ``reference`` (default: the config's, Sec. VI-A), with
+    the ``mpc`` section's receding-horizon settings."""
+    planner = PLANNERS.get(config.planner)
     if reference is None:
         reference = build_reference(config, robot)
-    return RecedingHorizonMpc(robot, reference, build_problem(config, robot), config.mpc)
-
-
-def build_template_mpc(config: RunConfig, robot: Robot, reference: Reference | None = None) -> TemplateMpc:
-    """The template-MPC baseline (``planner: template``, paper Sec. VII-C): the SRB-only plan
-    (``planners.template.problem``) of the CAFE run's reference and receding-horizon settings (period, latency,
-    iterations)."""
-    if reference is None:
-        reference = build_reference(config, robot)
-    parameters, com_offset = template_srb(robot)
-    section = config.template
-    try:
-        settings = TemplateSettings(
-            horizon=section.horizon,
-            dt=section.dt,
-            parameters=parameters,
-            leg_torque_limits=section.leg_torque_limits,
-            predict_latency=section.predict_latency,
-            centroidal_state=section.centroidal_state,
-            vertical_reference=section.vertical_reference,
-            torque_limits=tuple(torque_limits_of(config, robot).tolist()),
-            friction_coefficient=config.mpc.friction,
-        )
-    except ValueError as error:
-        raise ConfigError(f"template: {error}") from error
-    builder = TemplateProblemBuilder(robot, settings, com_offset)
-    return TemplateMpc(robot, reference, builder, config.mpc)
+    return planner.build(run_context(config, robot), reference)
 
 
 def build_low_level(config: RunConfig, robot: Robot) -> LowLevelController:
-    """The low-level controller of a run: the template's own (``planner: template``), else the one named by
-    ``config.wbc`` (PD, Riccati (33) or VWBC (34)), with the run's torque limits and friction."""
-    if config.planner == "template":
-        scale = run_scale(config, robot)
-        try:
-            settings = TemplateLowLevelSettings(
-                scale.stiffness(config.template.swing_kp), scale.damping(config.template.swing_kd)
-            )
-        except ValueError as error:
-            raise ConfigError(f"template: {error}") from error
-        return TemplateLowLevelController(robot, settings, torque_limits=torque_limits_of(config, robot))
-    if config.wbc == "pd":
-        return build_pd(config, robot)
-    if config.wbc == "riccati":
-        riccati = RiccatiController(robot)
-        riccati.limits = torque_limits_of(config, robot)
-        return riccati
-    try:
-        scale = run_scale(config, robot)
-        defaults = VWBCSettings.model_fields  # the reference robot's, scaled to the run's robot
-        vwbc_settings = VWBCSettings(
-            **config.vwbc.model_dump(),
-            mu=config.mpc.friction,
-            alpha=scale.rate(defaults["alpha"].default),
-            cone_tolerance=scale.force(defaults["cone_tolerance"].default),
-        )
-    except ValueError as error:
-        raise ConfigError(f"vwbc: {error}") from error
-    return VWBCController(robot, vwbc_settings, torque_limits=torque_limits_of(config, robot))
-
-
-def build_pd(config: RunConfig, robot: Robot) -> PDController:
-    """Joint PD standing with the config's gains scaled to the robot (torque scale; damping also by time)."""
-    scale = run_scale(config, robot)
-    return PDController(
-        robot,
-        scale.stiffness(config.pd.kp),
-        scale.damping(config.pd.kd),
-        gravity_feedforward=config.pd.gravity_feedforward,
-    )
+    """The low-level controller of a run: the planner's own (``planner: template``), else the one named by
+    ``wbc`` (PD, Riccati (33) or VWBC (34)), with the run's torque limits and friction."""
+    return low_levels.build_low_level(run_context(config, robot), PLANNERS.get(config.planner))
 
 
 def build_controller(
     config: RunConfig, robot: Robot, low_level: LowLevelController | None = None
-) -> PDController | CafeMpcController:
-    """The closed-loop controller of ``config`` in simulated time (fixed or measured latency): the PD
-    controller alone (``wbc: pd``), or the CAFE or template MPC over ``low_level`` (default:
+) -> LowLevelController | CafeMpcController:
+    """The closed-loop controller of ``config`` in simulated time (fixed or measured latency): the low level
+    alone when it follows no plan (``wbc: pd``), or the planner's MPC loop over ``low_level`` (default:
     ``build_low_level``'s)."""
-    if config.wbc == "pd":
-        return build_pd(config, robot)
+    if runs_alone(config):
+        return LOW_LEVELS.get(config.wbc).build(run_context(config, robot))
     if low_level is None:
         low_level = build_low_level(config, robot)
-    if config.planner == "template":
-        mpc: RecedingHorizonMpc | TemplateMpc = build_template_mpc(config, robot)
-    else:
-        mpc = build_mpc(config, robot)
+    mpc = build_planner(config, robot)
     return CafeMpcController(
         robot,
         mpc.reference,
@@ -150,39 +97,50 @@ def build_controller(
     )
 
 
-def realtime_mpc(config_data: dict) -> RecedingHorizonMpc:
-    """Builds the MPC inside the real-time mode's MPC process, from the run config as plain data (picklable):
-    its own robot model, reference and solver; measured latency, so the solve keeps the wall-clock budget."""
+def realtime_mpc(config_data: dict) -> Planner:
+    """Builds the planner inside the real-time mode's MPC process, from the run config as plain data
+    (picklable): its own robot model, reference and solver; measured latency, so the solve keeps the
+    wall-clock budget."""
     config = RunConfig.model_validate(config_data)
     robot = load_robot(config.robot)
     config = config.model_copy(update={"mpc": config.mpc.model_copy(update={"latency": "measured"})})
-    return build_mpc(config, robot)
+    return build_planner(config, robot)
 
 
 def build_realtime_controller(
     config: RunConfig, robot: Robot, low_level: LowLevelController | None = None
 ) -> RealtimeMpcController:
-    """CAFE-MPC against the wall clock: the MPC in its own process (``control.realtime``, built there by
+    """The planner against the wall clock: in its own process (``control.realtime``, built there by
     ``realtime_mpc``), ``low_level`` (default: ``build_low_level``'s) here. Close it (``with``) to stop the
     process."""
-    if config.wbc == "pd":
-        raise ConfigError("simulation.realtime needs an MPC run (wbc: vwbc or riccati), not wbc: pd")
-    schedule = run_schedule(config, robot)
+    if runs_alone(config):
+        raise ConfigError(
+            f"simulation.realtime needs an MPC run (a wbc that follows a plan), not wbc: {config.wbc}"
+        )
+    planner = PLANNERS.get(config.planner)
+    run = run_context(config, robot)
     factory = functools.partial(realtime_mpc, config.model_dump(mode="json"))
     if low_level is None:
         low_level = build_low_level(config, robot)
-    # knots: the whole-body grid knots plus the splits at contact switches (a few per horizon)
     controller = RealtimeMpcController(
         robot,
         factory,
         low_level,
         config.mpc.period,
-        schedule.whole_body_knots + 16,
-        control_period=1.0 / config.simulation.control_rate_hz,
-        scheme=config.mpc.scheme if config.planner != "template" else "one_phase",
+        planner.plan_format(run),
+        control_period=run.control_period,
+        scheme=config.mpc.scheme,
     )
     controller.reference = build_reference(config, robot)  # for the run's report (gait stance)
     return controller
+
+
+def build_estimator(config: RunConfig, robot: Robot) -> StateEstimator:
+    """The state estimator of a run (``kinematic_kf``: IMU attitude + leg-kinematics Kalman filter)."""
+    try:
+        return StateEstimator(robot, config.kinematic_kf)
+    except ValueError as error:
+        raise ConfigError(f"kinematic_kf: {error}") from error
 
 
 def build_sensing_controller(
@@ -196,10 +154,7 @@ def build_sensing_controller(
     readings, the estimator turns them into the measurement ``inner`` gets (``estimation.controller``).
     ``position_xy``: where the robot is placed (the estimator's odometry origin); ``capacity``: ticks of
     estimates to preallocate (default: the run's)."""
-    try:
-        estimator = StateEstimator(robot, config.kinematic_kf)
-    except ValueError as error:
-        raise ConfigError(f"kinematic_kf: {error}") from error
+    estimator = build_estimator(config, robot)
     if capacity is None:
         capacity = int(np.ceil(config.simulation.duration * config.simulation.control_rate_hz)) + 2
     return SensingController(inner, estimator, capacity=capacity, position_xy=position_xy)

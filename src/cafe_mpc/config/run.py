@@ -641,9 +641,9 @@ class PlantConfig(StrictModel):
 
 
 class TemplateConfig(StrictModel):
-    """The template-MPC baseline (``planner: template``; ``planners.template.problem``, ``planners.template.low_level``): the
-    SRB plan's horizon and knot spacing, the swing legs' joint PD gains, and the switches of the plan's
-    initial state, reference height and delay compensation (docs/settings.md has what each one changed).
+    """The template-MPC baseline (``planner: template``; ``planners.template``): the SRB plan's horizon and
+    knot spacing, the swing legs' joint PD gains, and the switches of the plan's initial state, reference
+    height and delay compensation (docs/settings.md has what each one changed).
     Period, latency and iterations per update are ``mpc``'s; the weights and GRF constraints are
     ``planners.template.problem.TemplateSettings``'."""
 

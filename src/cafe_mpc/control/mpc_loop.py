@@ -29,17 +29,17 @@ iteration a transport delay: updates still start every period, several plans may
 first (cold) solve runs before the clock starts, as on the robot, where the MPC is started while the robot
 stands; its plan is active from t = 0 (and the first preparation is made then too).
 
-The low-level controller follows the newest plan at every tick. A failed update keeps the previous plan;
-with no plan, or once the plan's horizon has run out, the robot is held by the PD standing controller
-(damped stance), counted in ``pd_fallback_ticks``. The wall-clock real-time mode with the MPC in its own
-process is ``cafe_mpc.control.realtime``. The same loop runs the template-MPC baseline (one-phase updates:
-``planners.template.planner.TemplateMpc``, whose ``TemplatePlan`` its own low level ``planners.template.low_level`` follows).
+The low-level controller follows the newest plan at every tick. A failed update keeps the previous plan; with
+no plan, or once the plan's horizon has run out, the robot is held by the PD standing controller (damped
+stance), counted in ``pd_fallback_ticks``. The wall-clock real-time mode with the MPC in its own process is
+``cafe_mpc.control.realtime``. The same loop runs the template-MPC baseline (one-phase updates:
+``planners.template.planner.TemplateMpc``, whose ``TemplatePlan`` its own low level
+``planners.template.low_level`` follows).
 """
 
 from __future__ import annotations
 
 import logging
-import math
 import time
 
 import numpy as np
@@ -50,13 +50,11 @@ from cafe_mpc.control.plan_follower import NewestPlanFollower
 from cafe_mpc.control.update_clock import UpdateClock
 from cafe_mpc.core.controller import LowLevelController
 from cafe_mpc.core.measurement import Measurement
+from cafe_mpc.core.plan import KnotPlan
 from cafe_mpc.core.progress import stage
 from cafe_mpc.planners.base import PLANNER_ERRORS, MpcStatistics, Planner
-from cafe_mpc.planners.cafe.plan import Plan
 from cafe_mpc.planners.cafe.planner import RecedingHorizonMpc
-from cafe_mpc.planners.cafe.prediction import DelayPredictor
 from cafe_mpc.planners.cafe.problem import CafeProblemBuilder
-from cafe_mpc.planners.template.plan import TemplatePlan
 from cafe_mpc.planners.template.problem import TemplateProblemBuilder
 from cafe_mpc.reference.base import Reference
 from cafe_mpc.robots.robot import Robot
@@ -98,17 +96,16 @@ class CafeMpcController:
         self.low_level = low_level
         self.control_period = float(control_period)
         self.follower = NewestPlanFollower(robot, low_level)
-        self.plan: Plan | TemplatePlan | None = None
-        self.pending: list[tuple[float, float, Plan | TemplatePlan | None]] = []
+        self.plan: KnotPlan | None = None
+        self.pending: list[tuple[float, float, KnotPlan | None]] = []
         """(time it takes effect, its measurement time, plan) of the updates not yet in effect."""
         self.next_update = 0.0
         self.worker_free = 0.0
         """Simulated time at which the MPC worker finishes what it is doing (real-time iteration)."""
         self.clock = UpdateClock(self.settings.period, self.control_period)
         self.delay = self._compensated_delay()
-        """How long after its measurement an update's problem starts: the fixed latency when it is
-        compensated (``MpcSettings.delay_compensation``), else 0."""
-        self.predictor = DelayPredictor(robot, self.builder.whole_body) if self.delay > 0 else None
+        """How long after its measurement an update's plan takes effect when the loop compensates it (the
+        fixed latency with ``MpcSettings.delay_compensation``), else 0."""
         self.commands = CommandChannel()
         """Runtime commands (``cafe_mpc.Controller.set_command``, teleop), taken at the next MPC update."""
 
@@ -125,14 +122,8 @@ class CafeMpcController:
         return self.mpc.statistics
 
     def _problem_start(self, t: float) -> float:
-        """Where the problem of the update measured at ``t`` starts: ``t`` without delay compensation; with
-        it, the last whole-body knot time at or before the plan takes effect (``t + delay``), not before
-        ``t``: the plan's first knot is then a whole one and holds the time the plan takes effect."""
-        if self.delay <= 0:
-            return t
-        grid = self.builder.schedule.whole_body_dt
-        on_grid = math.floor((t + self.delay) / grid + GRID_TOLERANCE) * grid
-        return max(t, on_grid)
+        """Where the problem of the update measured at ``t`` starts (the planner's ``problem_start``)."""
+        return self.mpc.problem_start(t, self.delay)
 
     def _compensated_delay(self) -> float:
         settings = self.settings
@@ -217,7 +208,8 @@ class CafeMpcController:
         mpc, settings, statistics = self.mpc, self.settings, self.statistics
         measured = settings.latency == "measured"
         start = self._problem_start(t)
-        prepared = mpc.prepared is not None and abs(mpc.prepared[0] - start) <= 1e-9
+        prepared_time = mpc.prepared_time
+        prepared = prepared_time is not None and abs(prepared_time - start) <= 1e-9
         if prepared:
             plan = self._feedback(t, start, state)
             work = statistics.feedback_times[-1] if plan is not None else 0.0
@@ -237,16 +229,16 @@ class CafeMpcController:
         self._prepare(following)
         self.next_update = following
 
-    def _feedback(self, t: float, start: float, state: Measurement) -> Plan | TemplatePlan | None:
+    def _feedback(self, t: float, start: float, state: Measurement) -> KnotPlan | None:
         """The feedback phase of the update prepared for ``start``, from the measurement of ``t``: with
         delay compensation, the measured state carried to ``start`` first (``DelayPredictor``; its time
         counts in the feedback's). A failed carry falls back to the measured state, and says so."""
-        if self.predictor is None:
+        if self.delay <= 0:
             return self.mpc.feedback(start, state.q, state.v)
         began = time.perf_counter()
         q, v = state.q, state.v
         try:
-            carried = self.predictor.carry(q, v, t, start, self._plan_in_effect)
+            carried = self.mpc.carry(q, v, t, start, self._plan_in_effect)
             if np.all(np.isfinite(carried)):
                 q, v = carried[: self.robot.nq], carried[self.robot.nq :]
             else:
@@ -260,13 +252,13 @@ class CafeMpcController:
             self.statistics.update_times[-1] += carry_time
         return plan
 
-    def _plan_in_effect(self, t: float) -> Plan | None:
+    def _plan_in_effect(self, t: float) -> KnotPlan | None:
         """The plan the low level follows at ``t`` given the plans published and in flight now."""
         plan = self.plan
         for effective, _, pending in self.pending:
             if effective <= t + 1e-9 and pending is not None:
                 plan = pending
-        return plan if isinstance(plan, Plan) else None
+        return plan
 
     def _prepare(self, t_next: float) -> None:
         """Prepare the update at ``t_next`` from the newest plan's prediction (the worker is busy then)."""

@@ -49,9 +49,9 @@ from cafe_mpc.control.plan_follower import NewestPlanFollower
 from cafe_mpc.control.update_clock import UpdateClock
 from cafe_mpc.core.controller import LowLevelController
 from cafe_mpc.core.measurement import Measurement
+from cafe_mpc.core.plan import KnotPlan, PlanFormat
 from cafe_mpc.core.progress import stage
 from cafe_mpc.planners.base import MpcStatistics, Planner
-from cafe_mpc.planners.cafe.plan import Plan, plan_shapes
 from cafe_mpc.robots.robot import Robot
 
 logger = logging.getLogger(__name__)
@@ -193,43 +193,51 @@ class MeasurementRing:
 
 
 class PlanLayout:
-    """Offsets of a plan of at most ``capacity`` whole-body knots in a flat float64 buffer."""
+    """Offsets of a plan of at most ``plan_format.capacity`` knots in a flat float64 buffer: a header, then
+    each array field of the plan type at its shape for that many knots (``core.plan.PlanFormat``)."""
 
     HEADER = 6  # n_knots, measurement time, update wall time, iterations, solves, failures
 
-    def __init__(self, capacity: int, nx: int, nu: int, ndx: int, n_feet: int) -> None:
-        self.capacity, self.nx, self.nu, self.ndx, self.n_feet = capacity, nx, nu, ndx, n_feet
-        shapes = plan_shapes(capacity, nx, nu, ndx, n_feet)
+    def __init__(self, plan_format: PlanFormat) -> None:
+        self.format = plan_format
+        self.capacity = plan_format.capacity
         self.fields: dict[str, tuple[int, tuple[int, ...]]] = {}
         offset = self.HEADER
-        for name, shape in shapes.items():
+        for name, shape in plan_format.shapes(self.capacity).items():
             self.fields[name] = (offset, shape)
             offset += int(np.prod(shape))
         self.size = offset
 
-    def view(self, buffer: np.ndarray, name: str, knots: int) -> np.ndarray:
-        """The first ``knots`` rows of field ``name`` inside ``buffer`` (a view)."""
-        offset, shape = self.fields[name]
-        full = buffer[offset : offset + int(np.prod(shape))].reshape(shape)
-        return full[: knots + 1] if name == "xs" else full[:knots]
+    def views(self, buffer: np.ndarray, knots: int) -> dict[str, np.ndarray]:
+        """Each field of a plan of ``knots`` knots inside ``buffer`` (views of its first rows)."""
+        views = {}
+        for name, rows in self._rows(knots).items():
+            offset, shape = self.fields[name]
+            views[name] = buffer[offset : offset + int(np.prod(shape))].reshape(shape)[:rows]
+        return views
 
-    def write(self, buffer: np.ndarray, plan: Plan, measured_at: float, stats: tuple[float, ...]) -> None:
+    def _rows(self, knots: int) -> dict[str, int]:
+        return {name: shape[0] for name, shape in self.format.shapes(knots).items()}
+
+    def write(self, buffer: np.ndarray, plan: KnotPlan, measured_at: float, stats: tuple[float, ...]) -> None:
         n = len(plan.times)
         if n > self.capacity:
             raise ValueError(f"plan has {n} knots, the channel holds {self.capacity}")
         buffer[0] = n
         buffer[1] = measured_at
         buffer[2 : self.HEADER] = stats
-        for name in ("times", "dt", "xs", "us", "K", "Qu", "Quu", "Qux", "forces"):
-            self.view(buffer, name, n)[...] = getattr(plan, name)
-        self.view(buffer, "contacts", n)[...] = plan.contacts
+        for name, view in self.views(buffer, n).items():
+            view[...] = getattr(plan, name)
 
-    def read(self, buffer: np.ndarray) -> tuple[Plan, float, float]:
-        """A ``Plan`` copied out of ``buffer``, its measurement time and its update's wall time."""
+    def read(self, buffer: np.ndarray) -> tuple[KnotPlan, float, float]:
+        """A plan copied out of ``buffer``, its measurement time and its update's wall time."""
         n = int(buffer[0])
-        fields = {name: self.view(buffer, name, n).copy() for name in self.fields}
-        fields["contacts"] = fields["contacts"] > 0.5
-        return Plan(**fields), float(buffer[1]), float(buffer[2])
+        dtypes = self.format.dtypes
+        fields = {
+            name: (view > 0.5 if dtypes.get(name) is bool else view.copy())
+            for name, view in self.views(buffer, n).items()
+        }
+        return self.format.make(**fields), float(buffer[1]), float(buffer[2])
 
 
 def _pin_to_cpu(index: int) -> None:
@@ -335,7 +343,7 @@ class _Worker:
         if command is not None:
             apply_command(self.mpc.reference, t, command)
 
-    def _state_update(self, tick: int) -> Plan | None:
+    def _state_update(self, tick: int) -> KnotPlan | None:
         """A one-phase update from the measurement of ``tick`` (in ``buffer``)."""
         nq, nv = self.nq, self.nv
         self._take_command(float(self.buffer[0]))
@@ -384,7 +392,7 @@ class _Worker:
         self._publish(plan, tick)
         return tick
 
-    def _publish(self, plan: Plan | None, tick: int) -> None:
+    def _publish(self, plan: KnotPlan | None, tick: int) -> None:
         if plan is None:
             return
         stats = self.mpc.statistics
@@ -412,7 +420,7 @@ class RealtimeMpcController:
         factory: MpcFactory,
         low_level: LowLevelController,
         period: float,
-        plan_capacity: int,
+        plan_format: PlanFormat,
         startup_timeout: float = 120.0,
         stall_timeout: float | None = None,
         control_period: float = 0.002,
@@ -429,8 +437,8 @@ class RealtimeMpcController:
         self.control_period = float(control_period)
         self.scheme = scheme
         """The MPC process's scheme (``MpcSettings.scheme``), for the run's records."""
-        nq, nv, nu, n_feet = robot.nq, robot.nv, robot.nu, robot.n_feet
-        self.layout = PlanLayout(plan_capacity, nq + nv, nu, 2 * nv, n_feet)
+        nq, nv, n_feet = robot.nq, robot.nv, robot.n_feet
+        self.layout = PlanLayout(plan_format)
         self._measurement = MeasurementRing(nq, nv, n_feet)
         self._plan_channel = _SeqLockArray(self.layout.size)
         self._control = _SeqLockArray(CONTROL_SIZE)
@@ -438,7 +446,7 @@ class RealtimeMpcController:
         """Runtime commands for the MPC process (``control.commands``), taken at its next update."""
         self._plan_buffer = np.zeros(self.layout.size)
         self._plan_sequence = 0.0
-        self.plan: Plan | None = None
+        self.plan: KnotPlan | None = None
         self.statistics = MpcStatistics()
         self.worker_statistics: MpcStatistics | None = None
         self.worker_error: str | None = None

@@ -29,7 +29,7 @@ def state_error(
     return out
 
 
-class RiccatiController(LowLevelController):
+class RiccatiController(LowLevelController[Plan]):
     """Eq. (33) on the plan passed to ``compute``."""
 
     def __init__(self, robot: Robot, clamp: bool = True) -> None:

@@ -39,9 +39,9 @@ object for that stance pattern is then rebuilt on its next tick — or, optional
 budget): the clamped Riccati feedback ``tau*_k + K_k dx`` (33), counted in ``fallbacks`` with its reason.
 The controller never returns NaN, and an error inside the QP never propagates out of ``compute``.
 
-Friction-cone scoring (``low_level.contact_dynamics``): the contact forces a torque implies through the same contact
-dynamics (34b)-(34c), so a Riccati controller and the VWBC are scored the same way. For a solved QP these
-forces equal its ``F``.
+Friction-cone scoring (``low_level.contact_dynamics``): the contact forces a torque implies through the same
+contact dynamics (34b)-(34c), so a Riccati controller and the VWBC are scored the same way. For a solved QP
+these forces equal its ``F``.
 """
 
 from __future__ import annotations
@@ -344,7 +344,7 @@ def _package_version(name: str) -> str:
         return "unknown"
 
 
-class VWBCController(LowLevelController):
+class VWBCController(LowLevelController[Plan]):
     """VWBC (34) on the plan passed to ``compute``, with the Riccati fallback (33) and per-tick statistics.
 
     ``compute(t, measurement, plan)`` like every ``LowLevelController``; the measurement's contacts are used

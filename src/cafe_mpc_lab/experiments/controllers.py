@@ -20,6 +20,7 @@ from cafe_mpc.assembly.controllers import (
     build_controller,
     build_low_level,
     build_realtime_controller,
+    runs_alone,
 )
 from cafe_mpc.config import RunConfig
 from cafe_mpc.control.mpc_loop import CafeMpcController
@@ -27,7 +28,7 @@ from cafe_mpc.control.realtime import RealtimeMpcController
 from cafe_mpc.core.contacts import N_FEET
 from cafe_mpc.core.controller import LowLevelController
 from cafe_mpc.core.measurement import Measurement
-from cafe_mpc.planners.cafe.plan import Plan
+from cafe_mpc.core.plan import KnotPlan
 from cafe_mpc.robots.robot import Robot
 
 
@@ -114,7 +115,7 @@ class LowLevelRecorder(LowLevelController):
         self._requested = doubled(self._requested)
         self._stances = doubled(self._stances)
 
-    def compute(self, t: float, measurement: Measurement, plan: Plan | None) -> np.ndarray:
+    def compute(self, t: float, measurement: Measurement, plan: KnotPlan | None) -> np.ndarray:
         if self._count == len(self._times):
             self._grow()
         row = self._count
@@ -123,18 +124,24 @@ class LowLevelRecorder(LowLevelController):
         self._times[row] = t
         if plan is not None:
             self._stances[row] = plan.contacts[plan.knot_at(t)]
-            if self.record_plans and plan is not self._last_plan and isinstance(plan, Plan):
-                self._last_plan = plan
-                nq = len(measurement.q)
-                self.plans.append(
-                    RecordedPlan(
-                        t, plan.times.copy(), plan.xs[:, :nq].copy(), plan.contacts.copy(), plan.forces.copy()
-                    )
-                )
+            if self.record_plans and plan is not self._last_plan:
+                self._record_plan(t, plan, len(measurement.q))
         else:
             self._stances[row] = False
         self._count = row + 1
         return torques
+
+    def _record_plan(self, t: float, plan: KnotPlan, nq: int) -> None:
+        """Keep a plan the video can draw (one with the robot's configurations at its knots)."""
+        configurations = plan.knot_configurations(nq)
+        if configurations is None:
+            return
+        self._last_plan = plan
+        self.plans.append(
+            RecordedPlan(
+                t, plan.times.copy(), configurations.copy(), plan.contacts.copy(), plan.forces.copy()
+            )
+        )
 
     def traces(self, times: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Requested torques ``(ticks, nu)`` (NaN where this controller was not called, e.g. before the
@@ -166,7 +173,7 @@ def build_recorder(config: RunConfig, robot: Robot) -> LowLevelRecorder:
 
 def build_run_controller(config: RunConfig, robot: Robot) -> RunController:
     """The controller of a run in simulated time (``assembly.build_controller``), its low level recorded."""
-    if config.wbc == "pd":
+    if runs_alone(config):
         return build_controller(config, robot)
     return build_controller(config, robot, low_level=build_recorder(config, robot))
 

@@ -14,6 +14,7 @@ import traceback
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from cafe_mpc.assembly.controllers import runs_alone
 from cafe_mpc.config import RunConfig
 from cafe_mpc.control.realtime import MpcProcessError
 from cafe_mpc_lab.experiments.catalog import get_experiment
@@ -96,7 +97,7 @@ def execute_task(task: RunTask) -> RunOutcome:
 
 def timing_mode(config: RunConfig) -> str:
     """``measured``, ``fixed`` or ``realtime`` for MPC runs, ``none`` for PD standing."""
-    if config.wbc == "pd":
+    if runs_alone(config):
         return "none"
     return "realtime" if config.simulation.realtime else config.mpc.latency
 

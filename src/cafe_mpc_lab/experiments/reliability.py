@@ -550,7 +550,13 @@ def plot_reliability(rows: list[dict], summary: dict, path: Path) -> Path:
             continue
         low, high = item["wilson_95"]
         axis.bar(x, 100 * rate, color="C0" if x == 0 else "grey", width=0.6)
-        axis.errorbar(x, 100 * rate, yerr=[[100 * max(rate - low, 0.0)], [100 * max(high - rate, 0.0)]], color="k", capsize=6)
+        axis.errorbar(
+            x,
+            100 * rate,
+            yerr=[[100 * max(rate - low, 0.0)], [100 * max(high - rate, 0.0)]],
+            color="k",
+            capsize=6,
+        )
         axis.annotate(f"{item['successes']}/{item['trials']}", (x, 2), ha="center", fontsize=8, color="w")
     axis.set_xticks(range(len(entries)), [label for label, _ in entries])
     axis.set_ylim(0, 100)

@@ -21,13 +21,14 @@ import numpy as np
 import yaml
 
 from cafe_mpc.assembly.checks import robot_of
-from cafe_mpc.assembly.controllers import RunController, build_sensing_controller
-from cafe_mpc.assembly.problem import model_schedule, torque_limits_of
+from cafe_mpc.assembly.context import torque_limits_of
+from cafe_mpc.assembly.controllers import RunController, build_sensing_controller, low_level_name
 from cafe_mpc.assembly.references import reference_profile
-from cafe_mpc.assembly.scaling import run_scale, scaled_gait, scaled_schedule
+from cafe_mpc.assembly.scaling import run_scale, scaled_gait
 from cafe_mpc.config import RunConfig
 from cafe_mpc.control.realtime import MpcProcessError
 from cafe_mpc.core.measurement import Measurement
+from cafe_mpc.planners.cafe.setup import model_schedule, scaled_schedule
 from cafe_mpc.robots.robot import Robot
 from cafe_mpc.robots.scaling import reference_scales
 from cafe_mpc_lab import LOGGERS
@@ -201,7 +202,7 @@ def run_metrics(config: RunConfig, robot: Robot, controller: RunController, log:
 
     metrics = base_metrics(robot, log, 1.0 / config.simulation.control_rate_hz)
     metrics["robot"] = robot.name
-    metrics["controller"] = config.wbc if config.planner == "cafe" else "template"
+    metrics["controller"] = low_level_name(config)
     metrics["planner"] = config.planner
     metrics["gait"] = config.gait.name if config.gait is not None else None
     profile = reference_profile(config, robot)

@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 from pydantic import Field
 
-from cafe_mpc.assembly.problem import model_schedule
+from cafe_mpc.planners.cafe.setup import model_schedule
 from cafe_mpc_lab.experiments.common import (
     WALL_CLOCK_NOTE,
     RunStore,

@@ -14,13 +14,14 @@ never lends arrays a published plan still uses.
 from __future__ import annotations
 
 import copy
+import functools
 from dataclasses import dataclass
 
 import numpy as np
 
 from cafe_mpc.core.buffers import ArrayLender
 from cafe_mpc.core.kernels import all_finite
-from cafe_mpc.core.plan import interval_at
+from cafe_mpc.core.plan import PlanFormat, interval_at
 
 PLAN_FIELDS = ("times", "xs", "us", "K", "Qu", "Quu", "Qux", "contacts", "forces", "dt")
 """The array fields of a ``Plan``, in the order of its constructor."""
@@ -92,6 +93,10 @@ class Plan:
         """Index of the knot whose interval contains ``t`` (clamped to the plan; module docstring)."""
         return interval_at(self.times, t)
 
+    def knot_configurations(self, nq: int) -> np.ndarray:
+        """The planned configurations ``q*`` at the ``n + 1`` knot times (a view of ``xs``)."""
+        return self.xs[:, :nq]
+
 
 def _check_finite(name: str, values: np.ndarray) -> None:
     """Raise ``ValueError`` if the plan field ``name`` holds a NaN or an infinity."""
@@ -133,6 +138,13 @@ class PlanBuffers:
     def kept(self) -> int:
         """How many sets of arrays are kept for reuse."""
         return self._lender.kept
+
+
+def plan_format(capacity: int, nx: int, nu: int, ndx: int, n_feet: int) -> PlanFormat[Plan]:
+    """How plans of at most ``capacity`` knots of these dimensions travel as arrays
+    (``core.plan.PlanFormat``)."""
+    shapes = functools.partial(plan_shapes, nx=nx, nu=nu, ndx=ndx, n_feet=n_feet)
+    return PlanFormat(Plan, shapes, capacity, PLAN_DTYPES)
 
 
 def plan_shapes(n: int, nx: int, nu: int, ndx: int, n_feet: int) -> dict[str, tuple[int, ...]]:

@@ -18,7 +18,7 @@ from cafe_mpc.robots.robot import Robot
 from cafe_mpc.solver import MSiLQRSolver, SolverResult
 
 
-class TemplateMpc(RecedingHorizonPlanner):
+class TemplateMpc(RecedingHorizonPlanner[TemplatePlan]):
     """Template-MPC updates: SRB problem -> warm start -> MS-iLQR -> ``TemplatePlan``.
 
     The one-phase update (timing, statistics, failure handling) is ``RecedingHorizonPlanner``'s; this class
