@@ -102,7 +102,7 @@ def test_process_mode_runs_the_mpc_in_its_own_process_and_cleans_up():
         _mujoco_loop(controller, 0.6, realtime=True)
         assert controller.failure is None
         assert controller.statistics()["plans_received"] >= 2  # plans arrived (how many depends on the load)
-        process = controller._inner.process
+        process = controller._loop.process
         assert process.is_alive()
     assert not process.is_alive()
     assert not [child for child in multiprocessing.active_children() if child.name == "cafe-mpc-solver"]

@@ -60,10 +60,9 @@ from typing import Literal
 import numpy as np
 
 from cafe_mpc.assembly.checks import robot_of
-from cafe_mpc.assembly.controllers import build_controller, build_realtime_controller
+from cafe_mpc.assembly.controllers import build_mpc_loop
 from cafe_mpc.config import ConfigError, RunConfig, VelocityCommand, format_validation_error, load_config
-from cafe_mpc.control.mpc_loop import CafeMpcController
-from cafe_mpc.control.realtime import RealtimeMpcController
+from cafe_mpc.control.loop import MpcLoop
 from cafe_mpc.core.free_joint import free_joint_qpos, planning_state
 from cafe_mpc.core.measurement import Measurement
 from cafe_mpc.core.sensors import SensorReadings
@@ -113,7 +112,7 @@ class Controller:
         self.config = config
         self.mode: Mode = mode
         self.robot: Robot = robot_of(config)  # the config checked against the robot it names
-        self._inner: CafeMpcController | RealtimeMpcController | None = None
+        self._loop: MpcLoop | None = None
         self._t0 = 0.0
         self._estimator: StateEstimator | None = None  # built on the first measurement_from_sensors
         self._readings = SensorReadings.zeros(self.robot.nu)
@@ -125,7 +124,7 @@ class Controller:
         self._gait: int | None = None
         """The gait set by ``set_gait`` (an index of ``control.commands.GAIT_NAMES``), None: the config's."""
         if mode == "inline":
-            self._inner = self._build_inline()
+            self._loop = self._build_inline()
 
     # ------------------------------------------------------------------------------------ lifecycle
     def __enter__(self) -> Controller:
@@ -136,15 +135,13 @@ class Controller:
 
     def close(self) -> None:
         """Stop the MPC process (``process`` mode) and free its shared memory; idempotent."""
-        if isinstance(self._inner, RealtimeMpcController):
-            self._inner.close()
+        if self._loop is not None:
+            self._loop.close()
         self._closed = True
 
-    def _build_inline(self) -> CafeMpcController:
+    def _build_inline(self) -> MpcLoop:
         # the low level without a run recorder: a loop of unknown length keeps no per-tick records
-        controller = build_controller(self.config, self.robot)
-        assert isinstance(controller, CafeMpcController)  # wbc: pd is rejected above
-        return controller
+        return build_mpc_loop(self.config, self.robot, "inline")
 
     # -------------------------------------------------------------------------------------- control
     @property
@@ -162,25 +159,24 @@ class Controller:
         self._t0 = float(measurement.time if t is None else t)
         start = self._relative(measurement, 0.0)
         if self.mode == "inline":
-            assert isinstance(self._inner, CafeMpcController)
-            self._inner.reset()
-            self._inner.start(0.0, start)
+            self._loop.reset()
+            self._loop.start(0.0, start)
         else:
-            if self._inner is not None:  # a new process: the old one's reference and warm starts are stale
-                self._inner.close()
+            if self._loop is not None:  # a new process: the old one's reference and warm starts are stale
+                self._loop.close()
             # no run recorder around the low level (see _build_inline)
-            self._inner = build_realtime_controller(self.config, self.robot)
+            self._loop = build_mpc_loop(self.config, self.robot, "process")
             if self._steered:  # the new process's reference follows the command and gait set before
-                self._inner.commands.post(*self._command, self._gait)
-            self._inner.reset()
-            self._inner.wait_ready(start)
+                self._loop.commands.post(*self._command, self._gait)
+            self._loop.reset()
+            self._loop.start(0.0, start)
 
     def compute(self, t: float, measurement: Measurement) -> np.ndarray:
         """Joint torques (nu,) for time ``t`` (your clock) from ``measurement``; call at the control rate."""
-        inner = self._inner
-        if inner is None or (self.mode == "inline" and not inner.mpc.started):
+        loop = self._loop
+        if loop is None or (self.mode == "inline" and not loop.planner.started):
             raise RuntimeError("call reset(measurement) before compute")
-        torques = inner.compute(t - self._t0, self._relative(measurement, t - self._t0))
+        torques = loop.compute(t - self._t0, self._relative(measurement, t - self._t0))
         return np.array(torques, dtype=float)
 
     def set_command(
@@ -276,10 +272,10 @@ class Controller:
 
     def _channel(self):
         """The command channel of the MPC in use (inline: its loop's; process: the shared one)."""
-        inner = self._inner
-        if self._closed or inner is None:
+        loop = self._loop
+        if self._closed or loop is None:
             return None
-        return inner.commands
+        return loop.commands
 
     def _relative(self, measurement: Measurement, t: float) -> Measurement:
         """The measurement on the controller's clock (time zero at ``reset``)."""
@@ -290,27 +286,17 @@ class Controller:
     def plan(self) -> Plan | None:
         """The plan the low-level controller follows now (None before the first solve). Its times are on the
         controller's clock (zero at ``reset``)."""
-        return getattr(self._inner, "plan", None) if self._inner is not None else None
+        return getattr(self._loop, "plan", None) if self._loop is not None else None
 
     @property
     def failure(self) -> str | None:
         """``process`` mode: why the MPC process stopped delivering plans (None while all is well)."""
-        return getattr(self._inner, "failure", None)
+        return getattr(self._loop, "failure", None)
 
     def statistics(self) -> dict:
         """The MPC's update statistics so far (``MpcStatistics.summary``: solves, failures, update and
         latency medians, ...); in ``process`` mode the plan latencies seen here."""
-        inner = self._inner
-        if isinstance(inner, CafeMpcController):
-            return inner.statistics.summary()
-        if isinstance(inner, RealtimeMpcController):
-            latencies = inner.statistics.latencies
-            return {
-                "plans_received": len(latencies),
-                "latency_ms_median": float(np.median(latencies)) * 1e3 if latencies else None,
-                "pd_fallback_ticks": inner.statistics.fallback_ticks,
-            }
-        return {}
+        return self._loop.summary() if self._loop is not None else {}
 
     # ------------------------------------------------------------------------------- MuJoCo helpers
     def measurement(

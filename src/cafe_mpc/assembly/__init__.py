@@ -10,8 +10,7 @@ library (``cafe_mpc.Controller``) alike. It imports no simulator.
 * ``context``: what a config resolves to before anything is built (robot scale, torque limits: the
   ``RunContext`` the registries' builders take);
 * ``controllers``: the planner and the low level through the registries (``planners.registry``,
-  ``low_level.registry``), the closed loop in simulated time, the real-time MPC process, the state
-  estimator in front.
+  ``low_level.registry``), the MPC loop (inline or in its own process), the state estimator in front.
 """
 
 from cafe_mpc.assembly.checks import check_config, load_run_config
@@ -21,9 +20,12 @@ from cafe_mpc.assembly.controllers import (
     build_controller,
     build_estimator,
     build_low_level,
+    build_mpc_loop,
     build_planner,
-    build_realtime_controller,
     build_sensing_controller,
+    low_level_name,
+    process_planner,
+    runs_alone,
 )
 from cafe_mpc.assembly.references import build_reference, reference_profile
 
@@ -32,13 +34,16 @@ __all__ = [
     "build_controller",
     "build_estimator",
     "build_low_level",
+    "build_mpc_loop",
     "build_planner",
-    "build_realtime_controller",
     "build_reference",
     "build_sensing_controller",
     "check_config",
     "load_run_config",
+    "low_level_name",
+    "process_planner",
     "reference_profile",
     "run_context",
+    "runs_alone",
     "torque_limits_of",
 ]

@@ -10,11 +10,12 @@ Each builder turns config sections into objects once, through the registries (``
 * ``build_low_level``: what follows the plan at the control rate: the planner's own low level (the
   template's stance ``J' F`` / swing PD), else the one ``wbc`` names (PD standing, Riccati feedback (33), the
   VWBC QP (34));
-* ``build_controller``: the closed loop in simulated time (``control.mpc_loop.CafeMpcController``, one
-  MPC worker, fixed or measured latency) over the low level, or the PD controller alone (a ``wbc`` that
-  follows no plan);
-* ``build_realtime_controller``: the MPC in its own process against the wall clock (``control.realtime``;
-  the process builds its planner with ``realtime_mpc``);
+* ``build_mpc_loop``: the planner's MPC loop over the low level (``control.loop.MpcLoop``), ``inline``
+  (``control.inline``: in simulated time, one MPC worker, fixed or measured latency) or in its own
+  ``process`` against the wall clock (``control.process``; the process builds its planner with
+  ``process_planner``);
+* ``build_controller``: the closed loop of a run in simulated time: the inline MPC loop, or the low level
+  alone when it follows no plan (``wbc: pd``);
 * ``build_estimator`` / ``build_sensing_controller``: the state estimator, and a controller behind it, for
   runs that read the robot's sensors.
 
@@ -32,8 +33,9 @@ import numpy as np
 from cafe_mpc.assembly.context import run_context
 from cafe_mpc.assembly.references import build_reference
 from cafe_mpc.config import ConfigError, RunConfig
-from cafe_mpc.control.mpc_loop import CafeMpcController
-from cafe_mpc.control.realtime import RealtimeMpcController
+from cafe_mpc.control.inline import InlineMpcLoop
+from cafe_mpc.control.loop import MpcLoop
+from cafe_mpc.control.process import ProcessMpcLoop
 from cafe_mpc.core.controller import Controller, LowLevelController
 from cafe_mpc.estimation.controller import SensingController
 from cafe_mpc.estimation.estimator import StateEstimator
@@ -44,9 +46,9 @@ from cafe_mpc.planners.registry import PLANNERS
 from cafe_mpc.reference.base import Reference
 from cafe_mpc.robots.robot import Robot, load_robot
 
-RunController = LowLevelController | CafeMpcController | RealtimeMpcController
-"""What a run config builds: a low level that runs alone (PD standing), or an MPC loop in simulated or
-wall-clock time."""
+RunController = LowLevelController | MpcLoop
+"""What a run config builds: a low level that runs alone (PD standing), or an MPC loop (inline in simulated
+time, or with the planner in its own process against the wall clock)."""
 
 
 def runs_alone(config: RunConfig) -> bool:
@@ -76,63 +78,55 @@ def build_low_level(config: RunConfig, robot: Robot) -> LowLevelController:
     return low_levels.build_low_level(run_context(config, robot), PLANNERS.get(config.planner))
 
 
-def build_controller(
-    config: RunConfig, robot: Robot, low_level: LowLevelController | None = None
-) -> LowLevelController | CafeMpcController:
-    """The closed-loop controller of ``config`` in simulated time (fixed or measured latency): the low level
-    alone when it follows no plan (``wbc: pd``), or the planner's MPC loop over ``low_level`` (default:
-    ``build_low_level``'s)."""
+def build_mpc_loop(
+    config: RunConfig, robot: Robot, mode: str = "inline", low_level: LowLevelController | None = None
+) -> MpcLoop:
+    """The planner's MPC loop over ``low_level`` (default: ``build_low_level``'s): ``inline`` (simulated or
+    the caller's time, fixed or measured latency) or ``process`` (the planner in its own process against the
+    wall clock; close it, ``with``, to stop the process). ``ConfigError`` when the config's ``wbc`` follows
+    no plan (``wbc: pd`` stands without a planner)."""
     if runs_alone(config):
-        return LOW_LEVELS.get(config.wbc).build(run_context(config, robot))
+        raise ConfigError(
+            f"an MPC loop needs a low level that follows a plan (wbc: vwbc or riccati), not wbc: {config.wbc}"
+        )
+    if mode not in ("inline", "process"):
+        raise ConfigError(f"mode must be 'inline' or 'process', got {mode!r}")
     if low_level is None:
         low_level = build_low_level(config, robot)
-    mpc = build_planner(config, robot)
-    return CafeMpcController(
+    run = run_context(config, robot)
+    if mode == "inline":
+        return InlineMpcLoop(robot, build_planner(config, robot), low_level, run.control_period)
+    loop = ProcessMpcLoop(
         robot,
-        mpc.reference,
-        mpc.builder,
+        functools.partial(process_planner, config.model_dump(mode="json")),
         low_level,
-        mpc=mpc,
-        control_period=1.0 / config.simulation.control_rate_hz,
+        PLANNERS.get(config.planner).plan_format(run),
+        config.mpc.period,
+        control_period=run.control_period,
+        scheme=config.mpc.scheme,
     )
+    loop.reference = build_reference(config, robot)  # for the run's report (gait stance)
+    return loop
 
 
-def realtime_mpc(config_data: dict) -> Planner:
-    """Builds the planner inside the real-time mode's MPC process, from the run config as plain data
-    (picklable): its own robot model, reference and solver; measured latency, so the solve keeps the
-    wall-clock budget."""
+def build_controller(
+    config: RunConfig, robot: Robot, low_level: LowLevelController | None = None
+) -> LowLevelController | MpcLoop:
+    """The closed-loop controller of ``config`` in simulated time (fixed or measured latency): the low level
+    alone when it follows no plan (``wbc: pd``), or the planner's inline MPC loop over ``low_level``
+    (default: ``build_low_level``'s)."""
+    if runs_alone(config):
+        return LOW_LEVELS.get(config.wbc).build(run_context(config, robot))
+    return build_mpc_loop(config, robot, "inline", low_level)
+
+
+def process_planner(config_data: dict) -> Planner:
+    """Builds the planner inside the MPC process, from the run config as plain data (picklable): its own
+    robot model, reference and solver; measured latency, so the solve keeps the wall-clock budget."""
     config = RunConfig.model_validate(config_data)
     robot = load_robot(config.robot)
     config = config.model_copy(update={"mpc": config.mpc.model_copy(update={"latency": "measured"})})
     return build_planner(config, robot)
-
-
-def build_realtime_controller(
-    config: RunConfig, robot: Robot, low_level: LowLevelController | None = None
-) -> RealtimeMpcController:
-    """The planner against the wall clock: in its own process (``control.realtime``, built there by
-    ``realtime_mpc``), ``low_level`` (default: ``build_low_level``'s) here. Close it (``with``) to stop the
-    process."""
-    if runs_alone(config):
-        raise ConfigError(
-            f"simulation.realtime needs an MPC run (a wbc that follows a plan), not wbc: {config.wbc}"
-        )
-    planner = PLANNERS.get(config.planner)
-    run = run_context(config, robot)
-    factory = functools.partial(realtime_mpc, config.model_dump(mode="json"))
-    if low_level is None:
-        low_level = build_low_level(config, robot)
-    controller = RealtimeMpcController(
-        robot,
-        factory,
-        low_level,
-        config.mpc.period,
-        planner.plan_format(run),
-        control_period=run.control_period,
-        scheme=config.mpc.scheme,
-    )
-    controller.reference = build_reference(config, robot)  # for the run's report (gait stance)
-    return controller
 
 
 def build_estimator(config: RunConfig, robot: Robot) -> StateEstimator:

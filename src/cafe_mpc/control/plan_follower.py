@@ -1,8 +1,8 @@
 """Following plans: the low-level controller on the newest plan, with one safe fallback.
 
-``NewestPlanFollower`` is what both policy sides (simulated time, ``control.mpc_loop``; wall clock,
-``control.realtime``) run at every control tick; ``PlanFollower`` closes a low level around one fixed plan
-(synthetic plans, offline trajectories).
+``NewestPlanFollower`` is what both MPC loops (in simulated time, ``control.inline``; with the planner in its
+own process, ``control.process``) run at every control tick, on any plan type; ``PlanFollower`` closes a low
+level around one fixed plan (synthetic plans, offline trajectories).
 """
 
 from __future__ import annotations

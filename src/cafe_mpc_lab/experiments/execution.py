@@ -16,7 +16,7 @@ from pathlib import Path
 
 from cafe_mpc.assembly.controllers import runs_alone
 from cafe_mpc.config import RunConfig
-from cafe_mpc.control.realtime import MpcProcessError
+from cafe_mpc.control.process import MpcProcessError
 from cafe_mpc_lab.experiments.catalog import get_experiment
 from cafe_mpc_lab.experiments.registry import Variant
 from cafe_mpc_lab.experiments.run import run

@@ -26,7 +26,7 @@ from cafe_mpc.assembly.controllers import RunController, build_sensing_controlle
 from cafe_mpc.assembly.references import reference_profile
 from cafe_mpc.assembly.scaling import run_scale, scaled_gait
 from cafe_mpc.config import RunConfig
-from cafe_mpc.control.realtime import MpcProcessError
+from cafe_mpc.control.process import MpcProcessError
 from cafe_mpc.core.measurement import Measurement
 from cafe_mpc.planners.cafe.setup import model_schedule, scaled_schedule
 from cafe_mpc.robots.robot import Robot
@@ -34,7 +34,7 @@ from cafe_mpc.robots.scaling import reference_scales
 from cafe_mpc_lab import LOGGERS
 from cafe_mpc_lab.experiments.controllers import (
     build_run_controller,
-    build_run_realtime_controller,
+    build_run_process_loop,
     low_level_of,
     mpc_statistics_of,
     mpc_summary,
@@ -123,9 +123,9 @@ def simulate_run(
         options["sensors"] = SensorSuite(robot.nu, sensor_spec(config.plant, rate), rate)
     sensing = None
     if config.simulation.realtime:
-        with build_run_realtime_controller(config, robot) as controller:
+        with build_run_process_loop(config, robot) as controller:
             standing = Measurement.of_state(q0, np.zeros(robot.nv), np.ones(robot.n_feet, dtype=bool))
-            controller.wait_ready(standing)
+            controller.start(0.0, standing)
             if viewer:  # the pacer holds the wall clock already
                 live = options["observer"] = _live_viewer(robot, controller, realtime=False)
             if estimating:

@@ -22,8 +22,8 @@ class TemplateMpc(RecedingHorizonPlanner[TemplatePlan]):
     """Template-MPC updates: SRB problem -> warm start -> MS-iLQR -> ``TemplatePlan``.
 
     The one-phase update (timing, statistics, failure handling) is ``RecedingHorizonPlanner``'s; this class
-    supplies the template's problem, warm start and plan, so the policy side
-    (``control.mpc_loop.CafeMpcController``: fixed or measured latency) runs it unchanged. ``settings``: the
+    supplies the template's problem, warm start and plan, so the MPC loops (``control.inline``: fixed or
+    measured latency; ``control.process``) run it unchanged. ``settings``: the
     same receding-horizon settings as CAFE-MPC (period, latency, iterations per update, first solve). No
     real-time iteration: its updates are small (5-10 ms) and one-phase, planned from the state predicted
     where their plan takes effect (``predict_start``).
