@@ -269,8 +269,6 @@ def test_planner_is_validated():
     assert load_run_config("trot", ["planner=template"]).planner == "template"
     with pytest.raises(ConfigError, match="planner"):
         load_run_config("trot", ["planner=hkd"])
-    with pytest.raises(ConfigError, match="simulated time only"):
-        load_run_config("trot", ["planner=template", "simulation.realtime=true"])
     with pytest.raises(ConfigError, match="whole number of milliseconds"):
         load_run_config("trot", ["planner=template", "template.dt=0.0125"])
 

@@ -75,7 +75,8 @@ def build_planner(config: RunConfig, robot: Robot, reference: Reference | None =
 def build_low_level(config: RunConfig, robot: Robot) -> LowLevelController:
     """The low-level controller of a run: the planner's own (``planner: template``), else the one named by
     ``wbc`` (PD, Riccati (33) or VWBC (34)), with the run's torque limits and friction."""
-    return low_levels.build_low_level(run_context(config, robot), PLANNERS.get(config.planner))
+    planner = PLANNERS.get(config.planner)
+    return low_levels.build_low_level(run_context(config, robot), planner)
 
 
 def build_mpc_loop(

@@ -756,8 +756,6 @@ class RunConfig(StrictModel):
             raise ValueError(
                 "planner: 'template' needs a gait section (e.g. --set gait.name=trot) or a reference section"
             )
-        if self.planner == "template" and self.simulation.realtime:
-            raise ValueError("planner: 'template' runs in simulated time only (simulation.realtime: false)")
         if self.mpc.period < 1.0 / self.simulation.control_rate_hz - 1e-12:
             raise ValueError(
                 f"mpc.period: {self.mpc.period} s is shorter than the control period "

@@ -30,10 +30,8 @@ from collections.abc import Callable
 import numpy as np
 
 from cafe_mpc.config import VelocityCommand
-from cafe_mpc.control.commands import GAIT_NAMES, CommandChannel
+from cafe_mpc.control.commands import GAIT_NAMES, CommandChannel, check_command
 from cafe_mpc.core.plan import KnotPlan
-from cafe_mpc.reference.locomotion import validate_command
-from cafe_mpc.reference.tested_ranges import outside_tested_range
 from cafe_mpc.robots.plan_overlay import PlanOverlay, draw_plan
 from cafe_mpc.robots.robot import Robot
 from cafe_mpc_lab.sim.plant import MujocoPlant
@@ -146,11 +144,10 @@ class KeyboardTeleop:
             return False
         wanted = command.model_copy(update=changes)
         try:
-            validate_command(wanted, self.robot)
+            untested = check_command(wanted, self.robot, self.gait)
         except ValueError as error:
             self.message = f"refused: {error}"
             return True
-        untested = outside_tested_range(self.gait, wanted, self.robot.name)
         self.command, self.message = wanted, f"untested: {untested}" if untested else ""
         self.presses += 1
         gait = GAIT_NAMES.index(self.gait) if self._gait_posted else None
