@@ -92,16 +92,19 @@ def build_mpc_loop(
         )
     if mode not in ("inline", "process"):
         raise ConfigError(f"mode must be 'inline' or 'process', got {mode!r}")
-    if low_level is None:
-        low_level = build_low_level(config, robot)
+    planner = PLANNERS.get(config.planner)
     run = run_context(config, robot)
+    if low_level is None:
+        low_level = low_levels.build_low_level(run, planner)
     if mode == "inline":
-        return InlineMpcLoop(robot, build_planner(config, robot), low_level, run.control_period)
+        return InlineMpcLoop(
+            robot, planner.build(run, build_reference(config, robot)), low_level, run.control_period
+        )
     loop = ProcessMpcLoop(
         robot,
         functools.partial(process_planner, config.model_dump(mode="json")),
         low_level,
-        PLANNERS.get(config.planner).plan_format(run),
+        planner.plan_format(run),
         config.mpc.period,
         control_period=run.control_period,
         scheme=config.mpc.scheme,
