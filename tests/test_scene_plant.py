@@ -95,7 +95,7 @@ def test_mpc_friction_is_the_controllers_own_and_independent_of_the_plant(robot)
     assert mpc.builder.whole_body.settings.constraints.friction_coefficient == 0.35
     assert build_low_level(config, robot).settings.mu == 0.35
     template = build_controller(load_run_config("trot", ["mpc.friction=0.35", "planner=template"]), robot)
-    assert template.builder.settings.friction_coefficient == 0.35
+    assert template.planner.builder.settings.friction_coefficient == 0.35
     default = load_run_config("trot")
     assert default.mpc.friction == 0.6 and default.plant.floor_friction is None  # the robot table's 0.6
     assert build_low_level(default, robot).settings.mu == 0.6
