@@ -30,7 +30,7 @@ LWA = pin.ReferenceFrame.LOCAL_WORLD_ALIGNED
 
 @dataclass
 class FakePlan:
-    """Stance flags over knot intervals, as ``core.plan.Plan`` carries them."""
+    """Stance flags over knot intervals, as ``planners.cafe.plan.Plan`` carries them."""
 
     times: np.ndarray
     dt: np.ndarray
@@ -183,7 +183,7 @@ def ideal_spec(average: bool = False) -> SensorSpec:
 
 
 def test_sensor_suite_reads_mujoco_sensors_with_noise_bias_quantisation_and_delay(robot):
-    from cafe_mpc.wbc.pd import PDController
+    from cafe_mpc.low_level.pd import PDController
 
     plant = MujocoPlant(robot)
     plant.reset(robot.q_standing)
@@ -288,7 +288,7 @@ def test_the_controller_gets_the_estimate_not_the_plant_state(robot):
         """A controller that records what it measured and holds the stance with PD."""
 
         def __init__(self) -> None:
-            from cafe_mpc.wbc.pd import PDController
+            from cafe_mpc.low_level.pd import PDController
 
             self.pd = PDController(robot)
 
