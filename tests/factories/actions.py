@@ -9,8 +9,8 @@
   phases, ``"world"`` base error, the tasks' barriers), about the problems' initial guesses;
 * SRB knots (``ocp.knots.SRBKnot``, Eqs. (28)-(30)): running knots in all 16 contact modes, terminal knots,
   the regular weights;
-* the template's SRB knots with GRF barriers (``planners.template.problem.ConstrainedSRBKnot``) in all 16 modes, with the
-  stance legs' torque maps at the standing pose.
+* the template's SRB knots with GRF barriers (``planners.template.problem.ConstrainedSRBKnot``) in all 16
+  modes, with the stance legs' torque maps at the standing pose.
 """
 
 from __future__ import annotations
