@@ -1,9 +1,13 @@
-"""Tiny compiled helpers shared by every layer (numba)."""
+"""Tiny compiled helpers shared by every layer (numba), and the calls through which compiled code runs a
+state manifold's compiled operations (``interfaces.CompiledStateOperations``)."""
 
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
+from numba import njit, types
+from numba.core import cgutils, errors
+from numba.core.dispatcher import Dispatcher
+from numba.extending import intrinsic
 
 
 @njit(cache=True, nogil=True)
@@ -54,3 +58,124 @@ def stack_columns_left_multiplied(
             row[i] = total
         for i in range(rows):
             out[i, j] = row[i]
+
+
+# ------------------------------------------------------------------------- compiled calls through addresses
+# A state manifold hands its compiled operations to compiled callers (the solver's kernels) as the addresses
+# of numba-compiled functions (``interfaces.CompiledStateOperations``): an array of integers, which crosses
+# from Python into a compiled call as fast as any array, keeps one compiled caller for every manifold and
+# keeps numba's disk cache working. (A numba function passed as an argument would do neither: its type
+# carries the function's identity, which changes from one process to the next, so the caller would be
+# compiled again in every process, and typing it on each call from Python costs microseconds.)
+
+VECTOR = types.Array(types.float64, 1, "A")
+"""A float64 vector of any layout: the argument type the compiled state operations are compiled for."""
+MATRIX = types.Array(types.float64, 2, "A")
+"""A float64 matrix of any layout."""
+POINT_OPERATION = (VECTOR, VECTOR, VECTOR)
+"""The arguments of ``integrate(x, dx, out)`` and ``difference(x0, x1, out)``."""
+TRANSPORT_OPERATION = (VECTOR, VECTOR, MATRIX, MATRIX, MATRIX)
+"""The arguments of ``transport_stacked(x0, x1, left, right, out)``."""
+INTEGRATE, DIFFERENCE, TRANSPORT = 0, 1, 2
+"""Positions of the operations in ``CompiledStateOperations.addresses``."""
+
+
+def compiled_address(function: Dispatcher, argument_types: tuple[types.Type, ...]) -> int:
+    """The address of ``function`` (a numba ``njit`` function returning nothing) compiled for
+    ``argument_types``, in numba's calling convention: what ``_call_at`` calls. Compiles that
+    specialisation, or loads it from numba's cache, if it does not exist yet."""
+    result = function.get_compile_result(types.void(*argument_types))
+    return result.library.get_pointer_to_function(result.fndesc.llvm_func_name)
+
+
+def _general(argument: types.Type, expected: types.Array) -> types.Array:
+    """``expected`` if ``argument`` is a writable float64 array of its dimension (which converts to it)."""
+    if not (
+        isinstance(argument, types.Array)
+        and argument.dtype == types.float64
+        and argument.ndim == expected.ndim
+        and argument.mutable
+    ):
+        raise errors.TypingError(f"a compiled state operation takes writable {expected}, got {argument}")
+    return expected
+
+
+def _call_through_address(argument_types: tuple[types.Type, ...]):
+    """The code generator of a call of the function at an address compiled for ``argument_types``."""
+
+    def codegen(context, builder, signature, arguments):
+        address, *values = arguments
+        values = [
+            context.cast(builder, value, given, wanted)
+            for value, given, wanted in zip(values, signature.args[1:], argument_types, strict=True)
+        ]
+        function_type = context.call_conv.get_function_type(types.void, argument_types)
+        function = builder.inttoptr(address, function_type.as_pointer())
+        status, _ = context.call_conv.call_function(builder, function, types.void, argument_types, values)
+        with cgutils.if_unlikely(builder, status.is_error):
+            context.call_conv.return_status_propagate(builder, status)
+        return context.get_dummy_value()
+
+    return codegen
+
+
+@intrinsic
+def _call_at(typingctx, address, a, b, c):
+    """Call the point operation (``POINT_OPERATION``) at ``address`` with ``a``, ``b``, ``c``."""
+    wanted = tuple(_general(t, e) for t, e in zip((a, b, c), POINT_OPERATION, strict=True))
+    return types.void(types.int64, a, b, c), _call_through_address(wanted)
+
+
+@intrinsic
+def _call_transport_at(typingctx, address, a, b, c, d, e):
+    """Call the transport (``TRANSPORT_OPERATION``) at ``address`` with ``a`` .. ``e``."""
+    wanted = tuple(_general(t, w) for t, w in zip((a, b, c, d, e), TRANSPORT_OPERATION, strict=True))
+    return types.void(types.int64, a, b, c, d, e), _call_through_address(wanted)
+
+
+@njit(cache=True, nogil=True)
+def state_integrate(operations: np.ndarray, x: np.ndarray, dx: np.ndarray, out: np.ndarray) -> None:
+    """``out = x ⊕ dx`` by a manifold's compiled operations (``CompiledStateOperations.addresses``)."""
+    _call_at(operations[INTEGRATE], x, dx, out)
+
+
+@njit(cache=True, nogil=True)
+def state_difference(operations: np.ndarray, x0: np.ndarray, x1: np.ndarray, out: np.ndarray) -> None:
+    """``out = x1 ⊖ x0`` by a manifold's compiled operations."""
+    _call_at(operations[DIFFERENCE], x0, x1, out)
+
+
+@njit(cache=True, nogil=True)
+def state_transport_stacked(
+    operations: np.ndarray,
+    x0: np.ndarray,
+    x1: np.ndarray,
+    left: np.ndarray,
+    right: np.ndarray,
+    out: np.ndarray,
+) -> None:
+    """``out = ∂(x1 ⊖ x0)/∂x1 @ [left | right]`` by a manifold's compiled operations."""
+    _call_transport_at(operations[TRANSPORT], x0, x1, left, right, out)
+
+
+# ------------------------------------------------------------------------ the compiled operations of R^n
+@njit(cache=True, nogil=True)
+def euclidean_integrate(x: np.ndarray, dx: np.ndarray, out: np.ndarray) -> None:
+    """``out = x + dx``."""
+    for i in range(out.shape[0]):
+        out[i] = x[i] + dx[i]
+
+
+@njit(cache=True, nogil=True)
+def euclidean_difference(x0: np.ndarray, x1: np.ndarray, out: np.ndarray) -> None:
+    """``out = x1 - x0``."""
+    for i in range(out.shape[0]):
+        out[i] = x1[i] - x0[i]
+
+
+@njit(cache=True, nogil=True)
+def euclidean_transport_stacked(
+    x0: np.ndarray, x1: np.ndarray, left: np.ndarray, right: np.ndarray, out: np.ndarray
+) -> None:
+    """``out = [left | right]`` (the Jacobian of ``x1 - x0`` w.r.t. ``x1`` is the identity)."""
+    stack_columns(left, right, out)
