@@ -219,8 +219,7 @@ class MSiLQRSolver:
         Cholesky factorisation ``mu`` grows and the sweep restarts (counted in ``statistics``).
 
         Returns ``OK``, ``REGULARIZATION_LIMIT`` (``mu`` passed ``regularization_max``) or ``NON_FINITE``."""
-        workspace = self._current_workspace()
-        return self._backward_pass_with_regularization(workspace, statistics or SolverStatistics())
+        return self._backward_pass_with_regularization(self._current_workspace(), statistics)
 
     def feedback(
         self,
@@ -711,9 +710,10 @@ class MSiLQRSolver:
 
     # -------------------------------------------------------------------------------------- backward sweep
     def _backward_pass_with_regularization(
-        self, workspace: Workspace, stats: SolverStatistics
+        self, workspace: Workspace, stats: SolverStatistics | None
     ) -> SweepOutcome:
-        """Run the backward sweep, raising ``mu`` after each failed Cholesky factorisation.
+        """Run the backward sweep, raising ``mu`` after each failed Cholesky factorisation (counted in
+        ``stats``, if given).
 
         Returns ``OK``, ``REGULARIZATION_LIMIT`` or ``NON_FINITE``.
         """
@@ -721,7 +721,8 @@ class MSiLQRSolver:
             outcome = self._backward_pass(workspace)
             if outcome != SweepOutcome.CHOLESKY:
                 return outcome
-            stats.backward_failures += 1
+            if stats is not None:
+                stats.backward_failures += 1
             if not self._increase_regularization():
                 return SweepOutcome.REGULARIZATION_LIMIT
 
