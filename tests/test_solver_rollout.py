@@ -11,11 +11,17 @@ nonlinear roll-out.
 
 from __future__ import annotations
 
+import copy
+import pickle
+import subprocess
+import sys
+
 import numpy as np
 import pytest
+from numba import njit
 
 from cafe_mpc.core.interfaces import EUCLIDEAN_OPERATIONS, EuclideanState, MultiPhaseProblem, Phase
-from cafe_mpc.core.kernels import state_difference, state_integrate
+from cafe_mpc.core.kernels import call_state_operation
 from cafe_mpc.dynamics.multibody_state import FREE_FLYER_OPERATIONS, MultibodyState
 from cafe_mpc.dynamics.srb import SRB_OPERATIONS, SRBState
 from cafe_mpc.ocp.knots import SRBModelFactory, WholeBodyModelFactory, weight_split_forces
@@ -67,6 +73,12 @@ def two_phase_pendulum() -> tuple[MultiPhaseProblem, list[np.ndarray], list[np.n
     return MultiPhaseProblem(np.array([0.2, 0.0]), [first, second]), xs, [np.zeros((8, 1)), np.zeros((7, 1))]
 
 
+@njit
+def call_at(address: int, a: np.ndarray, b: np.ndarray, out: np.ndarray) -> None:
+    """A compiled manifold operation called from compiled code through its address."""
+    call_state_operation(address, a, b, out)
+
+
 def trial(solver: MSiLQRSolver, alpha: float, nonlinear: bool) -> tuple[list[np.ndarray], tuple[float, ...]]:
     workspace = solver.workspace
     totals = solver.try_step(alpha, nonlinear)
@@ -87,7 +99,7 @@ def test_compiled_rollout_equals_the_manifold_methods(robot, case: str) -> None:
     solver.solve(problem, xs, us)  # a policy and linearisation at an infeasible nominal (every knot shooting)
     workspace = solver.workspace
     assert [work.state.compiled for work in workspace.phases] == kinds
-    assert all(work.operations is kind.addresses for work, kind in zip(workspace.phases, kinds, strict=True))
+    assert all(work.operations == kind.addresses for work, kind in zip(workspace.phases, kinds, strict=True))
     assert all(np.abs(work.defects).max() > 1e-6 for work in workspace.phases)
     for alpha in (1.0, 0.5):
         for nonlinear in (False, True):
@@ -118,32 +130,32 @@ def test_compiled_operations_equal_the_manifold_methods(robot) -> None:
     ]
     for state, compiled in cases:
         assert state.compiled is compiled
-        operations = compiled.addresses
+        addresses = compiled.addresses
         for _ in range(5):
             x = state.integrate(state.zero(), rng.standard_normal(state.ndx))
             dx = rng.standard_normal(state.ndx)
             out, expected = np.empty(state.nx), state.integrate(x, dx)
-            state_integrate(operations, x, dx, out)
+            call_at(addresses.integrate, x, dx, out)
             np.testing.assert_array_equal(out, expected)
             compiled.integrate(x, dx, out)
             np.testing.assert_array_equal(out, expected)
             tangent = np.empty(state.ndx)
-            state_difference(operations, x, expected, tangent)
-            np.testing.assert_array_equal(tangent, state.difference(x, expected))
-            # a strided view of the same values: the operations take any layout
-            strided_x = np.repeat(x, 2)[::2]
-            state_difference(operations, strided_x, expected, tangent)
+            call_at(addresses.difference, x, expected, tangent)
             np.testing.assert_array_equal(tangent, state.difference(x, expected))
             # [A | B] in the tangent space at a nominal state (the identity at the same point)
             left, right = rng.standard_normal((state.ndx, state.ndx)), rng.standard_normal((state.ndx, 3))
             plain = np.hstack([left, right])
             for y in (expected, x.copy()):
                 stacked, reference = np.empty_like(plain), np.empty_like(plain)
-                transport_stacked(operations, x, y, left, right, stacked)
+                transport_stacked(addresses.transport_stacked, x, y, left, right, stacked)
                 state.difference_jacobian_product_stacked(x, y, left, right, reference)
                 np.testing.assert_array_equal(stacked, reference)
                 same = y is not expected or compiled is EUCLIDEAN_OPERATIONS
                 assert np.array_equal(stacked, plain) == same
+                # a model's Jacobians that are not C-contiguous are copied, with the same result
+                fortran_left, strided_y = np.asfortranarray(left), np.repeat(y, 2)[::2]
+                transport_stacked(addresses.transport_stacked, x, strided_y, fortran_left, right, stacked)
+                np.testing.assert_array_equal(stacked, reference)
 
 
 def test_a_subclass_that_overrides_an_operation_uses_its_own_methods(robot) -> None:
@@ -178,6 +190,30 @@ def test_a_subclass_that_overrides_an_operation_uses_its_own_methods(robot) -> N
     assert SRBState().compiled is SRB_OPERATIONS
     assert Logged().compiled is None
     assert Transported().compiled is None
+
+
+def test_compiled_operations_travel_without_their_addresses(robot) -> None:
+    """A manifold pickled into another process (or copied) takes its compiled functions, not this process's
+    addresses of them: those are found again where they are used."""
+    code = (
+        "import pickle, sys, numpy as np\n"
+        "state = pickle.loads(sys.stdin.buffer.read())\n"
+        "x = state.zero(); dx = np.linspace(-0.3, 0.3, state.ndx); out = np.empty(state.nx)\n"
+        "state.compiled.integrate(x, dx, out)\n"
+        "sys.path.insert(0, 'tests'); from test_solver_rollout import call_at\n"
+        "call_at(state.compiled.addresses.integrate, x, dx, out)\n"
+        "sys.stdout.buffer.write(pickle.dumps(out))\n"
+    )
+    for state in (SRBState(), MultibodyState(robot.model), EuclideanState(3)):
+        addresses = state.compiled.addresses
+        copied = copy.deepcopy(state)
+        assert copied.compiled._addresses is None and copied.compiled.integrate is state.compiled.integrate
+        np.testing.assert_array_equal(copied.compiled.addresses, addresses)  # the same process: the same
+        output = subprocess.run(
+            [sys.executable, "-c", code], input=pickle.dumps(state), capture_output=True, check=True
+        ).stdout
+        dx = np.linspace(-0.3, 0.3, state.ndx)
+        np.testing.assert_array_equal(pickle.loads(output), state.integrate(state.zero(), dx))
 
 
 @pytest.mark.parametrize("rows", [1, 4, 7, 12, 36])

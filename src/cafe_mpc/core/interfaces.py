@@ -32,21 +32,28 @@ from __future__ import annotations
 
 from abc import ABC, abstractmethod
 from dataclasses import dataclass, field
+from typing import NamedTuple
 
 import numpy as np
 from numba.core.dispatcher import Dispatcher
 
 from cafe_mpc.core.kernels import (
-    DIFFERENCE,
-    INTEGRATE,
     POINT_OPERATION,
-    TRANSPORT,
     TRANSPORT_OPERATION,
     compiled_address,
     euclidean_difference,
     euclidean_integrate,
     euclidean_transport_stacked,
 )
+
+
+class StateOperationAddresses(NamedTuple):
+    """Where a manifold's compiled operations are (``CompiledStateOperations.addresses``): what compiled code
+    calls (``core.kernels.call_state_operation``, ``call_state_transport``)."""
+
+    integrate: int
+    difference: int
+    transport_stacked: int
 
 
 class CompiledStateOperations:
@@ -68,21 +75,23 @@ class CompiledStateOperations:
         self.integrate = integrate
         self.difference = difference
         self.transport_stacked = transport_stacked
-        self._addresses: np.ndarray | None = None
+        self._addresses: StateOperationAddresses | None = None
 
     @property
-    def addresses(self) -> np.ndarray:
-        """``[integrate, difference, transport_stacked]``: the addresses of the three functions compiled for
-        writable float64 arrays of any layout (``core.kernels.state_integrate`` etc. call them). Compiled,
-        or loaded from numba's cache, on first use; a read-only array."""
+    def addresses(self) -> StateOperationAddresses:
+        """The addresses of the three functions compiled for writable C-contiguous float64 arrays (compiled,
+        or loaded from numba's cache, on first use; valid in this process only)."""
         if self._addresses is None:
-            addresses = np.empty(3, dtype=np.int64)
-            addresses[INTEGRATE] = compiled_address(self.integrate, POINT_OPERATION)
-            addresses[DIFFERENCE] = compiled_address(self.difference, POINT_OPERATION)
-            addresses[TRANSPORT] = compiled_address(self.transport_stacked, TRANSPORT_OPERATION)
-            addresses.flags.writeable = False
-            self._addresses = addresses
+            self._addresses = StateOperationAddresses(
+                compiled_address(self.integrate, POINT_OPERATION),
+                compiled_address(self.difference, POINT_OPERATION),
+                compiled_address(self.transport_stacked, TRANSPORT_OPERATION),
+            )
         return self._addresses
+
+    def __reduce__(self) -> tuple:
+        """Pickled (and copied) without the addresses, which belong to this process."""
+        return (CompiledStateOperations, (self.integrate, self.difference, self.transport_stacked))
 
 
 class StateManifold(ABC):

@@ -62,41 +62,44 @@ def stack_columns_left_multiplied(
 
 # ------------------------------------------------------------------------- compiled calls through addresses
 # A state manifold hands its compiled operations to compiled callers (the solver's kernels) as the addresses
-# of numba-compiled functions (``interfaces.CompiledStateOperations``): an array of integers, which crosses
-# from Python into a compiled call as fast as any array, keeps one compiled caller for every manifold and
-# keeps numba's disk cache working. (A numba function passed as an argument would do neither: its type
-# carries the function's identity, which changes from one process to the next, so the caller would be
-# compiled again in every process, and typing it on each call from Python costs microseconds.)
+# of numba-compiled functions (``interfaces.CompiledStateOperations``): integers, which cross from Python
+# into a compiled call as fast as any argument, keep one compiled caller for every manifold and keep numba's
+# disk cache working. (A numba function passed as an argument would do neither: its type carries the
+# function's identity, which changes from one process to the next, so the caller would be compiled again in
+# every process, and typing it on each call from Python costs microseconds.)
 
-VECTOR = types.Array(types.float64, 1, "A")
-"""A float64 vector of any layout: the argument type the compiled state operations are compiled for."""
-MATRIX = types.Array(types.float64, 2, "A")
-"""A float64 matrix of any layout."""
+VECTOR = types.Array(types.float64, 1, "C")
+"""A C-contiguous float64 vector: an argument type of the compiled state operations."""
+MATRIX = types.Array(types.float64, 2, "C")
+"""A C-contiguous float64 matrix."""
 POINT_OPERATION = (VECTOR, VECTOR, VECTOR)
 """The arguments of ``integrate(x, dx, out)`` and ``difference(x0, x1, out)``."""
 TRANSPORT_OPERATION = (VECTOR, VECTOR, MATRIX, MATRIX, MATRIX)
 """The arguments of ``transport_stacked(x0, x1, left, right, out)``."""
-INTEGRATE, DIFFERENCE, TRANSPORT = 0, 1, 2
-"""Positions of the operations in ``CompiledStateOperations.addresses``."""
 
 
 def compiled_address(function: Dispatcher, argument_types: tuple[types.Type, ...]) -> int:
     """The address of ``function`` (a numba ``njit`` function returning nothing) compiled for
-    ``argument_types``, in numba's calling convention: what ``_call_at`` calls. Compiles that
-    specialisation, or loads it from numba's cache, if it does not exist yet."""
+    ``argument_types``, in numba's calling convention: what ``call_state_operation`` and
+    ``call_state_transport`` call. Compiles that specialisation, or loads it from numba's cache, if it does
+    not exist yet."""
     result = function.get_compile_result(types.void(*argument_types))
     return result.library.get_pointer_to_function(result.fndesc.llvm_func_name)
 
 
-def _general(argument: types.Type, expected: types.Array) -> types.Array:
-    """``expected`` if ``argument`` is a writable float64 array of its dimension (which converts to it)."""
+def _checked(argument: types.Type, expected: types.Array) -> types.Array:
+    """``expected`` if ``argument`` is it (a writable C-contiguous float64 array of its dimension)."""
     if not (
         isinstance(argument, types.Array)
         and argument.dtype == types.float64
         and argument.ndim == expected.ndim
+        and argument.layout == "C"
         and argument.mutable
     ):
-        raise errors.TypingError(f"a compiled state operation takes writable {expected}, got {argument}")
+        raise errors.TypingError(
+            f"a compiled state operation takes writable C-contiguous {expected}, got {argument} "
+            "(np.ascontiguousarray makes one)"
+        )
     return expected
 
 
@@ -105,10 +108,6 @@ def _call_through_address(argument_types: tuple[types.Type, ...]):
 
     def codegen(context, builder, signature, arguments):
         address, *values = arguments
-        values = [
-            context.cast(builder, value, given, wanted)
-            for value, given, wanted in zip(values, signature.args[1:], argument_types, strict=True)
-        ]
         function_type = context.call_conv.get_function_type(types.void, argument_types)
         function = builder.inttoptr(address, function_type.as_pointer())
         status, _ = context.call_conv.call_function(builder, function, types.void, argument_types, values)
@@ -120,42 +119,21 @@ def _call_through_address(argument_types: tuple[types.Type, ...]):
 
 
 @intrinsic
-def _call_at(typingctx, address, a, b, c):
-    """Call the point operation (``POINT_OPERATION``) at ``address`` with ``a``, ``b``, ``c``."""
-    wanted = tuple(_general(t, e) for t, e in zip((a, b, c), POINT_OPERATION, strict=True))
-    return types.void(types.int64, a, b, c), _call_through_address(wanted)
+def call_state_operation(typingctx, address, a, b, out):
+    """``integrate(a, b, out)`` or ``difference(a, b, out)`` of a manifold, at ``address``
+    (``CompiledStateOperations.addresses``); compiled code only. The arrays must be writable, C-contiguous
+    float64 vectors (checked when the caller compiles)."""
+    wanted = tuple(_checked(t, e) for t, e in zip((a, b, out), POINT_OPERATION, strict=True))
+    return types.void(types.intp, a, b, out), _call_through_address(wanted)
 
 
 @intrinsic
-def _call_transport_at(typingctx, address, a, b, c, d, e):
-    """Call the transport (``TRANSPORT_OPERATION``) at ``address`` with ``a`` .. ``e``."""
-    wanted = tuple(_general(t, w) for t, w in zip((a, b, c, d, e), TRANSPORT_OPERATION, strict=True))
-    return types.void(types.int64, a, b, c, d, e), _call_through_address(wanted)
-
-
-@njit(cache=True, nogil=True)
-def state_integrate(operations: np.ndarray, x: np.ndarray, dx: np.ndarray, out: np.ndarray) -> None:
-    """``out = x ⊕ dx`` by a manifold's compiled operations (``CompiledStateOperations.addresses``)."""
-    _call_at(operations[INTEGRATE], x, dx, out)
-
-
-@njit(cache=True, nogil=True)
-def state_difference(operations: np.ndarray, x0: np.ndarray, x1: np.ndarray, out: np.ndarray) -> None:
-    """``out = x1 ⊖ x0`` by a manifold's compiled operations."""
-    _call_at(operations[DIFFERENCE], x0, x1, out)
-
-
-@njit(cache=True, nogil=True)
-def state_transport_stacked(
-    operations: np.ndarray,
-    x0: np.ndarray,
-    x1: np.ndarray,
-    left: np.ndarray,
-    right: np.ndarray,
-    out: np.ndarray,
-) -> None:
-    """``out = ∂(x1 ⊖ x0)/∂x1 @ [left | right]`` by a manifold's compiled operations."""
-    _call_transport_at(operations[TRANSPORT], x0, x1, left, right, out)
+def call_state_transport(typingctx, address, x0, x1, left, right, out):
+    """``transport_stacked(x0, x1, left, right, out)`` of a manifold, at ``address``; as
+    ``call_state_operation``."""
+    arguments = (x0, x1, left, right, out)
+    wanted = tuple(_checked(t, e) for t, e in zip(arguments, TRANSPORT_OPERATION, strict=True))
+    return types.void(types.intp, *arguments), _call_through_address(wanted)
 
 
 # ------------------------------------------------------------------------ the compiled operations of R^n

@@ -5,9 +5,13 @@ terminal models, reset maps between phases and switching (phase-terminal) equali
 on manifolds; every perturbation, defect and value-function model is expressed in the tangent space at the
 nominal state, defects are ``d_{k+1} = f(x̄_k, ū_k) ⊖ x̄_{k+1}`` (Eq. (4)) and ``P(x̄_N) ⊖ x̄_0`` (Eq. (15)).
 
+The steps are public, as in Crocoddyl's solvers, and ``solve`` is made of them: ``linearize`` (the
+derivatives Eq. (8) needs), ``backward`` (Eqs. (7)-(10), (16)), ``try_step`` (the line search's trial,
+Eqs. (11)-(13), (15)); ``prepare`` and ``feedback`` are the real-time iteration's two phases.
+
 One inner iteration:
 
-* **Backward sweep** (Eqs. (8), (9), (10)) with the defect terms ``ŝ = s + S d``, Gauss-Newton (the
+* **Backward sweep** (Eqs. (7)-(10)) with the defect terms ``ŝ = s + S d``, Gauss-Newton (the
   second-order dynamics terms of (8d)-(8f) and (16c) are dropped: iLQR), across reset maps with Eq. (16)
   and the reset Jacobian, with ``mu I`` added to ``Quu`` (Cholesky; on failure ``mu`` grows and the sweep
   restarts). The value function is updated with the regularised gains and the *unregularised* ``Quu``
@@ -884,13 +888,15 @@ class MSiLQRSolver:
                     xs_try[0] = work.integrate(xs[0], previous.reset_jacobian @ dx_end + defects[0])
                     defects_try[0] = work.difference(xs_try[0], reset_state)
             operations = work.operations
+            if operations is not None:
+                integrate, difference = operations.integrate, operations.difference
             us, kff, K, F = work.us, work.k, work.K, work.F
             dx, du, step = work.dx, work.du, work.step
             if work.horizon:
                 if operations is None:
                     work.rollout_policy(0, alpha)
                 else:
-                    rollout_policy(operations, 0, alpha, xs, xs_try, us, us_try, kff, K, dx, du)  # Eq. (11)
+                    rollout_policy(difference, 0, alpha, xs, xs_try, us, us_try, kff, K, dx, du)  # Eq. (11)
             cost, violation = totals.cost, totals.inequality_violation
             for k, (model, data) in enumerate(zip(work.models, work.running_data, strict=True)):
                 model.calc(data, xs_try[k], us_try[k])
@@ -901,8 +907,8 @@ class MSiLQRSolver:
                     work.rollout_knot_end(k, alpha, data.x_next, rollout)
                 else:  # Eqs. (12), (13), then (11) for knot k + 1
                     rollout_knot_end(
-                        operations, k, alpha, data.x_next, rollout, xs, xs_try, us, us_try, kff, K, F,
-                        defects, defects_try, dx, du, step,
+                        integrate, difference, k, alpha, data.x_next, rollout, xs, xs_try, us, us_try, kff,
+                        K, F, defects, defects_try, dx, du, step,
                     )  # fmt: skip
             totals.cost, totals.inequality_violation = cost, violation
             dx_end = work.dx_end

@@ -34,6 +34,7 @@ from cafe_mpc.core.interfaces import (
     Phase,
     ResetData,
     StateManifold,
+    StateOperationAddresses,
 )
 from cafe_mpc.core.kernels import same_point, stack_columns
 from cafe_mpc.solver.kernels import linear_step, policy_step, transport_stacked
@@ -168,9 +169,9 @@ class PhaseWorkspace:
         # Exact type: a subclass may override difference/integrate (e.g. angle wrapping).
         self.euclidean = type(self.state) is EuclideanState
         compiled = self.state.compiled
-        self.operations: np.ndarray | None = None if compiled is None else compiled.addresses
-        """The manifold's compiled operations (``CompiledStateOperations.addresses``) for the roll-out's and
-        the linearisation's kernels; ``None``: the manifold has none, its methods are called."""
+        self.operations: StateOperationAddresses | None = None if compiled is None else compiled.addresses
+        """Where the manifold's compiled operations are (``CompiledStateOperations.addresses``), for the
+        roll-out's and the linearisation's kernels; ``None``: the manifold has none (its methods are used)."""
         self.running_data = running_data
         self.terminal_data = terminal_data
         self.reset_map = phase.reset_map if has_next_phase else None
@@ -273,8 +274,9 @@ class PhaseWorkspace:
         self, x_nominal: np.ndarray, y: np.ndarray, Fx: np.ndarray, Fu: np.ndarray, out: np.ndarray
     ) -> None:
         """``out = ∂(y ⊖ x̄)/∂y @ [Fx | Fu]``: the knot's ``[A | B]`` (the identity map without a defect)."""
-        if self.operations is not None:
-            transport_stacked(self.operations, x_nominal, y, Fx, Fu, out)
+        operations = self.operations
+        if operations is not None:
+            transport_stacked(operations.transport_stacked, x_nominal, y, Fx, Fu, out)
         elif same_point(x_nominal, y):
             stack_columns(Fx, Fu, out)
         else:
