@@ -95,6 +95,21 @@ WarmStart = Literal["previous", "plan", "equality", "none"]
 solution (ProxQP), or cold."""
 
 
+class ContactDetectionSettings(StrictModel):
+    """Thresholds of the contact detector (``wbc.contact_detection``): forces as fractions of a foot's share
+    of the robot's weight (``m g / n_feet``), heights in metres above the (flat) ground, the early window in
+    seconds before a planned touchdown."""
+
+    touchdown_force: float = Field(0.35, gt=0.0, le=5.0, description="touchdown above this x m g / n_feet")
+    release_force: float = Field(0.1, ge=0.0, le=5.0, description="release below this x m g / n_feet")
+    touchdown_height: float = Field(
+        0.02, gt=0.0, le=0.5, description="m; foot sole within this of the ground"
+    )
+    release_height: float = Field(0.03, gt=0.0, le=0.5, description="m; foot sole above this: released")
+    early_window: float = Field(0.08, ge=0.0, le=1.0, description="s before a planned touchdown that count")
+    ground_height: float = Field(0.0, description="m; the flat ground's height")
+
+
 class VWBCConfig(StrictModel):
     """The VWBC QP (34) solver: the run config's ``vwbc`` section, and the base of the controller's own
     settings (``wbc.vwbc.VWBCSettings``), which adds what the assembly derives (friction, robot-scaled
@@ -108,8 +123,19 @@ class VWBCConfig(StrictModel):
         description="previous tick's solution, the plan's guess, the equality-constrained solution (proxqp), "
         "or none (cold)",
     )
-    stance_source: Literal["plan", "intersect"] = Field(
-        "plan", description="plan: the plan knot's stance (the paper); intersect: planned and in contact"
+    friction: float | None = Field(
+        None,
+        gt=0.0,
+        le=2.0,
+        description="friction coefficient of the QP's pyramid (34f); null: the plan's (mpc.friction)",
+    )
+    stance_source: Literal["plan", "intersect", "detected"] = Field(
+        "plan",
+        description="plan: the plan knot's stance (the paper); intersect: planned and in contact; detected: "
+        "the contact detector's stance (wbc.contact_detection: force, foot height and the schedule's prior)",
+    )
+    contact_detection: ContactDetectionSettings = Field(
+        default_factory=ContactDetectionSettings, description="thresholds of stance_source: detected"
     )
 
 
