@@ -24,7 +24,7 @@ from cafe_mpc.config import ConfigError, MpcConfig, RunConfig
 from cafe_mpc.config.weights import SRBWeights, WholeBodyWeights
 from cafe_mpc.dynamics.srb import srb_parameters
 from cafe_mpc.mpc.problem import CafeProblemBuilder, ModelSchedule
-from cafe_mpc.ocp.constraints import WholeBodyConstraintSettings
+from cafe_mpc.ocp.constraints import BarrierParameters, WholeBodyConstraintSettings
 from cafe_mpc.ocp.knots import SRBModelFactory, SRBSettings, WholeBodyModelFactory, WholeBodySettings
 from cafe_mpc.robots.robot import Robot
 from cafe_mpc.robots.scaling import RobotScale
@@ -62,6 +62,18 @@ def run_schedule(config: RunConfig, robot: Robot) -> ModelSchedule:
         raise ConfigError(f"mpc: {error}") from error
 
 
+def plan_constraints(config: RunConfig, robot: Robot, scale: RobotScale) -> WholeBodyConstraintSettings:
+    """The whole-body plan's constraints: friction, the run's torque limits times
+    ``mpc.plan_torque_fraction`` under a barrier of weight ``mpc.torque_barrier_eps``, minimum height."""
+    limits = torque_limits_of(config, robot) * config.mpc.plan_torque_fraction
+    return WholeBodyConstraintSettings(
+        friction_coefficient=config.mpc.friction,
+        torque_limit_values=tuple(float(limit) for limit in limits),
+        torque_barrier=BarrierParameters(1.0, config.mpc.torque_barrier_eps),
+        minimum_base_height=minimum_base_height(scale),
+    )
+
+
 def build_problem(config: RunConfig, robot: Robot) -> CafeProblemBuilder:
     """The CAFE problem builder of a run (see the module docstring)."""
     scale = run_scale(config, robot)
@@ -73,12 +85,7 @@ def build_problem(config: RunConfig, robot: Robot) -> CafeProblemBuilder:
         srb_terminal = scaled_srb_weights(config.costs.srb_terminal, scale)
     except ValueError as error:
         raise ConfigError(f"costs: {error}") from error
-    limits = None if config.torque_limits == "plan" else tuple(torque_limits_of(config, robot).tolist())
-    constraints = WholeBodyConstraintSettings(
-        friction_coefficient=config.mpc.friction,
-        torque_limit_values=limits,
-        minimum_base_height=minimum_base_height(scale),
-    )
+    constraints = plan_constraints(config, robot, scale)
     whole_body, srb = _knot_factories(
         robot, scale, schedule, (running, terminal), (srb_running, srb_terminal), constraints
     )
@@ -132,11 +139,7 @@ def task_weight_sets(
         terminal = scaled_weights(section.costs.terminal, scale)
         srb_running = SRBWeights.from_whole_body(running, force=srb_force_weight(scale))
         srb_terminal = SRBWeights.from_whole_body(terminal, force=0.0)
-        constraints = WholeBodyConstraintSettings(
-            friction_coefficient=config.mpc.friction,
-            torque_limit_values=tuple(float(limit) for limit in torque_limits_of(config, robot)),
-            minimum_base_height=minimum_base_height(scale),
-        )
+        constraints = plan_constraints(config, robot, scale)
     except ValueError as error:
         raise ConfigError(f"reference: {error}") from error
     whole_body, srb = _knot_factories(

@@ -332,6 +332,20 @@ class MpcConfig(MpcSettings):
         description="friction coefficient the controller assumes (plan's pyramid, VWBC's cone); the plant's "
         "own is plant.floor_friction, so a mismatch between the two is explicit",
     )
+    torque_barrier_eps: float = Field(
+        0.01,
+        ge=0.0,
+        le=100.0,
+        description="weight of the plan's relaxed torque-limit barrier (delta 1 Nm); the authors' 0.01 lets "
+        "plans "
+        "ask for more than the low level can give",
+    )
+    plan_torque_fraction: float = Field(
+        1.0,
+        gt=0.0,
+        le=1.0,
+        description="the plan's torque limits as a fraction of the low level's (headroom for feedback)",
+    )
 
     @model_validator(mode="after")
     def _schedule_consistent(self) -> MpcConfig:
