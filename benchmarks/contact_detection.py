@@ -116,14 +116,16 @@ def main() -> None:
     parser.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE")
     args = parser.parse_args()
     header = ["preset", "simulated [s]", "touchdowns", "missed", "delay median / p95 / max [ms]"]
-    header += ["false-contact ticks", "early touchdowns"]
+    header += ["false-contact ticks", "early touchdowns", "their lead [ms]"]
     print("| " + " | ".join(header) + " |")
     print("|" + "---|" * len(header))
     for preset in args.presets.split(","):
         row = evaluate(preset.strip(), args.duration, args.overrides)
         delays = f"{row['delay_ms_median']:.0f} / {row['delay_ms_p95']:.0f} / {row['delay_ms_max']:.0f}"
         cells = [row["preset"], f"{row['sim_time']:.1f}", row["touchdowns"], row["missed"], delays]
+        lead = row.get("early_touchdown_lead_s_mean")
         cells += [row["false_contact_ticks"], row.get("early_touchdowns", "n/a")]
+        cells += [f"{1e3 * lead:.0f}" if lead is not None else "-"]
         print("| " + " | ".join(str(cell) for cell in cells) + " |", flush=True)
 
 

@@ -107,6 +107,9 @@ class ContactDetectionSettings(StrictModel):
     )
     release_height: float = Field(0.03, gt=0.0, le=0.5, description="m; foot sole above this: released")
     early_window: float = Field(0.08, ge=0.0, le=1.0, description="s before a planned touchdown that count")
+    on_time: float = Field(
+        0.015, ge=0.0, le=1.0, description="s; a touchdown this close to its planned time is on time"
+    )
     ground_height: float = Field(0.0, description="m; the flat ground's height")
 
 

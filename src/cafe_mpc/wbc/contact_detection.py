@@ -8,18 +8,22 @@ Bledt et al. ("Contact Model Fusion for Event-Based Locomotion in Unstructured T
 
 * the **schedule's prior**: a touchdown only counts in planned stance or in the last ``early_window`` seconds
   of a swing before its planned touchdown (a foot still loaded just after a planned lift-off is lifting off,
-  not landing);
+  not landing); one within ``on_time`` of its planned time is on time (the plan's knots are 10 ms apart: its
+  impact lands the foot then, and the plan's swing torques for those few milliseconds are what the paper's
+  VWBC applies);
 * the **ground force** the measurement carries (``Measurement.foot_forces``: from the joint torques through
   the leg Jacobians on a robot, ``estimation``; the plant's contact force in a ground-truth run): the foot
   pushes on something;
 * the **foot height** above the ground (forward kinematics of the measured state; flat ground at
   ``ground_height``): the foot is where the ground is.
 
-A foot becomes *in contact* when its normal force exceeds ``touchdown_force`` while it is within
-``touchdown_height`` of the ground (in planned stance, or in the early window of a swing); it stays in contact
-until its force drops below ``release_force`` with the foot higher than ``release_height``, or until its
-planned swing has begun (the schedule decides lift-off). A foot in planned stance that is not in contact is a
-late touchdown (still in the air). Forces are thresholds on the robot's weight share (``mg / n_feet``), so one
+In planned stance a foot is in contact once it is within ``touchdown_height`` of the ground (a foot still
+higher is a late touchdown: in the air, out of the stance set, its leg reaching for the planned foothold); in
+the early window of a swing it also needs a normal force above ``touchdown_force``. A foot leaves contact when
+its force drops below ``release_force`` with the foot higher than ``release_height``, or when its planned
+swing begins (the schedule decides lift-off). In planned stance the force is not asked for: on a robot it is
+estimated from the joint torques, which there are the stance torques this controller commands, so it would
+only echo the schedule. Forces are thresholds on the robot's weight share (``mg / n_feet``), so one
 setting holds for every robot.
 
 ``update(t, measurement, plan)`` returns the detected stance flags (an array the detector owns); counters of
@@ -57,6 +61,7 @@ class ContactDetector:
     def reset(self) -> None:
         self.in_contact[:] = True  # a robot starts standing
         self.early_touchdowns = 0
+        self.early_lead_sum = 0.0
         self.late_touchdown_ticks = 0
         self.early_ticks = 0
         self._was_planned = np.ones(self.robot.n_feet, dtype=bool)
@@ -88,7 +93,7 @@ class ContactDetector:
             loaded = force > self.touchdown_force and height < s.touchdown_height
             if planned[foot]:
                 if not self.in_contact[foot]:
-                    self.in_contact[foot] = loaded
+                    self.in_contact[foot] = height < s.touchdown_height
                 elif force < self.release_force and height > s.release_height:
                     self.in_contact[foot] = False
                 if not self.in_contact[foot]:
@@ -96,10 +101,12 @@ class ContactDetector:
             else:
                 if self._was_planned[foot]:  # the planned swing has begun: the schedule lifts the foot
                     self.in_contact[foot] = False
-                soon = self._next_touchdown[k, foot] - t <= s.early_window
+                lead = self._next_touchdown[k, foot] - t
+                soon = s.on_time < lead <= s.early_window
                 if not self.in_contact[foot] and soon and loaded:
                     self.in_contact[foot] = True
                     self.early_touchdowns += 1
+                    self.early_lead_sum += lead
                 elif self.in_contact[foot] and force < self.release_force and height > s.release_height:
                     self.in_contact[foot] = False
                 if self.in_contact[foot]:
@@ -110,6 +117,9 @@ class ContactDetector:
     def statistics(self) -> dict:
         return {
             "early_touchdowns": self.early_touchdowns,
+            "early_touchdown_lead_s_mean": (
+                self.early_lead_sum / self.early_touchdowns if self.early_touchdowns else None
+            ),
             "early_touchdown_ticks": self.early_ticks,
             "late_touchdown_ticks": self.late_touchdown_ticks,
         }
