@@ -5,7 +5,7 @@ VENV := .venv
 BIN := $(VENV)/bin
 DEMO ?= trot
 
-.PHONY: install install-gym demo test lint bench clean
+.PHONY: install install-gym browser demo test lint bench clean
 
 $(BIN)/cafe-mpc: pyproject.toml requirements.lock
 	@command -v $(PYTHON) >/dev/null 2>&1 || { echo "need $(PYTHON) (set PYTHON=...)"; exit 1; }
@@ -31,7 +31,24 @@ lint: install
 	$(BIN)/ruff check src tests benchmarks examples
 	$(BIN)/ruff format --check src tests benchmarks examples
 
-test: install install-gym
+# the report tests open pages in headless Chromium (tests/test_report.py; they skip without it): install
+# Debian's chromium when no Chromium is on the PATH and apt-get can (as root, or through passwordless sudo);
+# otherwise, or when the install fails (offline), say so and go on
+BROWSERS := chromium chromium-browser google-chrome
+browser:
+	@if (for b in $(BROWSERS); do command -v $$b >/dev/null 2>&1 && exit 0; done; exit 1); then :; \
+	elif ! command -v apt-get >/dev/null 2>&1; then \
+	  echo "no Chromium and no apt-get: the report's browser tests will skip"; \
+	else \
+	  if [ "$$(id -u)" = 0 ]; then SUDO=; elif sudo -n true 2>/dev/null; then SUDO="sudo -n"; else SUDO=none; fi; \
+	  if [ "$$SUDO" = none ]; then echo "no Chromium, and apt-get needs root: the report's browser tests will skip"; \
+	  else echo "installing chromium for the report's browser tests (apt-get)"; \
+	    { $$SUDO apt-get update -qq && $$SUDO env DEBIAN_FRONTEND=noninteractive apt-get install -y -qq chromium \
+	      >/dev/null; } \
+	      || echo "chromium could not be installed: the report's browser tests will skip"; fi; \
+	fi
+
+test: install install-gym browser
 	$(BIN)/ruff check src tests benchmarks examples
 	$(BIN)/python -m pytest tests
 

@@ -27,7 +27,8 @@ from cafe_mpc.core.measurement import Measurement
 from cafe_mpc.core.sensors import SensorReadings
 from cafe_mpc.estimation.estimator import StateEstimator
 from cafe_mpc.robots.robot import load_robot
-from cafe_mpc_lab.sim.loop import Push, simulate
+from cafe_mpc_lab.sim.loop import Push, SimulationOptions, simulate
+from cafe_mpc_lab.sim.mujoco_plant import MujocoPlant
 
 
 @dataclass
@@ -96,7 +97,7 @@ def height_bias(offsets_mm: list[float], duration: float = 3.5) -> None:
     pushes = [Push(p.start, p.duration, p.force_on(robot.total_mass)) for p in config.pushes]
     for offset in offsets_mm:
         controller = HeightBias(build_controller(config, robot), offset * 1e-3)
-        log = simulate(robot, controller, duration, pushes=pushes)
+        log = simulate(MujocoPlant(robot), controller, SimulationOptions(duration, pushes=tuple(pushes)))
         outcome = f"fell at {log.fall_time:.3f} s ({log.fall_reason})" if log.fell else "stood"
         print(f"bound-push, ground truth + {offset:g} mm height bias, {duration:g} s: {outcome}")
 

@@ -24,7 +24,7 @@ import argparse
 import numpy as np
 
 from cafe_mpc.config import load_config
-from cafe_mpc.wbc import contact_detection
+from cafe_mpc.low_level import contact_detection
 from cafe_mpc_lab.experiments.run import simulate_run
 
 BOUNCE = 0.02

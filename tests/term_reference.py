@@ -695,10 +695,6 @@ class TermKnot(ActionModel):
         kind = f"dt={self.cost_scale}" if self.dynamics is not None else "terminal"
         return f"WholeBodyKnot({flags_to_string(self.stance)}, {kind})"
 
-    @property
-    def is_terminal(self) -> bool:
-        return self.dynamics is None
-
     def with_reference(self, reference: WholeBodyReference) -> TermKnot:
         """A knot sharing everything with this one except the reference."""
         knot = copy.copy(self)

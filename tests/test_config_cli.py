@@ -69,7 +69,12 @@ def test_cli_run_writes_what_it_promises(tmp_path, capsys):
     assert metrics["sim_time_s"] == pytest.approx(0.5)
     written = yaml.safe_load((out / "config.yaml").read_text())
     assert written["simulation"]["duration"] == 0.5
-    assert "results in" in capsys.readouterr().out
+    printed = capsys.readouterr().out.splitlines()
+    assert printed[0].startswith(
+        "stand: stayed up for the whole 0.50 s (simulated in "
+    )  # the report's summary
+    assert any(line.startswith("  Height: base 0.2") for line in printed)
+    assert printed[-1] == f"results in {out}"
 
 
 def test_cli_errors_are_one_line_and_leave_nothing(tmp_path, capsys):

@@ -5,10 +5,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from cafe_mpc.config import ContactDetectionSettings
 from cafe_mpc.core.measurement import Measurement
 from cafe_mpc.core.physics import GRAVITY
-from cafe_mpc.core.plan import Plan
-from cafe_mpc.wbc.contact_detection import ContactDetectionSettings, ContactDetector
+from cafe_mpc.low_level.contact_detection import ContactDetector
+from cafe_mpc.planners.cafe.plan import Plan
 
 DT = 0.01
 SWING_END = 0.10

@@ -1,5 +1,6 @@
-"""Cost terms (18), constraints (25)-(27), the relaxed barrier and whole-body knots against finite
-differences, and the fused whole-body knot against the term-by-term evaluation it replaced."""
+"""Cost terms (18) and constraints (25)-(27) of the term-by-term reference knot against finite differences,
+the relaxed barrier, the touchdown constraint's values, and the fused whole-body knot against the
+term-by-term evaluation it replaced (the fused knots' derivatives: ``test_finite_differences.py``)."""
 
 from __future__ import annotations
 
@@ -291,14 +292,6 @@ def test_touchdown_constraint(robot):
     constraint.calc(data, x)
     feet = robot.foot_positions(x[:19])
     np.testing.assert_allclose(data.value, feet[[1, 2], 2] - robot.foot_radius - 0.01)
-    constraint.calc_diff(data, x)
-    jx = np.zeros((2, 36))
-    for i, e in enumerate(np.eye(36) * EPS):
-        constraint.calc(data, constraint.state.integrate(x, e))
-        plus = data.value.copy()
-        constraint.calc(data, constraint.state.integrate(x, -e))
-        jx[:, i] = (plus - data.value) / (2 * EPS)
-    np.testing.assert_allclose(data.Hx, jx, atol=1e-7)
     # Standing feet touch the floor: zero residual at the standing pose on a flat floor.
     flat = TouchdownFootHeight(robot, (1, 1, 1, 1))
     flat_data = flat.create_data()
@@ -311,34 +304,6 @@ def test_touchdown_constraint(robot):
 # --------------------------------------------------------------------------------------------------
 # Whole knots
 # --------------------------------------------------------------------------------------------------
-
-
-@pytest.mark.parametrize("base_error", ["tangent", "world"])
-@pytest.mark.parametrize("stance", [(1, 1, 1, 1), (1, 0, 0, 1), (0, 0, 1, 0), (0, 0, 0, 0)])
-@pytest.mark.parametrize("terminal", [False, True])
-def test_knot_gradient_matches_finite_differences(robot, base_error, stance, terminal):
-    rng = np.random.default_rng(9)
-    factory = WholeBodyModelFactory(robot, WholeBodySettings(base_error=base_error))
-    reference = random_reference(robot, rng)
-    knot = factory.terminal_knot(stance, reference) if terminal else factory.running_knot(stance, reference)
-    data = knot.create_data()
-    x = random_state(robot, rng, 0.1, 0.5)
-    u = rng.standard_normal(knot.nu)
-
-    def cost(x_, u_):
-        knot.calc(data, x_, u_)
-        return data.cost
-
-    gx, gu = fd_of(cost, x, u, knot.state, knot.nu)
-    knot.calc(data, x, u)
-    knot.calc_diff(data, x, u)
-    np.testing.assert_allclose(data.Lx, gx[0], atol=1e-6 * max(1.0, np.abs(gx).max()))
-    if knot.nu:
-        np.testing.assert_allclose(data.Lu, gu[0], atol=1e-6 * max(1.0, np.abs(gu).max()))
-        np.testing.assert_allclose(data.Lux.shape, (12, 36))
-    for hessian in (data.Lxx, data.Luu) if knot.nu else (data.Lxx,):
-        np.testing.assert_allclose(hessian, hessian.T, atol=1e-12)
-        assert np.linalg.eigvalsh(hessian).min() > -1e-9  # Gauss-Newton: positive semi-definite
 
 
 @pytest.mark.parametrize("base_error", ["tangent", "world"])

@@ -9,6 +9,8 @@ from cafe_mpc.config.reference import generated_block, reference_markdown, undoc
 ROOT = Path(__file__).resolve().parent.parent
 README = ROOT / "README.md"
 DOCS = ROOT / "docs"
+BENCHMARKS = ROOT / "BENCHMARKS.md"
+HISTORY = ROOT / "benchmarks" / "history"
 LINK = re.compile(r"\]\(([^)\s]+)\)")
 
 
@@ -30,11 +32,25 @@ def test_readme_is_one_page_and_links_every_doc():
 
 def test_local_links_resolve():
     broken = []
-    for page in [README, ROOT / "BENCHMARKS.md", *sorted(DOCS.glob("*.md"))]:
+    for page in [README, BENCHMARKS, *sorted(DOCS.glob("*.md")), *sorted(HISTORY.glob("*.md"))]:
         for target in _local_links(page):
             if target and not (page.parent / target).exists():
                 broken.append(f"{page.relative_to(ROOT)}: {target}")
     assert not broken, broken
+
+
+def test_benchmarks_is_one_page_of_current_numbers_and_links_its_history():
+    assert BENCHMARKS.stat().st_size <= 40 * 1024, (
+        f"BENCHMARKS.md is {BENCHMARKS.stat().st_size} bytes (limit 40 KB)"
+    )
+    assert "benchmarks/history/README.md" in _local_links(BENCHMARKS)
+    indexed = set(_local_links(HISTORY / "README.md"))
+    unlisted = [
+        page.name
+        for page in sorted(HISTORY.glob("*.md"))
+        if page.name != "README.md" and page.name not in indexed
+    ]
+    assert not unlisted, f"benchmarks/history/README.md does not list {unlisted}"
 
 
 def test_every_config_key_is_documented():

@@ -1,4 +1,5 @@
-"""Impact map (22), (24), WB -> SRB transition (31), (32) and SRB dynamics (29), (30)."""
+"""Impact map (22), (24), WB -> SRB transition (31), (32) and SRB dynamics (29), (30): what they compute.
+Their Jacobians and the SRB knots' derivatives against finite differences: ``test_finite_differences.py``."""
 
 from __future__ import annotations
 
@@ -12,7 +13,7 @@ from cafe_mpc.core.interfaces import IdentityReset
 from cafe_mpc.dynamics.impact import ImpactReset
 from cafe_mpc.dynamics.multibody_state import MultibodyState
 from cafe_mpc.dynamics.srb import SRBDynamics, SRBParameters, SRBState, quaternion_to_rotation, srb_parameters
-from cafe_mpc.dynamics.transition import ComposedReset, WholeBodyToSRB
+from cafe_mpc.dynamics.transition import WholeBodyToSRB
 from cafe_mpc.ocp.knots import SRBModelFactory, SRBSettings, WholeBodyModelFactory, weight_split_forces
 from cafe_mpc.robots.robot import load_robot
 
@@ -35,21 +36,6 @@ def random_srb_state(rng):
     return x
 
 
-def fd_reset_jacobian(reset, x):
-    data = reset.create_data()
-    source, target = reset.state, reset.next_state
-    reset.calc(data, x)
-    x_next = data.x_next.copy()
-    jacobian = np.zeros((target.ndx, source.ndx))
-    for i, e in enumerate(np.eye(source.ndx) * EPS):
-        reset.calc(data, source.integrate(x, e))
-        plus = target.difference(x_next, data.x_next)
-        reset.calc(data, source.integrate(x, -e))
-        minus = target.difference(x_next, data.x_next)
-        jacobian[:, i] = (plus - minus) / (2 * EPS)
-    return jacobian
-
-
 def analytic_reset_jacobian(reset, x):
     data = reset.create_data()
     reset.calc(data, x)
@@ -63,7 +49,7 @@ def analytic_reset_jacobian(reset, x):
 
 
 @pytest.mark.parametrize("feet", [(1, 0, 0, 0), (1, 0, 0, 1), (0, 1, 1, 1), (1, 1, 1, 1)])
-def test_impact_stops_touching_feet_and_jacobian(robot, feet):
+def test_impact_stops_touching_feet(robot, feet):
     rng = np.random.default_rng(1)
     reset = ImpactReset(robot, feet)
     x = random_wb_state(robot, rng)
@@ -86,28 +72,6 @@ def test_impact_stops_touching_feet_and_jacobian(robot, feet):
     np.testing.assert_allclose(
         mass_matrix @ (v_after - x[19:]), np.vstack(jacobians).T @ data.impulses, atol=1e-9
     )
-    np.testing.assert_allclose(data.Px, fd_reset_jacobian(reset, x), atol=1e-6)
-
-
-def test_impact_jacobian_is_the_same_on_every_call(robot):
-    """Regression: Pinocchio 4.0.0's impulse-dynamics derivatives accumulate into ``Data.dvc_dq``, so a second
-    call on the same data returned a wrong ``d v+ / dq`` (order-1 errors) unless it is reset. A solver
-    evaluates every impact many times, and a persistent MPC reuses the data across updates."""
-    rng = np.random.default_rng(21)
-    reset = ImpactReset(robot, (1, 1, 1, 1))
-    data = reset.create_data()
-    x = random_wb_state(robot, rng)
-    for _ in range(3):  # other points first
-        y = random_wb_state(robot, rng)
-        reset.calc(data, y)
-        reset.calc_diff(data, y)
-    reset.calc(data, x)
-    reset.calc_diff(data, x)
-    first = data.Px.copy()
-    reset.calc(data, x)
-    reset.calc_diff(data, x)
-    np.testing.assert_array_equal(data.Px, first)
-    np.testing.assert_allclose(first, fd_reset_jacobian(reset, x), atol=1e-6)
 
 
 def test_impact_requires_a_foot(robot):
@@ -133,7 +97,7 @@ def test_factory_reset_maps(robot):
 # --------------------------------------------------------------------------------------------------
 
 
-def test_transition_projection_and_jacobian(robot):
+def test_transition_projection(robot):
     rng = np.random.default_rng(2)
     projection = WholeBodyToSRB(MultibodyState(robot.model))
     x = random_wb_state(robot, rng, spread=1.0)
@@ -142,19 +106,6 @@ def test_transition_projection_and_jacobian(robot):
     np.testing.assert_allclose(data.x_next[:7], x[:7])
     np.testing.assert_allclose(data.x_next[7:10], rotation @ x[19:22])  # world linear velocity
     np.testing.assert_allclose(data.x_next[10:13], x[22:25])  # body angular velocity
-    np.testing.assert_allclose(data.Px, fd_reset_jacobian(projection, x), atol=1e-6)
-
-
-def test_transition_with_impact_jacobian(robot):
-    rng = np.random.default_rng(3)
-    factory = WholeBodyModelFactory(robot)
-    transition = factory.transition_to_srb((1, 0, 0, 1), (1, 1, 1, 1))
-    assert isinstance(transition, ComposedReset)
-    assert transition.next_state.nx == 13
-    x = random_wb_state(robot, rng)
-    data = analytic_reset_jacobian(transition, x)
-    np.testing.assert_allclose(data.Px, fd_reset_jacobian(transition, x), atol=1e-6)
-    assert isinstance(factory.transition_to_srb((1, 1, 1, 1), (1, 1, 1, 1)), WholeBodyToSRB)
 
 
 # --------------------------------------------------------------------------------------------------
@@ -187,32 +138,6 @@ def test_srb_state_manifold():
     # A full turn is representable: integrating 2*pi about x returns the same rotation.
     turned = state.integrate(x0, np.r_[0, 0, 0, 2 * np.pi, 0, 0, np.zeros(6)])
     np.testing.assert_allclose(state.difference(x0, turned), 0.0, atol=1e-9)
-
-
-@pytest.mark.parametrize("contacts", [(1, 1, 1, 1), (1, 0, 0, 1), (0, 0, 1, 0), (0, 0, 0, 0)])
-def test_srb_dynamics_jacobians(contacts):
-    rng = np.random.default_rng(5)
-    dynamics = SRBDynamics(PAPER_MINI_CHEETAH_SRB, dt=0.05)
-    data = dynamics.create_data()
-    state = dynamics.state
-    x, u = random_srb_state(rng), 20.0 * rng.standard_normal(12)
-    feet = rng.standard_normal((4, 3))
-    flags = np.asarray(contacts, dtype=float)
-    dynamics.calc(data, x, u, feet, flags)
-    x_next = data.x_next.copy()
-    dynamics.calc_diff(data, x, u, feet, flags)
-    fx, fu = np.zeros((12, 12)), np.zeros((12, 12))
-    for i, e in enumerate(np.eye(12) * EPS):
-        dynamics.calc(data, state.integrate(x, e), u, feet, flags)
-        plus = state.difference(x_next, data.x_next)
-        dynamics.calc(data, state.integrate(x, -e), u, feet, flags)
-        fx[:, i] = (plus - state.difference(x_next, data.x_next)) / (2 * EPS)
-        dynamics.calc(data, x, u + e, feet, flags)
-        plus = state.difference(x_next, data.x_next)
-        dynamics.calc(data, x, u - e, feet, flags)
-        fu[:, i] = (plus - state.difference(x_next, data.x_next)) / (2 * EPS)
-    np.testing.assert_allclose(data.Fx, fx, atol=1e-6)
-    np.testing.assert_allclose(data.Fu, fu, atol=1e-6)
 
 
 def test_srb_free_fall():
@@ -256,32 +181,18 @@ def test_srb_parameters_validation():
         SRBModelFactory()
 
 
-@pytest.mark.parametrize("terminal", [False, True])
-def test_srb_knot_gradient(terminal):
+def test_srb_knot_force_regularisation_and_its_target():
+    """Eq. (28): the GRF term is ``0.5 dt w (u - f_ref)^2`` (regular weight 0.01, dt 0.05); the target is the
+    weight split over the stance feet, zero on swing feet."""
     rng = np.random.default_rng(6)
     factory = SRBModelFactory(SRBSettings(parameters=PAPER_MINI_CHEETAH_SRB))
     reference = factory.reference(random_srb_state(rng), rng.standard_normal((4, 3)), (1, 0, 0, 1))
-    knot = factory.terminal_knot(reference) if terminal else factory.running_knot(reference)
+    knot = factory.running_knot(reference)
     data = knot.create_data()
-    state = knot.state
     x, u = random_srb_state(rng), 10.0 * rng.standard_normal(knot.nu)
     knot.calc(data, x, u)
     knot.calc_diff(data, x, u)
-
-    def cost(x_, u_):
-        knot.calc(data, x_, u_)
-        return data.cost
-
-    gx = [
-        (cost(state.integrate(x, e), u) - cost(state.integrate(x, -e), u)) / (2 * EPS)
-        for e in np.eye(12) * EPS
-    ]
-    np.testing.assert_allclose(data.Lx, gx, atol=1e-6)
-    if not terminal:
-        gu = [(cost(x, u + e) - cost(x, u - e)) / (2 * EPS) for e in np.eye(12) * EPS]
-        np.testing.assert_allclose(data.Lu, gu, atol=1e-6)
-        np.testing.assert_allclose(np.diag(data.Luu), 0.05 * 0.01)
-    # Reference forces: weight / stance count on stance feet, zero on swing feet.
+    np.testing.assert_allclose(np.diag(data.Luu), 0.05 * 0.01)
     weight = factory.settings.parameters.mass * 9.81
     np.testing.assert_allclose(reference.forces.reshape(4, 3)[:, 2], [weight / 2, 0, 0, weight / 2])
 

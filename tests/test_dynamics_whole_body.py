@@ -1,9 +1,8 @@
 """Whole-body state manifold and KKT contact dynamics (paper Eqs. (19)-(23)) against finite differences,
-Crocoddyl and the MuJoCo plant."""
+Crocoddyl and the MuJoCo plant (the dynamics' Jacobians and contact-force Jacobians in every contact mode:
+``tests/test_finite_differences.py``, through the whole-body knots)."""
 
 from __future__ import annotations
-
-import itertools
 
 import numpy as np
 import pinocchio as pin
@@ -12,39 +11,12 @@ import pytest
 from cafe_mpc.dynamics.multibody_state import MultibodyState
 from cafe_mpc.dynamics.whole_body import ContactDynamicsError, WholeBodyDynamics
 
-ALL_STANCES = list(itertools.product((False, True), repeat=4))
 EPS = 1e-6
 
 
 def random_state(robot, rng, spread=0.3, speed=1.0):
     q = pin.integrate(robot.model, robot.q_standing, spread * rng.standard_normal(robot.nv))
     return np.concatenate([q, speed * rng.standard_normal(robot.nv)])
-
-
-def fd_jacobians(dynamics, x, u):
-    """Central differences of x_next (tangent at x_next), forces w.r.t. the tangent of x and u."""
-    state, data = dynamics.state, dynamics.create_data()
-
-    def evaluate(x_, u_):
-        dynamics.calc(data, x_, u_)
-        return data.x_next.copy(), data.forces.copy()
-
-    x_next, forces = evaluate(x, u)
-    fx = np.zeros((state.ndx, state.ndx))
-    fu = np.zeros((state.ndx, dynamics.nu))
-    gx = np.zeros((forces.size, state.ndx))
-    gu = np.zeros((forces.size, dynamics.nu))
-    for i, e in enumerate(np.eye(state.ndx) * EPS):
-        xp, fp = evaluate(state.integrate(x, e), u)
-        xm, fm = evaluate(state.integrate(x, -e), u)
-        fx[:, i] = (state.difference(x_next, xp) - state.difference(x_next, xm)) / (2 * EPS)
-        gx[:, i] = (fp - fm) / (2 * EPS)
-    for i, e in enumerate(np.eye(dynamics.nu) * EPS):
-        xp, fp = evaluate(x, u + e)
-        xm, fm = evaluate(x, u - e)
-        fu[:, i] = (state.difference(x_next, xp) - state.difference(x_next, xm)) / (2 * EPS)
-        gu[:, i] = (fp - fm) / (2 * EPS)
-    return fx, fu, gx, gu
 
 
 # --------------------------------------------------------------------------------------------------
@@ -97,38 +69,8 @@ def test_full_roll_is_representable(robot):
 
 
 # --------------------------------------------------------------------------------------------------
-# Dynamics derivatives
+# Integration
 # --------------------------------------------------------------------------------------------------
-
-
-@pytest.mark.parametrize("stance", ALL_STANCES, ids=lambda s: "".join(str(int(f)) for f in s))
-def test_dynamics_jacobians_match_finite_differences(robot, stance):
-    rng = np.random.default_rng(sum(2**i * s for i, s in enumerate(stance)))
-    dynamics = WholeBodyDynamics(robot, stance, dt=0.01)
-    data = dynamics.create_data()
-    x, u = random_state(robot, rng), 3.0 * rng.standard_normal(12)
-    fx, fu, gx, gu = fd_jacobians(dynamics, x, u)
-    dynamics.calc(data, x, u)
-    dynamics.calc_diff(data, x, u)
-    assert data.forces.shape == (3 * sum(stance),)
-    np.testing.assert_allclose(data.Fx, fx, atol=2e-6 * max(1.0, np.abs(fx).max()))
-    np.testing.assert_allclose(data.Fu, fu, atol=2e-6)
-    if sum(stance):
-        np.testing.assert_allclose(data.dforces_dx, gx, atol=2e-6 * max(1.0, np.abs(gx).max()))
-        np.testing.assert_allclose(data.dforces_du, gu, atol=2e-6 * max(1.0, np.abs(gu).max()))
-
-
-@pytest.mark.parametrize("stance", [(0, 0, 0, 0), (1, 0, 0, 0), (0, 1, 1, 0), (1, 1, 1, 1)])
-def test_semi_implicit_jacobians_match_finite_differences(robot, stance):
-    rng = np.random.default_rng(7)
-    dynamics = WholeBodyDynamics(robot, stance, dt=0.02, integration="semi_implicit")
-    data = dynamics.create_data()
-    x, u = random_state(robot, rng), 3.0 * rng.standard_normal(12)
-    fx, fu, _, _ = fd_jacobians(dynamics, x, u)
-    dynamics.calc(data, x, u)
-    dynamics.calc_diff(data, x, u)
-    np.testing.assert_allclose(data.Fx, fx, atol=2e-6 * max(1.0, np.abs(fx).max()))
-    np.testing.assert_allclose(data.Fu, fu, atol=2e-6)
 
 
 def test_explicit_and_semi_implicit_steps(robot):

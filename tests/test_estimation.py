@@ -21,7 +21,7 @@ from cafe_mpc.assembly import load_run_config
 from cafe_mpc.config import ConfigError, EncoderSpec, ImuSpec, KinematicKFSettings
 from cafe_mpc.core.sensors import SensorReadings
 from cafe_mpc.estimation.estimator import StateEstimator, leg_velocity_indices
-from cafe_mpc_lab.sim.plant import MujocoPlant
+from cafe_mpc_lab.sim.mujoco_plant import MujocoPlant
 from cafe_mpc_lab.sim.sensors import SensorSpec, SensorSuite, sensor_spec
 
 DT = 0.002
@@ -30,7 +30,7 @@ LWA = pin.ReferenceFrame.LOCAL_WORLD_ALIGNED
 
 @dataclass
 class FakePlan:
-    """Stance flags over knot intervals, as ``core.plan.Plan`` carries them."""
+    """Stance flags over knot intervals, as ``planners.cafe.plan.Plan`` carries them."""
 
     times: np.ndarray
     dt: np.ndarray
@@ -183,7 +183,7 @@ def ideal_spec(average: bool = False) -> SensorSpec:
 
 
 def test_sensor_suite_reads_mujoco_sensors_with_noise_bias_quantisation_and_delay(robot):
-    from cafe_mpc.wbc.pd import PDController
+    from cafe_mpc.low_level.pd import PDController
 
     plant = MujocoPlant(robot)
     plant.reset(robot.q_standing)
@@ -280,7 +280,7 @@ def test_orientation_from_the_imu_matches_the_truth_in_a_short_closed_loop(robot
 
 def test_the_controller_gets_the_estimate_not_the_plant_state(robot):
     from cafe_mpc.estimation.controller import SensingController
-    from cafe_mpc_lab.sim.loop import simulate
+    from cafe_mpc_lab.sim.loop import SimulationOptions, simulate
 
     seen = []
 
@@ -288,7 +288,7 @@ def test_the_controller_gets_the_estimate_not_the_plant_state(robot):
         """A controller that records what it measured and holds the stance with PD."""
 
         def __init__(self) -> None:
-            from cafe_mpc.wbc.pd import PDController
+            from cafe_mpc.low_level.pd import PDController
 
             self.pd = PDController(robot)
 
@@ -302,7 +302,8 @@ def test_the_controller_gets_the_estimate_not_the_plant_state(robot):
     spec = sensor_spec(load_run_config("stand", ["estimator=kinematic_kf"]).plant, 500.0)
     estimator = StateEstimator(robot)
     sensing = SensingController(Spy(), estimator, capacity=10)
-    log = simulate(robot, sensing, 0.02, sensors=SensorSuite(robot.nu, spec, 500.0))
+    plant = MujocoPlant(robot, sensors=SensorSuite(robot.nu, spec, 500.0))
+    log = simulate(plant, sensing, SimulationOptions(0.02))
     assert len(seen) == log.ticks == 10
     assert all(measurement is estimator.measurement for measurement in seen)
     assert sensing.trace()["estimate_q"].shape == (10, robot.nq)

@@ -26,7 +26,7 @@ from cafe_mpc_lab.experiments.reliability import (
 from cafe_mpc_lab.experiments.results_table import RESULTS_FILE, ResultsTable
 from cafe_mpc_lab.experiments.run import simulate_run
 from cafe_mpc_lab.experiments.sweep import run_experiment
-from cafe_mpc_lab.sim.plant import MujocoPlant
+from cafe_mpc_lab.sim.mujoco_plant import MujocoPlant
 from cafe_mpc_lab.sim.randomization import PlantVariation, SensorModel
 
 
@@ -96,7 +96,7 @@ def test_randomisation_never_touches_the_controllers_model(robot):
     srb, expected = srb_parameters(used_robot), srb_parameters(nominal_robot)
     assert srb.mass == expected.mass
     np.testing.assert_array_equal(srb.inertia_matrix, expected.inertia_matrix)
-    whole_body = controller.mpc.builder.whole_body
+    whole_body = controller.planner.builder.whole_body
     assert whole_body.robot is used_robot
     # ... while the plant was varied: its motors applied 0.9 x the (saturated) command
     limits = used_robot.plant.motor_torque_limits

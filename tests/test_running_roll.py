@@ -14,7 +14,7 @@ from cafe_mpc_lab.experiments.sweep import run_experiment
 from cafe_mpc_lab.report.metrics import roll_pitch_yaw
 from cafe_mpc_lab.report.task_metrics import reference_trace, task_from_reference
 from cafe_mpc_lab.sim.bar import Bar, bar_of
-from cafe_mpc_lab.sim.plant import scene_mjcf
+from cafe_mpc_lab.sim.scene import Scene
 
 DT = 0.005
 
@@ -104,7 +104,7 @@ def test_bar_in_the_scene_collides_with_legs_only_where_it_is(robot):
     bar = bar_of(config.scene)
     assert bar == Bar(0.4, (2.0, -0.265), 0.0, 2.0, 0.005)
     assert bar_of(load_run_config("running-barrel-roll", ["scene.bar_height=0"]).scene) is None
-    model = mujoco.MjModel.from_xml_string(scene_mjcf(robot, (), bar))
+    model = mujoco.MjModel.from_xml_string(Scene(bar=bar).mjcf(robot))
     geom = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_GEOM, "bar")
     assert geom >= 0 and model.geom_pos[geom][2] == pytest.approx(0.4)
     with pytest.raises(ConfigError, match="bar"):

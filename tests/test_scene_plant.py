@@ -7,10 +7,11 @@ import mujoco
 import numpy as np
 import pytest
 
-from cafe_mpc.assembly import build_controller, build_low_level, build_mpc, load_run_config
+from cafe_mpc.assembly import build_controller, build_low_level, build_planner, load_run_config
 from cafe_mpc.config import ConfigError
-from cafe_mpc_lab.sim.plant import MujocoPlant, scene_mjcf
+from cafe_mpc_lab.sim.mujoco_plant import MujocoPlant
 from cafe_mpc_lab.sim.randomization import PlantVariation, plant_variation, terrain_geoms
+from cafe_mpc_lab.sim.scene import Scene, scene_of
 from cafe_mpc_lab.sim.terrain import Slope, Steps, terrain_height, terrain_pieces
 
 
@@ -61,25 +62,26 @@ def test_terrain_defaults_fill_the_kind_and_reach_the_plant(robot):
     )
     pieces = terrain_pieces(config.scene)
     assert pieces == [Slope(start=1.0, angle_deg=10.0), Steps(start=5.0, rise=0.05)]
-    plant = MujocoPlant(robot, terrain=pieces)
+    assert scene_of(config.scene) == Scene(tuple(pieces))  # no bar
+    plant = MujocoPlant(robot, scene=Scene(tuple(pieces)))
     names = [plant.model.geom(i).name for i in terrain_geoms(plant.model)]
     assert names[:3] == ["terrain_0_slope_up", "terrain_0_slope_top", "terrain_0_slope_down"]
     # the geoms' surfaces are where the pieces say (rays from above)
     for x in (0.5, 1.01, 1.5, 1.99, 2.5, 3.5, 4.5, 5.1, 5.4, 5.7, 6.5, 7.2, 8.0):
         assert _ray_height(plant, x) == pytest.approx(terrain_height(pieces, x), abs=1e-6), x
     assert _ray_height(plant, 2.5, y=1.5) == pytest.approx(0.0, abs=1e-9)  # off the 2 m width
-    assert scene_mjcf(robot) == robot.mjcf  # no terrain: the robot's own model
+    assert Scene().mjcf(robot) == robot.mjcf  # no terrain: the robot's own model
 
 
 def test_floor_friction_and_mass_scale_change_the_plant_only(robot):
-    pieces = [Steps(start=0.5)]
-    plant = MujocoPlant(robot, variation=PlantVariation(floor_friction=0.3, mass_scale=1.2), terrain=pieces)
+    scene = Scene((Steps(start=0.5),))
+    plant = MujocoPlant(robot, variation=PlantVariation(floor_friction=0.3, mass_scale=1.2), scene=scene)
     friction = plant.model.geom_friction[:, 0]
     floor = plant.model.geom("floor").id
     assert friction[floor] == 0.3
     assert np.all(friction[terrain_geoms(plant.model)] == 0.3)  # terrain is floor too
     assert float(np.sum(plant.model.body_mass)) == pytest.approx(1.2 * robot.total_mass)
-    nominal = MujocoPlant(robot, terrain=pieces)
+    nominal = MujocoPlant(robot, scene=scene)
     assert float(np.sum(nominal.model.body_mass)) == pytest.approx(robot.total_mass)
     assert np.all(nominal.model.geom_friction[terrain_geoms(nominal.model), 0] == robot.plant.floor_friction)
     with pytest.raises(ValueError, match="mass_scale"):
@@ -91,11 +93,11 @@ def test_floor_friction_and_mass_scale_change_the_plant_only(robot):
 
 def test_mpc_friction_is_the_controllers_own_and_independent_of_the_plant(robot):
     config = load_run_config("trot", ["mpc.friction=0.35", "plant.floor_friction=0.9"])
-    mpc = build_mpc(config, robot)
+    mpc = build_planner(config, robot)
     assert mpc.builder.whole_body.settings.constraints.friction_coefficient == 0.35
     assert build_low_level(config, robot).settings.mu == 0.35
     template = build_controller(load_run_config("trot", ["mpc.friction=0.35", "planner=template"]), robot)
-    assert template.builder.settings.friction_coefficient == 0.35
+    assert template.planner.builder.settings.friction_coefficient == 0.35
     default = load_run_config("trot")
     assert default.mpc.friction == 0.6 and default.plant.floor_friction is None  # the robot table's 0.6
     assert build_low_level(default, robot).settings.mu == 0.6

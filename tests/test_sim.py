@@ -3,10 +3,11 @@
 import numpy as np
 import pytest
 
+from cafe_mpc.low_level.pd import PDController
 from cafe_mpc.robots.robot import load_robot
-from cafe_mpc.wbc.pd import PDController
-from cafe_mpc_lab.sim.loop import ControllerError, Push, simulate
-from cafe_mpc_lab.sim.plant import MujocoPlant, SimulationDiverged
+from cafe_mpc_lab.sim.loop import ControllerError, Push, SimulationOptions, simulate
+from cafe_mpc_lab.sim.mujoco_plant import MujocoPlant
+from cafe_mpc_lab.sim.plant import SimulationDiverged
 
 
 def test_state_round_trip_in_planning_coordinates(robot):
@@ -25,7 +26,7 @@ def test_state_round_trip_in_planning_coordinates(robot):
 
 
 def test_plant_stands_under_pd_for_three_seconds(robot):
-    log = simulate(robot, PDController(robot), 3.0)
+    log = simulate(MujocoPlant(robot), PDController(robot), SimulationOptions(3.0))
     assert not log.fell
     assert log.ticks == 1500
     assert np.all(log.q[:, 2] > 0.22)
@@ -36,8 +37,9 @@ def test_plant_stands_under_pd_for_three_seconds(robot):
 
 
 def test_push_moves_the_base(robot):
-    quiet = simulate(robot, PDController(robot), 1.0)
-    pushed = simulate(robot, PDController(robot), 1.0, pushes=[Push(0.2, 0.1, (0.0, 40.0, 0.0))])
+    quiet = simulate(MujocoPlant(robot), PDController(robot), SimulationOptions(1.0))
+    pushes = (Push(0.2, 0.1, (0.0, 40.0, 0.0)),)
+    pushed = simulate(MujocoPlant(robot), PDController(robot), SimulationOptions(1.0, pushes=pushes))
     assert np.abs(quiet.v[:, 1]).max() < 0.05
     assert pushed.v[:, 1].max() > 0.2  # base frame y velocity during the push
     assert np.any(np.abs(pushed.external_force[:, 1] - 40.0) < 1e-12)
@@ -46,7 +48,7 @@ def test_push_moves_the_base(robot):
 
 def test_fall_is_detected(robot):
     weak = PDController(robot, kp=0.0, kd=0.0, gravity_feedforward=False)
-    log = simulate(robot, weak, 2.0)
+    log = simulate(MujocoPlant(robot), weak, SimulationOptions(2.0))
     assert log.fell and log.fall_time is not None and log.fall_time < 2.0
 
 
@@ -59,7 +61,7 @@ def test_controller_nan_is_a_clear_error(robot):
             return np.full(12, np.nan)
 
     with pytest.raises(ControllerError, match="invalid torques"):
-        simulate(robot, Broken(), 0.1)
+        simulate(MujocoPlant(robot), Broken(), SimulationOptions(0.1))
 
 
 def test_simulator_nan_is_detected(robot):
@@ -72,14 +74,18 @@ def test_simulator_nan_is_detected(robot):
 
 def test_bad_rates_are_rejected(robot):
     with pytest.raises(ValueError, match="duration"):
-        simulate(robot, PDController(robot), 0.0)
+        SimulationOptions(0.0)
+    with pytest.raises(ValueError, match="control rate"):
+        SimulationOptions(0.1, control_rate_hz=0.0)
+    with pytest.raises(ValueError, match="invalid push"):
+        SimulationOptions(0.1, pushes=(Push(-0.1, 0.1, (1.0, 0.0, 0.0)),))
     with pytest.raises(ValueError, match="whole multiple"):
-        simulate(robot, PDController(robot), 0.1, control_rate_hz=300.0)
+        simulate(MujocoPlant(robot), PDController(robot), SimulationOptions(0.1, control_rate_hz=300.0))
 
 
 @pytest.mark.slow
 def test_second_quadruped_from_config_stands():
     go1 = load_robot("go1")
-    log = simulate(go1, PDController(go1), 1.5)
+    log = simulate(MujocoPlant(go1), PDController(go1), SimulationOptions(1.5))
     assert not log.fell
     assert abs(log.q[-1, 2] - go1.standing_height) < 0.03

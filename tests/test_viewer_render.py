@@ -145,7 +145,7 @@ def test_viewer_follows_a_run_under_xvfb_with_the_plan_drawn(tmp_path, xvfb_disp
 CLOSE_WINDOW = """
 import time
 from cafe_mpc.robots.robot import load_robot
-from cafe_mpc_lab.sim.plant import MujocoPlant
+from cafe_mpc_lab.sim.mujoco_plant import MujocoPlant
 from cafe_mpc_lab.sim.viewer import LiveViewer
 
 robot = load_robot("mini_cheetah")

@@ -1,6 +1,6 @@
 """The value-function whole-body controller (VWBC, paper Eq. (34)) against the Riccati policy (33).
 
-Synthetic plans (``cafe_mpc.wbc.synthetic``) stand in for MPC solutions: standing pose, static stance
+Synthetic plans (``cafe_mpc.low_level.synthetic``) stand in for MPC solutions: standing pose, static stance
 torques, random SPD ``Quu`` and ``Qux = -Quu K``.
 """
 
@@ -12,16 +12,17 @@ import pytest
 
 from cafe_mpc.control.plan_follower import PlanFollower
 from cafe_mpc.core.measurement import Measurement
-from cafe_mpc.core.plan import Plan
-from cafe_mpc.wbc.contact_dynamics import (
+from cafe_mpc.low_level.contact_dynamics import (
     FrictionConeScorer,
     contact_forces_for_torque,
     friction_cone_violation,
 )
-from cafe_mpc.wbc.riccati import RiccatiController
-from cafe_mpc.wbc.synthetic import synthetic_plan
-from cafe_mpc.wbc.vwbc import VWBCController, VWBCSettings
-from cafe_mpc_lab.sim.loop import simulate
+from cafe_mpc.low_level.riccati import RiccatiController
+from cafe_mpc.low_level.synthetic import synthetic_plan
+from cafe_mpc.low_level.vwbc import VWBCController, VWBCSettings
+from cafe_mpc.planners.cafe.plan import Plan
+from cafe_mpc_lab.sim.loop import SimulationOptions, simulate
+from cafe_mpc_lab.sim.mujoco_plant import MujocoPlant
 
 HAS_DAQP = importlib.util.find_spec("daqp") is not None
 SOLVERS = ["proxqp", pytest.param("daqp", marks=pytest.mark.skipif(not HAS_DAQP, reason="daqp missing"))]
@@ -300,7 +301,7 @@ def test_stance_source_decides_the_torque_when_a_planned_foot_is_not_in_contact(
 def test_vwbc_holds_the_robot_standing_in_closed_loop(robot):
     plan = synthetic_plan(robot, knots=40, seed=14, base_gain_scale=0.0, kp=60.0, kd=1.5)
     vwbc = VWBCController(robot)
-    log = simulate(robot, PlanFollower(vwbc, plan), 0.6)
+    log = simulate(MujocoPlant(robot), PlanFollower(vwbc, plan), SimulationOptions(0.6))
     stats = vwbc.statistics()
     assert not log.fell
     assert stats["fallbacks"] == 0 and stats["friction_cone_violations"] == 0

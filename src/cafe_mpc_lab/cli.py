@@ -56,6 +56,7 @@ def _talk(quiet: bool) -> None:
 def _command_run(arguments: argparse.Namespace) -> int:
     from cafe_mpc.assembly.checks import load_run_config
     from cafe_mpc_lab.experiments.run import default_out_dir, run
+    from cafe_mpc_lab.report.summary import summarize
 
     _talk(arguments.quiet)
 
@@ -70,22 +71,9 @@ def _command_run(arguments: argparse.Namespace) -> int:
     out_dir = Path(arguments.out) if arguments.out else default_out_dir(config)
     result = run(config, out_dir, show_progress=not arguments.quiet, viewer=arguments.viewer)
     metrics = result.metrics
-    print(
-        f"{config.name}: fell={metrics['fell']} base_height_mean={metrics['base_height_mean']:.3f} m "
-        f"sim {metrics['sim_time_s']:.2f} s in {metrics['wall_time_s']:.2f} s "
-        f"(real-time factor {metrics['real_time_factor']:.2f})"
-    )
-    if config.gait is not None:
-        print(_gait_summary(metrics))
-    estimator = metrics.get("estimator") or {}
-    if estimator.get("velocity_rms_error_m_s") is not None:
-        print(
-            f"estimator {estimator['kind']}: velocity error RMS "
-            f"{_number(estimator['velocity_rms_error_m_s'], 4)} m/s (max "
-            f"{_number(estimator['velocity_error_max_m_s'])}), height RMS "
-            f"{_number(estimator['height_rms_error_m'] * 1e3, 1)} mm, orientation RMS "
-            f"{_number(estimator['orientation_rms_error_rad'], 4)} rad"
-        )
+    # the verdict, then the numbers that matter in words with units: the top of the HTML report, as text
+    for line in summarize(metrics, config.model_dump(mode="json"), config.name).lines():
+        print(line)
     if "render_error" in metrics:
         print(f"no video: {metrics['render_error']}")
     print(f"results in {result.out_dir}")
@@ -339,29 +327,6 @@ def _unknown_arguments(arguments: argparse.Namespace, extra: list[str]) -> str:
     return f"unrecognized arguments: {' '.join(extra)}"
 
 
-def _number(value: float | None, digits: int = 3) -> str:
-    return "n/a" if value is None else f"{value:.{digits}f}"
-
-
-def _gait_summary(metrics: dict) -> str:
-    """One line of tracking, MPC and low-level numbers for a gait run."""
-    mpc, wbc = metrics.get("mpc") or {}, metrics.get("wbc") or {}
-    return (
-        f"vx_mean={_number(metrics.get('vx_mean'))} m/s (whole run; "
-        f"{_number((metrics.get('steady_state') or {}).get('vx_mean'))} from "
-        f"{(metrics.get('steady_state') or {}).get('metrics_window_start_s')} s) "
-        f"vx_rms_error={_number(metrics.get('vx_rms_error'))} "
-        f"pitch_rms={_number(metrics.get('pitch_rms'))} rad; "
-        f"mpc ({(metrics.get('timing') or {}).get('mode')} latency) solves={mpc.get('solves')} "
-        f"failures={mpc.get('failures')} update median {_number(mpc.get('update_ms_median'), 1)} ms "
-        f"latency median {_number(mpc.get('latency_ms_median'), 1)} ms "
-        f"rate {_number(mpc.get('rate_hz'), 1)} Hz; "
-        f"{wbc.get('controller')}: torque limit violations {wbc.get('torque_limit_violations')}, "
-        f"friction cone violations {wbc.get('friction_cone_violations')}, "
-        f"foot slip max {_number(wbc.get('foot_slip_max_m'), 4)} m"
-    )
-
-
 def _command_report(arguments: argparse.Namespace) -> int:
     from cafe_mpc_lab.report.html import write_report
 
@@ -483,18 +448,8 @@ def _command_word(argv: list[str] | None) -> str | None:
     return next((word for word in words if not word.startswith("-")), None)
 
 
-def build_parser(argv: list[str] | None = None) -> argparse.ArgumentParser:
-    """The whole command line's parser. The experiments' subparsers import every experiment (and so the
-    simulator and Dask): they are built only when the command line is ``cafe-mpc experiment ...`` (or
-    ``argv`` is None), so that ``cafe-mpc --help``, ``--version`` and the other commands start fast."""
-    parser = _Parser(prog="cafe-mpc", description="CAFE-MPC on a simulated quadruped")
-    parser.add_argument("-v", "--verbose", action="store_true", help="log at INFO level to stderr")
-    parser.add_argument("--version", action="version", version=f"cafe-mpc {_version()}")
-    commands = parser.add_subparsers(dest="command", required=True)
-
-    from cafe_mpc.config import available_presets
-
-    presets = ", ".join(available_presets())
+def _add_run_parser(commands: argparse._SubParsersAction, presets: str) -> None:
+    """``cafe-mpc run``: a preset or a config file in simulation."""
     run_parser = commands.add_parser(
         "run",
         help="run a preset or a YAML config in simulation",
@@ -538,6 +493,9 @@ def build_parser(argv: list[str] | None = None) -> argparse.ArgumentParser:
     )
     run_parser.set_defaults(handler=_command_run)
 
+
+def _add_config_parser(commands: argparse._SubParsersAction, presets: str) -> None:
+    """``cafe-mpc config``: a resolved config as YAML, or the configuration reference."""
     config_parser = commands.add_parser(
         "config",
         help="print a preset's resolved config (YAML), or the configuration reference",
@@ -569,13 +527,9 @@ def build_parser(argv: list[str] | None = None) -> argparse.ArgumentParser:
     )
     config_parser.set_defaults(handler=_command_config)
 
-    if argv is None or _command_word(argv) == "experiment":
-        _add_experiment_parser(commands)
-    else:
-        commands.add_parser(
-            "experiment", help="the paper's experiments, in parallel on Dask (cafe-mpc experiment --list)"
-        )
 
+def _add_report_parser(commands: argparse._SubParsersAction) -> None:
+    """``cafe-mpc report``: the self-contained index.html of a run or an experiment folder."""
     report_parser = commands.add_parser(
         "report",
         help="write index.html for a run or an experiment folder (metrics, plots, video; self-contained)",
@@ -591,12 +545,18 @@ def build_parser(argv: list[str] | None = None) -> argparse.ArgumentParser:
     report_parser.add_argument("folder", help="a run folder (metrics.json) or an experiment folder")
     report_parser.set_defaults(handler=_command_report)
 
+
+def _add_robot_parser(commands: argparse._SubParsersAction) -> None:
+    """``cafe-mpc robot``: a robot's summary and its Pinocchio/MuJoCo consistency check."""
     robot_parser = commands.add_parser("robot", help="robot summary and Pinocchio/MuJoCo consistency check")
     robot_parser.add_argument("name", help="robot name (mini_cheetah, go1) or robot YAML file")
     robot_parser.add_argument("--json", action="store_true", help="print one JSON object")
     robot_parser.add_argument("--samples", type=int, default=5, help="random configurations to compare")
     robot_parser.set_defaults(handler=_command_robot)
 
+
+def _add_bench_parser(commands: argparse._SubParsersAction) -> None:
+    """``cafe-mpc bench``: the solver and MPC benchmarks."""
     bench_parser = commands.add_parser(
         "bench", help="benchmarks (solver: MS-iLQR vs Crocoddyl FDDP; mpc: closed-loop update times per gait)"
     )
@@ -613,6 +573,9 @@ def build_parser(argv: list[str] | None = None) -> argparse.ArgumentParser:
     )
     bench_parser.set_defaults(handler=_command_bench)
 
+
+def _add_optimize_parser(commands: argparse._SubParsersAction) -> None:
+    """``cafe-mpc optimize``: offline whole-body trajectory optimisation of a task."""
     from cafe_mpc.trajopt.presets import TASKS
 
     optimize_parser = commands.add_parser(
@@ -646,6 +609,32 @@ def build_parser(argv: list[str] | None = None) -> argparse.ArgumentParser:
         "--verbose-solver", action="store_true", help="print one line per MS-iLQR iteration"
     )
     optimize_parser.set_defaults(handler=_command_optimize)
+
+
+def build_parser(argv: list[str] | None = None) -> argparse.ArgumentParser:
+    """The whole command line's parser. The experiments' subparsers import every experiment (and so the
+    simulator and Dask): they are built only when the command line is ``cafe-mpc experiment ...`` (or
+    ``argv`` is None), so that ``cafe-mpc --help``, ``--version`` and the other commands start fast."""
+    parser = _Parser(prog="cafe-mpc", description="CAFE-MPC on a simulated quadruped")
+    parser.add_argument("-v", "--verbose", action="store_true", help="log at INFO level to stderr")
+    parser.add_argument("--version", action="version", version=f"cafe-mpc {_version()}")
+    commands = parser.add_subparsers(dest="command", required=True)
+
+    from cafe_mpc.config import available_presets
+
+    presets = ", ".join(available_presets())
+    _add_run_parser(commands, presets)
+    _add_config_parser(commands, presets)
+    if argv is None or _command_word(argv) == "experiment":
+        _add_experiment_parser(commands)
+    else:
+        commands.add_parser(
+            "experiment", help="the paper's experiments, in parallel on Dask (cafe-mpc experiment --list)"
+        )
+    _add_report_parser(commands)
+    _add_robot_parser(commands)
+    _add_bench_parser(commands)
+    _add_optimize_parser(commands)
     return parser
 
 
@@ -660,7 +649,7 @@ def main(argv: list[str] | None = None) -> int:
     console.addFilter(lambda record: not record.name.startswith("cafe_mpc.stage"))  # printed by _talk
     logging.getLogger().addHandler(console)
     from cafe_mpc.config import ConfigError
-    from cafe_mpc.control.realtime import MpcProcessError
+    from cafe_mpc.control.process import MpcProcessError
     from cafe_mpc.robots.robot import RobotLoadError
     from cafe_mpc.trajopt.task import TrajOptTaskError
     from cafe_mpc_lab.experiments.registry import SweepError

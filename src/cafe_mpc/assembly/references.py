@@ -20,6 +20,7 @@ from __future__ import annotations
 from cafe_mpc.assembly.scaling import run_scale, scaled_gait
 from cafe_mpc.config import ConfigError, GaitConfig, ReferenceConfig, RunConfig, VelocityCommand
 from cafe_mpc.ocp.contact_schedule import get_gait
+from cafe_mpc.planners.cafe.setup import TRAJECTORY_WEIGHT_SET
 from cafe_mpc.reference.base import Reference
 from cafe_mpc.reference.composition import ComposedReference
 from cafe_mpc.reference.locomotion import FOOTHOLD_BOX, CommandProfile, LocomotionReference
@@ -32,9 +33,6 @@ from cafe_mpc.reference.trajectory_file import (
 )
 from cafe_mpc.robots.robot import Robot
 from cafe_mpc.robots.scaling import IDENTITY, RobotScale
-
-TRAJECTORY_WEIGHT_SET = "barrel_roll"
-"""Weight set of the knots inside stored trajectories (the config's ``reference.costs``)."""
 
 
 def reference_commands(config: RunConfig) -> list[VelocityCommand]:

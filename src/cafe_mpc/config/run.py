@@ -115,7 +115,7 @@ class ContactDetectionSettings(StrictModel):
 
 class VWBCConfig(StrictModel):
     """The VWBC QP (34) solver: the run config's ``vwbc`` section, and the base of the controller's own
-    settings (``wbc.vwbc.VWBCSettings``), which adds what the assembly derives (friction, robot-scaled
+    settings (``low_level.vwbc.VWBCSettings``), which adds what the assembly derives (friction, robot-scaled
     rates) and the solvers' tolerances."""
 
     solver: Literal["daqp", "proxqp"] = Field(
@@ -206,7 +206,7 @@ class GaitConfig(StrictModel):
 
 
 class MpcSettings(StrictModel):
-    """Receding-horizon settings of an MPC (``mpc.planner``; docs/settings.md: "MPC loop" and "Solver").
+    """Receding-horizon settings of an MPC (``planners.base``; docs/settings.md: "MPC loop" and "Solver").
 
     ``latency``: ``measured`` (default): a plan takes effect once its real wall-clock update time has passed
     in simulated time (times ``compute_scale``: a computer that much slower), and the next update starts
@@ -297,7 +297,7 @@ class MpcSettings(StrictModel):
         description="rti with fixed latency: each update's problem starts at the last whole-body knot time "
         "at or before its plan takes effect (measurement + fixed_latency) and its feedback embeds the "
         "measured state carried there by the planning model under the plans in effect meanwhile "
-        "(control.delay_compensation)",
+        "(planners.cafe.prediction)",
     )
     compute_scale: float = Field(
         1.0,
@@ -684,11 +684,11 @@ class PlantConfig(StrictModel):
 
 
 class TemplateConfig(StrictModel):
-    """The template-MPC baseline (``planner: template``; ``mpc.template``, ``wbc.template_low_level``): the
-    SRB plan's horizon and knot spacing, the swing legs' joint PD gains, and the switches of the plan's
-    initial state, reference height and delay compensation (docs/settings.md has what each one changed).
+    """The template-MPC baseline (``planner: template``; ``planners.template``): the SRB plan's horizon and
+    knot spacing, the swing legs' joint PD gains, and the switches of the plan's initial state, reference
+    height and delay compensation (docs/settings.md has what each one changed).
     Period, latency and iterations per update are ``mpc``'s; the weights and GRF constraints are
-    ``mpc.template.TemplateSettings``'."""
+    ``planners.template.problem.TemplateSettings``'."""
 
     horizon: float = Field(0.5, gt=0.0, le=2.0, description="s planned with the SRB model")
     dt: float = Field(0.01, ge=0.001, le=0.1, description="s between SRB knots (whole milliseconds)")
@@ -799,8 +799,6 @@ class RunConfig(StrictModel):
             raise ValueError(
                 "planner: 'template' needs a gait section (e.g. --set gait.name=trot) or a reference section"
             )
-        if self.planner == "template" and self.simulation.realtime:
-            raise ValueError("planner: 'template' runs in simulated time only (simulation.realtime: false)")
         if self.mpc.period < 1.0 / self.simulation.control_rate_hz - 1e-12:
             raise ValueError(
                 f"mpc.period: {self.mpc.period} s is shorter than the control period "

@@ -339,20 +339,3 @@ class MultiPhaseProblem:
                 raise ValueError(f"phase {i}: reset map source dimension does not match the phase")
             if phase.reset_map.next_state.ndx != following.state.ndx:
                 raise ValueError(f"phase {i}: reset map target dimension does not match phase {i + 1}")
-
-
-class FreeTerminal(ActionModel):
-    """A terminal model with no cost (``nu = 0``): the end of an intermediate phase whose state is priced
-    only by the phases after it (used between whole-body phases and before the SRB tail)."""
-
-    def __init__(self, state: StateManifold) -> None:
-        self.state = state
-        self.next_state = state
-        self.nu = 0
-
-    def calc(self, data: ActionData, x: np.ndarray, u: np.ndarray) -> None:
-        data.cost = 0.0
-        data.constraint_violation = 0.0
-
-    def calc_diff(self, data: ActionData, x: np.ndarray, u: np.ndarray) -> None:
-        return None

@@ -181,12 +181,6 @@ class WholeBodyDynamics:
         only (``calc_diff`` then leaves ``dforces_dx``/``dforces_du`` zero)."""
         return WholeBodyDynamicsData(self, force_derivatives)
 
-    def force_index(self, leg: int) -> int:
-        """Offset of ``leg``'s force in ``data.forces`` (``ValueError`` for a swing leg)."""
-        if not self.stance[leg]:
-            raise ValueError(f"leg {leg} is not in stance")
-        return 3 * self.contact_legs.index(leg)
-
     def calc(self, data: WholeBodyDynamicsData, x: np.ndarray, u: np.ndarray) -> None:
         """Write ``data.acceleration``, ``data.forces`` and ``data.x_next``."""
         model, nq = self.model, self._nq

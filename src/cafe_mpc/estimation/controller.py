@@ -2,11 +2,11 @@
 
 ``SensingController(inner, estimator)`` is what the closed loop calls when the controller must see sensors
 (``estimator: kinematic_kf``): every tick it runs the estimator on the readings, with the stance flags of the
-plan ``inner`` follows now (``inner.plan``, if it has one: the CAFE-MPC loop in simulated time and the
-real-time MPC controller both do), and hands the estimate to ``inner.compute``. It runs in the caller's
-thread at the control rate, in every timing mode and in ``--realtime`` (where ``inner`` publishes the
-estimate to the MPC process). The estimate of every tick is recorded in preallocated arrays (``trace``) for
-the run's log and metrics.
+plan ``inner`` follows now (``inner.plan``, if it has one: both MPC loops, ``control.inline`` and
+``control.process``, do), and hands the estimate to ``inner.compute``. It runs in the caller's thread at the
+control rate, in every timing mode and in ``--realtime`` (where ``inner`` publishes the estimate to the MPC
+process). The estimate of every tick is recorded in preallocated arrays (``trace``) for the run's log and
+metrics.
 """
 
 from __future__ import annotations

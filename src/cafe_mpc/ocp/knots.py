@@ -484,10 +484,6 @@ class SRBReference:
         if forces is not None:
             self.forces[:] = _array(forces, (12,), "SRB reference forces")
 
-    @property
-    def contact_flags(self) -> ContactFlags:
-        return as_contact_flags(self.contacts > 0.5)
-
     @classmethod
     def of_rows(
         cls,

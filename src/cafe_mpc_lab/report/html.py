@@ -1,9 +1,14 @@
 """``cafe-mpc report DIR``: one self-contained ``index.html`` for a run folder or an experiment folder.
 
-A **run** (a folder with ``metrics.json``): the run's name and outcome, its video (``run.mp4``, or the GIF
-written without ffmpeg), every metric (the top-level ones, then one table per block: ``steady_state``,
-``timing``, ``mpc``, ``wbc``, ...), every plot (``*.png``), the resolved ``config.yaml`` and links to the
-raw files (``log.npz``, ``run.log``, ...).
+A **run** (a folder with ``metrics.json``) opens with what a person asks first (``report/summary.py``): the
+verdict (did it stay up; did the task succeed), then the numbers that matter for the run's kind in words with
+units (a gait's speed against its command, height and attitude; a task's criteria, each next to its rule, and
+margins such as the bar clearance; the MPC's rate and latency in its timing mode; the low level's fallbacks
+and violations; the estimator's error). Then its video (``run.mp4``, or the GIF written without ffmpeg) and
+``frames.png`` when they were recorded, its plots (``*.png``, the most telling first, each with a caption),
+and last, collapsed, every metric (the top-level ones, then one table per block: ``steady_state``,
+``timing``, ``mpc``, ``wbc``, ...), the resolved ``config.yaml`` and links to the raw files (``log.npz``,
+``run.log``, ...).
 
 An **experiment** (a folder with ``comparison.json``, from ``cafe-mpc experiment``): its title, the command
 that made it, the comparison table and notes (``comparison.md``), its figures (``comparison.png`` and any
@@ -26,6 +31,10 @@ import re
 from pathlib import Path
 from typing import Any
 
+import yaml
+
+from cafe_mpc_lab.report.summary import RunSummary, summarize
+
 RUN_FILE = "metrics.json"
 EXPERIMENT_FILE = "comparison.json"
 REPORT_FILE = "index.html"
@@ -44,6 +53,18 @@ img.wide { max-width: 100%; } video { max-width: 100%; border: 1px solid #ddd; }
 code, pre { background: #f6f6f6; } pre { padding: 0.8em; overflow-x: auto; font-size: 0.85em; }
 .tables { display: flex; flex-wrap: wrap; gap: 0 2em; } .tables h3 { margin: 0.4em 0 0; font-size: 1em; }
 #broken { display: none; background: #fdd; border: 1px solid #a11; padding: 0.5em; }
+p.facts { color: #555; margin-top: 0; }
+.verdict { font-size: 1.3em; font-weight: bold; padding: 0.55em 0.9em; margin: 0.8em 0;
+           border-left: 6px solid; }
+.verdict.ok { background: #e9f6ec; border-color: #176b2c; color: #124f22; }
+.verdict.bad { background: #fdecec; border-color: #a11; color: #7d0d0d; }
+.verdict.warn { background: #fdf3e4; border-color: #b35c00; color: #6b3700; }
+.verdict.unjudged { background: #f3f3f3; border-color: #777; }
+table.summary { font-size: 1em; width: 100%; } table.summary th { width: 9em; white-space: nowrap; }
+table.summary td.status { width: 1.2em; text-align: center; font-weight: bold; }
+td.ok { color: #176b2c; } td.warn { color: #b35c00; } td.bad { color: #a11; } td.info { color: #999; }
+table.summary td.rule { color: #666; font-size: 0.85em; width: 35%; }
+details > summary { cursor: pointer; margin: 0.4em 0; color: #333; }
 """
 
 _SCRIPT = """
@@ -107,20 +128,36 @@ def _page(title: str, body: list[str]) -> str:
 def _run_page(folder: Path, experiment_link: str | None = None) -> str:
     metrics = _read_json(folder / RUN_FILE)
     name = _config_name(folder) or folder.name
+    summary = summarize(metrics, _config_dict(folder), name)
     body = []
     if experiment_link:
         body.append(f'<p><a href="{_e(experiment_link)}">&larr; experiment</a></p>')
     body.append(f"<h1>{_e(name)}</h1>")
-    body.append(f"<p>{_run_outcome(metrics)}</p>")
-    body.append(f"<p>{_e(_run_facts(metrics))}</p>")
+    facts = " · ".join(part for part in (summary.facts, summary.wall_time) if part)
+    body.append(f'<p class="facts">{_e(facts)}</p>')
+    body.append(_verdict(summary))
+    body.append(_findings_table(summary))
     body.append("<p>Re-run it from this folder: <code>cafe-mpc run config.yaml</code></p>")
     video = _video(folder)
-    if video:
-        body += ["<h2>Video</h2>", video]
-    body += ["<h2>Metrics</h2>", _metrics_tables(metrics)]
-    figures = _figures(folder)
+    frames = folder / FRAMES_FILE
+    if video or frames.is_file():
+        body.append("<h2>Video</h2>" if video else "<h2>Frames</h2>")
+        if video:
+            body.append(video)
+        if frames.is_file():
+            body.append(_figure(frames, wide=True))
+    figures = _figures(
+        folder, order=PLOT_ORDER_TASK if summary.kind == "task" else PLOT_ORDER, skip={FRAMES_FILE}
+    )
     if figures:
         body += ["<h2>Plots</h2>", figures]
+    count = len(_flatten(metrics))
+    body += [
+        "<h2>All metrics</h2>",
+        f"<details><summary>every value of <code>metrics.json</code> ({count}), with its unit</summary>",
+        _metrics_tables(metrics),
+        "</details>",
+    ]
     config = folder / "config.yaml"
     if config.is_file():
         body += [
@@ -197,37 +234,33 @@ def _variants_table(folder: Path, variants: dict) -> str:
 
 
 # ------------------------------------------------------------------------------------------- pieces
-def _run_outcome(metrics: dict) -> str:
-    if metrics.get("fell"):
-        when = metrics.get("fall_time_s")
-        text = "fell" + (f" at {when:.2f} s" if isinstance(when, int | float) else "")
-        reason = metrics.get("fall_reason")
-        return f'<span class="outcome-bad">{_e(text)}</span>' + (f" ({_e(reason)})" if reason else "")
-    task = metrics.get("task") or {}
-    if task.get("success") is False:
-        failed = ", ".join(task.get("failed_criteria") or [])
-        return '<span class="outcome-bad">task failed</span> (did not fall' + (
-            f"; failed: {_e(failed)})" if failed else ")"
+STATUS_MARKS = {"ok": "\u2713", "warn": "!", "bad": "\u2717", "info": "\u00b7"}
+"""The mark in front of a finding: fine, worth a look, failed, for information."""
+
+
+def _verdict(summary: RunSummary) -> str:
+    kind = {True: "warn" if summary.worth_a_look else "ok", False: "bad", None: "unjudged"}[summary.ok]
+    return f'<div class="verdict {kind}">{_e(summary.verdict)}</div>'
+
+
+def _findings_table(summary: RunSummary) -> str:
+    """The findings, one row each: mark, topic, the numbers in words (a statement a line), and the rule a
+    task's criterion is judged by."""
+    rules = any(item.rule for item in summary.findings)
+    rows = ['<table class="summary">']
+    for item in summary.findings:
+        mark = STATUS_MARKS.get(item.status, "")
+        text = "<br>".join(_e(statement) for statement in item.text.split("; "))
+        if item.rule:
+            cells = f'<td>{text}</td><td class="rule">{_e(item.rule)}</td>'
+        else:
+            cells = f"<td{' colspan=2' if rules else ''}>{text}</td>"
+        rows.append(
+            f'<tr><td class="status {_e(item.status)}" title="{_e(item.status)}">{mark}</td>'
+            f"<th>{_e(item.topic)}</th>{cells}</tr>"
         )
-    if task and task.get("success") is None:
-        reason = task.get("success_reason") or "the run was too short to judge the task"
-        return f'<span class="outcome-ok">stayed up</span>; the task was not judged: {_e(reason)}'
-    return '<span class="outcome-ok">stayed up</span>' + (
-        " and the task succeeded" if task.get("success") else ""
-    )
-
-
-def _run_facts(metrics: dict) -> str:
-    parts = [
-        f"robot {metrics.get('robot')}" if metrics.get("robot") else "",
-        f"controller {metrics.get('controller')}" if metrics.get("controller") else "",
-        f"gait {metrics.get('gait')}" if metrics.get("gait") else "",
-        f"timing {(metrics.get('timing') or {}).get('mode')}" if metrics.get("timing") else "",
-        f"{_number(metrics.get('sim_time_s'))} s simulated in {_number(metrics.get('wall_time_s'))} s"
-        if metrics.get("sim_time_s") is not None
-        else "",
-    ]
-    return "; ".join(part for part in parts if part)
+    rows.append("</table>")
+    return "\n".join(rows)
 
 
 def _metrics_tables(metrics: dict) -> str:
@@ -332,17 +365,58 @@ def _number(value: Any) -> str:
     return str(value) if isinstance(value, int) else f"{value:.4g}"
 
 
-def _figures(folder: Path, wide: bool = False) -> str:
-    pictures = sorted(folder.glob("*.png"))
-    parts = []
-    for picture in pictures:
-        uri = _data_uri(picture, "image/png")
-        css = ' class="wide"' if wide else ""
-        parts.append(
-            f'<figure><img{css} src="{uri}" alt="{_e(picture.name)}"><figcaption>{_e(picture.name)}'
-            "</figcaption></figure>"
-        )
-    return "\n".join(parts)
+FRAMES_FILE = "frames.png"
+PLOT_ORDER = (
+    "velocity_tracking.png",
+    "base_height.png",
+    "orientation.png",
+    "foot_heights.png",
+    "hip_knee_torques.png",
+    "mpc_solve_times.png",
+    "estimator.png",
+    "contact_forces.png",
+    "joint_torques.png",
+    "velocities.png",
+)
+"""A run's plots, the most telling first (a gait's); any other plot follows by name."""
+PLOT_ORDER_TASK = ("task.png", "task_torques.png", "base_height.png", "orientation.png", *PLOT_ORDER)
+PLOT_CAPTIONS = {
+    "task.png": "the task: roll, height and lateral position against the reference",
+    "task_torques.png": "applied torques against the motor limits (roll shaded)",
+    "velocity_tracking.png": "commanded and actual forward, sideways and yaw speed",
+    "base_height.png": "base height",
+    "orientation.png": "roll, pitch and yaw",
+    "foot_heights.png": "foot heights: planned stance shaded, measured contact in black",
+    "hip_knee_torques.png": "front-right and hind-right hip and knee torques with the limits",
+    "mpc_solve_times.png": "time of every MPC update after the first",
+    "estimator.png": "the state estimate against the simulator's state",
+    "contact_forces.png": "contact forces",
+    "joint_torques.png": "joint torques with the plan and the motor limits",
+    "velocities.png": "base velocities",
+    FRAMES_FILE: "frames of the run",
+}
+
+
+def _figures(
+    folder: Path, wide: bool = False, order: tuple[str, ...] = (), skip: set[str] | frozenset = frozenset()
+) -> str:
+    rank = {name: index for index, name in enumerate(dict.fromkeys(order))}
+    pictures = sorted(
+        (path for path in folder.glob("*.png") if path.name not in skip),
+        key=lambda path: (rank.get(path.name, len(rank)), path.name),
+    )
+    return "\n".join(_figure(picture, wide) for picture in pictures)
+
+
+def _figure(picture: Path, wide: bool = False) -> str:
+    uri = _data_uri(picture, "image/png")
+    css = ' class="wide"' if wide else ""
+    caption = _e(picture.name)
+    if picture.name in PLOT_CAPTIONS:
+        caption = f"{_e(PLOT_CAPTIONS[picture.name])} <code>{caption}</code>"
+    return (
+        f'<figure><img{css} src="{uri}" alt="{_e(picture.name)}"><figcaption>{caption}</figcaption></figure>'
+    )
 
 
 def _video(folder: Path) -> str:
@@ -422,6 +496,17 @@ def _git_text(git: Any) -> str | None:
     if not isinstance(git, dict) or not git.get("commit"):
         return None
     return f"{str(git['commit'])[:12]}{' (with uncommitted changes)' if git.get('dirty') else ''}"
+
+
+def _config_dict(folder: Path) -> dict:
+    """The run's resolved ``config.yaml`` as a dict (empty when missing or unreadable: the summary then does
+    without the commands)."""
+    config = folder / "config.yaml"
+    try:
+        value = yaml.safe_load(config.read_text()) if config.is_file() else None
+    except (OSError, yaml.YAMLError):
+        return {}
+    return value if isinstance(value, dict) else {}
 
 
 def _config_name(folder: Path) -> str | None:

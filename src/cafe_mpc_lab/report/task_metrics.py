@@ -230,30 +230,31 @@ def measured_touchdown(log: SimulationLog, task: AcrobaticTask, control_period: 
     return None
 
 
-def task_metrics(
-    robot: Robot,
+@dataclass(frozen=True)
+class _Landing:
+    """How the run came down after the flight (see the module docstring; ``None``: no measured touchdown)."""
+
+    touchdown: float | None
+    all_feet_time: float | None
+    landed: bool
+    upright: bool
+    tilt_max_window: float | None
+    roll_at_touchdown: float | None
+    stayed_up_s: float
+    stayed_up: bool
+
+
+def _landing(
     log: SimulationLog,
     task: AcrobaticTask,
     control_period: float,
-    requested: np.ndarray | None = None,
-    planned_stance: np.ndarray | None = None,
-    mu: float = DEFAULT_FRICTION,
-    limits: np.ndarray | None = None,
-    bar: Bar | None = None,
-) -> dict:
-    """The ``task`` block of ``metrics.json`` (see the module docstring). ``requested``: the low-level
-    controller's torques before clamping (ticks, nu), ``planned_stance``: the plan knot's stance per tick,
-    ``limits``: the torque limits the controller enforces (default: the robot table's plan limits); ``bar``:
-    the scene's bar (its contacts are the log's ``extra["bar_contact"]``)."""
-    from cafe_mpc_lab.report.metrics import friction_cone_violations_post_hoc
-
+    tilt: np.ndarray,
+    body_contact: bool,
+) -> _Landing:
+    """The measured touchdown, the landing on all four feet, the tilt after it and the time the robot
+    stayed up."""
     times = log.time
-    roll_turned = float(np.sum(log.v[:, 3]) * control_period) if log.ticks else 0.0
     touchdown = measured_touchdown(log, task, control_period)
-    clearance = body_floor_clearance(robot, log.q) if log.ticks else {}
-    lowest = {name: float(np.min(values)) for name, values in clearance.items()}
-    body_contact = any(value < CONTACT_TOLERANCE_M for value in lowest.values())
-    tilt = np.array([base_tilt(q) for q in log.q])
     landed, upright, all_feet_time, tilt_max_window = False, False, None, None
     roll_at_touchdown, stayed_up_s = None, 0.0
     if touchdown is not None:
@@ -277,27 +278,58 @@ def task_metrics(
             and not log.fell
         )
     stayed_up = touchdown is not None and stayed_up_s >= STAY_UP_S - 1e-9 and not log.fell
-    end_of_run = (float(times[-1]) + control_period) if log.ticks else 0.0
+    return _Landing(
+        touchdown,
+        all_feet_time,
+        landed,
+        upright,
+        tilt_max_window,
+        roll_at_touchdown,
+        stayed_up_s,
+        stayed_up,
+    )
+
+
+def _unjudged_landing(
+    log: SimulationLog, task: AcrobaticTask, landing: _Landing, end_of_run: float
+) -> dict[str, str]:
+    """Why the landing criteria cannot be judged when the run stopped early without a fall (empty: they
+    can)."""
     unjudged: dict[str, str] = {}
-    if not log.fell:  # a run that stopped early (no fall) may not have reached a criterion's window
-        if touchdown is None and end_of_run < task.touchdown + FLIGHT_SEARCH_MARGIN_S:
-            reason = (
-                f"the run ended at {end_of_run:.2f} s, before the planned touchdown ({task.touchdown:.2f} s)"
+    if log.fell:  # a run that stopped early (no fall) may not have reached a criterion's window
+        return unjudged
+    touchdown = landing.touchdown
+    if touchdown is None and end_of_run < task.touchdown + FLIGHT_SEARCH_MARGIN_S:
+        reason = f"the run ended at {end_of_run:.2f} s, before the planned touchdown ({task.touchdown:.2f} s)"
+        unjudged.update(landed=reason, upright_after=reason, stayed_up=reason)
+    elif touchdown is not None:
+        landing_time = landing.all_feet_time if landing.all_feet_time is not None else touchdown
+        tilt_ok_so_far = landing.tilt_max_window is None or landing.tilt_max_window < UPRIGHT_TILT_RAD
+        if not landing.upright and tilt_ok_so_far and end_of_run < landing_time + UPRIGHT_WINDOW_S - 1e-9:
+            unjudged["upright_after"] = (
+                f"the run ended {end_of_run - landing_time:.2f} s after the landing; needs "
+                f"{UPRIGHT_WINDOW_S} s"
             )
-            unjudged.update(landed=reason, upright_after=reason, stayed_up=reason)
-        elif touchdown is not None:
-            landing_time = all_feet_time if all_feet_time is not None else touchdown
-            tilt_ok_so_far = tilt_max_window is None or tilt_max_window < UPRIGHT_TILT_RAD
-            if not upright and tilt_ok_so_far and end_of_run < landing_time + UPRIGHT_WINDOW_S - 1e-9:
-                unjudged["upright_after"] = (
-                    f"the run ended {end_of_run - landing_time:.2f} s after the landing; needs "
-                    f"{UPRIGHT_WINDOW_S} s"
-                )
-            if not stayed_up:
-                unjudged["stayed_up"] = (
-                    f"the run ended {stayed_up_s:.2f} s after the touchdown; needs {STAY_UP_S} s"
-                )
-    roll = (times >= task.start - 1e-9) & (times <= task.end + 1e-9)
+        if not landing.stayed_up:
+            unjudged["stayed_up"] = (
+                f"the run ended {landing.stayed_up_s:.2f} s after the touchdown; needs {STAY_UP_S} s"
+            )
+    return unjudged
+
+
+def _roll_violations(
+    robot: Robot,
+    log: SimulationLog,
+    roll: np.ndarray,
+    requested: np.ndarray | None,
+    planned_stance: np.ndarray | None,
+    mu: float,
+    limits: np.ndarray | None,
+) -> tuple[int, int | None, dict | None]:
+    """Over the ticks ``roll``: ticks above the motor limits, requests above the enforced limits (``None``
+    without ``requested``), and the post-hoc friction-cone violations (``None`` without such ticks)."""
+    from cafe_mpc_lab.report.metrics import friction_cone_violations_post_hoc
+
     motor_limits = robot.plant.motor_torque_limits
     motor_violations = int(np.sum(np.any(np.abs(log.torque_command[roll]) > motor_limits + 1e-9, axis=1)))
     request_violations = None
@@ -310,11 +342,16 @@ def task_metrics(
         stance = log.contacts if planned_stance is None else np.asarray(planned_stance, dtype=bool)
         ticks = np.flatnonzero(roll)
         cone = friction_cone_violations_post_hoc(robot, _rows(log, ticks), stance[ticks], mu)
-    roll_ok = roll_turned >= task.roll_target - ROLL_TOLERANCE_RAD
-    if not roll_ok and not log.fell and end_of_run < task.end - 1e-9:
-        unjudged["roll_turned"] = (
-            f"the run ended at {end_of_run:.2f} s, before the roll's end ({task.end:.2f} s)"
-        )
+    return motor_violations, request_violations, cone
+
+
+def _speeds_around_roll(
+    log: SimulationLog, task: AcrobaticTask, unjudged: dict[str, str]
+) -> tuple[float | None, float | None, bool | None]:
+    """Mean forward speed before the trajectory and over the run's last ``SPEED_WINDOW_S``, and whether the
+    gait after the roll resumed its pace (``None``: no moving gait after it, or not judged: then the reason
+    is added to ``unjudged``)."""
+    times = log.time
     speeds = forward_speed(log.q, log.v)
     end_time = float(times[-1]) if log.ticks else 0.0
     before = (times >= task.start - SPEED_WINDOW_S - 1e-9) & (times < task.start - 1e-9)
@@ -333,12 +370,80 @@ def task_metrics(
             and abs(speed_after) >= RESUME_FRACTION * abs(task.resume_speed)
             and speed_after * task.resume_speed > 0
         )
+    return speed_before, speed_after, pace_resumed
+
+
+def _criteria(task: AcrobaticTask) -> dict[str, str]:
+    """How each criterion is judged, in words with the thresholds (the block's ``criteria``)."""
+    return {
+        "roll_turned": f"integral of the body roll rate over the run >= {task.roll_target:.4f} - "
+        f"{ROLL_TOLERANCE_RAD} rad",
+        "touchdown": f"first foot contact after >= {MIN_FLIGHT_S} s with all feet off the floor, within "
+        f"{FLIGHT_SEARCH_MARGIN_S} s of the planned flight",
+        "landed": f"all four feet on the floor within {LANDING_WINDOW_S} s of the touchdown; no fall; "
+        f"trunk, thighs and knees never below {CONTACT_TOLERANCE_M} m (geometric: the plant's legs do "
+        "not collide)",
+        "upright_after": f"base tilt < {UPRIGHT_TILT_RAD} rad at every tick of the {UPRIGHT_WINDOW_S} s "
+        "after the landing (the first tick with all four feet down; the touchdown if they never are)",
+        "stayed_up": f"no fall for >= {STAY_UP_S} s after the touchdown",
+        "violations": "during the roll (trajectory start to end): commanded torque above the motor "
+        "limits; request before clamping above the limits the controller enforces; friction cone of "
+        "the forces the commanded torque implies with the plan's stance feet held",
+        "speeds": f"mean forward speed (heading frame) over the {SPEED_WINDOW_S} s before the trajectory "
+        f"starts and over the last {SPEED_WINDOW_S} s of the run",
+        "pace_resumed": f"a moving gait segment follows the trajectory: last {SPEED_WINDOW_S} s mean "
+        f"forward speed >= {RESUME_FRACTION} x its command (null: no such segment)",
+        "bar_contact": "a bar in the scene: any robot geom (trunk, legs, feet) in contact with it at any "
+        "tick of the run (null: no bar); bar_clearance_min_m: smallest bar-to-robot distance over the "
+        "roll (trajectory start - 0.3 s to its end), from the logged states",
+        "success": "roll_turned and landed and upright_after and stayed_up and no motor torque-limit "
+        "violation during the roll; with a bar, no bar contact; with a gait after the roll, "
+        "pace_resumed; null when a criterion could not be judged (the run ended too early: unjudged) "
+        "and none failed",
+    }
+
+
+def task_metrics(
+    robot: Robot,
+    log: SimulationLog,
+    task: AcrobaticTask,
+    control_period: float,
+    requested: np.ndarray | None = None,
+    planned_stance: np.ndarray | None = None,
+    mu: float = DEFAULT_FRICTION,
+    limits: np.ndarray | None = None,
+    bar: Bar | None = None,
+) -> dict:
+    """The ``task`` block of ``metrics.json`` (see the module docstring). ``requested``: the low-level
+    controller's torques before clamping (ticks, nu), ``planned_stance``: the plan knot's stance per tick,
+    ``limits``: the torque limits the controller enforces (default: the robot table's plan limits); ``bar``:
+    the scene's bar (its contacts are the log's ``extra["bar_contact"]``)."""
+    times = log.time
+    roll_turned = float(np.sum(log.v[:, 3]) * control_period) if log.ticks else 0.0
+    clearance = body_floor_clearance(robot, log.q) if log.ticks else {}
+    lowest = {name: float(np.min(values)) for name, values in clearance.items()}
+    body_contact = any(value < CONTACT_TOLERANCE_M for value in lowest.values())
+    tilt = np.array([base_tilt(q) for q in log.q])
+    landing = _landing(log, task, control_period, tilt, body_contact)
+    touchdown = landing.touchdown
+    end_of_run = (float(times[-1]) + control_period) if log.ticks else 0.0
+    unjudged = _unjudged_landing(log, task, landing, end_of_run)
+    roll = (times >= task.start - 1e-9) & (times <= task.end + 1e-9)
+    motor_violations, request_violations, cone = _roll_violations(
+        robot, log, roll, requested, planned_stance, mu, limits
+    )
+    roll_ok = roll_turned >= task.roll_target - ROLL_TOLERANCE_RAD
+    if not roll_ok and not log.fell and end_of_run < task.end - 1e-9:
+        unjudged["roll_turned"] = (
+            f"the run ended at {end_of_run:.2f} s, before the roll's end ({task.end:.2f} s)"
+        )
+    speed_before, speed_after, pace_resumed = _speeds_around_roll(log, task, unjudged)
     bar_block = bar_metrics(robot, log, task, bar)
     verdicts = {
         "roll_turned": roll_ok,
-        "landed": landed,
-        "upright_after": upright,
-        "stayed_up": stayed_up,
+        "landed": landing.landed,
+        "upright_after": landing.upright,
+        "stayed_up": landing.stayed_up,
         "motor_torque_limits": motor_violations == 0,
         "bar_contact": bar_block.get("bar_contact") is not True,
         "pace_resumed": pace_resumed is not False,
@@ -356,18 +461,18 @@ def task_metrics(
         "unjudged": unjudged,
         "roll_turned_rad": roll_turned,
         "roll_target_rad": task.roll_target,
-        "roll_turned_at_touchdown_rad": roll_at_touchdown,
+        "roll_turned_at_touchdown_rad": landing.roll_at_touchdown,
         "max_base_height_m": float(np.max(log.q[:, 2])) if log.ticks else None,
-        "landed": None if "landed" in unjudged else bool(landed),
-        "upright_after": None if "upright_after" in unjudged else bool(upright),
-        "stayed_up": None if "stayed_up" in unjudged else bool(stayed_up),
-        "stayed_up_s": float(stayed_up_s),
+        "landed": None if "landed" in unjudged else bool(landing.landed),
+        "upright_after": None if "upright_after" in unjudged else bool(landing.upright),
+        "stayed_up": None if "stayed_up" in unjudged else bool(landing.stayed_up),
+        "stayed_up_s": float(landing.stayed_up_s),
         "planned_start_s": task.start,
         "planned_takeoff_s": task.takeoff,
         "planned_touchdown_s": task.touchdown,
         "touchdown_s": touchdown,
-        "all_feet_down_s": all_feet_time,
-        "tilt_max_first_second_after_landing_rad": tilt_max_window,
+        "all_feet_down_s": landing.all_feet_time,
+        "tilt_max_first_second_after_landing_rad": landing.tilt_max_window,
         "tilt_at_touchdown_rad": float(tilt[times >= touchdown - 1e-9][0]) if touchdown is not None else None,
         "tilt_final_rad": float(tilt[-1]) if len(tilt) else None,
         "lowest_trunk_m": lowest.get("trunk"),
@@ -382,32 +487,7 @@ def task_metrics(
         "speed_after_roll_mps": speed_after,
         "pace_resumed": pace_resumed,
         **bar_block,
-        "criteria": {
-            "roll_turned": f"integral of the body roll rate over the run >= {task.roll_target:.4f} - "
-            f"{ROLL_TOLERANCE_RAD} rad",
-            "touchdown": f"first foot contact after >= {MIN_FLIGHT_S} s with all feet off the floor, within "
-            f"{FLIGHT_SEARCH_MARGIN_S} s of the planned flight",
-            "landed": f"all four feet on the floor within {LANDING_WINDOW_S} s of the touchdown; no fall; "
-            f"trunk, thighs and knees never below {CONTACT_TOLERANCE_M} m (geometric: the plant's legs do "
-            "not collide)",
-            "upright_after": f"base tilt < {UPRIGHT_TILT_RAD} rad at every tick of the {UPRIGHT_WINDOW_S} s "
-            "after the landing (the first tick with all four feet down; the touchdown if they never are)",
-            "stayed_up": f"no fall for >= {STAY_UP_S} s after the touchdown",
-            "violations": "during the roll (trajectory start to end): commanded torque above the motor "
-            "limits; request before clamping above the limits the controller enforces; friction cone of "
-            "the forces the commanded torque implies with the plan's stance feet held",
-            "speeds": f"mean forward speed (heading frame) over the {SPEED_WINDOW_S} s before the trajectory "
-            f"starts and over the last {SPEED_WINDOW_S} s of the run",
-            "pace_resumed": f"a moving gait segment follows the trajectory: last {SPEED_WINDOW_S} s mean "
-            f"forward speed >= {RESUME_FRACTION} x its command (null: no such segment)",
-            "bar_contact": "a bar in the scene: any robot geom (trunk, legs, feet) in contact with it at any "
-            "tick of the run (null: no bar); bar_clearance_min_m: smallest bar-to-robot distance over the "
-            "roll (trajectory start - 0.3 s to its end), from the logged states",
-            "success": "roll_turned and landed and upright_after and stayed_up and no motor torque-limit "
-            "violation during the roll; with a bar, no bar contact; with a gait after the roll, "
-            "pace_resumed; null when a criterion could not be judged (the run ended too early: unjudged) "
-            "and none failed",
-        },
+        "criteria": _criteria(task),
     }
 
 

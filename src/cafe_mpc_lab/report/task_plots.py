@@ -123,7 +123,7 @@ def render_frame_strip(
 ) -> Path:
     """One PNG with the robot rendered at ``times`` side by side, seen from the front (camera ``distance,
     elevation, azimuth``; the roll is about the body x axis). ``mjcf``: the scene to render (default the
-    robot's alone; ``sim.plant.scene_mjcf`` adds terrain and the bar). Raises ``RenderUnavailable`` without an
+    robot's alone; ``sim.scene.Scene.mjcf`` adds terrain and the bar). Raises ``RenderUnavailable`` without an
     off-screen OpenGL."""
     from cafe_mpc.robots.rendering import OffscreenRenderer, RenderUnavailable
 

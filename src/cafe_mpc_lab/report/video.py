@@ -29,7 +29,7 @@ def render_run(
 
     ``plans``: the plans the controller followed (``experiments.controllers.RecordedPlan``: ``t`` first used,
     ``times``, ``configurations``, ``contacts``, ``forces``), drawn at every frame (the newest one used by
-    then); ``mjcf``: the plant's scene (``sim.plant.scene_mjcf``: terrain, bar; default the robot alone)."""
+    then); ``mjcf``: the plant's scene (``sim.scene.Scene.mjcf``: terrain, bar; default the robot alone)."""
     if log.ticks == 0:
         raise RenderUnavailable("nothing to render: the log is empty")
     frame_times = np.arange(0.0, log.time[-1] + 1e-9, 1.0 / fps)

@@ -15,7 +15,7 @@ import numpy as np
 import pinocchio as pin
 
 from cafe_mpc.robots.robot import Robot
-from cafe_mpc_lab.sim.plant import MujocoPlant
+from cafe_mpc_lab.sim.mujoco_plant import MujocoPlant
 
 
 def random_configurations(robot: Robot, count: int, seed: int = 0) -> list[np.ndarray]:

@@ -49,18 +49,15 @@ from dataclasses import dataclass
 import mujoco
 import numpy as np
 
+from cafe_mpc.config import RunConfig
 from cafe_mpc.core.free_joint import planning_state
 from cafe_mpc.core.measurement import Measurement
 from cafe_mpc.robots.robot import Robot
-from cafe_mpc_lab.sim.plant import SimulationDiverged
+from cafe_mpc_lab.sim.plant import Plant, PlantSensors, checked_timestep
+from cafe_mpc_lab.sim.sensors import SensorSuite
 
 GYM_SCENES = ("flat", "perlin", "random_boxes", "random_pyramids", "stairs", "ramp", "slippery")
 """gym-quadruped's scene names (``QuadrupedEnv(scene=...)``)."""
-_DIVERGENCE_WARNINGS = (
-    mujoco.mjtWarning.mjWARN_BADQPOS,
-    mujoco.mjtWarning.mjWARN_BADQVEL,
-    mujoco.mjtWarning.mjWARN_BADQACC,
-)
 MASS_TOLERANCE = 1e-6
 """Relative difference of total mass above which the environment's robot is not the robot file's model."""
 
@@ -123,9 +120,14 @@ def make_environment(robot: Robot, timestep: float, floor_friction: float, scene
         )
 
 
-class GymQuadrupedPlant:
-    """The plant interface of ``sim.plant.MujocoPlant`` (``reset``, ``step``, ``read_state``, ``applied``,
-    ``set_external_force``, ``trunk_touched_floor``) around a gym-quadruped environment."""
+class GymQuadrupedPlant(Plant):
+    """A ``sim.plant.Plant`` around a gym-quadruped environment (see the module docstring).
+
+    ``timestep``: the physics step (None: the robot file's); ``floor_friction``: the environment's
+    ``ground_friction_coeff`` (None: the robot file's); ``scene``: gym-quadruped's scene (``GYM_SCENES``);
+    ``sensors``: what the controller reads of the state (the robot's own sensors, ``sim.sensors.SensorSuite``,
+    are our plant's only).
+    """
 
     kind = "gym-quadruped"
 
@@ -135,15 +137,21 @@ class GymQuadrupedPlant:
         timestep: float | None = None,
         floor_friction: float | None = None,
         scene: str = "flat",
+        sensors: PlantSensors | None = None,
     ) -> None:
-        self.robot = robot
-        timestep = robot.plant.timestep if timestep is None else float(timestep)
-        if not timestep > 0:
-            raise ValueError(f"plant timestep must be positive, got {timestep}")
+        if isinstance(sensors, SensorSuite):
+            raise GymQuadrupedUnavailable(
+                "gym-quadruped's model carries none of the robot's IMU and joint sensors (sim.sensors): its "
+                "controller reads the state (estimator=ground_truth)"
+            )
+        super().__init__(robot, sensors)
+        timestep = checked_timestep(robot.plant.timestep if timestep is None else timestep)
         friction = robot.plant.floor_friction if floor_friction is None else float(floor_friction)
-        self.scene = scene
+        self.gym_scene = scene
         self.env = make_environment(robot, timestep, friction, scene)
         self.model, self.data = self.env.mjModel, self.env.mjData
+        self.base_body = 1
+        """The trunk: the environment's first body after the world (its free-floating base)."""
         model = self.model
         env_mass = float(np.sum(model.body_mass))
         if abs(env_mass - robot.total_mass) > MASS_TOLERANCE * robot.total_mass:
@@ -168,11 +176,22 @@ class GymQuadrupedPlant:
         self._state = Measurement.zeros(robot.nq, robot.nv, robot.n_feet)
         self._rotation = np.zeros(9)
         self._ctrl = np.zeros(model.nu)
-        self.trunk_touched_floor = False
         self.termination: dict = {}
         """The environment's invalid contacts at its first termination (body pairs)."""
-        self.bar_in_contact = False
-        self.bar_contact_geoms: set[int] = set()
+
+    @classmethod
+    def from_config(
+        cls, config: RunConfig, robot: Robot, sensors: PlantSensors | None = None
+    ) -> GymQuadrupedPlant:
+        """The plant of a run config: its ``simulation.plant_timestep``, ``plant.floor_friction`` and
+        ``plant.gym_scene``."""
+        return cls(
+            robot,
+            config.simulation.plant_timestep,
+            config.plant.floor_friction,
+            config.plant.gym_scene,
+            sensors,
+        )
 
     def _actuators(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """For each robot joint: the environment's actuator, its gear and the torque it can apply."""
@@ -230,14 +249,6 @@ class GymQuadrupedPlant:
             legs.append(by_geom[geom])
         return legs
 
-    @property
-    def timestep(self) -> float:
-        return float(self.model.opt.timestep)
-
-    @property
-    def time(self) -> float:
-        return float(self.data.time)
-
     def environment_state(self, q: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Planning ``(q, v)`` -> the environment's ``(qpos, qvel)``."""
         qpos = np.zeros(self.model.nq)
@@ -252,14 +263,8 @@ class GymQuadrupedPlant:
         qvel[self.qvel_index] = v[6:]
         return qpos, qvel
 
-    def reset(self, q: np.ndarray, v: np.ndarray | None = None) -> None:
-        """Put the robot at ``(q, v)`` (planning coordinates) at time 0, through ``env.reset(qpos, qvel)``."""
-        q = np.asarray(q, dtype=float)
-        v = np.zeros(self.robot.nv) if v is None else np.asarray(v, dtype=float)
-        if q.shape != (self.robot.nq,) or v.shape != (self.robot.nv,):
-            raise ValueError(f"reset expects q ({self.robot.nq},) and v ({self.robot.nv},)")
-        if not (np.all(np.isfinite(q)) and np.all(np.isfinite(v))):
-            raise ValueError("reset state contains NaN or inf")
+    def _reset(self, q: np.ndarray, v: np.ndarray) -> None:
+        """Through ``env.reset(qpos, qvel)``, then the state set again at time 0."""
         qpos, qvel = self.environment_state(q, v)
         self.env.reset(qpos=qpos.copy(), qvel=qvel.copy(), random=False)
         mujoco.mj_resetData(self.model, self.data)  # undo the reset's physics step: start exactly at (q, v)
@@ -267,12 +272,7 @@ class GymQuadrupedPlant:
         self.data.qvel[:] = qvel
         mujoco.mj_forward(self.model, self.data)
         self._ctrl[:] = 0.0
-        self.trunk_touched_floor = False
         self.termination = {}
-
-    def set_external_force(self, force_world: np.ndarray) -> None:
-        """A world-frame force (N) on the trunk's centre of mass until changed."""
-        self.data.xfrc_applied[1, :3] = force_world
 
     def step(self, torques: np.ndarray, n_steps: int = 1) -> None:
         """``n_steps`` environment steps with the joint torques held."""
@@ -286,11 +286,8 @@ class GymQuadrupedPlant:
                     "time": float(self.data.time),
                     "contacts": sorted(info["invalid_contacts"]),
                 }
-            warned = any(self.data.warning[warning].number > 0 for warning in _DIVERGENCE_WARNINGS)
-            if warned or not (np.all(np.isfinite(self.data.qpos)) and np.all(np.isfinite(self.data.qvel))):
-                raise SimulationDiverged(
-                    f"gym-quadruped's state became non-finite at t = {self.data.time:.4f} s"
-                )
+            self._check_warnings()
+        self._check_finite()
 
     def applied(self, torques: np.ndarray) -> np.ndarray:
         """Torques the environment's actuators apply for commanded ``torques`` (saturated)."""
@@ -300,7 +297,7 @@ class GymQuadrupedPlant:
         return self.applied(self._ctrl[self.actuator_index] * self.gear)
 
     def read_state(self) -> Measurement:
-        """The measurement: planning coordinates (joint offsets removed), feet contacts and forces."""
+        """Planning coordinates (joint offsets removed), the environment's feet contacts and forces."""
         state = self._state
         state.time = float(self.data.time)
         mujoco.mju_quat2Mat(self._rotation, self.data.qpos[3:7])

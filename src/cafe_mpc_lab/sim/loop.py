@@ -1,19 +1,18 @@
-"""Closed-loop simulation: a controller called at a fixed rate around the MuJoCo plant.
+"""Closed-loop simulation: a controller called at a fixed rate around a plant (``sim.plant.Plant``).
 
-The controller sees only a ``Measurement`` (planning coordinates) and returns joint torques, which are held
-(zero-order hold) until its next call. Push disturbances are world-frame forces on the base over time
-intervals. Every control tick is logged into preallocated arrays. A ``PlantVariation`` changes the plant
-(friction, masses, motor strengths) and a ``SensorModel`` what the controller measures (noise, latency
-jitter); the log records the plant's true state (``sim.randomization``). With a ``SensorSuite``
-(``sim.sensors``) the controller gets the robot's sensor readings instead of a state (IMU and encoders;
-``estimation.controller.SensingController`` estimates the state from them).
+The controller sees what the plant's sensors give it (``Plant.sensors``: the state, perturbed or not, as a
+``Measurement``, or the robot's sensor readings) and returns joint torques, which are held (zero-order
+hold) until its next call. Push disturbances are world-frame forces on the base over time intervals. Every
+control tick is logged into preallocated arrays; the log records the plant's true state. The plant comes
+built (its scene, variation and sensors: ``sim.assembly.build_plant`` for a run config); what the loop does
+to it is a ``SimulationOptions``.
 """
 
 from __future__ import annotations
 
 import logging
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Protocol
 
@@ -22,12 +21,7 @@ import numpy as np
 from cafe_mpc.core.controller import Controller
 from cafe_mpc.core.progress import stage
 from cafe_mpc.core.sensors import SensorReadings
-from cafe_mpc.robots.robot import Robot
-from cafe_mpc_lab.sim.bar import Bar, geom_label
-from cafe_mpc_lab.sim.plant import MujocoPlant
-from cafe_mpc_lab.sim.randomization import PlantVariation, SensorModel
-from cafe_mpc_lab.sim.sensors import SensorSuite
-from cafe_mpc_lab.sim.terrain import Terrain
+from cafe_mpc_lab.sim.plant import Plant
 
 logger = logging.getLogger(__name__)
 
@@ -52,9 +46,9 @@ class Observer(Protocol):
 
     stop_reason: str
 
-    def start(self, plant: MujocoPlant) -> None: ...
+    def start(self, plant: Plant) -> None: ...
 
-    def update(self, t: float, plant: MujocoPlant) -> bool: ...
+    def update(self, t: float, plant: Plant) -> bool: ...
 
 
 @dataclass(frozen=True)
@@ -156,76 +150,71 @@ def base_tilt(q: np.ndarray) -> float:
     return float(np.arccos(np.clip(z_axis_z, -1.0, 1.0)))
 
 
-def simulate(
-    robot: Robot,
-    controller: Controller | SensorController,
-    duration: float,
-    control_rate_hz: float = 500.0,
-    q0: np.ndarray | None = None,
-    v0: np.ndarray | None = None,
-    pushes: Sequence[Push] = (),
-    plant_timestep: float | None = None,
-    fall: FallCriteria | None = FallCriteria(),
-    stop_on_fall: bool = True,
-    progress: Callable[[float], None] | None = None,
-    pacer: WallClockPacer | None = None,
-    stop: Callable[[float], bool] | None = None,
-    variation: PlantVariation | None = None,
-    sensor: SensorModel | None = None,
-    terrain: Sequence[Terrain] = (),
-    observer: Observer | None = None,
-    bar: Bar | None = None,
-    plant: MujocoPlant | None = None,
-    sensors: SensorSuite | None = None,
-) -> SimulationLog:
-    """Run ``controller`` on the MuJoCo plant for ``duration`` seconds of simulated time.
+@dataclass(frozen=True)
+class SimulationOptions:
+    """What ``simulate`` does with a plant: how long, how often the controller runs, where the robot starts,
+    the pushes, when it counts as a fall, and the run's companions.
 
-    ``pacer``: run against the wall clock (tick ``k`` starts at ``k / control_rate_hz`` seconds after the
-    clock starts; see ``WallClockPacer``), the real-time mode; without it the simulation runs as fast as it
-    can. ``stop(t)``: end the run early when it returns true (checked after each tick). ``variation``: the
-    plant's deviations from the robot table; ``sensor``: the controller measures through it (noise, delay).
-    ``bar``: a bar in the scene (``sim.bar``); the log's ``extra`` then holds ``bar_contact`` (per tick: a
-    robot geom touched it) and ``bar`` (``touched_by``: those geoms).
-    ``terrain``: slopes and steps in the scene (``sim.terrain``). ``observer``: watches the plant after every
-    tick (the live viewer) and may end the run early. ``plant``: a plant built by the caller instead of the
-    MuJoCo plant of ``robot`` (e.g. ``sim.gym_plant.GymQuadrupedPlant``, the same interface); then
-    ``plant_timestep``, ``variation``, ``terrain`` and ``bar`` are the caller's business.
-    ``sensors``: the controller is a ``SensorController`` and gets the robot's sensor readings
-    (``sim.sensors``; ``sensor`` must then be None or ideal: the suite has its own noise and latency jitter);
-    the log's ``extra`` holds ``sensors`` (their summary).
+    ``initial_q``/``initial_v``: the start state (None: the robot's standing pose, at rest). ``fall``: None
+    never checks. ``progress(dt)``: called after each tick with the simulated time it advanced. ``pacer``:
+    run against the wall clock (tick ``k`` starts ``k / control_rate_hz`` seconds after the clock starts;
+    ``WallClockPacer``), the real-time mode; without it the simulation runs as fast as it can. ``stop(t)``:
+    end the run early when it returns true (checked after each tick). ``observer``: watches the plant after
+    every tick (the live viewer) and may end the run early.
     """
-    if not duration > 0:
-        raise ValueError(f"duration must be positive, got {duration}")
-    if not control_rate_hz > 0:
-        raise ValueError(f"control rate must be positive, got {control_rate_hz}")
-    if sensors is not None and sensor is not None and not sensor.is_identity:
-        raise ValueError(
-            "a run with sensor readings (sensors) cannot also perturb the true state (sensor): the readings "
-            "carry their own noise and latency jitter"
-        )
-    if plant is None:
-        plant = MujocoPlant(robot, plant_timestep, variation, terrain, bar)
-    control_period = 1.0 / control_rate_hz
+
+    duration: float
+    control_rate_hz: float = 500.0
+    initial_q: np.ndarray | None = None
+    initial_v: np.ndarray | None = None
+    pushes: tuple[Push, ...] = ()
+    fall: FallCriteria | None = FallCriteria()
+    stop_on_fall: bool = True
+    progress: Callable[[float], None] | None = None
+    pacer: WallClockPacer | None = None
+    stop: Callable[[float], bool] | None = None
+    observer: Observer | None = None
+
+    def __post_init__(self) -> None:
+        if not self.duration > 0:
+            raise ValueError(f"duration must be positive, got {self.duration}")
+        if not self.control_rate_hz > 0:
+            raise ValueError(f"control rate must be positive, got {self.control_rate_hz}")
+        object.__setattr__(self, "pushes", tuple(self.pushes))
+        for push in self.pushes:
+            if push.duration <= 0 or push.start < 0 or not np.all(np.isfinite(push.force)):
+                raise ValueError(f"invalid push {push}: start >= 0, duration > 0 and a finite force required")
+
+
+def simulate(
+    plant: Plant, controller: Controller | SensorController, options: SimulationOptions
+) -> SimulationLog:
+    """Run ``controller`` on ``plant`` for ``options.duration`` seconds of simulated time.
+
+    The controller gets what ``plant.sensors`` measure (a ``SensorController`` when they are the robot's
+    sensor readings, ``sim.sensors.SensorSuite``); their summary goes into the log's ``extra``. With a bar
+    in the plant's scene (``sim.bar``) the log's ``extra`` holds ``bar_contact`` (per tick: a robot geom
+    touched it) and ``bar`` (``touched_by``: those geoms).
+    """
+    robot = plant.robot
+    control_period = 1.0 / options.control_rate_hz
     substeps = round(control_period / plant.timestep)
     if substeps < 1 or abs(substeps * plant.timestep - control_period) > 1e-9:
         raise ValueError(
             f"control period {control_period} s must be a whole multiple of the plant step {plant.timestep} s"
         )
-    for push in pushes:
-        if push.duration <= 0 or push.start < 0 or not np.all(np.isfinite(push.force)):
-            raise ValueError(f"invalid push {push}: start >= 0, duration > 0 and a finite force required")
-    plant.reset(robot.q_standing if q0 is None else q0, v0)
+    fall, pacer, observer = options.fall, options.pacer, options.observer
+    progress, stop = options.progress, options.stop
+    sensors = plant.sensors
+    plant.reset(robot.q_standing if options.initial_q is None else options.initial_q, options.initial_v)
     if observer is not None:
         observer.start(plant)
     controller.reset()
-    if sensor is not None:
-        sensor.reset()
-    if sensors is not None:
-        sensors.reset()
-    ticks = round(duration * control_rate_hz)
+    sensors.reset()
+    ticks = round(options.duration * options.control_rate_hz)
     log = SimulationLog.allocate(ticks, robot.nq, robot.nv, robot.nu, robot.n_feet)
     bar_contact = np.zeros(ticks, dtype=bool)
-    if bar is not None:  # sim.bar: which ticks a robot geom touched the bar (log.npz extra_bar_contact)
+    if plant.bar is not None:  # sim.bar: which ticks a robot geom touched the bar (log.npz extra_bar_contact)
         log.extra["bar_contact"] = bar_contact
     external = np.zeros(3)
     if pacer is not None:
@@ -236,15 +225,12 @@ def simulate(
         if pacer is not None:
             pacer.wait(tick)
         state = plant.read_state()
-        if sensors is not None:  # the controller sees the sensors, never the plant's state
-            torques = np.asarray(controller.compute(t, sensors.read(plant)), dtype=float)  # type: ignore[arg-type]
-        else:
-            measured = state if sensor is None else sensor.observe(tick, state)
-            torques = np.asarray(controller.compute(t, measured), dtype=float)  # type: ignore[arg-type]
+        measured = sensors.measure(tick, plant, state)
+        torques = np.asarray(controller.compute(t, measured), dtype=float)  # type: ignore[arg-type]
         if torques.shape != (robot.nu,) or not np.all(np.isfinite(torques)):
             raise ControllerError(f"controller returned invalid torques at t = {t:.3f} s: {torques}")
         external[:] = 0.0
-        for push in pushes:
+        for push in options.pushes:
             if push.active(t):
                 external += push.force
         plant.set_external_force(external)
@@ -256,7 +242,7 @@ def simulate(
         log.torque_command[tick] = torques
         log.torque_applied[tick] = plant.applied(torques)
         log.external_force[tick] = external
-        if bar is not None:
+        if plant.bar is not None:
             bar_contact[tick] = plant.bar_in_contact
         log.ticks = tick + 1
         if fall is not None and not log.fell:
@@ -270,11 +256,11 @@ def simulate(
             if reason:
                 log.fell, log.fall_time, log.fall_reason = True, t, reason
                 logger.warning("robot fell at t = %.3f s: %s", t, reason)
-                if stop_on_fall:
+                if options.stop_on_fall:
                     break
         plant.step(torques, substeps)
         if tick == 0:  # the first tick ran the cold solve (and the warm-up): the run proper starts now
-            stage(f"running {duration:g} s of simulated time")
+            stage(f"running {options.duration:g} s of simulated time")
         if progress is not None:
             progress(control_period)
         if stop is not None and stop(t):
@@ -285,13 +271,9 @@ def simulate(
     log.wall_time = time.perf_counter() - start_wall
     if pacer is not None:
         log.extra["realtime"] = pacer.summary(log.ticks)
-    if sensor is not None and not sensor.is_identity:
-        log.extra["sensor"] = sensor.summary()
-    if sensors is not None:
-        log.extra["sensors"] = sensors.summary()
-    if bar is not None:
-        geoms = sorted(plant.bar_contact_geoms)
-        log.extra["bar"] = {"touched_by": [geom_label(plant.model, geom) for geom in geoms]}
+    log.extra.update(sensors.log_extra())
+    if plant.bar is not None:
+        log.extra["bar"] = {"touched_by": plant.bar_touched_by()}
     return log.trimmed()
 
 

@@ -1,206 +1,169 @@
-"""The MuJoCo plant: the simulated robot that every controller is tested against.
+"""The plant: what every simulated robot offers the closed loop (``sim.loop.simulate``).
 
-The plant is built from ``Robot.mjcf`` (same kinematics and inertias as the planning model, plus rotor
-armature, joint damping and friction, torque saturation, foot spheres and elliptic cones). It never
-shares an object with a controller: it reads and writes plain arrays in the planning model's
-coordinates (Pinocchio's free-flyer convention):
+A plant simulates a ``Robot`` in MuJoCo and speaks the planning model's coordinates (Pinocchio's free-flyer
+convention) in and out:
 
 * ``q = [base position, base quaternion (x, y, z, w), joint angles]``
 * ``v = [base linear velocity (base frame), base angular velocity (base frame), joint rates]``
+* torques in the robot's joint order.
 
-MuJoCo's free joint stores the quaternion as ``(w, x, y, z)`` and the linear velocity in the world frame;
-the conversion happens here and only here.
+``Plant`` is the contract and holds what every plant does the same way: the checks of a reset state, the
+time and time step of its MuJoCo data, the push on the trunk, the divergence checks. Two plants implement
+it: ``sim.mujoco_plant.MujocoPlant`` (ours, built from the robot file, with terrain, the bar, variations and
+the robot's sensors) and ``sim.gym_plant.GymQuadrupedPlant`` (gym-quadruped's environment). A run picks one
+by ``plant.kind`` (``sim.assembly.PLANTS``).
 
-The scene carries the robot's sensors (``sim.sensors``): ``sim.sensors.SensorSuite`` reads them as a robot
-would (IMU and encoders with noise, bias and quantisation). A ``PlantVariation`` (``sim.randomization``)
-changes the plant's friction, masses and motor strengths after the model is loaded (domain randomisation), and
-terrain (``sim.terrain``) adds slopes and steps to the scene; the ``Robot``, and so every controller, stays
-nominal (it plans on flat ground).
+What the controller reads each tick is the plant's ``sensors`` (``PlantSensors``): the true state
+(``sim.randomization.SensorModel``, also with noise and latency jitter) or the robot's sensor readings
+(``sim.sensors.SensorSuite``). The log always records the true state (``read_state``).
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
+from abc import ABC, abstractmethod
+from typing import TYPE_CHECKING, ClassVar, Protocol
 
 import mujoco
 import numpy as np
 
-from cafe_mpc.core.free_joint import planning_state
 from cafe_mpc.core.measurement import Measurement
+from cafe_mpc.core.sensors import SensorReadings
 from cafe_mpc.robots.robot import Robot
-from cafe_mpc_lab.sim.bar import BAR_NAME, Bar, with_bar
-from cafe_mpc_lab.sim.randomization import PlantVariation, apply_variation
-from cafe_mpc_lab.sim.sensors import with_sensors
-from cafe_mpc_lab.sim.terrain import Terrain, with_terrain
+from cafe_mpc_lab.sim.randomization import SensorModel
 
-_DIVERGENCE_WARNINGS = (
+if TYPE_CHECKING:
+    from cafe_mpc_lab.sim.bar import Bar
+
+DIVERGENCE_WARNINGS = (
     mujoco.mjtWarning.mjWARN_BADQPOS,
     mujoco.mjtWarning.mjWARN_BADQVEL,
     mujoco.mjtWarning.mjWARN_BADQACC,
 )
-
-
-def scene_mjcf(robot: Robot, terrain: Sequence[Terrain] = (), bar: Bar | None = None) -> str:
-    """The plant's MJCF: the robot's, with the scene's terrain (``sim.terrain``) on the floor and the bar
-    (``sim.bar``), if any."""
-    return with_bar(with_terrain(robot.mjcf, terrain, robot.plant.floor_friction), bar)
+"""MuJoCo's warnings of a state that blew up (it resets itself and only warns; the plants raise)."""
 
 
 class SimulationDiverged(RuntimeError):
     """The simulator produced a non-finite state."""
 
 
-class MujocoPlant:
-    """MuJoCo simulation of a ``Robot`` with torque inputs and planning-coordinate read-out."""
+class PlantSensors(Protocol):
+    """What the controller reads of a plant at each control tick: the state itself, perturbed or not
+    (``sim.randomization.SensorModel``), or the robot's sensor readings (``sim.sensors.SensorSuite``)."""
 
-    def __init__(
-        self,
-        robot: Robot,
-        timestep: float | None = None,
-        variation: PlantVariation | None = None,
-        terrain: Sequence[Terrain] = (),
-        bar: Bar | None = None,
-    ) -> None:
+    def reset(self) -> None:
+        """Start a run: restart the random streams and the delay history."""
+        ...
+
+    def measure(self, tick: int, plant: Plant, state: Measurement) -> Measurement | SensorReadings:
+        """What the controller gets at control tick ``tick``; ``state`` is the plant's true state now."""
+        ...
+
+    def log_extra(self) -> dict[str, dict]:
+        """Summaries for the run log's ``extra`` (name -> block), empty when there is nothing to say."""
+        ...
+
+
+def checked_timestep(timestep: float) -> float:
+    """``timestep`` as a float; ``ValueError`` unless positive."""
+    if not timestep > 0:
+        raise ValueError(f"plant timestep must be positive, got {timestep}")
+    return float(timestep)
+
+
+class Plant(ABC):
+    """A MuJoCo simulation of ``robot`` with torque inputs and planning-coordinate read-out.
+
+    Every plant has ``robot``; ``model`` and ``data``, the MuJoCo model and data it steps (the live viewer
+    shows them); ``base_body``, the trunk's body id in ``model``; ``torque_limits`` (Nm, joint order);
+    ``sensors``, what the controller reads (the true state unless given); ``trunk_touched_floor``, set by
+    ``read_state`` or ``step`` once the trunk touched the ground (a fall); ``bar``, the scene's bar to jump
+    over (``sim.bar``) or None, and ``bar_in_contact``, a robot geom touched it at the last ``read_state``.
+    """
+
+    kind: ClassVar[str]
+    """The config's ``plant.kind`` of this plant."""
+    model: mujoco.MjModel
+    data: mujoco.MjData
+    base_body: int
+    torque_limits: np.ndarray
+    bar: Bar | None = None
+
+    def __init__(self, robot: Robot, sensors: PlantSensors | None = None) -> None:
         self.robot = robot
-        self.terrain = tuple(terrain)
-        self.bar = bar
-        # the robot's sensors (sim.sensors: IMU and joint sensors) instrument the plant; they do not change
-        # its dynamics
-        self.model = mujoco.MjModel.from_xml_string(
-            with_sensors(scene_mjcf(robot, self.terrain, bar), robot.joint_names)
-        )
-        if timestep is not None:
-            if not timestep > 0:
-                raise ValueError(f"plant timestep must be positive, got {timestep}")
-            self.model.opt.timestep = timestep
-        self.variation = variation or PlantVariation()
-        self.motor_strength = np.ones(robot.nu)
-        """Torque the motor applies per unit commanded (the actuator gear; 1 unless varied)."""
-        if variation is not None:
-            variation.check(robot)
-            if not variation.is_nominal:
-                self.motor_strength = apply_variation(self.model, robot, variation)
-        self.data = mujoco.MjData(self.model)
-        names = [self.model.joint(i).name for i in range(1, self.model.njnt)]
-        if tuple(names) != robot.joint_names:
-            raise ValueError(f"plant joint order {names} differs from the robot's {robot.joint_names}")
-        self.base_body = self.model.body("base").id
-        self.floor_geom = self.model.geom("floor").id
-        # the trunk: the robot's collision geoms on the base body (a generated plant's box "trunk"; a model
-        # file's own trunk geoms)
-        self.trunk_geoms = frozenset(
-            g
-            for g in range(self.model.ngeom)
-            if self.model.geom_bodyid[g] == self.base_body
-            and (self.model.geom_contype[g] or self.model.geom_conaffinity[g])
-        )
-        self._world_geom = self.model.geom_bodyid == 0
-        self.foot_geoms = np.array([self.model.geom(name).id for name in robot.foot_frame_names])
-        self._foot_index = {int(g): i for i, g in enumerate(self.foot_geoms)}
-        self.torque_limits = np.array(robot.plant.motor_torque_limits)
-        self._state = Measurement.zeros(robot.nq, robot.nv, robot.n_feet)
-        self._rotation = np.zeros(9)
-        self._contact_wrench = np.zeros(6)
-        self._contact_frame = np.zeros((3, 3))
+        self.sensors: PlantSensors = sensors if sensors is not None else SensorModel()
         self.trunk_touched_floor = False
-        self.bar_geom = self.model.geom(BAR_NAME).id if bar is not None else -1
         self.bar_in_contact = False
-        """A robot geom touched the bar at the last ``read_state`` (``sim.bar``)."""
-        self.bar_contact_geoms: set[int] = set()
-        """Every robot geom that touched the bar since ``reset``."""
-        self.after_step: Callable[[mujoco.MjData], None] | None = None
-        """Called after every physics step (``sim.sensors.SensorSuite`` averages the IMU over the steps)."""
 
     @property
     def timestep(self) -> float:
+        """Physics time step (s)."""
         return float(self.model.opt.timestep)
 
     @property
     def time(self) -> float:
+        """Simulated time (s) since ``reset``."""
         return float(self.data.time)
 
     def reset(self, q: np.ndarray, v: np.ndarray | None = None) -> None:
-        """Set the plant to ``(q, v)`` given in planning coordinates."""
+        """Put the robot at ``(q, v)`` (planning coordinates; ``v`` None: at rest) at time 0.
+
+        Raises ``ValueError`` for a state of the wrong size or with NaN or inf."""
         q = np.asarray(q, dtype=float)
         v = np.zeros(self.robot.nv) if v is None else np.asarray(v, dtype=float)
         if q.shape != (self.robot.nq,) or v.shape != (self.robot.nv,):
             raise ValueError(f"reset expects q ({self.robot.nq},) and v ({self.robot.nv},)")
         if not (np.all(np.isfinite(q)) and np.all(np.isfinite(v))):
             raise ValueError("reset state contains NaN or inf")
-        mujoco.mj_resetData(self.model, self.data)
-        quaternion_xyzw = q[3:7] / np.linalg.norm(q[3:7])
-        self.data.qpos[:3] = q[:3]
-        self.data.qpos[3:7] = [quaternion_xyzw[3], *quaternion_xyzw[:3]]
-        self.data.qpos[7:] = q[7:]
-        mujoco.mju_quat2Mat(self._rotation, self.data.qpos[3:7])
-        self.data.qvel[:3] = self._rotation.reshape(3, 3) @ v[:3]
-        self.data.qvel[3:] = v[3:]
-        self.data.ctrl[:] = 0.0
         self.trunk_touched_floor = False
         self.bar_in_contact = False
-        self.bar_contact_geoms.clear()
-        mujoco.mj_forward(self.model, self.data)
+        self._reset(q, v)
+
+    @abstractmethod
+    def _reset(self, q: np.ndarray, v: np.ndarray) -> None:
+        """Set the simulator to the checked state ``(q, v)`` at time 0, torques zero."""
+
+    @abstractmethod
+    def step(self, torques: np.ndarray, n_steps: int = 1) -> None:
+        """Hold ``torques`` (joint order; saturated as ``applied`` says) for ``n_steps`` physics steps.
+        Raises ``SimulationDiverged`` when the state blows up."""
+
+    @abstractmethod
+    def applied(self, torques: np.ndarray) -> np.ndarray:
+        """Torques the motors apply for commanded ``torques`` (after saturation)."""
+
+    @abstractmethod
+    def applied_torques(self) -> np.ndarray:
+        """Torques the motors apply now (for the torques of the last ``step``)."""
+
+    @abstractmethod
+    def read_state(self) -> Measurement:
+        """The true state in planning coordinates, the feet's contacts and world-frame ground reaction forces
+        (the arrays are the plant's, overwritten on the next read)."""
 
     def set_external_force(self, force_world: np.ndarray) -> None:
-        """Apply a world-frame force (N) at the base's centre of mass until changed."""
+        """Apply a world-frame force (N) at the trunk's centre of mass until changed."""
         self.data.xfrc_applied[self.base_body, :3] = force_world
 
-    def step(self, torques: np.ndarray, n_steps: int = 1) -> None:
-        """Hold ``torques`` (saturated by the actuators' ``ctrlrange``) for ``n_steps`` physics steps."""
-        self.data.ctrl[:] = torques
-        for _ in range(n_steps):
-            mujoco.mj_step(self.model, self.data)
-            if self.after_step is not None:
-                self.after_step(self.data)
-            # MuJoCo resets itself (and only warns) when the state blows up; turn that into an error.
-            for warning in _DIVERGENCE_WARNINGS:
-                if self.data.warning[warning].number > 0:
-                    raise SimulationDiverged(
-                        f"MuJoCo state became non-finite or huge ({warning.name}) "
-                        f"at t = {self.data.time:.4f} s"
-                    )
+    def bar_touched_by(self) -> list[str]:
+        """Labels of the robot geoms that touched the bar since ``reset`` (none without a bar)."""
+        return []
+
+    @abstractmethod
+    def close(self) -> None:
+        """Release what the plant holds (an environment, a window); the plant is not used afterwards."""
+
+    def _check_warnings(self) -> None:
+        """After a physics step: raise ``SimulationDiverged`` when MuJoCo warned of a blown-up state."""
+        for warning in DIVERGENCE_WARNINGS:
+            if self.data.warning[warning].number > 0:
+                raise SimulationDiverged(
+                    f"the {self.kind} plant's state became non-finite or huge ({warning.name}) "
+                    f"at t = {self.data.time:.4f} s"
+                )
+
+    def _check_finite(self) -> None:
+        """Raise ``SimulationDiverged`` when the position or velocity holds NaN or inf."""
         if not (np.all(np.isfinite(self.data.qpos)) and np.all(np.isfinite(self.data.qvel))):
-            raise SimulationDiverged(f"MuJoCo state became non-finite at t = {self.data.time:.4f} s")
-
-    def applied_torques(self) -> np.ndarray:
-        """Torques the motors actually apply (after saturation)."""
-        return self.applied(self.data.ctrl)
-
-    def applied(self, torques: np.ndarray) -> np.ndarray:
-        """Torques the motors apply for commanded ``torques``: saturated at the command limits
-        (``ctrlrange``), times each motor's strength."""
-        return self.motor_strength * np.clip(torques, -self.torque_limits, self.torque_limits)
-
-    def read_state(self) -> Measurement:
-        """Current state in planning coordinates, feet contacts and ground reaction forces (the arrays are
-        the plant's, overwritten on the next read)."""
-        state = self._state
-        state.time = float(self.data.time)
-        mujoco.mju_quat2Mat(self._rotation, self.data.qpos[3:7])
-        planning_state(self.data.qpos, self.data.qvel, state.q, state.v, self._rotation)
-        state.contacts[:] = False
-        state.foot_forces[:] = 0.0
-        self.bar_in_contact = False
-        for i in range(self.data.ncon):
-            contact = self.data.contact[i]
-            geom1, geom2 = int(contact.geom1), int(contact.geom2)
-            if self.bar_geom in (geom1, geom2):  # the bar is neither floor nor foothold
-                self.bar_in_contact = True
-                self.bar_contact_geoms.add(geom2 if geom1 == self.bar_geom else geom1)
-                continue
-            if (geom1 in self.trunk_geoms and self._world_geom[geom2]) or (
-                geom2 in self.trunk_geoms and self._world_geom[geom1]
-            ):  # the trunk on the floor or terrain (a model file's legs may also touch it)
-                self.trunk_touched_floor = True
-            foot = self._foot_index.get(geom1, self._foot_index.get(geom2, -1))
-            if foot < 0:
-                continue
-            mujoco.mj_contactForce(self.model, self.data, i, self._contact_wrench)
-            self._contact_frame[:] = contact.frame.reshape(3, 3)
-            force_world = self._contact_frame.T @ self._contact_wrench[:3]
-            # mj_contactForce gives the force of geom1 on geom2 along the normal (geom1 -> geom2).
-            if geom1 == self.foot_geoms[foot]:
-                force_world = -force_world
-            state.foot_forces[foot] += force_world
-            state.contacts[foot] = True
-        return state
+            raise SimulationDiverged(
+                f"the {self.kind} plant's state became non-finite at t = {self.data.time:.4f} s"
+            )

@@ -3,7 +3,7 @@ with, and the controller sees the state through noisy, late sensors.
 
 This is the simulation layer's half of domain randomisation (the paper's reliability test, Sec. VII-C3 and
 Fig. 17, repeats a task on hardware whose friction, masses, motors and sensors are never exactly the
-model's). Everything here changes only the MuJoCo model of ``sim.plant.MujocoPlant`` and the
+model's). Everything here changes only the MuJoCo model of ``sim.mujoco_plant.MujocoPlant`` and the
 ``Measurement`` handed to the controller; the controller's ``Robot`` (Pinocchio model, SRB parameters,
 torque limits) is never touched, because the mismatch between the two is the point.
 
@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import mujoco
 import numpy as np
@@ -32,6 +33,9 @@ import numpy as np
 from cafe_mpc.config import PlantConfig, SensorNoise
 from cafe_mpc.core.measurement import Measurement
 from cafe_mpc.robots.robot import Robot
+
+if TYPE_CHECKING:
+    from cafe_mpc_lab.sim.plant import Plant
 
 
 @dataclass(frozen=True)
@@ -213,6 +217,14 @@ class SensorModel:
             measured.v[3:6] += noise.base_angular_velocity * rng.standard_normal(3)
             measured.v[6:] += noise.joint_velocity * rng.standard_normal(len(measured.v) - 6)
         return measured
+
+    def measure(self, tick: int, plant: Plant, state: Measurement) -> Measurement:
+        """``sim.plant.PlantSensors``: the controller's measurement of the plant's true ``state``."""
+        return self.observe(tick, state)
+
+    def log_extra(self) -> dict[str, dict]:
+        """The run log's ``sensor`` block (delay statistics), none when the measurement is the truth."""
+        return {} if self.is_identity else {"sensor": self.summary()}
 
     def summary(self) -> dict:
         """Delay statistics of the run (ticks)."""

