@@ -65,6 +65,8 @@ def locomotion_reference(gait: GaitConfig, robot: Robot, scale: RobotScale = IDE
         foothold_box=tuple(scale.distance(v) for v in FOOTHOLD_BOX),
         start_stance=gait.start_stance,
         command_ramp=gait.command_ramp,
+        path_gain=gait.path_gain / scale.distance(1.0),
+        path_heading_limit=gait.path_heading_limit,
     )
 
 

@@ -186,6 +186,17 @@ class GaitConfig(StrictModel):
         "at rest until the gait starts (start_stance), then ramps to the first command",
     )
     commands: list[VelocityCommand] = Field(default_factory=_default_commands, min_length=1)
+    path_gain: float = Field(
+        0.0,
+        ge=0.0,
+        le=10.0,
+        description="rad of heading per m off the commanded path (0: the commands are dead-reckoned from "
+        "each "
+        "measurement, as a joystick's; > 0: the reference holds the path the commands trace from the start)",
+    )
+    path_heading_limit: float = Field(
+        0.2, ge=0.0, le=1.0, description="rad; the largest heading correction toward the path"
+    )
 
     @field_validator("name")
     @classmethod

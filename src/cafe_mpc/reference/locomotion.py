@@ -273,6 +273,8 @@ class LocomotionReference(Reference):
         cycle_start: float = 0.0,
         start_stance: float = 0.0,
         command_ramp: float = 0.0,
+        path_gain: float = 0.0,
+        path_heading_limit: float = 0.2,
     ) -> None:
         if not commands:
             commands = [VelocityCommand()]
@@ -300,6 +302,16 @@ class LocomotionReference(Reference):
         self.offsets = robot.foothold_offsets.copy()
         self.mass = robot.total_mass
         self.nominal_joints = robot.q_standing[7:].copy()
+        if not (math.isfinite(path_gain) and path_gain >= 0.0):
+            raise ValueError(f"path_gain must be >= 0 rad/m, got {path_gain}")
+        if not 0.0 <= path_heading_limit <= 1.0:
+            raise ValueError(f"path_heading_limit must be in [0, 1] rad, got {path_heading_limit}")
+        self.path_gain = float(path_gain)
+        """rad of heading per m of cross-track error (0: no path, the commands are dead-reckoned from the
+        measurement at every update)."""
+        self.path_heading_limit = float(path_heading_limit)
+        self.path_origin: tuple[float, np.ndarray, float] | None = None
+        """(time, x y, yaw) the commanded path starts from: the first measured pose after a reset."""
         # anchor (re-set at every update)
         self.anchor_time = 0.0
         self.anchor_xy = np.zeros(2)
@@ -556,6 +568,8 @@ class LocomotionReference(Reference):
         self.anchor_time = t
         self.anchor_xy = q[:2].copy()
         self.anchor_yaw = yaw_from_quaternion(q[3:7])
+        if self.path_gain > 0.0:
+            self.anchor_yaw = self._path_heading(t, self.anchor_xy, self.anchor_yaw)
         rotation = _quaternion_matrix(q[3:7])
         self.measured_velocity_xy = (rotation @ v[:3])[:2]
         robot, data = self.robot, self._data
@@ -567,6 +581,23 @@ class LocomotionReference(Reference):
                 self.stance_positions[foot] = position
                 self.stance_positions[foot, 2] = robot.foot_radius
                 self.liftoff_positions[foot] = position
+
+    def _path_heading(self, t: float, xy: np.ndarray, yaw: float) -> float:
+        """The heading the reference takes from the measured pose at ``t`` when it holds the commanded path:
+        the path's heading at ``t`` (the commands integrated from ``path_origin``), turned toward the path
+        by ``path_gain`` per metre of cross-track error, at most ``path_heading_limit`` (a pure-pursuit
+        lane keeper: dead-reckoning the commands from each measurement lets sensor bias and slip move
+        the robot off its line, which a task fixed in the world, a bar to roll over, cannot afford)."""
+        if self.path_origin is None:
+            self.path_origin = (t, xy.copy(), yaw)
+            return yaw
+        start, origin, origin_yaw = self.path_origin
+        displacement, turn = self.profile.heading_displacement(start, t)
+        path_xy = origin + _yaw_rotation(origin_yaw) @ displacement
+        path_yaw = origin_yaw + turn
+        cross = float((_yaw_rotation(path_yaw).T @ (xy - path_xy))[1])
+        correction = max(-self.path_heading_limit, min(self.path_heading_limit, self.path_gain * cross))
+        return path_yaw - correction
 
     # ------------------------------------------------------------------------------------------- base
     def base_pose(self, t: float) -> tuple[np.ndarray, float]:
