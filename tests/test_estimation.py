@@ -504,7 +504,7 @@ def test_a_late_sample_reaches_the_controller_brought_forward_to_its_tick(robot)
         sensing.compute(reading.time + delay if reading.time > 0.3 else reading.time, reading)
     on_time = [(t, stamp) for t, stamp, _, _ in seen[:100]]
     assert all(t == stamp for t, stamp in on_time) and sensing.late_ticks == len(readings) - 151
-    t, stamp, q, v = seen[-1]
+    t, stamp, q, _ = seen[-1]
     assert stamp == pytest.approx(t)
     estimate = StateEstimator(robot)
     estimate.reset((0.0, 0.0))
