@@ -133,9 +133,10 @@ class VWBCConfig(StrictModel):
         description="friction coefficient of the QP's pyramid (34f); null: the plan's (mpc.friction)",
     )
     stance_source: Literal["plan", "intersect", "detected"] = Field(
-        "plan",
-        description="plan: the plan knot's stance (the paper); intersect: planned and in contact; detected: "
-        "the contact detector's stance (wbc.contact_detection: force, foot height and the schedule's prior)",
+        "detected",
+        description="detected: the contact detector's stance (low_level.contact_detection: force, foot "
+        "height and the schedule's prior); plan: the plan knot's stance (the paper's); intersect: planned "
+        "and in contact",
     )
     contact_detection: ContactDetectionSettings = Field(
         default_factory=ContactDetectionSettings, description="thresholds of stance_source: detected"
@@ -143,8 +144,14 @@ class VWBCConfig(StrictModel):
 
 
 DEFAULT_FRICTION = 0.6
-"""Friction coefficient a controller assumes unless told otherwise: ``mpc.friction``'s default, and the one
-source of every controller-side default (plan pyramid, VWBC cone, template, trajectory optimisation)."""
+"""The nominal floor's friction coefficient (the paper's, the Mini Cheetah table's): the default of the
+library's components built without a run config (plan pyramid, VWBC cone, template, trajectory
+optimisation)."""
+
+CONTROLLER_FRICTION = 0.4
+"""The friction coefficient a run's controller assumes (``mpc.friction``): the low end of the floors it must
+work on, not the nominal 0.6. Planned at 0.6, the approach pace of the running roll puts a tenth of its stance
+ticks at the cone's edge on a 0.6 floor and every gait slides on a lower one (docs/robustness.md)."""
 
 
 PAPER_BUDGET_FRACTION = 0.9
@@ -340,7 +347,7 @@ class MpcConfig(MpcSettings):
     whole_body_dt: float = Field(0.01, gt=0.0, le=0.1, description="dt_w, s")
     srb_dt: float = Field(0.05, gt=0.0, le=0.5, description="dt_s, s")
     friction: float = Field(
-        DEFAULT_FRICTION,
+        CONTROLLER_FRICTION,
         gt=0.0,
         le=2.0,
         description="friction coefficient the controller assumes (plan's pyramid, VWBC's cone); the plant's "
