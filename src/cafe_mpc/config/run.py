@@ -204,6 +204,14 @@ class GaitConfig(StrictModel):
     path_heading_limit: float = Field(
         0.2, ge=0.0, le=1.0, description="rad; the largest heading correction toward the path"
     )
+    touchdown_events: float | None = Field(
+        None,
+        ge=0.0,
+        le=0.5,
+        description="s; advance the gait's clock when a swing foot lands more than this before its planned "
+        "touchdown (seen at each MPC update within the contact detector's early window and height), so that "
+        "the plans stand on it; null: the schedule keeps its clock",
+    )
 
     @field_validator("name")
     @classmethod

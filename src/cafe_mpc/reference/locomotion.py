@@ -275,6 +275,7 @@ class LocomotionReference(Reference):
         command_ramp: float = 0.0,
         path_gain: float = 0.0,
         path_heading_limit: float = 0.2,
+        touchdown_events: tuple[float, float, float] | None = None,
     ) -> None:
         if not commands:
             commands = [VelocityCommand()]
@@ -311,6 +312,12 @@ class LocomotionReference(Reference):
         measurement at every update)."""
         self.path_heading_limit = float(path_heading_limit)
         self.path_origin: tuple[float, np.ndarray, float] | None = None
+        self.touchdown_events = touchdown_events
+        """``(on_time, window, height)``: a swing foot found within ``height`` m of the ground with its
+        planned touchdown between ``on_time`` and ``window`` s ahead has landed early; the gait's clock is
+        advanced to it (``advance_phase``). None: the schedule runs on its clock whatever the feet do."""
+        self.phase_advances = 0
+        self.phase_advance_total = 0.0
         """(time, x y, yaw) the commanded path starts from: the first measured pose after a reset."""
         # anchor (re-set at every update)
         self.anchor_time = 0.0
@@ -574,6 +581,8 @@ class LocomotionReference(Reference):
         self.measured_velocity_xy = (rotation @ v[:3])[:2]
         robot, data = self.robot, self._data
         pin.framesForwardKinematics(robot.model, data, q)
+        if self.touchdown_events is not None:
+            self._landed_early(t)
         stance = self.stance_at(t)
         for foot, frame_id in enumerate(robot.foot_frame_ids):
             if stance[foot]:
@@ -581,6 +590,41 @@ class LocomotionReference(Reference):
                 self.stance_positions[foot] = position
                 self.stance_positions[foot, 2] = robot.foot_radius
                 self.liftoff_positions[foot] = position
+
+    def _landed_early(self, t: float) -> None:
+        """Advance the gait's clock when a swing foot is on the ground before its planned touchdown (the
+        placements of the measured configuration in ``self._data``): the plans then give it, and the feet
+        planned to land with it, their stance from now (event-based timing, as Bledt et al.'s contact fusion
+        does for the Cheetah 3), instead of a flight the robot is no longer in."""
+        assert self.touchdown_events is not None
+        on_time, window, height = self.touchdown_events
+        if t < self.start_stance or self._segments[-1].start > t + TIME_TOLERANCE:
+            return  # standing still, or a gait switch pending: the schedule decides
+        stance = self.stance_at(t)
+        phases = self.schedule(t, t + window).phases
+        lead = None
+        for foot, frame_id in enumerate(self.robot.foot_frame_ids):
+            if stance[foot]:
+                continue
+            sole = self._data.oMf[frame_id].translation[2] - self.robot.foot_radius
+            if sole > height:
+                continue
+            touchdown = next(
+                (p.start for p in phases if p.start > t and p.stance[foot] and p.start - t <= window), None
+            )
+            if touchdown is not None and touchdown - t > on_time:
+                lead = touchdown - t if lead is None else min(lead, touchdown - t)
+        if lead is not None:
+            self.advance_phase(t, lead)
+
+    def advance_phase(self, t: float, lead: float) -> None:
+        """From ``t`` on, the gait in force runs ``lead`` seconds ahead (its cycle starts that much earlier):
+        what was planned for ``t + lead`` happens at ``t``."""
+        current = self._segments[-1]
+        self._segments.append(_GaitSegment.of(t, current.gait, current.cycle_start - lead))
+        self._schedule_window = (math.inf, -math.inf)
+        self.phase_advances += 1
+        self.phase_advance_total += lead
 
     def _path_heading(self, t: float, xy: np.ndarray, yaw: float) -> float:
         """The heading the reference takes from the measured pose at ``t`` when it holds the commanded path:
