@@ -18,6 +18,7 @@ from typing import Protocol
 
 import numpy as np
 
+from cafe_mpc.core.compilation import CompileWatch
 from cafe_mpc.core.controller import Controller
 from cafe_mpc.core.progress import stage
 from cafe_mpc.core.sensors import SensorReadings
@@ -220,58 +221,64 @@ def simulate(
     if pacer is not None:
         pacer.start(control_period, ticks)
     start_wall = time.perf_counter()
-    for tick in range(ticks):
-        t = tick * control_period
-        if pacer is not None:
-            pacer.wait(tick)
-        state = plant.read_state()
-        measured = sensors.measure(tick, plant, state)
-        torques = np.asarray(controller.compute(t, measured), dtype=float)  # type: ignore[arg-type]
-        if torques.shape != (robot.nu,) or not np.all(np.isfinite(torques)):
-            raise ControllerError(f"controller returned invalid torques at t = {t:.3f} s: {torques}")
-        external[:] = 0.0
-        for push in options.pushes:
-            if push.active(t):
-                external += push.force
-        plant.set_external_force(external)
-        log.time[tick] = t
-        log.q[tick] = state.q
-        log.v[tick] = state.v
-        log.contacts[tick] = state.contacts
-        log.foot_forces[tick] = state.foot_forces
-        log.torque_command[tick] = torques
-        log.torque_applied[tick] = plant.applied(torques)
-        log.external_force[tick] = external
-        if plant.bar is not None:
-            bar_contact[tick] = plant.bar_in_contact
-        log.ticks = tick + 1
-        if fall is not None and not log.fell:
-            reason = ""
-            if state.q[2] < fall.min_base_height:
-                reason = f"base height {state.q[2]:.3f} m below {fall.min_base_height} m"
-            elif base_tilt(state.q) > fall.max_tilt_rad:
-                reason = f"base tilt {base_tilt(state.q):.2f} rad above {fall.max_tilt_rad} rad"
-            elif plant.trunk_touched_floor:
-                reason = "trunk touched the floor"
-            if reason:
-                log.fell, log.fall_time, log.fall_reason = True, t, reason
-                logger.warning("robot fell at t = %.3f s: %s", t, reason)
-                if options.stop_on_fall:
-                    break
-        plant.step(torques, substeps)
-        if tick == 0:  # the first tick ran the cold solve (and the warm-up): the run proper starts now
-            stage(f"running {options.duration:g} s of simulated time")
-        if progress is not None:
-            progress(control_period)
-        if stop is not None and stop(t):
-            break
-        if observer is not None and not observer.update(t + control_period, plant):
-            logger.warning("run stopped at t = %.3f s: %s", t + control_period, observer.stop_reason)
-            break
+    compiles = CompileWatch()  # kernels compiled once the run proper has started (``core.compilation``)
+    try:
+        for tick in range(ticks):
+            t = tick * control_period
+            if pacer is not None:
+                pacer.wait(tick)
+            state = plant.read_state()
+            measured = sensors.measure(tick, plant, state)
+            torques = np.asarray(controller.compute(t, measured), dtype=float)  # type: ignore[arg-type]
+            if torques.shape != (robot.nu,) or not np.all(np.isfinite(torques)):
+                raise ControllerError(f"controller returned invalid torques at t = {t:.3f} s: {torques}")
+            external[:] = 0.0
+            for push in options.pushes:
+                if push.active(t):
+                    external += push.force
+            plant.set_external_force(external)
+            log.time[tick] = t
+            log.q[tick] = state.q
+            log.v[tick] = state.v
+            log.contacts[tick] = state.contacts
+            log.foot_forces[tick] = state.foot_forces
+            log.torque_command[tick] = torques
+            log.torque_applied[tick] = plant.applied(torques)
+            log.external_force[tick] = external
+            if plant.bar is not None:
+                bar_contact[tick] = plant.bar_in_contact
+            log.ticks = tick + 1
+            if fall is not None and not log.fell:
+                reason = ""
+                if state.q[2] < fall.min_base_height:
+                    reason = f"base height {state.q[2]:.3f} m below {fall.min_base_height} m"
+                elif base_tilt(state.q) > fall.max_tilt_rad:
+                    reason = f"base tilt {base_tilt(state.q):.2f} rad above {fall.max_tilt_rad} rad"
+                elif plant.trunk_touched_floor:
+                    reason = "trunk touched the floor"
+                if reason:
+                    log.fell, log.fall_time, log.fall_reason = True, t, reason
+                    logger.warning("robot fell at t = %.3f s: %s", t, reason)
+                    if options.stop_on_fall:
+                        break
+            plant.step(torques, substeps)
+            if tick == 0:  # the first tick ran the cold solve (and the warm-up): the run proper starts now
+                stage(f"running {options.duration:g} s of simulated time")
+                compiles.start()
+            if progress is not None:
+                progress(control_period)
+            if stop is not None and stop(t):
+                break
+            if observer is not None and not observer.update(t + control_period, plant):
+                logger.warning("run stopped at t = %.3f s: %s", t + control_period, observer.stop_reason)
+                break
+    finally:
+        compiles.stop()
     log.wall_time = time.perf_counter() - start_wall
     if pacer is not None:
         log.extra["realtime"] = pacer.summary(log.ticks)
     log.extra.update(sensors.log_extra())
+    log.extra["compilation"] = compiles.summary()
     if plant.bar is not None:
         log.extra["bar"] = {"touched_by": plant.bar_touched_by()}
     return log.trimmed()

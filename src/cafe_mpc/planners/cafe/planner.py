@@ -224,6 +224,21 @@ class RecedingHorizonMpc(RecedingHorizonPlanner[Plan]):
         reset.calc(data, x)
         x[:] = data.x_next
 
+    def _compile_kernels(self) -> None:
+        """The real-time iteration's feedback (``MSiLQRSolver.feedback``) run once on the first solve, its
+        result dropped: the first solve is a one-phase solve, so without this the first feedback of the run
+        compiled its kernels after the clock started (0.3 s on the PD fallback in a first run's trot)."""
+        if self.settings.scheme != "rti" or self.previous is None:
+            return
+        _, result = self.previous
+        settings = self.settings
+        self.prepare_solver.feedback(
+            result,
+            result.phases[0].xs[0].copy(),
+            0.0 if settings.rti_line_search else 1.0,
+            settings.rti_feedback,
+        )
+
     def _warm_up(self, t0: float) -> None:
         """Create the solver data of every knot object the updates of ``settings.warm_up`` seconds after
         ``t0`` will use (``MpcSettings.warm_up``): the problems of updates one period apart are built and
