@@ -51,6 +51,13 @@ def test_no_kernel_compiled_or_loaded_after_the_clock_starts(tmp_path):
     assert metrics["mpc"]["pd_fallback_ticks"] == 0
 
 
+def test_compile_command_runs_a_preset(capsys):
+    from cafe_mpc_lab.cli import main
+
+    assert main(["compile", "--presets", "stand", "--quiet"]) == 0
+    assert "kernels compiled and cached in" in capsys.readouterr().out
+
+
 def test_compile_watch_counts_a_compilation_and_a_new_version():
     @njit
     def doubled(x):

@@ -1,4 +1,4 @@
-"""Command line: ``cafe-mpc run | config | experiment | report | robot | bench | optimize``.
+"""Command line: ``cafe-mpc run | config | experiment | report | robot | compile | bench | optimize``.
 
 Every user error (bad preset, key, value, robot file, NaN state) ends with one line ``cafe-mpc: error: ...``
 on stderr and a non-zero exit code, never a traceback.
@@ -413,6 +413,23 @@ def _command_robot(arguments: argparse.Namespace) -> int:
     return 0 if summary["consistency"]["passed"] else EXIT_FAILED
 
 
+def _command_compile(arguments: argparse.Namespace) -> int:
+    """Compile and cache the numba kernels a run uses, by running the first steps of each preset asked for
+    (nothing written): what a first run would otherwise do before it moves. ``make install`` runs it."""
+    import time
+
+    from cafe_mpc.assembly.checks import load_run_config
+    from cafe_mpc_lab.experiments.run import run
+
+    _talk(arguments.quiet)
+    start = time.perf_counter()
+    for preset in arguments.presets.split(","):
+        config = load_run_config(preset.strip(), ["simulation.duration=0.1", "output.plots=false"])
+        run(config, None)
+    print(f"kernels compiled and cached in {time.perf_counter() - start:.1f} s")
+    return 0
+
+
 def _command_bench(arguments: argparse.Namespace) -> int:
     if arguments.what == "mpc":
         from cafe_mpc.assembly.checks import load_run_config
@@ -605,6 +622,20 @@ def _add_robot_parser(commands: argparse._SubParsersAction) -> None:
     robot_parser.set_defaults(handler=_command_robot)
 
 
+def _add_compile_parser(commands: argparse._SubParsersAction) -> None:
+    """``cafe-mpc compile``: the numba kernels compiled and cached before the first run."""
+    compile_parser = commands.add_parser(
+        "compile",
+        help="compile and cache the numba kernels (what a first run does before it moves; make install "
+        "runs it)",
+    )
+    compile_parser.add_argument(
+        "--presets", default="trot", help="comma-separated presets whose first 0.1 s is run (default trot)"
+    )
+    compile_parser.add_argument("--quiet", action="store_true", help="no stage lines")
+    compile_parser.set_defaults(handler=_command_compile)
+
+
 def _add_bench_parser(commands: argparse._SubParsersAction) -> None:
     """``cafe-mpc bench``: the solver and MPC benchmarks."""
     bench_parser = commands.add_parser(
@@ -683,6 +714,7 @@ def build_parser(argv: list[str] | None = None) -> argparse.ArgumentParser:
         )
     _add_report_parser(commands)
     _add_robot_parser(commands)
+    _add_compile_parser(commands)
     _add_bench_parser(commands)
     _add_optimize_parser(commands)
     return parser
