@@ -694,8 +694,9 @@ def _add_optimize_parser(commands: argparse._SubParsersAction) -> None:
 
 def build_parser(argv: list[str] | None = None) -> argparse.ArgumentParser:
     """The whole command line's parser. The experiments' subparsers import every experiment (and so the
-    simulator and Dask): they are built only when the command line is ``cafe-mpc experiment ...`` (or
-    ``argv`` is None), so that ``cafe-mpc --help``, ``--version`` and the other commands start fast."""
+    simulator and Dask), the optimiser's the trajectory optimisation: each is built only when the command
+    line is ``cafe-mpc experiment ...`` (``optimize ...``) or ``argv`` is None, so that ``cafe-mpc --help``,
+    ``--version`` and the other commands start fast."""
     parser = _Parser(prog="cafe-mpc", description="CAFE-MPC on a simulated quadruped")
     parser.add_argument("-v", "--verbose", action="store_true", help="log at INFO level to stderr")
     parser.add_argument("--version", action="version", version=f"cafe-mpc {_version()}")
@@ -716,11 +717,28 @@ def build_parser(argv: list[str] | None = None) -> argparse.ArgumentParser:
     _add_robot_parser(commands)
     _add_compile_parser(commands)
     _add_bench_parser(commands)
-    _add_optimize_parser(commands)
+    if argv is None or _command_word(argv) == "optimize":  # its parser imports the trajectory optimiser
+        _add_optimize_parser(commands)
+    else:
+        commands.add_parser("optimize", help="offline whole-body trajectory optimisation (--help: the tasks)")
     return parser
 
 
+def _say_starting(argv: list[str]) -> None:
+    """``cafe-mpc run`` at a terminal: one line at once, before the seconds of imports (a person waiting
+    sees that it started; a script or a test, not at a terminal, gets no extra line)."""
+    words = [word for word in argv if not word.startswith("-")]
+    if words[:1] != ["run"] or {"-h", "--help", "--quiet"} & set(argv) or not sys.stderr.isatty():
+        return
+    print(
+        f"cafe-mpc: {words[1] if len(words) > 1 else 'run'}: loading the libraries",
+        file=sys.stderr,
+        flush=True,
+    )
+
+
 def main(argv: list[str] | None = None) -> int:
+    _say_starting(sys.argv[1:] if argv is None else list(argv))
     parser = build_parser(sys.argv[1:] if argv is None else list(argv))
     arguments = _parse_arguments(parser, argv)
     if arguments is None:
