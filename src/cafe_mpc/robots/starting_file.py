@@ -344,4 +344,5 @@ def _standing_comment(
     out.add("", f"  height: {height:.3f}   (m: foot radius + 0.569 x leg length)")
     pairs = ", ".join(f"[{x:.3f}, {y:.3f}]" for x, y in offsets)
     out.add("", f"  foothold_offsets: [{pairs}]   (feet under the hips)")
-    out.add("", f"  joint_guess: {_numbers(_per_kind(guess))}   (the pose's seed: knees behind the hips)")
+    out.add("", f"  joint_guess: {_numbers(_per_kind(guess))}   (the pose's seed: knees behind the hips;")
+    out.add("", "    give 12 values for a robot whose hind knees point forward, as Solo12's)")
