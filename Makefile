@@ -13,6 +13,7 @@ $(BIN)/cafe-mpc: pyproject.toml requirements.lock
 	$(BIN)/python -m pip install --quiet --upgrade pip
 	$(BIN)/python -m pip install --quiet -r requirements.lock
 	$(BIN)/python -m pip install --quiet --no-deps -e .
+	$(BIN)/cafe-mpc compile   # the numba kernels compiled and cached now, so that the first run moves at once
 	touch $(BIN)/cafe-mpc
 
 install: $(BIN)/cafe-mpc

@@ -66,11 +66,16 @@ def test_realtime_run_starts_records_and_cleans_up(tmp_path):
     metrics = result.metrics
     assert metrics["timing"]["mode"] == "realtime"
     assert metrics["realtime"]["ticks"] == 500
-    assert {"missed_ticks", "tick_lateness_ms_p99"} <= set(metrics["realtime"])
+    assert {"missed_ticks", "tick_lateness_ms_p99", "tick_control_ms_p99", "tick_step_ms_max"} <= set(
+        metrics["realtime"]
+    )
     mpc = metrics["mpc"]
     assert mpc["plans_received"] > 5 and mpc["rate_hz"] > 0
     assert mpc["latency_ms_median"] is not None and mpc["update_ms_median"] is not None
     assert mpc["worker_error"] is None
+    # nothing compiled after the clock started, in either process (core.compilation)
+    assert metrics["compiles_during_run"] == 0 and mpc["mpc_process_compiles_during_run"] == 0
+    assert mpc["mpc_process_kernels_loaded_during_run"] == []
     assert np.all(np.isfinite(result.log.torque_command))
     assert not multiprocessing.active_children()
     assert _shared_memory_blocks() <= before

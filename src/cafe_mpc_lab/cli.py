@@ -1,4 +1,4 @@
-"""Command line: ``cafe-mpc run | config | experiment | report | robot | bench | optimize``.
+"""Command line: ``cafe-mpc run | config | experiment | report | robot | compile | bench | optimize``.
 
 Every user error (bad preset, key, value, robot file, NaN state) ends with one line ``cafe-mpc: error: ...``
 on stderr and a non-zero exit code, never a traceback.
@@ -335,11 +335,42 @@ def _command_report(arguments: argparse.Namespace) -> int:
     return 0
 
 
+def _command_robot_init(arguments: argparse.Namespace) -> int:
+    """``cafe-mpc robot --init MODEL_FILE``: write a starting robot file, then load it."""
+    from cafe_mpc.robots.robot import load_robot
+    from cafe_mpc.robots.starting_file import StartingFileError, starting_robot_file
+
+    model_file = Path(arguments.init)
+    out = Path(arguments.out) if arguments.out else Path(f"{model_file.stem.replace('-', '_')}.yaml")
+    if out.suffix not in (".yaml", ".yml"):
+        raise _UsageError(f"--out {out}: a robot file ends in .yaml")
+    if out.exists():
+        raise FileExistsError(f"{out} exists; give another --out")
+    try:
+        text = starting_robot_file(model_file, arguments.name)
+    except StartingFileError as error:
+        raise _UsageError(f"robot --init {model_file}: {error}") from error
+    out.write_text(text)
+    to_fill = sum("# FILL IN" in line for line in text.splitlines())
+    print(f"wrote {out}: {to_fill} line(s) marked FILL IN (values the model file does not give)")
+    robot = load_robot(str(out))
+    print(
+        f"it loads: {robot.name}, {robot.total_mass:.3f} kg, legs {', '.join(robot.leg_names)} = feet "
+        f"{', '.join(robot.foot_frame_names)}, standing height {robot.standing_height:.3f} m; next: "
+        f"cafe-mpc robot {out}"
+    )
+    return 0
+
+
 def _command_robot(arguments: argparse.Namespace) -> int:
     from cafe_mpc.dynamics.srb import lumped_inertia, srb_parameters
     from cafe_mpc.robots.robot import load_robot
     from cafe_mpc_lab.sim.consistency import check_consistency
 
+    if arguments.init is not None:
+        return _command_robot_init(arguments)
+    if arguments.name is None:
+        raise _UsageError("cafe-mpc robot needs a robot name or file (or --init MODEL_FILE)")
     robot = load_robot(arguments.name)
     summary = robot.summary()
     srb = srb_parameters(robot)
@@ -351,6 +382,12 @@ def _command_robot(arguments: argparse.Namespace) -> int:
         print(json.dumps(summary, indent=2))
     else:
         print(f"{robot.name}: total mass {robot.total_mass:.3f} kg, feet {', '.join(robot.foot_frame_names)}")
+        feet = zip(robot.leg_names, robot.foot_frame_names, strict=True)
+        legs = ", ".join(f"{leg} {foot}" for leg, foot in feet)
+        print(
+            f"legs (named by {robot.legs_named_by}): {legs}; the model file's order "
+            f"{', '.join(robot.model_leg_order)}"
+        )
         origin = f" ({robot.model_path})" if robot.model_path is not None else ""
         print(
             f"source {robot.source}{origin}; leg length {robot.leg_length:.3f} m, standing height "
@@ -374,6 +411,23 @@ def _command_robot(arguments: argparse.Namespace) -> int:
             f"{'passed' if consistency['passed'] else 'FAILED'}"
         )
     return 0 if summary["consistency"]["passed"] else EXIT_FAILED
+
+
+def _command_compile(arguments: argparse.Namespace) -> int:
+    """Compile and cache the numba kernels a run uses, by running the first steps of each preset asked for
+    (nothing written): what a first run would otherwise do before it moves. ``make install`` runs it."""
+    import time
+
+    from cafe_mpc.assembly.checks import load_run_config
+    from cafe_mpc_lab.experiments.run import run
+
+    _talk(arguments.quiet)
+    start = time.perf_counter()
+    for preset in arguments.presets.split(","):
+        config = load_run_config(preset.strip(), ["simulation.duration=0.1", "output.plots=false"])
+        run(config, None)
+    print(f"kernels compiled and cached in {time.perf_counter() - start:.1f} s")
+    return 0
 
 
 def _command_bench(arguments: argparse.Namespace) -> int:
@@ -549,10 +603,37 @@ def _add_report_parser(commands: argparse._SubParsersAction) -> None:
 def _add_robot_parser(commands: argparse._SubParsersAction) -> None:
     """``cafe-mpc robot``: a robot's summary and its Pinocchio/MuJoCo consistency check."""
     robot_parser = commands.add_parser("robot", help="robot summary and Pinocchio/MuJoCo consistency check")
-    robot_parser.add_argument("name", help="robot name (mini_cheetah, go1) or robot YAML file")
+    robot_parser.add_argument(
+        "name",
+        nargs="?",
+        help="robot name (mini_cheetah, go1) or robot YAML file; with --init: the new robot's name",
+    )
+    robot_parser.add_argument(
+        "--init",
+        metavar="MODEL_FILE",
+        help="write a starting robot file for a URDF or MJCF (legs, feet and limits found, what is missing "
+        "marked FILL IN) to --out, then load it",
+    )
+    robot_parser.add_argument(
+        "--out", help="with --init: the robot file to write (default ./<model file>.yaml)"
+    )
     robot_parser.add_argument("--json", action="store_true", help="print one JSON object")
     robot_parser.add_argument("--samples", type=int, default=5, help="random configurations to compare")
     robot_parser.set_defaults(handler=_command_robot)
+
+
+def _add_compile_parser(commands: argparse._SubParsersAction) -> None:
+    """``cafe-mpc compile``: the numba kernels compiled and cached before the first run."""
+    compile_parser = commands.add_parser(
+        "compile",
+        help="compile and cache the numba kernels (what a first run does before it moves; make install "
+        "runs it)",
+    )
+    compile_parser.add_argument(
+        "--presets", default="trot", help="comma-separated presets whose first 0.1 s is run (default trot)"
+    )
+    compile_parser.add_argument("--quiet", action="store_true", help="no stage lines")
+    compile_parser.set_defaults(handler=_command_compile)
 
 
 def _add_bench_parser(commands: argparse._SubParsersAction) -> None:
@@ -613,8 +694,9 @@ def _add_optimize_parser(commands: argparse._SubParsersAction) -> None:
 
 def build_parser(argv: list[str] | None = None) -> argparse.ArgumentParser:
     """The whole command line's parser. The experiments' subparsers import every experiment (and so the
-    simulator and Dask): they are built only when the command line is ``cafe-mpc experiment ...`` (or
-    ``argv`` is None), so that ``cafe-mpc --help``, ``--version`` and the other commands start fast."""
+    simulator and Dask), the optimiser's the trajectory optimisation: each is built only when the command
+    line is ``cafe-mpc experiment ...`` (``optimize ...``) or ``argv`` is None, so that ``cafe-mpc --help``,
+    ``--version`` and the other commands start fast."""
     parser = _Parser(prog="cafe-mpc", description="CAFE-MPC on a simulated quadruped")
     parser.add_argument("-v", "--verbose", action="store_true", help="log at INFO level to stderr")
     parser.add_argument("--version", action="version", version=f"cafe-mpc {_version()}")
@@ -633,12 +715,30 @@ def build_parser(argv: list[str] | None = None) -> argparse.ArgumentParser:
         )
     _add_report_parser(commands)
     _add_robot_parser(commands)
+    _add_compile_parser(commands)
     _add_bench_parser(commands)
-    _add_optimize_parser(commands)
+    if argv is None or _command_word(argv) == "optimize":  # its parser imports the trajectory optimiser
+        _add_optimize_parser(commands)
+    else:
+        commands.add_parser("optimize", help="offline whole-body trajectory optimisation (--help: the tasks)")
     return parser
 
 
+def _say_starting(argv: list[str]) -> None:
+    """``cafe-mpc run`` at a terminal: one line at once, before the seconds of imports (a person waiting
+    sees that it started; a script or a test, not at a terminal, gets no extra line)."""
+    words = [word for word in argv if not word.startswith("-")]
+    if words[:1] != ["run"] or {"-h", "--help", "--quiet"} & set(argv) or not sys.stderr.isatty():
+        return
+    print(
+        f"cafe-mpc: {words[1] if len(words) > 1 else 'run'}: loading the libraries",
+        file=sys.stderr,
+        flush=True,
+    )
+
+
 def main(argv: list[str] | None = None) -> int:
+    _say_starting(sys.argv[1:] if argv is None else list(argv))
     parser = build_parser(sys.argv[1:] if argv is None else list(argv))
     arguments = _parse_arguments(parser, argv)
     if arguments is None:

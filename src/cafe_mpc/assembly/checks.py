@@ -152,11 +152,6 @@ def _check_gym_plant(config: RunConfig, robot: Robot) -> None:
             f"gym_quadruped.robot); {config.robot!r} has none. Shipped: {', '.join(with_gym)}"
         )
     unsupported = []
-    if config.estimator != "ground_truth":
-        unsupported.append(
-            f"estimator: {config.estimator} (it reads our plant's IMU and joint sensors, which "
-            "gym-quadruped's model does not carry: set estimator=ground_truth)"
-        )
     if config.scene.terrain:
         unsupported.append("scene.terrain (use plant.gym_scene)")
     if config.scene.bar_height:

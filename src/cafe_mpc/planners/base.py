@@ -305,6 +305,8 @@ class RecedingHorizonPlanner(Generic[PlanT]):
         if first:
             self.statistics.first_solve_time = time.perf_counter() - start
         self.previous = (built, result)
+        if first:
+            self._compile_kernels()
         if first and self.settings.warm_up > 0.0:
             self._warm_up(t)
         if first:
@@ -362,6 +364,11 @@ class RecedingHorizonPlanner(Generic[PlanT]):
 
     def _prepare_problem(self, built) -> None:
         """A last touch of a built problem before it is solved (default: nothing)."""
+
+    def _compile_kernels(self) -> None:
+        """After the first solve, before the clock starts: run once what later updates run and the first
+        solve did not, so that no kernel compiles after the clock starts (``core.compilation``; default:
+        nothing)."""
 
     def _warm_up(self, t0: float) -> None:
         """Make the solver data of the next updates before the clock starts (default: nothing)."""

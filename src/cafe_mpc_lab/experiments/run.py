@@ -192,6 +192,8 @@ def run_metrics(config: RunConfig, robot: Robot, controller: RunController, log:
     metrics["timing"] = timing_of(config, controller)
     metrics["scaling"] = scaling_block(config, robot)
     metrics["mpc"] = mpc_summary(controller, log)
+    # kernels compiled after the clock started (core.compilation): 0 unless a first run missed one
+    metrics.update(log.extra.get("compilation", {}))
     if "realtime" in log.extra:
         metrics["realtime"] = log.extra["realtime"]
     if "sensor" in log.extra:
@@ -275,7 +277,7 @@ def run(
             package_logger.addHandler(handler)
             if package_logger.getEffectiveLevel() > logging.INFO:  # restored in ``finally``
                 package_logger.setLevel(logging.INFO)
-    bar = None
+    bars: list = []  # the progress bar, made when the run proper starts
     try:
         logger.info(
             "run %s: robot %s, controller %s, %.2f s",
@@ -288,13 +290,17 @@ def run(
         if show_progress and config.simulation.duration > 1.0 and not config.simulation.realtime:
             from tqdm import tqdm
 
-            bar = tqdm(
-                total=round(config.simulation.duration, 3),
-                unit="sim s",
-                bar_format="{l_bar}{bar}| {n:.2f}/{total:.2f} sim s [{elapsed}<{remaining}]",
-            )
-
-            def progress(dt: float, bar=bar) -> None:
+            def progress(dt: float) -> None:
+                # the bar starts with the run proper, after the set-up's stage lines (never among them)
+                if not bars:
+                    bars.append(
+                        tqdm(
+                            total=round(config.simulation.duration, 3),
+                            unit="sim s",
+                            bar_format="{l_bar}{bar}| {n:.2f}/{total:.2f} sim s [{elapsed}<{remaining}]",
+                        )
+                    )
+                bar = bars[0]
                 # float steps add up past the total by rounding: tqdm warned "clamping frac to range [0, 1]"
                 bar.update(min(dt, max(bar.total - bar.n, 0.0)))
 
@@ -379,9 +385,8 @@ def run(
                     metrics["render_error"] = str(error)
                     with open(partial / "metrics.json", "w") as handle:
                         json.dump(metrics, handle, indent=2)
-        if bar is not None:
-            bar.close()
-            bar = None
+        if bars:
+            bars.pop().close()
         if handler is not None:
             _release_loggers(package_loggers, previous_levels, handler)
             handler = None
@@ -395,6 +400,6 @@ def run(
             shutil.rmtree(partial, ignore_errors=True)
         raise
     finally:
-        if bar is not None:
-            bar.close()
+        if bars:
+            bars.pop().close()
         _release_loggers(package_loggers, previous_levels, handler)
