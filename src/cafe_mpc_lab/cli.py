@@ -546,6 +546,168 @@ def _add_report_parser(commands: argparse._SubParsersAction) -> None:
     report_parser.set_defaults(handler=_command_report)
 
 
+def _outages(text: str | None) -> tuple[tuple[float, float], ...]:
+    """``START:DURATION[,START:DURATION...]`` (s) -> outage windows; ``_UsageError`` naming the flag."""
+    if not text:
+        return ()
+    windows = []
+    for part in text.split(","):
+        try:
+            start, length = (float(value) for value in part.split(":"))
+        except ValueError:
+            raise _UsageError(f"--outage: expected START:DURATION in seconds, got {part!r}") from None
+        windows.append((start, length))
+    return tuple(windows)
+
+
+def _command_sim_robot(arguments: argparse.Namespace) -> int:
+    from cafe_mpc.robot_io.interface import RobotInterfaceError
+    from cafe_mpc.robots.robot import load_robot
+    from cafe_mpc_lab.sim.robot_server import LinkModel, SimRobotServer
+
+    robot = load_robot(arguments.robot)
+    if robot.hardware is None or robot.hardware.interface != arguments.interface:
+        raise _UsageError(
+            f"robot {robot.name!r} does not speak {arguments.interface!r} (its hardware section)"
+        )
+    try:
+        link = LinkModel(arguments.latency, arguments.jitter, arguments.loss, _outages(arguments.outage))
+        server = SimRobotServer(
+            robot, arguments.domain, arguments.network_interface, not arguments.no_multicast, link=link
+        )
+        server.run(arguments.duration, Path(arguments.out) if arguments.out else None)
+    except RobotInterfaceError as error:
+        print(f"cafe-mpc: error: {error}", file=sys.stderr)
+        return EXIT_FAILED
+    return 0
+
+
+def _command_deploy(arguments: argparse.Namespace) -> int:
+    import signal
+
+    from pydantic import ValidationError
+
+    from cafe_mpc import Controller
+    from cafe_mpc.config import ConfigError, format_validation_error
+    from cafe_mpc.config.loading import parse_override, set_dotted
+    from cafe_mpc.deploy.runner import Deployment
+    from cafe_mpc.deploy.settings import DeploySettings
+    from cafe_mpc.deploy.startup import StartupRefused
+    from cafe_mpc.robot_io import make_interface
+    from cafe_mpc.robot_io.interface import RobotInterfaceError, WallClock
+
+    _talk(arguments.quiet)
+    overrides = list(arguments.set or [])
+    if arguments.robot:
+        overrides.append(f"robot={arguments.robot}")
+    try:
+        values: dict = {}
+        for item in arguments.deploy_set or []:
+            key, value = parse_override(item)
+            set_dotted(values, DeploySettings, key, value, noun="deployment setting")
+        if arguments.duration is not None:
+            values["duration"] = arguments.duration
+        settings = DeploySettings(**values)
+    except ValidationError as error:
+        raise ConfigError(format_validation_error(error, "deploy")) from error
+    controller = Controller(arguments.config, overrides, mode="process")
+    try:
+        try:
+            interface = make_interface(
+                arguments.interface,
+                controller.robot,
+                arguments.domain,
+                arguments.network_interface,
+                not arguments.no_multicast,
+            )
+        except ValueError as error:
+            raise _UsageError(str(error)) from error
+        interface.clock = WallClock(settings.spin)
+        deployment = Deployment(interface, controller, settings)
+        for signal_number in (signal.SIGINT, signal.SIGTERM):
+            signal.signal(signal_number, lambda *_: deployment.stop())
+        try:
+            report = deployment.run(dry_run=arguments.dry_run)
+        except (StartupRefused, RobotInterfaceError) as error:
+            print(f"cafe-mpc: refused: {error}", file=sys.stderr)
+            return EXIT_FAILED
+    finally:
+        controller.close()
+    if arguments.out:
+        Path(arguments.out).write_text(json.dumps(report.as_dict(), indent=1, default=str))
+    lateness = report.lateness_ms_p99
+    print(
+        f"deploy: {report.outcome}{': ' + report.message if report.message else ''}; {report.ticks} ticks "
+        f"({report.mpc_ticks} with the MPC), {report.late_ticks} late, lateness p99 "
+        f"{'-' if lateness is None else f'{lateness:.2f}'} ms; {report.link_losses} link losses; "
+        f"states {report.link.get('received')} received, {report.link.get('lost')} lost"
+    )
+    return 0 if report.outcome in ("completed", "dry-run", "stopped") else EXIT_FAILED
+
+
+def _add_robot_io_parsers(commands: argparse._SubParsersAction, presets: str) -> None:
+    """``cafe-mpc deploy`` (the controller on a robot's wire) and ``cafe-mpc sim-robot`` (a simulated robot
+    on that wire)."""
+
+    def wire_arguments(parser: argparse.ArgumentParser, domain: int) -> None:
+        parser.add_argument("--interface", default="unitree-dds", help="robot interface (unitree-dds)")
+        parser.add_argument(
+            "--network-interface", default=None, help="network interface the robot is on (lo, eth0, ...)"
+        )
+        parser.add_argument("--domain", type=int, default=domain, help=f"DDS domain (default {domain})")
+        parser.add_argument(
+            "--no-multicast",
+            action="store_true",
+            help="unicast discovery on 127.0.0.1 (both ends must use it)",
+        )
+
+    deploy = commands.add_parser(
+        "deploy",
+        help="run the controller on a robot over its low-level interface (docs/deploy.md)",
+        description=(
+            "Run a preset on a robot over its low-level interface: wait for its state, check it, stand up,\n"
+            "start the MPC, run, lie down. Ctrl-C lies the robot down. Read docs/deploy.md first."
+        ),
+        epilog=(
+            "examples:\n"
+            "  cafe-mpc sim-robot --robot go2 --network-interface lo &       # a simulated Go2 on the wire\n"
+            "  cafe-mpc deploy trot --robot go2 --network-interface lo --domain 1 --duration 10\n"
+            "  cafe-mpc deploy stand --robot go2 --network-interface eth0 --domain 0 --dry-run"
+        ),
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    deploy.add_argument("config", help=f"preset name ({presets}) or path to a YAML config")
+    deploy.add_argument("--robot", help="robot name (its robot file needs a hardware section)")
+    wire_arguments(deploy, 0)
+    deploy.add_argument("--duration", type=float, help="s of MPC control (0: until Ctrl-C)")
+    deploy.add_argument("--dry-run", action="store_true", help="read and check the state; command nothing")
+    deploy.add_argument("--set", action="append", metavar="KEY=VALUE", help="config override; repeatable")
+    deploy.add_argument(
+        "--deploy-set",
+        action="append",
+        metavar="KEY=VALUE",
+        help="deployment setting (deploy.settings.DeploySettings, e.g. stale_after=0.05); repeatable",
+    )
+    deploy.add_argument("--out", help="write the deployment's report (JSON) here")
+    deploy.add_argument("-q", "--quiet", action="store_true", help="no stage lines")
+    deploy.set_defaults(handler=_command_deploy)
+
+    sim_robot = commands.add_parser(
+        "sim-robot",
+        help="a simulated robot on the wire: our MuJoCo plant on its low-level topics (docs/deploy.md)",
+    )
+    sim_robot.add_argument("--robot", default="go2", help="robot name (default go2)")
+    wire_arguments(sim_robot, 1)
+    sim_robot.set_defaults(network_interface="lo")
+    sim_robot.add_argument("--duration", type=float, help="simulated s to serve (default: until Ctrl-C)")
+    sim_robot.add_argument("--latency", type=float, default=0.0, help="s of added link latency, each way")
+    sim_robot.add_argument("--jitter", type=float, default=0.0, help="s of added uniform jitter, each way")
+    sim_robot.add_argument("--loss", type=float, default=0.0, help="fraction of messages lost, each way")
+    sim_robot.add_argument("--outage", help="START:DURATION[,...] s of simulated time without states")
+    sim_robot.add_argument("--out", help="write the summary (JSON, with the true base motion) here")
+    sim_robot.set_defaults(handler=_command_sim_robot)
+
+
 def _add_robot_parser(commands: argparse._SubParsersAction) -> None:
     """``cafe-mpc robot``: a robot's summary and its Pinocchio/MuJoCo consistency check."""
     robot_parser = commands.add_parser("robot", help="robot summary and Pinocchio/MuJoCo consistency check")
@@ -635,6 +797,7 @@ def build_parser(argv: list[str] | None = None) -> argparse.ArgumentParser:
     _add_robot_parser(commands)
     _add_bench_parser(commands)
     _add_optimize_parser(commands)
+    _add_robot_io_parsers(commands, presets)
     return parser
 
 

@@ -16,7 +16,9 @@ class DeploySettings(StrictModel):
     """How a deployment starts, runs and stops (``deploy.runner.Deployment``; docs/deploy.md)."""
 
     duration: float | None = Field(
-        None, ge=0.0, description="s of MPC control; null: the run config's simulation.duration; 0: until Ctrl-C"
+        None,
+        ge=0.0,
+        description="s of MPC control; null: the run config's simulation.duration; 0: until Ctrl-C",
     )
     state_timeout: float = Field(5.0, gt=0.0, description="s to wait for the robot's first state")
     min_link_rate_hz: float = Field(
@@ -31,7 +33,9 @@ class DeploySettings(StrictModel):
     )
     stand_duration: float = Field(3.0, gt=0.0, description="s to stand up from where the robot lies")
     hold_duration: float = Field(
-        1.0, ge=0.0, description="s to hold the stance before starting the MPC (at least; its start takes longer)"
+        1.0,
+        ge=0.0,
+        description="s to hold the stance before starting the MPC (at least; its start takes longer)",
     )
     blend_duration: float = Field(
         0.1, ge=0.0, description="s over which the stance's motor PD hands over to the MPC's torques"
@@ -41,11 +45,16 @@ class DeploySettings(StrictModel):
     stale_after: float = Field(
         0.04, gt=0.0, description="s without a new state after which the link counts as lost (damped stance)"
     )
+    resume_after: float = Field(
+        1.0, ge=0.0, description="s of states flowing again after a link loss before the MPC restarts"
+    )
     fall_tilt: float = Field(
         1.0, gt=0.0, description="rad of trunk tilt (IMU) that counts as a fall (motor damping, then stop)"
     )
     mpc_kd: float = Field(
-        0.0, ge=0.0, description="Nm s/rad; damping the motors add around the measured joint rate during the MPC"
+        0.0,
+        ge=0.0,
+        description="Nm s/rad; damping the motors add around the measured joint rate during the MPC",
     )
     max_torque_rate: float = Field(
         5000.0, gt=0.0, description="Nm/s; the feed-forward torque's largest change (per tick: x the period)"

@@ -32,8 +32,8 @@ def tilt_of(quaternion_xyzw: np.ndarray) -> float:
 def check_link(health: LinkHealth, min_rate_hz: float, where: str) -> None:
     if health.rate_hz < min_rate_hz:
         raise StartupRefused(
-            f"the robot's state arrives at {health.rate_hz:.0f} Hz on {where}, below the {min_rate_hz:.0f} Hz "
-            f"the controller needs ({health.received} received, {health.lost} lost)"
+            f"the robot's state arrives at {health.rate_hz:.0f} Hz on {where}, below the "
+            f"{min_rate_hz:.0f} Hz the controller needs ({health.received} received, {health.lost} lost)"
         )
 
 

@@ -17,7 +17,14 @@ from typing import Protocol
 
 import numpy as np
 
-from cafe_mpc.robot_io.interface import Clock, JointCommand, LinkHealth, LinkMonitor, RobotInterface, RobotState
+from cafe_mpc.robot_io.interface import (
+    Clock,
+    JointCommand,
+    LinkHealth,
+    LinkMonitor,
+    RobotInterface,
+    RobotState,
+)
 from cafe_mpc.robot_io.motors import motor_torques
 
 

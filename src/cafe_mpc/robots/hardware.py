@@ -5,8 +5,8 @@ A robot file's optional ``hardware`` section (docs/robots.md, docs/deploy.md)::
     hardware:
       interface: unitree-dds             # the robot_io implementation that speaks to it
       motors: [FR_hip_joint, ...]        # the joint each motor slot drives, in the robot's motor order
-      joint_signs: [1, 1, 1]             # joint angle = sign x motor angle + offset (3: per joint kind, or one
-      joint_offsets: [0, 0, 0]           #   per joint; rad); defaults 1 and 0
+      joint_signs: [1, 1, 1]             # joint angle = sign x motor angle + offset (3: per joint kind,
+      joint_offsets: [0, 0, 0]           #   or one per joint; rad); defaults 1 and 0
       lying_pose: [0.0, 1.36, -2.65]     # joint angles the robot lies in, rad (where it stands up from and
                                          #   lies down to)
       stance_kp: 60.0                    # motor PD gains (Nm/rad, Nm s/rad) of the stand-up, the hold, the

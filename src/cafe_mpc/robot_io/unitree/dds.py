@@ -2,8 +2,8 @@
 and the publishers and subscribers of pre-encoded messages.
 
 The Cyclone DDS Python binding (``cyclonedds``, the ``robot`` extra: ``pip install 'cafe-mpc[robot]'``) is
-imported here, on first use; without it ``require_cyclonedds`` raises one ``RobotInterfaceError`` saying how to
-install it.
+imported here, on first use; without it ``require_cyclonedds`` raises one ``RobotInterfaceError`` saying
+how to install it.
 
 ``idl_types()`` builds the binding's types from ``messages.STRUCTS`` (final structs with sequential member
 ids, the type names of Unitree's IDL), so that DDS matches them with Unitree's own readers and writers. The
@@ -36,7 +36,7 @@ def require_cyclonedds():
     """The ``cyclonedds`` module; ``RobotInterfaceError`` (one line) when the extra is not installed."""
     try:
         import cyclonedds
-        import cyclonedds.domain  # noqa: F401
+        import cyclonedds.domain
     except ImportError as error:
         raise RobotInterfaceError(f"the unitree-dds interface needs Cyclone DDS: {INSTALL_HINT}") from error
     return cyclonedds
@@ -137,7 +137,9 @@ def participant(domain: int, network_interface: str | None = None, multicast: bo
     if domain in _DOMAINS:
         known, _, existing = _DOMAINS[domain]
         if known != config:
-            raise RobotInterfaceError(f"DDS domain {domain} is already joined here with another configuration")
+            raise RobotInterfaceError(
+                f"DDS domain {domain} is already joined here with another configuration"
+            )
         return existing
     try:
         handle = Domain(domain, config) if config is not None else None

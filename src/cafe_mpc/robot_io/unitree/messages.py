@@ -245,6 +245,8 @@ class MessageCodec:
         self.wire = np.zeros(4 + padded, dtype=np.uint8)
         self.wire[1] = ENCODING_XCDR1_LE
         self._gather = np.zeros(len(self._c_index), dtype=np.uint8)
+        self._padding = np.setdiff1d(np.arange(self.dtype.itemsize), self._c_index)
+        """Padding bytes of the C layout: zero, as in the robot's structs (the checksum covers them)."""
 
     def offset_of(self, name: str) -> int:
         """Byte offset in the wire bytes (header included) of top-level primitive member ``name``."""
@@ -252,7 +254,8 @@ class MessageCodec:
         return int(self._wire_index[np.searchsorted(self._c_index, offset)])
 
     def seal(self) -> None:
-        """Set ``crc`` to the checksum of the message as it is now."""
+        """Set ``crc`` to the checksum of the message as it is now (padding zeroed first)."""
+        self.c_bytes[self._padding] = 0
         self.message["crc"] = unitree_crc32(self.c_bytes)
 
     def crc_ok(self) -> bool:

@@ -1,5 +1,5 @@
-"""A Unitree robot's low level over DDS: ``UnitreeDdsRobot`` (the controller's end) and ``UnitreeDdsRobotSide``
-(the robot's end, for a simulated robot on the wire).
+"""A Unitree robot's low level over DDS: ``UnitreeDdsRobot`` (the controller's end) and
+``UnitreeDdsRobotSide`` (the robot's end, for a simulated robot on the wire).
 
 The controller subscribes to ``rt/lowstate`` and publishes ``rt/lowcmd`` (``messages``), as Unitree's
 ``unitree_sdk2`` low-level examples do: a Go2 on its Ethernet (DDS domain 0), or unitree_mujoco and
