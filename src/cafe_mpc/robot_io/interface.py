@@ -100,7 +100,7 @@ class LinkHealth:
     """How the link to the robot is doing (``RobotInterface.health``)."""
 
     rate_hz: float
-    """States per second over the last ``LinkMonitor.window`` seconds."""
+    """States per second over the last ``LinkMonitor.window`` seconds (or since the first state, if later)."""
     age: float
     """Seconds since the newest state arrived (inf before the first)."""
     received: int
@@ -165,6 +165,8 @@ class LinkMonitor:
     rejected: int = 0
     crc_errors: int = 0
     newest: float = -np.inf
+    first: float = np.inf
+    """When the first state arrived (the rate counts over less than ``window`` until then + ``window``)."""
     _arrivals: deque = field(default_factory=lambda: deque(maxlen=4096))
     _last_counter: int | None = None
     _step: int | None = None
@@ -172,6 +174,7 @@ class LinkMonitor:
     def reset(self) -> None:
         self.received = self.lost = self.rejected = self.crc_errors = 0
         self.newest = -np.inf
+        self.first = np.inf
         self._arrivals.clear()
         self._last_counter = None
         self._step = None
@@ -180,6 +183,7 @@ class LinkMonitor:
         """A state arrived at ``t``; ``counter``: the robot's message counter (its tick), if it has one."""
         self.received += 1
         self.newest = t
+        self.first = min(self.first, t)
         self._arrivals.append(t)
         if counter is None:
             return
@@ -196,8 +200,9 @@ class LinkMonitor:
         arrivals = self._arrivals
         while arrivals and arrivals[0] < now - self.window:
             arrivals.popleft()
+        span = min(self.window, now - self.first)
         return LinkHealth(
-            rate_hz=len(arrivals) / self.window,
+            rate_hz=len(arrivals) / span if span > 0 else 0.0,
             age=now - self.newest,
             received=self.received,
             lost=self.lost,
