@@ -628,8 +628,11 @@ def _command_deploy(arguments: argparse.Namespace) -> int:
             signal.signal(signal_number, lambda *_: deployment.stop())
         try:
             report = deployment.run(dry_run=arguments.dry_run)
-        except (StartupRefused, RobotInterfaceError) as error:
+        except StartupRefused as error:
             print(f"cafe-mpc: refused: {error}", file=sys.stderr)
+            return EXIT_FAILED
+        except RobotInterfaceError as error:
+            print(f"cafe-mpc: error: {error}", file=sys.stderr)
             return EXIT_FAILED
     finally:
         controller.close()

@@ -25,7 +25,7 @@ from cafe_mpc.robot_io.interface import (
 from cafe_mpc.robots.robot import Robot
 
 INTERFACES = ("unitree-dds",)
-"""Interfaces ``open_interface`` builds (a robot file's ``hardware.interface``)."""
+"""Interfaces ``make_interface`` builds (a robot file's ``hardware.interface``)."""
 
 __all__ = [
     "INTERFACES",
