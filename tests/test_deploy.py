@@ -162,7 +162,9 @@ def _stop_group(process: subprocess.Popen) -> None:
 @pytest.mark.realtime
 def test_deploy_over_dds_against_sim_robot(tmp_path):
     """``cafe-mpc sim-robot`` and ``cafe-mpc deploy`` as two processes on the loopback interface: the Go2
-    stands up, trots 3 s (0.3 m/s), lies down; no process is left behind."""
+    stands up and trots (0.3 m/s); the link is cut for 0.3 s (SIGUSR1 to the simulator): the deployment holds
+    the damped stance, restarts the MPC once states flow again, and lies the robot down at the end. No
+    process is left behind."""
     pytest.importorskip("cyclonedds")
     env = dict(os.environ, PYTHONPATH=str(SOURCES))
     domain = "41"  # away from the robots' 0 and a simulator's default 1
@@ -173,53 +175,57 @@ def test_deploy_over_dds_against_sim_robot(tmp_path):
         [*cli, "sim-robot", "--robot", "go2", *wire, "--out", str(sim_out)],
         env=env,
         start_new_session=True,
-        stdout=subprocess.PIPE,
+        stdout=subprocess.DEVNULL,
         stderr=subprocess.STDOUT,
     )
+    options = [f"--deploy-set={key}={value}" for key, value in QUICK.items()]
+    # a loaded 2-core machine runs three processes here: no spinning, and a link judged more leniently
+    options += ["--deploy-set=min_link_rate_hz=200", "--deploy-set=stale_after=0.1", "--deploy-set=spin=0"]
+    options += ["--set=gait.commands.0.vx=0.3", "--duration=4", f"--out={deploy_out}", "-q"]
+    lines: list[str] = []
     deploy = None
     try:
-        quick = [f"--deploy-set={key}={value}" for key, value in QUICK.items()]
-        # a loaded 2-core machine runs three processes here: no spinning, and a link judged more leniently
-        quick += ["--deploy-set=min_link_rate_hz=200", "--deploy-set=stale_after=0.1", "--deploy-set=spin=0"]
-        quick += ["--set=gait.commands.0.vx=0.3", "-q"]
         deploy = subprocess.Popen(
-            [
-                *cli,
-                "deploy",
-                "trot",
-                "--robot",
-                "go2",
-                *wire,
-                "--duration",
-                "3",
-                "--out",
-                str(deploy_out),
-                *quick,
-            ],
+            [*cli, "deploy", "trot", "--robot", "go2", *wire, *options],
             env=env,
             start_new_session=True,
             stdout=subprocess.PIPE,
             stderr=subprocess.STDOUT,
             text=True,
         )
-        output, _ = deploy.communicate(timeout=600)
+        cut = False
+        deadline = time.monotonic() + 600.0
+        for line in deploy.stdout:  # ends when the deployment exits
+            lines.append(line)
+            if "MPC running" in line and not cut:
+                time.sleep(1.5)  # trot a while, then cut the link
+                os.kill(sim_robot.pid, signal.SIGUSR1)
+                cut = True
+            assert time.monotonic() < deadline, "the deployment took over 10 minutes"
+        deploy.wait(timeout=60)
         assert _gone(deploy.pid), "the deployment left a process behind (its MPC process?)"
     finally:
         if deploy is not None:
             _stop_group(deploy)
         _stop_group(sim_robot)
     assert _gone(sim_robot.pid)
+    output = "".join(lines)
     report = json.loads(deploy_out.read_text())
     assert report["outcome"] == "completed", output
+    assert report["link_losses"] == 1 and report["mpc_starts"] == 2, output
     assert report["mpc_ticks"] > 0 and report["link"]["crc_errors"] == 0
     summary = json.loads(sim_out.read_text())
     assert summary["crc_errors"] == 0 and summary["commands_received"] > 1000
+    assert len(summary["outages"]) == 1
     trace = {name: np.array(values) for name, values in summary["trace"].items()}
-    held = np.flatnonzero(trace["kp_mean"] > 0)  # stand-up, hold, lie-down: the stance's PD
+    held = np.flatnonzero(trace["kp_mean"] > 0)  # stand-up, hold, link loss, lie-down: the stance's PD
     mpc = np.arange(held[0], held[-1])
     mpc = mpc[trace["kp_mean"][mpc] == 0.0]  # between them with no stiffness: the MPC's torques
     assert len(mpc) > 0, output
     lying = trace["z"][0]
     assert trace["z"][mpc].min() > lying + 0.08, "the robot sagged or fell while the MPC ran"
     assert trace["tilt"][mpc].max() < 0.3
+    start, end = summary["outages"][0]
+    around = (trace["t"] >= start) & (trace["t"] < end + 0.5)
+    assert trace["z"][around].min() > lying + 0.08, "the robot sagged while the link was cut"
     assert trace["z"][-1] < lying + 0.04  # lying again

@@ -573,7 +573,12 @@ def _command_sim_robot(arguments: argparse.Namespace) -> int:
     try:
         link = LinkModel(arguments.latency, arguments.jitter, arguments.loss, _outages(arguments.outage))
         server = SimRobotServer(
-            robot, arguments.domain, arguments.network_interface, not arguments.no_multicast, link=link
+            robot,
+            arguments.domain,
+            arguments.network_interface,
+            not arguments.no_multicast,
+            link=link,
+            signal_outage=arguments.signal_outage,
         )
         server.run(arguments.duration, Path(arguments.out) if arguments.out else None)
     except RobotInterfaceError as error:
@@ -707,6 +712,9 @@ def _add_robot_io_parsers(commands: argparse._SubParsersAction, presets: str) ->
     sim_robot.add_argument("--jitter", type=float, default=0.0, help="s of added uniform jitter, each way")
     sim_robot.add_argument("--loss", type=float, default=0.0, help="fraction of messages lost, each way")
     sim_robot.add_argument("--outage", help="START:DURATION[,...] s of simulated time without states")
+    sim_robot.add_argument(
+        "--signal-outage", type=float, default=0.3, help="s of link outage each SIGUSR1 starts (default 0.3)"
+    )
     sim_robot.add_argument("--out", help="write the summary (JSON, with the true base motion) here")
     sim_robot.set_defaults(handler=_command_sim_robot)
 

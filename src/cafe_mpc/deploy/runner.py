@@ -312,6 +312,7 @@ class Deployment:
         """The MPC phase (module docstring), until ``duration`` or ``stop``."""
         settings, controller, report = self.settings, self.controller, self.report
         self._phase("mpc")
+        self.say("MPC running")
         clock = self.interface.clock
         duration = (
             settings.duration if settings.duration is not None else controller.config.simulation.duration
@@ -379,6 +380,7 @@ class Deployment:
             if not self._start_mpc():
                 break
             self._phase("mpc")
+            self.say("MPC running")
             suspended_since = healthy_since = None
             blend_start = clock.now()
         if suspended_since is not None and report.outcome == "running":

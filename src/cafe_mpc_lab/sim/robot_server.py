@@ -11,11 +11,12 @@ Every ``1 / rate_hz`` s of wall time the server
    time).
 
 A ``LinkModel`` can delay both directions (``latency`` plus uniform ``jitter``), lose a fraction of the
-messages (``loss``) and stop publishing states inside ``outages`` (link loss). The server measures the
-round trip (a state published -> the first command that echoes its tick in ``LowCmd_.reserve`` received)
-and records the true base motion; ``SimRobotSummary`` (``--out``: JSON) says what happened. It starts with
-the robot lying on the floor (``MujocoMotorPlant.lie_down``) and stops after ``duration`` s or on SIGINT /
-SIGTERM.
+messages (``loss``) and stop publishing states inside ``outages`` (link loss); SIGUSR1 starts an outage of
+``signal_outage`` s then and there (to cut the link at a chosen moment of a deployment). The server
+measures the round trip (a state published -> the first command that echoes its tick in
+``LowCmd_.reserve`` received) and records the true base motion; ``SimRobotSummary`` (``--out``: JSON)
+says what happened. It starts with the robot lying on the floor (``MujocoMotorPlant.lie_down``) and stops
+after ``duration`` s or on SIGINT / SIGTERM.
 """
 
 from __future__ import annotations
@@ -79,6 +80,8 @@ class SimRobotSummary:
     late_ticks: int = 0
     round_trip_ms_p50: float | None = None
     round_trip_ms_p99: float | None = None
+    outages: list = field(default_factory=list)
+    """(start, end) s of simulated time of the outages SIGUSR1 started."""
     trace: dict = field(default_factory=dict)
     """``t``, ``x``, ``z`` (m), ``vx`` (m/s, world), ``tilt`` (rad), ``kp_mean``: the true base motion and the
     mean commanded stiffness at ``TRACE_RATE_HZ``."""
@@ -96,6 +99,7 @@ class SimRobotServer:
         rate_hz: float = 500.0,
         link: LinkModel | None = None,
         seed: int = 0,
+        signal_outage: float = 0.3,
     ) -> None:
         if rate_hz <= 0:
             raise ValueError(f"rate_hz must be positive, got {rate_hz}")
@@ -108,6 +112,10 @@ class SimRobotServer:
         self.random = np.random.default_rng(seed)
         self.summary = SimRobotSummary()
         self._stop = False
+        self.signal_outage = float(signal_outage)
+        self._outage_requested = False
+        self._outages: list[tuple[float, float]] = []
+        """Outages started by SIGUSR1: (start, end) s of simulated time."""
         self._command = JointCommand.zeros(robot.nu)
         self._decoded = JointCommand.zeros(robot.nu)
         self._sensed = RobotState.zeros(robot.nu, robot.n_feet)
@@ -119,6 +127,10 @@ class SimRobotServer:
     def stop(self, *_: object) -> None:
         """End the run at the next tick (a signal handler)."""
         self._stop = True
+
+    def cut_link(self, *_: object) -> None:
+        """Start an outage of ``signal_outage`` s at the next tick (the SIGUSR1 handler)."""
+        self._outage_requested = True
 
     def _delay(self) -> float:
         link = self.link
@@ -150,7 +162,11 @@ class SimRobotServer:
     def _publish(self, now: float) -> None:
         plant, summary, link = self.plant, self.summary, self.link
         tick = round(plant.time * 1e3)
-        if link.in_outage(plant.time) or (link.loss and self.random.random() < link.loss):
+        if self._outage_requested:
+            self._outage_requested = False
+            self._outages.append((plant.time, plant.time + self.signal_outage))
+        cut = any(start <= plant.time < end for start, end in self._outages)
+        if cut or link.in_outage(plant.time) or (link.loss and self.random.random() < link.loss):
             summary.states_dropped += 1
         else:
             plant.sense(self._sensed)
@@ -168,6 +184,7 @@ class SimRobotServer:
         plant, summary = self.plant, self.summary
         for signal_number in (signal.SIGINT, signal.SIGTERM):
             signal.signal(signal_number, self.stop)
+        signal.signal(signal.SIGUSR1, self.cut_link)
         plant.lie_down()
         trace: dict[str, list[float]] = {name: [] for name in ("t", "x", "z", "vx", "tilt", "kp_mean")}
         clock = WallClock(spin=0.0)
@@ -207,6 +224,7 @@ class SimRobotServer:
                 summary.round_trip_ms_p50 = float(np.median(trips))
                 summary.round_trip_ms_p99 = float(np.percentile(trips, 99))
             summary.trace = trace
+            summary.outages = self._outages
             if out is not None:
                 Path(out).write_text(json.dumps(asdict(summary)))
             say(
