@@ -65,7 +65,8 @@ def lying_robot(controller: Controller, **options) -> tuple[InProcessRobot, Reco
 
 
 def test_startup_refuses_and_commands_nothing(trot_controller):
-    """A joint outside its range, the trunk upside down, a link below 400 Hz: one line, nothing sent."""
+    """A joint outside its range, the trunk upside down, a link below 400 Hz, no state at all: one line,
+    nothing sent."""
     robot = trot_controller.robot
     settings = DeploySettings(**QUICK)
     cases = []
@@ -79,9 +80,11 @@ def test_startup_refuses_and_commands_nothing(trot_controller):
     cases.append((interface, "upside down"))
     interface, _ = lying_robot(trot_controller, state_rate_hz=250.0)
     cases.append((interface, "arrives at 2[45][0-9] Hz"))
+    interface, _ = lying_robot(trot_controller, outages=[(0.0, 10.0)])
+    cases.append((interface, "no state from the robot within 0.3 s"))
     for interface, message in cases:
         with pytest.raises(StartupRefused, match=message):
-            Deployment(interface, trot_controller, settings, say=lambda _: None).run()
+            Deployment(interface, trot_controller, settings.model_copy(update={"state_timeout": 0.3})).run()
         assert interface.commands_sent == 0
     interface, _ = lying_robot(trot_controller)
     report = Deployment(interface, trot_controller, settings, say=lambda _: None).run(dry_run=True)
