@@ -117,7 +117,7 @@ class Deployment:
         self._command = JointCommand.zeros(robot.nu)
         self._stop = threading.Event()
         self._start_time = 0.0
-        self._next_tick = 0.0
+        self._next_tick: float | None = None
         self._lateness: list[float] = []
 
     # ------------------------------------------------------------------------------------- control
@@ -193,7 +193,7 @@ class Deployment:
         """One control tick: wait for it, read the state, ask ``command_of(t, state, stale)`` for the
         command, hold it to the limits and send it. False when ``command_of`` returned None (phase over)."""
         clock = self.interface.clock
-        if self._next_tick == 0.0:
+        if self._next_tick is None:
             self._next_tick = clock.now()
         clock.sleep_until(self._next_tick)
         now = clock.now()
