@@ -232,3 +232,28 @@ def test_deploy_over_dds_against_sim_robot(tmp_path):
     around = (trace["t"] >= start) & (trace["t"] < end + 0.5)
     assert trace["z"][around].min() > lying + 0.08, "the robot sagged while the link was cut"
     assert trace["z"][-1] < lying + 0.04  # lying again
+
+
+def test_terminal_teleop_steers_and_refuses():
+    """The deployment's terminal commands: steps of speed and yaw rate, a gait switch, a refusal, the stop."""
+    from cafe_mpc_lab.cli import DeployTeleop
+
+    stopped = []
+    with Controller("trot", ["robot=go2"]) as controller:  # its own: the commands stay with it
+        teleop = DeployTeleop(controller, lambda: stopped.append(True))
+        _steer(teleop)
+    assert stopped == [True]
+
+
+def _steer(teleop) -> None:
+    start = teleop.vx
+    assert teleop.handle("w") == f"vx {start + 0.1:+.2f} m/s, yaw rate +0.00 rad/s"
+    assert teleop.handle("d").endswith("yaw rate -0.10 rad/s")
+    assert teleop.handle("x") == "vx +0.00 m/s, yaw rate +0.00 rad/s"
+    assert teleop.handle("g bound") == "gait bound from the next cycle"
+    assert teleop.handle("g cartwheel").startswith("refused: invalid gait")
+    for _ in range(40):  # 4 m/s: beyond what the robot can be commanded
+        answer = teleop.handle("w")
+    assert answer.startswith("refused") and teleop.vx < 4.0
+    assert teleop.handle("?").startswith("commands:")
+    assert teleop.handle("q") == "stopping: lying down"

@@ -587,6 +587,67 @@ def _command_sim_robot(arguments: argparse.Namespace) -> int:
     return 0
 
 
+class DeployTeleop:
+    """Steering a deployment from the terminal, one command a line (the ``--viewer`` teleop's steps): ``w`` /
+    ``s`` forward speed +- 0.1 m/s, ``a`` / ``d`` yaw rate +- 0.1 rad/s, ``x`` stop (speed and yaw rate 0),
+    ``g GAIT`` switch gait at the next cycle boundary, ``q`` end the run (the robot lies down). A command
+    the robot cannot follow is refused (the controller's own check)."""
+
+    SPEED_STEP = 0.1
+    YAW_RATE_STEP = 0.1
+
+    def __init__(self, controller, stop) -> None:
+        self.controller = controller
+        self.stop = stop
+        first = controller.config.gait.commands[0]
+        self.vx, self.yaw_rate = first.vx, first.yaw_rate
+
+    def handle(self, line: str) -> str:
+        """Apply one command line; returns what happened (one line)."""
+        from cafe_mpc.config import ConfigError
+
+        words = line.split()
+        if not words:
+            return ""
+        key = words[0].lower()
+        vx, yaw_rate = self.vx, self.yaw_rate
+        if key == "q":
+            self.stop()
+            return "stopping: lying down"
+        if key == "g" and len(words) == 2:
+            try:
+                self.controller.set_gait(words[1])
+            except ConfigError as error:
+                return f"refused: {error}"
+            return f"gait {words[1]} from the next cycle"
+        steps = {"w": (self.SPEED_STEP, 0.0), "s": (-self.SPEED_STEP, 0.0)}
+        steps |= {"a": (0.0, self.YAW_RATE_STEP), "d": (0.0, -self.YAW_RATE_STEP)}
+        if key == "x":
+            vx, yaw_rate = 0.0, 0.0
+        elif key in steps:
+            vx, yaw_rate = round(vx + steps[key][0], 6), round(yaw_rate + steps[key][1], 6)
+        else:
+            return "commands: w/s speed, a/d yaw rate, x stop, g GAIT, q lie down and end"
+        try:
+            self.controller.set_command(vx=vx, yaw_rate=yaw_rate)
+        except ConfigError as error:
+            return f"refused: {error}"
+        self.vx, self.yaw_rate = vx, yaw_rate
+        return f"vx {vx:+.2f} m/s, yaw rate {yaw_rate:+.2f} rad/s"
+
+    def start(self) -> None:
+        """Read stdin in a daemon thread for the rest of the process."""
+        import threading
+
+        def read() -> None:
+            for line in sys.stdin:
+                answer = self.handle(line)
+                if answer:
+                    print(f"teleop: {answer}")
+
+        threading.Thread(target=read, name="deploy-teleop", daemon=True).start()
+
+
 def _command_deploy(arguments: argparse.Namespace) -> int:
     import signal
 
@@ -631,6 +692,9 @@ def _command_deploy(arguments: argparse.Namespace) -> int:
         deployment = Deployment(interface, controller, settings)
         for signal_number in (signal.SIGINT, signal.SIGTERM):
             signal.signal(signal_number, lambda *_: deployment.stop())
+        if sys.stdin.isatty() and not arguments.dry_run and controller.config.gait is not None:
+            DeployTeleop(controller, deployment.stop).start()
+            print("teleop: type w/s (speed), a/d (yaw rate), x (stop), g GAIT, q (lie down and end) + Enter")
         try:
             report = deployment.run(dry_run=arguments.dry_run)
         except StartupRefused as error:
