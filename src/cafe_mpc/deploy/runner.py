@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import logging
 import threading
+from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
@@ -38,6 +39,9 @@ from cafe_mpc.deploy.startup import StartupRefused, check_joints, check_link, ch
 from cafe_mpc.robot_io.interface import JointCommand, RobotInterface, RobotState
 
 logger = logging.getLogger(__name__)
+
+LATENESS_WINDOW = 30_000
+"""Ticks whose lateness the report summarises (the last minute at 500 Hz: a long run keeps no more)."""
 
 
 @dataclass
@@ -54,6 +58,7 @@ class DeploymentReport:
     """Ticks that started more than half a period late."""
     lateness_ms_p50: float | None = None
     lateness_ms_p99: float | None = None
+    """How late the ticks started (median, 99th percentile) over the last ``LATENESS_WINDOW`` ticks."""
     mpc_ticks: int = 0
     link_losses: int = 0
     """Times the link went stale (the damped stance was entered)."""
@@ -118,7 +123,7 @@ class Deployment:
         self._stop = threading.Event()
         self._start_time = 0.0
         self._next_tick: float | None = None
-        self._lateness: list[float] = []
+        self._lateness: deque[float] = deque(maxlen=LATENESS_WINDOW)
 
     # ------------------------------------------------------------------------------------- control
     def stop(self) -> None:
