@@ -144,6 +144,8 @@ class Deployment:
                 self._stand_up(state)
                 if self._hold(self.settings.hold_duration) and self._start_mpc():
                     self._run_mpc()
+                if self._stop.is_set() and report.outcome == "running":
+                    report.outcome, report.message = "stopped", "stopped: lying down"
                 if report.outcome in ("running", "stopped", "mpc-failed", "link-lost"):
                     self._lie_down()
             except _Fell:
@@ -152,6 +154,10 @@ class Deployment:
                 self._damp(self.settings.damp_duration)
             except StartupRefused:
                 raise
+            except KeyboardInterrupt:  # no signal handler (the command line has one): lie down all the same
+                report.outcome, report.message = "stopped", "interrupted: lying down"
+                if report.ticks:
+                    self._lie_down()
             except Exception as error:  # a bug or a broken link mid-run: damp the motors, then report it
                 report.outcome = "error"
                 report.message = f"{type(error).__name__}: {error}"
