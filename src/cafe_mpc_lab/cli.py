@@ -711,7 +711,8 @@ def _command_deploy(arguments: argparse.Namespace) -> int:
     print(
         f"deploy: {report.outcome}{': ' + report.message if report.message else ''}; {report.ticks} ticks "
         f"({report.mpc_ticks} with the MPC), {report.late_ticks} late, lateness p99 "
-        f"{'-' if lateness is None else f'{lateness:.2f}'} ms; {report.link_losses} link losses; "
+        f"{'-' if lateness is None else f'{lateness:.2f}'} ms, tick CPU median {report.tick_cpu_ms_p50} ms; "
+        f"{report.link_losses} link losses; "
         f"states {report.link.get('received')} received, {report.link.get('lost')} lost"
     )
     return 0 if report.outcome in ("completed", "dry-run", "stopped") else EXIT_FAILED

@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import logging
 import threading
+import time
 from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -59,6 +60,10 @@ class DeploymentReport:
     lateness_ms_p50: float | None = None
     lateness_ms_p99: float | None = None
     """How late the ticks started (median, 99th percentile) over the last ``LATENESS_WINDOW`` ticks."""
+    tick_cpu_ms_p50: float | None = None
+    tick_cpu_ms_p99: float | None = None
+    """CPU time of a tick's work (read, command, limits, write; the loop's thread only), same ticks: what
+    the loop needs of a core, whatever else the machine runs."""
     mpc_ticks: int = 0
     link_losses: int = 0
     """Times the link went stale (the damped stance was entered)."""
@@ -76,6 +81,8 @@ class DeploymentReport:
             "late_ticks": self.late_ticks,
             "lateness_ms_p50": self.lateness_ms_p50,
             "lateness_ms_p99": self.lateness_ms_p99,
+            "tick_cpu_ms_p50": self.tick_cpu_ms_p50,
+            "tick_cpu_ms_p99": self.tick_cpu_ms_p99,
             "mpc_ticks": self.mpc_ticks,
             "link_losses": self.link_losses,
             "mpc_starts": self.mpc_starts,
@@ -124,6 +131,7 @@ class Deployment:
         self._start_time = 0.0
         self._next_tick: float | None = None
         self._lateness: deque[float] = deque(maxlen=LATENESS_WINDOW)
+        self._cpu: deque[float] = deque(maxlen=LATENESS_WINDOW)
 
     # ------------------------------------------------------------------------------------- control
     def stop(self) -> None:
@@ -212,6 +220,7 @@ class Deployment:
         if now - self._next_tick > 0.5 * self.period:
             self.report.late_ticks += 1
         self._next_tick = max(self._next_tick + self.period, now - 0.5 * self.period)
+        cpu_start = time.thread_time()
         state = self.interface.read()
         stale = now - state.received > self.settings.stale_after
         command = command_of(now, state, stale)
@@ -221,6 +230,7 @@ class Deployment:
         self.limiter.apply(command, readings.joint_positions, readings.joint_velocities)
         self.interface.write(command)
         self.report.ticks += 1
+        self._cpu.append(time.thread_time() - cpu_start)
         return True
 
     def _check_fall(self, state: RobotState, stale: bool) -> None:
@@ -446,6 +456,10 @@ class Deployment:
             lateness = np.asarray(self._lateness) * 1e3
             report.lateness_ms_p50 = float(np.median(lateness))
             report.lateness_ms_p99 = float(np.percentile(lateness, 99))
+        if self._cpu:
+            cpu = np.asarray(self._cpu) * 1e3
+            report.tick_cpu_ms_p50 = float(np.median(cpu))
+            report.tick_cpu_ms_p99 = float(np.percentile(cpu, 99))
         health = self.interface.health()
         report.link = {
             "rate_hz": health.rate_hz,
