@@ -10,16 +10,18 @@ again.
    ``hardware.stance_kp``/``stance_kd``, a smooth ramp over ``stand_duration``), then **hold** it;
 4. **start the MPC** (``Controller.reset``: its own process and its cold solve) while the stance holds, and
    hand over from the stance's PD to the MPC's torques over ``blend_duration``;
-5. **run** the MPC for ``duration`` s (or until interrupted), one command per control period;
+5. **run** the MPC for ``duration`` s (or until interrupted), one command per control period (a link loss
+   and the MPC's restart after it do not count);
 6. **lie down** to the robot file's ``hardware.lying_pose`` and **damp** the motors.
 
 Safety, on every tick: every command goes through ``deploy.limits.CommandLimiter`` (gains, positions, rates,
 torques, rate of change). A state older than ``stale_after`` (link loss) puts the robot in the **damped
 stance** (motor PD holding the standing pose: the motors run it on their own encoders, with no state needed);
 once states flow again for ``resume_after`` s the MPC starts again from the robot's state (a new cold solve,
-the stance holding meanwhile). A trunk tilted beyond ``fall_tilt`` is a fall: the motors only damp, then the
-deployment ends. A failed MPC process (``Controller.failure``) holds the stance and lies the robot down.
-``stop()`` (Ctrl-C, SIGTERM) ends the MPC phase early and lies the robot down.
+the stance holding meanwhile); after ``max_link_loss`` s without a state the robot lies down. A trunk
+tilted beyond ``fall_tilt`` is a fall: the motors only damp, then the deployment ends. A failed MPC process
+(``Controller.failure``) holds the stance and lies the robot down. ``stop()`` (Ctrl-C, SIGTERM) ends the
+MPC phase early and lies the robot down.
 """
 
 from __future__ import annotations
@@ -346,7 +348,11 @@ class Deployment:
 
         def command_of(now: float, state: RobotState, stale: bool) -> JointCommand | None:
             nonlocal suspended_since, healthy_since
-            if now >= t_end or self._stop.is_set():
+            if self._stop.is_set() or (suspended_since is None and now >= t_end):
+                return None
+            if stale and suspended_since is not None and now - suspended_since > settings.max_link_loss:
+                report.outcome = "link-lost"
+                report.message = f"no state for {settings.max_link_loss:.1f} s: lying down"
                 return None
             if stale:
                 if suspended_since is None:
@@ -395,18 +401,16 @@ class Deployment:
         while True:
             while self._tick(command_of):
                 pass
-            if suspended_since is None or self._stop.is_set() or clock.now() >= t_end:
+            if suspended_since is None or self._stop.is_set() or report.outcome != "running":
                 break
             self.say("link back: restarting the MPC from the robot's state")
             if not self._start_mpc():
                 break
             self._phase("mpc")
             self.say("MPC running")
+            t_end += clock.now() - suspended_since  # ``duration`` counts the time under the MPC
             suspended_since = healthy_since = None
             blend_start = clock.now()
-        if suspended_since is not None and report.outcome == "running":
-            report.outcome = "link-lost"
-            report.message = "the link did not come back before the end: lying down"
         if self._stop.is_set() and report.outcome == "running":
             report.outcome = "stopped"
             report.message = "stopped: lying down"

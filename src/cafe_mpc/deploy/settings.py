@@ -48,6 +48,9 @@ class DeploySettings(StrictModel):
     resume_after: float = Field(
         1.0, ge=0.0, description="s of states flowing again after a link loss before the MPC restarts"
     )
+    max_link_loss: float = Field(
+        10.0, gt=0.0, description="s without a state after which the deployment gives up and lies down"
+    )
     fall_tilt: float = Field(
         1.0, gt=0.0, description="rad of trunk tilt (IMU) that counts as a fall (motor damping, then stop)"
     )
