@@ -127,6 +127,20 @@ def test_stand_trot_link_loss_resume_and_lie_down(trot_controller):
     assert report.mpc_ticks > 0.5 * (settings.duration - outage[1] - settings.resume_after) / 0.002
 
 
+@pytest.mark.slow
+def test_a_link_that_stays_lost_lies_the_robot_down(trot_controller):
+    """No state for longer than max_link_loss while the MPC runs: the deployment gives up and lies down."""
+    settings = DeploySettings(**QUICK, duration=5.0, max_link_loss=0.3)
+    mpc_start = QUICK["link_window"] + QUICK["stand_duration"] + QUICK["hold_duration"]
+    interface, plant = lying_robot(trot_controller, outages=[(mpc_start + 0.3, 30.0)])
+    report = Deployment(interface, trot_controller, settings, say=lambda _: None).run()
+    assert report.outcome == "link-lost" and report.link_losses == 1 and report.mpc_starts == 1
+    assert [name for name, _ in report.phases][-2:] == ["lie", "damp"]
+    lying_height = plant.between(0.0, 0.1)[:, 1].mean()
+    assert plant.between(mpc_start + 0.3, mpc_start + 0.6)[:, 1].min() > lying_height + 0.08
+    assert plant.record[-1][1] < lying_height + 0.04
+
+
 def _alive(group: int) -> bool:
     try:
         os.killpg(group, 0)
