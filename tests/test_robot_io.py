@@ -5,6 +5,7 @@ checks, and one message each way over DDS on the loopback interface."""
 from __future__ import annotations
 
 import dataclasses
+import sys
 import time
 
 import numpy as np
@@ -216,3 +217,16 @@ def test_states_and_commands_cross_dds_on_loopback(go2):
             assert controller_side.health().age > 0.09  # no new state: the newest one ages
         finally:
             robot_side.close()
+
+
+def test_interface_errors_are_one_line(go2, robot, monkeypatch):
+    """A robot file without a hardware section, and a missing DDS binding: one line saying what to do."""
+    from cafe_mpc.robot_io import RobotInterfaceError, make_interface
+
+    with pytest.raises(ValueError, match="has no hardware section"):
+        make_interface("unitree-dds", robot)
+    with pytest.raises(ValueError, match="unknown robot interface 'lcm'"):
+        make_interface("lcm", go2)
+    monkeypatch.setitem(sys.modules, "cyclonedds", None)  # as if the extra were not installed
+    with pytest.raises(RobotInterfaceError, match=r"pip install 'cafe-mpc\[robot\]'"):
+        make_interface("unitree-dds", go2, domain=38, network_interface="lo").open()
