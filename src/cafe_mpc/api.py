@@ -158,6 +158,13 @@ class Controller:
         self._loop.start(0.0, self._relative(measurement, 0.0))
         self._started = True
 
+    def restart_clock(self, t: float) -> None:
+        """Make ``t`` (your clock) time zero again without a new solve, after a ``reset`` that took wall time
+        while the robot held still (on a robot the cold solve runs while a stance holds it): the first
+        ``compute`` then continues the first plan instead of jumping ahead by the time the start took."""
+        self._check_open()
+        self._t0 = float(t)
+
     def compute(self, t: float, measurement: Measurement) -> np.ndarray:
         """Joint torques (nu,) for time ``t`` (your clock) from ``measurement``; call at the control rate."""
         if not self._started:

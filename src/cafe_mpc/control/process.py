@@ -337,6 +337,7 @@ class ProcessMpcLoop(MpcLoop[PlanT]):
         if self.process is not None:
             self._stop_process()
             self._measurements.clear()
+            self._plans.receive()  # a plan the stopped process published unread: not the new one's first
             self._control.array[: ControlBlock.COMMANDS] = 0.0
             self.plan, self.failure, self._failure_time = None, None, None
             self.received, self.worker_statistics, self.worker_error = MpcStatistics(), None, None

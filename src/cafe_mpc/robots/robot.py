@@ -34,6 +34,7 @@ import yaml
 
 from cafe_mpc.core.contacts import LEG_NAMES
 from cafe_mpc.robots.description import PlantParameters, mjcf_from_model, urdf_from_parameters
+from cafe_mpc.robots.hardware import HardwareError, HardwareSpec, read_hardware
 from cafe_mpc.robots.legs import JOINTS_PER_LEG, LegError, Legs, canonical_model, find_legs, knees_back_guess
 from cafe_mpc.robots.model_file import (
     MODEL_SOURCES,
@@ -95,6 +96,9 @@ class Robot:
     ``joint_names``."""
     model_leg_order: tuple[str, ...] = LEG_NAMES
     """The model file's legs in its parser's order (the planning model is rebuilt in ``LEG_NAMES`` order)."""
+    hardware: HardwareSpec | None = None
+    """The real robot's motors and the interface that speaks to them (``hardware`` section; None: a robot
+    only simulated)."""
 
     @property
     def nq(self) -> int:
@@ -515,6 +519,12 @@ def _build_robot(table: dict, path: Path | None = None) -> Robot:
         raise RobotLoadError(f"robot {name!r}: inertia.rotor_mass must be a non-negative number")
     q_standing = _standing_configuration(model, foot_ids, height, plant.foot_radius, guess, offsets)
     _check_standing_limits(name, q_standing, limits, joint_names)
+    try:
+        hardware = read_hardware(
+            table.get("hardware"), joint_names, limits.position_lower, limits.position_upper
+        )
+    except HardwareError as error:
+        raise RobotLoadError(f"robot {name!r}: {error}") from error
     return Robot(
         name=name,
         model=model,
@@ -539,6 +549,7 @@ def _build_robot(table: dict, path: Path | None = None) -> Robot:
         file=path,
         legs_named_by=legs.named_by,
         model_leg_order=legs.model_order,
+        hardware=hardware,
     )
 
 
