@@ -4,8 +4,9 @@
 a ``Reference``:
 
 * a ``gait`` section: the heuristic locomotion reference (``reference.locomotion``, Sec. VI-A) of the gait's
-  velocity commands, with the timings, swing height, Raibert gain and foothold box the run resolved for the
-  robot (``planners.resolved.ResolvedGait``);
+  velocity commands, with the timings, swing height, Raibert gain, foothold box, path gain and touchdown
+  events the run resolved for the robot (``planners.resolved.ResolvedGait``; the touchdowns seen with the
+  run's contact-detection thresholds);
 * a ``reference`` section: a ``ComposedReference`` (``reference.composition``) of segments joined in time:
   ``stand`` segments are locomotion references with the gait ``stand`` (weight set ``regular``);
   ``trajectory`` segments are stored whole-body trajectories sampled by time (``reference.trajectory``,
@@ -18,7 +19,7 @@ run, for tracking metrics and plots; a stored run's plots make it from the store
 
 from __future__ import annotations
 
-from cafe_mpc.config import ConfigError, RunConfig, VelocityCommand
+from cafe_mpc.config import ConfigError, ContactDetectionSettings, RunConfig, VelocityCommand
 from cafe_mpc.ocp.contact_schedule import get_gait
 from cafe_mpc.planners.cafe.setup import TRAJECTORY_WEIGHT_SET
 from cafe_mpc.planners.resolved import ResolvedGait, ResolvedRun
@@ -53,10 +54,17 @@ def reference_profile(config: RunConfig, robot: Robot) -> CommandProfile:
     )
 
 
-def locomotion_reference(gait: ResolvedGait, robot: Robot) -> LocomotionReference:
+def locomotion_reference(
+    gait: ResolvedGait, robot: Robot, detection: ContactDetectionSettings | None = None
+) -> LocomotionReference:
     """The heuristic locomotion reference (Sec. VI-A) of a resolved gait section (``ValueError`` if it cannot
-    be built)."""
+    be built); with ``touchdown_events``, early touchdowns advance its clock, seen within ``detection``'s
+    early window and touchdown height (a run's, resolved for its robot; default as written)."""
     section = gait.section
+    events = None
+    if gait.touchdown_events is not None:
+        detection = detection or ContactDetectionSettings()
+        events = (gait.touchdown_events, detection.early_window, detection.touchdown_height)
     return LocomotionReference(
         robot,
         gait.cycle,
@@ -66,6 +74,9 @@ def locomotion_reference(gait: ResolvedGait, robot: Robot) -> LocomotionReferenc
         foothold_box=gait.foothold_box,
         start_stance=section.start_stance,
         command_ramp=section.command_ramp,
+        path_gain=gait.path_gain,
+        path_heading_limit=section.path_heading_limit,
+        touchdown_events=events,
     )
 
 
@@ -101,7 +112,7 @@ def task_reference(run: ResolvedRun) -> ComposedReference:
                 duration = segment.duration if segment.duration is not None else reference.end_time
             elif segment.kind == "gait":
                 assert gait is not None
-                reference = locomotion_reference(gait, robot)
+                reference = locomotion_reference(gait, robot, run.contact_detection)
                 duration = segment.duration
             else:
                 reference = LocomotionReference(
@@ -132,6 +143,6 @@ def build_reference(run: ResolvedRun) -> Reference:
     if run.gait is None:  # RunConfig rejects this; kept for configs built with model_construct
         raise ConfigError(f"wbc: {config.wbc!r} needs a gait section")
     try:
-        return locomotion_reference(run.gait, run.robot)
+        return locomotion_reference(run.gait, run.robot, run.contact_detection)
     except ValueError as error:
         raise ConfigError(f"gait: {error}") from error

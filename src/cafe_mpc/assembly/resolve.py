@@ -10,10 +10,14 @@ computed here and nowhere else:
   (``planners.cafe.setup.scaled_schedule``);
 * the torque limits the plan and the low level respect (``torque_limits_of``: the robot table's or the
   motors');
-* the contact model: the friction the controller assumes (``mpc.friction``), the Baumgarte rate and the
-  cone tolerance of the reference robot scaled to the run's;
-* the gaits (``gait`` and the gait segments of ``reference``): phase durations, swing height, Raibert gain
-  and foothold box scaled (``scaled_gait``);
+* the contact models: the friction the plan assumes (``mpc.friction``) and the VWBC's (``vwbc.friction``,
+  else the plan's), with the Baumgarte rate and the cone tolerance of the reference robot scaled to the
+  run's;
+* the contact detector's thresholds (``vwbc.contact_detection``): heights by the length scale, the early
+  window and the on-time margin by the time scale (``scaled_contact_detection``), for the VWBC's detector
+  and the reference's touchdown events;
+* the gaits (``gait`` and the gait segments of ``reference``): phase durations, swing height, Raibert gain,
+  foothold box, path gain and touchdown-event threshold scaled (``resolve_gait``);
 * what the run commands over time (``assembly.references.reference_profile``) and the control period.
 
 The builders then carry their own tuned values with ``run.scale``: the CAFE problem's cost weights, SRB force
@@ -23,10 +27,19 @@ controllers), the fall height (the lab's plant).
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 
 from cafe_mpc.assembly.references import reference_profile
-from cafe_mpc.config import BAUMGARTE_ALPHA, CONE_TOLERANCE, ConfigError, GaitConfig, RunConfig
+from cafe_mpc.config import (
+    BAUMGARTE_ALPHA,
+    CONE_TOLERANCE,
+    ConfigError,
+    ContactDetectionSettings,
+    GaitConfig,
+    RunConfig,
+)
 from cafe_mpc.ocp.contact_schedule import GaitCycle, get_gait
 from cafe_mpc.planners.cafe.setup import model_schedule, scaled_schedule
 from cafe_mpc.planners.resolved import ContactModel, ResolvedGait, ResolvedRun
@@ -49,17 +62,21 @@ def resolve(config: RunConfig, robot: Robot) -> ResolvedRun:
         _gait(segment.gait, scale, f"reference.segments.{index}.gait")
         for index, segment in enumerate(segments)
     )
+    contact = ContactModel(
+        friction=config.mpc.friction,
+        baumgarte_alpha=scale.rate(BAUMGARTE_ALPHA),
+        cone_tolerance=scale.force(CONE_TOLERANCE),
+    )
+    vwbc_friction = config.vwbc.friction
     return ResolvedRun(
         config=config,
         robot=robot,
         scale=scale,
         schedule=schedule,
         torque_limits=torque_limits_of(config, robot),
-        contact=ContactModel(
-            friction=config.mpc.friction,
-            baumgarte_alpha=scale.rate(BAUMGARTE_ALPHA),
-            cone_tolerance=scale.force(CONE_TOLERANCE),
-        ),
+        contact=contact,
+        vwbc_contact=contact if vwbc_friction is None else replace(contact, friction=vwbc_friction),
+        contact_detection=scaled_contact_detection(config.vwbc.contact_detection, scale),
         gait=gait,
         segment_gaits=segment_gaits,
         command_profile=reference_profile(config, robot),
@@ -83,15 +100,37 @@ def torque_limits_of(config: RunConfig, robot: Robot) -> np.ndarray:
     return limits
 
 
+def scaled_contact_detection(
+    settings: ContactDetectionSettings, scale: RobotScale
+) -> ContactDetectionSettings:
+    """The contact detector's thresholds carried to the robot: touchdown and release heights by the length
+    scale, the early window and the on-time margin by the time scale; the forces are already shares of the
+    robot's weight and the ground's height is the scene's."""
+    if scale.is_identity:
+        return settings
+    return settings.model_copy(
+        update={
+            "touchdown_height": scale.distance(settings.touchdown_height),
+            "release_height": scale.distance(settings.release_height),
+            "early_window": scale.duration(settings.early_window),
+            "on_time": scale.duration(settings.on_time),
+        }
+    )
+
+
 def resolve_gait(section: GaitConfig, scale: RobotScale) -> ResolvedGait:
-    """A gait section carried to the robot: its cycle's phase durations and the reference's Raibert gain by
-    the time scale, the swing height and foothold box by the length scale."""
+    """A gait section carried to the robot: its cycle's phase durations, the reference's Raibert gain and the
+    touchdown-event threshold by the time scale, the swing height and foothold box by the length scale, the
+    path gain (rad/m) by its inverse."""
+    events = section.touchdown_events
     return ResolvedGait(
         section=section,
         cycle=scaled_gait(section.name, scale),
         swing_height=scale.distance(section.swing_height),
         raibert_gain=scale.duration(section.raibert_gain),
         foothold_box=(scale.distance(FOOTHOLD_BOX[0]), scale.distance(FOOTHOLD_BOX[1])),
+        path_gain=section.path_gain / scale.distance(1.0),
+        touchdown_events=None if events is None else scale.duration(events),
     )
 
 

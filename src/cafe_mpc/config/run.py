@@ -97,10 +97,31 @@ WarmStart = Literal["previous", "plan", "equality", "none"]
 solution (ProxQP), or cold."""
 
 
+class ContactDetectionSettings(StrictModel):
+    """Thresholds of the contact detector (``low_level.contact_detection``; ``vwbc.contact_detection``):
+    forces as fractions of a foot's share of the robot's weight (``m g / n_feet``), heights in metres above
+    the (flat) ground, the early window and the on-time margin in seconds around a planned touchdown. The
+    heights and times are the reference robot's: a run scales them to its robot once (its resolved
+    ``contact_detection``), for the detector and the reference's touchdown events alike."""
+
+    touchdown_force: float = Field(0.35, gt=0.0, le=5.0, description="touchdown above this x m g / n_feet")
+    release_force: float = Field(0.1, ge=0.0, le=5.0, description="release below this x m g / n_feet")
+    touchdown_height: float = Field(
+        0.02, gt=0.0, le=0.5, description="m; foot sole within this of the ground"
+    )
+    release_height: float = Field(0.03, gt=0.0, le=0.5, description="m; foot sole above this: released")
+    early_window: float = Field(0.08, ge=0.0, le=1.0, description="s before a planned touchdown that count")
+    on_time: float = Field(
+        0.015, ge=0.0, le=1.0, description="s; a touchdown this close to its planned time is on time"
+    )
+    ground_height: float = Field(0.0, description="m; the flat ground's height")
+
+
 class VWBCSettings(StrictModel):
     """The VWBC QP (34) and its solver (``low_level.vwbc.VWBCController``): the run config's ``vwbc``
-    section. What the run derives for it (the friction the plan assumes, the Baumgarte rate and the cone
-    tolerance scaled to the robot) is its ``ContactModel`` (``planners.resolved``), not a setting here.
+    section. What the run derives for it (the friction of its pyramid: ``friction`` or the plan's, the
+    Baumgarte rate and the cone tolerance scaled to the robot, the detector's thresholds scaled to the
+    robot) is resolved once (``planners.resolved.ResolvedRun``), not a setting here.
 
     ``solver``: ``daqp`` (DAQP, a dual active-set solver, on (34) condensed onto ``tau``) or ``proxqp``
     (ProxQP on (34) as is). ``warm_start``: ``plan`` (guess from the plan, the paper's choice: for ProxQP the
@@ -108,7 +129,9 @@ class VWBCSettings(StrictModel):
     ``previous`` (previous tick's solution, ProxQP primal-dual, DAQP working set, when the stance pattern is
     unchanged, else the plan guess), ``equality`` (ProxQP's default initial guess: the equality-constrained
     QP's solution; for DAQP the same as ``none``) or ``none`` (cold start: ProxQP from zero, DAQP from the
-    empty working set). ``time_budget_ms``: if set, a tick whose assembly + solve took longer falls back to
+    empty working set). ``stance_source``: the stance set ``C`` of (34c)-(34f): ``detected`` (the contact
+    detector's, ``contact_detection``), ``plan`` (the plan knot's, the paper's) or ``intersect`` (planned and
+    measured in contact). ``time_budget_ms``: if set, a tick whose assembly + solve took longer falls back to
     the Riccati torque; off by default because a wall-clock rule makes simulated runs depend on machine
     load (slow ticks are counted either way)."""
 
@@ -120,8 +143,20 @@ class VWBCSettings(StrictModel):
         description="previous tick's solution, the plan's guess, the equality-constrained solution (proxqp), "
         "or none (cold)",
     )
-    stance_source: Literal["plan", "intersect"] = Field(
-        "plan", description="plan: the plan knot's stance (the paper); intersect: planned and in contact"
+    friction: float | None = Field(
+        None,
+        gt=0.0,
+        le=2.0,
+        description="friction coefficient of the QP's pyramid (34f); null: the plan's (mpc.friction)",
+    )
+    stance_source: Literal["plan", "intersect", "detected"] = Field(
+        "detected",
+        description="detected: the contact detector's stance (low_level.contact_detection: force, foot "
+        "height and the schedule's prior); plan: the plan knot's stance (the paper's); intersect: planned "
+        "and in contact",
+    )
+    contact_detection: ContactDetectionSettings = Field(
+        default_factory=ContactDetectionSettings, description="thresholds of stance_source: detected"
     )
     eps_abs: float = Field(1e-6, gt=0.0, le=1.0, description="absolute tolerance of the QP solver")
     eps_rel: float = Field(0.0, ge=0.0, le=1.0, description="relative tolerance of the QP solver (proxqp)")
@@ -135,8 +170,14 @@ class VWBCSettings(StrictModel):
 
 
 DEFAULT_FRICTION = 0.6
-"""Friction coefficient a controller assumes unless told otherwise: ``mpc.friction``'s default, and the one
-source of every controller-side default (plan pyramid, VWBC cone, template, trajectory optimisation)."""
+"""The nominal floor's friction coefficient (the paper's, the Mini Cheetah table's): the default of the
+library's components built without a run config (plan pyramid, VWBC cone, template, trajectory
+optimisation)."""
+
+CONTROLLER_FRICTION = 0.4
+"""The friction coefficient a run's controller assumes (``mpc.friction``): the low end of the floors it must
+work on, not the nominal 0.6. Planned at 0.6, the approach pace of the running roll puts a tenth of its stance
+ticks at the cone's edge on a 0.6 floor and every gait slides on a lower one (docs/robustness.md)."""
 
 
 PAPER_BUDGET_FRACTION = 0.9
@@ -195,6 +236,25 @@ class GaitConfig(StrictModel):
         "at rest until the gait starts (start_stance), then ramps to the first command",
     )
     commands: list[VelocityCommand] = Field(default_factory=_default_commands, min_length=1)
+    path_gain: float = Field(
+        0.0,
+        ge=0.0,
+        le=10.0,
+        description="rad of heading per m off the commanded path (0: the commands are dead-reckoned from "
+        "each "
+        "measurement, as a joystick's; > 0: the reference holds the path the commands trace from the start)",
+    )
+    path_heading_limit: float = Field(
+        0.2, ge=0.0, le=1.0, description="rad; the largest heading correction toward the path"
+    )
+    touchdown_events: float | None = Field(
+        None,
+        ge=0.0,
+        le=0.5,
+        description="s; advance the gait's clock when a swing foot lands more than this before its planned "
+        "touchdown (seen at each MPC update within the contact detector's early window and height), so that "
+        "the plans stand on it; null: the schedule keeps its clock",
+    )
 
     @field_validator("name")
     @classmethod
@@ -338,11 +398,25 @@ class MpcConfig(MpcSettings):
     whole_body_dt: float = Field(WHOLE_BODY_DT, gt=0.0, le=0.1, description="dt_w, s")
     srb_dt: float = Field(SRB_DT, gt=0.0, le=0.5, description="dt_s, s")
     friction: float = Field(
-        DEFAULT_FRICTION,
+        CONTROLLER_FRICTION,
         gt=0.0,
         le=2.0,
         description="friction coefficient the controller assumes (plan's pyramid, VWBC's cone); the plant's "
         "own is plant.floor_friction, so a mismatch between the two is explicit",
+    )
+    torque_barrier_eps: float = Field(
+        0.01,
+        ge=0.0,
+        le=100.0,
+        description="weight of the plan's relaxed torque-limit barrier (delta 1 Nm); the authors' 0.01 lets "
+        "plans "
+        "ask for more than the low level can give",
+    )
+    plan_torque_fraction: float = Field(
+        1.0,
+        gt=0.0,
+        le=1.0,
+        description="the plan's torque limits as a fraction of the low level's (headroom for feedback)",
     )
 
     @model_validator(mode="after")

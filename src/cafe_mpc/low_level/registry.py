@@ -47,9 +47,11 @@ def build_riccati(run: ResolvedRun) -> RiccatiController:
 
 
 def build_vwbc(run: ResolvedRun) -> VWBCController:
-    """The VWBC QP (34): the ``vwbc`` section, the run's contact model (the plan's friction, the Baumgarte
-    rate and the cone tolerance of the robot) and torque limits."""
-    return VWBCController(run.robot, run.config.vwbc, run.torque_limits.copy(), run.contact)
+    """The VWBC QP (34): the ``vwbc`` section, the run's torque limits, its VWBC contact model (the pyramid's
+    friction, the Baumgarte rate and the cone tolerance of the robot) and contact-detection thresholds."""
+    return VWBCController(
+        run.robot, run.config.vwbc, run.torque_limits.copy(), run.vwbc_contact, run.contact_detection
+    )
 
 
 LOW_LEVELS: Registry[LowLevelEntry] = Registry(

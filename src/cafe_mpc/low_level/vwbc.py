@@ -22,7 +22,8 @@ Contacts: Jacobians and forces are expressed in ``LOCAL_WORLD_ALIGNED`` at the f
 world-frame ground reaction forces, as in ``Plan.forces``); ``Jcdot v`` is the classical foot acceleration
 at zero joint acceleration. The stance set ``C`` is the plan knot's contact flags (the paper's choice);
 ``VWBCSettings.stance_source = "intersect"`` uses the feet that are planned *and* measured in contact
-(``Measurement.contacts``).
+(``Measurement.contacts``), ``"detected"`` (the run config's default) the contact detector's
+(``low_level.contact_detection``).
 
 Solvers: one preallocated solver object and matrix set per stance pattern (sizes change with the number of
 stance feet). ProxQP (``proxsuite.proxqp.dense``, ``solver="proxqp"``) solves (34) as written; it is a
@@ -53,10 +54,11 @@ from collections import Counter
 import numpy as np
 import proxsuite
 
-from cafe_mpc.config import VWBCSettings
+from cafe_mpc.config import ContactDetectionSettings, VWBCSettings
 from cafe_mpc.config.run import WarmStart
 from cafe_mpc.core.controller import LowLevelController
 from cafe_mpc.core.measurement import Measurement
+from cafe_mpc.low_level.contact_detection import ContactDetector
 from cafe_mpc.low_level.contact_dynamics import (
     ContactDynamicsTerms,
     contact_forces_for_torque,
@@ -323,11 +325,14 @@ class VWBCController(LowLevelController[Plan]):
     """VWBC (34) on the plan passed to ``compute``, with the Riccati fallback (33) and per-tick statistics.
 
     ``compute(t, measurement, plan)`` like every ``LowLevelController``; the measurement's contacts are used
-    by ``stance_source = "intersect"`` and counted in ``stance_mismatch_ticks``. The returned array is owned
-    by the controller and overwritten on the next call. ``settings``: the QP and its solver (the ``vwbc``
+    by ``stance_source = "intersect"`` (its state and foot forces by ``"detected"``) and counted in
+    ``stance_mismatch_ticks``. The returned array is owned by the controller and overwritten on the next
+    call. ``settings``: the QP and its solver (the ``vwbc``
     section); ``contact``: the friction of the pyramid (34f), the Baumgarte rate of (34c) and the cone
     tolerance of the violation count (a run's ``ContactModel``; default the reference robot's);
-    ``torque_limits``: (34d) (default the robot's).
+    ``torque_limits``: (34d) (default the robot's); ``detection``: the contact detector's thresholds with
+    ``stance_source = "detected"`` (a run's, scaled to its robot; default ``settings.contact_detection`` as
+    written).
     """
 
     def __init__(
@@ -336,6 +341,7 @@ class VWBCController(LowLevelController[Plan]):
         settings: VWBCSettings | None = None,
         torque_limits: np.ndarray | None = None,
         contact: ContactModel | None = None,
+        detection: ContactDetectionSettings | None = None,
     ) -> None:
         self.robot = robot
         self.model = robot.model
@@ -355,6 +361,11 @@ class VWBCController(LowLevelController[Plan]):
         else:
             self.solver_name = _ProxQPStance.solver_name
         self.terms = ContactDynamicsTerms(robot, self.contact.baumgarte_alpha)
+        self.detector = (
+            ContactDetector(robot, self.settings.contact_detection if detection is None else detection)
+            if self.settings.stance_source == "detected"
+            else None
+        )
         self._qps: dict[tuple[bool, ...], _StanceQP] = {}
         nv, nu = robot.nv, robot.nu
         self._dx = np.zeros(2 * nv)
@@ -378,6 +389,8 @@ class VWBCController(LowLevelController[Plan]):
     def reset(self) -> None:
         """Forget the previous tick's solution and the statistics."""
         self._previous_pattern = None
+        if self.detector is not None:
+            self.detector.reset()
         self.reset_statistics()
 
     def _check_plan(self, plan: Plan) -> None:
@@ -405,6 +418,8 @@ class VWBCController(LowLevelController[Plan]):
         contacts = np.asarray(contacts, dtype=bool)
         if s.stance_source == "intersect":
             self._stance &= contacts
+        elif self.detector is not None:
+            np.copyto(self._stance, self.detector.update(t, measurement, plan))
         if np.any(contacts != plan.contacts[k]):
             self.stance_mismatch_ticks += 1
         self.last_stance[:] = self._stance
@@ -551,6 +566,7 @@ class VWBCController(LowLevelController[Plan]):
             "slow_ticks": self.slow_ticks,
             "stance_mismatch_ticks": self.stance_mismatch_ticks,
             "warm_start": self.settings.warm_start,
+            **({"contact_detection": self.detector.statistics()} if self.detector is not None else {}),
             "solver": self.solver_name,
         }
 

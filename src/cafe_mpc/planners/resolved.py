@@ -2,10 +2,11 @@
 
 ``assembly.resolve(config, robot)`` makes the ``ResolvedRun`` before anything is built: the robot's scale
 (``robots.scaling``: the config's tuned values are the reference robot's), the model schedule with its
-horizons scaled, the torque limits the plan and the low level respect, the contact model (friction,
-Baumgarte rate, cone tolerance), the gaits with their timings and lengths scaled, what the run commands over
-time, and the control period. The planner slices, the low-level registry, the reference, the estimator and
-the lab's plant and metrics read these values; none derives them from the config again.
+horizons scaled, the torque limits the plan and the low level respect, the contact models of the plan and
+the VWBC (friction, Baumgarte rate, cone tolerance), the contact detector's thresholds, the gaits with their
+timings and lengths scaled, what the run commands over time, and the control period. The planner slices,
+the low-level registry, the reference, the estimator and the lab's plant and metrics read these values;
+none derives them from the config again.
 
 Each component's own settings are the schema's class for it (``config.MpcSettings``, ``PDSettings``,
 ``VWBCSettings``, ``TemplateSettings``, ``KinematicKFSettings``), reached through ``config``; what a run
@@ -18,7 +19,14 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from cafe_mpc.config import BAUMGARTE_ALPHA, CONE_TOLERANCE, DEFAULT_FRICTION, GaitConfig, RunConfig
+from cafe_mpc.config import (
+    BAUMGARTE_ALPHA,
+    CONE_TOLERANCE,
+    DEFAULT_FRICTION,
+    ContactDetectionSettings,
+    GaitConfig,
+    RunConfig,
+)
 from cafe_mpc.ocp.contact_schedule import GaitCycle
 from cafe_mpc.planners.cafe.problem import ModelSchedule
 from cafe_mpc.reference.locomotion import CommandProfile
@@ -47,14 +55,17 @@ class ContactModel:
 @dataclass(frozen=True)
 class ResolvedGait:
     """A gait section carried to the robot: the gait cycle with its phase durations scaled, and the
-    locomotion reference's swing height, Raibert gain and foothold box (Sec. VI-A); ``section`` keeps what
-    is used as written (commands, start stance, command ramp)."""
+    locomotion reference's swing height, Raibert gain and foothold box (Sec. VI-A), path gain (rad/m) and
+    touchdown-event threshold (s, None: off); ``section`` keeps what is used as written (commands, start
+    stance, command ramp, path heading limit)."""
 
     section: GaitConfig
     cycle: GaitCycle
     swing_height: float
     raibert_gain: float
     foothold_box: tuple[float, float]
+    path_gain: float
+    touchdown_events: float | None
 
 
 @dataclass(frozen=True)
@@ -65,10 +76,13 @@ class ResolvedRun:
     with ``scaling: none``), for the component settings tuned on the reference robot. ``schedule``: the
     ``mpc`` section's model schedule (Tw, Ts, dt_w, dt_s), its horizons scaled. ``torque_limits``: what the
     plan and the low level respect (``torque_limits``: the robot table's or the motors'; read-only).
-    ``contact``: the contact model. ``gait``: the ``gait`` section resolved (None without one);
-    ``segment_gaits``: each ``reference`` segment's gait resolved (None for the others). ``command_profile``:
-    what the run commands over time (tracking metrics and plots). ``control_period``: seconds between two
-    low-level ticks."""
+    ``contact``: the contact model of the plan (``mpc.friction``), the whole-body knots and the post-hoc
+    cone score; ``vwbc_contact``: the VWBC's (``vwbc.friction`` if set, else the plan's).
+    ``contact_detection``: the contact detector's thresholds (``vwbc.contact_detection``, heights and times
+    scaled to the robot), read by the VWBC's detector and the reference's touchdown events. ``gait``: the
+    ``gait`` section resolved (None without one); ``segment_gaits``: each ``reference`` segment's gait
+    resolved (None for the others). ``command_profile``: what the run commands over time (tracking metrics
+    and plots). ``control_period``: seconds between two low-level ticks."""
 
     config: RunConfig
     robot: Robot
@@ -76,6 +90,8 @@ class ResolvedRun:
     schedule: ModelSchedule
     torque_limits: np.ndarray
     contact: ContactModel
+    vwbc_contact: ContactModel
+    contact_detection: ContactDetectionSettings
     gait: ResolvedGait | None
     segment_gaits: tuple[ResolvedGait | None, ...]
     command_profile: CommandProfile
