@@ -70,7 +70,25 @@ def test_a_big_robot_gets_scaled_settings_and_none_turns_it_off():
     assert mpc.builder.schedule.whole_body_horizon == pytest.approx(
         round(0.25 * math.sqrt(scale.length) / 0.01) * 0.01
     )
+    detection = vwbc.detector.settings  # the detector and the reference's touchdown events read one value
+    assert detection is run.contact_detection
+    assert detection.touchdown_height == pytest.approx(0.02 * scale.length)
+    assert detection.release_height == pytest.approx(0.03 * scale.length)
+    assert detection.early_window == pytest.approx(0.08 * math.sqrt(scale.length))
+    assert detection.on_time == pytest.approx(0.015 * math.sqrt(scale.length))
+    assert detection.touchdown_force == 0.35 and detection.ground_height == 0.0  # weight shares, the scene's
+    overrides = ["robot=b2", "gait.touchdown_events=0.01", "gait.path_gain=1"]
+    events = resolve(load_config("trot", overrides), robot)
+    reference = build_planner(events).reference
+    assert reference.path_gain == pytest.approx(1.0 / scale.length)
+    assert reference.touchdown_events == (
+        events.gait.touchdown_events,
+        events.contact_detection.early_window,
+        events.contact_detection.touchdown_height,
+    )
+    assert events.gait.touchdown_events == pytest.approx(0.01 * math.sqrt(scale.length))
     plain = resolve(load_config("trot", ["robot=b2", "mpc.latency=fixed", "scaling=none"]), robot)
     assert plain.scale.is_identity
     assert build_planner(plain).reference.gait.period == pytest.approx(0.5)
     assert np.isclose(build_planner(plain).reference.swing_height, 0.06)
+    assert plain.contact_detection is plain.config.vwbc.contact_detection

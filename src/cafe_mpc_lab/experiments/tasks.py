@@ -15,8 +15,10 @@ from cafe_mpc_lab.sim.loop import SimulationLog
 
 def task_block(run: ResolvedRun, log: SimulationLog, reference: Reference | None) -> dict | None:
     """The ``task`` block of ``metrics.json`` for a run whose reference holds a stored trajectory with a
-    flight phase (``report.task_metrics``), with the torque limits and contact model the run's controller
-    was built with; ``None`` otherwise."""
+    flight phase (``report.task_metrics``), with the torque limits the run's controller was built with;
+    ``None`` otherwise. The roll's friction-cone score uses ``task_metrics``' default contact model (the
+    nominal floor's friction, ``config.DEFAULT_FRICTION``, and the reference robot's Baumgarte rate and
+    tolerance), not the run's (``mpc.friction``, scaled), which the ``wbc`` block's score uses."""
     task = task_from_reference(reference)
     if task is None:
         return None
@@ -27,7 +29,6 @@ def task_block(run: ResolvedRun, log: SimulationLog, reference: Reference | None
         run.control_period,
         requested=log.extra.get("torque_requested"),
         planned_stance=log.extra.get("planned_stance"),
-        contact=run.contact,
         limits=run.torque_limits,
         bar=bar_of(run.config.scene),
     )
