@@ -75,7 +75,8 @@ class ResolvedRun:
     ``config``, ``robot``: the run config and the robot it drives. ``scale``: the robot's scale (the identity
     with ``scaling: none``), for the component settings tuned on the reference robot. ``schedule``: the
     ``mpc`` section's model schedule (Tw, Ts, dt_w, dt_s), its horizons scaled. ``torque_limits``: what the
-    plan and the low level respect (``torque_limits``: the robot table's or the motors'; read-only).
+    plan and the low level respect (``torque_limits``: the robot table's or the motors'; read-only; the CAFE
+    plan takes ``mpc.plan_torque_fraction`` of them, ``planners.cafe.setup.plan_constraints``).
     ``contact``: the contact model of the plan (``mpc.friction``), the whole-body knots and the post-hoc
     cone score; ``vwbc_contact``: the VWBC's (``vwbc.friction`` if set, else the plan's).
     ``contact_detection``: the contact detector's thresholds (``vwbc.contact_detection``, heights and times
