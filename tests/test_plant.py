@@ -11,7 +11,7 @@ import mujoco
 import numpy as np
 import pytest
 
-from cafe_mpc.assembly import load_run_config
+from cafe_mpc.assembly import load_run_config, resolve
 from cafe_mpc.assembly.checks import robot_of
 from cafe_mpc.config import PlantConfig
 from cafe_mpc.core.measurement import Measurement
@@ -44,7 +44,7 @@ def plant(request):
         "stand",
         [f"plant.kind={request.param}", "robot=mini_cheetah_gym", "estimator=ground_truth"],
     )
-    setup = build_plant(config, robot_of(config))
+    setup = build_plant(resolve(config, robot_of(config)))
     yield setup.plant
     setup.plant.close()
 
@@ -72,7 +72,7 @@ def test_an_unknown_plant_kind_is_one_clear_error():
         plant_factory("isaac")
     config = load_run_config("stand").model_copy(update={"plant": PlantConfig.model_construct(kind="isaac")})
     with pytest.raises(ValueError, match=r"plant\.kind 'isaac'") as error:
-        build_plant(config, robot_of(load_run_config("stand")))
+        build_plant(resolve(config, robot_of(load_run_config("stand"))))
     assert "\n" not in str(error.value)
 
 
@@ -150,7 +150,7 @@ def test_every_plant_carries_the_robots_sensors():
     sensors of its model, gym-quadruped's environment the same quantities computed from its state."""
     config = load_run_config("stand", ["robot=mini_cheetah_gym"])  # the state estimator reads the sensors
     robot = robot_of(config)
-    setup = build_plant(config, robot)
+    setup = build_plant(resolve(config, robot))
     assert isinstance(setup.plant, MujocoPlant) and isinstance(setup.plant.sensors, SensorSuite)
     setup.plant.reset(robot.q_standing)
     readings = setup.plant.sensors.measure(0, setup.plant, setup.plant.read_state())

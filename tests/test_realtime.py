@@ -20,6 +20,7 @@ import numpy as np
 import pytest
 
 from cafe_mpc.assembly.controllers import process_planner
+from cafe_mpc.assembly.resolve import resolve
 from cafe_mpc.config import load_config
 from cafe_mpc.control.ipc.shared import shared_block_prefix
 from cafe_mpc.control.process import ProcessMpcLoop
@@ -122,7 +123,9 @@ def test_a_dead_or_stalled_mpc_process_holds_a_stance_and_ends_with_one_error(mo
     config = load_config("trot", ["simulation.duration=3.0", "output.plots=false"])
     factory = functools.partial(crashing_mpc, config.model_dump(mode="json"), 5, mode)
     plans = plan_format(25, robot.nq + robot.nv, robot.nu, 2 * robot.nv, robot.n_feet)
-    controller = ProcessMpcLoop(robot, factory, build_recorder(config, robot), plans, 0.02, stall_timeout=0.3)
+    controller = ProcessMpcLoop(
+        robot, factory, build_recorder(resolve(config, robot)), plans, 0.02, stall_timeout=0.3
+    )
     with controller:
         controller.start(0.0, Measurement.of_state(robot.q_standing, np.zeros(robot.nv), np.ones(4, bool)))
         assert len(_shared_memory_blocks() - before) == 3  # measurements, plans, control: named as ours
