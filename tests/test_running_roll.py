@@ -101,7 +101,7 @@ def test_measured_join_places_the_roll_where_the_pace_now_ends(robot):
 def test_bar_in_the_scene_collides_with_legs_only_where_it_is(robot):
     config = load_run_config("running-barrel-roll")
     bar = bar_of(config.scene)
-    assert bar == Bar(0.4, (2.0, -0.265), 0.0, 2.0, 0.005)
+    assert bar == Bar(0.4, (2.0, -0.30), 0.0, 2.0, 0.005)
     assert bar_of(load_run_config("running-barrel-roll", ["scene.bar_height=0"]).scene) is None
     model = mujoco.MjModel.from_xml_string(Scene(bar=bar).mjcf(robot))
     geom = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_GEOM, "bar")
