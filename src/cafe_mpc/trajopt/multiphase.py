@@ -43,6 +43,7 @@ from cafe_mpc.ocp.knots import WholeBodyModelFactory, WholeBodyReference, WholeB
 from cafe_mpc.reference.trajectory_file import WholeBodyTrajectory, contact_code
 from cafe_mpc.robots.robot import Robot
 from cafe_mpc.solver import MSiLQRSolver, SolverResult
+from cafe_mpc.trajopt.retarget import is_resolved, resolve_task
 from cafe_mpc.trajopt.task import BarrierSetSpec, KeyframeSpec, TrajOptTask, joints12
 
 PLANNING_SETTINGS = WholeBodySettings()
@@ -111,7 +112,10 @@ def whole_body_state(robot: Robot, keyframe: KeyframeArrays) -> np.ndarray:
 
 
 def planning_robot(robot: Robot, task: TrajOptTask) -> Robot:
-    """The robot with the task's joint speed limit (the knots take joint speed limits from the robot)."""
+    """The robot with the task's joint speed limit (the knots take joint speed limits from the robot; a task
+    without one keeps the robot's)."""
+    if task.constraints.joint_speed_limit is None:
+        return robot
     return replace(robot, velocity_limits=np.full(robot.nu, task.constraints.joint_speed_limit))
 
 
@@ -153,6 +157,8 @@ def build_problem(robot: Robot, task: TrajOptTask, barriers: BarrierSetSpec | No
     """The MS-iLQR problem of ``task`` with ``barriers`` (default: the task's final ``barriers``)."""
     if robot.name != task.robot:
         raise ValueError(f"task {task.name!r} is for robot {task.robot!r}, got {robot.name!r}")
+    if not is_resolved(task):
+        raise ValueError(f"task {task.name!r}: resolve it for its robot first (retarget.resolve_task)")
     barriers = task.constraints.barriers if barriers is None else barriers
     planning = planning_robot(robot, task)
     dt = task.dt
@@ -290,8 +296,10 @@ def solve_task(
     verbose: bool = False,
     echo: Callable[[str], None] | None = None,
 ) -> TrajOptResult:
-    """Build and solve ``task`` (barrier continuation, see the module docstring); check the result."""
+    """Build and solve ``task`` (resolved for ``robot`` first: ``trajopt.retarget.resolve_task``; barrier
+    continuation, see the module docstring); check the result. The result's task is the resolved one."""
     start = time.perf_counter()
+    task = resolve_task(task, robot)
     stages: list[StageResult] = []
     options = task.solver.options(verbose)
     continuation = (

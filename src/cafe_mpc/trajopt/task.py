@@ -195,7 +195,9 @@ class ConstraintSpec(StrictModel):
     torque_limit: float | None = Field(
         None, gt=0.0, description="|tau| limit of every joint, Nm (null: the robot's joints.torque_limits)"
     )
-    joint_speed_limit: float = Field(20.0, gt=0.0, description="|qdot| limit (rad/s)")
+    joint_speed_limit: float | None = Field(
+        20.0, gt=0.0, description="|qdot| limit of every joint, rad/s (null: the robot's velocity_limits)"
+    )
     friction_coefficient: float = Field(DEFAULT_FRICTION, gt=0.0)
     barriers: BarrierSetSpec = Field(default_factory=_authors_to_barriers)
     warm_up_barriers: BarrierSetSpec | None = Field(default_factory=_mpc_barriers)
@@ -253,6 +255,16 @@ class TrajOptTask(StrictModel):
 
     name: str
     robot: str = "mini_cheetah"
+    keyframes_robot: str | None = Field(
+        None,
+        description="the robot the keyframes, heights, speeds and timings are written for (null: robot); "
+        "another robot's task is retargeted to robot before the solve (trajopt.retarget)",
+    )
+    keyframe_feet: Literal["as-given", "stance-ik"] = Field(
+        "as-given",
+        description="stance-ik: the stance legs of the initial state and of every keyframe are solved by "
+        "inverse kinematics onto their footholds (trajopt.retarget.place_stance_feet)",
+    )
     dt: float = Field(0.01, gt=0.0, le=0.1, description="knot spacing (s)")
     surface_height: float = Field(0.0, description="ground height for touchdowns (m)")
     switching_times: list[float] = Field(description="phase boundaries (s), one more than phases")
