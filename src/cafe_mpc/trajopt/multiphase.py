@@ -29,7 +29,7 @@ with ``barriers``, warm-started from the first (states, torques and augmented-La
 from __future__ import annotations
 
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
 
 import numpy as np
@@ -45,6 +45,9 @@ from cafe_mpc.robots.robot import Robot
 from cafe_mpc.solver import MSiLQRSolver, SolverResult
 from cafe_mpc.trajopt.retarget import is_resolved, resolve_task
 from cafe_mpc.trajopt.task import BarrierSetSpec, KeyframeSpec, TrajOptTask, joints12
+
+ROTATION_AXES = ("roll", "pitch", "yaw")
+"""Names of the body axes x, y, z as rotations."""
 
 PLANNING_SETTINGS = WholeBodySettings()
 """Dynamics settings of the planning model (Baumgarte alpha 10, explicit Euler, exact KKT, impact on every
@@ -111,6 +114,17 @@ def whole_body_state(robot: Robot, keyframe: KeyframeArrays) -> np.ndarray:
     return x
 
 
+def kinematic_velocities(robot: Robot, xs: np.ndarray, dt: float, keep_first: bool = False) -> None:
+    """Set the velocities of the states ``xs`` (in place) to ``(q[k+1] ⊖ q[k]) / dt`` (the explicit Euler step
+    of the planning model: no configuration defect), the last state's to its predecessor's; ``keep_first``
+    keeps the first state's (the given initial state)."""
+    nq = robot.nq
+    for k in range(1 if keep_first else 0, len(xs) - 1):
+        xs[k, nq:] = pin.difference(robot.model, xs[k, :nq], xs[k + 1, :nq]) / dt
+    if len(xs) > 1:
+        xs[-1, nq:] = xs[-2, nq:]
+
+
 def planning_robot(robot: Robot, task: TrajOptTask) -> Robot:
     """The robot with the task's joint speed limit (the knots take joint speed limits from the robot; a task
     without one keeps the robot's)."""
@@ -165,6 +179,7 @@ def build_problem(robot: Robot, task: TrajOptTask, barriers: BarrierSetSpec | No
     x0 = whole_body_state(planning, KeyframeArrays.of(task.initial))
     previous = KeyframeArrays.of(task.initial)
     stances = [phase.stance for phase in task.phases]
+    surfaces = task.phase_surface_heights()
     phases, layouts, xs_guess, us_guess, rollout = [], [], [], [], []
     for index, (spec, knots) in enumerate(zip(task.phases, task.knots_per_phase, strict=True)):
         stance = stances[index]
@@ -194,13 +209,15 @@ def build_problem(robot: Robot, task: TrajOptTask, barriers: BarrierSetSpec | No
         reset = switching = None
         if not last:
             reset = factory.reset_map(stance, stances[index + 1])
-            switching = factory.touchdown_constraint(stance, stances[index + 1], task.surface_height)
+            switching = factory.touchdown_constraint(stance, stances[index + 1], surfaces[index + 1])
         phases.append(Phase(running, terminal, reset, switching, dt=dt, name=spec.name))
         entered_by_touchdown = index > 0 and any(touchdown_flags(stances[index - 1], stance))
         layouts.append(PhaseLayout(spec.name, stance, start, end, knots, entered_by_touchdown))
         xs = np.array(states)
         if index == 0:
             xs[0] = x0
+        if task.initial_guess == "kinematic":
+            kinematic_velocities(planning, xs, dt, keep_first=index == 0)
         xs_guess.append(xs)
         if task.initial_controls == "static" and any(stance):
             us_guess.append(
@@ -271,6 +288,13 @@ class TrajOptResult:
             "joint_speed_limit": self.task.constraints.joint_speed_limit,
             "min_base_height_m": check.min_base_height,
             "total_roll_rad": check.total_roll,
+            "rotation_axis": ROTATION_AXES[check.rotation_axis],
+            "rotation_at_landing_rad": (
+                None
+                if check.rotation_at_landing is None
+                else float(check.rotation_at_landing[check.rotation_axis])
+            ),
+            "total_rotation_rad": check.total_rotation.tolist(),
             "cost": final.cost,
             "knots": self.trajectory.n_knots,
             "stages": [
@@ -335,7 +359,7 @@ def solve_task(
         previous = result
     assert built is not None and previous is not None
     trajectory = trajectory_from_solution(built, previous)
-    check = check_trajectory(robot, trajectory, task.surface_height)
+    check = check_trajectory(robot, trajectory, task.phase_surface_heights())
     return TrajOptResult(task, trajectory, stages, check, time.perf_counter() - start)
 
 
@@ -407,6 +431,13 @@ class TrajectoryCheck:
     landing_time: float | None = None
     roll_at_landing: float | None = None
     total_roll: float = 0.0
+    rotation_at_landing: np.ndarray | None = None
+    total_rotation: np.ndarray = field(default_factory=lambda: np.zeros(3))
+
+    @property
+    def rotation_axis(self) -> int:
+        """The body axis (0 x roll, 1 y pitch, 2 z yaw) the trajectory turns most about."""
+        return int(np.argmax(np.abs(self.total_rotation)))
 
     @property
     def max_touchdown_height_error(self) -> float:
@@ -415,20 +446,29 @@ class TrajectoryCheck:
         return float(max(np.max(np.abs(heights)) for _, heights in self.touchdown_heights))
 
 
-def roll_turned(trajectory: WholeBodyTrajectory, until: float | None = None) -> float:
-    """``sum omega_x dt`` over the knots before ``until`` (the whole trajectory by default): the roll turned
-    about the body x axis (explicit Euler: ``q+ = q ⊕ v dt``, so this is exact for a pure roll)."""
+def rotation_turned(trajectory: WholeBodyTrajectory, until: float | None = None) -> np.ndarray:
+    """``sum omega dt`` (body x, y, z) over the knots before ``until`` (the whole trajectory by default): the
+    rotation turned about each body axis (explicit Euler: ``q+ = q ⊕ v dt``, so this is exact for a rotation
+    about one axis)."""
     nq = len(trajectory.xs[0]) - len(trajectory.us[0]) - 6
     last = trajectory.n_knots if until is None else round((until - trajectory.times[0]) / trajectory.dt)
-    return float(np.sum(trajectory.xs[:last, nq + 3]) * trajectory.dt)
+    return np.sum(trajectory.xs[:last, nq + 3 : nq + 6], axis=0) * trajectory.dt
+
+
+def roll_turned(trajectory: WholeBodyTrajectory, until: float | None = None) -> float:
+    """The roll turned about the body x axis before ``until`` (``rotation_turned``)."""
+    return float(rotation_turned(trajectory, until)[0])
 
 
 def check_trajectory(
-    robot: Robot, trajectory: WholeBodyTrajectory, surface_height: float = 0.0
+    robot: Robot, trajectory: WholeBodyTrajectory, surface_height: float | Sequence[float] = 0.0
 ) -> TrajectoryCheck:
     """Re-simulate every interval with the planning model (``PLANNING_SETTINGS``) and measure the defects,
-    torques, joint speeds, base height, touchdown foot heights and the roll."""
+    torques, joint speeds, base height, touchdown foot heights (above the surface of the phase touched down
+    into: one height, or one per phase) and the rotation."""
     trajectory.validate(robot.nq, robot.nv, robot.nu)
+    n_phases = len(trajectory.phase_stances)
+    surfaces = np.broadcast_to(np.asarray(surface_height, dtype=float), (n_phases,))
     dt = trajectory.dt
     factory = WholeBodyModelFactory(robot, replace(PLANNING_SETTINGS, dt=dt))
     state = MultibodyState(robot.model)
@@ -454,7 +494,7 @@ def check_trajectory(
         if following is not None and any(touchdown_flags(stance, following)):
             legs = np.flatnonzero(touchdown_flags(stance, following))
             feet = robot.foot_positions(xs[knots.stop, : robot.nq])
-            heights = feet[legs, 2] - robot.foot_radius - surface_height
+            heights = feet[legs, 2] - robot.foot_radius - surfaces[index + 1]
             time_of_switch = float(trajectory.times[knots.stop])
             touchdowns.append((time_of_switch, heights))
             if landing_time is None:
@@ -470,4 +510,6 @@ def check_trajectory(
         landing_time=landing_time,
         roll_at_landing=roll_turned(trajectory, landing_time) if landing_time is not None else None,
         total_roll=roll_turned(trajectory),
+        rotation_at_landing=rotation_turned(trajectory, landing_time) if landing_time is not None else None,
+        total_rotation=rotation_turned(trajectory),
     )

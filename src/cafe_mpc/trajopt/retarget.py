@@ -241,6 +241,11 @@ def retarget_task(task: TrajOptTask, source: Robot, target: Robot) -> TrajOptTas
                 "minimum_height": (
                     None if phase.minimum_height is None else mapper.height(phase.minimum_height)
                 ),
+                "surface_height": (
+                    None
+                    if phase.surface_height is None
+                    else round(mapper.scale.distance(phase.surface_height), 6)
+                ),
             }
         )
         for phase in task.phases
@@ -279,21 +284,22 @@ def _keyframe_with_joints(keyframe: KeyframeSpec, joints: np.ndarray) -> Keyfram
 def place_stance_feet(task: TrajOptTask, robot: Robot) -> TrajOptTask:
     """``task`` with every stance foot of the initial state and of each phase's keyframe solved onto its
     foothold (module docstring, "Stance feet on the ground"); swing legs keep their angles."""
-    surface = task.surface_height + robot.foot_radius
+    surfaces = task.phase_surface_heights()
     initial_joints = joints12(task.initial.joint_positions)
     q0 = base_configuration(robot, task.initial, initial_joints)
     feet = robot.foot_positions(q0)
-    # The initial state stands on the ground (z = 0 plus the foot radius), at the feet's own x, y.
+    # The initial state stands on the first phase's surface, at the feet's own x, y.
     joints = np.array(initial_joints)
     for leg in range(4):
-        target = np.array([feet[leg, 0], feet[leg, 1], robot.foot_radius])
+        target = np.array([feet[leg, 0], feet[leg, 1], surfaces[0] + robot.foot_radius])
         joints[leg_joint_indices(leg)] = solve_leg_ik(robot, q0, leg, target)
     initial = _keyframe_with_joints(task.initial, joints)
     footholds = robot.foot_positions(base_configuration(robot, initial, joints))
     previous_keyframe, previous_stance = initial, (True,) * 4
     phases = []
-    for phase in task.phases:
+    for phase, surface_height in zip(task.phases, surfaces, strict=True):
         stance = phase.stance
+        surface = surface_height + robot.foot_radius
         previous_joints = joints12(previous_keyframe.joint_positions)
         previous_feet = robot.foot_positions(base_configuration(robot, previous_keyframe, previous_joints))
         for leg in range(4):
@@ -315,7 +321,6 @@ def resolve_task(task: TrajOptTask, robot: Robot) -> TrajOptTask:
     (``keyframes_robot``), stance feet placed (``keyframe_feet: stance-ik``)."""
     if task.keyframes_robot not in (None, robot.name):
         task = retarget_task(task, load_robot(task.keyframes_robot), robot)
-        task = task.model_copy(update={"keyframe_feet": "stance-ik"})
     if task.keyframe_feet == "stance-ik":
         task = place_stance_feet(task, robot)
     return task

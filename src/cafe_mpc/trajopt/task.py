@@ -124,6 +124,13 @@ class PhaseSpec(StrictModel):
     running: WeightsSpec
     terminal: WeightsSpec
     minimum_height: float | None = Field(None, ge=0.0, le=1.0, description="minimum base height (m)")
+    surface_height: float | None = Field(
+        None,
+        ge=-1.0,
+        le=1.0,
+        description="world z of the surface the phase's stance feet stand on, m (a box top); the touchdown "
+        "constraint that enters the phase uses it (null: the task's surface_height)",
+    )
 
     @field_validator("contacts")
     @classmethod
@@ -266,7 +273,7 @@ class TrajOptTask(StrictModel):
         "inverse kinematics onto their footholds (trajopt.retarget.place_stance_feet)",
     )
     dt: float = Field(0.01, gt=0.0, le=0.1, description="knot spacing (s)")
-    surface_height: float = Field(0.0, description="ground height for touchdowns (m)")
+    surface_height: float = Field(0.0, description="ground height for touchdowns (m; phases may override)")
     switching_times: list[float] = Field(description="phase boundaries (s), one more than phases")
     initial: KeyframeSpec = Field(description="initial state (velocities are used as given)")
     phases: list[PhaseSpec]
@@ -274,6 +281,12 @@ class TrajOptTask(StrictModel):
     solver: SolverSpec = Field(default_factory=SolverSpec)
     initial_controls: Literal["static", "zero"] = Field(
         "static", description="torque guess: static stance torques (zero in flight), or zero"
+    )
+    initial_guess: Literal["keyframes", "kinematic"] = Field(
+        "keyframes",
+        description="state guess: keyframes, every part interpolated linearly (velocities too); kinematic, "
+        "the same configurations with the velocities that move each knot's configuration to the next one's "
+        "in dt (no configuration defect, the rotation's rate consistent with its angle)",
     )
 
     @model_validator(mode="after")
@@ -294,6 +307,13 @@ class TrajOptTask(StrictModel):
                     f"switching_times: phase {index} lasts {end - start:g} s, not a multiple of dt {self.dt}"
                 )
         return self
+
+    def phase_surface_heights(self) -> list[float]:
+        """World z of each phase's contact surface (``PhaseSpec.surface_height`` or the task's)."""
+        return [
+            self.surface_height if phase.surface_height is None else phase.surface_height
+            for phase in self.phases
+        ]
 
     @property
     def knots_per_phase(self) -> list[int]:
