@@ -242,6 +242,14 @@ class SolverSpec(StrictModel):
     switching_tolerance: float = Field(1e-3, gt=0.0)
     regularization_initial: float = Field(1e-3, ge=0.0)
     regularization_min: float = Field(1e-6, ge=0.0)
+    merit_feasibility_weight: float = Field(
+        0.2,
+        ge=0.0,
+        lt=1.0,
+        description="share of the line search's merit weight that rewards closing the defects "
+        "(SolverOptions); near 1 a step that closes large defects of an inconsistent guess is accepted "
+        "although it raises the cost",
+    )
 
     def options(self, verbose: bool = False) -> SolverOptions:
         return SolverOptions(
@@ -253,6 +261,7 @@ class SolverSpec(StrictModel):
             switching_tolerance=self.switching_tolerance,
             regularization_initial=self.regularization_initial,
             regularization_min=self.regularization_min,
+            merit_feasibility_weight=self.merit_feasibility_weight,
             verbose=verbose,
         )
 

@@ -88,6 +88,9 @@ class AcrobaticTask:
     """Commanded forward speed of the gait segment before the trajectory (None: no gait before it)."""
     resume_speed: float | None = None
     """Commanded forward speed of the gait segment after the trajectory (None: no moving gait after it)."""
+    rotation_axis: int = 0
+    """The body axis the task turns about (0 x: roll, 1 y: pitch, 2 z: yaw); ``roll_target`` is the rotation
+    to reach about it (signed: a backflip turns -2 pi about y)."""
 
 
 def _trajectory_segment(reference: Reference) -> tuple[TrajectoryReference, float] | None:
@@ -124,16 +127,32 @@ def _gait_speeds(reference: Reference, trajectory: TrajectoryReference) -> tuple
     return before, after
 
 
+ROTATION_AXES = ("roll", "pitch", "yaw")
+
+
+def planned_rotation(trajectory) -> tuple[int, float]:
+    """The body axis a stored trajectory turns most about and its turn there rounded to a quarter turn
+    (``sum omega dt`` over its knots: 2 pi for a barrel roll, -2 pi for a backflip, pi for a half spin)."""
+    nq = trajectory.xs.shape[1] - trajectory.us.shape[1] - 6
+    turned = np.sum(trajectory.xs[:-1, nq + 3 : nq + 6], axis=0) * trajectory.dt
+    axis = int(np.argmax(np.abs(turned)))
+    quarter = 0.5 * math.pi
+    return axis, round(float(turned[axis]) / quarter) * quarter
+
+
 def task_from_reference(
-    reference: Reference | None, roll_target: float = 2.0 * math.pi
+    reference: Reference | None, roll_target: float | None = None
 ) -> AcrobaticTask | None:
-    """The task of a reference that contains a stored trajectory with a flight phase (``None`` otherwise)."""
+    """The task of a reference that contains a stored trajectory with a flight phase (``None`` otherwise);
+    its rotation axis and target from the trajectory (``planned_rotation``) unless ``roll_target`` is given
+    (a rotation about the body x axis)."""
     found = _trajectory_segment(reference) if reference is not None else None
     if found is None:
         return None
     trajectory_reference, offset = found
     approach, resume = _gait_speeds(reference, trajectory_reference)
     trajectory = trajectory_reference.trajectory
+    axis, target = planned_rotation(trajectory) if roll_target is None else (0, roll_target)
     start = offset + trajectory_reference.start
     origin = float(trajectory.times[0])
     for index, code in enumerate(trajectory.phase_contacts):
@@ -146,9 +165,10 @@ def task_from_reference(
                 takeoff,
                 touchdown,
                 start + trajectory_reference.duration,
-                roll_target,
+                target,
                 approach,
                 resume,
+                axis,
             )
     return None
 
@@ -375,9 +395,15 @@ def _speeds_around_roll(
 
 def _criteria(task: AcrobaticTask) -> dict[str, str]:
     """How each criterion is judged, in words with the thresholds (the block's ``criteria``)."""
+    rotation = (
+        f"integral of the body roll rate over the run >= {task.roll_target:.4f} - {ROLL_TOLERANCE_RAD} rad"
+        if task.rotation_axis == 0 and task.roll_target >= 0
+        else f"integral of the body {ROTATION_AXES[task.rotation_axis]} rate over the run, signed as the "
+        f"target {task.roll_target:.4f} rad (roll_target_rad, about rotation_axis), >= |target| - "
+        f"{ROLL_TOLERANCE_RAD} rad"
+    )
     return {
-        "roll_turned": f"integral of the body roll rate over the run >= {task.roll_target:.4f} - "
-        f"{ROLL_TOLERANCE_RAD} rad",
+        "roll_turned": rotation,
         "touchdown": f"first foot contact after >= {MIN_FLIGHT_S} s with all feet off the floor, within "
         f"{FLIGHT_SEARCH_MARGIN_S} s of the planned flight",
         "landed": f"all four feet on the floor within {LANDING_WINDOW_S} s of the touchdown; no fall; "
@@ -420,6 +446,8 @@ def task_metrics(
     the scene's bar (its contacts are the log's ``extra["bar_contact"]``)."""
     times = log.time
     roll_turned = float(np.sum(log.v[:, 3]) * control_period) if log.ticks else 0.0
+    axis = task.rotation_axis
+    turned = float(np.sum(log.v[:, 3 + axis]) * control_period) if log.ticks else 0.0
     clearance = body_floor_clearance(robot, log.q) if log.ticks else {}
     lowest = {name: float(np.min(values)) for name, values in clearance.items()}
     body_contact = any(value < CONTACT_TOLERANCE_M for value in lowest.values())
@@ -432,7 +460,8 @@ def task_metrics(
     motor_violations, request_violations, cone = _roll_violations(
         robot, log, roll, requested, planned_stance, mu, limits
     )
-    roll_ok = roll_turned >= task.roll_target - ROLL_TOLERANCE_RAD
+    direction = 1.0 if task.roll_target >= 0 else -1.0
+    roll_ok = direction * turned >= abs(task.roll_target) - ROLL_TOLERANCE_RAD
     if not roll_ok and not log.fell and end_of_run < task.end - 1e-9:
         unjudged["roll_turned"] = (
             f"the run ended at {end_of_run:.2f} s, before the roll's end ({task.end:.2f} s)"
@@ -461,6 +490,8 @@ def task_metrics(
         "unjudged": unjudged,
         "roll_turned_rad": roll_turned,
         "roll_target_rad": task.roll_target,
+        "rotation_axis": ROTATION_AXES[axis],
+        "rotation_turned_rad": turned,
         "roll_turned_at_touchdown_rad": landing.roll_at_touchdown,
         "max_base_height_m": float(np.max(log.q[:, 2])) if log.ticks else None,
         "landed": None if "landed" in unjudged else bool(landing.landed),
@@ -579,7 +610,9 @@ def reference_trace(
 def task_summary(task: dict) -> str:
     """One line for the end of a run: ``task: success=True (roll 6.28 rad, apex 0.55 m, ...)``, naming the
     failed criteria, or why the run cannot be judged (``success=None``)."""
-    parts = [f"roll {task['roll_turned_rad']:.2f} rad"]
+    axis = task.get("rotation_axis", "roll")
+    turned = task["roll_turned_rad"] if axis == "roll" else task.get("rotation_turned_rad")
+    parts = [f"{axis} {turned:.2f} rad"]
     if task.get("max_base_height_m") is not None:
         parts.append(f"apex {task['max_base_height_m']:.2f} m")
     if task.get("touchdown_s") is not None:

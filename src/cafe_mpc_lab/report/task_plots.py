@@ -1,9 +1,10 @@
-"""Plots of acrobatic task runs (paper Sec. VII-C, Fig. 13 style): roll, height and lateral position of the
-robot against the reference, and a strip of rendered frames.
+"""Plots of acrobatic task runs (paper Sec. VII-C, Fig. 13 style): the rotation about the task's axis (roll,
+pitch or yaw), height and lateral position of the robot against the reference, and a strip of rendered frames.
 
-The roll is shown two ways: the unwrapped ZYX roll angle of the base (robot and reference alike; the
-reference's quaternions are sign-continuous across the roll, see ``reference.composition``) and, for the
-robot, the integral of the body roll rate (``task.roll_turned_rad``). The planned flight is shaded; the
+The rotation is shown two ways: the unwrapped ZYX angle of the base about the task's axis (robot and
+reference alike; the reference's quaternions are sign-continuous across the roll, see
+``reference.composition``; a pitch through +-pi/2 is not a ZYX angle) and, for the robot, the integral of
+the body rate about that axis (``task.rotation_turned_rad``). The planned flight is shaded; the
 measured touchdown and landing are marked.
 """
 
@@ -19,7 +20,7 @@ from cafe_mpc.reference.base import Reference
 from cafe_mpc.robots.robot import Robot
 from cafe_mpc_lab.report.figures import save_figure, subplots
 from cafe_mpc_lab.report.metrics import roll_pitch_yaw
-from cafe_mpc_lab.report.task_metrics import AcrobaticTask, forward_speed, reference_trace
+from cafe_mpc_lab.report.task_metrics import ROTATION_AXES, AcrobaticTask, forward_speed, reference_trace
 from cafe_mpc_lab.sim.loop import SimulationLog
 
 
@@ -37,17 +38,19 @@ def plot_task(
     (``metrics["bar_height_m"]``) as a dashed line on the height plot."""
     t = log.time
     planned = reference_trace(reference, t, robot.nq, robot.nv, robot.nu, robot.n_feet)
-    roll = roll_pitch_yaw(log.q[:, 3:7])[:, 0]
-    roll_reference = roll_pitch_yaw(planned[:, 3:7])[:, 0]
-    roll_integrated = np.cumsum(log.v[:, 3]) * control_period
+    axis_index = task.rotation_axis
+    name = ROTATION_AXES[axis_index]
+    roll = roll_pitch_yaw(log.q[:, 3:7])[:, axis_index]
+    roll_reference = roll_pitch_yaw(planned[:, 3:7])[:, axis_index]
+    roll_integrated = np.cumsum(log.v[:, 3 + axis_index]) * control_period
     running = task.approach_speed is not None or task.resume_speed is not None
     rows = 4 if running else 3
     figure, axes = subplots(rows, 1, figsize=(8, 2.5 * rows), sharex=True)
-    axes[0].plot(t, roll_reference, "k--", lw=1.0, label="reference (unwrapped roll)")
-    axes[0].plot(t, roll, lw=1.2, label="robot (unwrapped roll)")
-    axes[0].plot(t, roll_integrated, lw=0.8, ls=":", label="robot (integrated roll rate)")
+    axes[0].plot(t, roll_reference, "k--", lw=1.0, label=f"reference (unwrapped {name})")
+    axes[0].plot(t, roll, lw=1.2, label=f"robot (unwrapped {name})")
+    axes[0].plot(t, roll_integrated, lw=0.8, ls=":", label=f"robot (integrated {name} rate)")
     axes[0].axhline(task.roll_target, color="grey", lw=0.6)
-    axes[0].set_ylabel("roll [rad]")
+    axes[0].set_ylabel(f"{name} [rad]")
     axes[1].plot(t, planned[:, 2], "k--", lw=1.0, label="reference")
     axes[1].plot(t, log.q[:, 2], lw=1.2, label="robot")
     axes[1].set_ylabel("base height [m]")
@@ -74,7 +77,8 @@ def plot_task(
             verdict += f" ({', '.join(metrics['failed_criteria'])})"
         elif metrics["success"] is None and metrics.get("unjudged"):
             verdict += f" (run too short for {', '.join(metrics['unjudged'])})"
-        title += f"; roll turned {metrics['roll_turned_rad']:.2f} rad, {verdict} (red: measured touchdown)"
+        turned = metrics.get("rotation_turned_rad", metrics["roll_turned_rad"])
+        title += f"; {name} turned {turned:.2f} rad, {verdict} (red: measured touchdown)"
     figure.suptitle(title, fontsize=10)
     return save_figure(figure, Path(path))
 
