@@ -82,12 +82,14 @@ def test_first_iterations_reduce_the_defect(robot, name):
 @pytest.mark.parametrize(("name", "target"), FLIPS)
 def test_shipped_flip_is_feasible_and_current(robot, name, target):
     """The shipped flip: defects <= 1e-3 under the planning model, the robot's torque limits, feet on the
-    floor at the touchdown, 2 pi about the pitch axis at the landing, made from the current task file."""
+    floor at the touchdown, no leg joint below the floor, 2 pi about the pitch axis at the landing, made
+    from the current task file."""
     trajectory = load_packaged_trajectory(name, robot)
     check = check_trajectory(robot, trajectory)
     assert check.max_defect <= 1e-3
     assert check.max_abs_torque <= float(np.max(robot.torque_limits)) + 0.5
     assert check.max_touchdown_height_error <= 2e-3
+    assert check.min_leg_joint_height >= 0.0
     assert check.rotation_axis == 1
     assert check.rotation_at_landing[1] == pytest.approx(target, abs=0.1)
     assert abs(rotation_turned(trajectory)[0]) < 0.05 and abs(rotation_turned(trajectory)[2]) < 0.05

@@ -287,6 +287,7 @@ class TrajOptResult:
             "max_joint_speed": check.max_joint_speed,
             "joint_speed_limit": self.task.constraints.joint_speed_limit,
             "min_base_height_m": check.min_base_height,
+            "min_leg_joint_height_m": check.min_leg_joint_height,
             "total_roll_rad": check.total_roll,
             "rotation_axis": ROTATION_AXES[check.rotation_axis],
             "rotation_at_landing_rad": (
@@ -419,7 +420,10 @@ class TrajectoryCheck:
     ``defects[k]``: max-norm of ``x[k+1] ⊖ f(x[k], u[k])`` (through the impact map where a foot touches
     down); ``touchdown_heights``: ``p_z - foot radius - surface`` of every foot that touches down, at each
     touchdown; ``roll_at_landing``: ``sum omega_x dt`` (body x axis) over the knots before the first
-    touchdown; ``total_roll``: the same over the whole trajectory.
+    touchdown; ``total_roll``: the same over the whole trajectory. ``min_leg_joint_height``: the lowest
+    world z of any leg joint (abad, hip pitch, knee) over the knots: the planning model has no collision
+    with the floor, so an optimum may fold a leg through it (a backflip pivoting on its hind hips);
+    negative is not a motion the plant (or a robot) can make.
     """
 
     defects: np.ndarray
@@ -427,6 +431,7 @@ class TrajectoryCheck:
     max_abs_torque: float
     max_joint_speed: float
     min_base_height: float
+    min_leg_joint_height: float
     touchdown_heights: list[tuple[float, np.ndarray]] = field(default_factory=list)
     landing_time: float | None = None
     roll_at_landing: float | None = None
@@ -458,6 +463,19 @@ def rotation_turned(trajectory: WholeBodyTrajectory, until: float | None = None)
 def roll_turned(trajectory: WholeBodyTrajectory, until: float | None = None) -> float:
     """The roll turned about the body x axis before ``until`` (``rotation_turned``)."""
     return float(rotation_turned(trajectory, until)[0])
+
+
+def min_leg_joint_height(robot: Robot, configurations: np.ndarray) -> float:
+    """Lowest world z of any joint below the free flyer (the legs' abad, hip-pitch and knee joints) over the
+    rows of ``configurations`` (Pinocchio forward kinematics of the planning model)."""
+    model = robot.model
+    data = model.createData()
+    first_leg_joint = 2  # 0: universe, 1: the free flyer
+    lowest = np.inf
+    for q in configurations:
+        pin.forwardKinematics(model, data, q)
+        lowest = min(lowest, min(data.oMi[j].translation[2] for j in range(first_leg_joint, model.njoints)))
+    return float(lowest)
 
 
 def check_trajectory(
@@ -506,6 +524,7 @@ def check_trajectory(
         max_abs_torque=float(np.max(np.abs(us))),
         max_joint_speed=float(np.max(np.abs(xs[:, nq + 6 :]))),
         min_base_height=float(np.min(xs[:, 2])),
+        min_leg_joint_height=min_leg_joint_height(robot, xs[:, :nq]),
         touchdown_heights=touchdowns,
         landing_time=landing_time,
         roll_at_landing=roll_turned(trajectory, landing_time) if landing_time is not None else None,

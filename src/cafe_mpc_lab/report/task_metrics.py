@@ -260,6 +260,7 @@ class _Landing:
     upright: bool
     tilt_max_window: float | None
     roll_at_touchdown: float | None
+    """Body rate about the task's rotation axis integrated up to the touchdown (rad)."""
     stayed_up_s: float
     stayed_up: bool
 
@@ -284,7 +285,8 @@ def _landing(
         if len(all_down):
             all_feet_time = float(times[all_down[0]])
         landed = all_feet_time is not None and not body_contact and not log.fell
-        roll_at_touchdown = float(np.sum(log.v[times < touchdown - 1e-9, 3]) * control_period)
+        before = times < touchdown - 1e-9
+        roll_at_touchdown = float(np.sum(log.v[before, 3 + task.rotation_axis]) * control_period)
         end = float(times[-1]) + control_period
         stayed_up_s = (log.fall_time if log.fell else end) - touchdown
         landing = all_feet_time if all_feet_time is not None else touchdown

@@ -1,10 +1,10 @@
 """Plots of acrobatic task runs (paper Sec. VII-C, Fig. 13 style): the rotation about the task's axis (roll,
 pitch or yaw), height and lateral position of the robot against the reference, and a strip of rendered frames.
 
-The rotation is shown two ways: the unwrapped ZYX angle of the base about the task's axis (robot and
-reference alike; the reference's quaternions are sign-continuous across the roll, see
-``reference.composition``; a pitch through +-pi/2 is not a ZYX angle) and, for the robot, the integral of
-the body rate about that axis (``task.rotation_turned_rad``). The planned flight is shaded; the
+The rotation is shown two ways: the unwrapped planar angle of the base about the task's axis (robot and
+reference alike, ``planar_angle``; the reference's quaternions are sign-continuous across the roll, see
+``reference.composition``) and, for the robot, the integral of the body rate about that axis
+(``task.rotation_turned_rad``). The planned flight is shaded; the
 measured touchdown and landing are marked.
 """
 
@@ -14,14 +14,31 @@ from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
+from scipy.spatial.transform import Rotation
 
 from cafe_mpc.core.free_joint import free_joint_qpos
 from cafe_mpc.reference.base import Reference
 from cafe_mpc.robots.robot import Robot
 from cafe_mpc_lab.report.figures import save_figure, subplots
-from cafe_mpc_lab.report.metrics import roll_pitch_yaw
 from cafe_mpc_lab.report.task_metrics import ROTATION_AXES, AcrobaticTask, forward_speed, reference_trace
 from cafe_mpc_lab.sim.loop import SimulationLog
+
+PLANAR_ANGLE_ENTRIES = {0: ((2, 1), (2, 2)), 1: ((2, 0), (0, 0)), 2: ((1, 0), (0, 0))}
+"""Rotation-matrix entries ``(sine, cosine)`` of the angle about each body axis: roll ``atan2(R21, R22)``,
+pitch ``atan2(-R20, R00)``, yaw ``atan2(R10, R00)``."""
+
+
+def planar_angle(quaternions_xyzw: np.ndarray, axis: int) -> np.ndarray:
+    """Unwrapped angle of the base about body axis ``axis`` (0 x, 1 y, 2 z) for a motion mostly about that
+    axis. Roll and yaw equal the ZYX angles; the pitch is ``atan2(-R20, R00)``, which, unlike the ZYX pitch
+    (``asin(-R20)``, folded at +-pi/2), follows a flip through the whole turn."""
+    if len(quaternions_xyzw) == 0:
+        return np.zeros(0)
+    matrices = Rotation.from_quat(quaternions_xyzw).as_matrix()
+    (sine_row, sine_col), (cosine_row, cosine_col) = PLANAR_ANGLE_ENTRIES[axis]
+    sign = -1.0 if axis == 1 else 1.0
+    angle = np.arctan2(sign * matrices[:, sine_row, sine_col], matrices[:, cosine_row, cosine_col])
+    return np.unwrap(angle)
 
 
 def plot_task(
@@ -40,8 +57,8 @@ def plot_task(
     planned = reference_trace(reference, t, robot.nq, robot.nv, robot.nu, robot.n_feet)
     axis_index = task.rotation_axis
     name = ROTATION_AXES[axis_index]
-    roll = roll_pitch_yaw(log.q[:, 3:7])[:, axis_index]
-    roll_reference = roll_pitch_yaw(planned[:, 3:7])[:, axis_index]
+    roll = planar_angle(log.q[:, 3:7], axis_index)
+    roll_reference = planar_angle(planned[:, 3:7], axis_index)
     roll_integrated = np.cumsum(log.v[:, 3 + axis_index]) * control_period
     running = task.approach_speed is not None or task.resume_speed is not None
     rows = 4 if running else 3
