@@ -14,6 +14,7 @@ from cafe_mpc.reference.composition import ComposedReference
 from cafe_mpc.reference.locomotion import LocomotionReference
 from cafe_mpc.reference.trajectory import TrajectoryReference
 from cafe_mpc.reference.trajectory_file import load_packaged_trajectory
+from cafe_mpc.robots.robot import load_robot
 from cafe_mpc_lab.report.task_metrics import (
     AcrobaticTask,
     body_floor_clearance,
@@ -114,6 +115,19 @@ def test_clearance_of_the_standing_robot(robot):
     clearance = body_floor_clearance(robot, robot.q_standing[None, :])
     assert clearance["trunk"][0] == pytest.approx(robot.standing_height - 0.05, abs=1e-6)
     assert 0.05 < clearance["knee"][0] < 0.15 and 0.05 < clearance["thigh"][0] < 0.15
+
+
+def test_clearance_of_a_model_file_robot():
+    """A robot from a model file (the Go2: no ``trunk`` box, no leg capsules) is measured on its collision
+    geoms and knee joints: positive standing, and the trunk below the floor when the base is sunk into it."""
+    go2 = load_robot("go2")
+    standing = go2.q_standing.copy()
+    sunk = standing.copy()
+    sunk[2] = 0.05
+    clearance = body_floor_clearance(go2, np.stack([standing, sunk]))
+    assert set(clearance) == {"trunk", "thigh", "knee"}
+    assert 0.0 < clearance["knee"][0] < clearance["trunk"][0] < standing[2]
+    assert clearance["trunk"][1] < 0.0 and clearance["knee"][1] < 0.0
 
 
 def test_task_windows_from_a_composed_reference(robot):

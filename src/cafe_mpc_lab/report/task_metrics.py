@@ -179,12 +179,17 @@ def task_from_reference(
 
 
 def body_floor_clearance(robot: Robot, q: np.ndarray) -> dict[str, np.ndarray]:
-    """Lowest height (m) above the floor of the trunk box, the thighs and the knees at each row of ``q``
+    """Lowest height (m) above the floor of the trunk, the thighs and the knees at each row of ``q``
     (planning coordinates), from the plant's own geometry (``Robot.mjcf``). Keys ``trunk``, ``thigh``,
-    ``knee`` (the minimum over the legs)."""
+    ``knee`` (the minimum over the legs).
+
+    A model with the generated robots' geometry (a ``trunk`` box, thigh and shank capsules on the
+    ``*_hip_body`` and ``*_knee_body`` bodies) is measured on those shapes, the knee at the shank capsule's
+    upper end. Any other model file (e.g. a Go2's): the trunk and the thighs are the collision geoms of the
+    free joint's body and of each hip-pitch joint's body (lowest corner of each geom's bounding box), the
+    knee is the knee joint's anchor; a part with no collision geom is left out."""
     model = mujoco.MjModel.from_xml_string(robot.mjcf)
     data = mujoco.MjData(model)
-    trunk = model.geom("trunk").id
     leg_geoms = {"thigh": [], "knee": []}
     for index in range(model.ngeom):
         body_name = model.body(int(model.geom_bodyid[index])).name
@@ -194,13 +199,13 @@ def body_floor_clearance(robot: Robot, q: np.ndarray) -> dict[str, np.ndarray]:
             leg_geoms["thigh"].append(index)
         elif body_name.endswith("_knee_body"):
             leg_geoms["knee"].append(index)
+    if mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_GEOM, "trunk") < 0 or not all(leg_geoms.values()):
+        return _model_file_clearance(model, data, q)
+    trunk = model.geom("trunk").id
     out = {name: np.full(len(q), np.inf) for name in ("trunk", "thigh", "knee")}
     half = model.geom_size[trunk]
     for row, configuration in enumerate(np.asarray(q, dtype=float)):
-        data.qpos[:3] = configuration[:3]
-        data.qpos[3] = configuration[6]
-        data.qpos[4:7] = configuration[3:6]
-        data.qpos[7:] = configuration[7:]
+        _set_configuration(data, configuration)
         mujoco.mj_kinematics(model, data)
         rotation = data.geom_xmat[trunk].reshape(3, 3)
         out["trunk"][row] = data.geom_xpos[trunk][2] - float(np.abs(rotation[2]) @ half)
@@ -213,6 +218,41 @@ def body_floor_clearance(robot: Robot, q: np.ndarray) -> dict[str, np.ndarray]:
                 # the knee is the shank capsule's upper end (the joint with the thigh)
                 z = min(ends) if name == "thigh" else _shank_top(model, data, geom, half_length)
                 out[name][row] = min(out[name][row], z - radius)
+    return out
+
+
+def _set_configuration(data: mujoco.MjData, configuration: np.ndarray) -> None:
+    """Planning configuration (base quaternion x, y, z, w) into MuJoCo's ``qpos`` (w, x, y, z)."""
+    data.qpos[:3] = configuration[:3]
+    data.qpos[3] = configuration[6]
+    data.qpos[4:7] = configuration[3:6]
+    data.qpos[7:] = configuration[7:]
+
+
+def _model_file_clearance(model: mujoco.MjModel, data: mujoco.MjData, q: np.ndarray) -> dict[str, np.ndarray]:
+    """``body_floor_clearance`` of a model file without the generated geometry (see there). Leg joints follow
+    the free joint three per leg (abad, hip pitch, knee), as in every robot of the package."""
+    collides = (model.geom_contype != 0) | (model.geom_conaffinity != 0)
+    root_body = int(model.jnt_bodyid[0])
+    leg_joints = np.arange(1, model.njnt)
+    hip_bodies = {int(model.jnt_bodyid[joint]) for joint in leg_joints[1::3]}
+    knee_joints = leg_joints[2::3]
+    parts = {
+        "trunk": np.flatnonzero(collides & (model.geom_bodyid == root_body)),
+        "thigh": np.flatnonzero(collides & np.isin(model.geom_bodyid, list(hip_bodies))),
+    }
+    out = {name: np.full(len(q), np.inf) for name, geoms in parts.items() if len(geoms)}
+    out["knee"] = np.full(len(q), np.inf)
+    for row, configuration in enumerate(np.asarray(q, dtype=float)):
+        _set_configuration(data, configuration)
+        mujoco.mj_kinematics(model, data)
+        for name, geoms in parts.items():
+            for geom in geoms:
+                rotation = data.geom_xmat[geom].reshape(3, 3)
+                centre, half = model.geom_aabb[geom, :3], model.geom_aabb[geom, 3:]
+                lowest = (data.geom_xpos[geom] + rotation @ centre)[2] - float(np.abs(rotation[2]) @ half)
+                out[name][row] = min(out[name][row], lowest)
+        out["knee"][row] = float(np.min(data.xanchor[knee_joints, 2]))
     return out
 
 
