@@ -1,8 +1,8 @@
 """Task presets of ``cafe-mpc optimize`` and loading a task (preset or YAML file) with overrides.
 
 The presets are the barrel rolls (``barrel_roll``, built in Python from the authors' values) and every task
-file of the catalogue (``catalogue/<name>.yaml``: the backflip, front flip, spin, box jump and running front
-flip; one file each, the same format as any task file ``cafe-mpc optimize`` writes or reads).
+file of the catalogue (``catalogue/<name>.yaml``: the backflip and the front flip so far; one file each, the
+same format as any task file ``cafe-mpc optimize`` writes or reads).
 """
 
 from __future__ import annotations

@@ -177,13 +177,19 @@ def render_frame_strip(
     return path
 
 
+FRAME_CAMERAS = {"roll": (1.1, -5.0, 180.0), "pitch": (1.3, -5.0, 90.0), "yaw": (1.1, -30.0, 180.0)}
+"""Camera ``distance, elevation, azimuth`` of a task's frames by its rotation axis."""
+
+
 def render_task_frames(
     robot: Robot, log: SimulationLog, task_block: dict, path: Path, mjcf: str | None = None
 ) -> Path:
     """``frames.png`` of a task run: the robot before the roll, at take-off, four times in the planned
-    flight, at the measured touchdown, 0.25 s and 1 s after it (``render_frame_strip``)."""
+    flight, at the measured touchdown, 0.25 s and 1 s after it (``render_frame_strip``), seen along the axis
+    the task turns about: from the front for a roll, from the side for a flip (``FRAME_CAMERAS``)."""
     takeoff, touchdown = task_block["planned_takeoff_s"], task_block["planned_touchdown_s"]
     landed = task_block.get("touchdown_s") or touchdown
     flight = [takeoff + (touchdown - takeoff) * fraction for fraction in (0.2, 0.4, 0.6, 0.8)]
     times = [task_block["planned_start_s"], takeoff - 0.03, *flight, landed, landed + 0.25, landed + 1.0]
-    return render_frame_strip(robot, log, [t for t in times if t <= log.time[-1]], path, mjcf=mjcf)
+    camera = FRAME_CAMERAS.get(task_block.get("rotation_axis", "roll"), FRAME_CAMERAS["roll"])
+    return render_frame_strip(robot, log, [t for t in times if t <= log.time[-1]], path, camera, mjcf=mjcf)
