@@ -14,6 +14,7 @@ from cafe_mpc.reference.composition import ComposedReference
 from cafe_mpc.reference.locomotion import LocomotionReference
 from cafe_mpc.reference.trajectory import TrajectoryReference
 from cafe_mpc.reference.trajectory_file import load_packaged_trajectory
+from cafe_mpc.robots.robot import load_robot
 from cafe_mpc_lab.report.task_metrics import (
     AcrobaticTask,
     body_floor_clearance,
@@ -116,6 +117,19 @@ def test_clearance_of_the_standing_robot(robot):
     assert 0.05 < clearance["knee"][0] < 0.15 and 0.05 < clearance["thigh"][0] < 0.15
 
 
+def test_clearance_of_a_model_file_robot():
+    """A robot from a model file (the Go2: no ``trunk`` box, no leg capsules) is measured on its collision
+    geoms and knee joints: positive standing, and the trunk below the floor when the base is sunk into it."""
+    go2 = load_robot("go2")
+    standing = go2.q_standing.copy()
+    sunk = standing.copy()
+    sunk[2] = 0.05
+    clearance = body_floor_clearance(go2, np.stack([standing, sunk]))
+    assert set(clearance) == {"trunk", "thigh", "knee"}
+    assert 0.0 < clearance["knee"][0] < clearance["trunk"][0] < standing[2]
+    assert clearance["trunk"][1] < 0.0 and clearance["knee"][1] < 0.0
+
+
 def test_task_windows_from_a_composed_reference(robot):
     trajectory = load_packaged_trajectory("barrel-roll", robot)
     stand = LocomotionReference(robot, get_gait("stand"), [VelocityCommand()])
@@ -124,3 +138,19 @@ def test_task_windows_from_a_composed_reference(robot):
     task = task_from_reference(composed)
     assert (task.start, task.takeoff, task.touchdown, task.end) == pytest.approx((0.5, 0.83, 1.25, 1.75))
     assert task_from_reference(stand) is None and task_from_reference(None) is None
+
+
+def test_planar_angle_follows_a_flip_through_the_whole_turn():
+    """A backward flip about the body y axis: the planar pitch reaches -2 pi (the ZYX pitch folds at
+    +-pi/2 and never passes -pi/2); roll and yaw are the ZYX angles."""
+    from scipy.spatial.transform import Rotation
+
+    from cafe_mpc_lab.report.task_plots import planar_angle
+
+    turn = np.linspace(0.0, -2.0 * np.pi, 200)
+    flip = Rotation.from_rotvec(np.outer(turn, [0.0, 1.0, 0.0])).as_quat()
+    np.testing.assert_allclose(planar_angle(flip, 1), turn, atol=1e-9)
+    assert np.min(Rotation.from_quat(flip).as_euler("ZYX")[:, 1]) >= -0.5 * np.pi - 1e-9
+    tilted = Rotation.from_euler("ZYX", np.column_stack([0.3 * turn / turn[-1], 0.1 * np.ones(200), turn]))
+    np.testing.assert_allclose(planar_angle(tilted.as_quat(), 0), turn, atol=1e-9)
+    np.testing.assert_allclose(planar_angle(tilted.as_quat(), 2), 0.3 * turn / turn[-1], atol=1e-9)

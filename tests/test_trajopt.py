@@ -182,7 +182,7 @@ def test_task_yaml_round_trip_and_overrides(tmp_path, task):
     with pytest.raises(TrajOptTaskError, match="not a multiple of dt"):
         load_task("barrel-roll", ["switching_times.1=0.125"])
     with pytest.raises(TrajOptTaskError, match="unknown task"):
-        load_task("backflip")
+        load_task("somersault")
 
 
 def test_plots_of_the_shipped_trajectory(tmp_path, robot, task, shipped):

@@ -60,6 +60,8 @@ DATA_DIR = Path(__file__).parent / "data"
 PACKAGED_TRAJECTORIES: dict[str, str] = {
     "barrel-roll": "barrel_roll.npz",
     "running-barrel-roll": "running_barrel_roll.npz",
+    "backflip": "backflip.npz",
+    "front-flip": "front_flip.npz",
 }
 """Trajectories shipped with the package (``reference/data/``), by name."""
 

@@ -166,6 +166,7 @@ def barrel_roll_task() -> TrajOptTask:
     return TrajOptTask(
         name="barrel-roll",
         robot="mini_cheetah",
+        keyframes_robot="mini_cheetah",
         dt=0.01,
         switching_times=SWITCHING_TIMES,
         initial=KeyframeSpec(position=(0.0, 0.0, _z(0.2183)), joint_positions=stand),

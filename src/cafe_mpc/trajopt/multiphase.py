@@ -29,7 +29,7 @@ with ``barriers``, warm-started from the first (states, torques and augmented-La
 from __future__ import annotations
 
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
 
 import numpy as np
@@ -43,7 +43,11 @@ from cafe_mpc.ocp.knots import WholeBodyModelFactory, WholeBodyReference, WholeB
 from cafe_mpc.reference.trajectory_file import WholeBodyTrajectory, contact_code
 from cafe_mpc.robots.robot import Robot
 from cafe_mpc.solver import MSiLQRSolver, SolverResult
+from cafe_mpc.trajopt.retarget import is_resolved, resolve_task
 from cafe_mpc.trajopt.task import BarrierSetSpec, KeyframeSpec, TrajOptTask, joints12
+
+ROTATION_AXES = ("roll", "pitch", "yaw")
+"""Names of the body axes x, y, z as rotations."""
 
 PLANNING_SETTINGS = WholeBodySettings()
 """Dynamics settings of the planning model (Baumgarte alpha 10, explicit Euler, exact KKT, impact on every
@@ -110,8 +114,22 @@ def whole_body_state(robot: Robot, keyframe: KeyframeArrays) -> np.ndarray:
     return x
 
 
+def kinematic_velocities(robot: Robot, xs: np.ndarray, dt: float, keep_first: bool = False) -> None:
+    """Set the velocities of the states ``xs`` (in place) to ``(q[k+1] ⊖ q[k]) / dt`` (the explicit Euler step
+    of the planning model: no configuration defect), the last state's to its predecessor's; ``keep_first``
+    keeps the first state's (the given initial state)."""
+    nq = robot.nq
+    for k in range(1 if keep_first else 0, len(xs) - 1):
+        xs[k, nq:] = pin.difference(robot.model, xs[k, :nq], xs[k + 1, :nq]) / dt
+    if len(xs) > 1:
+        xs[-1, nq:] = xs[-2, nq:]
+
+
 def planning_robot(robot: Robot, task: TrajOptTask) -> Robot:
-    """The robot with the task's joint speed limit (the knots take joint speed limits from the robot)."""
+    """The robot with the task's joint speed limit (the knots take joint speed limits from the robot; a task
+    without one keeps the robot's)."""
+    if task.constraints.joint_speed_limit is None:
+        return robot
     return replace(robot, velocity_limits=np.full(robot.nu, task.constraints.joint_speed_limit))
 
 
@@ -153,12 +171,15 @@ def build_problem(robot: Robot, task: TrajOptTask, barriers: BarrierSetSpec | No
     """The MS-iLQR problem of ``task`` with ``barriers`` (default: the task's final ``barriers``)."""
     if robot.name != task.robot:
         raise ValueError(f"task {task.name!r} is for robot {task.robot!r}, got {robot.name!r}")
+    if not is_resolved(task):
+        raise ValueError(f"task {task.name!r}: resolve it for its robot first (retarget.resolve_task)")
     barriers = task.constraints.barriers if barriers is None else barriers
     planning = planning_robot(robot, task)
     dt = task.dt
     x0 = whole_body_state(planning, KeyframeArrays.of(task.initial))
     previous = KeyframeArrays.of(task.initial)
     stances = [phase.stance for phase in task.phases]
+    surfaces = task.phase_surface_heights()
     phases, layouts, xs_guess, us_guess, rollout = [], [], [], [], []
     for index, (spec, knots) in enumerate(zip(task.phases, task.knots_per_phase, strict=True)):
         stance = stances[index]
@@ -188,13 +209,15 @@ def build_problem(robot: Robot, task: TrajOptTask, barriers: BarrierSetSpec | No
         reset = switching = None
         if not last:
             reset = factory.reset_map(stance, stances[index + 1])
-            switching = factory.touchdown_constraint(stance, stances[index + 1], task.surface_height)
+            switching = factory.touchdown_constraint(stance, stances[index + 1], surfaces[index + 1])
         phases.append(Phase(running, terminal, reset, switching, dt=dt, name=spec.name))
         entered_by_touchdown = index > 0 and any(touchdown_flags(stances[index - 1], stance))
         layouts.append(PhaseLayout(spec.name, stance, start, end, knots, entered_by_touchdown))
         xs = np.array(states)
         if index == 0:
             xs[0] = x0
+        if task.initial_guess == "kinematic":
+            kinematic_velocities(planning, xs, dt, keep_first=index == 0)
         xs_guess.append(xs)
         if task.initial_controls == "static" and any(stance):
             us_guess.append(
@@ -264,7 +287,15 @@ class TrajOptResult:
             "max_joint_speed": check.max_joint_speed,
             "joint_speed_limit": self.task.constraints.joint_speed_limit,
             "min_base_height_m": check.min_base_height,
+            "min_leg_joint_height_m": check.min_leg_joint_height,
             "total_roll_rad": check.total_roll,
+            "rotation_axis": ROTATION_AXES[check.rotation_axis],
+            "rotation_at_landing_rad": (
+                None
+                if check.rotation_at_landing is None
+                else float(check.rotation_at_landing[check.rotation_axis])
+            ),
+            "total_rotation_rad": check.total_rotation.tolist(),
             "cost": final.cost,
             "knots": self.trajectory.n_knots,
             "stages": [
@@ -290,8 +321,10 @@ def solve_task(
     verbose: bool = False,
     echo: Callable[[str], None] | None = None,
 ) -> TrajOptResult:
-    """Build and solve ``task`` (barrier continuation, see the module docstring); check the result."""
+    """Build and solve ``task`` (resolved for ``robot`` first: ``trajopt.retarget.resolve_task``; barrier
+    continuation, see the module docstring); check the result. The result's task is the resolved one."""
     start = time.perf_counter()
+    task = resolve_task(task, robot)
     stages: list[StageResult] = []
     options = task.solver.options(verbose)
     continuation = (
@@ -327,7 +360,7 @@ def solve_task(
         previous = result
     assert built is not None and previous is not None
     trajectory = trajectory_from_solution(built, previous)
-    check = check_trajectory(robot, trajectory, task.surface_height)
+    check = check_trajectory(robot, trajectory, task.phase_surface_heights())
     return TrajOptResult(task, trajectory, stages, check, time.perf_counter() - start)
 
 
@@ -387,7 +420,10 @@ class TrajectoryCheck:
     ``defects[k]``: max-norm of ``x[k+1] ⊖ f(x[k], u[k])`` (through the impact map where a foot touches
     down); ``touchdown_heights``: ``p_z - foot radius - surface`` of every foot that touches down, at each
     touchdown; ``roll_at_landing``: ``sum omega_x dt`` (body x axis) over the knots before the first
-    touchdown; ``total_roll``: the same over the whole trajectory.
+    touchdown; ``total_roll``: the same over the whole trajectory. ``min_leg_joint_height``: the lowest
+    world z of any leg joint (abad, hip pitch, knee) over the knots: the planning model has no collision
+    with the floor, so an optimum may fold a leg through it (a backflip pivoting on its hind hips);
+    negative is not a motion the plant (or a robot) can make.
     """
 
     defects: np.ndarray
@@ -395,10 +431,18 @@ class TrajectoryCheck:
     max_abs_torque: float
     max_joint_speed: float
     min_base_height: float
+    min_leg_joint_height: float
     touchdown_heights: list[tuple[float, np.ndarray]] = field(default_factory=list)
     landing_time: float | None = None
     roll_at_landing: float | None = None
     total_roll: float = 0.0
+    rotation_at_landing: np.ndarray | None = None
+    total_rotation: np.ndarray = field(default_factory=lambda: np.zeros(3))
+
+    @property
+    def rotation_axis(self) -> int:
+        """The body axis (0 x roll, 1 y pitch, 2 z yaw) the trajectory turns most about."""
+        return int(np.argmax(np.abs(self.total_rotation)))
 
     @property
     def max_touchdown_height_error(self) -> float:
@@ -407,20 +451,42 @@ class TrajectoryCheck:
         return float(max(np.max(np.abs(heights)) for _, heights in self.touchdown_heights))
 
 
-def roll_turned(trajectory: WholeBodyTrajectory, until: float | None = None) -> float:
-    """``sum omega_x dt`` over the knots before ``until`` (the whole trajectory by default): the roll turned
-    about the body x axis (explicit Euler: ``q+ = q ⊕ v dt``, so this is exact for a pure roll)."""
+def rotation_turned(trajectory: WholeBodyTrajectory, until: float | None = None) -> np.ndarray:
+    """``sum omega dt`` (body x, y, z) over the knots before ``until`` (the whole trajectory by default): the
+    rotation turned about each body axis (explicit Euler: ``q+ = q ⊕ v dt``, so this is exact for a rotation
+    about one axis)."""
     nq = len(trajectory.xs[0]) - len(trajectory.us[0]) - 6
     last = trajectory.n_knots if until is None else round((until - trajectory.times[0]) / trajectory.dt)
-    return float(np.sum(trajectory.xs[:last, nq + 3]) * trajectory.dt)
+    return np.sum(trajectory.xs[:last, nq + 3 : nq + 6], axis=0) * trajectory.dt
+
+
+def roll_turned(trajectory: WholeBodyTrajectory, until: float | None = None) -> float:
+    """The roll turned about the body x axis before ``until`` (``rotation_turned``)."""
+    return float(rotation_turned(trajectory, until)[0])
+
+
+def min_leg_joint_height(robot: Robot, configurations: np.ndarray) -> float:
+    """Lowest world z of any joint below the free flyer (the legs' abad, hip-pitch and knee joints) over the
+    rows of ``configurations`` (Pinocchio forward kinematics of the planning model)."""
+    model = robot.model
+    data = model.createData()
+    first_leg_joint = 2  # 0: universe, 1: the free flyer
+    lowest = np.inf
+    for q in configurations:
+        pin.forwardKinematics(model, data, q)
+        lowest = min(lowest, min(data.oMi[j].translation[2] for j in range(first_leg_joint, model.njoints)))
+    return float(lowest)
 
 
 def check_trajectory(
-    robot: Robot, trajectory: WholeBodyTrajectory, surface_height: float = 0.0
+    robot: Robot, trajectory: WholeBodyTrajectory, surface_height: float | Sequence[float] = 0.0
 ) -> TrajectoryCheck:
     """Re-simulate every interval with the planning model (``PLANNING_SETTINGS``) and measure the defects,
-    torques, joint speeds, base height, touchdown foot heights and the roll."""
+    torques, joint speeds, base height, touchdown foot heights (above the surface of the phase touched down
+    into: one height, or one per phase) and the rotation."""
     trajectory.validate(robot.nq, robot.nv, robot.nu)
+    n_phases = len(trajectory.phase_stances)
+    surfaces = np.broadcast_to(np.asarray(surface_height, dtype=float), (n_phases,))
     dt = trajectory.dt
     factory = WholeBodyModelFactory(robot, replace(PLANNING_SETTINGS, dt=dt))
     state = MultibodyState(robot.model)
@@ -446,7 +512,7 @@ def check_trajectory(
         if following is not None and any(touchdown_flags(stance, following)):
             legs = np.flatnonzero(touchdown_flags(stance, following))
             feet = robot.foot_positions(xs[knots.stop, : robot.nq])
-            heights = feet[legs, 2] - robot.foot_radius - surface_height
+            heights = feet[legs, 2] - robot.foot_radius - surfaces[index + 1]
             time_of_switch = float(trajectory.times[knots.stop])
             touchdowns.append((time_of_switch, heights))
             if landing_time is None:
@@ -458,8 +524,11 @@ def check_trajectory(
         max_abs_torque=float(np.max(np.abs(us))),
         max_joint_speed=float(np.max(np.abs(xs[:, nq + 6 :]))),
         min_base_height=float(np.min(xs[:, 2])),
+        min_leg_joint_height=min_leg_joint_height(robot, xs[:, :nq]),
         touchdown_heights=touchdowns,
         landing_time=landing_time,
         roll_at_landing=roll_turned(trajectory, landing_time) if landing_time is not None else None,
         total_roll=roll_turned(trajectory),
+        rotation_at_landing=rotation_turned(trajectory, landing_time) if landing_time is not None else None,
+        total_rotation=rotation_turned(trajectory),
     )

@@ -124,6 +124,13 @@ class PhaseSpec(StrictModel):
     running: WeightsSpec
     terminal: WeightsSpec
     minimum_height: float | None = Field(None, ge=0.0, le=1.0, description="minimum base height (m)")
+    surface_height: float | None = Field(
+        None,
+        ge=-1.0,
+        le=1.0,
+        description="world z of the surface the phase's stance feet stand on, m (a box top); the touchdown "
+        "constraint that enters the phase uses it (null: the task's surface_height)",
+    )
 
     @field_validator("contacts")
     @classmethod
@@ -195,7 +202,9 @@ class ConstraintSpec(StrictModel):
     torque_limit: float | None = Field(
         None, gt=0.0, description="|tau| limit of every joint, Nm (null: the robot's joints.torque_limits)"
     )
-    joint_speed_limit: float = Field(20.0, gt=0.0, description="|qdot| limit (rad/s)")
+    joint_speed_limit: float | None = Field(
+        20.0, gt=0.0, description="|qdot| limit of every joint, rad/s (null: the robot's velocity_limits)"
+    )
     friction_coefficient: float = Field(DEFAULT_FRICTION, gt=0.0)
     barriers: BarrierSetSpec = Field(default_factory=_authors_to_barriers)
     warm_up_barriers: BarrierSetSpec | None = Field(default_factory=_mpc_barriers)
@@ -233,6 +242,14 @@ class SolverSpec(StrictModel):
     switching_tolerance: float = Field(1e-3, gt=0.0)
     regularization_initial: float = Field(1e-3, ge=0.0)
     regularization_min: float = Field(1e-6, ge=0.0)
+    merit_feasibility_weight: float = Field(
+        0.2,
+        ge=0.0,
+        lt=1.0,
+        description="share of the line search's merit weight that rewards closing the defects "
+        "(SolverOptions); near 1 a step that closes large defects of an inconsistent guess is accepted "
+        "although it raises the cost",
+    )
 
     def options(self, verbose: bool = False) -> SolverOptions:
         return SolverOptions(
@@ -244,6 +261,7 @@ class SolverSpec(StrictModel):
             switching_tolerance=self.switching_tolerance,
             regularization_initial=self.regularization_initial,
             regularization_min=self.regularization_min,
+            merit_feasibility_weight=self.merit_feasibility_weight,
             verbose=verbose,
         )
 
@@ -253,8 +271,18 @@ class TrajOptTask(StrictModel):
 
     name: str
     robot: str = "mini_cheetah"
+    keyframes_robot: str | None = Field(
+        None,
+        description="the robot the keyframes, heights, speeds and timings are written for (null: robot); "
+        "another robot's task is retargeted to robot before the solve (trajopt.retarget)",
+    )
+    keyframe_feet: Literal["as-given", "stance-ik"] = Field(
+        "as-given",
+        description="stance-ik: the stance legs of the initial state and of every keyframe are solved by "
+        "inverse kinematics onto their footholds (trajopt.retarget.place_stance_feet)",
+    )
     dt: float = Field(0.01, gt=0.0, le=0.1, description="knot spacing (s)")
-    surface_height: float = Field(0.0, description="ground height for touchdowns (m)")
+    surface_height: float = Field(0.0, description="ground height for touchdowns (m; phases may override)")
     switching_times: list[float] = Field(description="phase boundaries (s), one more than phases")
     initial: KeyframeSpec = Field(description="initial state (velocities are used as given)")
     phases: list[PhaseSpec]
@@ -262,6 +290,12 @@ class TrajOptTask(StrictModel):
     solver: SolverSpec = Field(default_factory=SolverSpec)
     initial_controls: Literal["static", "zero"] = Field(
         "static", description="torque guess: static stance torques (zero in flight), or zero"
+    )
+    initial_guess: Literal["keyframes", "kinematic"] = Field(
+        "keyframes",
+        description="state guess: keyframes, every part interpolated linearly (velocities too); kinematic, "
+        "the same configurations with the velocities that move each knot's configuration to the next one's "
+        "in dt (no configuration defect, the rotation's rate consistent with its angle)",
     )
 
     @model_validator(mode="after")
@@ -282,6 +316,13 @@ class TrajOptTask(StrictModel):
                     f"switching_times: phase {index} lasts {end - start:g} s, not a multiple of dt {self.dt}"
                 )
         return self
+
+    def phase_surface_heights(self) -> list[float]:
+        """World z of each phase's contact surface (``PhaseSpec.surface_height`` or the task's)."""
+        return [
+            self.surface_height if phase.surface_height is None else phase.surface_height
+            for phase in self.phases
+        ]
 
     @property
     def knots_per_phase(self) -> list[int]:

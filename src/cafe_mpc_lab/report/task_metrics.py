@@ -88,6 +88,9 @@ class AcrobaticTask:
     """Commanded forward speed of the gait segment before the trajectory (None: no gait before it)."""
     resume_speed: float | None = None
     """Commanded forward speed of the gait segment after the trajectory (None: no moving gait after it)."""
+    rotation_axis: int = 0
+    """The body axis the task turns about (0 x: roll, 1 y: pitch, 2 z: yaw); ``roll_target`` is the rotation
+    to reach about it (signed: a backflip turns -2 pi about y)."""
 
 
 def _trajectory_segment(reference: Reference) -> tuple[TrajectoryReference, float] | None:
@@ -124,16 +127,32 @@ def _gait_speeds(reference: Reference, trajectory: TrajectoryReference) -> tuple
     return before, after
 
 
+ROTATION_AXES = ("roll", "pitch", "yaw")
+
+
+def planned_rotation(trajectory) -> tuple[int, float]:
+    """The body axis a stored trajectory turns most about and its turn there rounded to a quarter turn
+    (``sum omega dt`` over its knots: 2 pi for a barrel roll, -2 pi for a backflip, pi for a half spin)."""
+    nq = trajectory.xs.shape[1] - trajectory.us.shape[1] - 6
+    turned = np.sum(trajectory.xs[:-1, nq + 3 : nq + 6], axis=0) * trajectory.dt
+    axis = int(np.argmax(np.abs(turned)))
+    quarter = 0.5 * math.pi
+    return axis, round(float(turned[axis]) / quarter) * quarter
+
+
 def task_from_reference(
-    reference: Reference | None, roll_target: float = 2.0 * math.pi
+    reference: Reference | None, roll_target: float | None = None
 ) -> AcrobaticTask | None:
-    """The task of a reference that contains a stored trajectory with a flight phase (``None`` otherwise)."""
+    """The task of a reference that contains a stored trajectory with a flight phase (``None`` otherwise);
+    its rotation axis and target from the trajectory (``planned_rotation``) unless ``roll_target`` is given
+    (a rotation about the body x axis)."""
     found = _trajectory_segment(reference) if reference is not None else None
     if found is None:
         return None
     trajectory_reference, offset = found
     approach, resume = _gait_speeds(reference, trajectory_reference)
     trajectory = trajectory_reference.trajectory
+    axis, target = planned_rotation(trajectory) if roll_target is None else (0, roll_target)
     start = offset + trajectory_reference.start
     origin = float(trajectory.times[0])
     for index, code in enumerate(trajectory.phase_contacts):
@@ -146,9 +165,10 @@ def task_from_reference(
                 takeoff,
                 touchdown,
                 start + trajectory_reference.duration,
-                roll_target,
+                target,
                 approach,
                 resume,
+                axis,
             )
     return None
 
@@ -159,12 +179,17 @@ def task_from_reference(
 
 
 def body_floor_clearance(robot: Robot, q: np.ndarray) -> dict[str, np.ndarray]:
-    """Lowest height (m) above the floor of the trunk box, the thighs and the knees at each row of ``q``
+    """Lowest height (m) above the floor of the trunk, the thighs and the knees at each row of ``q``
     (planning coordinates), from the plant's own geometry (``Robot.mjcf``). Keys ``trunk``, ``thigh``,
-    ``knee`` (the minimum over the legs)."""
+    ``knee`` (the minimum over the legs).
+
+    A model with the generated robots' geometry (a ``trunk`` box, thigh and shank capsules on the
+    ``*_hip_body`` and ``*_knee_body`` bodies) is measured on those shapes, the knee at the shank capsule's
+    upper end. Any other model file (e.g. a Go2's): the trunk and the thighs are the collision geoms of the
+    free joint's body and of each hip-pitch joint's body (lowest corner of each geom's bounding box), the
+    knee is the knee joint's anchor; a part with no collision geom is left out."""
     model = mujoco.MjModel.from_xml_string(robot.mjcf)
     data = mujoco.MjData(model)
-    trunk = model.geom("trunk").id
     leg_geoms = {"thigh": [], "knee": []}
     for index in range(model.ngeom):
         body_name = model.body(int(model.geom_bodyid[index])).name
@@ -174,13 +199,13 @@ def body_floor_clearance(robot: Robot, q: np.ndarray) -> dict[str, np.ndarray]:
             leg_geoms["thigh"].append(index)
         elif body_name.endswith("_knee_body"):
             leg_geoms["knee"].append(index)
+    if mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_GEOM, "trunk") < 0 or not all(leg_geoms.values()):
+        return _model_file_clearance(model, data, q)
+    trunk = model.geom("trunk").id
     out = {name: np.full(len(q), np.inf) for name in ("trunk", "thigh", "knee")}
     half = model.geom_size[trunk]
     for row, configuration in enumerate(np.asarray(q, dtype=float)):
-        data.qpos[:3] = configuration[:3]
-        data.qpos[3] = configuration[6]
-        data.qpos[4:7] = configuration[3:6]
-        data.qpos[7:] = configuration[7:]
+        _set_configuration(data, configuration)
         mujoco.mj_kinematics(model, data)
         rotation = data.geom_xmat[trunk].reshape(3, 3)
         out["trunk"][row] = data.geom_xpos[trunk][2] - float(np.abs(rotation[2]) @ half)
@@ -193,6 +218,41 @@ def body_floor_clearance(robot: Robot, q: np.ndarray) -> dict[str, np.ndarray]:
                 # the knee is the shank capsule's upper end (the joint with the thigh)
                 z = min(ends) if name == "thigh" else _shank_top(model, data, geom, half_length)
                 out[name][row] = min(out[name][row], z - radius)
+    return out
+
+
+def _set_configuration(data: mujoco.MjData, configuration: np.ndarray) -> None:
+    """Planning configuration (base quaternion x, y, z, w) into MuJoCo's ``qpos`` (w, x, y, z)."""
+    data.qpos[:3] = configuration[:3]
+    data.qpos[3] = configuration[6]
+    data.qpos[4:7] = configuration[3:6]
+    data.qpos[7:] = configuration[7:]
+
+
+def _model_file_clearance(model: mujoco.MjModel, data: mujoco.MjData, q: np.ndarray) -> dict[str, np.ndarray]:
+    """``body_floor_clearance`` of a model file without the generated geometry (see there). Leg joints follow
+    the free joint three per leg (abad, hip pitch, knee), as in every robot of the package."""
+    collides = (model.geom_contype != 0) | (model.geom_conaffinity != 0)
+    root_body = int(model.jnt_bodyid[0])
+    leg_joints = np.arange(1, model.njnt)
+    hip_bodies = {int(model.jnt_bodyid[joint]) for joint in leg_joints[1::3]}
+    knee_joints = leg_joints[2::3]
+    parts = {
+        "trunk": np.flatnonzero(collides & (model.geom_bodyid == root_body)),
+        "thigh": np.flatnonzero(collides & np.isin(model.geom_bodyid, list(hip_bodies))),
+    }
+    out = {name: np.full(len(q), np.inf) for name, geoms in parts.items() if len(geoms)}
+    out["knee"] = np.full(len(q), np.inf)
+    for row, configuration in enumerate(np.asarray(q, dtype=float)):
+        _set_configuration(data, configuration)
+        mujoco.mj_kinematics(model, data)
+        for name, geoms in parts.items():
+            for geom in geoms:
+                rotation = data.geom_xmat[geom].reshape(3, 3)
+                centre, half = model.geom_aabb[geom, :3], model.geom_aabb[geom, 3:]
+                lowest = (data.geom_xpos[geom] + rotation @ centre)[2] - float(np.abs(rotation[2]) @ half)
+                out[name][row] = min(out[name][row], lowest)
+        out["knee"][row] = float(np.min(data.xanchor[knee_joints, 2]))
     return out
 
 
@@ -240,6 +300,7 @@ class _Landing:
     upright: bool
     tilt_max_window: float | None
     roll_at_touchdown: float | None
+    """Body rate about the task's rotation axis integrated up to the touchdown (rad)."""
     stayed_up_s: float
     stayed_up: bool
 
@@ -264,7 +325,8 @@ def _landing(
         if len(all_down):
             all_feet_time = float(times[all_down[0]])
         landed = all_feet_time is not None and not body_contact and not log.fell
-        roll_at_touchdown = float(np.sum(log.v[times < touchdown - 1e-9, 3]) * control_period)
+        before = times < touchdown - 1e-9
+        roll_at_touchdown = float(np.sum(log.v[before, 3 + task.rotation_axis]) * control_period)
         end = float(times[-1]) + control_period
         stayed_up_s = (log.fall_time if log.fell else end) - touchdown
         landing = all_feet_time if all_feet_time is not None else touchdown
@@ -375,9 +437,15 @@ def _speeds_around_roll(
 
 def _criteria(task: AcrobaticTask) -> dict[str, str]:
     """How each criterion is judged, in words with the thresholds (the block's ``criteria``)."""
+    rotation = (
+        f"integral of the body roll rate over the run >= {task.roll_target:.4f} - {ROLL_TOLERANCE_RAD} rad"
+        if task.rotation_axis == 0 and task.roll_target >= 0
+        else f"integral of the body {ROTATION_AXES[task.rotation_axis]} rate over the run, signed as the "
+        f"target {task.roll_target:.4f} rad (roll_target_rad, about rotation_axis), >= |target| - "
+        f"{ROLL_TOLERANCE_RAD} rad"
+    )
     return {
-        "roll_turned": f"integral of the body roll rate over the run >= {task.roll_target:.4f} - "
-        f"{ROLL_TOLERANCE_RAD} rad",
+        "roll_turned": rotation,
         "touchdown": f"first foot contact after >= {MIN_FLIGHT_S} s with all feet off the floor, within "
         f"{FLIGHT_SEARCH_MARGIN_S} s of the planned flight",
         "landed": f"all four feet on the floor within {LANDING_WINDOW_S} s of the touchdown; no fall; "
@@ -421,6 +489,8 @@ def task_metrics(
     robot's); ``bar``: the scene's bar (its contacts are the log's ``extra["bar_contact"]``)."""
     times = log.time
     roll_turned = float(np.sum(log.v[:, 3]) * control_period) if log.ticks else 0.0
+    axis = task.rotation_axis
+    turned = float(np.sum(log.v[:, 3 + axis]) * control_period) if log.ticks else 0.0
     clearance = body_floor_clearance(robot, log.q) if log.ticks else {}
     lowest = {name: float(np.min(values)) for name, values in clearance.items()}
     body_contact = any(value < CONTACT_TOLERANCE_M for value in lowest.values())
@@ -433,7 +503,8 @@ def task_metrics(
     motor_violations, request_violations, cone = _roll_violations(
         robot, log, roll, requested, planned_stance, contact, limits
     )
-    roll_ok = roll_turned >= task.roll_target - ROLL_TOLERANCE_RAD
+    direction = 1.0 if task.roll_target >= 0 else -1.0
+    roll_ok = direction * turned >= abs(task.roll_target) - ROLL_TOLERANCE_RAD
     if not roll_ok and not log.fell and end_of_run < task.end - 1e-9:
         unjudged["roll_turned"] = (
             f"the run ended at {end_of_run:.2f} s, before the roll's end ({task.end:.2f} s)"
@@ -462,6 +533,8 @@ def task_metrics(
         "unjudged": unjudged,
         "roll_turned_rad": roll_turned,
         "roll_target_rad": task.roll_target,
+        "rotation_axis": ROTATION_AXES[axis],
+        "rotation_turned_rad": turned,
         "roll_turned_at_touchdown_rad": landing.roll_at_touchdown,
         "max_base_height_m": float(np.max(log.q[:, 2])) if log.ticks else None,
         "landed": None if "landed" in unjudged else bool(landing.landed),
@@ -580,7 +653,9 @@ def reference_trace(
 def task_summary(task: dict) -> str:
     """One line for the end of a run: ``task: success=True (roll 6.28 rad, apex 0.55 m, ...)``, naming the
     failed criteria, or why the run cannot be judged (``success=None``)."""
-    parts = [f"roll {task['roll_turned_rad']:.2f} rad"]
+    axis = task.get("rotation_axis", "roll")
+    turned = task["roll_turned_rad"] if axis == "roll" else task.get("rotation_turned_rad")
+    parts = [f"{axis} {turned:.2f} rad"]
     if task.get("max_base_height_m") is not None:
         parts.append(f"apex {task['max_base_height_m']:.2f} m")
     if task.get("touchdown_s") is not None:

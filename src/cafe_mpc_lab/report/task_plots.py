@@ -1,9 +1,10 @@
-"""Plots of acrobatic task runs (paper Sec. VII-C, Fig. 13 style): roll, height and lateral position of the
-robot against the reference, and a strip of rendered frames.
+"""Plots of acrobatic task runs (paper Sec. VII-C, Fig. 13 style): the rotation about the task's axis (roll,
+pitch or yaw), height and lateral position of the robot against the reference, and a strip of rendered frames.
 
-The roll is shown two ways: the unwrapped ZYX roll angle of the base (robot and reference alike; the
-reference's quaternions are sign-continuous across the roll, see ``reference.composition``) and, for the
-robot, the integral of the body roll rate (``task.roll_turned_rad``). The planned flight is shaded; the
+The rotation is shown two ways: the unwrapped planar angle of the base about the task's axis (robot and
+reference alike, ``planar_angle``; the reference's quaternions are sign-continuous across the roll, see
+``reference.composition``) and, for the robot, the integral of the body rate about that axis
+(``task.rotation_turned_rad``). The planned flight is shaded; the
 measured touchdown and landing are marked.
 """
 
@@ -13,14 +14,31 @@ from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
+from scipy.spatial.transform import Rotation
 
 from cafe_mpc.core.free_joint import free_joint_qpos
 from cafe_mpc.reference.base import Reference
 from cafe_mpc.robots.robot import Robot
 from cafe_mpc_lab.report.figures import save_figure, subplots
-from cafe_mpc_lab.report.metrics import roll_pitch_yaw
-from cafe_mpc_lab.report.task_metrics import AcrobaticTask, forward_speed, reference_trace
+from cafe_mpc_lab.report.task_metrics import ROTATION_AXES, AcrobaticTask, forward_speed, reference_trace
 from cafe_mpc_lab.sim.loop import SimulationLog
+
+PLANAR_ANGLE_ENTRIES = {0: ((2, 1), (2, 2)), 1: ((2, 0), (0, 0)), 2: ((1, 0), (0, 0))}
+"""Rotation-matrix entries ``(sine, cosine)`` of the angle about each body axis: roll ``atan2(R21, R22)``,
+pitch ``atan2(-R20, R00)``, yaw ``atan2(R10, R00)``."""
+
+
+def planar_angle(quaternions_xyzw: np.ndarray, axis: int) -> np.ndarray:
+    """Unwrapped angle of the base about body axis ``axis`` (0 x, 1 y, 2 z) for a motion mostly about that
+    axis. Roll and yaw equal the ZYX angles; the pitch is ``atan2(-R20, R00)``, which, unlike the ZYX pitch
+    (``asin(-R20)``, folded at +-pi/2), follows a flip through the whole turn."""
+    if len(quaternions_xyzw) == 0:
+        return np.zeros(0)
+    matrices = Rotation.from_quat(quaternions_xyzw).as_matrix()
+    (sine_row, sine_col), (cosine_row, cosine_col) = PLANAR_ANGLE_ENTRIES[axis]
+    sign = -1.0 if axis == 1 else 1.0
+    angle = np.arctan2(sign * matrices[:, sine_row, sine_col], matrices[:, cosine_row, cosine_col])
+    return np.unwrap(angle)
 
 
 def plot_task(
@@ -37,17 +55,19 @@ def plot_task(
     (``metrics["bar_height_m"]``) as a dashed line on the height plot."""
     t = log.time
     planned = reference_trace(reference, t, robot.nq, robot.nv, robot.nu, robot.n_feet)
-    roll = roll_pitch_yaw(log.q[:, 3:7])[:, 0]
-    roll_reference = roll_pitch_yaw(planned[:, 3:7])[:, 0]
-    roll_integrated = np.cumsum(log.v[:, 3]) * control_period
+    axis_index = task.rotation_axis
+    name = ROTATION_AXES[axis_index]
+    roll = planar_angle(log.q[:, 3:7], axis_index)
+    roll_reference = planar_angle(planned[:, 3:7], axis_index)
+    roll_integrated = np.cumsum(log.v[:, 3 + axis_index]) * control_period
     running = task.approach_speed is not None or task.resume_speed is not None
     rows = 4 if running else 3
     figure, axes = subplots(rows, 1, figsize=(8, 2.5 * rows), sharex=True)
-    axes[0].plot(t, roll_reference, "k--", lw=1.0, label="reference (unwrapped roll)")
-    axes[0].plot(t, roll, lw=1.2, label="robot (unwrapped roll)")
-    axes[0].plot(t, roll_integrated, lw=0.8, ls=":", label="robot (integrated roll rate)")
+    axes[0].plot(t, roll_reference, "k--", lw=1.0, label=f"reference (unwrapped {name})")
+    axes[0].plot(t, roll, lw=1.2, label=f"robot (unwrapped {name})")
+    axes[0].plot(t, roll_integrated, lw=0.8, ls=":", label=f"robot (integrated {name} rate)")
     axes[0].axhline(task.roll_target, color="grey", lw=0.6)
-    axes[0].set_ylabel("roll [rad]")
+    axes[0].set_ylabel(f"{name} [rad]")
     axes[1].plot(t, planned[:, 2], "k--", lw=1.0, label="reference")
     axes[1].plot(t, log.q[:, 2], lw=1.2, label="robot")
     axes[1].set_ylabel("base height [m]")
@@ -74,7 +94,8 @@ def plot_task(
             verdict += f" ({', '.join(metrics['failed_criteria'])})"
         elif metrics["success"] is None and metrics.get("unjudged"):
             verdict += f" (run too short for {', '.join(metrics['unjudged'])})"
-        title += f"; roll turned {metrics['roll_turned_rad']:.2f} rad, {verdict} (red: measured touchdown)"
+        turned = metrics.get("rotation_turned_rad", metrics["roll_turned_rad"])
+        title += f"; {name} turned {turned:.2f} rad, {verdict} (red: measured touchdown)"
     figure.suptitle(title, fontsize=10)
     return save_figure(figure, Path(path))
 
@@ -156,13 +177,19 @@ def render_frame_strip(
     return path
 
 
+FRAME_CAMERAS = {"roll": (1.1, -5.0, 180.0), "pitch": (1.3, -5.0, 90.0), "yaw": (1.1, -30.0, 180.0)}
+"""Camera ``distance, elevation, azimuth`` of a task's frames by its rotation axis."""
+
+
 def render_task_frames(
     robot: Robot, log: SimulationLog, task_block: dict, path: Path, mjcf: str | None = None
 ) -> Path:
     """``frames.png`` of a task run: the robot before the roll, at take-off, four times in the planned
-    flight, at the measured touchdown, 0.25 s and 1 s after it (``render_frame_strip``)."""
+    flight, at the measured touchdown, 0.25 s and 1 s after it (``render_frame_strip``), seen along the axis
+    the task turns about: from the front for a roll, from the side for a flip (``FRAME_CAMERAS``)."""
     takeoff, touchdown = task_block["planned_takeoff_s"], task_block["planned_touchdown_s"]
     landed = task_block.get("touchdown_s") or touchdown
     flight = [takeoff + (touchdown - takeoff) * fraction for fraction in (0.2, 0.4, 0.6, 0.8)]
     times = [task_block["planned_start_s"], takeoff - 0.03, *flight, landed, landed + 0.25, landed + 1.0]
-    return render_frame_strip(robot, log, [t for t in times if t <= log.time[-1]], path, mjcf=mjcf)
+    camera = FRAME_CAMERAS.get(task_block.get("rotation_axis", "roll"), FRAME_CAMERAS["roll"])
+    return render_frame_strip(robot, log, [t for t in times if t <= log.time[-1]], path, camera, mjcf=mjcf)

@@ -1,0 +1,104 @@
+"""The acrobatics catalogue (``cafe_mpc.trajopt``): tasks carried to other robots (``retarget``), stance feet
+put on their footholds, the catalogue's tasks (backflip, front flip) reduce their defects in their first
+iterations, and their shipped trajectories are dynamically feasible, turn 2 pi about the pitch axis and were
+made from the current task files; the Go2's barrel roll converges.
+
+Full solves: ``cafe-mpc optimize backflip`` (docs/tasks.md), not part of the suite except the Go2 roll."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from cafe_mpc.reference.trajectory_file import load_packaged_trajectory, packaged_trajectory_path
+from cafe_mpc.robots.robot import load_robot
+from cafe_mpc.solver import MSiLQRSolver
+from cafe_mpc.trajopt.multiphase import build_problem, check_trajectory, rotation_turned, solve_task
+from cafe_mpc.trajopt.presets import TASKS, load_task
+from cafe_mpc.trajopt.retarget import base_configuration, place_stance_feet, resolve_task
+from cafe_mpc.trajopt.task import joints12
+
+TWO_PI = 2.0 * np.pi
+FLIPS = [("backflip", -TWO_PI), ("front-flip", TWO_PI)]
+
+
+@pytest.fixture(scope="module")
+def go2():
+    return load_robot("go2")
+
+
+def test_catalogue_tasks_are_presets():
+    assert {"barrel-roll", "running-barrel-roll", "backflip", "front-flip"} <= set(TASKS)
+
+
+def test_retargeted_roll_fits_the_go2(go2):
+    """The Mini Cheetah's roll on the Go2: every keyframe's joints inside the Go2's limits (its knees bend the
+    other way), the start standing on the floor, heights and speeds scaled, the Go2's own limits."""
+    task = resolve_task(load_task("barrel-roll", ["robot=go2"]), go2)
+    assert task.robot == task.keyframes_robot == "go2"
+    assert task.constraints.torque_limit is None and task.constraints.joint_speed_limit is None
+    for keyframe in [task.initial] + [phase.keyframe for phase in task.phases]:
+        joints = joints12(keyframe.joint_positions)
+        assert np.all(joints >= go2.position_lower) and np.all(joints <= go2.position_upper)
+    feet = go2.foot_positions(base_configuration(go2, task.initial, joints12(task.initial.joint_positions)))
+    np.testing.assert_allclose(feet[:, 2], go2.foot_radius, atol=2e-3)
+    assert task.initial.position[2] > load_task("barrel-roll").initial.position[2]
+
+
+def test_stance_feet_are_put_on_their_footholds(robot):
+    """``stance-ik``: every stance foot of every keyframe on the floor, at the x, y where it stood before."""
+    task = place_stance_feet(load_task("backflip"), robot)
+    initial = robot.foot_positions(
+        base_configuration(robot, task.initial, joints12(task.initial.joint_positions))
+    )
+    for phase in task.phases:
+        q = base_configuration(robot, phase.keyframe, joints12(phase.keyframe.joint_positions))
+        feet = robot.foot_positions(q)
+        for leg, on in enumerate(phase.stance):
+            if on:
+                assert feet[leg, 2] == pytest.approx(robot.foot_radius, abs=1e-6)
+        if phase.name == "hind-stance":  # the hind feet have not moved since the start
+            np.testing.assert_allclose(feet[2:, :2], initial[2:, :2], atol=1e-6)
+
+
+@pytest.mark.parametrize("name", [name for name, _ in FLIPS])
+def test_first_iterations_reduce_the_defect(robot, name):
+    """Three MS-iLQR iterations from the task's guess lower the dynamics defect (L1)."""
+    task = resolve_task(load_task(name), robot)
+    built = build_problem(robot, task, task.constraints.warm_up_barriers)
+    options = replace(task.solver.options(), max_al_iterations=1, final_backward_pass=False)
+
+    def solve(iterations: int):
+        solver = MSiLQRSolver(replace(options, max_iterations=iterations))
+        return solver.solve(built.problem, built.initial_xs, built.initial_us, built.rollout_knots)
+
+    before, after = solve(0), solve(3)
+    assert max(after.statistics.step_sizes) > 0.0
+    assert after.defect_l1 < 0.5 * before.defect_l1
+
+
+@pytest.mark.parametrize(("name", "target"), FLIPS)
+def test_shipped_flip_is_feasible_and_current(robot, name, target):
+    """The shipped flip: defects <= 1e-3 under the planning model, the robot's torque limits, feet on the
+    floor at the touchdown, no leg joint below the floor, 2 pi about the pitch axis at the landing, made
+    from the current task file."""
+    trajectory = load_packaged_trajectory(name, robot)
+    check = check_trajectory(robot, trajectory)
+    assert check.max_defect <= 1e-3
+    assert check.max_abs_torque <= float(np.max(robot.torque_limits)) + 0.5
+    assert check.max_touchdown_height_error <= 2e-3
+    assert check.min_leg_joint_height >= 0.0
+    assert check.rotation_axis == 1
+    assert check.rotation_at_landing[1] == pytest.approx(target, abs=0.1)
+    assert abs(rotation_turned(trajectory)[0]) < 0.05 and abs(rotation_turned(trajectory)[2]) < 0.05
+    assert load_task(str(packaged_trajectory_path(name).with_suffix(".yaml"))) == load_task(name)
+
+
+def test_go2_barrel_roll_converges(go2):
+    """The Mini Cheetah's roll retargeted to the Go2 converges (before: regularisation limit, defect 15.6)."""
+    result = solve_task(go2, load_task("barrel-roll", ["robot=go2"]))
+    assert result.converged
+    assert result.check.max_defect <= 1e-3
+    assert result.check.roll_at_landing == pytest.approx(TWO_PI, abs=0.1)
