@@ -97,7 +97,7 @@ def _import(package: str, module: str):
 def record(preset: str, duration: float, overrides: list[str]) -> list[Call]:
     """The MPC calls of a fixed-latency closed-loop run of ``preset`` (this tree's code)."""
     from cafe_mpc.config import load_config
-    from cafe_mpc.mpc.receding_horizon import RecedingHorizonMpc
+    from cafe_mpc.planners.cafe.planner import RecedingHorizonMpc
     from cafe_mpc_lab.experiments.run import simulate_run
 
     calls: list[Call] = []
@@ -125,8 +125,9 @@ def record(preset: str, duration: float, overrides: list[str]) -> list[Call]:
 
 
 def _builders(package: str):
-    """The module with ``build_mpc``: ``assembly.controllers``, or ``experiments.controllers`` in a copy of a
-    commit from before the assembly layer."""
+    """The module with ``build_planner`` (``build_mpc`` before the planner registry):
+    ``assembly.controllers``, or ``experiments.controllers`` in a copy of a commit from before the assembly
+    layer."""
     try:
         return _import(package, "assembly.controllers")
     except ModuleNotFoundError:
@@ -148,7 +149,8 @@ def build(variant: Variant, preset: str, duration: float, common: list[str]) -> 
         ],
     )
     robot = robots.load_robot(config.robot)
-    variant.mpc = controllers.build_mpc(config, robot)
+    build_planner = getattr(controllers, "build_planner", None) or controllers.build_mpc
+    variant.mpc = build_planner(config, robot)
 
 
 def replay_step(variant: Variant, call: Call, record_times: bool) -> None:

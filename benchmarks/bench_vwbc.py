@@ -1,6 +1,6 @@
 """Benchmark of the VWBC QP (34): solve time per tick and solver iterations with and without warm start.
 
-Synthetic plans (``cafe_mpc.wbc.synthetic``) around the standing pose with all four feet in stance
+Synthetic plans (``cafe_mpc.low_level.synthetic``) around the standing pose with all four feet in stance
 (``standing``) and with a diagonal pair in stance (``trot``, FL + HR); the state drifts a little from tick
 to tick (configuration random walk + noisy velocity), as consecutive 500 Hz ticks do. ``disturbed`` is the
 standing plan with ten times the velocity noise, so that friction-pyramid constraints become active.
@@ -26,11 +26,11 @@ import numpy as np
 import pinocchio as pin
 
 from cafe_mpc.core.measurement import Measurement
+from cafe_mpc.low_level.contact_dynamics import FrictionConeScorer
+from cafe_mpc.low_level.riccati import RiccatiController
+from cafe_mpc.low_level.synthetic import synthetic_plan
+from cafe_mpc.low_level.vwbc import VWBCController, VWBCSettings
 from cafe_mpc.robots.robot import load_robot
-from cafe_mpc.wbc.contact_dynamics import FrictionConeScorer
-from cafe_mpc.wbc.riccati import RiccatiController
-from cafe_mpc.wbc.synthetic import synthetic_plan
-from cafe_mpc.wbc.vwbc import VWBCController, VWBCSettings
 
 SCENARIOS = {
     "standing": {"stance": (True, True, True, True), "v_scale": 0.03},

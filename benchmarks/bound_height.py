@@ -18,7 +18,7 @@ import argparse
 import numpy as np
 
 from cafe_mpc.config import load_config
-from cafe_mpc.mpc.receding_horizon import RecedingHorizonMpc
+from cafe_mpc.planners.cafe.planner import RecedingHorizonMpc
 from cafe_mpc_lab.experiments.run import simulate_run
 
 START = 1.5

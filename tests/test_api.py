@@ -102,10 +102,23 @@ def test_process_mode_runs_the_mpc_in_its_own_process_and_cleans_up():
         _mujoco_loop(controller, 0.6, realtime=True)
         assert controller.failure is None
         assert controller.statistics()["plans_received"] >= 2  # plans arrived (how many depends on the load)
-        process = controller._inner.process
+        process = controller._loop.process
         assert process.is_alive()
     assert not process.is_alive()
     assert not [child for child in multiprocessing.active_children() if child.name == "cafe-mpc-solver"]
+
+
+@pytest.mark.realtime
+def test_the_template_planner_runs_in_the_mpc_process_too():
+    """The MPC process's plan channel carries any planner's plans (its ``PlanFormat``): the template's
+    ``TemplatePlan`` arrive and its own low level follows them."""
+    from cafe_mpc.planners.template.plan import TemplatePlan
+
+    with Controller("trot", ["planner=template"], mode="process") as controller:
+        _mujoco_loop(controller, 0.6, realtime=True)
+        assert controller.failure is None
+        assert isinstance(controller.plan, TemplatePlan)
+        assert controller.statistics()["plans_received"] >= 2
 
 
 @pytest.mark.slow

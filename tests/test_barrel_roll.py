@@ -9,7 +9,7 @@ import pytest
 
 from cafe_mpc.assembly import load_run_config
 from cafe_mpc.config import ConfigError
-from cafe_mpc.mpc.planner import update_solve_options
+from cafe_mpc.planners.base import update_solve_options
 from cafe_mpc_lab.experiments.run import run
 
 

@@ -30,7 +30,7 @@ LWA = pin.ReferenceFrame.LOCAL_WORLD_ALIGNED
 
 @dataclass
 class FakePlan:
-    """Stance flags over knot intervals, as ``core.plan.Plan`` carries them."""
+    """Stance flags over knot intervals, as ``planners.cafe.plan.Plan`` carries them."""
 
     times: np.ndarray
     dt: np.ndarray
@@ -183,7 +183,7 @@ def ideal_spec(average: bool = False) -> SensorSpec:
 
 
 def test_sensor_suite_reads_mujoco_sensors_with_noise_bias_quantisation_and_delay(robot):
-    from cafe_mpc.wbc.pd import PDController
+    from cafe_mpc.low_level.pd import PDController
 
     plant = MujocoPlant(robot)
     plant.reset(robot.q_standing)
@@ -288,7 +288,7 @@ def test_the_controller_gets_the_estimate_not_the_plant_state(robot):
         """A controller that records what it measured and holds the stance with PD."""
 
         def __init__(self) -> None:
-            from cafe_mpc.wbc.pd import PDController
+            from cafe_mpc.low_level.pd import PDController
 
             self.pd = PDController(robot)
 
@@ -479,3 +479,37 @@ def test_the_bounds_height_estimate_follows_its_landing_feet(dynamic):
         assert error < 0.002
     else:  # the static model, so that the test can fail
         assert error > 0.003
+
+
+def test_a_late_sample_reaches_the_controller_brought_forward_to_its_tick(robot):
+    """Readings of the base translating at 0.5 m/s, handed over 4 ms late: the controller gets the state of
+    its tick (the late estimate carried at its measured velocity), stamped with the tick's time; readings on
+    time are handed over untouched."""
+    from cafe_mpc.estimation.controller import SensingController
+
+    seen = []
+
+    class Spy:
+        def reset(self) -> None: ...
+
+        def compute(self, t, measurement):
+            seen.append((t, measurement.time, measurement.q.copy(), measurement.v.copy()))
+            return np.zeros(robot.nu)
+
+    readings = synthetic_readings(robot, np.array([0.5, 0.0, 0.0]), 0.5)
+    sensing = SensingController(Spy(), StateEstimator(robot), capacity=len(readings))
+    sensing.reset()
+    delay = 0.004
+    for reading in readings:
+        sensing.compute(reading.time + delay if reading.time > 0.3 else reading.time, reading)
+    on_time = [(t, stamp) for t, stamp, _, _ in seen[:100]]
+    assert all(t == stamp for t, stamp in on_time) and sensing.late_ticks == len(readings) - 151
+    t, stamp, q, _ = seen[-1]
+    assert stamp == pytest.approx(t)
+    estimate = StateEstimator(robot)
+    estimate.reset((0.0, 0.0))
+    for reading in readings:
+        late = estimate.update(reading)
+    world_velocity = Rotation.from_quat(late.q[3:7]).apply(late.v[:3])
+    assert q[:3] == pytest.approx(late.q[:3] + world_velocity * delay, abs=1e-9)
+    assert np.linalg.norm(q[:3] - late.q[:3]) > 1.5e-3  # 4 ms at about 0.5 m/s

@@ -13,17 +13,17 @@ import numpy as np
 import pytest
 
 from cafe_mpc.assembly import load_run_config
-from cafe_mpc.assembly.problem import model_schedule
 from cafe_mpc.config import ConfigError, VelocityCommand, available_presets
-from cafe_mpc.control.mpc_loop import CafeMpcController
+from cafe_mpc.control.inline import InlineMpcLoop
 from cafe_mpc.core.measurement import Measurement
 from cafe_mpc.dynamics.srb import srb_parameters
+from cafe_mpc.low_level.pd import PDController
+from cafe_mpc.low_level.riccati import RiccatiController
+from cafe_mpc.low_level.synthetic import synthetic_plan
+from cafe_mpc.low_level.vwbc import VWBCController
+from cafe_mpc.planners.cafe.setup import model_schedule
 from cafe_mpc.reference.locomotion import quaternion_from_yaw
 from cafe_mpc.robots.robot import load_robot
-from cafe_mpc.wbc.pd import PDController
-from cafe_mpc.wbc.riccati import RiccatiController
-from cafe_mpc.wbc.synthetic import synthetic_plan
-from cafe_mpc.wbc.vwbc import VWBCController
 from cafe_mpc_lab.cli import main
 from cafe_mpc_lab.experiments.controllers import LowLevelRecorder, build_run_controller, low_level_of
 from cafe_mpc_lab.experiments.run import run
@@ -107,10 +107,10 @@ def test_every_preset_loads_and_builds_its_controller(robot, preset):
     if config.wbc == "pd":
         assert isinstance(controller, PDController)
         return
-    assert isinstance(controller, CafeMpcController)
+    assert isinstance(controller, InlineMpcLoop)
     expected = {"riccati": RiccatiController, "vwbc": VWBCController}[config.wbc]
     assert isinstance(low_level_of(controller), expected)
-    assert controller.builder.schedule == model_schedule(config.mpc)
+    assert controller.planner.builder.schedule == model_schedule(config.mpc)
     assert controller.settings.period == config.mpc.period
     if config.gait is not None:  # presets with a reference section (barrel-roll) have no gait
         assert controller.reference.commands[0].vx == config.gait.commands[0].vx
@@ -137,17 +137,17 @@ def test_go1_plans_its_srb_tail_with_its_own_mass_and_inertia(robot):
     go1 = load_robot("go1")
     controller = build_run_controller(load_run_config("trot", ["robot=go1", "simulation.duration=1"]), go1)
     own = srb_parameters(go1)
-    factory = controller.builder.srb
+    factory = controller.planner.builder.srb
     assert factory.settings.parameters == own
     assert factory.weight == pytest.approx(go1.total_mass * 9.81)
-    built = controller.builder.build(0.0, go1.x_standing, controller.reference)
+    built = controller.planner.builder.build(0.0, go1.x_standing, controller.reference)
     srb_phase = built.problem.phases[-1]
     assert built.phases[-1].kind == "srb"
     dynamics = srb_phase.running_models[0].dynamics
     assert dynamics.mass == pytest.approx(own.mass) and dynamics.mass > 12.0
     np.testing.assert_allclose(dynamics.inertia, own.inertia_matrix)
     # and the Mini Cheetah's own: the authors' mass, its lumped inertia
-    mini = build_run_controller(load_run_config("trot"), robot).builder.srb.settings.parameters
+    mini = build_run_controller(load_run_config("trot"), robot).planner.builder.srb.settings.parameters
     assert mini.mass == pytest.approx(8.912) and mini == srb_parameters(robot)
 
 
@@ -157,8 +157,8 @@ def test_overrides_reach_the_controller(robot):
     )
     controller = build_run_controller(config, robot)
     assert isinstance(low_level_of(controller), RiccatiController)
-    assert controller.builder.schedule.srb_knots == 0
-    assert controller.builder.whole_body.settings.running_weights.torque == 0.3
+    assert controller.planner.builder.schedule.srb_knots == 0
+    assert controller.planner.builder.whole_body.settings.running_weights.torque == 0.3
     assert controller.reference.swing_height == 0.08
 
 

@@ -7,8 +7,9 @@ level, inside functions and methods, in ``try`` blocks. Exempt: imports under ``
 never run; they only name types for annotations, which ``from __future__ import annotations`` keeps
 unevaluated). The check reads the sources with ``ast``; nothing is imported.
 
-Besides the order: the settings schema (``config``) imports no other package of ``cafe_mpc``; the library
-front end (``api``) and the assembly (``assembly``: a config -> its controller) reach neither the experiment
+Besides the order: the settings schema (``config``) imports no other package of ``cafe_mpc``; the solver
+(``solver``) reaches nothing of the package but ``core``, through any chain of imports; the library front
+end (``api``) and the assembly (``assembly``: a config -> its controller) reach neither the experiment
 harness, the report, the simulator (``sim``) nor MuJoCo, through any chain of imports (and a subprocess that
 builds a ``cafe_mpc.Controller`` shows MuJoCo never loaded).
 """
@@ -36,8 +37,8 @@ LAYERS: list[tuple[str, ...]] = [
     ("dynamics",),  # whole-body and SRB models, impact, transition, statics, SRB parameters of a robot
     ("ocp",),  # costs, constraints, barriers, knots, contact schedules and gaits
     ("solver",),  # MS-iLQR
-    ("reference", "mpc", "trajopt"),  # locomotion reference; CAFE problem + warm start; offline TO
-    ("wbc", "estimation"),  # low-level controllers: PD, Riccati (33), VWBC (34); the state estimator
+    ("reference", "planners", "trajopt"),  # locomotion reference; the planners (CAFE, template); offline TO
+    ("low_level", "estimation"),  # low-level controllers: PD, Riccati (33), VWBC (34); the state estimator
     ("control",),  # closed loops: the MPC loop over a low-level controller, a plan follower
     ("assembly",),  # a config -> its controller (planner, low level, real-time and estimator front ends)
     ("api",),  # the library front end (cafe_mpc.Controller): no simulator below it
@@ -291,6 +292,35 @@ def test_the_config_schema_imports_no_domain_package(graph):
     assert not found, "the config schema must not import the library:\n" + "\n".join(found)
 
 
+SOLVER = "solver"
+"""The generic MS-iLQR solver: it sees problems through ``core`` alone (the per-knot interface and the state
+manifolds' compiled operations)."""
+SOLVER_EXTERNAL = {"numpy", "numba", "scipy"}
+"""The packages outside the standard library the solver may import."""
+
+
+def test_the_solver_imports_only_core(graph):
+    """No module of ``solver`` imports, directly or through others, any part of the package but ``core``
+    (nor the lab), and none imports a third-party package but numpy, numba and scipy: the solver knows no
+    robot, dynamics, cost or setting."""
+    solver = {module for module in graph if component(module) == SOLVER}
+    assert solver, "no solver modules found"
+    found = sorted(
+        f"{module} reaches {target}"
+        for module in solver
+        for target in reachable(graph, {module})
+        if component(target) not in (SOLVER, "core")
+    )
+    assert not found, "the solver must import only core:\n" + "\n".join(found)
+    sources = package_sources((SOURCE,))
+    outside = {
+        module: sorted(external_imports(sources[module][0]) - set(sys.stdlib_module_names) - SOLVER_EXTERNAL)
+        for module in sorted(solver)
+    }
+    outside = {module: names for module, names in outside.items() if names}
+    assert not outside, f"the solver imports packages other than {sorted(SOLVER_EXTERNAL)}: {outside}"
+
+
 def test_the_api_and_the_assembly_reach_neither_harness_nor_simulator(graph):
     starts = {module for module in graph if component(module) in FRONT_ENDS}
     found = sorted(
@@ -364,29 +394,33 @@ def test_the_checker_catches_upward_imports_cycles_and_function_level_imports():
         "cafe_mpc.ocp": ("", True),
         "cafe_mpc.ocp.b": ("from cafe_mpc.core import a\n", False),
         # an upward import inside a function, and a relative one at module level
-        "cafe_mpc.ocp.c": ("from .b import x\ndef f():\n    from cafe_mpc.wbc.d import y\n", False),
-        "cafe_mpc.wbc": ("", True),
-        "cafe_mpc.wbc.d": (
+        "cafe_mpc.ocp.c": ("from .b import x\ndef f():\n    from cafe_mpc.low_level.d import y\n", False),
+        "cafe_mpc.low_level": ("", True),
+        "cafe_mpc.low_level.d": (
             "from typing import TYPE_CHECKING\n"
             "from cafe_mpc.ocp.b import z\n"
             "if TYPE_CHECKING:\n    from cafe_mpc_lab.cli import w\n",  # exempt
             False,
         ),
-        "cafe_mpc.wbc.e": ("import cafe_mpc.wbc.f\n", False),
-        "cafe_mpc.wbc.f": ("from cafe_mpc.wbc import e\n", False),
+        "cafe_mpc.low_level.e": ("import cafe_mpc.low_level.f\n", False),
+        "cafe_mpc.low_level.f": ("from cafe_mpc.low_level import e\n", False),
         "cafe_mpc_lab.cli": ("", False),
     }
     graph = import_graph(sources)
-    assert graph["cafe_mpc.ocp.c"] == {"cafe_mpc.ocp.b", "cafe_mpc.wbc.d"}
-    assert graph["cafe_mpc.wbc.d"] == {"cafe_mpc.ocp.b"}
+    assert graph["cafe_mpc.ocp.c"] == {"cafe_mpc.ocp.b", "cafe_mpc.low_level.d"}
+    assert graph["cafe_mpc.low_level.d"] == {"cafe_mpc.ocp.b"}
     assert upward_imports(graph) == [
-        f"cafe_mpc.ocp.c (layer {LAYER_OF['ocp']}: ocp) imports cafe_mpc.wbc.d "
-        f"(layer {LAYER_OF['wbc']}: wbc)",
+        f"cafe_mpc.ocp.c (layer {LAYER_OF['ocp']}: ocp) imports cafe_mpc.low_level.d "
+        f"(layer {LAYER_OF['low_level']}: low_level)",
     ]
-    assert cycles(graph) == [["cafe_mpc.wbc.e", "cafe_mpc.wbc.f"]]
-    assert cycles(component_graph(graph)) == [["ocp", "wbc"]]
+    assert cycles(graph) == [["cafe_mpc.low_level.e", "cafe_mpc.low_level.f"]]
+    assert cycles(component_graph(graph)) == [["low_level", "ocp"]]
     # what the front ends reach, and where a third-party package is imported
-    assert reachable(graph, {"cafe_mpc.ocp.c"}) == {"cafe_mpc.ocp.b", "cafe_mpc.wbc.d", "cafe_mpc.core.a"}
+    assert reachable(graph, {"cafe_mpc.ocp.c"}) == {
+        "cafe_mpc.ocp.b",
+        "cafe_mpc.low_level.d",
+        "cafe_mpc.core.a",
+    }
     assert external_imports("import numpy\ndef f():\n    import mujoco\n") == {"numpy", "mujoco"}
     assert external_imports("def f():\n    import mujoco\n", module_level_only=True) == set()
     assert external_imports("from mujoco import viewer\n", module_level_only=True) == {"mujoco"}

@@ -6,17 +6,18 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from cafe_mpc.config import VelocityCommand
-from cafe_mpc.control.mpc_loop import CafeMpcController, MpcSettings
+from cafe_mpc.config import MpcSettings, VelocityCommand
+from cafe_mpc.control.inline import InlineMpcLoop
 from cafe_mpc.core.measurement import Measurement
 from cafe_mpc.dynamics.statics import static_stance_torques
-from cafe_mpc.mpc.planner import first_solve_options, update_solve_options
-from cafe_mpc.mpc.problem import CafeProblemBuilder, ModelSchedule, WarmStart
+from cafe_mpc.low_level.riccati import RiccatiController
 from cafe_mpc.ocp.contact_schedule import get_gait
 from cafe_mpc.ocp.knots import SRBModelFactory, WholeBodyModelFactory
+from cafe_mpc.planners.base import first_solve_options, update_solve_options
+from cafe_mpc.planners.cafe.planner import RecedingHorizonMpc
+from cafe_mpc.planners.cafe.problem import CafeProblemBuilder, ModelSchedule, WarmStart
 from cafe_mpc.reference.locomotion import LocomotionReference
 from cafe_mpc.solver import MSiLQRSolver
-from cafe_mpc.wbc.riccati import RiccatiController
 from cafe_mpc_lab.sim.loop import SimulationOptions, simulate
 from cafe_mpc_lab.sim.mujoco_plant import MujocoPlant
 
@@ -146,12 +147,15 @@ def test_persistent_problem_equals_a_fresh_one_across_contact_changes(robot, gai
 @pytest.mark.parametrize("scheme", ["one_phase", "rti"])
 def test_mpc_closed_loop_stands(robot, scheme):
     reference = LocomotionReference(robot, get_gait("stand"), [VelocityCommand()])
-    controller = CafeMpcController(
+    controller = InlineMpcLoop(
         robot,
-        reference,
-        _builder(robot, ModelSchedule.named("S1")),
+        RecedingHorizonMpc(
+            robot,
+            reference,
+            _builder(robot, ModelSchedule.named("S1")),
+            MpcSettings(period=0.02, latency="fixed", scheme=scheme),  # deterministic: 15 updates in 0.3 s
+        ),
         RiccatiController(robot),
-        MpcSettings(period=0.02, latency="fixed", scheme=scheme),  # deterministic: 15 updates in 0.3 s
     )
     log = simulate(MujocoPlant(robot), controller, SimulationOptions(0.3))
     assert not log.fell
@@ -190,18 +194,21 @@ def test_plans_take_effect_after_their_latency(robot, latency, scheme, compensat
     time it takes effect, without it at its measurement's time."""
     reference = LocomotionReference(robot, get_gait("stand"), [VelocityCommand()])
     low_level = _RecordingRiccati(robot)
-    controller = CafeMpcController(
+    controller = InlineMpcLoop(
         robot,
-        reference,
-        _builder(robot, ModelSchedule.named("S0")),
-        low_level,
-        MpcSettings(
-            period=0.02,
-            latency="fixed",
-            fixed_latency=latency,
-            scheme=scheme,
-            delay_compensation=compensated,
+        RecedingHorizonMpc(
+            robot,
+            reference,
+            _builder(robot, ModelSchedule.named("S0")),
+            MpcSettings(
+                period=0.02,
+                latency="fixed",
+                fixed_latency=latency,
+                scheme=scheme,
+                delay_compensation=compensated,
+            ),
         ),
+        low_level,
     )
     log = simulate(MujocoPlant(robot), controller, SimulationOptions(0.2))
     assert not log.fell
@@ -228,12 +235,15 @@ def test_measured_latency_never_uses_a_plan_before_it_exists(robot):
     time, never earlier; while the worker is busy no other update starts; the latencies are recorded."""
     reference = LocomotionReference(robot, get_gait("stand"), [VelocityCommand()])
     low_level = _RecordingRiccati(robot)
-    controller = CafeMpcController(
+    controller = InlineMpcLoop(
         robot,
-        reference,
-        _builder(robot, ModelSchedule.named("S0")),
+        RecedingHorizonMpc(
+            robot,
+            reference,
+            _builder(robot, ModelSchedule.named("S0")),
+            MpcSettings(period=0.02, latency="measured", scheme="one_phase"),
+        ),
         low_level,
-        MpcSettings(period=0.02, latency="measured", scheme="one_phase"),
     )
     log = simulate(MujocoPlant(robot), controller, SimulationOptions(0.3))
     assert not log.fell
@@ -259,12 +269,15 @@ def test_measured_real_time_iteration_pays_its_feedback_and_its_preparations(rob
     preparations take the same time each)."""
     reference = LocomotionReference(robot, get_gait("stand"), [VelocityCommand()])
     low_level = _RecordingRiccati(robot)
-    controller = CafeMpcController(
+    controller = InlineMpcLoop(
         robot,
-        reference,
-        _builder(robot, ModelSchedule.named("S0")),
+        RecedingHorizonMpc(
+            robot,
+            reference,
+            _builder(robot, ModelSchedule.named("S0")),
+            MpcSettings(period=0.02, latency="measured", compute_scale=compute_scale),
+        ),
         low_level,
-        MpcSettings(period=0.02, latency="measured", compute_scale=compute_scale),
     )
     log = simulate(MujocoPlant(robot), controller, SimulationOptions(0.3))
     assert not log.fell
@@ -304,16 +317,15 @@ def test_warm_up_creates_the_solver_data_of_the_next_updates(robot, warm_up):
     of a trot start (new stance patterns entering the horizon) create none; without it they do."""
     reference = LocomotionReference(robot, get_gait("trot"), [VelocityCommand(vx=0.5)], start_stance=0.2)
     settings = MpcSettings(period=0.02, latency="fixed", warm_up=warm_up)
-    controller = CafeMpcController(
-        robot, reference, _builder(robot, ModelSchedule.named("S4")), RiccatiController(robot), settings
-    )
+    planner = RecedingHorizonMpc(robot, reference, _builder(robot, ModelSchedule.named("S4")), settings)
+    controller = InlineMpcLoop(robot, planner, RiccatiController(robot))
     state = Measurement.of_state(robot.q_standing, np.zeros(robot.nv), np.ones(robot.n_feet, dtype=bool))
     controller.start(0.0, state)
-    pool = controller.mpc.solver.workspace._data
+    pool = controller.planner.solver.workspace._data
     after_cold = len(pool)
-    assert controller.mpc.solver.workspace is controller.mpc.first_solver.workspace
+    assert controller.planner.solver.workspace is controller.planner.first_solver.workspace
     for step in range(1, 26):  # 0.5 s of updates from the measured standing state
-        controller.mpc.update(0.02 * step, robot.q_standing, np.zeros(robot.nv))
+        controller.planner.update(0.02 * step, robot.q_standing, np.zeros(robot.nv))
     created = len(pool) - after_cold
     if warm_up > 0:
         assert controller.statistics.warm_up_time is not None

@@ -16,17 +16,18 @@ import numpy as np
 import pytest
 
 from cafe_mpc.assembly import load_run_config
-from cafe_mpc.assembly.problem import build_problem
+from cafe_mpc.assembly.context import run_context
 from cafe_mpc.assembly.references import build_reference
 from cafe_mpc.config import MpcSettings, VelocityCommand
 from cafe_mpc.core.contacts import touchdown_flags
 from cafe_mpc.core.physics import GRAVITY
 from cafe_mpc.dynamics.transition import whole_body_to_srb_state
-from cafe_mpc.mpc import problem as problem_module
-from cafe_mpc.mpc.planner import update_solve_options
-from cafe_mpc.mpc.problem import BuiltProblem, CafeProblemBuilder, ModelSchedule, WarmStart
 from cafe_mpc.ocp.contact_schedule import get_gait
 from cafe_mpc.ocp.knots import SRBModelFactory, WholeBodyModelFactory
+from cafe_mpc.planners.base import update_solve_options
+from cafe_mpc.planners.cafe import problem as problem_module
+from cafe_mpc.planners.cafe.problem import BuiltProblem, CafeProblemBuilder, ModelSchedule, WarmStart
+from cafe_mpc.planners.cafe.setup import build_problem
 from cafe_mpc.reference.base import ReferenceWindow, switches_inside
 from cafe_mpc.reference.locomotion import LocomotionReference
 from cafe_mpc.solver import MSiLQRSolver
@@ -194,7 +195,7 @@ def _running_roll_case(robot):
     roll_start = reference.segments[1].start
     # through the end of the pace, the roll (its own weight set) and back into the pace
     times = np.arange(roll_start - 0.4, roll_start + 1.6, 0.02)
-    return (lambda: build_problem(config, robot)), reference, times
+    return (lambda: build_problem(run_context(config, robot))), reference, times
 
 
 @pytest.mark.parametrize("spare_slots", [problem_module.SPARE_SLOTS, -10])

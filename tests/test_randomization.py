@@ -96,7 +96,7 @@ def test_randomisation_never_touches_the_controllers_model(robot):
     srb, expected = srb_parameters(used_robot), srb_parameters(nominal_robot)
     assert srb.mass == expected.mass
     np.testing.assert_array_equal(srb.inertia_matrix, expected.inertia_matrix)
-    whole_body = controller.mpc.builder.whole_body
+    whole_body = controller.planner.builder.whole_body
     assert whole_body.robot is used_robot
     # ... while the plant was varied: its motors applied 0.9 x the (saturated) command
     limits = used_robot.plant.motor_torque_limits

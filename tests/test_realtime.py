@@ -19,10 +19,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from cafe_mpc.assembly.controllers import realtime_mpc
+from cafe_mpc.assembly.controllers import process_planner
 from cafe_mpc.config import load_config
-from cafe_mpc.control.realtime import RealtimeMpcController, shared_block_prefix
+from cafe_mpc.control.ipc.shared import shared_block_prefix
+from cafe_mpc.control.process import ProcessMpcLoop
 from cafe_mpc.core.measurement import Measurement
+from cafe_mpc.planners.cafe.plan import plan_format
 from cafe_mpc_lab.experiments.controllers import build_recorder
 from cafe_mpc_lab.experiments.run import run
 from cafe_mpc_lab.sim.loop import SimulationOptions, WallClockPacer, simulate
@@ -103,7 +105,7 @@ class CrashingMpc:
 
 
 def crashing_mpc(config_data: dict, after: int, mode: str) -> CrashingMpc:
-    return CrashingMpc(realtime_mpc(config_data), after, mode)
+    return CrashingMpc(process_planner(config_data), after, mode)
 
 
 @pytest.mark.parametrize("mode", ["crash", "stall"])
@@ -114,17 +116,16 @@ def test_a_dead_or_stalled_mpc_process_holds_a_stance_and_ends_with_one_error(mo
     before = _shared_memory_blocks()
     config = load_config("trot", ["simulation.duration=3.0", "output.plots=false"])
     factory = functools.partial(crashing_mpc, config.model_dump(mode="json"), 5, mode)
-    controller = RealtimeMpcController(
-        robot, factory, build_recorder(config, robot), 0.02, 25, stall_timeout=0.3
-    )
+    plans = plan_format(25, robot.nq + robot.nv, robot.nu, 2 * robot.nv, robot.n_feet)
+    controller = ProcessMpcLoop(robot, factory, build_recorder(config, robot), plans, 0.02, stall_timeout=0.3)
     with controller:
-        controller.wait_ready(Measurement.of_state(robot.q_standing, np.zeros(robot.nv), np.ones(4, bool)))
+        controller.start(0.0, Measurement.of_state(robot.q_standing, np.zeros(robot.nv), np.ones(4, bool)))
         assert len(_shared_memory_blocks() - before) == 3  # measurements, plans, control: named as ours
         options = SimulationOptions(3.0, pacer=WallClockPacer(), stop=controller.should_stop)
         log = simulate(MujocoPlant(robot), controller, options)
     assert controller.failure is not None
     assert ("exited" in controller.failure) if mode == "crash" else ("no plan" in controller.failure)
-    assert controller.statistics.fallback_ticks > 0  # the damped stance held the robot after the plan ran out
+    assert controller.received.fallback_ticks > 0  # the damped stance held the robot after the plan ran out
     assert log.time[-1] < 2.9  # the run ended early, soon after the failure
     assert not log.fell
     assert not controller.process.is_alive()
@@ -138,12 +139,12 @@ def test_the_command_line_reports_a_dead_mpc_process(monkeypatch, tmp_path, caps
     import cafe_mpc.assembly.controllers as controllers
     from cafe_mpc_lab.cli import main
 
-    original = controllers.realtime_mpc
-    monkeypatch.setattr(controllers, "realtime_mpc", _crashing_realtime_mpc)
+    original = controllers.process_planner
+    monkeypatch.setattr(controllers, "process_planner", _crashing_process_planner)
     try:
         status = main(["run", "trot", "--realtime", "--duration", "2", "--out", str(tmp_path / "out")])
     finally:
-        monkeypatch.setattr(controllers, "realtime_mpc", original)
+        monkeypatch.setattr(controllers, "process_planner", original)
     assert status == 1
     lines = capsys.readouterr().err.strip().splitlines()
     errors = [line for line in lines if line.startswith("cafe-mpc: error:")]
@@ -153,7 +154,7 @@ def test_the_command_line_reports_a_dead_mpc_process(monkeypatch, tmp_path, caps
     assert not multiprocessing.active_children()
 
 
-def _crashing_realtime_mpc(config_data: dict) -> CrashingMpc:
+def _crashing_process_planner(config_data: dict) -> CrashingMpc:
     return crashing_mpc(config_data, 5, "crash")
 
 

@@ -8,12 +8,13 @@ import math
 import numpy as np
 import pytest
 
-from cafe_mpc.assembly import build_low_level, build_mpc
-from cafe_mpc.assembly.scaling import run_scale, scaled_gait, scaled_schedule, scaled_weights
+from cafe_mpc.assembly import build_low_level, build_planner
+from cafe_mpc.assembly.scaling import run_scale, scaled_gait
 from cafe_mpc.config import load_config
 from cafe_mpc.config.weights import WholeBodyWeights
-from cafe_mpc.mpc.problem import ModelSchedule
 from cafe_mpc.ocp.contact_schedule import get_gait
+from cafe_mpc.planners.cafe.problem import ModelSchedule
+from cafe_mpc.planners.cafe.setup import scaled_schedule, scaled_weights
 from cafe_mpc.robots.robot import load_robot
 from cafe_mpc.robots.scaling import RobotScale, robot_scale
 
@@ -56,7 +57,7 @@ def test_a_big_robot_gets_scaled_settings_and_none_turns_it_off():
     scale = run_scale(config, robot)
     assert scale.length == pytest.approx(robot.leg_length / load_robot("mini_cheetah").leg_length)
     assert scale.mass == pytest.approx(robot.mass / 8.912)
-    mpc = build_mpc(config, robot)
+    mpc = build_planner(config, robot)
     assert mpc.reference.gait.period == pytest.approx(0.5 * math.sqrt(scale.length))
     assert mpc.reference.swing_height == pytest.approx(0.06 * scale.length)
     vwbc = build_low_level(config, robot)
@@ -66,5 +67,5 @@ def test_a_big_robot_gets_scaled_settings_and_none_turns_it_off():
     )
     plain = load_config("trot", ["robot=b2", "mpc.latency=fixed", "scaling=none"])
     assert run_scale(plain, robot).is_identity
-    assert build_mpc(plain, robot).reference.gait.period == pytest.approx(0.5)
-    assert np.isclose(build_mpc(plain, robot).reference.swing_height, 0.06)
+    assert build_planner(plain, robot).reference.gait.period == pytest.approx(0.5)
+    assert np.isclose(build_planner(plain, robot).reference.swing_height, 0.06)

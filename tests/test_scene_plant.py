@@ -7,7 +7,7 @@ import mujoco
 import numpy as np
 import pytest
 
-from cafe_mpc.assembly import build_controller, build_low_level, build_mpc, load_run_config
+from cafe_mpc.assembly import build_controller, build_low_level, build_planner, load_run_config
 from cafe_mpc.config import ConfigError
 from cafe_mpc_lab.sim.mujoco_plant import MujocoPlant
 from cafe_mpc_lab.sim.randomization import PlantVariation, plant_variation, terrain_geoms
@@ -93,11 +93,11 @@ def test_floor_friction_and_mass_scale_change_the_plant_only(robot):
 
 def test_mpc_friction_is_the_controllers_own_and_independent_of_the_plant(robot):
     config = load_run_config("trot", ["mpc.friction=0.35", "plant.floor_friction=0.9"])
-    mpc = build_mpc(config, robot)
+    mpc = build_planner(config, robot)
     assert mpc.builder.whole_body.settings.constraints.friction_coefficient == 0.35
     assert build_low_level(config, robot).settings.mu == 0.35
     template = build_controller(load_run_config("trot", ["mpc.friction=0.35", "planner=template"]), robot)
-    assert template.builder.settings.friction_coefficient == 0.35
+    assert template.planner.builder.settings.friction_coefficient == 0.35
     default = load_run_config("trot")
     assert default.mpc.friction == 0.6 and default.plant.floor_friction is None  # the robot table's 0.6
     assert build_low_level(default, robot).settings.mu == 0.6

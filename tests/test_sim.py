@@ -3,8 +3,8 @@
 import numpy as np
 import pytest
 
+from cafe_mpc.low_level.pd import PDController
 from cafe_mpc.robots.robot import load_robot
-from cafe_mpc.wbc.pd import PDController
 from cafe_mpc_lab.sim.loop import ControllerError, Push, SimulationOptions, simulate
 from cafe_mpc_lab.sim.mujoco_plant import MujocoPlant
 from cafe_mpc_lab.sim.plant import SimulationDiverged

@@ -136,7 +136,7 @@ def test_inline_the_robot_speed_follows_set_command():
 def test_inline_set_gait_switches_the_plan_to_the_new_gait():
     with Controller("trot", ["mpc.latency=fixed"]) as controller:
         _, data = _steered_loop(controller, 2.2, change_at=0.9, command={"gait": "pace"})
-        reference = controller._inner.reference
+        reference = controller._loop.reference
         plan = controller.plan
     assert data.qpos[2] > 0.2  # still up after the switch
     assert reference.gait_at(0.9).name == "trot" and reference.gait_at(2.0).name == "pace"

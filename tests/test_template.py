@@ -1,7 +1,7 @@
 """The template-MPC baseline (paper Sec. VII-C): stance torque map, plan message, SRB problem, closed loop.
 
-``planner: template`` plans over the SRB only (``mpc.template``) and follows the plan with planned GRFs on
-the stance legs and joint PD on the swing legs (``wbc.template_low_level``).
+``planner: template`` plans over the SRB only (``planners.template``) and follows the plan with planned GRFs
+on the stance legs and joint PD on the swing legs (``planners.template.low_level``).
 """
 
 from __future__ import annotations
@@ -13,22 +13,22 @@ import pinocchio as pin
 import pytest
 
 from cafe_mpc.assembly import load_run_config
-from cafe_mpc.assembly.controllers import build_mpc
+from cafe_mpc.assembly.controllers import build_planner
 from cafe_mpc.config import ConfigError
 from cafe_mpc.core.measurement import Measurement
 from cafe_mpc.core.physics import GRAVITY
-from cafe_mpc.core.template_plan import TemplatePlan
 from cafe_mpc.dynamics.statics import static_stance_torques
-from cafe_mpc.mpc.template import (
-    TemplateMpc,
+from cafe_mpc.ocp.contact_schedule import GAITS
+from cafe_mpc.planners.template.low_level import TemplateLowLevelController, stance_torques
+from cafe_mpc.planners.template.plan import TemplatePlan
+from cafe_mpc.planners.template.planner import TemplateMpc
+from cafe_mpc.planners.template.problem import (
     TemplateProblemBuilder,
     TemplateSettings,
     VerticalOscillation,
     template_srb,
 )
-from cafe_mpc.ocp.contact_schedule import GAITS
 from cafe_mpc.robots.robot import load_robot
-from cafe_mpc.wbc.template_low_level import TemplateLowLevelController, stance_torques
 from cafe_mpc_lab.experiments.run import run_metrics, simulate_run
 from cafe_mpc_lab.experiments.sweep import run_experiment
 from cafe_mpc_lab.experiments.template_gaits import pitch_swing, vertical_force_capacity
@@ -111,7 +111,7 @@ def _template_mpc(robot, preset="trot", overrides=()):
     config = load_run_config(preset, ["mpc.latency=fixed", *overrides])
     parameters, offset = template_srb(robot)
     builder = TemplateProblemBuilder(robot, TemplateSettings(parameters=parameters), offset)
-    return TemplateMpc(robot, build_mpc(config, robot).reference, builder, config.mpc)
+    return TemplateMpc(robot, build_planner(config, robot).reference, builder, config.mpc)
 
 
 def test_knots_lie_on_the_absolute_grid_and_switch_with_the_gait(robot):
@@ -244,8 +244,6 @@ def test_planner_is_validated():
     assert load_run_config("trot", ["planner=template"]).planner == "template"
     with pytest.raises(ConfigError, match="planner"):
         load_run_config("trot", ["planner=hkd"])
-    with pytest.raises(ConfigError, match="simulated time only"):
-        load_run_config("trot", ["planner=template", "simulation.realtime=true"])
     with pytest.raises(ConfigError, match="whole number of milliseconds"):
         load_run_config("trot", ["planner=template", "template.dt=0.0125"])
 

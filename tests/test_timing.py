@@ -7,12 +7,13 @@ import numpy as np
 import pytest
 
 from cafe_mpc.config import VelocityCommand
-from cafe_mpc.core.plan import Plan, interval_at
-from cafe_mpc.mpc.problem import CafeProblemBuilder, ModelSchedule
-from cafe_mpc.mpc.receding_horizon import MpcSettings, RecedingHorizonMpc
-from cafe_mpc.mpc.time_grid import TIME_QUANTUM, PiecewiseTrajectory, grid_times
+from cafe_mpc.core.plan import interval_at
 from cafe_mpc.ocp.contact_schedule import get_gait
 from cafe_mpc.ocp.knots import SRBModelFactory, WholeBodyModelFactory
+from cafe_mpc.planners.cafe.plan import Plan
+from cafe_mpc.planners.cafe.planner import MpcSettings, RecedingHorizonMpc
+from cafe_mpc.planners.cafe.problem import CafeProblemBuilder, ModelSchedule
+from cafe_mpc.planners.time_grid import TIME_QUANTUM, PiecewiseTrajectory, grid_times
 from cafe_mpc.reference.base import Reference
 from cafe_mpc.reference.locomotion import LocomotionReference
 
@@ -252,8 +253,8 @@ def test_the_update_clock_keeps_the_period_and_leaves_room_for_slow_preparations
 def test_the_delay_predictor_carries_the_planned_state_along_its_own_plan(robot):
     """A measurement on the plan, carried with the plan's own knots (step = their dt) across a touchdown,
     lands on the plan: the roll-out is the plan's dynamics (19)-(23), impacts (22) and Riccati law (33)."""
-    from cafe_mpc.control.delay_compensation import DelayPredictor
-    from cafe_mpc.mpc.planner import first_solve_options
+    from cafe_mpc.planners.base import first_solve_options
+    from cafe_mpc.planners.cafe.prediction import DelayPredictor
     from cafe_mpc.solver import MSiLQRSolver
 
     builder = _builder(robot, ModelSchedule.named("S1"))
@@ -298,26 +299,29 @@ def test_a_compensated_plan_starts_from_the_measurement_carried_to_its_start(rob
     """Delay compensation in the closed loop: an update measured at ``t`` is prepared for the last knot time
     at or before ``t + L`` (its first knot is whole and holds the time it takes effect) and its plan starts
     there from the measured state carried there along the plan in effect meanwhile."""
-    from cafe_mpc.control.delay_compensation import DelayPredictor
-    from cafe_mpc.control.mpc_loop import CafeMpcController
+    from cafe_mpc.control.inline import InlineMpcLoop
     from cafe_mpc.core.measurement import Measurement
-    from cafe_mpc.wbc.riccati import RiccatiController
+    from cafe_mpc.low_level.riccati import RiccatiController
+    from cafe_mpc.planners.cafe.prediction import DelayPredictor
 
     period = 0.02
     builder = _builder(robot, ModelSchedule.named("S1"))
-    controller = CafeMpcController(
+    controller = InlineMpcLoop(
         robot,
-        _reference(robot, "trot"),
-        builder,
+        RecedingHorizonMpc(
+            robot,
+            _reference(robot, "trot"),
+            builder,
+            MpcSettings(latency="fixed", fixed_latency=latency, warm_up=0.0, period=period),
+        ),
         RiccatiController(robot),
-        MpcSettings(latency="fixed", fixed_latency=latency, warm_up=0.0, period=period),
     )
     assert controller.delay == latency
     q, v = robot.q_standing.copy(), np.zeros(robot.nv)
     contacts = np.ones(robot.n_feet, dtype=bool)
     controller.start(0.0, Measurement.of_state(q, v, contacts))
     cold = controller.plan
-    assert controller.mpc.prepared[0] == pytest.approx(period + first_knot)
+    assert controller.planner.prepared_time == pytest.approx(period + first_knot)
     q[2] += 0.01  # the next update's measurement: 1 cm above the plan
     v[0] = 0.1
     controller.compute(period, Measurement.of_state(q, v, contacts, period))

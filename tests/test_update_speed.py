@@ -8,18 +8,19 @@ import numpy as np
 import pytest
 
 from cafe_mpc.config import MpcSettings, VelocityCommand
-from cafe_mpc.control.mpc_loop import CafeMpcController
+from cafe_mpc.control.inline import InlineMpcLoop
 from cafe_mpc.core.buffers import ArrayLender
-from cafe_mpc.core.plan import PLAN_FIELDS, Plan, PlanBuffers
-from cafe_mpc.mpc import collector
-from cafe_mpc.mpc.problem import CafeProblemBuilder, ModelSchedule
-from cafe_mpc.mpc.time_grid import TIME_QUANTUM, PiecewiseTrajectory
+from cafe_mpc.low_level.riccati import RiccatiController
 from cafe_mpc.ocp.contact_schedule import get_gait
 from cafe_mpc.ocp.knots import SRBModelFactory, WholeBodyModelFactory
+from cafe_mpc.planners import collector
+from cafe_mpc.planners.cafe.plan import PLAN_FIELDS, Plan, PlanBuffers
+from cafe_mpc.planners.cafe.planner import RecedingHorizonMpc
+from cafe_mpc.planners.cafe.problem import CafeProblemBuilder, ModelSchedule
+from cafe_mpc.planners.time_grid import TIME_QUANTUM, PiecewiseTrajectory
 from cafe_mpc.reference.base import ReferenceWindow
 from cafe_mpc.reference.locomotion import LocomotionReference
 from cafe_mpc.solver import MSiLQRSolver, SolverOptions
-from cafe_mpc.wbc.riccati import RiccatiController
 from cafe_mpc_lab.bench.problems import TROT_CYCLE, whole_body_problem
 from cafe_mpc_lab.sim.loop import SimulationOptions, simulate
 from cafe_mpc_lab.sim.mujoco_plant import MujocoPlant
@@ -143,29 +144,33 @@ class _CheckingRiccati(RiccatiController):
         return torques
 
 
-def _trot_loop(robot) -> tuple[CafeMpcController, _CheckingRiccati]:
+def _trot_loop(robot) -> tuple[InlineMpcLoop, _CheckingRiccati]:
     """A trotting real-time-iteration loop whose plans are in flight for 2.5 periods and read by the delay
-    predictor (``predict``), its low level checking that no plan changes while in use."""
+    predictor (``carry``), its low level checking that no plan changes while in use."""
     reference = LocomotionReference(robot, get_gait("trot"), [VelocityCommand(start=0.0, vx=0.4)])
     low_level = _CheckingRiccati(robot)
-    controller = CafeMpcController(
+    controller = InlineMpcLoop(
         robot,
-        reference,
-        CafeProblemBuilder(
-            WholeBodyModelFactory(robot), SRBModelFactory(robot=robot), ModelSchedule.named("S1")
+        RecedingHorizonMpc(
+            robot,
+            reference,
+            CafeProblemBuilder(
+                WholeBodyModelFactory(robot), SRBModelFactory(robot=robot), ModelSchedule.named("S1")
+            ),
+            MpcSettings(
+                period=0.02, latency="fixed", fixed_latency=0.05, scheme="rti", delay_compensation=True
+            ),
         ),
         low_level,
-        # plans in flight for 2.5 periods, read by the delay predictor too
-        MpcSettings(period=0.02, latency="fixed", fixed_latency=0.05, scheme="rti", delay_compensation=True),
     )
     return controller, low_level
 
 
 def _closed_loop_with_plan_buffers(robot, capacity: int) -> _CheckingRiccati:
     controller, low_level = _trot_loop(robot)
-    controller.mpc.plan_buffers = PlanBuffers(capacity)
+    controller.planner.plan_buffers = PlanBuffers(capacity)
     simulate(MujocoPlant(robot), controller, SimulationOptions(0.3))
-    assert controller.mpc.plan_buffers.kept <= capacity
+    assert controller.planner.plan_buffers.kept <= capacity
     return low_level
 
 
@@ -187,7 +192,7 @@ def _closed_loop_with_lent_results(robot, lend: bool) -> tuple[_CheckingRiccati,
     after every call to the MPC, the solution it keeps (``previous``: read by ``predict`` and by the next
     warm start) must equal what it was when it was made. Returns the low level and the number of checks."""
     controller, low_level = _trot_loop(robot)
-    mpc = controller.mpc
+    mpc = controller.planner
     for solver in (mpc.solver, mpc.prepare_solver):
         solver.options.lend_results = lend
     kept: list[list[np.ndarray]] = []

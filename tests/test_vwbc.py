@@ -1,6 +1,6 @@
 """The value-function whole-body controller (VWBC, paper Eq. (34)) against the Riccati policy (33).
 
-Synthetic plans (``cafe_mpc.wbc.synthetic``) stand in for MPC solutions: standing pose, static stance
+Synthetic plans (``cafe_mpc.low_level.synthetic``) stand in for MPC solutions: standing pose, static stance
 torques, random SPD ``Quu`` and ``Qux = -Quu K``.
 """
 
@@ -12,15 +12,15 @@ import pytest
 
 from cafe_mpc.control.plan_follower import PlanFollower
 from cafe_mpc.core.measurement import Measurement
-from cafe_mpc.core.plan import Plan
-from cafe_mpc.wbc.contact_dynamics import (
+from cafe_mpc.low_level.contact_dynamics import (
     FrictionConeScorer,
     contact_forces_for_torque,
     friction_cone_violation,
 )
-from cafe_mpc.wbc.riccati import RiccatiController
-from cafe_mpc.wbc.synthetic import synthetic_plan
-from cafe_mpc.wbc.vwbc import VWBCController, VWBCSettings
+from cafe_mpc.low_level.riccati import RiccatiController
+from cafe_mpc.low_level.synthetic import synthetic_plan
+from cafe_mpc.low_level.vwbc import VWBCController, VWBCSettings
+from cafe_mpc.planners.cafe.plan import Plan
 from cafe_mpc_lab.sim.loop import SimulationOptions, simulate
 from cafe_mpc_lab.sim.mujoco_plant import MujocoPlant
 

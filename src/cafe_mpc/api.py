@@ -19,23 +19,28 @@ presets) with the newest measurement; it returns the 12 joint torques in the rob
 Two ways to run the MPC (``mode``):
 
 * ``"inline"`` (default): in the calling thread, as ``cafe-mpc run`` does in simulated time
-  (``control.mpc_loop.CafeMpcController``): every ``mpc.period`` of *your* time one ``compute`` call also runs
+  (``control.inline``): every ``mpc.period`` of *your* time one ``compute`` call also runs
   an MPC update: with the real-time iteration (``mpc.scheme: rti``, default) the feedback phase of the update
   prepared for that call's time and the preparation of the next one (which expects its call on a multiple
   of the control period, else it falls back to a one-phase update); with ``mpc.latency: measured`` a plan
   takes effect once its wall time has passed on your clock, with ``fixed`` after ``mpc.fixed_latency``.
   Deterministic with ``fixed``; right for a simulator that waits for the controller.
-* ``"process"``: in its own process, against the wall clock (``control.realtime.RealtimeMpcController``,
-  ``cafe-mpc run --realtime``): ``compute`` never waits for a solve, it follows the newest plan. For a loop
-  that runs in real time (a robot, or a simulator paced by the wall clock); ``close()`` (or ``with``) stops
-  the process. If the MPC process dies or stalls the robot is held in a damped stance and ``failure`` says
-  why.
+* ``"process"``: in its own process, against the wall clock (``control.process``, ``cafe-mpc run
+  --realtime``): ``compute`` never waits for a solve, it follows the newest plan. For a loop that runs in
+  real time (a robot, or a simulator paced by the wall clock); ``reset`` starts the process (a new one on a
+  later ``reset``), ``close()`` (or ``with``) stops it and frees its shared memory. If the MPC process dies
+  or stalls the robot is held in a damped stance and ``failure`` says why.
+
+Either way the controller is the run config resolved once (``assembly``) and one MPC loop
+(``control.loop.MpcLoop``) of the planner the config names, with the state estimator the assembly builds for
+``measurement_from_sensors``.
 
 Measurements are in the planning model's coordinates (``core.measurement.Measurement``: Pinocchio's free-flyer
 ``q``, ``v`` with the base linear velocity in the base frame); ``measurement(qpos, qvel, ...)`` converts
-MuJoCo's free-joint state. A robot has no such state: ``measurement_from_sensors(...)`` estimates it from the
-IMU and the joint encoders (``estimation.estimator.StateEstimator``, the config's ``kinematic_kf`` tuning)
-with the stance of the plan the controller follows; call it once per tick, before ``compute``::
+MuJoCo's free-joint state (``core.free_joint``). A robot has no such state: ``measurement_from_sensors(...)``
+estimates it from the IMU and the joint encoders (``estimation.estimator.StateEstimator``, the config's
+``kinematic_kf`` tuning) with the stance of the plan the controller follows; call it once per tick, before
+``compute``::
 
     measurement = controller.measurement_from_sensors(t, quaternion, gyro, accelerometer, q_joints, v_joints)
     controller.reset(measurement)          # first tick (robot standing)
@@ -43,11 +48,12 @@ with the stance of the plan the controller follows; call it once per tick, befor
     torques = controller.compute(t, controller.measurement_from_sensors(t, ...))
 
 ``set_command(vx=..., vy=..., yaw_rate=..., height=...)`` steers a gait config at run time (a joystick, a
-planner, a keyboard): the command is checked like a config's, written in place, and the MPC follows it from
-its next update (``control.commands``); ``set_gait(name)`` switches gait at the next cycle boundary.
-``plan`` is the plan the low level follows now (``core.plan.Plan``), e.g. to draw it
-(``robots.plan_overlay``). ``examples/mujoco_loop.py`` runs it against a MuJoCo loop,
-``examples/steer.py`` steers it from a command sequence given on its command line.
+planner, a keyboard): the command is checked as a config's is (``control.commands.check_command``), written in
+place, and the MPC follows it from its next update (``control.commands``); ``set_gait(name)`` switches gait at
+the next cycle boundary. ``plan`` is the plan the low level follows now (the planner's plan type:
+``planners.cafe.plan.Plan`` for CAFE-MPC), e.g. to draw it (``robots.plan_overlay``).
+``examples/mujoco_loop.py`` runs it against a MuJoCo loop, ``examples/steer.py`` steers it from a command
+sequence given on its command line.
 """
 
 from __future__ import annotations
@@ -58,15 +64,16 @@ from pathlib import Path
 from typing import Literal
 
 import numpy as np
+from pydantic import ValidationError
 
 from cafe_mpc.assembly.checks import robot_of
-from cafe_mpc.assembly.controllers import build_controller, build_realtime_controller
+from cafe_mpc.assembly.controllers import build_estimator, build_mpc_loop
 from cafe_mpc.config import ConfigError, RunConfig, VelocityCommand, format_validation_error, load_config
-from cafe_mpc.control.mpc_loop import CafeMpcController
-from cafe_mpc.control.realtime import RealtimeMpcController
-from cafe_mpc.core.free_joint import free_joint_qpos, planning_state
+from cafe_mpc.control.commands import GAIT_NAMES, check_command
+from cafe_mpc.control.loop import MpcLoop
+from cafe_mpc.core.free_joint import free_joint_measurement, free_joint_qpos
 from cafe_mpc.core.measurement import Measurement
-from cafe_mpc.core.plan import Plan
+from cafe_mpc.core.plan import KnotPlan
 from cafe_mpc.core.sensors import SensorReadings
 from cafe_mpc.estimation.estimator import StateEstimator
 from cafe_mpc.robots.robot import Robot
@@ -79,7 +86,7 @@ Mode = Literal["inline", "process"]
 
 
 class Controller:
-    """CAFE-MPC over its low-level controller, for a loop you own (see the module docstring).
+    """An MPC over its low-level controller, for a loop you own (see the module docstring).
 
     ``config``: a preset name (``trot``, ``bound``, ...), a YAML file, or a ``RunConfig``; ``overrides``:
     ``key=value`` strings as ``cafe-mpc run --set`` takes them (not with a ``RunConfig``). ``mode``:
@@ -102,30 +109,21 @@ class Controller:
                 raise ConfigError("overrides apply to a preset or a YAML file, not to a RunConfig")
         else:
             config = load_config(str(config), list(overrides))
-        if mode not in ("inline", "process"):
-            raise ConfigError(f"mode must be 'inline' or 'process', got {mode!r}")
-        if config.wbc == "pd":
-            raise ConfigError(
-                "the Controller runs CAFE-MPC: use a gait config (wbc: vwbc or riccati), not wbc: pd"
-            )
-        if mode == "process" and config.planner == "template":
-            raise ConfigError("planner: 'template' runs inline only (mode='inline')")
         self.config = config
         self.mode: Mode = mode
         self.robot: Robot = robot_of(config)  # the config checked against the robot it names
-        self._inner: CafeMpcController | RealtimeMpcController | None = None
+        # the low level without a run recorder: a loop of unknown length keeps no per-tick records
+        self._loop: MpcLoop = build_mpc_loop(config, self.robot, mode)
         self._t0 = 0.0
+        self._started = False
+        self._closed = False
         self._estimator: StateEstimator | None = None  # built on the first measurement_from_sensors
         self._readings = SensorReadings.zeros(self.robot.nu)
-        self._closed = False
         first = config.gait.commands[0] if config.gait is not None else VelocityCommand()
         self._command = (first.vx, first.vy, first.yaw_rate, first.height)
         """The last command set (initially the config's first), whose values ``set_command`` keeps."""
-        self._steered = False
         self._gait: int | None = None
         """The gait set by ``set_gait`` (an index of ``control.commands.GAIT_NAMES``), None: the config's."""
-        if mode == "inline":
-            self._inner = self._build_inline()
 
     # ------------------------------------------------------------------------------------ lifecycle
     def __enter__(self) -> Controller:
@@ -136,15 +134,12 @@ class Controller:
 
     def close(self) -> None:
         """Stop the MPC process (``process`` mode) and free its shared memory; idempotent."""
-        if isinstance(self._inner, RealtimeMpcController):
-            self._inner.close()
+        self._loop.close()
         self._closed = True
 
-    def _build_inline(self) -> CafeMpcController:
-        # the low level without a run recorder: a loop of unknown length keeps no per-tick records
-        controller = build_controller(self.config, self.robot)
-        assert isinstance(controller, CafeMpcController)  # wbc: pd is rejected above
-        return controller
+    def _check_open(self) -> None:
+        if self._closed:
+            raise RuntimeError("this Controller is closed; create a new one")
 
     # -------------------------------------------------------------------------------------- control
     @property
@@ -155,32 +150,19 @@ class Controller:
     def reset(self, measurement: Measurement, t: float | None = None) -> None:
         """Start (again) from ``measurement``: forget plans and warm starts, make ``t`` (default
         ``measurement.time``) time zero of the reference, and run the first (cold) MPC solve now, before your
-        loop's clock starts, as on the robot (in ``process`` mode: start the MPC process and wait for its
-        first plan)."""
-        if self._closed:
-            raise RuntimeError("this Controller is closed; create a new one")
+        loop's clock starts, as on the robot (in ``process`` mode: start the MPC process, a new one after a
+        previous ``reset``, and wait for its first plan; it follows the command and gait set so far)."""
+        self._check_open()
         self._t0 = float(measurement.time if t is None else t)
-        start = self._relative(measurement, 0.0)
-        if self.mode == "inline":
-            assert isinstance(self._inner, CafeMpcController)
-            self._inner.reset()
-            self._inner.start(0.0, start)
-        else:
-            if self._inner is not None:  # a new process: the old one's reference and warm starts are stale
-                self._inner.close()
-            # no run recorder around the low level (see _build_inline)
-            self._inner = build_realtime_controller(self.config, self.robot)
-            if self._steered:  # the new process's reference follows the command and gait set before
-                self._inner.commands.post(*self._command, self._gait)
-            self._inner.reset()
-            self._inner.wait_ready(start)
+        self._loop.reset()
+        self._loop.start(0.0, self._relative(measurement, 0.0))
+        self._started = True
 
     def compute(self, t: float, measurement: Measurement) -> np.ndarray:
         """Joint torques (nu,) for time ``t`` (your clock) from ``measurement``; call at the control rate."""
-        inner = self._inner
-        if inner is None or (self.mode == "inline" and not inner.mpc.started):
+        if not self._started:
             raise RuntimeError("call reset(measurement) before compute")
-        torques = inner.compute(t - self._t0, self._relative(measurement, t - self._t0))
+        torques = self._loop.compute(t - self._t0, self._relative(measurement, t - self._t0))
         return np.array(torques, dtype=float)
 
     def set_command(
@@ -202,11 +184,7 @@ class Controller:
         value the robot cannot follow (e.g. ``|vx| > 3 m/s``) or for a config without a gait (a composed
         reference such as the barrel roll cannot be steered). Written in place: no allocation, safe to call
         at the control rate."""
-        if self.config.gait is None:
-            raise ConfigError(
-                f"set_command steers a gait; config {self.config.name!r} follows a composed reference "
-                "(reference section) instead"
-            )
+        self._check_steerable("set_command steers a gait")
         old_vx, old_vy, old_yaw_rate, old_height = self._command
         values = (
             old_vx if vx is None else vx,
@@ -215,12 +193,10 @@ class Controller:
             old_height if height is None else height,
         )
         if values != self._command:
-            self._validate_command(*values)
+            self._check_command(*values)
             self._command = values
-        if self._closed:
-            raise RuntimeError("this Controller is closed; create a new one")
-        self._steered = True
-        self._post()
+        self._check_open()
+        self._loop.commands.post(*self._command, self._gait)
 
     def set_gait(self, name: str) -> None:
         """Switch gait (``trot``, ``pace``, ``bound``, ``pronk``, ``flying_trot``, ``flying_pace``, ``stand``)
@@ -228,58 +204,35 @@ class Controller:
         the velocity command stays. The config's other settings (swing height, weights, horizons) stay too:
         the gait presets differ only in their gait. ``ConfigError`` for an unknown gait or a config without a
         gait."""
-        from cafe_mpc.control.commands import GAIT_NAMES
-
-        if self.config.gait is None:
-            raise ConfigError(
-                f"set_gait switches a gait; config {self.config.name!r} follows a composed reference "
-                "(reference section) instead"
-            )
+        self._check_steerable("set_gait switches a gait")
         key = str(name).replace("-", "_").lower()
         if key not in GAIT_NAMES:
             raise ConfigError(f"invalid gait {name!r}; gaits: {', '.join(GAIT_NAMES)}")
-        if self._closed:
-            raise RuntimeError("this Controller is closed; create a new one")
+        self._check_open()
         self._gait = GAIT_NAMES.index(key)
-        self._steered = True
-        self._post()
+        self._loop.commands.post(*self._command, self._gait)
 
-    def _post(self) -> None:
-        """Post the command and gait set so far to the MPC (in process mode before ``reset``: at reset)."""
-        channel = self._channel()
-        if channel is not None:
-            channel.post(*self._command, self._gait)
+    def _check_steerable(self, what: str) -> None:
+        if self.config.gait is None:
+            name = self.config.name
+            raise ConfigError(
+                f"{what}; config {name!r} follows a composed reference (reference section) instead"
+            )
 
-    def _validate_command(self, vx: float, vy: float, yaw_rate: float, height: float | None) -> None:
-        """``ConfigError`` (one line) unless the robot can follow the command (``validate_command``)."""
-        from pydantic import ValidationError
-
-        from cafe_mpc.reference.locomotion import validate_command
-        from cafe_mpc.reference.tested_ranges import outside_tested_range
-
+    def _check_command(self, vx: float, vy: float, yaw_rate: float, height: float | None) -> None:
+        """``ConfigError`` (one line) unless the robot can follow the command (``check_command``); a
+        warning when the gait was not tested with it."""
         try:
             command = VelocityCommand(vx=vx, vy=vy, yaw_rate=yaw_rate, height=height)
         except ValidationError as error:
             raise ConfigError(f"invalid command: {format_validation_error(error, 'command')}") from error
+        gait = GAIT_NAMES[self._gait] if self._gait is not None else self.config.gait.name
         try:
-            validate_command(command, self.robot)
+            untested = check_command(command, self.robot, gait)
         except ValueError as error:
             raise ConfigError(f"invalid command: {error}") from error
-        gait = self.config.gait.name if self.config.gait is not None else ""
-        if self._gait is not None:
-            from cafe_mpc.control.commands import GAIT_NAMES
-
-            gait = GAIT_NAMES[self._gait]
-        untested = outside_tested_range(gait, command, self.robot.name)
         if untested is not None:
             logger.warning("set_command: %s; it may not work", untested)
-
-    def _channel(self):
-        """The command channel of the MPC in use (inline: its loop's; process: the shared one)."""
-        inner = self._inner
-        if self._closed or inner is None:
-            return None
-        return inner.commands
 
     def _relative(self, measurement: Measurement, t: float) -> Measurement:
         """The measurement on the controller's clock (time zero at ``reset``)."""
@@ -287,32 +240,23 @@ class Controller:
 
     # ---------------------------------------------------------------------------------- inspection
     @property
-    def plan(self) -> Plan | None:
+    def plan(self) -> KnotPlan | None:
         """The plan the low-level controller follows now (None before the first solve). Its times are on the
         controller's clock (zero at ``reset``)."""
-        return getattr(self._inner, "plan", None) if self._inner is not None else None
+        return self._loop.plan
 
     @property
     def failure(self) -> str | None:
         """``process`` mode: why the MPC process stopped delivering plans (None while all is well)."""
-        return getattr(self._inner, "failure", None)
+        return self._loop.failure
 
     def statistics(self) -> dict:
-        """The MPC's update statistics so far (``MpcStatistics.summary``: solves, failures, update and
-        latency medians, ...); in ``process`` mode the plan latencies seen here."""
-        inner = self._inner
-        if isinstance(inner, CafeMpcController):
-            return inner.statistics.summary()
-        if isinstance(inner, RealtimeMpcController):
-            latencies = inner.statistics.latencies
-            return {
-                "plans_received": len(latencies),
-                "latency_ms_median": float(np.median(latencies)) * 1e3 if latencies else None,
-                "pd_fallback_ticks": inner.statistics.fallback_ticks,
-            }
-        return {}
+        """The MPC's update statistics so far (``MpcLoop.summary``: solves, failures, update and latency
+        medians, ...); in ``process`` mode the plans received here (the MPC process's own records arrive when
+        it stops)."""
+        return self._loop.summary()
 
-    # ------------------------------------------------------------------------------- MuJoCo helpers
+    # ---------------------------------------------------------------------------- measurements
     def measurement(
         self,
         qpos: np.ndarray,
@@ -322,19 +266,13 @@ class Controller:
     ) -> Measurement:
         """A ``Measurement`` from MuJoCo's free-joint state (``qpos``: position, quaternion w x y z, joints;
         ``qvel``: world-frame linear velocity, base-frame angular velocity, joint rates), joints in the
-        robot's order. ``contacts``: feet in contact (leg order; only ``vwbc.stance_source: intersect`` uses
-        them; default none)."""
+        robot's order (``core.free_joint.free_joint_measurement``). ``contacts``: feet in contact (leg order;
+        only ``vwbc.stance_source: intersect`` uses them; default none)."""
         robot = self.robot
-        q, v = np.zeros(robot.nq), np.zeros(robot.nv)
-        qpos, qvel = np.asarray(qpos, dtype=float), np.asarray(qvel, dtype=float)
-        if qpos.shape != (robot.nq,) or qvel.shape != (robot.nv,):
-            raise ValueError(
-                f"measurement: qpos must have shape ({robot.nq},) (position, quaternion w x y z, "
-                f"{robot.nu} joints) and qvel ({robot.nv},), got {qpos.shape} and {qvel.shape}"
-            )
-        planning_state(qpos, qvel, q, v)
-        flags = np.zeros(robot.n_feet, dtype=bool) if contacts is None else np.asarray(contacts, dtype=bool)
-        return Measurement(float(time), q, v, flags, np.zeros((robot.n_feet, 3)))
+        try:
+            return free_joint_measurement(qpos, qvel, robot.nv, robot.n_feet, time, contacts)
+        except ValueError as error:
+            raise ValueError(f"measurement: {error}") from error
 
     def measurement_from_sensors(
         self,
@@ -358,54 +296,29 @@ class Controller:
         estimator (``estimation.estimator.StateEstimator``, the config's ``kinematic_kf`` section) integrates
         from one call to the next and uses the stance of the plan followed now. Its first call (or the first
         after ``reset_estimator``) starts it with the robot standing at x-y ``(0, 0)``. Bad readings raise
-        ``ValueError`` naming the field. The returned object is reused by the next call."""
+        ``ValueError`` naming the field (``core.sensors.SensorReadings.fill``). The returned object is reused
+        by the next call."""
         if self._estimator is None:
-            self._estimator = StateEstimator(self.robot, self.config.kinematic_kf)
+            self._estimator = build_estimator(self.config, self.robot)
             self._estimator.reset()
         readings = self._readings
-        try:
-            readings.time = float(time)
-            quaternion = np.asarray(orientation, dtype=float)
-            if quaternion.shape != (4,):
-                raise ValueError(f"sensor reading orientation must have shape (4,), got {quaternion.shape}")
-            if scalar_first:
-                readings.orientation[3] = quaternion[0]
-                readings.orientation[:3] = quaternion[1:]
-            else:
-                readings.orientation[:] = quaternion
-            for name, value in (
-                ("gyro", gyro),
-                ("accelerometer", accelerometer),
-                ("joint_positions", joint_positions),
-                ("joint_velocities", joint_velocities),
-            ):
-                array = np.asarray(value, dtype=float)
-                target = getattr(readings, name)
-                if array.shape != target.shape:
-                    raise ValueError(
-                        f"sensor reading {name} must have shape {target.shape}, got {array.shape}"
-                    )
-                target[:] = array
-            if joint_torques is None:
-                readings.joint_torques[:] = np.nan
-            else:
-                torques = np.asarray(joint_torques, dtype=float)
-                if torques.shape != readings.joint_torques.shape:
-                    raise ValueError(
-                        f"sensor reading joint_torques must have shape {readings.joint_torques.shape}, "
-                        f"got {torques.shape}"
-                    )
-                readings.joint_torques[:] = torques
-        except (TypeError, ValueError) as error:
-            raise ValueError(str(error)) from error
-        readings.validate(self.robot.nu)
+        readings.fill(
+            time,
+            orientation,
+            gyro,
+            accelerometer,
+            joint_positions,
+            joint_velocities,
+            joint_torques,
+            scalar_first,
+        )
         return self._estimator.update(readings, self.plan, plan_time=readings.time - self._t0)
 
     def reset_estimator(self, position_xy: Sequence[float] = (0.0, 0.0)) -> None:
         """Restart the state estimator: its next ``measurement_from_sensors`` starts it with the robot
         standing at ``position_xy`` (the odometry origin)."""
         if self._estimator is None:
-            self._estimator = StateEstimator(self.robot, self.config.kinematic_kf)
+            self._estimator = build_estimator(self.config, self.robot)
         self._estimator.reset(np.asarray(position_xy, dtype=float))
 
     def standing_qpos(self) -> np.ndarray:

@@ -649,7 +649,7 @@ def main(argv: list[str] | None = None) -> int:
     console.addFilter(lambda record: not record.name.startswith("cafe_mpc.stage"))  # printed by _talk
     logging.getLogger().addHandler(console)
     from cafe_mpc.config import ConfigError
-    from cafe_mpc.control.realtime import MpcProcessError
+    from cafe_mpc.control.process import MpcProcessError
     from cafe_mpc.robots.robot import RobotLoadError
     from cafe_mpc.trajopt.task import TrajOptTaskError
     from cafe_mpc_lab.experiments.registry import SweepError

@@ -9,8 +9,8 @@
   phases, ``"world"`` base error, the tasks' barriers), about the problems' initial guesses;
 * SRB knots (``ocp.knots.SRBKnot``, Eqs. (28)-(30)): running knots in all 16 contact modes, terminal knots,
   the regular weights;
-* the template's SRB knots with GRF barriers (``mpc.template.ConstrainedSRBKnot``) in all 16 modes, with the
-  stance legs' torque maps at the standing pose.
+* the template's SRB knots with GRF barriers (``planners.template.problem.ConstrainedSRBKnot``) in all 16
+  modes, with the stance legs' torque maps at the standing pose.
 """
 
 from __future__ import annotations
@@ -23,7 +23,6 @@ import pinocchio as pin
 
 from cafe_mpc.config.weights import WholeBodyWeights
 from cafe_mpc.dynamics.srb import SRBDynamics
-from cafe_mpc.mpc.template import ConstrainedSRBKnot, TemplateSettings, template_srb
 from cafe_mpc.ocp.barrier import RelaxedBarrier
 from cafe_mpc.ocp.constraints import WholeBodyConstraintSettings
 from cafe_mpc.ocp.knots import (
@@ -34,6 +33,7 @@ from cafe_mpc.ocp.knots import (
     WholeBodyModelFactory,
     WholeBodySettings,
 )
+from cafe_mpc.planners.template.problem import ConstrainedSRBKnot, TemplateSettings, template_srb
 from cafe_mpc.robots.robot import Robot
 from cafe_mpc.trajopt.multiphase import TrajOptProblem, build_problem
 from cafe_mpc.trajopt.presets import TASKS, load_task

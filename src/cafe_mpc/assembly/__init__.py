@@ -7,33 +7,43 @@ library (``cafe_mpc.Controller``) alike. It imports no simulator.
   ``load_run_config`` loads and checks;
 * ``scaling``: the config's tuned values (the reference robot's) carried to the run's robot;
 * ``references``: the reference the MPC tracks (locomotion, composed with stored trajectories);
-* ``problem``: the CAFE problem (model schedule, knot factories, weight sets, torque limits);
-* ``controllers``: the planners (CAFE-MPC, template MPC), the low-level controllers, the closed loop in
-  simulated time, the real-time MPC process, the state estimator in front.
+* ``context``: what a config resolves to before anything is built (robot scale, torque limits: the
+  ``RunContext`` the registries' builders take);
+* ``controllers``: the planner and the low level through the registries (``planners.registry``,
+  ``low_level.registry``), the MPC loop (inline or in its own process), the state estimator in front.
 """
 
 from cafe_mpc.assembly.checks import check_config, load_run_config
+from cafe_mpc.assembly.context import run_context, torque_limits_of
 from cafe_mpc.assembly.controllers import (
     RunController,
     build_controller,
+    build_estimator,
     build_low_level,
-    build_mpc,
-    build_realtime_controller,
+    build_mpc_loop,
+    build_planner,
     build_sensing_controller,
-    build_template_mpc,
+    low_level_name,
+    process_planner,
+    runs_alone,
 )
 from cafe_mpc.assembly.references import build_reference, reference_profile
 
 __all__ = [
     "RunController",
     "build_controller",
+    "build_estimator",
     "build_low_level",
-    "build_mpc",
-    "build_realtime_controller",
+    "build_mpc_loop",
+    "build_planner",
     "build_reference",
     "build_sensing_controller",
-    "build_template_mpc",
     "check_config",
     "load_run_config",
+    "low_level_name",
+    "process_planner",
     "reference_profile",
+    "run_context",
+    "runs_alone",
+    "torque_limits_of",
 ]

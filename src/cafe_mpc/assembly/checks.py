@@ -21,14 +21,14 @@ import functools
 import logging
 from collections.abc import Sequence
 
-from cafe_mpc.assembly.problem import model_schedule
 from cafe_mpc.assembly.references import load_reference_trajectory
 from cafe_mpc.config import ConfigError, GaitConfig, RunConfig, VelocityCommand, load_config
+from cafe_mpc.control.commands import check_command
 from cafe_mpc.core.progress import stage
-from cafe_mpc.mpc.problem import PAPER_SCHEDULES
 from cafe_mpc.ocp.contact_schedule import GAITS
+from cafe_mpc.planners.cafe.problem import PAPER_SCHEDULES
+from cafe_mpc.planners.cafe.setup import model_schedule
 from cafe_mpc.reference.locomotion import validate_command
-from cafe_mpc.reference.tested_ranges import outside_tested_range
 from cafe_mpc.robots.robot import Robot, RobotLoadError, known_robots, load_robot, names_gym_model
 
 logger = logging.getLogger(__name__)
@@ -104,23 +104,19 @@ def _check_schedule(config: RunConfig) -> None:
 
 
 def _check_gait(gait: GaitConfig, key: str, robot: Robot) -> None:
-    """A known gait; commands the robot can follow (``validate_command``: speeds, yaw rate, height); a
-    warning for a command outside the range the gait was tested in (``reference.tested_ranges``)."""
+    """A known gait; commands the robot can follow (``control.commands.check_command``: speeds, yaw rate,
+    height); a warning for a command outside the range the gait was tested in."""
     if gait.name not in GAITS:
         raise ValueError(f"{key}.name: unknown gait {gait.name!r}; known gaits: {', '.join(sorted(GAITS))}")
-    _check_commands(gait.commands, f"{key}.commands", robot)
+    untested = []
     for index, command in enumerate(gait.commands):
-        untested = outside_tested_range(gait.name, command, robot.name)
-        if untested is not None:
-            logger.warning("%s.commands.%d: %s; it may not work", key, index, untested)
-
-
-def _check_commands(commands: list[VelocityCommand], key: str, robot: Robot) -> None:
-    for index, command in enumerate(commands):
         try:
-            validate_command(command, robot)
+            untested.append(check_command(command, robot, gait.name))
         except ValueError as error:
-            raise ValueError(f"{key}.{index}: {error}") from error
+            raise ValueError(f"{key}.commands.{index}: {error}") from error
+    for index, reason in enumerate(untested):
+        if reason is not None:
+            logger.warning("%s.commands.%d: %s; it may not work", key, index, reason)
 
 
 def _check_reference(config: RunConfig, robot: Robot) -> None:

@@ -8,9 +8,11 @@ by dotted key, one-line validation errors, presets).
 from cafe_mpc.config.estimation import KinematicKFSettings
 from cafe_mpc.config.loading import ConfigError, StrictModel, format_validation_error, parse_override
 from cafe_mpc.config.run import (
+    CONTROLLER_FRICTION,
     DEFAULT_FRICTION,
     PAPER_BUDGET_FRACTION,
     PRESET_DIR,
+    ContactDetectionSettings,
     CostsConfig,
     EncoderSpec,
     FallConfig,
@@ -40,10 +42,12 @@ from cafe_mpc.config.run import (
 from cafe_mpc.config.weights import SRBWeights, WholeBodyWeights
 
 __all__ = [
+    "CONTROLLER_FRICTION",
     "DEFAULT_FRICTION",
     "PAPER_BUDGET_FRACTION",
     "PRESET_DIR",
     "ConfigError",
+    "ContactDetectionSettings",
     "CostsConfig",
     "EncoderSpec",
     "FallConfig",

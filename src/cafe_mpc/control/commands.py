@@ -1,17 +1,20 @@
 """Commands at run time: a velocity command and a gait posted by the caller and taken by the MPC at its next
 update (``cafe_mpc.Controller.set_command`` and ``set_gait``, keyboard teleop in ``--viewer``).
 
-The caller and the MPC may be in different processes (``control.realtime``), so the channel is a small float64
-array with a seqlock counter in element 0 (odd while written), the same protocol as the real-time mode's
-other channels: ``post`` writes in place (no allocation: it may be called from a 500 Hz loop), ``take``
-returns a command once, when the counter has moved and the copy is consistent. The payload is
-``[vx, vy, yaw_rate, height, gait]``: m/s in the heading frame, rad/s, m (NaN: the robot's standing height)
-and the index of the gait in ``GAIT_NAMES`` (NaN: the config's; once set, every post carries it).
+The caller and the MPC may be in different processes (``control.process``), so the channel is a small float64
+array behind a seqlock (``control.ipc.seqlock``), the protocol of the MPC process's other channels: ``post``
+writes in place (no allocation: it may be called from a 500 Hz loop), ``take`` returns a command once, when
+the counter has moved and the copy is consistent. The payload is ``[vx, vy, yaw_rate, height, gait]``: m/s in
+the heading frame, rad/s, m (NaN: the robot's standing height) and the index of the gait in ``GAIT_NAMES``
+(NaN: the config's; once set, every post carries it).
 
 The MPC side applies a taken command with ``apply_command``: the reference follows it from the update's
 time on (``LocomotionReference.set_command``: ramped over ``gait.command_ramp`` from the value it has then,
 as a timed command of the config would be) and switches to the gait at the gait's next cycle boundary
 (``LocomotionReference.set_gait``) when it is not the one in force.
+
+``check_command`` is the one check of a command, wherever it comes from: a config's commands
+(``assembly.checks``), ``cafe_mpc.Controller.set_command``, the viewer's keyboard teleop.
 """
 
 from __future__ import annotations
@@ -22,8 +25,12 @@ import math
 import numpy as np
 
 from cafe_mpc.config import VelocityCommand
+from cafe_mpc.control.ipc.seqlock import SeqLock
 from cafe_mpc.ocp.contact_schedule import GAITS
 from cafe_mpc.reference.base import Reference
+from cafe_mpc.reference.locomotion import validate_command
+from cafe_mpc.reference.tested_ranges import outside_tested_range
+from cafe_mpc.robots.robot import Robot
 
 logger = logging.getLogger(__name__)
 
@@ -36,39 +43,42 @@ GAIT_NAMES: tuple[str, ...] = tuple(sorted(GAITS))
 
 class CommandChannel:
     """A seqlock channel of one runtime command (module docstring) over ``array`` (``COMMAND_SIZE`` + 1
-    float64; a plain array inline, shared memory in the real-time mode)."""
+    float64; a plain array inline, shared memory in the MPC process's control block)."""
 
     def __init__(self, array: np.ndarray | None = None) -> None:
         if array is None:
             array = np.zeros(COMMAND_SIZE + 1)
         if array.shape != (COMMAND_SIZE + 1,) or array.dtype != np.float64:
             raise ValueError(f"a command channel needs {COMMAND_SIZE + 1} float64 values, got {array.shape}")
-        self.array = array
+        self.lock = SeqLock(array)
         self._seen = 0.0  # a fresh channel starts at 0: a command posted before this side attached counts
         self._copy = np.zeros(COMMAND_SIZE)
+
+    @property
+    def array(self) -> np.ndarray:
+        return self.lock.array
 
     def post(
         self, vx: float, vy: float, yaw_rate: float, height: float | None, gait: int | None = None
     ) -> None:
         """Write a command in place (the caller has validated it); ``gait``: an index of ``GAIT_NAMES``."""
-        array = self.array
-        array[0] += 1.0  # odd: writing
-        array[1] = vx
-        array[2] = vy
-        array[3] = yaw_rate
-        array[4] = math.nan if height is None else height
-        array[5] = math.nan if gait is None else float(gait)
-        array[0] += 1.0  # even: consistent
+        lock = self.lock
+        payload = lock.payload
+        lock.begin_write()
+        payload[0] = vx
+        payload[1] = vy
+        payload[2] = yaw_rate
+        payload[3] = math.nan if height is None else height
+        payload[4] = math.nan if gait is None else float(gait)
+        lock.end_write()
 
     def take(self) -> np.ndarray | None:
-        """The newest command posted since the last ``take`` (a view reused by the next call), else None."""
-        before = float(self.array[0])
-        if before == self._seen or int(before) % 2:
+        """The newest command posted since the last ``take`` (a view reused by the next call), else None (also
+        while one is being written: it is taken next time)."""
+        sequence = self.lock.read_into(self._copy, newer_than=self._seen)
+        if sequence is None:
             return None
-        np.copyto(self._copy, self.array[1:])
-        if float(self.array[0]) != before:
-            return None  # written meanwhile: take it next time
-        self._seen = before
+        self._seen = sequence
         return self._copy
 
 
@@ -93,3 +103,12 @@ def apply_command(reference: Reference, t: float, values: np.ndarray) -> None:
         start=max(t, 0.0), vx=vx, vy=vy, yaw_rate=yaw_rate, height=None if math.isnan(height) else height
     )
     set_command(t, command)
+
+
+def check_command(command: VelocityCommand, robot: Robot, gait: str) -> str | None:
+    """Whether ``robot`` can follow ``command`` in ``gait``: ``ValueError`` (naming the value) when it cannot
+    (``reference.locomotion.validate_command``: speeds, yaw rate, height); why it may not work when the
+    command lies outside the range the gait was tested in on the robot (``reference.tested_ranges``), else
+    None."""
+    validate_command(command, robot)
+    return outside_tested_range(gait, command, robot.name)

@@ -3,6 +3,7 @@
 * ``interfaces``: the per-knot interface between optimal-control problems and the solver;
 * ``contacts``: contact flags (one bool per foot, leg order);
 * ``measurement``: ``Measurement``, what a controller reads at a control tick;
-* ``plan``: ``Plan``, the message from the MPC to the low-level controller;
-* ``controller``: the ``LowLevelController`` and closed-loop ``Controller`` interfaces.
+* ``plan``: ``KnotPlan``, what every plan is (the planners' own plan types follow it), and ``PlanFormat``,
+  how a plan type's arrays travel;
+* ``controller``: the ``LowLevelController[PlanT]`` and closed-loop ``Controller`` interfaces.
 """

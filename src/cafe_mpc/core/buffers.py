@@ -4,7 +4,7 @@ An output handed to a caller (a plan, a solver result) may be kept by the caller
 its arrays must never change. The arrays are therefore lent again only when nothing but their lender
 refers to any of them (CPython's reference counts: an array, a view of one, or an object holding either,
 alive anywhere keeps it busy; a numpy view holds its base array). ``unreferenced`` is that test;
-``ArrayLender`` lends sets of row buffers with it (``core.plan.PlanBuffers`` lends plans' arrays).
+``ArrayLender`` lends sets of row buffers with it (``planners.cafe.plan.PlanBuffers`` lends plans' arrays).
 """
 
 from __future__ import annotations

@@ -4,13 +4,17 @@ MuJoCo (and simulators built on it) store a free joint as ``qpos = [position, qu
 joints]`` and ``qvel = [world-frame linear velocity, base-frame angular velocity, joint rates]``; the
 planning model (Pinocchio's free flyer) as ``q = [position, quaternion (x, y, z, w), joints]`` and ``v =
 [base-frame linear velocity, base-frame angular velocity, joint rates]``. The conversion is arithmetic on
-arrays: the library front end (``cafe_mpc.api``) uses it without a simulator, the plants (``sim``) on
-every tick.
+arrays: the library front end (``cafe_mpc.api``: ``free_joint_measurement``) uses it without a simulator, the
+plants (``sim``) on every tick.
 """
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 import numpy as np
+
+from cafe_mpc.core.measurement import Measurement
 
 
 def rotation_from_wxyz(quaternion_wxyz: np.ndarray, out: np.ndarray) -> None:
@@ -50,3 +54,28 @@ def planning_state(
 def free_joint_qpos(q: np.ndarray) -> np.ndarray:
     """Planning ``q`` -> free-joint ``qpos`` (quaternion (x, y, z, w) -> (w, x, y, z)), a new array."""
     return np.concatenate([q[:3], [q[6], q[3], q[4], q[5]], q[7:]])
+
+
+def free_joint_measurement(
+    qpos: np.ndarray,
+    qvel: np.ndarray,
+    nv: int,
+    n_feet: int,
+    time: float = 0.0,
+    contacts: Sequence[bool] | None = None,
+) -> Measurement:
+    """A ``Measurement`` (new arrays) of a free-joint state ``(qpos, qvel)`` (``planning_state``) of a robot
+    with ``nv`` velocities at ``time``: ``contacts``, the feet in contact (leg order; default none), no force
+    reading. ``ValueError`` for arrays of other shapes."""
+    qpos, qvel = np.asarray(qpos, dtype=float), np.asarray(qvel, dtype=float)
+    if qpos.shape != (nv + 1,) or qvel.shape != (nv,):
+        raise ValueError(
+            f"qpos must have shape ({nv + 1},) (position, quaternion w x y z, {nv - 6} joints) and qvel "
+            f"({nv},), got {qpos.shape} and {qvel.shape}"
+        )
+    q, v = np.zeros(nv + 1), np.zeros(nv)
+    planning_state(qpos, qvel, q, v)
+    flags = np.zeros(n_feet, dtype=bool) if contacts is None else np.asarray(contacts, dtype=bool)
+    if flags.shape != (n_feet,):
+        raise ValueError(f"contacts must have {n_feet} flags (leg order), got shape {flags.shape}")
+    return Measurement(float(time), q, v, flags, np.zeros((n_feet, 3)))

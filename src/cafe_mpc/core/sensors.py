@@ -8,11 +8,11 @@ A real robot has no measurement of its base pose and velocity; it has
 * **joint encoders**: joint angles and rates (the motor controllers' estimates, quantised by the bus);
 * **joint torques**: the motor controllers' current-based torque estimates.
 
-The simulator (``cafe_mpc_lab.sim.sensors``) fills a ``SensorReadings`` from MuJoCo's sensors with noise,
-bias and quantisation; a state estimator (``cafe_mpc.estimation``) turns readings into the ``Measurement`` the
-controllers read. On a robot, fill one from the hardware drivers
-(``cafe_mpc.Controller.measurement_from_sensors`` does it from plain arrays). Conventions are the planning
-model's: quaternion ``(x, y, z, w)`` (base to world), joints in the robot's joint order.
+The simulator (``cafe_mpc_lab.sim.sensors``) fills a ``SensorReadings`` from MuJoCo's sensors with noise, bias
+and quantisation; a state estimator (``cafe_mpc.estimation``) turns readings into the ``Measurement`` the
+controllers read. On a robot, fill one from the hardware drivers (``fill``: from plain arrays, as
+``cafe_mpc.Controller.measurement_from_sensors`` does). Conventions are the planning model's: quaternion ``(x,
+y, z, w)`` (base to world), joints in the robot's joint order.
 """
 
 from __future__ import annotations
@@ -58,6 +58,53 @@ class SensorReadings:
         np.copyto(self.joint_positions, other.joint_positions)
         np.copyto(self.joint_velocities, other.joint_velocities)
         np.copyto(self.joint_torques, other.joint_torques)
+
+    def fill(
+        self,
+        time: float,
+        orientation: np.ndarray,
+        gyro: np.ndarray,
+        accelerometer: np.ndarray,
+        joint_positions: np.ndarray,
+        joint_velocities: np.ndarray,
+        joint_torques: np.ndarray | None = None,
+        scalar_first: bool = False,
+    ) -> None:
+        """Overwrite this reading with plain arrays (sequences are taken too), then ``validate`` it.
+        ``orientation``: quaternion ``(x, y, z, w)``, or ``(w, x, y, z)`` with ``scalar_first``;
+        ``joint_torques`` None: not measured (NaN). ``ValueError`` naming the field for a value that does
+        not fit."""
+        try:
+            self.time = float(time)
+            quaternion = np.asarray(orientation, dtype=float)
+            if quaternion.shape != (4,):
+                raise ValueError(f"sensor reading orientation must have shape (4,), got {quaternion.shape}")
+            if scalar_first:
+                self.orientation[3] = quaternion[0]
+                self.orientation[:3] = quaternion[1:]
+            else:
+                self.orientation[:] = quaternion
+            values = {
+                "gyro": gyro,
+                "accelerometer": accelerometer,
+                "joint_positions": joint_positions,
+                "joint_velocities": joint_velocities,
+            }
+            if joint_torques is not None:
+                values["joint_torques"] = joint_torques
+            else:
+                self.joint_torques[:] = np.nan
+            for name, value in values.items():
+                array = np.asarray(value, dtype=float)
+                target = getattr(self, name)
+                if array.shape != target.shape:
+                    raise ValueError(
+                        f"sensor reading {name} must have shape {target.shape}, got {array.shape}"
+                    )
+                target[:] = array
+        except (TypeError, ValueError) as error:
+            raise ValueError(str(error)) from error
+        self.validate(len(self.joint_positions))
 
     def validate(self, n_joints: int) -> None:
         """Raise ``ValueError`` naming the field when a reading has the wrong shape or is not finite

@@ -2,21 +2,26 @@
 
 ``SensingController(inner, estimator)`` is what the closed loop calls when the controller must see sensors
 (``estimator: kinematic_kf``): every tick it runs the estimator on the readings, with the stance flags of the
-plan ``inner`` follows now (``inner.plan``, if it has one: the CAFE-MPC loop in simulated time and the
-real-time MPC controller both do), and hands the estimate to ``inner.compute``. It runs in the caller's
-thread at the control rate, in every timing mode and in ``--realtime`` (where ``inner`` publishes the
-estimate to the MPC process). The estimate of every tick is recorded in preallocated arrays (``trace``) for
-the run's log and metrics.
+plan ``inner`` follows now (``inner.plan``, if it has one: both MPC loops, ``control.inline`` and
+``control.process``, do), and hands the estimate to ``inner.compute``. It runs in the caller's thread at the
+control rate, in every timing mode and in ``--realtime`` (where ``inner`` publishes the estimate to the MPC
+process). Readings stamped earlier than the tick (a late sample) give an estimate of their own time, which is
+carried to the tick at constant velocity before the controller sees it. The estimate of every tick is
+recorded in preallocated arrays (``trace``) for the run's log and metrics.
 """
 
 from __future__ import annotations
 
 import numpy as np
+import pinocchio as pin
 
 from cafe_mpc.core.controller import Controller
 from cafe_mpc.core.measurement import Measurement
 from cafe_mpc.core.sensors import SensorReadings
 from cafe_mpc.estimation.estimator import StateEstimator
+
+LATE = 1e-6
+"""s: readings older than the tick by more than this are brought forward to it."""
 
 
 class SensingController:
@@ -43,6 +48,9 @@ class SensingController:
         self._contacts = np.zeros((capacity, robot.n_feet), dtype=bool)
         self._trust = np.zeros((capacity, robot.n_feet))
         self._count = 0
+        self._step = np.zeros(robot.nv)
+        self.late_ticks = 0
+        """Ticks whose readings were older than the tick and were brought forward (``_bring_forward``)."""
         self.last_measurement: Measurement | None = None
 
     @property
@@ -54,12 +62,26 @@ class SensingController:
         self.inner.reset()
         self.estimator.reset(self.position_xy)
         self._count = 0
+        self.late_ticks = 0
 
     def compute(self, t: float, readings: SensorReadings) -> np.ndarray:
         measurement = self.estimator.update(readings, self.plan)
+        if t - measurement.time > LATE:
+            self._bring_forward(measurement, t)
         self.last_measurement = measurement
         self._record(measurement)
         return self.inner.compute(t, measurement)
+
+    def _bring_forward(self, measurement: Measurement, t: float) -> None:
+        """A late sample (its readings stamped ``measurement.time``, ``t`` now: a bus or a driver delayed
+        them) carried to ``t`` at constant velocity on the configuration manifold (``pin.integrate``: the
+        base screw-moves with its measured twist, the joints move at their rates), so that the low level and
+        the MPC act on the state of now; the velocities are kept."""
+        model = self.estimator.robot.model
+        np.multiply(measurement.v, t - measurement.time, out=self._step)
+        measurement.q[:] = pin.integrate(model, measurement.q, self._step)
+        measurement.time = float(t)
+        self.late_ticks += 1
 
     def _record(self, measurement: Measurement) -> None:
         if self._count == len(self._q):

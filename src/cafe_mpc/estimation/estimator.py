@@ -35,14 +35,13 @@ estimate's x-y starts where ``reset`` says (the robot's placement: its odometry 
 
 from __future__ import annotations
 
-from typing import Protocol
-
 import numpy as np
 import pinocchio as pin
 
 from cafe_mpc.config.estimation import KinematicKFSettings
 from cafe_mpc.core.measurement import Measurement
 from cafe_mpc.core.physics import GRAVITY_VECTOR
+from cafe_mpc.core.plan import KnotPlan
 from cafe_mpc.core.sensors import SensorReadings
 from cafe_mpc.dynamics.srb_kernels import quaternion_to_rotation
 from cafe_mpc.estimation.kernels import (
@@ -62,15 +61,6 @@ from cafe_mpc.estimation.kernels import (
 from cafe_mpc.robots.robot import Robot
 
 LWA = pin.ReferenceFrame.LOCAL_WORLD_ALIGNED
-
-
-class ContactPlan(Protocol):
-    """What the estimator reads from a plan (``core.plan.Plan``, ``core.template_plan.TemplatePlan``): knot
-    start times, durations and stance flags (leg order)."""
-
-    times: np.ndarray
-    dt: np.ndarray
-    contacts: np.ndarray
 
 
 def leg_velocity_indices(robot: Robot) -> np.ndarray:
@@ -162,7 +152,7 @@ class PlannedContacts:
         self.touchdown[:] = t
         self.settled[:] = True
 
-    def update(self, t: float, plan: ContactPlan | None) -> None:
+    def update(self, t: float, plan: KnotPlan | None) -> None:
         if plan is None:
             self.flags[:] = True
             self.trust[:] = 1.0
@@ -257,7 +247,7 @@ class StateEstimator:
 
     # ------------------------------------------------------------------------------------------ update
     def update(
-        self, readings: SensorReadings, plan: ContactPlan | None = None, plan_time: float | None = None
+        self, readings: SensorReadings, plan: KnotPlan | None = None, plan_time: float | None = None
     ) -> Measurement:
         """The estimate at ``readings.time`` from the readings and the plan in effect (its stance flags,
         looked up at ``plan_time``, default ``readings.time``: the plan's clock if it is not the sensors')."""

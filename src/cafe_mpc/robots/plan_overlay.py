@@ -23,7 +23,7 @@ from dataclasses import dataclass
 import mujoco
 import numpy as np
 
-from cafe_mpc.core.plan import Plan, nearest_knot
+from cafe_mpc.core.plan import KnotPlan, nearest_knot
 from cafe_mpc.robots.robot import Robot
 
 BASE_RGBA = np.array([0.15, 0.45, 0.95, 0.9], dtype=np.float32)
@@ -74,8 +74,13 @@ class PlanOverlay:
         )
 
     @classmethod
-    def of_plan(cls, robot: Robot, plan: Plan) -> PlanOverlay:
-        return cls.of(robot, plan.times, plan.xs[:, : robot.nq], plan.contacts, plan.forces)
+    def of_plan(cls, robot: Robot, plan: KnotPlan) -> PlanOverlay | None:
+        """The overlay of a plan that has the robot's configurations at its knots
+        (``KnotPlan.knot_configurations``), else None."""
+        configurations = plan.knot_configurations(robot.nq)
+        if configurations is None:
+            return None
+        return cls.of(robot, plan.times, configurations, plan.contacts, plan.forces)
 
     def knot_at(self, t: float) -> int:
         """The knot closest in time to ``t`` (clamped), as ``Plan.knot_at``."""

@@ -31,7 +31,7 @@ def bench_gait(preset: str, duration: float, overrides: list[str]) -> dict:
     mpc = metrics["mpc"]
     iterations = np.asarray(controller.statistics.iteration_times) * 1e3
     knots = {"whole_body": None, "srb": None}
-    previous = getattr(controller.mpc, "previous", None)
+    previous = getattr(controller.planner, "previous", None)
     if previous is not None and hasattr(previous[0], "phases"):
         for kind in knots:
             knots[kind] = sum(len(i.times) - 1 for i in previous[0].phases if getattr(i, "kind", "") == kind)

@@ -95,9 +95,9 @@ def _side(side) -> dict:
 
 def _cafe(robot: Robot, iterations: int) -> _Ours:
     from cafe_mpc.config import VelocityCommand
-    from cafe_mpc.mpc.problem import CafeProblemBuilder, ModelSchedule, WarmStart
     from cafe_mpc.ocp.contact_schedule import get_gait
     from cafe_mpc.ocp.knots import SRBModelFactory, WholeBodyModelFactory
+    from cafe_mpc.planners.cafe.problem import CafeProblemBuilder, ModelSchedule, WarmStart
     from cafe_mpc.reference.locomotion import LocomotionReference
 
     reference = LocomotionReference(robot, get_gait("trot"), [VelocityCommand(start=0.0, vx=0.5)])

@@ -70,8 +70,8 @@ def gait_presets() -> list[str]:
 
 
 def paper_schedules() -> list[str]:
-    """The model schedules the library knows (``mpc.problem.PAPER_SCHEDULES``: Table I)."""
-    from cafe_mpc.mpc.problem import PAPER_SCHEDULES
+    """The model schedules the library knows (``planners.cafe.problem.PAPER_SCHEDULES``: Table I)."""
+    from cafe_mpc.planners.cafe.problem import PAPER_SCHEDULES
 
     return list(PAPER_SCHEDULES)
 

@@ -19,15 +19,15 @@ from cafe_mpc.assembly.controllers import (
     RunController,
     build_controller,
     build_low_level,
-    build_realtime_controller,
+    build_mpc_loop,
+    runs_alone,
 )
 from cafe_mpc.config import RunConfig
-from cafe_mpc.control.mpc_loop import CafeMpcController
-from cafe_mpc.control.realtime import RealtimeMpcController
+from cafe_mpc.control.loop import MpcLoop
 from cafe_mpc.core.contacts import N_FEET
 from cafe_mpc.core.controller import LowLevelController
 from cafe_mpc.core.measurement import Measurement
-from cafe_mpc.core.plan import Plan
+from cafe_mpc.core.plan import KnotPlan
 from cafe_mpc.robots.robot import Robot
 
 
@@ -114,7 +114,7 @@ class LowLevelRecorder(LowLevelController):
         self._requested = doubled(self._requested)
         self._stances = doubled(self._stances)
 
-    def compute(self, t: float, measurement: Measurement, plan: Plan | None) -> np.ndarray:
+    def compute(self, t: float, measurement: Measurement, plan: KnotPlan | None) -> np.ndarray:
         if self._count == len(self._times):
             self._grow()
         row = self._count
@@ -123,18 +123,24 @@ class LowLevelRecorder(LowLevelController):
         self._times[row] = t
         if plan is not None:
             self._stances[row] = plan.contacts[plan.knot_at(t)]
-            if self.record_plans and plan is not self._last_plan and isinstance(plan, Plan):
-                self._last_plan = plan
-                nq = len(measurement.q)
-                self.plans.append(
-                    RecordedPlan(
-                        t, plan.times.copy(), plan.xs[:, :nq].copy(), plan.contacts.copy(), plan.forces.copy()
-                    )
-                )
+            if self.record_plans and plan is not self._last_plan:
+                self._record_plan(t, plan, len(measurement.q))
         else:
             self._stances[row] = False
         self._count = row + 1
         return torques
+
+    def _record_plan(self, t: float, plan: KnotPlan, nq: int) -> None:
+        """Keep a plan the video can draw (one with the robot's configurations at its knots)."""
+        configurations = plan.knot_configurations(nq)
+        if configurations is None:
+            return
+        self._last_plan = plan
+        self.plans.append(
+            RecordedPlan(
+                t, plan.times.copy(), configurations.copy(), plan.contacts.copy(), plan.forces.copy()
+            )
+        )
 
     def traces(self, times: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Requested torques ``(ticks, nu)`` (NaN where this controller was not called, e.g. before the
@@ -166,20 +172,20 @@ def build_recorder(config: RunConfig, robot: Robot) -> LowLevelRecorder:
 
 def build_run_controller(config: RunConfig, robot: Robot) -> RunController:
     """The controller of a run in simulated time (``assembly.build_controller``), its low level recorded."""
-    if config.wbc == "pd":
+    if runs_alone(config):
         return build_controller(config, robot)
     return build_controller(config, robot, low_level=build_recorder(config, robot))
 
 
-def build_run_realtime_controller(config: RunConfig, robot: Robot) -> RealtimeMpcController:
-    """The controller of a run against the wall clock (``assembly.build_realtime_controller``), its low
-    level recorded."""
-    return build_realtime_controller(config, robot, low_level=build_recorder(config, robot))
+def build_run_process_loop(config: RunConfig, robot: Robot) -> MpcLoop:
+    """The MPC loop of a run against the wall clock, the planner in its own process
+    (``assembly.build_mpc_loop``), its low level recorded."""
+    return build_mpc_loop(config, robot, "process", low_level=build_recorder(config, robot))
 
 
 def reference_of(controller: RunController):
-    """The reference a CAFE-MPC run tracked (None for PD standing)."""
-    return getattr(controller, "reference", None) if is_mpc(controller) else None
+    """The reference an MPC run tracked (None for PD standing)."""
+    return controller.reference if is_mpc(controller) else None
 
 
 def timing_of(config: RunConfig, controller: RunController) -> dict:
@@ -191,10 +197,9 @@ def timing_of(config: RunConfig, controller: RunController) -> dict:
     if mode == "realtime":  # the MPC process always runs with its wall-clock budget
         config = config.model_copy(update={"mpc": config.mpc.model_copy(update={"latency": "measured"})})
     settings = config.mpc
-    scheme = getattr(controller, "scheme", config.mpc.scheme)
     return {
         "mode": mode,
-        "scheme": scheme,
+        "scheme": controller.scheme,
         "period_s": config.mpc.period,
         "fixed_latency_s": config.mpc.fixed_latency if mode == "fixed" else None,
         "compute_scale": config.mpc.compute_scale if mode == "measured" else None,
@@ -205,49 +210,30 @@ def timing_of(config: RunConfig, controller: RunController) -> dict:
 
 def mpc_summary(controller: RunController, log) -> dict | None:
     """The ``mpc`` block of ``metrics.json``: update-time breakdown, iterations, latency, achieved rate."""
-    if isinstance(controller, CafeMpcController):
-        summary = controller.statistics.summary()
-        duration = float(log.time[-1]) if len(log.time) else 0.0
-        summary["rate_hz"] = (len(controller.statistics.latencies) - 1) / duration if duration > 0 else None
-        return summary
-    if isinstance(controller, RealtimeMpcController):
-        worker = controller.worker_statistics
-        summary = worker.summary() if worker is not None else {}
-        main = controller.statistics
-        duration = float(log.time[-1]) if len(log.time) else 0.0
-        summary["latency_ms_median"] = float(np.median(main.latencies)) * 1e3 if main.latencies else None
-        summary["latency_ms_p99"] = float(np.percentile(main.latencies, 99)) * 1e3 if main.latencies else None
-        summary["plans_received"] = len(main.latencies)
-        summary["rate_hz"] = len(main.latencies) / duration if duration > 0 else None
-        summary["pd_fallback_ticks"] = main.fallback_ticks
-        summary["worker_error"] = controller.worker_error
-        return summary
-    return None
+    if not is_mpc(controller):
+        return None
+    return controller.summary(float(log.time[-1]) if len(log.time) else 0.0)
 
 
 def mpc_statistics_of(controller: RunController):
-    """The MPC's per-update records (the worker's in real-time runs), None for PD standing."""
-    if isinstance(controller, CafeMpcController):
-        return controller.statistics
-    if isinstance(controller, RealtimeMpcController):
-        return controller.worker_statistics
-    return None
+    """The MPC's per-update records (the MPC process's in real-time runs), None for PD standing."""
+    return controller.statistics if is_mpc(controller) else None
 
 
 def is_mpc(controller: RunController) -> bool:
-    """Whether the run is a CAFE-MPC run (simulated time or real time), not PD standing."""
-    return isinstance(controller, CafeMpcController | RealtimeMpcController)
+    """Whether the run is an MPC run (simulated time or real time), not PD standing."""
+    return isinstance(controller, MpcLoop)
 
 
 def recorder_of(controller: RunController) -> LowLevelRecorder | None:
-    """The recorder around the low-level controller of a CAFE-MPC run (None for PD standing)."""
+    """The recorder around the low-level controller of an MPC run (None for PD standing)."""
     low_level = controller.low_level if is_mpc(controller) else None
     return low_level if isinstance(low_level, LowLevelRecorder) else None
 
 
 def low_level_of(controller: RunController) -> LowLevelController:
-    """The low-level controller that produced a run's torques: the plan follower under CAFE-MPC (unwrapped
-    from its recorder), or the PD controller itself."""
+    """The low-level controller that produced a run's torques: the plan follower's under an MPC loop
+    (unwrapped from its recorder), or the PD controller itself."""
     recorder = recorder_of(controller)
     if recorder is not None:
         return recorder.inner

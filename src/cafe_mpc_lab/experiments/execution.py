@@ -14,8 +14,9 @@ import traceback
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from cafe_mpc.assembly.controllers import runs_alone
 from cafe_mpc.config import RunConfig
-from cafe_mpc.control.realtime import MpcProcessError
+from cafe_mpc.control.process import MpcProcessError
 from cafe_mpc_lab.experiments.catalog import get_experiment
 from cafe_mpc_lab.experiments.registry import Variant
 from cafe_mpc_lab.experiments.run import run
@@ -96,7 +97,7 @@ def execute_task(task: RunTask) -> RunOutcome:
 
 def timing_mode(config: RunConfig) -> str:
     """``measured``, ``fixed`` or ``realtime`` for MPC runs, ``none`` for PD standing."""
-    if config.wbc == "pd":
+    if runs_alone(config):
         return "none"
     return "realtime" if config.simulation.realtime else config.mpc.latency
 

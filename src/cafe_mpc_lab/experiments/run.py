@@ -22,19 +22,20 @@ import numpy as np
 import yaml
 
 from cafe_mpc.assembly.checks import robot_of
-from cafe_mpc.assembly.controllers import RunController, build_sensing_controller
-from cafe_mpc.assembly.problem import model_schedule, torque_limits_of
+from cafe_mpc.assembly.context import torque_limits_of
+from cafe_mpc.assembly.controllers import RunController, build_sensing_controller, low_level_name
 from cafe_mpc.assembly.references import reference_profile
-from cafe_mpc.assembly.scaling import run_scale, scaled_gait, scaled_schedule
+from cafe_mpc.assembly.scaling import run_scale, scaled_gait
 from cafe_mpc.config import RunConfig
-from cafe_mpc.control.realtime import MpcProcessError
+from cafe_mpc.control.process import MpcProcessError
 from cafe_mpc.core.measurement import Measurement
+from cafe_mpc.planners.cafe.setup import model_schedule, scaled_schedule
 from cafe_mpc.robots.robot import Robot
 from cafe_mpc.robots.scaling import reference_scales
 from cafe_mpc_lab import LOGGERS
 from cafe_mpc_lab.experiments.controllers import (
     build_run_controller,
-    build_run_realtime_controller,
+    build_run_process_loop,
     low_level_of,
     mpc_statistics_of,
     mpc_summary,
@@ -96,10 +97,10 @@ def simulate_run(
     setup = build_plant(config, robot)
     try:
         if config.simulation.realtime:
-            with build_run_realtime_controller(config, robot) as controller:
+            with build_run_process_loop(config, robot) as controller:
                 q0 = setup.options.initial_q
-                controller.wait_ready(
-                    Measurement.of_state(q0, np.zeros(robot.nv), np.ones(robot.n_feet, bool))
+                controller.start(
+                    0.0, Measurement.of_state(q0, np.zeros(robot.nv), np.ones(robot.n_feet, bool))
                 )
                 log, sensing, live = _closed_loop(
                     config, robot, setup, controller, progress, viewer, realtime=True
@@ -181,7 +182,7 @@ def run_metrics(config: RunConfig, robot: Robot, controller: RunController, log:
 
     metrics = base_metrics(robot, log, 1.0 / config.simulation.control_rate_hz)
     metrics["robot"] = robot.name
-    metrics["controller"] = config.wbc if config.planner == "cafe" else "template"
+    metrics["controller"] = low_level_name(config)
     metrics["planner"] = config.planner
     metrics["gait"] = config.gait.name if config.gait is not None else None
     profile = reference_profile(config, robot)

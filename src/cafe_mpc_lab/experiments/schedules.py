@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 from pydantic import Field
 
-from cafe_mpc.assembly.problem import model_schedule
+from cafe_mpc.planners.cafe.setup import model_schedule
 from cafe_mpc_lab.experiments.common import (
     WALL_CLOCK_NOTE,
     RunStore,
@@ -85,7 +85,7 @@ class Schedules(Experiment):
     reports_timing = True
 
     def plan(self, options: SchedulesOptions, context: PlanContext) -> ExperimentPlan:
-        from cafe_mpc.mpc.problem import PAPER_SCHEDULES
+        from cafe_mpc.planners.cafe.problem import PAPER_SCHEDULES
 
         schedules, dts = options.schedules, options.srb_dts
         variants = [

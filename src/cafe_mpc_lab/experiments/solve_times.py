@@ -64,7 +64,7 @@ class SolveTimes(Experiment):
     reports_timing = True
 
     def plan(self, options: SolveTimesOptions, context: PlanContext) -> ExperimentPlan:
-        from cafe_mpc.mpc.problem import PAPER_SCHEDULES
+        from cafe_mpc.planners.cafe.problem import PAPER_SCHEDULES
 
         gaits, schedules = options.gaits, options.schedules
         variants = [

@@ -1,12 +1,12 @@
 """The ``task`` block of an acrobatic run's ``metrics.json`` (paper Sec. VII-C; ``report.task_metrics``).
 
 The composed reference itself (stand, stored trajectory, gait segments) and its weight set are the
-assembly's (``assembly.references``, ``assembly.problem``).
+assembly's (``assembly.references``, ``planners.cafe.setup``).
 """
 
 from __future__ import annotations
 
-from cafe_mpc.assembly.problem import torque_limits_of
+from cafe_mpc.assembly.context import torque_limits_of
 from cafe_mpc.config import RunConfig
 from cafe_mpc.reference.base import Reference
 from cafe_mpc.robots.robot import Robot

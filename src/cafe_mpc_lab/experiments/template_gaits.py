@@ -1,8 +1,8 @@
 """``cafe-mpc experiment template-gaits``: CAFE-MPC and the template MPC on every gait, with the paper's
 timing and with MIT Cheetah-Software's convex-MPC timing, and the bounding push test.
 
-The template MPC (``planner: template``, ``mpc.template``) stands for the convex / kinodynamic SRB MPC the
-paper compares with (Sec. VII-C). Whether it is a fair stand-in depends on whether it does what such
+The template MPC (``planner: template``, ``planners.template``) stands for the convex / kinodynamic SRB MPC
+the paper compares with (Sec. VII-C). Whether it is a fair stand-in depends on whether it does what such
 controllers do on the Mini Cheetah: trot, pace, bound and pronk at 0.5 m/s, and take the push. Each gait
 (``GAITS``) runs once with each planner (``--planners``) from its family's preset with ``gait.name`` set:
 
@@ -37,7 +37,7 @@ import numpy as np
 import pinocchio as pin
 from pydantic import Field
 
-from cafe_mpc.assembly.problem import torque_limits_of
+from cafe_mpc.assembly.context import torque_limits_of
 from cafe_mpc.core.physics import GRAVITY
 from cafe_mpc.ocp.contact_schedule import GaitCycle, get_gait
 from cafe_mpc.robots.robot import Robot
@@ -124,7 +124,7 @@ def pitch_swing(gait: GaitCycle, robot: Robot, friction: float) -> tuple[float, 
     ``friction * h`` per unit of vertical impulse (``h`` the centre of mass's height); the rest, divided by
     the SRB's pitch inertia (``template_srb``), is the pitch-rate change the phase cannot avoid. Zero for
     gaits whose front and hind feet share every stance (trot, pace, pronk)."""
-    from cafe_mpc.mpc.template import template_srb
+    from cafe_mpc.planners.template.problem import template_srb
 
     parameters, offset = template_srb(robot)
     inertia = float(np.asarray(parameters.inertia)[1, 1])
@@ -303,7 +303,7 @@ def gait_summary(result: RunResult) -> dict:
         finite = np.where(np.isfinite(requested), np.abs(requested), 0.0)
         over = float(np.mean(np.any(finite > limits + 1e-6, axis=1)))
     planned = None
-    if result.controller is not None and config.planner == "template":
+    if result.controller is not None:  # the template's low level reports it, the others have none
         planned = low_level_of(result.controller).statistics().get("planned_force_max_n")
     swing = pitch_swing(gait, robot, config.mpc.friction)
     stayed_up = not metrics["fell"] and log.ticks > 0

@@ -5,9 +5,9 @@ Both runs follow the same composed barrel-roll reference (``barrel-roll`` preset
 acrobatic preset, e.g. ``running-barrel-roll``) on the same MuJoCo plant; only the planner differs:
 
 * ``cafe``: CAFE-MPC (whole-body dynamics near term, SRB tail) over the VWBC QP (34);
-* ``template``: the HKD-MPC-like baseline (``mpc.template``): SRB dynamics over the whole horizon, footholds
-  from the reference, stance torques ``J' F`` from the planned GRFs, Bezier swings by joint PD. It ignores the
-  legs' momentum, which the roll's leg swing throws around.
+* ``template``: the HKD-MPC-like baseline (``planners.template``): SRB dynamics over the whole horizon,
+  footholds from the reference, stance torques ``J' F`` from the planned GRFs, Bezier swings by joint PD. It
+  ignores the legs' momentum, which the roll's leg swing throws around.
 
 Each run's ``task`` block (``report.task_metrics``: roll turned, landing, uprightness, bar contact when the
 task has a bar) is the result; ``comparison.png`` puts their roll, height and lateral position over the

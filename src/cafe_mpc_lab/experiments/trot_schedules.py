@@ -42,7 +42,7 @@ class TrotSchedules(Experiment):
     Options = TrotSchedulesOptions
 
     def plan(self, options: TrotSchedulesOptions, context: PlanContext) -> ExperimentPlan:
-        from cafe_mpc.mpc.problem import PAPER_SCHEDULES
+        from cafe_mpc.planners.cafe.problem import PAPER_SCHEDULES
 
         schedules = options.schedules
         variants = [

@@ -193,7 +193,7 @@ def friction_cone_violations_post_hoc(
     ``stance`` (N x 4) held (``FrictionConeScorer``), i.e. the VWBC's own check applied to any controller.
     Ticks without a stance foot are not scored.
     """
-    from cafe_mpc.wbc.contact_dynamics import FrictionConeScorer
+    from cafe_mpc.low_level.contact_dynamics import FrictionConeScorer
 
     scorer = FrictionConeScorer(robot, mu=mu)
     for tick in range(log.ticks):

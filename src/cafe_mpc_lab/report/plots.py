@@ -27,7 +27,7 @@ from cafe_mpc_lab.report.metrics import (
 from cafe_mpc_lab.sim.loop import SimulationLog
 
 if TYPE_CHECKING:
-    from cafe_mpc.control.mpc_loop import MpcStatistics
+    from cafe_mpc.planners.base import MpcStatistics
 
 JOINT_KINDS = ("abad", "hip", "knee")
 

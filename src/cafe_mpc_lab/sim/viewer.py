@@ -32,10 +32,8 @@ from collections.abc import Callable
 import numpy as np
 
 from cafe_mpc.config import VelocityCommand
-from cafe_mpc.control.commands import GAIT_NAMES, CommandChannel
-from cafe_mpc.core.plan import Plan
-from cafe_mpc.reference.locomotion import validate_command
-from cafe_mpc.reference.tested_ranges import outside_tested_range
+from cafe_mpc.control.commands import GAIT_NAMES, CommandChannel, check_command
+from cafe_mpc.core.plan import KnotPlan
 from cafe_mpc.robots.plan_overlay import PlanOverlay, draw_plan
 from cafe_mpc.robots.robot import Robot
 from cafe_mpc_lab.sim.height_map import draw_height_map
@@ -149,11 +147,10 @@ class KeyboardTeleop:
             return False
         wanted = command.model_copy(update=changes)
         try:
-            validate_command(wanted, self.robot)
+            untested = check_command(wanted, self.robot, self.gait)
         except ValueError as error:
             self.message = f"refused: {error}"
             return True
-        untested = outside_tested_range(self.gait, wanted, self.robot.name)
         self.command, self.message = wanted, f"untested: {untested}" if untested else ""
         self.presses += 1
         gait = GAIT_NAMES.index(self.gait) if self._gait_posted else None
@@ -180,7 +177,7 @@ class LiveViewer:
     def __init__(
         self,
         robot: Robot,
-        plan_source: Callable[[], Plan | object | None],
+        plan_source: Callable[[], KnotPlan | None],
         fps: float = 30.0,
         realtime: bool = True,
         teleop: KeyboardTeleop | None = None,
@@ -258,9 +255,10 @@ class LiveViewer:
     def _draw(self, t: float) -> None:
         handle = self._handle
         plan = self.plan_source()
-        if plan is not None and plan is not self._overlay_of and isinstance(plan, Plan):
-            self._overlay = PlanOverlay.of_plan(self.robot, plan)
-            self._overlay_of = plan
+        if plan is not None and plan is not self._overlay_of:
+            overlay = PlanOverlay.of_plan(self.robot, plan)  # None for a plan without configurations
+            if overlay is not None:
+                self._overlay, self._overlay_of = overlay, plan
         with handle.lock():
             scene = handle.user_scn
             scene.ngeom = 0

@@ -1,18 +1,18 @@
 """Delay compensation: the measured state carried to the time its update's plan takes effect.
 
-With a known transport delay ``L`` (``MpcSettings.latency = "fixed"``), the plan made from the measurement
-of time ``t`` only acts from ``t + L``; until then the plans already published or in flight drive the robot.
+With a known transport delay ``L`` (``MpcSettings.latency = "fixed"``), the plan made from the measurement of
+time ``t`` only acts from ``t + L``; until then the plans already published or in flight drive the robot.
 Without compensation the update plans from ``x(t)`` as if its own torques acted from ``t``, and its first
 ``L`` seconds are never applied. With it (``MpcSettings.delay_compensation``, real-time iteration), the
-update's problem starts at ``t_s``, the last whole-body knot time at or before ``t + L`` (the loop's choice,
-``CafeMpcController._problem_start``: a whole first knot that holds the time the plan takes effect), prepared
-from the state the newest plan predicts there, and its feedback phase embeds the measured state *carried
-to* ``t_s``: simulated with the planning model (the whole-body dynamics of Eqs. (19)-(23), impacts (22)
-where a plan puts a foot down) under the plans in effect over ``[t, t_s]``, each followed with its Riccati
-law (33) and the torque limits, in the plans' own knot intervals (a first step of fractional length up to
-the next knot). That is a Smith predictor with the planning model; the low-level controller's QP (34) is
-approximated by the Riccati law it minimises around. Steps of the control period (2 ms) predicted no
-better (pronk at 40 ms fixed latency: height RMS error 0.026 m either way) for twice the time.
+update's problem starts at ``t_s``, the last whole-body knot time at or before ``t + L`` (the planner's
+choice, ``RecedingHorizonMpc.problem_start``: a whole first knot that holds the time the plan takes effect),
+prepared from the state the newest plan predicts there, and its feedback phase embeds the measured state
+*carried to* ``t_s``: simulated with the planning model (the whole-body dynamics of Eqs. (19)-(23), impacts
+(22) where a plan puts a foot down) under the plans in effect over ``[t, t_s]``, each followed with its
+Riccati law (33) and the torque limits, in the plans' own knot intervals (a first step of fractional length up
+to the next knot). That is a Smith predictor with the planning model; the low-level controller's QP (34) is
+approximated by the Riccati law it minimises around. Steps of the control period (2 ms) predicted no better
+(pronk at 40 ms fixed latency: height RMS error 0.026 m either way) for twice the time.
 """
 
 from __future__ import annotations
@@ -21,11 +21,10 @@ from collections.abc import Callable
 
 import numpy as np
 
-from cafe_mpc.core.plan import Plan
 from cafe_mpc.dynamics.multibody_state import MultibodyState
 from cafe_mpc.ocp.knots import WholeBodyModelFactory
+from cafe_mpc.planners.cafe.plan import Plan, riccati_torque
 from cafe_mpc.robots.robot import Robot
-from cafe_mpc.wbc.riccati import riccati_torque
 
 TIME_TOLERANCE = 1e-9
 """s: two times closer than this are the same instant."""

@@ -12,8 +12,8 @@ from __future__ import annotations
 import numpy as np
 
 from cafe_mpc.core.physics import GRAVITY
-from cafe_mpc.core.plan import Plan
 from cafe_mpc.dynamics.statics import static_stance_torques
+from cafe_mpc.planners.cafe.plan import Plan
 from cafe_mpc.robots.robot import Robot
 
 

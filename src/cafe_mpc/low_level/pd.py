@@ -11,12 +11,12 @@ import numpy as np
 
 from cafe_mpc.core.controller import LowLevelController
 from cafe_mpc.core.measurement import Measurement
-from cafe_mpc.core.plan import Plan
+from cafe_mpc.core.plan import KnotPlan
 from cafe_mpc.dynamics.statics import static_stance_torques
 from cafe_mpc.robots.robot import Robot
 
 
-class PDController(LowLevelController):
+class PDController(LowLevelController[KnotPlan]):
     """PD on the actuated joints toward ``q_target`` (standing pose by default), clamped to the torque
     limits. The plan, if any, is ignored."""
 
@@ -46,7 +46,7 @@ class PDController(LowLevelController):
         self._torques[:] = 0.0
         self.last_request[:] = 0.0
 
-    def compute(self, t: float, measurement: Measurement, plan: Plan | None = None) -> np.ndarray:
+    def compute(self, t: float, measurement: Measurement, plan: KnotPlan | None = None) -> np.ndarray:
         np.subtract(self.q_target[self._joints_q], measurement.q[self._joints_q], out=self._torques)
         self._torques *= self.kp
         self._torques -= self.kd * measurement.v[self._joints_v]

@@ -39,9 +39,9 @@ object for that stance pattern is then rebuilt on its next tick — or, optional
 budget): the clamped Riccati feedback ``tau*_k + K_k dx`` (33), counted in ``fallbacks`` with its reason.
 The controller never returns NaN, and an error inside the QP never propagates out of ``compute``.
 
-Friction-cone scoring (``wbc.contact_dynamics``): the contact forces a torque implies through the same contact
-dynamics (34b)-(34c), so a Riccati controller and the VWBC are scored the same way. For a solved QP these
-forces equal its ``F``.
+Friction-cone scoring (``low_level.contact_dynamics``): the contact forces a torque implies through the same
+contact dynamics (34b)-(34c), so a Riccati controller and the VWBC are scored the same way. For a solved QP
+these forces equal its ``F``.
 """
 
 from __future__ import annotations
@@ -58,14 +58,15 @@ from cafe_mpc.config import DEFAULT_FRICTION, VWBCConfig
 from cafe_mpc.config.run import WarmStart
 from cafe_mpc.core.controller import LowLevelController
 from cafe_mpc.core.measurement import Measurement
-from cafe_mpc.core.plan import Plan
-from cafe_mpc.robots.robot import Robot
-from cafe_mpc.wbc.contact_dynamics import (
+from cafe_mpc.low_level.contact_detection import ContactDetector
+from cafe_mpc.low_level.contact_dynamics import (
     ContactDynamicsTerms,
     contact_forces_for_torque,
     friction_cone_violation,
 )
-from cafe_mpc.wbc.riccati import riccati_torque, state_error
+from cafe_mpc.low_level.riccati import state_error
+from cafe_mpc.planners.cafe.plan import Plan, riccati_torque
+from cafe_mpc.robots.robot import Robot
 
 _PROXQP = proxsuite.proxqp
 _INITIAL_GUESS = {
@@ -344,7 +345,7 @@ def _package_version(name: str) -> str:
         return "unknown"
 
 
-class VWBCController(LowLevelController):
+class VWBCController(LowLevelController[Plan]):
     """VWBC (34) on the plan passed to ``compute``, with the Riccati fallback (33) and per-tick statistics.
 
     ``compute(t, measurement, plan)`` like every ``LowLevelController``; the measurement's contacts are used
@@ -372,6 +373,11 @@ class VWBCController(LowLevelController):
         else:
             self.solver_name = _ProxQPStance.solver_name
         self.terms = ContactDynamicsTerms(robot, self.settings.alpha)
+        self.detector = (
+            ContactDetector(robot, self.settings.contact_detection)
+            if self.settings.stance_source == "detected"
+            else None
+        )
         self._qps: dict[tuple[bool, ...], _StanceQP] = {}
         nv, nu = robot.nv, robot.nu
         self._dx = np.zeros(2 * nv)
@@ -395,6 +401,8 @@ class VWBCController(LowLevelController):
     def reset(self) -> None:
         """Forget the previous tick's solution and the statistics."""
         self._previous_pattern = None
+        if self.detector is not None:
+            self.detector.reset()
         self.reset_statistics()
 
     def _check_plan(self, plan: Plan) -> None:
@@ -404,7 +412,7 @@ class VWBCController(LowLevelController):
             self._checked_plan = plan
 
     def state_error(self, q: np.ndarray, v: np.ndarray, x_plan: np.ndarray) -> np.ndarray:
-        """``x ⊖ x*`` in the tangent space at ``x*`` (``wbc.riccati.state_error``) into a buffer."""
+        """``x ⊖ x*`` in the tangent space at ``x*`` (``low_level.riccati.state_error``) into a buffer."""
         return state_error(self.model, q, v, x_plan, self._dx)
 
     def compute(self, t: float, measurement: Measurement, plan: Plan | None) -> np.ndarray:
@@ -422,6 +430,8 @@ class VWBCController(LowLevelController):
         contacts = np.asarray(contacts, dtype=bool)
         if s.stance_source == "intersect":
             self._stance &= contacts
+        elif self.detector is not None:
+            np.copyto(self._stance, self.detector.update(t, measurement, plan))
         if np.any(contacts != plan.contacts[k]):
             self.stance_mismatch_ticks += 1
         self.last_stance[:] = self._stance
@@ -566,6 +576,7 @@ class VWBCController(LowLevelController):
             "slow_ticks": self.slow_ticks,
             "stance_mismatch_ticks": self.stance_mismatch_ticks,
             "warm_start": self.settings.warm_start,
+            **({"contact_detection": self.detector.statistics()} if self.detector is not None else {}),
             "solver": self.solver_name,
         }
 

@@ -30,7 +30,6 @@ from cafe_mpc.core.physics import GRAVITY
 from cafe_mpc.dynamics.srb import SRBState
 from cafe_mpc.dynamics.statics import static_stance_torques
 from cafe_mpc.dynamics.transition import whole_body_to_srb_state
-from cafe_mpc.mpc.time_grid import TIME_QUANTUM, PiecewiseTrajectory, grid_times, quanta
 from cafe_mpc.ocp.knots import (
     SRBKnot,
     SRBModelFactory,
@@ -40,6 +39,7 @@ from cafe_mpc.ocp.knots import (
     WholeBodyReference,
     weight_split_forces,
 )
+from cafe_mpc.planners.time_grid import TIME_QUANTUM, PiecewiseTrajectory, grid_times, quanta
 from cafe_mpc.reference.base import Reference, ReferenceWindow
 from cafe_mpc.solver.results import SolverResult
 

@@ -15,6 +15,10 @@ Two schemes (``MpcSettings.scheme``):
   forward pass, well under a millisecond) and publishes the plan. The latency the robot sees is the
   feedback phase.
 
+Delay compensation (``problem_start``, ``carry``): with a known transport delay the loop asks where the
+problem of an update starts (the last whole-body knot time at or before its plan takes effect) and has the
+measured state carried there along the plans in effect meanwhile (``planners.cafe.prediction``).
+
 This object knows nothing about time passing: the policy side (``cafe_mpc.control``) decides when updates
 happen and when their plans take effect (fixed or measured latency in simulated time, or a separate
 process against the wall clock). It is what the MPC process of the real-time mode runs (OCS2's MPC/MRT
@@ -26,22 +30,24 @@ from __future__ import annotations
 import logging
 import math
 import time
+from collections.abc import Callable
 
 import numpy as np
 
 from cafe_mpc.config import MpcSettings
-from cafe_mpc.core.plan import Plan, PlanBuffers
 from cafe_mpc.core.progress import stage
-from cafe_mpc.mpc import collector
-from cafe_mpc.mpc.planner import (
+from cafe_mpc.planners import collector
+from cafe_mpc.planners.base import (
     PLANNER_ERRORS,
     UPDATE_LINE_SEARCH_MIN_STEP,
     MpcStatistics,
     RecedingHorizonPlanner,
     prepare_solve_options,
 )
-from cafe_mpc.mpc.problem import BuiltProblem, CafeProblemBuilder, WarmStart
-from cafe_mpc.mpc.time_grid import TIME_QUANTUM, PiecewiseTrajectory
+from cafe_mpc.planners.cafe.plan import Plan, PlanBuffers
+from cafe_mpc.planners.cafe.prediction import DelayPredictor
+from cafe_mpc.planners.cafe.problem import BuiltProblem, CafeProblemBuilder, WarmStart
+from cafe_mpc.planners.time_grid import TIME_QUANTUM, PiecewiseTrajectory
 from cafe_mpc.reference.base import Reference
 from cafe_mpc.robots.robot import Robot
 from cafe_mpc.solver import MSiLQRSolver, SolverResult
@@ -57,8 +63,11 @@ __all__ = [
 
 logger = logging.getLogger(__name__)
 
+GRID_TOLERANCE = 1e-6
+"""Fraction of a knot below which a time counts as on the knot grid."""
 
-class RecedingHorizonMpc(RecedingHorizonPlanner):
+
+class RecedingHorizonMpc(RecedingHorizonPlanner[Plan]):
     """CAFE-MPC updates: persistent problem, warm start by time, MS-iLQR, Plan; one-phase or real-time
     iteration (see the module docstring)."""
 
@@ -84,10 +93,34 @@ class RecedingHorizonMpc(RecedingHorizonPlanner):
         self._projections: dict[tuple[bool, ...], tuple] = {}
         self.plan_buffers = PlanBuffers()
         """The arrays of the plans this MPC publishes, reused once no plan made of them is in use."""
+        self._predictor: DelayPredictor | None = None
 
     @property
     def supports_rti(self) -> bool:
         return True
+
+    @property
+    def prepared_time(self) -> float | None:
+        return self.prepared[0] if self.prepared is not None else None
+
+    def problem_start(self, t: float, delay: float) -> float:
+        """Where the problem of the update measured at ``t`` starts: ``t`` without a delay; with one, the last
+        whole-body knot time at or before the plan takes effect (``t + delay``), not before ``t``: the plan's
+        first knot is then a whole one and holds the time the plan takes effect."""
+        if delay <= 0:
+            return t
+        grid = self.builder.schedule.whole_body_dt
+        on_grid = math.floor((t + delay) / grid + GRID_TOLERANCE) * grid
+        return max(t, on_grid)
+
+    def carry(
+        self, q: np.ndarray, v: np.ndarray, t: float, until: float, plan_at: Callable[[float], Plan | None]
+    ) -> np.ndarray:
+        """The state measured at ``t`` carried to ``until`` along the plans in effect
+        (``DelayPredictor.carry``: the planning model under each plan's Riccati law)."""
+        if self._predictor is None:
+            self._predictor = DelayPredictor(self.robot, self.builder.whole_body)
+        return self._predictor.carry(q, v, t, until, plan_at)
 
     @collector.paused
     def prepare(self, t: float, q: np.ndarray, v: np.ndarray) -> bool:
@@ -206,8 +239,6 @@ class RecedingHorizonMpc(RecedingHorizonPlanner):
             # that the knot objects of the first knot's durations get their data too
             offset = (step * 3 * TIME_QUANTUM) % grid
             built = self._build(t0 + step * period + offset)
-            if not isinstance(built, BuiltProblem):  # another planner's problem (the template's): no warm-up
-                return
             workspace.setup(built.problem)
         self.statistics.warm_up_time = time.perf_counter() - start
 

@@ -1,37 +1,48 @@
-"""What the policy side needs from a planner, and the update machinery CAFE-MPC and the template share.
+"""What an MPC loop needs from a planner, the update machinery the planners share, and their registry.
 
-A planner turns measured (or predicted) states into plans for the low-level controller. The loops
-(``control.mpc_loop`` in simulated time, ``control.realtime`` against the wall clock) see only the
-``Planner`` protocol:
+A planner turns measured (or predicted) states into plans of its own type for the low-level controller. The
+loops (``control.inline`` in simulated time, ``control.process`` in its own process against the wall clock)
+see only the ``Planner[PlanT]`` protocol (OCS2's MPC side of its MPC/MRT split):
 
 * ``update(t, q, v)``: a one-phase update (the first one is the cold solve) -> plan or ``None``;
 * ``prepare(t, q, v)`` / ``feedback(t, q, v)``: the two phases of a real-time iteration, when
   ``supports_rti``; ``predict(t)``: the state the newest solution predicts at ``t`` (what ``prepare`` starts
-  from);
+  from); ``prepared_time``: the update time a waiting preparation is for;
+* delay compensation, the planner's own prediction: ``problem_start(t, delay)``, where the problem of an
+  update measured at ``t`` starts when its plan takes effect ``delay`` later, and ``carry(q, v, t, until,
+  plan_at)``, the measured state carried there under the plans in effect meanwhile;
 * ``settings`` (``config.MpcSettings``; the run config's ``mpc`` section is one), ``statistics``
   (``MpcStatistics``), ``reference``, ``started``, ``reset``.
 
 ``RecedingHorizonPlanner`` is the shared part: the one-phase update (reference re-anchored, problem built,
 solver run, plan made; failures counted and logged and the previous plan kept) over three hooks, ``_build``,
-``_solve`` and ``_plan``. ``mpc.receding_horizon.RecedingHorizonMpc`` (CAFE-MPC, with the real-time
-iteration) and ``mpc.template.TemplateMpc`` (the SRB-only baseline) implement them.
+``_solve`` and ``_plan``. ``planners.cafe.planner.RecedingHorizonMpc`` (CAFE-MPC, with the real-time
+iteration and its delay compensation) and ``planners.template.planner.TemplateMpc`` (the SRB-only baseline)
+implement them.
+
+A planner is a vertical slice, one folder under ``planners/``: its problem, planner, plan type, its own low
+level if its plan needs one, and a ``PlannerSlice`` that says how a run config builds them (from the
+``RunContext`` the assembly resolves). ``planners.registry`` maps the config's ``planner`` key to the slices
+(``Registry``: an unknown name is one ``ConfigError`` line naming the key).
 """
 
 from __future__ import annotations
 
 import logging
 import time
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field, replace
-from typing import Protocol
+from typing import Generic, Protocol, TypeVar
 
 import numpy as np
 
-from cafe_mpc.config import MpcSettings
-from cafe_mpc.core.plan import Plan
-from cafe_mpc.core.template_plan import TemplatePlan
-from cafe_mpc.mpc import collector
+from cafe_mpc.config import ConfigError, MpcSettings, RunConfig
+from cafe_mpc.core.controller import LowLevelController
+from cafe_mpc.core.plan import PlanFormat, PlanT
+from cafe_mpc.planners import collector
 from cafe_mpc.reference.base import Reference
 from cafe_mpc.robots.robot import Robot
+from cafe_mpc.robots.scaling import RobotScale
 from cafe_mpc.solver import MSiLQRSolver, SolverOptions, SolverResult, SolveStatus
 
 logger = logging.getLogger(__name__)
@@ -62,9 +73,8 @@ def first_solve_options() -> SolverOptions:
 def update_solve_options(settings: MpcSettings) -> SolverOptions:
     """In-loop solver settings (the paper's: ``max_iterations`` iterations, one AL update, the budget)."""
     options = replace(
-        SolverOptions.paper_mpc(settings.period),
+        SolverOptions.paper_mpc(settings.budget),
         max_iterations=settings.max_iterations,
-        time_budget=settings.budget,
         regularization_initial=1e-6,
         regularization_min=1e-6,
         line_search_min_step=UPDATE_LINE_SEARCH_MIN_STEP,
@@ -188,7 +198,7 @@ class MpcStatistics:
         }
 
 
-class Planner(Protocol):
+class Planner(Protocol[PlanT]):
     """What the MPC loops call (module docstring)."""
 
     name: str
@@ -203,17 +213,23 @@ class Planner(Protocol):
     def supports_rti(self) -> bool: ...
 
     @property
-    def prepared(self) -> tuple | None: ...
+    def prepared_time(self) -> float | None: ...
 
     def reset(self) -> None: ...
 
-    def update(self, t: float, q: np.ndarray, v: np.ndarray) -> Plan | TemplatePlan | None: ...
+    def update(self, t: float, q: np.ndarray, v: np.ndarray) -> PlanT | None: ...
 
     def prepare(self, t: float, q: np.ndarray, v: np.ndarray) -> bool: ...
 
-    def feedback(self, t: float, q: np.ndarray, v: np.ndarray) -> Plan | TemplatePlan | None: ...
+    def feedback(self, t: float, q: np.ndarray, v: np.ndarray) -> PlanT | None: ...
 
     def predict(self, t: float) -> np.ndarray | None: ...
+
+    def problem_start(self, t: float, delay: float) -> float: ...
+
+    def carry(
+        self, q: np.ndarray, v: np.ndarray, t: float, until: float, plan_at: Callable[[float], PlanT | None]
+    ) -> np.ndarray: ...
 
 
 PLANNER_ERRORS = (ValueError, FloatingPointError, np.linalg.LinAlgError, RuntimeError)
@@ -221,11 +237,12 @@ PLANNER_ERRORS = (ValueError, FloatingPointError, np.linalg.LinAlgError, Runtime
 counted and logged; the previous plan stays."""
 
 
-class RecedingHorizonPlanner:
+class RecedingHorizonPlanner(Generic[PlanT]):
     """The one-phase update shared by the planners (module docstring). Subclasses implement ``_build(t)``
     (the problem of an update at ``t`` from ``self._x``, references written in place), ``_solve(built,
     solver)`` (warm start and MS-iLQR) and ``_plan(built, result)`` (the message to the low level), and
-    may add the real-time iteration (``prepare``, ``feedback``, ``predict``)."""
+    may add the real-time iteration (``prepare``, ``feedback``, ``predict``, ``prepared_time``) and its delay
+    compensation (``problem_start``, ``carry``)."""
 
     name = "MPC"
     """How log messages name this planner."""
@@ -260,11 +277,17 @@ class RecedingHorizonPlanner:
         """Whether this planner has the real-time iteration's two phases."""
         return False
 
+    @property
+    def prepared_time(self) -> float | None:
+        """The update time the waiting preparation is for (None without one)."""
+        return None
+
     @collector.paused
-    def update(self, t: float, q: np.ndarray, v: np.ndarray) -> Plan | TemplatePlan | None:
+    def update(self, t: float, q: np.ndarray, v: np.ndarray) -> PlanT | None:
         """One one-phase update from the state measured at ``t``; ``None`` (counted and logged) if it
         failed. The first update of a run is the cold solve (``first_solve_options``); after it (and the
-        warm-up) the objects alive are frozen out of the garbage collector's reach (``mpc.collector``)."""
+        warm-up) the objects alive are frozen out of the garbage collector's reach
+        (``planners.collector``)."""
         first = self.previous is None
         self.prepared = None
         if first:
@@ -291,11 +314,24 @@ class RecedingHorizonPlanner:
     def prepare(self, t: float, q: np.ndarray, v: np.ndarray) -> bool:
         raise NotImplementedError(f"{self.name} has no real-time iteration (one-phase updates only)")
 
-    def feedback(self, t: float, q: np.ndarray, v: np.ndarray) -> Plan | TemplatePlan | None:
+    def feedback(self, t: float, q: np.ndarray, v: np.ndarray) -> PlanT | None:
         raise NotImplementedError(f"{self.name} has no real-time iteration (one-phase updates only)")
 
     def predict(self, t: float) -> np.ndarray | None:
         return None
+
+    def problem_start(self, t: float, delay: float) -> float:
+        """Where the problem of the update measured at ``t`` starts when its plan takes effect ``delay``
+        later (default: at ``t``; a planner that compensates the delay in the loop overrides it)."""
+        return t
+
+    def carry(
+        self, q: np.ndarray, v: np.ndarray, t: float, until: float, plan_at: Callable[[float], PlanT | None]
+    ) -> np.ndarray:
+        """The state ``[q, v]`` measured at ``t`` carried to ``until`` under ``plan_at(s)``, the plan in
+        effect at each time ``s`` (the loop's delay compensation; a planner with ``problem_start`` overrides
+        it)."""
+        raise NotImplementedError(f"{self.name} has no delay prediction")
 
     def _solve_at(self, t: float, q: np.ndarray, v: np.ndarray, solver: MSiLQRSolver) -> tuple | None:
         """Reference update, problem, ``solver`` from the state ``q, v`` at ``t``; records the update's
@@ -338,3 +374,69 @@ class RecedingHorizonPlanner:
 
     def _plan(self, built, result: SolverResult):
         raise NotImplementedError
+
+
+# ------------------------------------------------------------------------------------------- registry
+@dataclass(frozen=True)
+class RunContext:
+    """What the assembly resolved of a run config for the builders of the registries: the config, the robot
+    it drives, the robot's scale (``robots.scaling``: the config's tuned values are the reference robot's;
+    the identity with ``scaling: none``) and the torque limits the plan and the low level respect."""
+
+    config: RunConfig
+    robot: Robot
+    scale: RobotScale
+    torque_limits: np.ndarray
+
+    @property
+    def control_period(self) -> float:
+        """Seconds between two low-level ticks (``simulation.control_rate_hz``)."""
+        return 1.0 / self.config.simulation.control_rate_hz
+
+
+@dataclass(frozen=True)
+class PlannerSlice(Generic[PlanT]):
+    """A planner as a run config builds it (module docstring).
+
+    ``build(run, reference)``: the planner tracking ``reference``; ``plan_format(run)``: how its plans travel
+    as arrays (the MPC process's plan channel); ``low_level(run)``: the low level of its own plan type, or
+    None when the config's ``wbc`` names it (``low_level.registry``); ``plan_type``: the type of its plans,
+    which a low level it is paired with must follow."""
+
+    plan_type: type[PlanT]
+    build: Callable[[RunContext, Reference], Planner[PlanT]]
+    plan_format: Callable[[RunContext], PlanFormat[PlanT]]
+    low_level: Callable[[RunContext], LowLevelController[PlanT]] | None = None
+
+
+EntryT = TypeVar("EntryT")
+
+
+class Registry(Generic[EntryT]):
+    """Names of a config key -> what they build (``planners.registry.PLANNERS``, ``low_level.registry``).
+
+    ``get(name)`` raises ``ConfigError`` (one line naming the key and the known names) for an unknown name;
+    ``register`` adds an entry (a test's toy planner; ``unregister`` takes it out again)."""
+
+    def __init__(self, key: str, what: str, entries: Mapping[str, EntryT]) -> None:
+        self.key = key
+        self.what = what
+        self._entries: dict[str, EntryT] = dict(entries)
+
+    def get(self, name: str) -> EntryT:
+        entry = self._entries.get(name)
+        if entry is None:
+            raise ConfigError(f"{self.key}: unknown {self.what} {name!r}; known: {', '.join(self.names)}")
+        return entry
+
+    @property
+    def names(self) -> tuple[str, ...]:
+        return tuple(self._entries)
+
+    def register(self, name: str, entry: EntryT) -> None:
+        if name in self._entries:
+            raise ValueError(f"{self.key}: {name!r} is registered already")
+        self._entries[name] = entry
+
+    def unregister(self, name: str) -> None:
+        del self._entries[name]

@@ -13,7 +13,7 @@ import pinocchio as pin
 
 from cafe_mpc.core.controller import LowLevelController
 from cafe_mpc.core.measurement import Measurement
-from cafe_mpc.core.plan import Plan
+from cafe_mpc.planners.cafe.plan import Plan, riccati_torque
 from cafe_mpc.robots.robot import Robot
 
 
@@ -29,14 +29,7 @@ def state_error(
     return out
 
 
-def riccati_torque(plan: Plan, k: int, dx: np.ndarray, out: np.ndarray) -> np.ndarray:
-    """Eq. (33) at knot ``k``: ``out = tau*_k + K_k dx`` (unclamped), ``dx = x ⊖ x*_k``."""
-    np.matmul(plan.K[k], dx, out=out)
-    out += plan.us[k]
-    return out
-
-
-class RiccatiController(LowLevelController):
+class RiccatiController(LowLevelController[Plan]):
     """Eq. (33) on the plan passed to ``compute``."""
 
     def __init__(self, robot: Robot, clamp: bool = True) -> None:

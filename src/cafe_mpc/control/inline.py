@@ -1,76 +1,65 @@
-"""The policy side of CAFE-MPC in simulated time: when MPC updates happen and when their plans take effect.
+"""The MPC loop in simulated time (or the caller's): the planner in the calling thread (``control.loop``).
 
-The closed-loop composition of the MPC (``cafe_mpc.mpc.RecedingHorizonMpc``) and a ``LowLevelController``
-(``cafe_mpc.wbc``: Riccati (33), VWBC (34), PD) at the control rate, with one MPC worker. Two schemes
-(``MpcSettings.scheme``):
+``InlineMpcLoop`` closes any planner (``planners.base.Planner``) and a ``LowLevelController`` of its plan type
+(``low_level``: Riccati (33), VWBC (34); the template's own) at the control rate, with one MPC worker, and
+decides when updates happen and when their plans take effect. Two schemes (``MpcSettings.scheme``; a
+planner without the real-time iteration runs one-phase updates):
 
 * **real-time iteration** (``rti``, default): an update at time ``t`` takes the measurement of ``t`` and runs
-  only the *feedback* phase (``RecedingHorizonMpc.feedback``); its plan takes effect after the feedback's
-  time. Right after it, the worker *prepares* the next update, for the time ``t_next`` at which the
-  measurement will be taken, from the state the new plan predicts there (``predict``), while the plan drives
-  the robot. ``t_next`` is one MPC period later, or later still when the preparation is expected to take
-  longer (``control.update_clock``): then the rate drops, not the latency. A preparation that runs past
-  ``t_next`` anyway delays that update's feedback (its measurement is then older: the delay counts in its
-  latency).
+  only the *feedback* phase (``Planner.feedback``); its plan takes effect after the feedback's time. Right
+  after it, the worker *prepares* the next update, for the time ``t_next`` at which the measurement will be
+  taken, from the state the new plan predicts there (``predict``), while the plan drives the robot.
+  ``t_next`` is one MPC period later, or later still when the preparation is expected to take longer
+  (``control.update_clock``): then the rate drops, not the latency. A preparation that runs past ``t_next``
+  anyway delays that update's feedback (its measurement is then older: the delay counts in its latency).
 * **one-phase** (``one_phase``): an update starts from the newest measurement when the worker is free and at
   least one period has passed since the previous start; the whole update runs after the measurement, and
   the worker is busy until its plan takes effect (a slow update delays the next one).
 
 With a fixed latency the real-time iteration compensates it (``MpcSettings.delay_compensation``, default
-on): the problem of the update measured at ``t`` starts at the last whole-body knot time at or before
-``t + fixed_latency``, when its plan takes effect (``_problem_start``), and its feedback embeds the
-measured state carried there by ``control.delay_compensation.DelayPredictor`` along the plans in effect
-meanwhile.
+on), with the planner's own prediction: the problem of the update measured at ``t`` starts where the planner
+says for a plan that takes effect at ``t + fixed_latency`` (``Planner.problem_start``; CAFE-MPC: the last
+whole-body knot time at or before it), and its feedback embeds the measured state carried there along the
+plans in effect meanwhile (``Planner.carry``; CAFE-MPC: ``planners.cafe.prediction``).
 
-Latency: **measured** (default): each phase takes its measured wall-clock time in simulated time
-(times ``compute_scale``: a computer that much slower), what a robot sees when the MPC runs beside it; or
-**fixed**: a plan takes effect ``fixed_latency`` after its measurement (deterministic; in the real-time
-iteration a transport delay: updates still start every period, several plans may be in flight). The very
-first (cold) solve runs before the clock starts, as on the robot, where the MPC is started while the robot
-stands; its plan is active from t = 0 (and the first preparation is made then too).
+Latency: **measured** (default): each phase takes its measured wall-clock time in simulated time (times
+``compute_scale``: a computer that much slower), what a robot sees when the MPC runs beside it; or **fixed**:
+a plan takes effect ``fixed_latency`` after its measurement (deterministic; in the real-time iteration a
+transport delay: updates still start every period, several plans may be in flight). The very first (cold)
+solve runs before the clock starts, as on the robot, where the MPC is started while the robot stands; its
+plan is active from t = 0 (and the first preparation is made then too).
 
 The low-level controller follows the newest plan at every tick. A failed update keeps the previous plan;
 with no plan, or once the plan's horizon has run out, the robot is held by the PD standing controller
-(damped stance), counted in ``pd_fallback_ticks``. The wall-clock real-time mode with the MPC in its own
-process is ``cafe_mpc.control.realtime``. The same loop runs the template-MPC baseline (one-phase updates:
-``mpc.template.TemplateMpc``, whose ``TemplatePlan`` its own low level ``wbc.template_low_level`` follows).
+(damped stance), counted in ``pd_fallback_ticks`` (``control.plan_follower``). The same interface with the
+planner in its own process against the wall clock is ``control.process``.
 """
 
 from __future__ import annotations
 
 import logging
-import math
 import time
 
 import numpy as np
 
 from cafe_mpc.config import MpcSettings
 from cafe_mpc.control.commands import CommandChannel, apply_command
-from cafe_mpc.control.delay_compensation import DelayPredictor
+from cafe_mpc.control.loop import MpcLoop
 from cafe_mpc.control.plan_follower import NewestPlanFollower
 from cafe_mpc.control.update_clock import UpdateClock
 from cafe_mpc.core.controller import LowLevelController
 from cafe_mpc.core.measurement import Measurement
-from cafe_mpc.core.plan import Plan
+from cafe_mpc.core.plan import PlanT
 from cafe_mpc.core.progress import stage
-from cafe_mpc.core.template_plan import TemplatePlan
-from cafe_mpc.mpc.planner import PLANNER_ERRORS, MpcStatistics, Planner
-from cafe_mpc.mpc.problem import CafeProblemBuilder
-from cafe_mpc.mpc.receding_horizon import RecedingHorizonMpc
-from cafe_mpc.mpc.template import TemplateProblemBuilder
+from cafe_mpc.planners.base import PLANNER_ERRORS, MpcStatistics, Planner
 from cafe_mpc.reference.base import Reference
 from cafe_mpc.robots.robot import Robot
 
-__all__ = ["CafeMpcController", "MpcSettings", "MpcStatistics"]
-
 logger = logging.getLogger(__name__)
 
-GRID_TOLERANCE = 1e-6
-"""Fraction of a knot below which a time counts as on the knot grid."""
 
-
-class CafeMpcController:
-    """Closed-loop CAFE-MPC in simulated time (the simulation's ``Controller``); see the module docstring.
+class InlineMpcLoop(MpcLoop[PlanT]):
+    """A planner's MPC loop in simulated time (the simulation's ``Controller``); see the module docstring.
 
     ``control_period``: the period of the ticks ``compute`` is called at (updates happen on ticks: a
     preparation is made for the tick its measurement will come from).
@@ -79,60 +68,55 @@ class CafeMpcController:
     def __init__(
         self,
         robot: Robot,
-        reference: Reference,
-        builder: CafeProblemBuilder | TemplateProblemBuilder,
-        low_level: LowLevelController,
-        settings: MpcSettings | None = None,
-        mpc: Planner | None = None,
+        planner: Planner[PlanT],
+        low_level: LowLevelController[PlanT],
         control_period: float = 0.002,
     ) -> None:
         if not control_period > 0:
             raise ValueError(f"control period must be positive, got {control_period}")
         self.robot = robot
-        self.mpc: Planner = (
-            mpc if mpc is not None else RecedingHorizonMpc(robot, reference, builder, settings)
-        )
-        self.settings = self.mpc.settings
-        self.scheme = self.settings.scheme if self.mpc.supports_rti else "one_phase"
-        """The scheme this run uses (the template baseline has only one-phase updates)."""
+        self.planner = planner
+        self.settings: MpcSettings = planner.settings
+        self._scheme = self.settings.scheme if planner.supports_rti else "one_phase"
         self.low_level = low_level
         self.control_period = float(control_period)
         self.follower = NewestPlanFollower(robot, low_level)
-        self.plan: Plan | TemplatePlan | None = None
-        self.pending: list[tuple[float, float, Plan | TemplatePlan | None]] = []
+        self.plan: PlanT | None = None
+        self.pending: list[tuple[float, float, PlanT | None]] = []
         """(time it takes effect, its measurement time, plan) of the updates not yet in effect."""
         self.next_update = 0.0
         self.worker_free = 0.0
         """Simulated time at which the MPC worker finishes what it is doing (real-time iteration)."""
         self.clock = UpdateClock(self.settings.period, self.control_period)
         self.delay = self._compensated_delay()
-        """How long after its measurement an update's problem starts: the fixed latency when it is
-        compensated (``MpcSettings.delay_compensation``), else 0."""
-        self.predictor = DelayPredictor(robot, self.builder.whole_body) if self.delay > 0 else None
+        """How long after its measurement an update's plan takes effect when the loop compensates it (the
+        fixed latency with ``MpcSettings.delay_compensation``), else 0."""
         self.commands = CommandChannel()
         """Runtime commands (``cafe_mpc.Controller.set_command``, teleop), taken at the next MPC update."""
 
     @property
     def reference(self) -> Reference:
-        return self.mpc.reference
+        return self.planner.reference
 
     @property
-    def builder(self) -> CafeProblemBuilder | TemplateProblemBuilder:
-        return self.mpc.builder
+    def scheme(self) -> str:
+        """The scheme this run uses (a planner without the real-time iteration runs one-phase updates)."""
+        return self._scheme
 
     @property
     def statistics(self) -> MpcStatistics:
-        return self.mpc.statistics
+        return self.planner.statistics
+
+    def summary(self, duration: float | None = None) -> dict:
+        statistics = self.statistics
+        summary = statistics.summary()
+        if duration is not None:
+            summary["rate_hz"] = (len(statistics.latencies) - 1) / duration if duration > 0 else None
+        return summary
 
     def _problem_start(self, t: float) -> float:
-        """Where the problem of the update measured at ``t`` starts: ``t`` without delay compensation; with
-        it, the last whole-body knot time at or before the plan takes effect (``t + delay``), not before
-        ``t``: the plan's first knot is then a whole one and holds the time the plan takes effect."""
-        if self.delay <= 0:
-            return t
-        grid = self.builder.schedule.whole_body_dt
-        on_grid = math.floor((t + self.delay) / grid + GRID_TOLERANCE) * grid
-        return max(t, on_grid)
+        """Where the problem of the update measured at ``t`` starts (the planner's ``problem_start``)."""
+        return self.planner.problem_start(t, self.delay)
 
     def _compensated_delay(self) -> float:
         settings = self.settings
@@ -147,7 +131,7 @@ class CafeMpcController:
     # -------------------------------------------------------------------------------------- interface
     def reset(self) -> None:
         self.plan, self.pending = None, []
-        self.mpc.reset()
+        self.planner.reset()
         self.next_update = 0.0
         self.worker_free = 0.0
         self.clock.reset()
@@ -155,8 +139,8 @@ class CafeMpcController:
 
     def start(self, t: float, state: Measurement) -> None:
         """Run the cold first solve now, from ``state`` at time ``t`` (before the clock starts, as on the
-        robot); without it the first ``compute`` does. A no-op once the MPC has started."""
-        if not self.mpc.started:
+        robot); without it the first ``compute`` does. A no-op once the planner has started."""
+        if not self.planner.started:
             self._update(t, state)
 
     def compute(self, t: float, state: Measurement) -> np.ndarray:
@@ -183,12 +167,12 @@ class CafeMpcController:
         command = self.commands.take()
         if command is not None:  # from this update on (with rti: the preparation made after its feedback)
             apply_command(self.reference, t, command)
-        before_clock = not self.mpc.started
+        before_clock = not self.planner.started
         if before_clock:
             # The cold solve runs before the clock starts: its plan acts at once, the next update follows
             # one period later (a failed cold solve is retried next period, the PD stance holds meanwhile).
             stage("first (cold) MPC solve")
-            plan = self.mpc.update(t, state.q, state.v)
+            plan = self.planner.update(t, state.q, state.v)
             if plan is not None:
                 self.plan = plan
                 self.statistics.latencies.append(0.0)
@@ -202,7 +186,7 @@ class CafeMpcController:
             self._update_one_phase(t, state)
 
     def _update_one_phase(self, t: float, state: Measurement) -> None:
-        plan = self.mpc.update(t, state.q, state.v)
+        plan = self.planner.update(t, state.q, state.v)
         statistics = self.statistics
         settings = self.settings
         elapsed = statistics.update_times[-1] if statistics.update_times else 0.0
@@ -214,15 +198,16 @@ class CafeMpcController:
     def _update_rti(self, t: float, state: Measurement) -> None:
         """Feedback for the measurement of ``t`` (or a one-phase update when no preparation waits for it),
         then the preparation of the next update (module docstring)."""
-        mpc, settings, statistics = self.mpc, self.settings, self.statistics
+        planner, settings, statistics = self.planner, self.settings, self.statistics
         measured = settings.latency == "measured"
         start = self._problem_start(t)
-        prepared = mpc.prepared is not None and abs(mpc.prepared[0] - start) <= 1e-9
+        prepared_time = planner.prepared_time
+        prepared = prepared_time is not None and abs(prepared_time - start) <= 1e-9
         if prepared:
             plan = self._feedback(t, start, state)
             work = statistics.feedback_times[-1] if plan is not None else 0.0
         else:
-            plan = mpc.update(t, state.q, state.v)
+            plan = planner.update(t, state.q, state.v)
             work = statistics.update_times[-1] if statistics.update_times else 0.0
         if measured:
             begin = max(t, self.worker_free)
@@ -237,16 +222,16 @@ class CafeMpcController:
         self._prepare(following)
         self.next_update = following
 
-    def _feedback(self, t: float, start: float, state: Measurement) -> Plan | TemplatePlan | None:
+    def _feedback(self, t: float, start: float, state: Measurement) -> PlanT | None:
         """The feedback phase of the update prepared for ``start``, from the measurement of ``t``: with
-        delay compensation, the measured state carried to ``start`` first (``DelayPredictor``; its time
+        delay compensation, the measured state carried to ``start`` first (``Planner.carry``; its time
         counts in the feedback's). A failed carry falls back to the measured state, and says so."""
-        if self.predictor is None:
-            return self.mpc.feedback(start, state.q, state.v)
+        if self.delay <= 0:
+            return self.planner.feedback(start, state.q, state.v)
         began = time.perf_counter()
         q, v = state.q, state.v
         try:
-            carried = self.predictor.carry(q, v, t, start, self._plan_in_effect)
+            carried = self.planner.carry(q, v, t, start, self._plan_in_effect)
             if np.all(np.isfinite(carried)):
                 q, v = carried[: self.robot.nq], carried[self.robot.nq :]
             else:
@@ -254,28 +239,28 @@ class CafeMpcController:
         except PLANNER_ERRORS as error:
             logger.warning("delay compensation at t = %.3f s failed (%s); using the measured state", t, error)
         carry_time = time.perf_counter() - began
-        plan = self.mpc.feedback(start, q, v)
+        plan = self.planner.feedback(start, q, v)
         if plan is not None:
             self.statistics.feedback_times[-1] += carry_time
             self.statistics.update_times[-1] += carry_time
         return plan
 
-    def _plan_in_effect(self, t: float) -> Plan | None:
+    def _plan_in_effect(self, t: float) -> PlanT | None:
         """The plan the low level follows at ``t`` given the plans published and in flight now."""
         plan = self.plan
         for effective, _, pending in self.pending:
             if effective <= t + 1e-9 and pending is not None:
                 plan = pending
-        return plan if isinstance(plan, Plan) else None
+        return plan
 
     def _prepare(self, t_next: float) -> None:
         """Prepare the update at ``t_next`` from the newest plan's prediction (the worker is busy then)."""
         start = self._problem_start(t_next)
-        predicted = self.mpc.predict(start)
+        predicted = self.planner.predict(start)
         if predicted is None:
             return
         nq = self.robot.nq
-        prepared = self.mpc.prepare(start, predicted[:nq], predicted[nq:])
+        prepared = self.planner.prepare(start, predicted[:nq], predicted[nq:])
         if prepared and self.settings.latency == "measured":  # fixed: the update times are the period's
             elapsed = self.statistics.prepare_times[-1] * self._scale
             self.clock.record_preparation(elapsed)

@@ -25,9 +25,8 @@ import pinocchio as pin
 
 from cafe_mpc.core.controller import LowLevelController
 from cafe_mpc.core.measurement import Measurement
-from cafe_mpc.core.plan import Plan
-from cafe_mpc.core.template_plan import TemplatePlan
 from cafe_mpc.dynamics.leg_inverse_kinematics import LegInverseKinematics
+from cafe_mpc.planners.template.plan import TemplatePlan
 from cafe_mpc.robots.robot import Robot
 
 LWA = pin.ReferenceFrame.LOCAL_WORLD_ALIGNED
@@ -84,7 +83,7 @@ def stance_torques(
     return torque
 
 
-class TemplateLowLevelController(LowLevelController):
+class TemplateLowLevelController(LowLevelController[TemplatePlan]):
     """Stance legs ``J' F`` from the planned GRFs, swing legs joint PD on the Bezier swings (module
     docstring). Needs a ``TemplatePlan``. ``torque_limits``: the clamp (default the robot's plan limits; a run
     with ``torque_limits: motor`` passes the motor limits, as to the planner)."""
@@ -128,8 +127,8 @@ class TemplateLowLevelController(LowLevelController):
         self.planned_force_max = 0.0
         self.last_request[:] = 0.0
 
-    def compute(self, t: float, measurement: Measurement, plan: Plan | TemplatePlan | None) -> np.ndarray:
-        if not isinstance(plan, TemplatePlan):
+    def compute(self, t: float, measurement: Measurement, plan: TemplatePlan | None) -> np.ndarray:
+        if plan is None:
             raise RuntimeError("TemplateLowLevelController needs a TemplatePlan (planner: template)")
         robot = self.robot
         q, v = measurement.q, measurement.v

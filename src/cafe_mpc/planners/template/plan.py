@@ -2,20 +2,22 @@
 low-level controller.
 
 The template MPC plans over the single rigid body (SRB, Eqs. (29), (30)) only, so its plan has no joint
-torques, gains or Q-function pieces (unlike ``core.plan.Plan``). Per knot interval ``[times[k], times[k] +
-dt[k])``: the stance flags and the planned world-frame ground reaction forces (held constant over the
-interval, as the SRB model applies them); per knot time (``n + 1``, the last one ends the plan): the planned
-SRB state and the reference foot positions and velocities (stance feet at their footholds, swing feet on
-their swing curves), which the low level interpolates for its swing-leg controller.
+torques, gains or Q-function pieces (unlike ``planners.cafe.plan.Plan``). Per knot interval ``[times[k],
+times[k] + dt[k])``: the stance flags and the planned world-frame ground reaction forces (held constant over
+the interval, as the SRB model applies them); per knot time (``n + 1``, the last one ends the plan): the
+planned SRB state and the reference foot positions and velocities (stance feet at their footholds, swing feet
+on their swing curves), which the low level interpolates for its swing-leg controller.
 """
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import numpy as np
 
-from cafe_mpc.core.plan import interval_at
+from cafe_mpc.core.plan import PlanFormat, interval_at
+from cafe_mpc.dynamics.srb import SRBState
 
 
 @dataclass
@@ -70,6 +72,10 @@ class TemplatePlan:
         (zero-order hold, as in the SRB model)."""
         return interval_at(self.times, t)
 
+    def knot_configurations(self, nq: int) -> None:
+        """None: the template plans the single rigid body, not the robot's configurations."""
+        return None
+
     def feet_at(self, t: float, positions: np.ndarray, velocities: np.ndarray) -> None:
         """Reference foot positions and velocities at ``t`` (cubic Hermite interpolation between the knots,
         exact for the cubic Bezier swings of the locomotion reference when a knot falls on the apex), written
@@ -84,3 +90,27 @@ class TemplatePlan:
         d00, d10, d01, d11 = 6 * s2 - 6 * s, 3 * s2 - 4 * s + 1, -6 * s2 + 6 * s, 3 * s2 - 2 * s
         positions[:] = h00 * p0 + h10 * m0 + h01 * p1 + h11 * m1
         velocities[:] = (d00 * p0 + d10 * m0 + d01 * p1 + d11 * m1) / h
+
+
+TEMPLATE_PLAN_DTYPES = {"contacts": bool}
+"""The fields of a ``TemplatePlan`` that are not float arrays, and their types."""
+
+
+def template_plan_shapes(n: int, n_feet: int) -> dict[str, tuple[int, ...]]:
+    """The array shapes of a template plan of ``n`` knot intervals (``TemplatePlan``'s field comments)."""
+    return {
+        "times": (n,),
+        "dt": (n,),
+        "base_states": (n + 1, SRBState.nx),
+        "forces": (n, n_feet, 3),
+        "contacts": (n, n_feet),
+        "foot_positions": (n + 1, n_feet, 3),
+        "foot_velocities": (n + 1, n_feet, 3),
+    }
+
+
+def template_plan_format(capacity: int, n_feet: int) -> PlanFormat[TemplatePlan]:
+    """How template plans of at most ``capacity`` intervals travel as arrays (``core.plan.PlanFormat``)."""
+    return PlanFormat(
+        TemplatePlan, functools.partial(template_plan_shapes, n_feet=n_feet), capacity, TEMPLATE_PLAN_DTYPES
+    )

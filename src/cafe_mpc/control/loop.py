@@ -1,0 +1,98 @@
+"""The MPC loop: a planner and a low level closed around the robot, behind one interface, two transports.
+
+``MpcLoop[PlanT]`` is what a run, the library front end (``cafe_mpc.Controller``) and the experiment harness
+see of CAFE-MPC or any other planner (``planners.base.Planner``) over a low level of its plan type, whatever
+carries the plans between them:
+
+* ``control.inline.InlineMpcLoop``: the planner in the calling thread, in simulated (or the caller's) time,
+  with fixed or measured latency;
+* ``control.process.ProcessMpcLoop``: the planner in its own process against the wall clock, plans and
+  measurements through shared memory (``control.ipc``).
+
+Both follow the newest plan with the same follower and PD fallback (``control.plan_follower``) and take
+runtime commands through the same channel (``commands``, ``control.commands``). The interface:
+
+* ``reset()``: make ready for a run (the follower's counters; inline also the plans and the planner's warm
+  starts, so that the next ``start`` or ``compute`` is a cold solve);
+* ``start(t, measurement)``: the cold first solve before the clock starts, as on the robot (process: start the
+  MPC process, or a new one, and wait for its first plan);
+* ``compute(t, measurement) -> torques``: at the control rate;
+* ``plan``: the plan in effect (None before the first); ``reference``: the reference the run tracks;
+  ``scheme``: the update scheme in use (``rti`` or ``one_phase``); ``low_level``;
+* ``statistics``: the planner's per-update records (``MpcStatistics``; process: the MPC process's, once it
+  has stopped), ``summary(duration)``: the ``mpc`` block of a run's metrics;
+* ``failure`` and ``should_stop(t)``: why the run must end (the MPC process died or stalled), and when;
+* ``close()`` (also ``with``): stop what the loop started; idempotent.
+"""
+
+from __future__ import annotations
+
+from abc import ABC, abstractmethod
+from typing import Generic
+
+import numpy as np
+
+from cafe_mpc.control.commands import CommandChannel
+from cafe_mpc.core.controller import LowLevelController
+from cafe_mpc.core.measurement import Measurement
+from cafe_mpc.core.plan import PlanT
+from cafe_mpc.planners.base import MpcStatistics
+from cafe_mpc.reference.base import Reference
+
+
+class MpcLoop(ABC, Generic[PlanT]):
+    """A planner's MPC loop over a low level (module docstring)."""
+
+    low_level: LowLevelController[PlanT]
+    """What follows the plan at the control rate."""
+    commands: CommandChannel
+    """Runtime commands (``cafe_mpc.Controller.set_command``, teleop), taken at the planner's next update."""
+    plan: PlanT | None
+    """The plan the low level follows now (None before the first)."""
+    failure: str | None = None
+    """Why the run must end (the MPC process died or stalled); None while all is well."""
+
+    @property
+    @abstractmethod
+    def reference(self) -> Reference | None:
+        """The reference the run tracks (the planner's)."""
+
+    @property
+    @abstractmethod
+    def scheme(self) -> str:
+        """The update scheme in use: ``rti`` (real-time iteration) or ``one_phase``."""
+
+    @property
+    @abstractmethod
+    def statistics(self) -> MpcStatistics | None:
+        """The planner's per-update records (None where they are not available yet)."""
+
+    @abstractmethod
+    def reset(self) -> None:
+        """Make ready for a run (module docstring)."""
+
+    @abstractmethod
+    def start(self, t: float, measurement: Measurement) -> None:
+        """The cold first solve from ``measurement`` at ``t``, before the clock starts."""
+
+    @abstractmethod
+    def compute(self, t: float, measurement: Measurement) -> np.ndarray:
+        """Joint torques for time ``t`` (owned by the loop's low level, overwritten on the next call)."""
+
+    @abstractmethod
+    def summary(self, duration: float | None = None) -> dict:
+        """The ``mpc`` block of a run's metrics (update times, iterations, latency, fallback ticks); with the
+        run's ``duration``, also the achieved update rate ``rate_hz``."""
+
+    def should_stop(self, t: float) -> bool:
+        """Whether the run should end at ``t`` (after a ``failure``)."""
+        return False
+
+    def close(self) -> None:
+        """Stop what the loop started (nothing inline); idempotent."""
+
+    def __enter__(self) -> MpcLoop[PlanT]:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()

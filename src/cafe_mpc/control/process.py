@@ -1,0 +1,468 @@
+"""The MPC loop with the planner in its own process, the low-level controller at 500 Hz in the caller's.
+
+The shape of a deployment (paper Sec. VI-C and Fig. 2; OCS2's MPC/MRT split): the low-level controller
+(VWBC) runs on the robot against the wall clock and never waits for the solver; the planner runs beside it,
+as fast as the period allows, always from the newest measurement. The two exchange data asynchronously
+through shared memory (``control.ipc``): the measurement ring (main -> MPC), the plan channel (MPC -> main:
+the newest plan of the planner's type, laid out by its ``PlanFormat``) and the control block (stop, ready,
+runtime commands). Neither side ever blocks the other. A process (not a thread) because the solver would
+otherwise hold Python's global interpreter lock against the 500 Hz loop.
+
+The MPC process runs the scheme of its settings (``MpcSettings.scheme``; one-phase for a planner without the
+real-time iteration). Real-time iteration: after publishing a plan it picks the next update time ``t_next``
+(``control.update_clock``: one period later, or later when its preparations take longer), prepares that
+update from the state the new plan predicts there, waits for the measurement of the tick at ``t_next`` and
+runs only the feedback phase on it before publishing (the latency the robot sees). One-phase: it takes the
+newest measurement, at most once per period, and runs the whole update.
+
+``ProcessMpcLoop`` is the main-process side (``control.loop.MpcLoop``; the simulation's ``Controller``):
+``start`` starts the MPC process (a new one on a later ``start``: a new planner, no stale warm start) and
+waits for its first plan; ``compute`` publishes each measurement, takes the newest plan as soon as it
+appears and runs the low-level controller on it, or the damped PD stance when there is no plan or the plan's
+horizon has run out (``control.plan_follower``). If the MPC process dies or stops delivering plans, the run
+keeps the last plan while it lasts, then holds the stance, and ``failure`` says why (the run then ends with
+``MpcProcessError``). ``close()`` (also on errors and Ctrl-C, via ``with``) stops the process and frees the
+shared memory; no process is left behind.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+import multiprocessing
+import os
+import signal
+import time
+from collections.abc import Callable
+
+import numpy as np
+
+from cafe_mpc.control.commands import CommandChannel, apply_command
+from cafe_mpc.control.ipc.channels import ControlBlock, MeasurementRing, PlanChannel, PlanLayout
+from cafe_mpc.control.loop import MpcLoop
+from cafe_mpc.control.plan_follower import NewestPlanFollower
+from cafe_mpc.control.update_clock import UpdateClock
+from cafe_mpc.core.controller import LowLevelController
+from cafe_mpc.core.measurement import Measurement
+from cafe_mpc.core.plan import PlanFormat, PlanT
+from cafe_mpc.core.progress import stage
+from cafe_mpc.planners.base import MpcStatistics, Planner
+from cafe_mpc.reference.base import Reference
+from cafe_mpc.robots.robot import Robot
+
+logger = logging.getLogger(__name__)
+
+PlannerFactory = Callable[[], Planner]
+"""Builds the planner inside the MPC process (must be picklable: a module-level function or a partial)."""
+
+
+class MpcProcessError(RuntimeError):
+    """The MPC process died, failed to start, or stopped delivering plans."""
+
+
+def _pin_to_cpu(index: int) -> None:
+    """Pin this process to one of the CPUs it may use (``index`` into them), when there are at least two: the
+    500 Hz loop and the MPC then do not migrate between cores or share one. No-op where unsupported."""
+    with contextlib.suppress(AttributeError, OSError):
+        cpus = sorted(os.sched_getaffinity(0))
+        if len(cpus) >= 2:
+            os.sched_setaffinity(0, {cpus[index]})
+
+
+# ------------------------------------------------------------------------------------- MPC process
+def _worker_main(
+    factory: PlannerFactory,
+    measurement_name: str,
+    dimensions: tuple[int, int, int],
+    plan_name: str,
+    layout: PlanLayout,
+    control_name: str,
+    control_period: float,
+    period: float,
+    parent_pid: int,
+    results,
+) -> None:
+    """The MPC process: measurements -> updates -> plans (module docstring), until told to stop."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # the main process owns Ctrl-C and stops us
+    _pin_to_cpu(-1)  # the last CPU; the 500 Hz loop keeps the first (see ProcessMpcLoop)
+    nq, nv, n_feet = dimensions
+    ring = MeasurementRing(nq, nv, n_feet, measurement_name)
+    plans = PlanChannel(layout, plan_name)
+    control = ControlBlock(control_name)
+    statistics = None
+    worker = None
+    try:
+        planner = factory()
+        worker = _Worker(planner, ring, plans, control, control_period, period, parent_pid)
+        control.array[ControlBlock.RTI] = 1.0 if worker.rti else 0.0
+        control.array[ControlBlock.READY] = 1.0  # built; numba kernels loaded
+        worker.run()
+        statistics = planner.statistics
+    except BaseException as error:  # report, then exit: the main process turns it into MpcProcessError
+        results.send(("error", f"{type(error).__name__}: {error}"))
+        raise
+    finally:
+        if statistics is not None:
+            with contextlib.suppress(Exception):
+                results.send(("statistics", statistics))
+        if worker is not None:
+            worker.commands = None  # drop its view of the control block before closing it
+        for channel in (ring, plans, control):
+            channel.close(unlink=False)
+
+
+class _Worker:
+    """The loop of the MPC process (``_worker_main``): one-phase or real-time-iteration updates."""
+
+    def __init__(
+        self,
+        planner: Planner,
+        ring: MeasurementRing,
+        plans: PlanChannel,
+        control: ControlBlock,
+        control_period: float,
+        period: float,
+        parent_pid: int,
+    ) -> None:
+        self.planner, self.ring, self.plans, self.control = planner, ring, plans, control
+        self.control_period = control_period
+        self.period = period
+        self.parent_pid = parent_pid
+        self.buffer = np.zeros(ring.slot - 2)
+        self.nq, self.nv = ring.nq, ring.nv
+        self.clock = UpdateClock(period, control_period)
+        self.rti = planner.settings.scheme == "rti" and planner.supports_rti
+        self.commands: CommandChannel | None = control.commands()
+        """Runtime commands from the main process (``ProcessMpcLoop.commands``)."""
+
+    def running(self) -> bool:
+        """Until the stop flag is set or the main process is gone (do not outlive it)."""
+        return self.control.array[ControlBlock.STOP] == 0.0 and os.getppid() == self.parent_pid
+
+    def run(self) -> None:
+        planner = self.planner
+        last_tick = -1
+        while self.running():
+            newest = self.ring.newest
+            if newest < 0 or newest == last_tick:
+                time.sleep(0.0002)
+                continue
+            if not planner.started:  # the cold solve, on the first measurement
+                if self.ring.read(newest, self.buffer):
+                    last_tick = newest
+                    self._publish(self._state_update(newest), newest)
+                continue
+            last_tick = self._rti_update(last_tick) if self.rti else self._one_phase_update(last_tick, newest)
+
+    def _take_command(self, t: float) -> None:
+        """Apply a runtime command posted since the last update, from ``t`` on."""
+        command = self.commands.take() if self.commands is not None else None
+        if command is not None:
+            apply_command(self.planner.reference, t, command)
+
+    def _state_update(self, tick: int):
+        """A one-phase update from the measurement of ``tick`` (in ``buffer``)."""
+        nq, nv = self.nq, self.nv
+        self._take_command(float(self.buffer[0]))
+        return self.planner.update(
+            float(self.buffer[0]), self.buffer[1 : 1 + nq], self.buffer[1 + nq : 1 + nq + nv]
+        )
+
+    def _one_phase_update(self, last_tick: int, newest: int) -> int:
+        """The newest measurement, at most once per period."""
+        ticks_per_period = max(round(self.period / self.control_period), 1)
+        if newest < last_tick + ticks_per_period:
+            time.sleep(0.0002)
+            return last_tick
+        if not self.ring.read(newest, self.buffer):
+            return last_tick
+        self._publish(self._state_update(newest), newest)
+        return newest
+
+    def _rti_update(self, last_tick: int) -> int:
+        """Prepare the update at the next tick ``t_next``, wait for its measurement, feed it back."""
+        planner, control_period = self.planner, self.control_period
+        newest = self.ring.newest
+        following = self.clock.next_update(last_tick * control_period, newest * control_period)
+        tick = max(round(following / control_period), last_tick + 1)
+        t_next = tick * control_period
+        self._take_command(t_next)
+        predicted = planner.predict(t_next)
+        prepared = False
+        if predicted is not None:
+            prepared = planner.prepare(t_next, predicted[: self.nq], predicted[self.nq :])
+            if prepared:
+                self.clock.record_preparation(planner.statistics.prepare_times[-1])
+        while self.ring.newest < tick:
+            if not self.running():
+                return last_tick
+            time.sleep(0.0001)
+        nq, nv = self.nq, self.nv
+        if not self.ring.read(tick, self.buffer):  # overwritten (the prepare outlasted the ring): newest
+            tick = self.ring.newest
+            if not self.ring.read(tick, self.buffer):
+                return last_tick
+            prepared = False
+        t = float(self.buffer[0])
+        q, v = self.buffer[1 : 1 + nq], self.buffer[1 + nq : 1 + nq + nv]
+        plan = planner.feedback(t, q, v) if prepared else planner.update(t, q, v)
+        self._publish(plan, tick)
+        return tick
+
+    def _publish(self, plan, tick: int) -> None:
+        if plan is None:
+            return
+        stats = self.planner.statistics
+        self.plans.publish(
+            plan,
+            tick * self.control_period,
+            (stats.update_times[-1], stats.iterations[-1], stats.solves, stats.failures),
+        )
+
+
+# ------------------------------------------------------------------------------------ control loop
+class ProcessMpcLoop(MpcLoop[PlanT]):
+    """The main-process side of the MPC loop with the planner in its own process (module docstring).
+
+    ``factory`` builds the planner in the MPC process; ``plan_format``: how its plans travel (the plan
+    channel's layout, ``core.plan.PlanFormat``); ``period``: the MPC period; ``scheme``: the scheme the
+    planner is set to run (the MPC process reports the one it runs once it is ready). Use as a context manager
+    (or call ``close()``): it owns shared memory and, once started, a process.
+    """
+
+    def __init__(
+        self,
+        robot: Robot,
+        factory: PlannerFactory,
+        low_level: LowLevelController[PlanT],
+        plan_format: PlanFormat[PlanT],
+        period: float,
+        control_period: float = 0.002,
+        scheme: str = "rti",
+        startup_timeout: float = 120.0,
+        stall_timeout: float | None = None,
+    ) -> None:
+        if not control_period > 0:
+            raise ValueError(f"control period must be positive, got {control_period}")
+        self.robot = robot
+        self.factory = factory
+        self.low_level = low_level
+        self.follower = NewestPlanFollower(robot, low_level)
+        self.period = period
+        self.control_period = float(control_period)
+        self.startup_timeout = startup_timeout
+        self.stall_timeout = stall_timeout if stall_timeout is not None else max(0.5, 10 * period)
+        self._scheme = scheme
+        self.layout = PlanLayout(plan_format)
+        self._measurements = MeasurementRing(robot.nq, robot.nv, robot.n_feet)
+        self._plans = PlanChannel(self.layout)
+        self._control = ControlBlock()
+        self.commands = self._control.commands()
+        """Runtime commands for the MPC process (``control.commands``), taken at its next update; a command
+        posted before a (re)start is taken by the new process's first update."""
+        self.plan: PlanT | None = None
+        self.received = MpcStatistics()
+        """The plans as this side received them: latencies, measurement times, update wall times, and the
+        ticks of the PD fallback."""
+        self.worker_statistics: MpcStatistics | None = None
+        """The MPC process's own records, sent when it stops."""
+        self.worker_error: str | None = None
+        self.failure: str | None = None
+        self.process: multiprocessing.process.BaseProcess | None = None
+        self._results = None
+        self._reference: Reference | None = None
+        self._last_plan_time = 0.0
+        self._failure_time: float | None = None
+        self._affinity = None
+        self._closed = False
+
+    # ------------------------------------------------------------------------------------ interface
+    @property
+    def reference(self) -> Reference | None:
+        """The reference the run tracks, if the caller set it (reports only; the MPC process has its own)."""
+        return self._reference
+
+    @reference.setter
+    def reference(self, reference: Reference | None) -> None:
+        self._reference = reference
+
+    @property
+    def scheme(self) -> str:
+        return self._scheme
+
+    @property
+    def statistics(self) -> MpcStatistics | None:
+        """The MPC process's records (once it has stopped: ``close``), else None."""
+        return self.worker_statistics
+
+    def summary(self, duration: float | None = None) -> dict:
+        worker = self.worker_statistics
+        summary = worker.summary() if worker is not None else {}
+        latencies = self.received.latencies
+        summary["latency_ms_median"] = float(np.median(latencies)) * 1e3 if latencies else None
+        summary["latency_ms_p99"] = float(np.percentile(latencies, 99)) * 1e3 if latencies else None
+        summary["plans_received"] = len(latencies)
+        if duration is not None:
+            summary["rate_hz"] = len(latencies) / duration if duration > 0 else None
+        summary["pd_fallback_ticks"] = self.received.fallback_ticks
+        summary["worker_error"] = self.worker_error
+        return summary
+
+    def reset(self) -> None:
+        """The follower's counters; the plan received at ``start`` stays in effect."""
+        self.follower.reset()
+
+    def start(self, t: float, measurement: Measurement) -> None:
+        """Start the MPC process (after stopping the one a previous ``start`` started) on ``measurement``
+        and wait for its first plan: the cold solve runs before the clock starts, while the robot stands,
+        as on hardware."""
+        if self._closed:
+            raise RuntimeError("this MPC loop is closed")
+        if self.process is not None:
+            self._stop_process()
+            self._measurements.clear()
+            self._control.array[: ControlBlock.COMMANDS] = 0.0
+            self.plan, self.failure, self._failure_time = None, None, None
+            self.received, self.worker_statistics, self.worker_error = MpcStatistics(), None, None
+        self._spawn()
+        deadline = time.perf_counter() + self.startup_timeout
+        stage("first (cold) MPC solve, in the MPC process")
+        self.publish(t, measurement)
+        while self.plan is None:
+            self._poll_plan(t, record=False)
+            if self.plan is not None:
+                break
+            self._check_alive()
+            if self.failure is not None:
+                raise MpcProcessError(self.failure)
+            if time.perf_counter() > deadline:
+                raise MpcProcessError(f"the MPC process sent no plan within {self.startup_timeout:.0f} s")
+            time.sleep(0.002)
+        self._scheme = "rti" if self._control.array[ControlBlock.RTI] == 1.0 else "one_phase"
+        self._last_plan_time = t
+
+    def compute(self, t: float, measurement: Measurement) -> np.ndarray:
+        self.publish(t, measurement)
+        self._poll_plan(t, record=True)
+        plan = self.plan
+        if plan is not None and t - self._last_plan_time > self.stall_timeout and self.failure is None:
+            self._check_alive()
+            if self.failure is None:
+                self.failure = f"the MPC process delivered no plan for {t - self._last_plan_time:.2f} s"
+        if plan is not None and t >= plan.end_time and self.failure is None:
+            self._check_alive()
+        before = self.follower.fallback_ticks
+        torques = self.follower.compute(t, measurement, plan)
+        self.received.fallback_ticks += self.follower.fallback_ticks - before
+        return torques
+
+    def should_stop(self, t: float) -> bool:
+        """End the run 0.5 s after a failure (the damped stance holds the robot meanwhile)."""
+        if self.failure is None:
+            return False
+        if self._failure_time is None:
+            self._failure_time = t
+        return t - self._failure_time > 0.5
+
+    def close(self) -> None:
+        """Stop the MPC process (politely, then by force) and free the shared memory. Idempotent."""
+        if self._closed:
+            return
+        self._closed = True
+        if self.process is not None:
+            self._stop_process()
+        if self._affinity is not None:
+            with contextlib.suppress(OSError):
+                os.sched_setaffinity(0, self._affinity)
+        self.commands = CommandChannel()  # a detached channel: the shared view is released before closing
+        for channel in (self._measurements, self._plans, self._control):
+            channel.close(unlink=True)
+
+    def publish(self, t: float, measurement: Measurement) -> None:
+        """Write the measurement of the tick at ``t`` into the ring for the MPC process (never blocks)."""
+        tick = round(t / self.control_period)
+        self._measurements.write(tick, t, measurement.q, measurement.v, measurement.contacts)
+
+    # ----------------------------------------------------------------------------------- the process
+    def _spawn(self) -> None:
+        context = multiprocessing.get_context("spawn")
+        self._results, child_end = context.Pipe(duplex=False)
+        process = context.Process(
+            target=_worker_main,
+            args=(
+                self.factory,
+                self._measurements.name,
+                (self.robot.nq, self.robot.nv, self.robot.n_feet),
+                self._plans.name,
+                self.layout,
+                self._control.name,
+                self.control_period,
+                self.period,
+                os.getpid(),
+                child_end,
+            ),
+            name="cafe-mpc-solver",
+            daemon=True,
+        )
+        process.start()
+        self.process = process  # started: from now on ``close`` stops it
+        child_end.close()
+        if self._affinity is None:
+            with contextlib.suppress(AttributeError, OSError):
+                self._affinity = os.sched_getaffinity(0)
+        _pin_to_cpu(0)
+
+    def _stop_process(self) -> None:
+        """Set the stop flag, read what the process sends while it exits (its statistics can exceed the
+        pipe's buffer: joining first would deadlock), then make sure it is gone."""
+        with contextlib.suppress(Exception):
+            self._control.array[ControlBlock.STOP] = 1.0
+        deadline = time.perf_counter() + 5.0
+        while time.perf_counter() < deadline:
+            if self._results.poll(0.02):
+                if not self._receive():
+                    break  # the process closed its end
+            elif not self.process.is_alive():
+                break
+        self.process.join(timeout=1.0)
+        if self.process.is_alive():
+            self.process.terminate()
+            self.process.join(timeout=2.0)
+        if self.process.is_alive():
+            self.process.kill()
+            self.process.join(timeout=2.0)
+        self._results.close()
+
+    def _poll_plan(self, t: float, record: bool) -> None:
+        received = self._plans.receive()
+        if received is None:
+            return
+        plan, measured_at, wall = received
+        self.plan = plan
+        self._last_plan_time = t
+        if record:
+            self.received.latencies.append(t - measured_at)
+            self.received.start_times.append(measured_at)
+            self.received.update_times.append(wall)
+
+    def _receive(self) -> bool:
+        """Take one message from the process; ``False`` once its end of the pipe is closed."""
+        try:
+            kind, payload = self._results.recv()
+        except (EOFError, OSError):
+            return False
+        if kind == "statistics":
+            self.worker_statistics = payload
+        elif kind == "error":
+            self.worker_error = payload
+        return True
+
+    def _check_alive(self) -> None:
+        if self.process is None or self.process.is_alive() or self.failure is not None:
+            return
+        detail = ""
+        if self._results.poll(0):
+            self._receive()
+        if self.worker_error:
+            detail = f": {self.worker_error}"
+        self.failure = f"the MPC process exited (code {self.process.exitcode}){detail}"

@@ -1,0 +1,95 @@
+"""The low-level controllers a run config's ``wbc`` key names, and the low level of a run.
+
+``LOW_LEVELS``: ``wbc`` -> ``LowLevelEntry`` (how a run config builds it, the plan type it follows): ``pd``
+(joint PD standing; it follows no plan and runs alone, without a planner), ``riccati`` (Eq. (33)) and ``vwbc``
+(Eq. (34)) on CAFE-MPC's ``Plan``. ``build_low_level(run, planner)``: the planner's own low level when its
+slice has one (the template's), else the ``wbc`` entry, which must follow the planner's plan type.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+
+from cafe_mpc.config import ConfigError
+from cafe_mpc.core.controller import LowLevelController
+from cafe_mpc.low_level.pd import PDController
+from cafe_mpc.low_level.riccati import RiccatiController
+from cafe_mpc.low_level.vwbc import VWBCController, VWBCSettings
+from cafe_mpc.planners.base import PlannerSlice, Registry, RunContext
+from cafe_mpc.planners.cafe.plan import Plan
+
+
+@dataclass(frozen=True)
+class LowLevelEntry:
+    """``build(run)``: the controller of a run; ``plan_type``: the plans it follows (None: it needs none and
+    is a closed-loop controller by itself, with no planner)."""
+
+    build: Callable[[RunContext], LowLevelController]
+    plan_type: type | None
+
+    @property
+    def needs_plan(self) -> bool:
+        return self.plan_type is not None
+
+
+def build_pd(run: RunContext) -> PDController:
+    """Joint PD standing with the config's gains scaled to the robot (torque scale; damping also by time)."""
+    config, scale = run.config, run.scale
+    return PDController(
+        run.robot,
+        scale.stiffness(config.pd.kp),
+        scale.damping(config.pd.kd),
+        gravity_feedforward=config.pd.gravity_feedforward,
+    )
+
+
+def build_riccati(run: RunContext) -> RiccatiController:
+    """The Riccati feedback (33), clamped to the run's torque limits."""
+    riccati = RiccatiController(run.robot)
+    riccati.limits = run.torque_limits.copy()
+    return riccati
+
+
+def build_vwbc(run: RunContext) -> VWBCController:
+    """The VWBC QP (34): the ``vwbc`` section, the plan's friction, the Baumgarte gain and the cone tolerance
+    of the reference robot scaled to the run's robot, the run's torque limits."""
+    config, scale = run.config, run.scale
+    try:
+        defaults = VWBCSettings.model_fields  # the reference robot's, scaled to the run's robot
+        settings = VWBCSettings(
+            **config.vwbc.model_dump(),
+            mu=config.vwbc.friction if config.vwbc.friction is not None else config.mpc.friction,
+            alpha=scale.rate(defaults["alpha"].default),
+            cone_tolerance=scale.force(defaults["cone_tolerance"].default),
+        )
+    except ValueError as error:
+        raise ConfigError(f"vwbc: {error}") from error
+    return VWBCController(run.robot, settings, torque_limits=run.torque_limits.copy())
+
+
+LOW_LEVELS: Registry[LowLevelEntry] = Registry(
+    "wbc",
+    "low-level controller",
+    {
+        "pd": LowLevelEntry(build_pd, None),
+        "riccati": LowLevelEntry(build_riccati, Plan),
+        "vwbc": LowLevelEntry(build_vwbc, Plan),
+    },
+)
+"""``wbc`` -> its entry; ``LOW_LEVELS.get(name)`` raises ``ConfigError`` naming the key for an unknown one."""
+
+
+def build_low_level(run: RunContext, planner: PlannerSlice) -> LowLevelController:
+    """The low level of a run under ``planner`` (module docstring); ``ConfigError`` (one line naming ``wbc``)
+    when the ``wbc`` entry follows another plan type than the planner makes."""
+    if planner.low_level is not None:
+        return planner.low_level(run)
+    name = run.config.wbc
+    entry = LOW_LEVELS.get(name)
+    if entry.needs_plan and entry.plan_type is not planner.plan_type:
+        raise ConfigError(
+            f"wbc: {name!r} follows {entry.plan_type.__name__} plans; planner {run.config.planner!r} makes "
+            f"{planner.plan_type.__name__} plans"
+        )
+    return entry.build(run)
