@@ -65,10 +65,12 @@ def locomotion_reference(
     robot: Robot,
     scale: RobotScale = IDENTITY,
     detection: ContactDetectionSettings | None = None,
+    ground_plane: bool = False,
 ) -> LocomotionReference:
     """The heuristic locomotion reference (Sec. VI-A) of a gait section, its timings and lengths scaled to the
     robot (``ValueError`` if it cannot be built); with ``gait.touchdown_events``, early touchdowns advance its
-    clock, seen with ``detection``'s windows and height."""
+    clock, seen with ``detection``'s windows and height; with ``ground_plane`` its base and footholds follow
+    the plane through the stance feet (``terrain: blind``)."""
     events = None
     if gait.touchdown_events is not None:
         detection = detection or ContactDetectionSettings()
@@ -89,6 +91,7 @@ def locomotion_reference(
         path_gain=gait.path_gain / scale.distance(1.0),
         path_heading_limit=gait.path_heading_limit,
         touchdown_events=events,
+        ground_plane=ground_plane,
     )
 
 
@@ -153,6 +156,8 @@ def build_reference(config: RunConfig, robot: Robot) -> Reference:
     if config.gait is None:  # RunConfig rejects this; kept for configs built with model_construct
         raise ConfigError(f"wbc: {config.wbc!r} needs a gait section")
     try:
-        return locomotion_reference(config.gait, robot, scale, config.vwbc.contact_detection)
+        return locomotion_reference(
+            config.gait, robot, scale, config.vwbc.contact_detection, ground_plane=config.terrain != "flat"
+        )
     except ValueError as error:
         raise ConfigError(f"gait: {error}") from error

@@ -111,6 +111,12 @@ class ContactDetectionSettings(StrictModel):
         0.015, ge=0.0, le=1.0, description="s; a touchdown this close to its planned time is on time"
     )
     ground_height: float = Field(0.0, description="m; the flat ground's height")
+    step_height: float = Field(
+        0.1,
+        gt=0.0,
+        le=0.5,
+        description="m; with a ground plane (terrain: blind), a loaded foot up to this above it touches down",
+    )
 
 
 class VWBCConfig(StrictModel):
@@ -916,10 +922,12 @@ class RunConfig(StrictModel):
     scene: SceneConfig = Field(
         default_factory=SceneConfig, description="terrain in the plant's scene (the controller plans flat)"
     )
-    terrain: Literal["blind", "height_map"] = Field(
-        "blind",
-        description="blind: the controller gets no map of the ground; height_map: it is handed the plant's "
-        "height maps (plant.height_map; the controllers do not use them yet, docs/terrain.md)",
+    terrain: Literal["flat", "blind", "height_map"] = Field(
+        "flat",
+        description="the ground the controller believes in. flat: z = 0 (the paper's); blind: the plane "
+        "through the feet's latest contact points (core.ground), which the reference's base height, pitch "
+        "and footholds and the contact detector follow; height_map: as blind, with the plant's height maps "
+        "in the log (plant.height_map; the controllers do not use them yet). docs/terrain.md",
     )
     output: OutputConfig = Field(default_factory=OutputConfig, description="plots and video")
 

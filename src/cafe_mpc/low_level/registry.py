@@ -53,7 +53,8 @@ def build_riccati(run: RunContext) -> RiccatiController:
 
 def build_vwbc(run: RunContext) -> VWBCController:
     """The VWBC QP (34): the ``vwbc`` section, the plan's friction, the Baumgarte gain and the cone tolerance
-    of the reference robot scaled to the run's robot, the run's torque limits."""
+    of the reference robot scaled to the run's robot, the run's torque limits; off flat ground (``terrain``)
+    its contact detector measures heights above the stance feet's plane."""
     config, scale = run.config, run.scale
     try:
         defaults = VWBCSettings.model_fields  # the reference robot's, scaled to the run's robot
@@ -65,7 +66,9 @@ def build_vwbc(run: RunContext) -> VWBCController:
         )
     except ValueError as error:
         raise ConfigError(f"vwbc: {error}") from error
-    return VWBCController(run.robot, settings, torque_limits=run.torque_limits.copy())
+    return VWBCController(
+        run.robot, settings, torque_limits=run.torque_limits.copy(), ground_plane=config.terrain != "flat"
+    )
 
 
 LOW_LEVELS: Registry[LowLevelEntry] = Registry(
