@@ -218,3 +218,45 @@ def test_terrain_blind_reaches_the_reference_and_the_contact_detector(robot):
     assert build_reference(flat, robot).ground is None
     assert build_low_level(blind, robot).detector.ground is not None
     assert build_low_level(flat, robot).detector.ground is None
+
+
+# ------------------------------------------------------------------------------------------ experiment
+def test_the_terrain_experiment_makes_one_valid_run_per_gait_terrain_and_ground():
+    from cafe_mpc_lab.experiments.catalog import get_experiment
+    from cafe_mpc_lab.experiments.registry import PlanContext
+
+    experiment = get_experiment("terrain")
+    options = experiment.options_from({"gaits": "trot,bound", "terrains": "step4,slope10"})
+    plan = experiment.plan(options, PlanContext())
+    assert len(plan.variants) == 2 * 2 * 2
+    for variant in plan.variants:
+        config = load_run_config(variant.preset, [*experiment.default_overrides, *variant.overrides])
+        fields = dict(variant.fields)
+        assert config.terrain == fields["mode"] and len(config.scene.terrain) == 1
+        assert config.mpc.latency == "fixed" and config.mpc.fixed_latency == 0.02
+    assert plan.options["--modes"] == "flat,blind"
+
+
+# ------------------------------------------------------------------------------------------ closed loops
+@pytest.mark.slow
+def test_a_blind_bound_climbs_a_10_degree_slope_and_stays_up():
+    """The bound onto a 10 degree slope 0.5 m ahead, fixed 20 ms latency: on the flat-ground controller it
+    falls on the incline (at 3.2 s from 1 m ahead: docs/terrain.md); blind, its base follows the incline."""
+    from cafe_mpc_lab.experiments.run import simulate_run
+
+    config = load_run_config(
+        "bound",
+        [
+            "simulation.duration=3.5",
+            "mpc.latency=fixed",
+            "mpc.fixed_latency=0.02",
+            "terrain=blind",
+            "scene.terrain=[{kind: slope, start: 0.5, angle_deg: 10, length: 1.5}]",
+        ],
+    )
+    _, _, log = simulate_run(config)
+    assert not log.fell, log.fall_reason
+    x = log.q[-1, 0]
+    assert x > 1.0  # on the incline, 0.5 m up it
+    rise = (x - 0.5) * math.tan(math.radians(10.0))
+    assert log.q[-1, 2] - rise > 0.18  # the base stands above the incline, not on it

@@ -22,7 +22,9 @@ Contacts: Jacobians and forces are expressed in ``LOCAL_WORLD_ALIGNED`` at the f
 world-frame ground reaction forces, as in ``Plan.forces``); ``Jcdot v`` is the classical foot acceleration
 at zero joint acceleration. The stance set ``C`` is the plan knot's contact flags (the paper's choice);
 ``VWBCSettings.stance_source = "intersect"`` uses the feet that are planned *and* measured in contact
-(``Measurement.contacts``).
+(``Measurement.contacts``). Off flat ground (``ground_plane``, ``terrain: blind``) the pyramid (34f) and
+(34e) are taken about the normal of the contact detector's ground plane (``_StanceQP.orient_cone``): on a
+20 degree slope a cone about world z allows forces that slide the feet down.
 
 Solvers: one preallocated solver object and matrix set per stance pattern (sizes change with the number of
 stance feet). ProxQP (``proxsuite.proxqp.dense``, ``solver="proxqp"``) solves (34) as written; it is a
