@@ -134,9 +134,10 @@ def process_planner(config_data: dict) -> Planner:
 
 
 def build_estimator(config: RunConfig, robot: Robot) -> StateEstimator:
-    """The state estimator of a run (``kinematic_kf``: IMU attitude + leg-kinematics Kalman filter)."""
+    """The state estimator of a run (``kinematic_kf``: IMU attitude + leg-kinematics Kalman filter); off
+    flat ground (``terrain``) it does not drop stance feet for standing above z = 0."""
     try:
-        return StateEstimator(robot, config.kinematic_kf)
+        return StateEstimator(robot, config.kinematic_kf, flat_ground=config.terrain == "flat")
     except ValueError as error:
         raise ConfigError(f"kinematic_kf: {error}") from error
 
