@@ -494,8 +494,8 @@ class ReferenceConfig(StrictModel):
 
 class TerrainConfig(StrictModel):
     """A piece of terrain in the plant's scene (``sim.terrain``: static MuJoCo geoms along the world x axis
-    from ``start``, ``width`` m across centred on ``center_y``). The controller still plans on flat ground:
-    terrain tests its robustness (docs/terrain.md).
+    from ``start``, ``width`` m across centred on ``center_y``). The controller does not see it: it plans on
+    flat ground or, with ``terrain: blind``, on the plane of its stance feet (docs/terrain.md).
 
     ``slope``: an incline rising at ``angle_deg`` over ``length`` m (horizontal), a flat top of ``top_length``
     m, then (``descend``) the same incline down. ``steps``: ``count`` steps of ``rise`` m up, each ``run`` m
@@ -920,7 +920,7 @@ class RunConfig(StrictModel):
         default_factory=PlantConfig, description="simulated plant and sensors (the controller never sees it)"
     )
     scene: SceneConfig = Field(
-        default_factory=SceneConfig, description="terrain in the plant's scene (the controller plans flat)"
+        default_factory=SceneConfig, description="terrain in the plant's scene (the controller: terrain)"
     )
     terrain: Literal["flat", "blind", "height_map"] = Field(
         "flat",

@@ -10,7 +10,8 @@ The model carries the robot's sensors (``sim.sensors``): ``sim.sensors.SensorSui
 would (IMU and encoders with noise, bias and quantisation). A ``PlantVariation`` (``sim.randomization``)
 changes the plant's friction, masses and motor strengths after the model is loaded (domain randomisation),
 and the scene (``sim.scene``) adds terrain and a bar; a height-map sensor (``sim.height_map``) measures the
-ground around the robot. The ``Robot``, and so every controller, stays nominal (it plans on flat ground).
+ground around the robot. The ``Robot``, and so every controller, stays nominal (it plans on flat ground or
+on the plane of its stance feet, ``terrain: blind``).
 """
 
 from __future__ import annotations
