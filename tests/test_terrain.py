@@ -260,3 +260,24 @@ def test_a_blind_bound_climbs_a_10_degree_slope_and_stays_up():
     assert x > 1.0  # on the incline, 0.5 m up it
     rise = (x - 0.5) * math.tan(math.radians(10.0))
     assert log.q[-1, 2] - rise > 0.18  # the base stands above the incline, not on it
+
+
+@pytest.mark.slow
+def test_a_blind_pace_climbs_4_cm_steps_and_stays_up():
+    """The pace onto three 4 cm steps 1 m ahead, fixed 20 ms latency: the flat-ground controller falls on
+    the second step at 3.6 s (docs/terrain.md); blind, it is on the steps and up at 4.5 s."""
+    from cafe_mpc_lab.experiments.run import simulate_run
+
+    config = load_run_config(
+        "pace",
+        [
+            "simulation.duration=4.5",
+            "mpc.latency=fixed",
+            "mpc.fixed_latency=0.02",
+            "terrain=blind",
+            "scene.terrain=[{kind: steps, rise: 0.04}]",
+        ],
+    )
+    _, _, log = simulate_run(config)
+    assert not log.fell, log.fall_reason
+    assert log.q[-1, 0] > 1.6  # past the first step's tread
