@@ -5,7 +5,7 @@ VENV := .venv
 BIN := $(VENV)/bin
 DEMO ?= trot
 
-.PHONY: install install-gym browser demo test lint bench clean
+.PHONY: install install-gym install-robot browser demo test lint bench clean
 
 $(BIN)/cafe-mpc: pyproject.toml requirements.lock
 	@command -v $(PYTHON) >/dev/null 2>&1 || { echo "need $(PYTHON) (set PYTHON=...)"; exit 1; }
@@ -13,6 +13,7 @@ $(BIN)/cafe-mpc: pyproject.toml requirements.lock
 	$(BIN)/python -m pip install --quiet --upgrade pip
 	$(BIN)/python -m pip install --quiet -r requirements.lock
 	$(BIN)/python -m pip install --quiet --no-deps -e .
+	$(BIN)/cafe-mpc compile   # the numba kernels compiled and cached now, so that the first run moves at once
 	touch $(BIN)/cafe-mpc
 
 install: $(BIN)/cafe-mpc
@@ -23,6 +24,14 @@ $(VENV)/.gym-installed: $(BIN)/cafe-mpc requirements-gym.lock
 	touch $(VENV)/.gym-installed
 
 install-gym: $(VENV)/.gym-installed
+
+# the optional extra cafe-mpc[robot] (Cyclone DDS for cafe-mpc deploy and sim-robot), pinned in
+# requirements-robot.lock
+$(VENV)/.robot-installed: $(BIN)/cafe-mpc requirements-robot.lock
+	$(BIN)/python -m pip install --quiet -r requirements-robot.lock
+	touch $(VENV)/.robot-installed
+
+install-robot: $(VENV)/.robot-installed
 
 demo: install
 	$(BIN)/cafe-mpc run $(DEMO)
@@ -48,7 +57,7 @@ browser:
 	      || echo "chromium could not be installed: the report's browser tests will skip"; fi; \
 	fi
 
-test: install install-gym browser
+test: install install-gym install-robot browser
 	$(BIN)/ruff check src tests benchmarks examples
 	$(BIN)/python -m pytest tests
 

@@ -21,7 +21,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from cafe_mpc.assembly import build_controller
+from cafe_mpc.assembly import build_controller, resolve
 from cafe_mpc.config import load_config
 from cafe_mpc.core.measurement import Measurement
 from cafe_mpc.core.sensors import SensorReadings
@@ -96,7 +96,7 @@ def height_bias(offsets_mm: list[float], duration: float = 3.5) -> None:
     robot = load_robot(config.robot)
     pushes = [Push(p.start, p.duration, p.force_on(robot.total_mass)) for p in config.pushes]
     for offset in offsets_mm:
-        controller = HeightBias(build_controller(config, robot), offset * 1e-3)
+        controller = HeightBias(build_controller(resolve(config, robot)), offset * 1e-3)
         log = simulate(MujocoPlant(robot), controller, SimulationOptions(duration, pushes=tuple(pushes)))
         outcome = f"fell at {log.fall_time:.3f} s ({log.fall_reason})" if log.fell else "stood"
         print(f"bound-push, ground truth + {offset:g} mm height bias, {duration:g} s: {outcome}")

@@ -76,7 +76,12 @@ class Side:
         self.robot = importlib.import_module(f"{package}.robots.robot").load_robot(config.robot)
         self.config = config
         self.package = package
-        self.build_reference = importlib.import_module(f"{package}.assembly.references").build_reference
+        build_reference = importlib.import_module(f"{package}.assembly.references").build_reference
+        try:  # the reference is built from the resolved run where the package resolves a config once
+            resolve = importlib.import_module(f"{package}.assembly.resolve").resolve
+            self.build_reference = lambda config, robot: build_reference(resolve(config, robot))
+        except ModuleNotFoundError:
+            self.build_reference = build_reference
         self.window_class = importlib.import_module(f"{package}.reference.base").ReferenceWindow
         self.takes_joint_rows = "joint_rows" in inspect.signature(self.window_class.set_times).parameters
         self.times_ms: list[float] = []

@@ -26,8 +26,8 @@ def start_row(gait: str, label: str, duration: float, overrides: list[str]) -> d
     extra = ["gait.command_ramp=0", *OLD.get(gait, [])] if label == "old" else []
     config = load_config(gait, [f"simulation.duration={duration}", *extra, *overrides])
     load = os.getloadavg()[0]
-    robot, controller, log = simulate_run(config)
-    metrics = run_metrics(config, robot, controller, log)
+    run, controller, log = simulate_run(config)
+    metrics = run_metrics(run, controller, log)
     heading, yaw_rate, _ = body_rates(log.q, log.v)
     first = log.time < 0.5
     mpc = metrics["mpc"] or {}

@@ -150,7 +150,12 @@ def build(variant: Variant, preset: str, duration: float, common: list[str]) -> 
     )
     robot = robots.load_robot(config.robot)
     build_planner = getattr(controllers, "build_planner", None) or controllers.build_mpc
-    variant.mpc = build_planner(config, robot)
+    try:  # the builders take the resolved run where the package resolves a config once
+        resolve = _import(variant.package, "assembly.resolve").resolve
+    except ModuleNotFoundError:
+        variant.mpc = build_planner(config, robot)
+    else:
+        variant.mpc = build_planner(resolve(config, robot))
 
 
 def replay_step(variant: Variant, call: Call, record_times: bool) -> None:

@@ -31,11 +31,12 @@ import time
 import numpy as np
 import pinocchio as pin
 
+from cafe_mpc.config import VWBCSettings
 from cafe_mpc.core.measurement import Measurement
 from cafe_mpc.low_level.contact_dynamics import FrictionConeScorer
 from cafe_mpc.low_level.riccati import RiccatiController
 from cafe_mpc.low_level.synthetic import synthetic_plan
-from cafe_mpc.low_level.vwbc import VWBCController, VWBCSettings
+from cafe_mpc.low_level.vwbc import VWBCController
 from cafe_mpc.robots.robot import load_robot
 
 SCENARIOS = {

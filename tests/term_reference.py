@@ -197,7 +197,7 @@ class SwingFootPositionCost(WholeBodyCostTerm):
         self.legs = self.position_legs
         self.nv = nv
         self.dim = 3 * len(self.legs)
-        per_leg = leg_weights(weights, "swing foot position weights").reshape(4, 3)
+        per_leg = leg_weights(weights, 4, "swing foot position weights").reshape(4, 3)
         self.weights = per_leg[list(self.legs)].reshape(-1)
 
     def calc(self, td, kd, x, u, ref) -> float:
@@ -229,7 +229,7 @@ class SwingFootVelocityCost(WholeBodyCostTerm):
         self.legs = self.velocity_legs
         self.nv = nv
         self.dim = 3 * len(self.legs)
-        per_leg = leg_weights(weights, "swing foot velocity weights").reshape(4, 3)
+        per_leg = leg_weights(weights, 4, "swing foot velocity weights").reshape(4, 3)
         self.weights = per_leg[list(self.legs)].reshape(-1)
 
     def calc(self, td, kd, x, u, ref) -> float:
@@ -285,18 +285,19 @@ def whole_body_cost_terms(
     """The terms of Eq. (18) for a knot with these stance flags (terms whose weights are all zero are left
     out; the torque term only on running knots)."""
     swing_legs = [leg for leg in range(4) if not stance[leg]]
+    nu = model.nv - 6
     terms: list[WholeBodyCostTerm] = []
-    if np.any(weights.state_weights() > 0):
-        terms.append(StateTrackingCost(model, weights.state_weights(), base_error))
+    if np.any(weights.state_weights(nu) > 0):
+        terms.append(StateTrackingCost(model, weights.state_weights(nu), base_error))
     if swing_legs:
-        position_weights = weights.foot_position_weights()
+        position_weights = weights.foot_position_weights(4)
         if np.any(position_weights.reshape(4, 3)[swing_legs] > 0):
             terms.append(SwingFootPositionCost(swing_legs, position_weights, model.nv))
-        velocity_weights = weights.foot_velocity_weights()
+        velocity_weights = weights.foot_velocity_weights(4)
         if np.any(velocity_weights.reshape(4, 3)[swing_legs] > 0):
             terms.append(SwingFootVelocityCost(swing_legs, velocity_weights, model.nv))
-    if with_torque and np.any(weights.torque_weights() > 0):
-        terms.append(TorqueRegularisationCost(weights.torque_weights()))
+    if with_torque and np.any(weights.torque_weights(nu) > 0):
+        terms.append(TorqueRegularisationCost(weights.torque_weights(nu)))
     return terms
 
 

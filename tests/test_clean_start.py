@@ -85,13 +85,13 @@ def test_the_locomotion_reference_follows_the_ramp(robot):
 def test_a_preset_trot_starts_without_the_lurch_and_reports_both_windows():
     """Fixed latency (deterministic). Before: |vy| 0.23 m/s and |yaw rate| 0.26-0.32 rad/s within 0.5 s."""
     config = load_config("trot", ["simulation.duration=0.8", "mpc.latency=fixed"])
-    robot, controller, log = simulate_run(config)
+    resolved, controller, log = simulate_run(config)
     heading, yaw_rate, _ = body_rates(log.q, log.v)
     first = log.time < 0.5
     assert np.max(np.abs(heading[first, 1])) < 0.08
     assert np.max(np.abs(yaw_rate[first])) < 0.08
     assert np.max(np.abs(log.v[first, 3])) < 0.5  # roll rate (was 1.46 rad/s)
-    metrics = run_metrics(config, robot, controller, log)
+    metrics = run_metrics(resolved, controller, log)
     assert metrics["metrics_window_start_s"] == 0.0  # the whole run
     steady = metrics["steady_state"]
     assert steady["metrics_window_start_s"] == 0.5

@@ -26,8 +26,9 @@ def test_gait_stays_up_and_moves_forward(preset, wbc):
         preset,
         [f"simulation.duration={DURATION}", f"wbc={wbc}", "output.plots=false", "mpc.latency=fixed"],
     )
-    robot, controller, log = simulate_run(config)
-    metrics = run_metrics(config, robot, controller, log)
+    resolved, controller, log = simulate_run(config)
+    robot = resolved.robot
+    metrics = run_metrics(resolved, controller, log)
     assert not log.fell, log.fall_reason
     assert metrics["base_height_min"] > 0.15
     forward = log.q[-1, 0] - log.q[0, 0]
@@ -56,8 +57,8 @@ def test_delay_compensation_keeps_the_pace_at_its_height_with_a_long_latency():
                 f"mpc.delay_compensation={str(compensated).lower()}",
             ],
         )
-        robot, controller, log = simulate_run(config)
-        metrics = run_metrics(config, robot, controller, log)
+        resolved, controller, log = simulate_run(config)
+        metrics = run_metrics(resolved, controller, log)
         assert not log.fell, log.fall_reason
         assert metrics["mpc"]["failures"] == 0
         errors[compensated] = metrics["steady_state"]["height_rms_error"]
@@ -89,7 +90,8 @@ def test_the_srb_tail_holds_the_bound_at_its_reference_height():
                 *weights,
             ],
         )
-        robot, _, log = simulate_run(config)
+        resolved, _, log = simulate_run(config)
+        robot = resolved.robot
         assert not log.fell, log.fall_reason
         window = log.time[: log.ticks] > 1.5
         heights[name] = float(log.q[: log.ticks, 2][window].mean())

@@ -85,7 +85,7 @@ def fd_of(function, x, u, state, nu):
 def test_base_weight_mapping_to_tangent_order():
     # authors' order [x, y, z, yaw, pitch, roll] -> tangent [x, y, z, roll (about x), pitch (y), yaw (z)]
     np.testing.assert_array_equal(base_weights_to_tangent([1, 2, 3, 4, 5, 6]), [1, 2, 3, 6, 5, 4])
-    weights = WholeBodyWeights.regular_running().state_weights()
+    weights = WholeBodyWeights.regular_running().state_weights(12)
     np.testing.assert_array_equal(weights[:6], [0, 0, 10, 2, 2, 1])
     np.testing.assert_array_equal(weights[6:18], 1.0)
     np.testing.assert_array_equal(weights[18:24], [2, 2, 2, 2, 2, 1])

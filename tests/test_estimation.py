@@ -264,7 +264,7 @@ def test_orientation_from_the_imu_matches_the_truth_in_a_short_closed_loop(robot
     config = load_run_config(
         "stand", ["estimator=kinematic_kf", "simulation.duration=0.6", "output.plots=false"]
     )
-    _, controller, log = simulate_run(config)
+    resolved, controller, log = simulate_run(config)
     assert not log.fell
     estimate = log.extra["estimate_q"]
     assert estimate.shape == log.q.shape
@@ -272,7 +272,7 @@ def test_orientation_from_the_imu_matches_the_truth_in_a_short_closed_loop(robot
     noise = config.plant.sensors.imu.orientation_noise
     assert np.sqrt(np.mean(angle**2)) < 3.0 * noise and np.max(angle) < 8.0 * noise
     assert np.max(np.abs(estimate[:, 2] - log.q[:, 2])) < 0.01
-    metrics = run_metrics(config, robot, controller, log)
+    metrics = run_metrics(resolved, controller, log)
     block = metrics["estimator"]
     assert block["kind"] == "kinematic_kf" and block["orientation_rms_error_rad"] < 3.0 * noise
     assert block["velocity_rms_error_m_s"] < 0.02
@@ -323,8 +323,8 @@ def test_a_closed_loop_trot_with_the_estimator_stays_up():
             "mpc.latency=fixed",
         ],
     )
-    robot, controller, log = simulate_run(config)
-    metrics = run_metrics(config, robot, controller, log)
+    resolved, controller, log = simulate_run(config)
+    metrics = run_metrics(resolved, controller, log)
     assert not log.fell, log.fall_reason
     assert log.q[-1, 0] - log.q[0, 0] > 0.25 * 0.5 * duration
     assert metrics["estimator"]["velocity_rms_error_m_s"] < 0.05
@@ -471,8 +471,8 @@ def test_the_bounds_height_estimate_follows_its_landing_feet(dynamic):
     if not dynamic:
         overrides += ["kinematic_kf.foot_compliance=1.2e-4", "kinematic_kf.foot_contact_frequency=null"]
     config = load_run_config("bound", overrides)
-    robot, controller, log = simulate_run(config)
-    metrics = run_metrics(config, robot, controller, log)
+    resolved, controller, log = simulate_run(config)
+    metrics = run_metrics(resolved, controller, log)
     assert not log.fell, log.fall_reason
     error = metrics["estimator"]["steady_state"]["height_rms_error_m"]
     if dynamic:

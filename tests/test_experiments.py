@@ -12,7 +12,7 @@ import sys
 import numpy as np
 import pytest
 
-from cafe_mpc.assembly import load_run_config
+from cafe_mpc.assembly import load_run_config, resolve
 from cafe_mpc.config import ConfigError, VelocityCommand, available_presets
 from cafe_mpc.control.inline import InlineMpcLoop
 from cafe_mpc.core.measurement import Measurement
@@ -103,7 +103,7 @@ def test_gait_names_overrides_and_defaults():
 @pytest.mark.parametrize("preset", sorted(set(available_presets()) | set(GAIT_PRESETS)))
 def test_every_preset_loads_and_builds_its_controller(robot, preset):
     config = load_run_config(preset)
-    controller = build_run_controller(config, robot)
+    controller = build_run_controller(resolve(config, robot))
     if config.wbc == "pd":
         assert isinstance(controller, PDController)
         return
@@ -135,7 +135,9 @@ def test_gait_presets_match_the_issues():
 @pytest.mark.slow
 def test_go1_plans_its_srb_tail_with_its_own_mass_and_inertia(robot):
     go1 = load_robot("go1")
-    controller = build_run_controller(load_run_config("trot", ["robot=go1", "simulation.duration=1"]), go1)
+    controller = build_run_controller(
+        resolve(load_run_config("trot", ["robot=go1", "simulation.duration=1"]), go1)
+    )
     own = srb_parameters(go1)
     factory = controller.planner.builder.srb
     assert factory.settings.parameters == own
@@ -147,7 +149,9 @@ def test_go1_plans_its_srb_tail_with_its_own_mass_and_inertia(robot):
     assert dynamics.mass == pytest.approx(own.mass) and dynamics.mass > 12.0
     np.testing.assert_allclose(dynamics.inertia, own.inertia_matrix)
     # and the Mini Cheetah's own: the authors' mass, its lumped inertia
-    mini = build_run_controller(load_run_config("trot"), robot).planner.builder.srb.settings.parameters
+    mini = build_run_controller(
+        resolve(load_run_config("trot"), robot)
+    ).planner.builder.srb.settings.parameters
     assert mini.mass == pytest.approx(8.912) and mini == srb_parameters(robot)
 
 
@@ -155,7 +159,7 @@ def test_overrides_reach_the_controller(robot):
     config = load_run_config(
         "bound", ["wbc=riccati", "mpc.schedule=S0", "costs.running.torque=0.3", "gait.swing_height=0.08"]
     )
-    controller = build_run_controller(config, robot)
+    controller = build_run_controller(resolve(config, robot))
     assert isinstance(low_level_of(controller), RiccatiController)
     assert controller.planner.builder.schedule.srb_knots == 0
     assert controller.planner.builder.whole_body.settings.running_weights.torque == 0.3
@@ -171,10 +175,12 @@ def test_start_stance_reaches_the_reference(robot):
     assert load_run_config("stand", ["wbc=riccati", "gait.name=pace"]).gait.command_ramp == 0.0
     config = load_run_config("trot", ["gait.start_stance=0.35"])
     assert config.gait.start_stance == 0.35
-    reference = build_run_controller(config, robot).reference
+    reference = build_run_controller(resolve(config, robot)).reference
     assert reference.start_stance == 0.35 and reference.cycle_start == 0.35
     assert (
-        build_run_controller(load_run_config("trot", ["gait.start_stance=0"]), robot).reference.start_stance
+        build_run_controller(
+            resolve(load_run_config("trot", ["gait.start_stance=0"]), robot)
+        ).reference.start_stance
         == 0.0
     )
 
@@ -333,7 +339,7 @@ def test_recorder_preallocates_and_grows(robot):
     assert np.all(np.isnan(requested[[0, 7, 8]])) and not stance[[0, 7, 8]].any()  # ticks not served
     assert np.all(stance[1:7] == [True, False, False, True])
     # a run's recorder is sized for its ticks
-    controller = build_run_controller(load_run_config("trot", ["simulation.duration=1.5"]), robot)
+    controller = build_run_controller(resolve(load_run_config("trot", ["simulation.duration=1.5"]), robot))
     assert len(controller.low_level._times) >= 750
 
 

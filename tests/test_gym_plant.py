@@ -87,12 +87,8 @@ def test_config_rejects_what_the_environment_cannot_do():
             "trot",
             ["plant.kind=gym-quadruped", "robot=go2", "plant.mass_scale=1.2", "estimator=ground_truth"],
         )
-    with pytest.raises(ConfigError, match=r"estimator: kinematic_kf .* set estimator=ground_truth"):
-        load_run_config("trot", ["plant.kind=gym-quadruped", "robot=go2"])
-    config = load_run_config(
-        "trot", ["plant.kind=gym-quadruped", "robot=go2", "plant.gym_scene=flat", "estimator=ground_truth"]
-    )
-    assert config.plant.kind == "gym-quadruped"
+    config = load_run_config("trot", ["plant.kind=gym-quadruped", "robot=go2"])  # the defaults otherwise
+    assert config.plant.kind == "gym-quadruped" and config.estimator == "kinematic_kf"
 
 
 @pytest.mark.slow
@@ -183,3 +179,24 @@ def test_our_plant_from_the_model_file_reproduces_gym_quadruped():
     np.testing.assert_allclose(ours.q, theirs.q, atol=1e-8)
     np.testing.assert_allclose(ours.foot_forces, theirs.foot_forces, atol=1e-5)
     np.testing.assert_array_equal(ours.contacts, theirs.contacts)
+
+
+@pytest.mark.slow
+def test_go2_trots_inside_gym_quadruped_with_the_default_config():
+    """``cafe-mpc run trot --set plant.kind=gym-quadruped --set robot=go2`` and nothing else: the state
+    estimator (the default) reads the robot's sensors computed from the environment's state, and the robot
+    trots forward."""
+    from cafe_mpc_lab.experiments.run import run
+
+    config = load_run_config(
+        "trot",
+        ["plant.kind=gym-quadruped", "robot=go2", "simulation.duration=1.6", "mpc.latency=fixed"],
+    )
+    assert config.estimator == "kinematic_kf"
+    result = run(config, None)
+    log = result.log
+    assert not log.fell, log.fall_reason
+    assert log.time[-1] == pytest.approx(1.598, abs=1e-6)
+    assert np.mean(log.v[log.time > 1.0, 0]) > 0.25  # the command ramps to 0.5 m/s by t = 0.7 s
+    error = log.extra["estimate_v"][log.time > 0.5, :3] - log.v[log.time > 0.5, :3]
+    assert np.sqrt(np.mean(error**2)) < 0.05  # m/s: the estimate follows the environment's true state

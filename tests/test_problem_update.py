@@ -15,8 +15,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from cafe_mpc.assembly import load_run_config
-from cafe_mpc.assembly.context import run_context
+from cafe_mpc.assembly import load_run_config, resolve
 from cafe_mpc.assembly.references import build_reference
 from cafe_mpc.config import MpcSettings, VelocityCommand
 from cafe_mpc.core.contacts import touchdown_flags
@@ -191,11 +190,11 @@ def _trot_case(robot):
 
 def _running_roll_case(robot):
     config = load_run_config("running-barrel-roll", ["simulation.duration=4"])
-    reference = build_reference(config, robot)
+    reference = build_reference(resolve(config, robot))
     roll_start = reference.segments[1].start
     # through the end of the pace, the roll (its own weight set) and back into the pace
     times = np.arange(roll_start - 0.4, roll_start + 1.6, 0.02)
-    return (lambda: build_problem(run_context(config, robot))), reference, times
+    return (lambda: build_problem(resolve(config, robot))), reference, times
 
 
 @pytest.mark.parametrize("spare_slots", [problem_module.SPARE_SLOTS, -10])
@@ -261,7 +260,7 @@ def test_composed_reference_joins_equal_those_made_without_kept_poses(robot):
     """The running roll's composed reference keeps its stored trajectory's poses between re-joins; the
     offsets and signs after each update equal those of a re-join that samples them again."""
     config = load_run_config("running-barrel-roll", ["simulation.duration=4"])
-    reference = build_reference(config, robot)
+    reference = build_reference(resolve(config, robot))
     x = robot.x_standing.copy()
     roll_start = reference.segments[1].start
     for t in np.arange(roll_start - 0.6, roll_start + 1.6, 0.1):

@@ -84,7 +84,8 @@ def test_randomisation_never_touches_the_controllers_model(robot):
         ],
     )
     nominal_robot = load_robot("mini_cheetah")
-    used_robot, controller, log = simulate_run(varied)
+    resolved, controller, log = simulate_run(varied)
+    used_robot = resolved.robot
     # the controller planned with the nominal robot: same masses, inertias, SRB model, limits, MJCF
     assert controller.robot is used_robot
     assert used_robot.total_mass == pytest.approx(nominal_robot.total_mass)

@@ -20,6 +20,7 @@ import numpy as np
 import pytest
 
 from cafe_mpc.assembly.controllers import process_planner
+from cafe_mpc.assembly.resolve import resolve
 from cafe_mpc.config import load_config
 from cafe_mpc.control.ipc.shared import shared_block_prefix
 from cafe_mpc.control.process import ProcessMpcLoop
@@ -66,11 +67,16 @@ def test_realtime_run_starts_records_and_cleans_up(tmp_path):
     metrics = result.metrics
     assert metrics["timing"]["mode"] == "realtime"
     assert metrics["realtime"]["ticks"] == 500
-    assert {"missed_ticks", "tick_lateness_ms_p99"} <= set(metrics["realtime"])
+    assert {"missed_ticks", "tick_lateness_ms_p99", "tick_control_ms_p99", "tick_step_ms_max"} <= set(
+        metrics["realtime"]
+    )
     mpc = metrics["mpc"]
     assert mpc["plans_received"] > 5 and mpc["rate_hz"] > 0
     assert mpc["latency_ms_median"] is not None and mpc["update_ms_median"] is not None
     assert mpc["worker_error"] is None
+    # nothing compiled after the clock started, in either process (core.compilation)
+    assert metrics["compiles_during_run"] == 0 and mpc["mpc_process_compiles_during_run"] == 0
+    assert mpc["mpc_process_kernels_loaded_during_run"] == []
     assert np.all(np.isfinite(result.log.torque_command))
     assert not multiprocessing.active_children()
     assert _shared_memory_blocks() <= before
@@ -117,7 +123,9 @@ def test_a_dead_or_stalled_mpc_process_holds_a_stance_and_ends_with_one_error(mo
     config = load_config("trot", ["simulation.duration=3.0", "output.plots=false"])
     factory = functools.partial(crashing_mpc, config.model_dump(mode="json"), 5, mode)
     plans = plan_format(25, robot.nq + robot.nv, robot.nu, 2 * robot.nv, robot.n_feet)
-    controller = ProcessMpcLoop(robot, factory, build_recorder(config, robot), plans, 0.02, stall_timeout=0.3)
+    controller = ProcessMpcLoop(
+        robot, factory, build_recorder(resolve(config, robot)), plans, 0.02, stall_timeout=0.3
+    )
     with controller:
         controller.start(0.0, Measurement.of_state(robot.q_standing, np.zeros(robot.nv), np.ones(4, bool)))
         assert len(_shared_memory_blocks() - before) == 3  # measurements, plans, control: named as ours

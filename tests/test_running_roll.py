@@ -7,8 +7,7 @@ import mujoco
 import numpy as np
 import pytest
 
-from cafe_mpc.assembly import load_run_config
-from cafe_mpc.assembly.references import task_reference
+from cafe_mpc.assembly import build_reference, load_run_config, resolve
 from cafe_mpc.config import ConfigError
 from cafe_mpc_lab.experiments.sweep import run_experiment
 from cafe_mpc_lab.report.metrics import roll_pitch_yaw
@@ -22,7 +21,7 @@ DT = 0.005
 @pytest.fixture(scope="module")
 def composed(robot):
     config = load_run_config("running-barrel-roll")
-    return config, task_reference(config.reference, robot)
+    return config, build_reference(resolve(config, robot))
 
 
 def _trace(reference, robot, end: float):
@@ -85,7 +84,7 @@ def test_measured_join_places_the_roll_where_the_pace_now_ends(robot):
     """``join: measured``: the pace re-anchors on the measurement, and the roll (not started yet) is placed at
     the pace's new end; the trace stays continuous across the join."""
     config = load_run_config("running-barrel-roll")
-    reference = task_reference(config.reference, robot)
+    reference = build_reference(resolve(config, robot))
     before = reference.offset_of(1)
     q = robot.q_standing.copy()
     q[:2] = [0.35, 0.04]  # the robot is somewhere other than the plan's start

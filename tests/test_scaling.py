@@ -1,4 +1,4 @@
-"""Defaults that scale with the robot (``robots.scaling``, ``assembly.scaling``): the laws, and no change
+"""Defaults that scale with the robot (``robots.scaling``, ``assembly.resolve``): the laws, and no change
 for the reference robot."""
 
 from __future__ import annotations
@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from cafe_mpc.assembly import build_low_level, build_planner
-from cafe_mpc.assembly.scaling import run_scale, scaled_gait
+from cafe_mpc.assembly.resolve import resolve, run_scale, scaled_gait
 from cafe_mpc.config import load_config
 from cafe_mpc.config.weights import WholeBodyWeights
 from cafe_mpc.ocp.contact_schedule import get_gait
@@ -54,18 +54,41 @@ def test_scaling_laws():
 def test_a_big_robot_gets_scaled_settings_and_none_turns_it_off():
     config = load_config("trot", ["robot=b2", "mpc.latency=fixed"])
     robot = load_robot("b2")
-    scale = run_scale(config, robot)
+    run = resolve(config, robot)
+    scale = run.scale
+    assert scale == run_scale(config, robot)
     assert scale.length == pytest.approx(robot.leg_length / load_robot("mini_cheetah").leg_length)
     assert scale.mass == pytest.approx(robot.mass / 8.912)
-    mpc = build_planner(config, robot)
+    mpc = build_planner(run)
     assert mpc.reference.gait.period == pytest.approx(0.5 * math.sqrt(scale.length))
     assert mpc.reference.swing_height == pytest.approx(0.06 * scale.length)
-    vwbc = build_low_level(config, robot)
-    assert vwbc.settings.alpha == pytest.approx(10.0 / math.sqrt(scale.length))
+    vwbc = build_low_level(run)
+    assert vwbc.contact.baumgarte_alpha == pytest.approx(10.0 / math.sqrt(scale.length))
+    assert vwbc.contact.cone_tolerance == pytest.approx(1e-3 * scale.mass)
+    assert mpc.builder.whole_body.settings.baumgarte_alpha == vwbc.contact.baumgarte_alpha
+    assert mpc.builder.schedule == run.schedule
     assert mpc.builder.schedule.whole_body_horizon == pytest.approx(
         round(0.25 * math.sqrt(scale.length) / 0.01) * 0.01
     )
-    plain = load_config("trot", ["robot=b2", "mpc.latency=fixed", "scaling=none"])
-    assert run_scale(plain, robot).is_identity
-    assert build_planner(plain, robot).reference.gait.period == pytest.approx(0.5)
-    assert np.isclose(build_planner(plain, robot).reference.swing_height, 0.06)
+    detection = vwbc.detector.settings  # the detector and the reference's touchdown events read one value
+    assert detection is run.contact_detection
+    assert detection.touchdown_height == pytest.approx(0.02 * scale.length)
+    assert detection.release_height == pytest.approx(0.03 * scale.length)
+    assert detection.early_window == pytest.approx(0.08 * math.sqrt(scale.length))
+    assert detection.on_time == pytest.approx(0.015 * math.sqrt(scale.length))
+    assert detection.touchdown_force == 0.35 and detection.ground_height == 0.0  # weight shares, the scene's
+    overrides = ["robot=b2", "gait.touchdown_events=0.01", "gait.path_gain=1"]
+    events = resolve(load_config("trot", overrides), robot)
+    reference = build_planner(events).reference
+    assert reference.path_gain == pytest.approx(1.0 / scale.length)
+    assert reference.touchdown_events == (
+        events.gait.touchdown_events,
+        events.contact_detection.early_window,
+        events.contact_detection.touchdown_height,
+    )
+    assert events.gait.touchdown_events == pytest.approx(0.01 * math.sqrt(scale.length))
+    plain = resolve(load_config("trot", ["robot=b2", "mpc.latency=fixed", "scaling=none"]), robot)
+    assert plain.scale.is_identity
+    assert build_planner(plain).reference.gait.period == pytest.approx(0.5)
+    assert np.isclose(build_planner(plain).reference.swing_height, 0.06)
+    assert plain.contact_detection is plain.config.vwbc.contact_detection

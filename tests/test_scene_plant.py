@@ -7,8 +7,8 @@ import mujoco
 import numpy as np
 import pytest
 
-from cafe_mpc.assembly import build_controller, build_low_level, build_planner, load_run_config
-from cafe_mpc.config import ConfigError
+from cafe_mpc.assembly import build_controller, build_low_level, build_planner, load_run_config, resolve
+from cafe_mpc.config import CONTROLLER_FRICTION, ConfigError
 from cafe_mpc_lab.sim.mujoco_plant import MujocoPlant
 from cafe_mpc_lab.sim.randomization import PlantVariation, plant_variation, terrain_geoms
 from cafe_mpc_lab.sim.scene import Scene, scene_of
@@ -92,15 +92,23 @@ def test_floor_friction_and_mass_scale_change_the_plant_only(robot):
 
 
 def test_mpc_friction_is_the_controllers_own_and_independent_of_the_plant(robot):
-    config = load_run_config("trot", ["mpc.friction=0.35", "plant.floor_friction=0.9"])
-    mpc = build_planner(config, robot)
+    run = resolve(load_run_config("trot", ["mpc.friction=0.35", "plant.floor_friction=0.9"]), robot)
+    assert run.contact.friction == 0.35
+    mpc = build_planner(run)
     assert mpc.builder.whole_body.settings.constraints.friction_coefficient == 0.35
-    assert build_low_level(config, robot).settings.mu == 0.35
-    template = build_controller(load_run_config("trot", ["mpc.friction=0.35", "planner=template"]), robot)
-    assert template.planner.builder.settings.friction_coefficient == 0.35
+    assert build_low_level(run).contact.friction == 0.35
+    apart = resolve(load_run_config("trot", ["mpc.friction=0.35", "vwbc.friction=0.5"]), robot)
+    assert (apart.contact.friction, apart.vwbc_contact.friction) == (0.35, 0.5)
+    assert build_low_level(apart).contact.friction == 0.5  # the VWBC's pyramid (34f) and its cone count
+    assert build_planner(apart).builder.whole_body.settings.constraints.friction_coefficient == 0.35
+    template = build_controller(
+        resolve(load_run_config("trot", ["mpc.friction=0.35", "planner=template"]), robot)
+    )
+    assert template.planner.builder.friction == 0.35
     default = load_run_config("trot")
-    assert default.mpc.friction == 0.6 and default.plant.floor_friction is None  # the robot table's 0.6
-    assert build_low_level(default, robot).settings.mu == 0.6
+    assert default.mpc.friction == CONTROLLER_FRICTION == 0.4
+    assert default.plant.floor_friction is None  # the robot table's 0.6
+    assert build_low_level(resolve(default, robot)).contact.friction == 0.4
 
 
 @pytest.mark.slow
@@ -116,7 +124,8 @@ def test_a_trot_climbs_low_steps(tmp_path):
             "scene.terrain=[{kind: steps, start: 0.3, count: 2, rise: 0.02, run: 0.3, top_length: 1.0}]",
         ],
     )
-    robot, _, log = simulate_run(config)
+    run, _, log = simulate_run(config)
+    robot = run.robot
     assert not log.fell
     feet = np.array([robot.foot_positions(q) for q in log.q[::25]])
     contacts = log.contacts[::25]

@@ -3,6 +3,7 @@
 import numpy as np
 import pytest
 
+from cafe_mpc.config import PDSettings
 from cafe_mpc.low_level.pd import PDController
 from cafe_mpc.robots.robot import load_robot
 from cafe_mpc_lab.sim.loop import ControllerError, Push, SimulationOptions, simulate
@@ -47,7 +48,7 @@ def test_push_moves_the_base(robot):
 
 
 def test_fall_is_detected(robot):
-    weak = PDController(robot, kp=0.0, kd=0.0, gravity_feedforward=False)
+    weak = PDController(robot, PDSettings(kp=0.0, kd=0.0, gravity_feedforward=False))
     log = simulate(MujocoPlant(robot), weak, SimulationOptions(2.0))
     assert log.fell and log.fall_time is not None and log.fall_time < 2.0
 

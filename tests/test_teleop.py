@@ -10,7 +10,7 @@ import sys
 
 import pytest
 
-from cafe_mpc.assembly import build_controller
+from cafe_mpc.assembly import build_controller, resolve
 from cafe_mpc.config import VelocityCommand, load_config
 from cafe_mpc.control.commands import GAIT_NAMES, CommandChannel
 from cafe_mpc.robots.robot import load_robot
@@ -42,10 +42,10 @@ def test_arrow_keys_become_checked_commands():
 
 def test_teleop_finds_the_command_channel_of_a_gait_run_only():
     robot = load_robot("mini_cheetah")
-    trot = build_controller(load_config("trot", ["mpc.latency=fixed"]), robot)
+    trot = build_controller(resolve(load_config("trot", ["mpc.latency=fixed"]), robot))
     teleop = KeyboardTeleop.of_controller(robot, trot)
     assert teleop is not None and teleop.channel is trot.commands and teleop.command.vx == 0.5
-    roll = build_controller(load_config("barrel-roll", ["mpc.latency=fixed"]), robot)
+    roll = build_controller(resolve(load_config("barrel-roll", ["mpc.latency=fixed"]), robot))
     assert KeyboardTeleop.of_controller(robot, roll) is None  # a composed reference takes no commands
 
 
@@ -65,7 +65,8 @@ def update(self, t, plant):  # press Up three times at 0.4 s, as a user would in
 viewer_module.LiveViewer.update = update
 
 config = load_config("trot", ["mpc.latency=fixed", "simulation.duration=1.6", "output.plots=false"])
-robot, controller, log = simulate_run(config, viewer=True)
+resolved, controller, log = simulate_run(config, viewer=True)
+robot = resolved.robot
 reference = controller.inner.reference if hasattr(controller, "inner") else controller.reference
 last = reference.commands[-1]
 print(log.extra["viewer"]["teleop_key_presses"], last.vx, round(last.start, 2))

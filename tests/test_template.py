@@ -12,9 +12,9 @@ import numpy as np
 import pinocchio as pin
 import pytest
 
-from cafe_mpc.assembly import load_run_config
+from cafe_mpc.assembly import load_run_config, resolve
 from cafe_mpc.assembly.controllers import build_planner
-from cafe_mpc.config import ConfigError
+from cafe_mpc.config import ConfigError, TemplateSettings
 from cafe_mpc.core.measurement import Measurement
 from cafe_mpc.core.physics import GRAVITY
 from cafe_mpc.dynamics.statics import static_stance_torques
@@ -22,12 +22,7 @@ from cafe_mpc.ocp.contact_schedule import GAITS
 from cafe_mpc.planners.template.low_level import TemplateLowLevelController, stance_torques
 from cafe_mpc.planners.template.plan import TemplatePlan
 from cafe_mpc.planners.template.planner import TemplateMpc
-from cafe_mpc.planners.template.problem import (
-    TemplateProblemBuilder,
-    TemplateSettings,
-    VerticalOscillation,
-    template_srb,
-)
+from cafe_mpc.planners.template.problem import TemplateProblemBuilder, VerticalOscillation
 from cafe_mpc.robots.robot import load_robot
 from cafe_mpc_lab.experiments.run import run_metrics, simulate_run
 from cafe_mpc_lab.experiments.sweep import run_experiment
@@ -109,9 +104,8 @@ def test_template_plan_holds_forces_and_interpolates_feet():
 # ----------------------------------------------------------------------------------------- the problem
 def _template_mpc(robot, preset="trot", overrides=()):
     config = load_run_config(preset, ["mpc.latency=fixed", *overrides])
-    parameters, offset = template_srb(robot)
-    builder = TemplateProblemBuilder(robot, TemplateSettings(parameters=parameters), offset)
-    return TemplateMpc(robot, build_planner(config, robot).reference, builder, config.mpc)
+    builder = TemplateProblemBuilder(robot, TemplateSettings())
+    return TemplateMpc(robot, build_planner(resolve(config, robot)).reference, builder, config.mpc)
 
 
 def test_knots_lie_on_the_absolute_grid_and_switch_with_the_gait(robot):
@@ -185,7 +179,7 @@ def test_updates_start_from_the_measured_centroidal_state(robot):
     np.testing.assert_allclose(state[7:10], data.vcom[0], atol=1e-12)
     np.testing.assert_allclose(state[3:7], q[3:7])
     momentum = pin.computeCentroidalMomentum(robot.model, data, q, v).angular
-    inertia = np.asarray(mpc.builder.settings.parameters.inertia)
+    inertia = np.asarray(mpc.builder.parameters.inertia)
     rotation = pin.Quaternion(q[6], q[3], q[4], q[5]).toRotationMatrix()
     np.testing.assert_allclose(rotation @ inertia @ state[10:13], momentum, atol=1e-10)
     # legs at rest: the base's own angular velocity is the SRB's up to the legs' share of the inertia
@@ -257,8 +251,9 @@ def test_template_trot_stays_up_and_moves_forward():
         "trot",
         [f"simulation.duration={DURATION}", "planner=template", "output.plots=false", "mpc.latency=fixed"],
     )
-    robot, controller, log = simulate_run(config)
-    metrics = run_metrics(config, robot, controller, log)
+    resolved, controller, log = simulate_run(config)
+    robot = resolved.robot
+    metrics = run_metrics(resolved, controller, log)
     assert not log.fell, log.fall_reason
     assert metrics["controller"] == "template" and metrics["planner"] == "template"
     assert metrics["base_height_min"] > 0.2
@@ -283,8 +278,8 @@ def test_template_bounds_with_the_short_flight_timing():
             "mpc.latency=fixed",
         ],
     )
-    robot, controller, log = simulate_run(config)
-    metrics = run_metrics(config, robot, controller, log)
+    resolved, controller, log = simulate_run(config)
+    metrics = run_metrics(resolved, controller, log)
     assert not log.fell, log.fall_reason
     assert metrics["base_height_min"] > 0.18
     assert metrics["pitch_abs_max_rad"] < 0.3

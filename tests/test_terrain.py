@@ -8,7 +8,7 @@ import math
 import numpy as np
 import pytest
 
-from cafe_mpc.assembly import load_run_config
+from cafe_mpc.assembly import build_estimator, load_run_config, resolve
 from cafe_mpc.config import ContactDetectionSettings, VelocityCommand
 from cafe_mpc.core.ground import GroundPlane
 from cafe_mpc.core.measurement import Measurement
@@ -190,8 +190,7 @@ def test_an_unloaded_foot_above_the_plane_stays_out_of_stance(robot):
 def test_the_vwbc_cone_turns_with_the_ground_normal(robot):
     """About world z the rows are (34e)-(34f) as built; about a 20 degree slope's normal a force along the
     normal is inside and a vertical one (tangential share tan 20 deg = 0.36 > 0.3) outside."""
-    settings = VWBCSettings(mu=0.3)
-    qp = _StanceQP((True, False, False, False), robot.nv, robot.nu, robot.torque_limits, settings)
+    qp = _StanceQP((True, False, False, False), robot.nv, robot.nu, robot.torque_limits, VWBCSettings(), 0.3)
     built = qp.C.copy()
     qp.orient_cone(np.array([0.0, 0.0, 1.0]))
     assert np.array_equal(qp.C, built)
@@ -206,18 +205,21 @@ def test_the_vwbc_cone_turns_with_the_ground_normal(robot):
 
 
 # ------------------------------------------------------------------------------------------ config
-def test_terrain_blind_reaches_the_reference_and_the_contact_detector(robot):
-    """``terrain: blind`` gives the reference and the VWBC's detector a ground plane; ``flat`` (the default)
-    neither."""
+def test_terrain_blind_reaches_the_reference_the_contact_detector_and_the_estimator(robot):
+    """``terrain: blind`` resolves to a ground plane that the reference and the VWBC's detector get and
+    that keeps the estimator's stance feet; ``flat`` (the default) none of these."""
     from cafe_mpc.assembly import build_low_level
     from cafe_mpc.assembly.references import build_reference
 
-    blind, flat = load_run_config("trot", ["terrain=blind"]), load_run_config("trot")
-    assert flat.terrain == "flat"
-    assert build_reference(blind, robot).ground is not None
-    assert build_reference(flat, robot).ground is None
-    assert build_low_level(blind, robot).detector.ground is not None
-    assert build_low_level(flat, robot).detector.ground is None
+    blind = resolve(load_run_config("trot", ["terrain=blind"]), robot)
+    flat = resolve(load_run_config("trot"), robot)
+    assert flat.config.terrain == "flat"
+    assert blind.ground_plane and not flat.ground_plane
+    assert build_reference(blind).ground is not None
+    assert build_reference(flat).ground is None
+    assert build_low_level(blind).detector.ground is not None
+    assert build_low_level(flat).detector.ground is None
+    assert not build_estimator(blind).flat_ground and build_estimator(flat).flat_ground
 
 
 # ------------------------------------------------------------------------------------------ experiment

@@ -29,10 +29,12 @@ CLI = [sys.executable, "-m", "cafe_mpc_lab.cli"]
 @pytest.fixture(scope="module")
 def trot_plan(robot):
     """A real plan: the first (cold) solve of the trot preset, a tenth of a second into the gait."""
-    from cafe_mpc.assembly import build_controller
+    from cafe_mpc.assembly import build_controller, resolve
     from cafe_mpc.core.measurement import Measurement
 
-    controller = build_controller(load_config("trot", ["mpc.latency=fixed", "gait.start_stance=0"]), robot)
+    controller = build_controller(
+        resolve(load_config("trot", ["mpc.latency=fixed", "gait.start_stance=0"]), robot)
+    )
     standing = Measurement.of_state(robot.q_standing, np.zeros(robot.nv), np.ones(4, dtype=bool))
     controller.start(0.0, standing)
     return controller.plan

@@ -10,6 +10,7 @@ import numpy as np
 import pinocchio as pin
 import pytest
 
+from cafe_mpc.config import VWBCSettings
 from cafe_mpc.control.plan_follower import PlanFollower
 from cafe_mpc.core.measurement import Measurement
 from cafe_mpc.low_level.contact_dynamics import (
@@ -19,8 +20,9 @@ from cafe_mpc.low_level.contact_dynamics import (
 )
 from cafe_mpc.low_level.riccati import RiccatiController
 from cafe_mpc.low_level.synthetic import synthetic_plan
-from cafe_mpc.low_level.vwbc import VWBCController, VWBCSettings
+from cafe_mpc.low_level.vwbc import VWBCController
 from cafe_mpc.planners.cafe.plan import Plan
+from cafe_mpc.planners.resolved import ContactModel
 from cafe_mpc_lab.sim.loop import SimulationOptions, simulate
 from cafe_mpc_lab.sim.mujoco_plant import MujocoPlant
 
@@ -139,8 +141,8 @@ def test_torque_limit_is_respected_and_other_joints_redistribute(robot, solver):
 def test_friction_pyramid_and_dynamics_hold(robot, solver, stance):
     mu = 0.05  # makes the pyramid active for this perturbation
     plan = synthetic_plan(robot, stance=stance, seed=7)
-    settings = VWBCSettings(solver=solver, mu=mu, eps_abs=1e-9)
-    vwbc = VWBCController(robot, settings, torque_limits=GENEROUS)
+    contact = ContactModel(friction=mu)
+    vwbc = VWBCController(robot, VWBCSettings(solver=solver, eps_abs=1e-9), GENEROUS, contact)
     q, v = perturbed_state(robot, seed=8, dq_scale=0.02, v_scale=0.1)
     riccati = RiccatiController(robot, clamp=False)
     tau_riccati = riccati.torques_at(0.0, q, v, plan).copy()
@@ -159,9 +161,9 @@ def test_friction_pyramid_and_dynamics_hold(robot, solver, stance):
     residual = dynamics_residual(robot, q, v, vwbc.last_qdd, tau, forces, stance)
     assert np.abs(residual).max() < 1e-6
     acc, vel = foot_accelerations(robot, q, v, vwbc.last_qdd, stance)
-    np.testing.assert_allclose(acc, -settings.alpha * vel, atol=1e-6)
+    np.testing.assert_allclose(acc, -contact.baumgarte_alpha * vel, atol=1e-6)
     # the KKT helper recovers the QP's forces from its torque
-    implied = contact_forces_for_torque(robot, q, v, tau, stance, settings.alpha)
+    implied = contact_forces_for_torque(robot, q, v, tau, stance, contact.baumgarte_alpha)
     np.testing.assert_allclose(implied, forces, atol=1e-6)
 
 
@@ -177,7 +179,7 @@ def test_infeasible_qp_falls_back_to_clamped_riccati(robot, solver):
         )
         > 0.1
     )
-    vwbc = VWBCController(robot, VWBCSettings(solver=solver, max_iter=50, mu=mu), torque_limits=limits)
+    vwbc = VWBCController(robot, VWBCSettings(solver=solver, max_iter=50), limits, ContactModel(friction=mu))
     riccati = RiccatiController(robot, clamp=False)
     q, v = perturbed_state(robot, seed=10)
     tau = vwbc.compute(0.0, measured(q, v), plan).copy()
@@ -283,14 +285,14 @@ def test_stance_source_decides_the_torque_when_a_planned_foot_is_not_in_contact(
     contacts = np.array([True, True, True, False])  # HR planned in stance, measured in the air
     torques = {}
     for source in ("plan", "intersect"):
-        vwbc = VWBCController(robot, VWBCSettings(stance_source=source, mu=0.05))
+        vwbc = VWBCController(robot, VWBCSettings(stance_source=source), contact=ContactModel(friction=0.05))
         torques[source] = vwbc.compute(0.0, measured(q, v, contacts), plan).copy()
         assert vwbc.last_used_qp
         assert (vwbc.last_forces[3, 2] > 1.0) == (source == "plan")
     assert np.abs(torques["plan"] - torques["intersect"]).max() > 0.1
     # all feet measured in contact: the two sources agree
     same = [
-        VWBCController(robot, VWBCSettings(stance_source=source, mu=0.05))
+        VWBCController(robot, VWBCSettings(stance_source=source), contact=ContactModel(friction=0.05))
         .compute(0.0, measured(q, v), plan)
         .copy()
         for source in ("plan", "intersect")

@@ -68,6 +68,7 @@ from pydantic import ValidationError
 
 from cafe_mpc.assembly.checks import robot_of
 from cafe_mpc.assembly.controllers import build_estimator, build_mpc_loop
+from cafe_mpc.assembly.resolve import resolve
 from cafe_mpc.config import ConfigError, RunConfig, VelocityCommand, format_validation_error, load_config
 from cafe_mpc.control.commands import GAIT_NAMES, check_command
 from cafe_mpc.control.loop import MpcLoop
@@ -76,6 +77,7 @@ from cafe_mpc.core.measurement import Measurement
 from cafe_mpc.core.plan import KnotPlan
 from cafe_mpc.core.sensors import SensorReadings
 from cafe_mpc.estimation.estimator import StateEstimator
+from cafe_mpc.planners.resolved import ResolvedRun
 from cafe_mpc.robots.robot import Robot
 
 __all__ = ["Controller"]
@@ -112,8 +114,10 @@ class Controller:
         self.config = config
         self.mode: Mode = mode
         self.robot: Robot = robot_of(config)  # the config checked against the robot it names
+        self.run: ResolvedRun = resolve(config, self.robot)
+        """The config resolved once against the robot (``assembly.resolve``): what the controller runs."""
         # the low level without a run recorder: a loop of unknown length keeps no per-tick records
-        self._loop: MpcLoop = build_mpc_loop(config, self.robot, mode)
+        self._loop: MpcLoop = build_mpc_loop(self.run, mode)
         self._t0 = 0.0
         self._started = False
         self._closed = False
@@ -145,7 +149,7 @@ class Controller:
     @property
     def control_period(self) -> float:
         """Seconds between ``compute`` calls the config is tuned for (1 / ``simulation.control_rate_hz``)."""
-        return 1.0 / self.config.simulation.control_rate_hz
+        return self.run.control_period
 
     def reset(self, measurement: Measurement, t: float | None = None) -> None:
         """Start (again) from ``measurement``: forget plans and warm starts, make ``t`` (default
@@ -157,6 +161,13 @@ class Controller:
         self._loop.reset()
         self._loop.start(0.0, self._relative(measurement, 0.0))
         self._started = True
+
+    def restart_clock(self, t: float) -> None:
+        """Make ``t`` (your clock) time zero again without a new solve, after a ``reset`` that took wall time
+        while the robot held still (on a robot the cold solve runs while a stance holds it): the first
+        ``compute`` then continues the first plan instead of jumping ahead by the time the start took."""
+        self._check_open()
+        self._t0 = float(t)
 
     def compute(self, t: float, measurement: Measurement) -> np.ndarray:
         """Joint torques (nu,) for time ``t`` (your clock) from ``measurement``; call at the control rate."""
@@ -299,7 +310,7 @@ class Controller:
         ``ValueError`` naming the field (``core.sensors.SensorReadings.fill``). The returned object is reused
         by the next call."""
         if self._estimator is None:
-            self._estimator = build_estimator(self.config, self.robot)
+            self._estimator = build_estimator(self.run)
             self._estimator.reset()
         readings = self._readings
         readings.fill(
@@ -318,7 +329,7 @@ class Controller:
         """Restart the state estimator: its next ``measurement_from_sensors`` starts it with the robot
         standing at ``position_xy`` (the odometry origin)."""
         if self._estimator is None:
-            self._estimator = build_estimator(self.config, self.robot)
+            self._estimator = build_estimator(self.run)
         self._estimator.reset(np.asarray(position_xy, dtype=float))
 
     def standing_qpos(self) -> np.ndarray:

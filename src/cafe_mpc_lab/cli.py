@@ -1,4 +1,4 @@
-"""Command line: ``cafe-mpc run | config | experiment | report | robot | bench | optimize``.
+"""Command line: ``cafe-mpc run | config | experiment | report | robot | compile | bench | optimize``.
 
 Every user error (bad preset, key, value, robot file, NaN state) ends with one line ``cafe-mpc: error: ...``
 on stderr and a non-zero exit code, never a traceback.
@@ -335,11 +335,42 @@ def _command_report(arguments: argparse.Namespace) -> int:
     return 0
 
 
+def _command_robot_init(arguments: argparse.Namespace) -> int:
+    """``cafe-mpc robot --init MODEL_FILE``: write a starting robot file, then load it."""
+    from cafe_mpc.robots.robot import load_robot
+    from cafe_mpc.robots.starting_file import StartingFileError, starting_robot_file
+
+    model_file = Path(arguments.init)
+    out = Path(arguments.out) if arguments.out else Path(f"{model_file.stem.replace('-', '_')}.yaml")
+    if out.suffix not in (".yaml", ".yml"):
+        raise _UsageError(f"--out {out}: a robot file ends in .yaml")
+    if out.exists():
+        raise FileExistsError(f"{out} exists; give another --out")
+    try:
+        text = starting_robot_file(model_file, arguments.name)
+    except StartingFileError as error:
+        raise _UsageError(f"robot --init {model_file}: {error}") from error
+    out.write_text(text)
+    to_fill = sum("# FILL IN" in line for line in text.splitlines())
+    print(f"wrote {out}: {to_fill} line(s) marked FILL IN (values the model file does not give)")
+    robot = load_robot(str(out))
+    print(
+        f"it loads: {robot.name}, {robot.total_mass:.3f} kg, legs {', '.join(robot.leg_names)} = feet "
+        f"{', '.join(robot.foot_frame_names)}, standing height {robot.standing_height:.3f} m; next: "
+        f"cafe-mpc robot {out}"
+    )
+    return 0
+
+
 def _command_robot(arguments: argparse.Namespace) -> int:
     from cafe_mpc.dynamics.srb import lumped_inertia, srb_parameters
     from cafe_mpc.robots.robot import load_robot
     from cafe_mpc_lab.sim.consistency import check_consistency
 
+    if arguments.init is not None:
+        return _command_robot_init(arguments)
+    if arguments.name is None:
+        raise _UsageError("cafe-mpc robot needs a robot name or file (or --init MODEL_FILE)")
     robot = load_robot(arguments.name)
     summary = robot.summary()
     srb = srb_parameters(robot)
@@ -351,6 +382,12 @@ def _command_robot(arguments: argparse.Namespace) -> int:
         print(json.dumps(summary, indent=2))
     else:
         print(f"{robot.name}: total mass {robot.total_mass:.3f} kg, feet {', '.join(robot.foot_frame_names)}")
+        feet = zip(robot.leg_names, robot.foot_frame_names, strict=True)
+        legs = ", ".join(f"{leg} {foot}" for leg, foot in feet)
+        print(
+            f"legs (named by {robot.legs_named_by}): {legs}; the model file's order "
+            f"{', '.join(robot.model_leg_order)}"
+        )
         origin = f" ({robot.model_path})" if robot.model_path is not None else ""
         print(
             f"source {robot.source}{origin}; leg length {robot.leg_length:.3f} m, standing height "
@@ -374,6 +411,23 @@ def _command_robot(arguments: argparse.Namespace) -> int:
             f"{'passed' if consistency['passed'] else 'FAILED'}"
         )
     return 0 if summary["consistency"]["passed"] else EXIT_FAILED
+
+
+def _command_compile(arguments: argparse.Namespace) -> int:
+    """Compile and cache the numba kernels a run uses, by running the first steps of each preset asked for
+    (nothing written): what a first run would otherwise do before it moves. ``make install`` runs it."""
+    import time
+
+    from cafe_mpc.assembly.checks import load_run_config
+    from cafe_mpc_lab.experiments.run import run
+
+    _talk(arguments.quiet)
+    start = time.perf_counter()
+    for preset in arguments.presets.split(","):
+        config = load_run_config(preset.strip(), ["simulation.duration=0.1", "output.plots=false"])
+        run(config, None)
+    print(f"kernels compiled and cached in {time.perf_counter() - start:.1f} s")
+    return 0
 
 
 def _command_bench(arguments: argparse.Namespace) -> int:
@@ -546,13 +600,278 @@ def _add_report_parser(commands: argparse._SubParsersAction) -> None:
     report_parser.set_defaults(handler=_command_report)
 
 
+def _outages(text: str | None) -> tuple[tuple[float, float], ...]:
+    """``START:DURATION[,START:DURATION...]`` (s) -> outage windows; ``_UsageError`` naming the flag."""
+    if not text:
+        return ()
+    windows = []
+    for part in text.split(","):
+        try:
+            start, length = (float(value) for value in part.split(":"))
+        except ValueError:
+            raise _UsageError(f"--outage: expected START:DURATION in seconds, got {part!r}") from None
+        windows.append((start, length))
+    return tuple(windows)
+
+
+def _command_sim_robot(arguments: argparse.Namespace) -> int:
+    from cafe_mpc.robot_io.interface import RobotInterfaceError
+    from cafe_mpc.robots.robot import load_robot
+    from cafe_mpc_lab.sim.robot_server import LinkModel, SimRobotServer
+
+    robot = load_robot(arguments.robot)
+    if robot.hardware is None or robot.hardware.interface != arguments.interface:
+        raise _UsageError(
+            f"robot {robot.name!r} does not speak {arguments.interface!r} (its hardware section)"
+        )
+    try:
+        link = LinkModel(arguments.latency, arguments.jitter, arguments.loss, _outages(arguments.outage))
+        server = SimRobotServer(
+            robot,
+            arguments.domain,
+            arguments.network_interface,
+            not arguments.no_multicast,
+            link=link,
+            signal_outage=arguments.signal_outage,
+        )
+        server.run(arguments.duration, Path(arguments.out) if arguments.out else None)
+    except RobotInterfaceError as error:
+        print(f"cafe-mpc: error: {error}", file=sys.stderr)
+        return EXIT_FAILED
+    return 0
+
+
+class DeployTeleop:
+    """Steering a deployment from the terminal, one command a line (the ``--viewer`` teleop's steps): ``w`` /
+    ``s`` forward speed +- 0.1 m/s, ``a`` / ``d`` yaw rate +- 0.1 rad/s, ``x`` stop (speed and yaw rate 0),
+    ``g GAIT`` switch gait at the next cycle boundary, ``q`` end the run (the robot lies down). A command
+    the robot cannot follow is refused (the controller's own check)."""
+
+    SPEED_STEP = 0.1
+    YAW_RATE_STEP = 0.1
+
+    def __init__(self, controller, stop) -> None:
+        self.controller = controller
+        self.stop = stop
+        first = controller.config.gait.commands[0]
+        self.vx, self.yaw_rate = first.vx, first.yaw_rate
+
+    def handle(self, line: str) -> str:
+        """Apply one command line; returns what happened (one line)."""
+        from cafe_mpc.config import ConfigError
+
+        words = line.split()
+        if not words:
+            return ""
+        key = words[0].lower()
+        vx, yaw_rate = self.vx, self.yaw_rate
+        if key == "q":
+            self.stop()
+            return "stopping: lying down"
+        if key == "g" and len(words) == 2:
+            try:
+                self.controller.set_gait(words[1])
+            except ConfigError as error:
+                return f"refused: {error}"
+            return f"gait {words[1]} from the next cycle"
+        steps = {"w": (self.SPEED_STEP, 0.0), "s": (-self.SPEED_STEP, 0.0)}
+        steps |= {"a": (0.0, self.YAW_RATE_STEP), "d": (0.0, -self.YAW_RATE_STEP)}
+        if key == "x":
+            vx, yaw_rate = 0.0, 0.0
+        elif key in steps:
+            vx, yaw_rate = round(vx + steps[key][0], 6), round(yaw_rate + steps[key][1], 6)
+        else:
+            return "commands: w/s speed, a/d yaw rate, x stop, g GAIT, q lie down and end"
+        try:
+            self.controller.set_command(vx=vx, yaw_rate=yaw_rate)
+        except ConfigError as error:
+            return f"refused: {error}"
+        self.vx, self.yaw_rate = vx, yaw_rate
+        return f"vx {vx:+.2f} m/s, yaw rate {yaw_rate:+.2f} rad/s"
+
+    def start(self) -> None:
+        """Read stdin in a daemon thread for the rest of the process."""
+        import threading
+
+        def read() -> None:
+            for line in sys.stdin:
+                answer = self.handle(line)
+                if answer:
+                    print(f"teleop: {answer}")
+
+        threading.Thread(target=read, name="deploy-teleop", daemon=True).start()
+
+
+def _command_deploy(arguments: argparse.Namespace) -> int:
+    import signal
+
+    from pydantic import ValidationError
+
+    from cafe_mpc import Controller
+    from cafe_mpc.config import ConfigError, format_validation_error
+    from cafe_mpc.config.loading import parse_override, set_dotted
+    from cafe_mpc.deploy.runner import Deployment
+    from cafe_mpc.deploy.settings import DeploySettings
+    from cafe_mpc.deploy.startup import StartupRefused
+    from cafe_mpc.robot_io import make_interface
+    from cafe_mpc.robot_io.interface import RobotInterfaceError, WallClock
+
+    _talk(arguments.quiet)
+    overrides = list(arguments.set or [])
+    if arguments.robot:
+        overrides.append(f"robot={arguments.robot}")
+    try:
+        values: dict = {}
+        for item in arguments.deploy_set or []:
+            key, value = parse_override(item)
+            set_dotted(values, DeploySettings, key, value, noun="deployment setting")
+        if arguments.duration is not None:
+            values["duration"] = arguments.duration
+        settings = DeploySettings(**values)
+    except ValidationError as error:
+        raise ConfigError(format_validation_error(error, "deploy")) from error
+    controller = Controller(arguments.config, overrides, mode="process")
+    try:
+        try:
+            interface = make_interface(
+                arguments.interface,
+                controller.robot,
+                arguments.domain,
+                arguments.network_interface,
+                not arguments.no_multicast,
+            )
+        except ValueError as error:
+            raise _UsageError(str(error)) from error
+        interface.clock = WallClock(settings.spin)
+        deployment = Deployment(interface, controller, settings)
+        for signal_number in (signal.SIGINT, signal.SIGTERM):
+            signal.signal(signal_number, lambda *_: deployment.stop())
+        if sys.stdin.isatty() and not arguments.dry_run and controller.config.gait is not None:
+            DeployTeleop(controller, deployment.stop).start()
+            print("teleop: type w/s (speed), a/d (yaw rate), x (stop), g GAIT, q (lie down and end) + Enter")
+        try:
+            report = deployment.run(dry_run=arguments.dry_run)
+        except StartupRefused as error:
+            print(f"cafe-mpc: refused: {error}", file=sys.stderr)
+            return EXIT_FAILED
+        except RobotInterfaceError as error:
+            print(f"cafe-mpc: error: {error}", file=sys.stderr)
+            return EXIT_FAILED
+    finally:
+        controller.close()
+    if arguments.out:
+        Path(arguments.out).write_text(json.dumps(report.as_dict(), indent=1, default=str))
+    lateness = report.lateness_ms_p99
+    print(
+        f"deploy: {report.outcome}{': ' + report.message if report.message else ''}; {report.ticks} ticks "
+        f"({report.mpc_ticks} with the MPC), {report.late_ticks} late, lateness p99 "
+        f"{'-' if lateness is None else f'{lateness:.2f}'} ms, tick CPU median {report.tick_cpu_ms_p50} ms; "
+        f"{report.link_losses} link losses; "
+        f"states {report.link.get('received')} received, {report.link.get('lost')} lost"
+    )
+    return 0 if report.outcome in ("completed", "dry-run", "stopped") else EXIT_FAILED
+
+
+def _add_robot_io_parsers(commands: argparse._SubParsersAction, presets: str) -> None:
+    """``cafe-mpc deploy`` (the controller on a robot's wire) and ``cafe-mpc sim-robot`` (a simulated robot
+    on that wire)."""
+
+    def wire_arguments(parser: argparse.ArgumentParser, domain: int) -> None:
+        parser.add_argument("--interface", default="unitree-dds", help="robot interface (unitree-dds)")
+        parser.add_argument(
+            "--network-interface", default=None, help="network interface the robot is on (lo, eth0, ...)"
+        )
+        parser.add_argument("--domain", type=int, default=domain, help=f"DDS domain (default {domain})")
+        parser.add_argument(
+            "--no-multicast",
+            action="store_true",
+            help="unicast discovery on 127.0.0.1 (both ends must use it)",
+        )
+
+    deploy = commands.add_parser(
+        "deploy",
+        help="run the controller on a robot over its low-level interface (docs/deploy.md)",
+        description=(
+            "Run a preset on a robot over its low-level interface: wait for its state, check it, stand up,\n"
+            "start the MPC, run, lie down. Ctrl-C lies the robot down. Read docs/deploy.md first."
+        ),
+        epilog=(
+            "examples:\n"
+            "  cafe-mpc sim-robot --robot go2 --network-interface lo &       # a simulated Go2 on the wire\n"
+            "  cafe-mpc deploy trot --robot go2 --network-interface lo --domain 1 --duration 10\n"
+            "  cafe-mpc deploy stand --robot go2 --network-interface eth0 --domain 0 --dry-run"
+        ),
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    deploy.add_argument("config", help=f"preset name ({presets}) or path to a YAML config")
+    deploy.add_argument("--robot", help="robot name (its robot file needs a hardware section)")
+    wire_arguments(deploy, 0)
+    deploy.add_argument("--duration", type=float, help="s of MPC control (0: until Ctrl-C)")
+    deploy.add_argument("--dry-run", action="store_true", help="read and check the state; command nothing")
+    deploy.add_argument("--set", action="append", metavar="KEY=VALUE", help="config override; repeatable")
+    deploy.add_argument(
+        "--deploy-set",
+        action="append",
+        metavar="KEY=VALUE",
+        help="deployment setting (deploy.settings.DeploySettings, e.g. stale_after=0.05); repeatable",
+    )
+    deploy.add_argument("--out", help="write the deployment's report (JSON) here")
+    deploy.add_argument("-q", "--quiet", action="store_true", help="no stage lines")
+    deploy.set_defaults(handler=_command_deploy)
+
+    sim_robot = commands.add_parser(
+        "sim-robot",
+        help="a simulated robot on the wire: our MuJoCo plant on its low-level topics (docs/deploy.md)",
+    )
+    sim_robot.add_argument("--robot", default="go2", help="robot name (default go2)")
+    wire_arguments(sim_robot, 1)
+    sim_robot.set_defaults(network_interface="lo")
+    sim_robot.add_argument("--duration", type=float, help="simulated s to serve (default: until Ctrl-C)")
+    sim_robot.add_argument("--latency", type=float, default=0.0, help="s of added link latency, each way")
+    sim_robot.add_argument("--jitter", type=float, default=0.0, help="s of added uniform jitter, each way")
+    sim_robot.add_argument("--loss", type=float, default=0.0, help="fraction of messages lost, each way")
+    sim_robot.add_argument("--outage", help="START:DURATION[,...] s of simulated time without states")
+    sim_robot.add_argument(
+        "--signal-outage", type=float, default=0.3, help="s of link outage each SIGUSR1 starts (default 0.3)"
+    )
+    sim_robot.add_argument("--out", help="write the summary (JSON, with the true base motion) here")
+    sim_robot.set_defaults(handler=_command_sim_robot)
+
+
 def _add_robot_parser(commands: argparse._SubParsersAction) -> None:
     """``cafe-mpc robot``: a robot's summary and its Pinocchio/MuJoCo consistency check."""
     robot_parser = commands.add_parser("robot", help="robot summary and Pinocchio/MuJoCo consistency check")
-    robot_parser.add_argument("name", help="robot name (mini_cheetah, go1) or robot YAML file")
+    robot_parser.add_argument(
+        "name",
+        nargs="?",
+        help="robot name (mini_cheetah, go1) or robot YAML file; with --init: the new robot's name",
+    )
+    robot_parser.add_argument(
+        "--init",
+        metavar="MODEL_FILE",
+        help="write a starting robot file for a URDF or MJCF (legs, feet and limits found, what is missing "
+        "marked FILL IN) to --out, then load it",
+    )
+    robot_parser.add_argument(
+        "--out", help="with --init: the robot file to write (default ./<model file>.yaml)"
+    )
     robot_parser.add_argument("--json", action="store_true", help="print one JSON object")
     robot_parser.add_argument("--samples", type=int, default=5, help="random configurations to compare")
     robot_parser.set_defaults(handler=_command_robot)
+
+
+def _add_compile_parser(commands: argparse._SubParsersAction) -> None:
+    """``cafe-mpc compile``: the numba kernels compiled and cached before the first run."""
+    compile_parser = commands.add_parser(
+        "compile",
+        help="compile and cache the numba kernels (what a first run does before it moves; make install "
+        "runs it)",
+    )
+    compile_parser.add_argument(
+        "--presets", default="trot", help="comma-separated presets whose first 0.1 s is run (default trot)"
+    )
+    compile_parser.add_argument("--quiet", action="store_true", help="no stage lines")
+    compile_parser.set_defaults(handler=_command_compile)
 
 
 def _add_bench_parser(commands: argparse._SubParsersAction) -> None:
@@ -613,8 +932,9 @@ def _add_optimize_parser(commands: argparse._SubParsersAction) -> None:
 
 def build_parser(argv: list[str] | None = None) -> argparse.ArgumentParser:
     """The whole command line's parser. The experiments' subparsers import every experiment (and so the
-    simulator and Dask): they are built only when the command line is ``cafe-mpc experiment ...`` (or
-    ``argv`` is None), so that ``cafe-mpc --help``, ``--version`` and the other commands start fast."""
+    simulator and Dask), the optimiser's the trajectory optimisation: each is built only when the command
+    line is ``cafe-mpc experiment ...`` (``optimize ...``) or ``argv`` is None, so that ``cafe-mpc --help``,
+    ``--version`` and the other commands start fast."""
     parser = _Parser(prog="cafe-mpc", description="CAFE-MPC on a simulated quadruped")
     parser.add_argument("-v", "--verbose", action="store_true", help="log at INFO level to stderr")
     parser.add_argument("--version", action="version", version=f"cafe-mpc {_version()}")
@@ -633,12 +953,31 @@ def build_parser(argv: list[str] | None = None) -> argparse.ArgumentParser:
         )
     _add_report_parser(commands)
     _add_robot_parser(commands)
+    _add_compile_parser(commands)
     _add_bench_parser(commands)
-    _add_optimize_parser(commands)
+    if argv is None or _command_word(argv) == "optimize":  # its parser imports the trajectory optimiser
+        _add_optimize_parser(commands)
+    else:
+        commands.add_parser("optimize", help="offline whole-body trajectory optimisation (--help: the tasks)")
+    _add_robot_io_parsers(commands, presets)
     return parser
 
 
+def _say_starting(argv: list[str]) -> None:
+    """``cafe-mpc run`` at a terminal: one line at once, before the seconds of imports (a person waiting
+    sees that it started; a script or a test, not at a terminal, gets no extra line)."""
+    words = [word for word in argv if not word.startswith("-")]
+    if words[:1] != ["run"] or {"-h", "--help", "--quiet"} & set(argv) or not sys.stderr.isatty():
+        return
+    print(
+        f"cafe-mpc: {words[1] if len(words) > 1 else 'run'}: loading the libraries",
+        file=sys.stderr,
+        flush=True,
+    )
+
+
 def main(argv: list[str] | None = None) -> int:
+    _say_starting(sys.argv[1:] if argv is None else list(argv))
     parser = build_parser(sys.argv[1:] if argv is None else list(argv))
     arguments = _parse_arguments(parser, argv)
     if arguments is None:

@@ -21,6 +21,7 @@ from dataclasses import replace
 import numpy as np
 import pinocchio as pin
 
+from cafe_mpc.config import DEFAULT_FRICTION, TemplateSettings
 from cafe_mpc.config.weights import WholeBodyWeights
 from cafe_mpc.dynamics.srb import SRBDynamics
 from cafe_mpc.ocp.barrier import RelaxedBarrier
@@ -33,7 +34,13 @@ from cafe_mpc.ocp.knots import (
     WholeBodyModelFactory,
     WholeBodySettings,
 )
-from cafe_mpc.planners.template.problem import ConstrainedSRBKnot, TemplateSettings, template_srb
+from cafe_mpc.planners.template.problem import (
+    FRICTION_BARRIER,
+    TORQUE_BARRIER,
+    ConstrainedSRBKnot,
+    template_running_weights,
+    template_srb,
+)
 from cafe_mpc.robots.robot import Robot
 from cafe_mpc.trajopt.multiphase import TrajOptProblem, build_problem
 from cafe_mpc.trajopt.presets import TASKS, load_task
@@ -363,16 +370,15 @@ def _template_spec(contacts: tuple[bool, ...]) -> CaseSpec:
     def make(library: Library, rng: np.random.Generator) -> ActionCase:
         robot = library.robot(REFERENCE_ROBOT)
         parameters, _ = template_srb(robot)
-        settings = TemplateSettings(parameters=parameters)
         weight = parameters.mass * parameters.gravity
         knot = ConstrainedSRBKnot(
-            SRBDynamics(parameters, settings.dt),
-            settings.running_weights,
+            SRBDynamics(parameters, TemplateSettings().dt),
+            template_running_weights(),
             srb_reference(rng, contacts, weight, forces=False),
-            settings.friction_coefficient,
-            settings.friction_barrier,
+            DEFAULT_FRICTION,
+            FRICTION_BARRIER,
             robot.torque_limits,
-            settings.torque_barrier,
+            TORQUE_BARRIER,
         )
         knot.set_torque_map(standing_torque_map(robot))
 

@@ -5,16 +5,15 @@ library (``cafe_mpc.Controller``) alike. It imports no simulator.
 * ``checks``: the config checked against its robot and the library (robot file, gait names, schedules,
   commands within the robot's range, trajectories, plant options), one ``ConfigError`` line naming the key;
   ``load_run_config`` loads and checks;
-* ``scaling``: the config's tuned values (the reference robot's) carried to the run's robot;
+* ``resolve``: the config resolved once against its robot before anything is built (``resolve(config,
+  robot) -> ResolvedRun``: the robot's scale, the scaled schedule and gaits, the torque limits, the contact
+  model, what the run commands), which every builder and the run's metrics read;
 * ``references``: the reference the MPC tracks (locomotion, composed with stored trajectories);
-* ``context``: what a config resolves to before anything is built (robot scale, torque limits: the
-  ``RunContext`` the registries' builders take);
 * ``controllers``: the planner and the low level through the registries (``planners.registry``,
   ``low_level.registry``), the MPC loop (inline or in its own process), the state estimator in front.
 """
 
 from cafe_mpc.assembly.checks import check_config, load_run_config
-from cafe_mpc.assembly.context import run_context, torque_limits_of
 from cafe_mpc.assembly.controllers import (
     RunController,
     build_controller,
@@ -28,6 +27,7 @@ from cafe_mpc.assembly.controllers import (
     runs_alone,
 )
 from cafe_mpc.assembly.references import build_reference, reference_profile
+from cafe_mpc.assembly.resolve import resolve
 
 __all__ = [
     "RunController",
@@ -43,7 +43,6 @@ __all__ = [
     "low_level_name",
     "process_planner",
     "reference_profile",
-    "run_context",
+    "resolve",
     "runs_alone",
-    "torque_limits_of",
 ]

@@ -6,6 +6,8 @@ The schema (``config``) checks what a config says on its own (types, ranges, whi
 * ``robot``: a shipped robot or a robot file that loads;
 * gait names (``gait.name``, ``reference.segments.N.gait.name``): gaits of ``ocp.contact_schedule.GAITS``;
 * ``mpc``: a paper schedule (Table I) or an explicit split with whole knots;
+* cost weights (``costs``, ``reference.costs``): one per joint and three per leg of the robot where a weight
+  is given per joint or per leg;
 * velocity commands and stand heights within what the robot can do (``reference.locomotion``);
 * trajectory segments: a packaged trajectory or a ``.npz`` file valid for the robot, ``from_phase`` in range;
 * ``plant``: per-joint factors one per joint; ``kind: gym-quadruped`` only with a robot that names a
@@ -80,6 +82,7 @@ def _check(config: RunConfig, robot: Robot) -> None:
     if config.reference is not None:
         _check_reference(config, robot)
     _check_schedule(config)
+    _check_weights(config, robot)
     for key in ("link_mass_scales", "motor_strength_scales"):
         value = getattr(config.plant, key)
         if isinstance(value, list) and len(value) != robot.nu:
@@ -101,6 +104,26 @@ def _check_schedule(config: RunConfig) -> None:
     except ValueError as error:
         keys = "keys whole_body_horizon, srb_horizon, whole_body_dt, srb_dt"
         raise ValueError(f"mpc: {error} ({keys})") from None
+
+
+def _check_weights(config: RunConfig, robot: Robot) -> None:
+    """Weights given per joint or per leg fit the robot's joint and foot counts."""
+    costs = config.costs
+    checks = {
+        "costs.running": lambda: costs.running.check_counts(robot.nu, robot.n_feet),
+        "costs.terminal": lambda: costs.terminal.check_counts(robot.nu, robot.n_feet),
+        "costs.srb_running": lambda: costs.srb_running.check_counts(robot.n_feet),
+        "costs.srb_terminal": lambda: costs.srb_terminal.check_counts(robot.n_feet),
+    }
+    if config.reference is not None:
+        task = config.reference.costs
+        checks["reference.costs.running"] = lambda: task.running.check_counts(robot.nu, robot.n_feet)
+        checks["reference.costs.terminal"] = lambda: task.terminal.check_counts(robot.nu, robot.n_feet)
+    for key, check in checks.items():
+        try:
+            check()
+        except ValueError as error:
+            raise ValueError(f"{key}.{error}") from None
 
 
 def _check_gait(gait: GaitConfig, key: str, robot: Robot) -> None:
@@ -152,11 +175,6 @@ def _check_gym_plant(config: RunConfig, robot: Robot) -> None:
             f"gym_quadruped.robot); {config.robot!r} has none. Shipped: {', '.join(with_gym)}"
         )
     unsupported = []
-    if config.estimator != "ground_truth":
-        unsupported.append(
-            f"estimator: {config.estimator} (it reads our plant's IMU and joint sensors, which "
-            "gym-quadruped's model does not carry: set estimator=ground_truth)"
-        )
     if config.scene.terrain:
         unsupported.append("scene.terrain (use plant.gym_scene)")
     if config.scene.bar_height:

@@ -1,8 +1,9 @@
 """The closed-loop controller of a run config: PD standing, or a planner's MPC loop over its low level.
 
-Each builder turns config sections into objects once, through the registries (``planners.registry``: the
-``planner`` key; ``low_level.registry``: the ``wbc`` key), from the run's ``RunContext``
-(``assembly.context``: robot, scale, torque limits):
+Each builder turns a run into objects once, through the registries (``planners.registry``: the ``planner``
+key; ``low_level.registry``: the ``wbc`` key), from the run config resolved once against its robot
+(``assembly.resolve``: the ``ResolvedRun`` with the robot, its scale, the scaled schedule and gaits, the
+torque limits and the contact model):
 
 * ``build_planner``: the planner the config names (CAFE-MPC, Sec. IV and VI; the template baseline, Sec.
   VII-C) tracking the run's reference (``assembly.references``, Sec. VI-A) with the ``mpc`` section's
@@ -30,8 +31,8 @@ import functools
 
 import numpy as np
 
-from cafe_mpc.assembly.context import run_context
 from cafe_mpc.assembly.references import build_reference
+from cafe_mpc.assembly.resolve import resolve
 from cafe_mpc.config import ConfigError, RunConfig
 from cafe_mpc.control.inline import InlineMpcLoop
 from cafe_mpc.control.loop import MpcLoop
@@ -43,8 +44,9 @@ from cafe_mpc.low_level import registry as low_levels
 from cafe_mpc.low_level.registry import LOW_LEVELS
 from cafe_mpc.planners.base import Planner
 from cafe_mpc.planners.registry import PLANNERS
+from cafe_mpc.planners.resolved import ResolvedRun
 from cafe_mpc.reference.base import Reference
-from cafe_mpc.robots.robot import Robot, load_robot
+from cafe_mpc.robots.robot import load_robot
 
 RunController = LowLevelController | MpcLoop
 """What a run config builds: a low level that runs alone (PD standing), or an MPC loop (inline in simulated
@@ -63,29 +65,29 @@ def low_level_name(config: RunConfig) -> str:
     return config.planner if PLANNERS.get(config.planner).low_level is not None else config.wbc
 
 
-def build_planner(config: RunConfig, robot: Robot, reference: Reference | None = None) -> Planner:
-    """The planner of a run (``planner``): tracking ``reference`` (default: the config's, Sec. VI-A), with
-    the ``mpc`` section's receding-horizon settings."""
-    planner = PLANNERS.get(config.planner)
+def build_planner(run: ResolvedRun, reference: Reference | None = None) -> Planner:
+    """The planner of a run (``planner``): tracking ``reference`` (default: the run's, Sec. VI-A), with the
+    ``mpc`` section's receding-horizon settings."""
+    planner = PLANNERS.get(run.config.planner)
     if reference is None:
-        reference = build_reference(config, robot)
-    return planner.build(run_context(config, robot), reference)
+        reference = build_reference(run)
+    return planner.build(run, reference)
 
 
-def build_low_level(config: RunConfig, robot: Robot) -> LowLevelController:
+def build_low_level(run: ResolvedRun) -> LowLevelController:
     """The low-level controller of a run: the planner's own (``planner: template``), else the one named by
-    ``wbc`` (PD, Riccati (33) or VWBC (34)), with the run's torque limits and friction."""
-    planner = PLANNERS.get(config.planner)
-    return low_levels.build_low_level(run_context(config, robot), planner)
+    ``wbc`` (PD, Riccati (33) or VWBC (34)), with the run's torque limits and contact model."""
+    return low_levels.build_low_level(run, PLANNERS.get(run.config.planner))
 
 
 def build_mpc_loop(
-    config: RunConfig, robot: Robot, mode: str = "inline", low_level: LowLevelController | None = None
+    run: ResolvedRun, mode: str = "inline", low_level: LowLevelController | None = None
 ) -> MpcLoop:
     """The planner's MPC loop over ``low_level`` (default: ``build_low_level``'s): ``inline`` (simulated or
     the caller's time, fixed or measured latency) or ``process`` (the planner in its own process against the
     wall clock; close it, ``with``, to stop the process). ``ConfigError`` when the config's ``wbc`` follows
     no plan (``wbc: pd`` stands without a planner)."""
+    config = run.config
     if runs_alone(config):
         raise ConfigError(
             f"an MPC loop needs a low level that follows a plan (wbc: vwbc or riccati), not wbc: {config.wbc}"
@@ -93,15 +95,13 @@ def build_mpc_loop(
     if mode not in ("inline", "process"):
         raise ConfigError(f"mode must be 'inline' or 'process', got {mode!r}")
     planner = PLANNERS.get(config.planner)
-    run = run_context(config, robot)
     if low_level is None:
         low_level = low_levels.build_low_level(run, planner)
     if mode == "inline":
-        return InlineMpcLoop(
-            robot, planner.build(run, build_reference(config, robot)), low_level, run.control_period
-        )
+        reference = build_reference(run)
+        return InlineMpcLoop(run.robot, planner.build(run, reference), low_level, run.control_period)
     loop = ProcessMpcLoop(
-        robot,
+        run.robot,
         functools.partial(process_planner, config.model_dump(mode="json")),
         low_level,
         planner.plan_format(run),
@@ -109,42 +109,39 @@ def build_mpc_loop(
         control_period=run.control_period,
         scheme=config.mpc.scheme,
     )
-    loop.reference = build_reference(config, robot)  # for the run's report (gait stance)
+    loop.reference = build_reference(run)  # for the run's report (gait stance)
     return loop
 
 
-def build_controller(
-    config: RunConfig, robot: Robot, low_level: LowLevelController | None = None
-) -> LowLevelController | MpcLoop:
-    """The closed-loop controller of ``config`` in simulated time (fixed or measured latency): the low level
+def build_controller(run: ResolvedRun, low_level: LowLevelController | None = None) -> RunController:
+    """The closed-loop controller of a run in simulated time (fixed or measured latency): the low level
     alone when it follows no plan (``wbc: pd``), or the planner's inline MPC loop over ``low_level``
     (default: ``build_low_level``'s)."""
-    if runs_alone(config):
-        return LOW_LEVELS.get(config.wbc).build(run_context(config, robot))
-    return build_mpc_loop(config, robot, "inline", low_level)
+    if runs_alone(run.config):
+        return LOW_LEVELS.get(run.config.wbc).build(run)
+    return build_mpc_loop(run, "inline", low_level)
 
 
 def process_planner(config_data: dict) -> Planner:
     """Builds the planner inside the MPC process, from the run config as plain data (picklable): its own
-    robot model, reference and solver; measured latency, so the solve keeps the wall-clock budget."""
+    robot model, resolved run, reference and solver; measured latency, so the solve keeps the wall-clock
+    budget."""
     config = RunConfig.model_validate(config_data)
-    robot = load_robot(config.robot)
     config = config.model_copy(update={"mpc": config.mpc.model_copy(update={"latency": "measured"})})
-    return build_planner(config, robot)
+    return build_planner(resolve(config, load_robot(config.robot)))
 
 
-def build_estimator(config: RunConfig, robot: Robot) -> StateEstimator:
+def build_estimator(run: ResolvedRun) -> StateEstimator:
     """The state estimator of a run (``kinematic_kf``: IMU attitude + leg-kinematics Kalman filter); off
-    flat ground (``terrain``) it does not drop stance feet for standing above z = 0."""
+    flat ground (``run.ground_plane``) it does not drop stance feet for standing above z = 0."""
     try:
-        return StateEstimator(robot, config.kinematic_kf, flat_ground=config.terrain == "flat")
+        return StateEstimator(run.robot, run.config.kinematic_kf, flat_ground=not run.ground_plane)
     except ValueError as error:
         raise ConfigError(f"kinematic_kf: {error}") from error
 
 
 def build_sensing_controller(
-    config: RunConfig,
-    robot: Robot,
+    run: ResolvedRun,
     inner: Controller,
     position_xy: tuple[float, float] = (0.0, 0.0),
     capacity: int | None = None,
@@ -153,7 +150,8 @@ def build_sensing_controller(
     readings, the estimator turns them into the measurement ``inner`` gets (``estimation.controller``).
     ``position_xy``: where the robot is placed (the estimator's odometry origin); ``capacity``: ticks of
     estimates to preallocate (default: the run's)."""
-    estimator = build_estimator(config, robot)
+    estimator = build_estimator(run)
     if capacity is None:
-        capacity = int(np.ceil(config.simulation.duration * config.simulation.control_rate_hz)) + 2
+        simulation = run.config.simulation
+        capacity = int(np.ceil(simulation.duration * simulation.control_rate_hz)) + 2
     return SensingController(inner, estimator, capacity=capacity, position_xy=position_xy)

@@ -1,36 +1,31 @@
 """The reference a run config asks the MPC to track (paper Sec. VI-A, VII-C).
 
-``build_reference(config, robot)`` is the one place that turns the config's ``gait`` or ``reference``
-section into a ``Reference``:
+``build_reference(run)`` is the one place that turns a resolved run's ``gait`` or ``reference`` section into
+a ``Reference``:
 
 * a ``gait`` section: the heuristic locomotion reference (``reference.locomotion``, Sec. VI-A) of the gait's
-  velocity commands, with its timings, swing height, Raibert gain and foothold box scaled to the robot
-  (``assembly.scaling``);
+  velocity commands, with the timings, swing height, Raibert gain, foothold box, path gain and touchdown
+  events the run resolved for the robot (``planners.resolved.ResolvedGait``; the touchdowns seen with the
+  run's contact-detection thresholds);
 * a ``reference`` section: a ``ComposedReference`` (``reference.composition``) of segments joined in time:
   ``stand`` segments are locomotion references with the gait ``stand`` (weight set ``regular``);
   ``trajectory`` segments are stored whole-body trajectories sampled by time (``reference.trajectory``,
   Sec. VI-B) with weight set ``TRAJECTORY_WEIGHT_SET``, optionally from a later phase on; ``gait`` segments
   are locomotion references of a gait section, e.g. the flying pace before and after the running barrel roll.
 
-``reference_profile`` is what the run commands over time (for tracking metrics and plots).
+``reference_profile`` is what a run config commands over time (``assembly.resolve`` puts it in the resolved
+run, for tracking metrics and plots; a stored run's plots make it from the stored config).
 """
 
 from __future__ import annotations
 
-from cafe_mpc.assembly.scaling import run_scale, scaled_gait
-from cafe_mpc.config import (
-    ConfigError,
-    ContactDetectionSettings,
-    GaitConfig,
-    ReferenceConfig,
-    RunConfig,
-    VelocityCommand,
-)
+from cafe_mpc.config import ConfigError, ContactDetectionSettings, RunConfig, VelocityCommand
 from cafe_mpc.ocp.contact_schedule import get_gait
 from cafe_mpc.planners.cafe.setup import TRAJECTORY_WEIGHT_SET
+from cafe_mpc.planners.resolved import ResolvedGait, ResolvedRun
 from cafe_mpc.reference.base import Reference
 from cafe_mpc.reference.composition import ComposedReference
-from cafe_mpc.reference.locomotion import FOOTHOLD_BOX, CommandProfile, LocomotionReference
+from cafe_mpc.reference.locomotion import CommandProfile, LocomotionReference
 from cafe_mpc.reference.trajectory import TrajectoryReference
 from cafe_mpc.reference.trajectory_file import (
     PACKAGED_TRAJECTORIES,
@@ -39,7 +34,6 @@ from cafe_mpc.reference.trajectory_file import (
     load_trajectory,
 )
 from cafe_mpc.robots.robot import Robot
-from cafe_mpc.robots.scaling import IDENTITY, RobotScale
 
 
 def reference_commands(config: RunConfig) -> list[VelocityCommand]:
@@ -61,35 +55,31 @@ def reference_profile(config: RunConfig, robot: Robot) -> CommandProfile:
 
 
 def locomotion_reference(
-    gait: GaitConfig,
+    gait: ResolvedGait,
     robot: Robot,
-    scale: RobotScale = IDENTITY,
     detection: ContactDetectionSettings | None = None,
     ground_plane: bool = False,
 ) -> LocomotionReference:
-    """The heuristic locomotion reference (Sec. VI-A) of a gait section, its timings and lengths scaled to the
-    robot (``ValueError`` if it cannot be built); with ``gait.touchdown_events``, early touchdowns advance its
-    clock, seen with ``detection``'s windows and height; with ``ground_plane`` its base and footholds follow
-    the plane through the stance feet (``terrain: blind``)."""
+    """The heuristic locomotion reference (Sec. VI-A) of a resolved gait section (``ValueError`` if it cannot
+    be built); with ``touchdown_events``, early touchdowns advance its clock, seen within ``detection``'s
+    early window and touchdown height (a run's, resolved for its robot; default as written); with
+    ``ground_plane`` its base and footholds follow the plane through the stance feet (``terrain: blind``)."""
+    section = gait.section
     events = None
     if gait.touchdown_events is not None:
         detection = detection or ContactDetectionSettings()
-        events = (
-            scale.duration(gait.touchdown_events),
-            scale.duration(detection.early_window),
-            scale.distance(detection.touchdown_height),
-        )
+        events = (gait.touchdown_events, detection.early_window, detection.touchdown_height)
     return LocomotionReference(
         robot,
-        scaled_gait(gait.name, scale),
-        list(gait.commands),
-        swing_height=scale.distance(gait.swing_height),
-        raibert_gain=scale.duration(gait.raibert_gain),
-        foothold_box=tuple(scale.distance(v) for v in FOOTHOLD_BOX),
-        start_stance=gait.start_stance,
-        command_ramp=gait.command_ramp,
-        path_gain=gait.path_gain / scale.distance(1.0),
-        path_heading_limit=gait.path_heading_limit,
+        gait.cycle,
+        list(section.commands),
+        swing_height=gait.swing_height,
+        raibert_gain=gait.raibert_gain,
+        foothold_box=gait.foothold_box,
+        start_stance=section.start_stance,
+        command_ramp=section.command_ramp,
+        path_gain=gait.path_gain,
+        path_heading_limit=section.path_heading_limit,
         touchdown_events=events,
         ground_plane=ground_plane,
     )
@@ -108,13 +98,15 @@ def load_reference_trajectory(robot: Robot, name_or_path: str) -> WholeBodyTraje
     return load_trajectory(name_or_path, robot)
 
 
-def task_reference(section: ReferenceConfig, robot: Robot, scale: RobotScale = IDENTITY) -> ComposedReference:
-    """The composed reference of a ``reference`` config section (see the module docstring); gait segments'
-    timings and swing heights scaled by ``scale`` (stored trajectories are the robot's own)."""
+def task_reference(run: ResolvedRun) -> ComposedReference:
+    """The composed reference of a run's ``reference`` section (see the module docstring); gait segments with
+    the gaits the run resolved (stored trajectories are the robot's own)."""
+    section, robot = run.config.reference, run.robot
+    assert section is not None
     pieces: list[tuple[Reference, float | None]] = []
     offsets = []
     try:
-        for segment in section.segments:
+        for segment, gait in zip(section.segments, run.segment_gaits, strict=True):
             if segment.kind == "trajectory":
                 assert segment.trajectory is not None
                 trajectory = load_reference_trajectory(robot, segment.trajectory)
@@ -124,8 +116,8 @@ def task_reference(section: ReferenceConfig, robot: Robot, scale: RobotScale = I
                 )
                 duration = segment.duration if segment.duration is not None else reference.end_time
             elif segment.kind == "gait":
-                assert segment.gait is not None
-                reference = locomotion_reference(segment.gait, robot, scale)
+                assert gait is not None
+                reference = locomotion_reference(gait, robot, run.contact_detection)
                 duration = segment.duration
             else:
                 reference = LocomotionReference(
@@ -147,17 +139,15 @@ def task_reference(section: ReferenceConfig, robot: Robot, scale: RobotScale = I
         raise ConfigError(f"reference: {error}") from error
 
 
-def build_reference(config: RunConfig, robot: Robot) -> Reference:
+def build_reference(run: ResolvedRun) -> Reference:
     """The reference of a CAFE-MPC or template run: the gait's locomotion reference or the composed reference
     (see the module docstring). ``ConfigError`` naming the section when it cannot be built."""
-    scale = run_scale(config, robot)  # the tuned values are the reference robot's (robots.scaling)
+    config = run.config
     if config.reference is not None:  # a composed reference (stand, stored trajectory, ...): Sec. VII-C
-        return task_reference(config.reference, robot, scale)
-    if config.gait is None:  # RunConfig rejects this; kept for configs built with model_construct
+        return task_reference(run)
+    if run.gait is None:  # RunConfig rejects this; kept for configs built with model_construct
         raise ConfigError(f"wbc: {config.wbc!r} needs a gait section")
     try:
-        return locomotion_reference(
-            config.gait, robot, scale, config.vwbc.contact_detection, ground_plane=config.terrain != "flat"
-        )
+        return locomotion_reference(run.gait, run.robot, run.contact_detection, run.ground_plane)
     except ValueError as error:
         raise ConfigError(f"gait: {error}") from error

@@ -82,8 +82,10 @@ class PushConfig(StrictModel):
         return (mass * dv[0] / self.duration, mass * dv[1] / self.duration, mass * dv[2] / self.duration)
 
 
-class PDConfig(StrictModel):
-    """The standing controller (``wbc: pd``): joint PD about the standing pose."""
+class PDSettings(StrictModel):
+    """The standing controller (``wbc: pd``; ``low_level.pd.PDController``): joint PD about the standing
+    pose. The gains are the reference robot's; the assembly carries them to the run's robot
+    (``robots.scaling``: the torque scale, times the time scale for the damping)."""
 
     kp: float = Field(60.0, ge=0.0, le=1000.0, description="Nm/rad")
     kd: float = Field(1.5, ge=0.0, le=100.0, description="Nm s/rad")
@@ -96,9 +98,11 @@ solution (ProxQP), or cold."""
 
 
 class ContactDetectionSettings(StrictModel):
-    """Thresholds of the contact detector (``wbc.contact_detection``): forces as fractions of a foot's share
-    of the robot's weight (``m g / n_feet``), heights in metres above the (flat) ground, the early window in
-    seconds before a planned touchdown."""
+    """Thresholds of the contact detector (``low_level.contact_detection``; ``vwbc.contact_detection``):
+    forces as fractions of a foot's share of the robot's weight (``m g / n_feet``), heights in metres above
+    the (flat) ground, the early window and the on-time margin in seconds around a planned touchdown. The
+    heights and times are the reference robot's: a run scales them to its robot once (its resolved
+    ``contact_detection``), for the detector and the reference's touchdown events alike."""
 
     touchdown_force: float = Field(0.35, gt=0.0, le=5.0, description="touchdown above this x m g / n_feet")
     release_force: float = Field(0.1, ge=0.0, le=5.0, description="release below this x m g / n_feet")
@@ -119,10 +123,23 @@ class ContactDetectionSettings(StrictModel):
     )
 
 
-class VWBCConfig(StrictModel):
-    """The VWBC QP (34) solver: the run config's ``vwbc`` section, and the base of the controller's own
-    settings (``low_level.vwbc.VWBCSettings``), which adds what the assembly derives (friction, robot-scaled
-    rates) and the solvers' tolerances."""
+class VWBCSettings(StrictModel):
+    """The VWBC QP (34) and its solver (``low_level.vwbc.VWBCController``): the run config's ``vwbc``
+    section. What the run derives for it (the friction of its pyramid: ``friction`` or the plan's, the
+    Baumgarte rate and the cone tolerance scaled to the robot, the detector's thresholds scaled to the
+    robot) is resolved once (``planners.resolved.ResolvedRun``), not a setting here.
+
+    ``solver``: ``daqp`` (DAQP, a dual active-set solver, on (34) condensed onto ``tau``) or ``proxqp``
+    (ProxQP on (34) as is). ``warm_start``: ``plan`` (guess from the plan, the paper's choice: for ProxQP the
+    primal ``[qdd_fd, tau*, F*]`` with zero multipliers, for DAQP the constraints active at ``tau*``),
+    ``previous`` (previous tick's solution, ProxQP primal-dual, DAQP working set, when the stance pattern is
+    unchanged, else the plan guess), ``equality`` (ProxQP's default initial guess: the equality-constrained
+    QP's solution; for DAQP the same as ``none``) or ``none`` (cold start: ProxQP from zero, DAQP from the
+    empty working set). ``stance_source``: the stance set ``C`` of (34c)-(34f): ``detected`` (the contact
+    detector's, ``contact_detection``), ``plan`` (the plan knot's, the paper's) or ``intersect`` (planned and
+    measured in contact). ``time_budget_ms``: if set, a tick whose assembly + solve took longer falls back to
+    the Riccati torque; off by default because a wall-clock rule makes simulated runs depend on machine
+    load (slow ticks are counted either way)."""
 
     solver: Literal["daqp", "proxqp"] = Field(
         "daqp", description="daqp: dual active set on the QP condensed onto tau; proxqp: the QP as written"
@@ -147,6 +164,15 @@ class VWBCConfig(StrictModel):
     contact_detection: ContactDetectionSettings = Field(
         default_factory=ContactDetectionSettings, description="thresholds of stance_source: detected"
     )
+    eps_abs: float = Field(1e-6, gt=0.0, le=1.0, description="absolute tolerance of the QP solver")
+    eps_rel: float = Field(0.0, ge=0.0, le=1.0, description="relative tolerance of the QP solver (proxqp)")
+    max_iter: int = Field(200, ge=1, le=100000, description="iterations of one QP solve")
+    regularization: float = Field(
+        0.0, ge=0.0, le=1.0, description="proxqp: weight of 0.5 |(qdd, F)|^2 added to the QP (0: none)"
+    )
+    time_budget_ms: float | None = Field(
+        None, gt=0.0, le=1000.0, description="ms; a slower tick falls back to the Riccati torque (null: off)"
+    )
 
 
 DEFAULT_FRICTION = 0.6
@@ -162,6 +188,23 @@ ticks at the cone's edge on a 0.6 floor and every gait slides on a lower one (do
 
 PAPER_BUDGET_FRACTION = 0.9
 """The share of the MPC period a solve may take in measured mode (the paper's budget: 18 ms of 20 ms)."""
+
+
+BAUMGARTE_ALPHA = 10.0
+"""1/s, the first-order Baumgarte rate of the contact constraints (paper Eq. (20), (34c)) on the reference
+robot: the whole-body knots' and the VWBC's (a run scales it to its robot: its ``ContactModel``)."""
+
+CONE_TOLERANCE = 1e-3
+"""N on the reference robot: a contact force further than this outside the friction pyramid counts as a
+violation (the VWBC's count and the post-hoc score; scaled with the robot's mass in a run)."""
+
+WHOLE_BODY_DT = 0.01
+"""dt_w, s: the whole-body knots' time step (paper Table I): ``mpc.whole_body_dt``'s default, and the one of
+whole-body knots built outside a run config."""
+
+SRB_DT = 0.05
+"""dt_s, s: the SRB knots' time step (paper Table I): ``mpc.srb_dt``'s default, and the one of SRB knots built
+outside a run config."""
 
 
 class VelocityCommand(StrictModel):
@@ -358,8 +401,8 @@ class MpcConfig(MpcSettings):
     schedule: str | None = Field("S4", description="paper schedule S0..S5, S10, S15, S20; null: explicit")
     whole_body_horizon: float | None = Field(None, gt=0.0, le=2.0, description="Tw, s (schedule: null)")
     srb_horizon: float | None = Field(None, ge=0.0, le=5.0, description="Ts, s (schedule: null)")
-    whole_body_dt: float = Field(0.01, gt=0.0, le=0.1, description="dt_w, s")
-    srb_dt: float = Field(0.05, gt=0.0, le=0.5, description="dt_s, s")
+    whole_body_dt: float = Field(WHOLE_BODY_DT, gt=0.0, le=0.1, description="dt_w, s")
+    srb_dt: float = Field(SRB_DT, gt=0.0, le=0.5, description="dt_s, s")
     friction: float = Field(
         CONTROLLER_FRICTION,
         gt=0.0,
@@ -830,12 +873,12 @@ class PlantConfig(StrictModel):
         return not self.sensor_noise.is_zero
 
 
-class TemplateConfig(StrictModel):
+class TemplateSettings(StrictModel):
     """The template-MPC baseline (``planner: template``; ``planners.template``): the SRB plan's horizon and
-    knot spacing, the swing legs' joint PD gains, and the switches of the plan's initial state, reference
-    height and delay compensation (docs/settings.md has what each one changed).
-    Period, latency and iterations per update are ``mpc``'s; the weights and GRF constraints are
-    ``planners.template.problem.TemplateSettings``'."""
+    knot spacing, the swing legs' joint PD gains (the reference robot's, scaled to the run's robot), and the
+    switches of the plan's initial state, reference height, delay compensation and leg torque bounds
+    (docs/settings.md has what each one changed). Period, latency and iterations per update are ``mpc``'s;
+    the weights and GRF barriers are the template problem's own (``planners.template.problem``)."""
 
     horizon: float = Field(0.5, gt=0.0, le=2.0, description="s planned with the SRB model")
     dt: float = Field(0.01, ge=0.001, le=0.1, description="s between SRB knots (whole milliseconds)")
@@ -857,12 +900,17 @@ class TemplateConfig(StrictModel):
     )
 
     @model_validator(mode="after")
-    def _knots(self) -> TemplateConfig:
+    def _knots(self) -> TemplateSettings:
         if abs(self.dt * 1000.0 - round(self.dt * 1000.0)) > 1e-6:
             raise ValueError(f"template.dt must be a whole number of milliseconds, got {self.dt}")
         if self.horizon < 2 * self.dt - 1e-12:
             raise ValueError(f"template.horizon must cover at least two knots of {self.dt} s")
         return self
+
+    @property
+    def knots(self) -> int:
+        """Running knots per problem."""
+        return max(2, round(self.horizon / self.dt))
 
 
 class RunConfig(StrictModel):
@@ -883,8 +931,10 @@ class RunConfig(StrictModel):
     wbc: Literal["pd", "riccati", "vwbc"] = Field(
         "pd", description="pd: stand in place; riccati / vwbc: CAFE-MPC with that low-level controller"
     )
-    pd: PDConfig = Field(default_factory=PDConfig, description="gains of the standing controller (wbc: pd)")
-    vwbc: VWBCConfig = Field(default_factory=VWBCConfig, description="the VWBC QP's solver (wbc: vwbc)")
+    pd: PDSettings = Field(
+        default_factory=PDSettings, description="gains of the standing controller (wbc: pd)"
+    )
+    vwbc: VWBCSettings = Field(default_factory=VWBCSettings, description="the VWBC QP's solver (wbc: vwbc)")
     gait: GaitConfig | None = Field(None, description="gait and commands (MPC controllers); null for pd")
     reference: ReferenceConfig | None = Field(
         None, description="a composed reference (stand, stored trajectory, ...) instead of a gait; null: gait"
@@ -900,7 +950,7 @@ class RunConfig(StrictModel):
         description="cafe: CAFE-MPC (whole body + SRB tail) over wbc; template: the SRB-only baseline "
         "(paper Sec. VII-C) with its own stance/swing low level (wbc is not used)",
     )
-    template: TemplateConfig = TemplateConfig()
+    template: TemplateSettings = TemplateSettings()
     estimator: Literal["ground_truth", "kinematic_kf"] = Field(
         "kinematic_kf",
         description="what the controller measures: ground_truth (the plant's state, plus plant.sensor_noise) "

@@ -5,8 +5,9 @@ running knot multiplies the sum by its time step (``0.5 * dx' W dx * dt``, docs/
 (``WholeBodyWeights``, ``SRBWeights``) is the settings of those diagonals, written as in the authors' code:
 base weights in the order ``[x, y, z, yaw, pitch, roll]``, joint weights one for all joints or one per
 joint, foot weights ``(x, y, z)`` for every leg or one triple per leg. Each set gives its diagonals in the
-knots' tangent order ``[lin x, y, z, ang x (roll), y (pitch), z (yaw)]`` (``state_weights``, ...). The run
-config's ``costs`` and ``reference.costs`` sections are these models.
+knots' tangent order ``[lin x, y, z, ang x (roll), y (pitch), z (yaw)]`` (``state_weights``, ...), sized
+for the robot they are used with (its joint and foot counts: ``check_counts``, which the assembly runs
+against the run's robot). The run config's ``costs`` and ``reference.costs`` sections are these models.
 """
 
 from __future__ import annotations
@@ -27,7 +28,7 @@ BaseError = Literal["tangent", "world"]
 world-frame linear velocity (``ocp.knots.WholeBodySettings.base_error``)."""
 
 Weights = float | tuple[float, ...]
-"""A scalar (every joint / axis) or a tuple (12 per joint, or 3 x y z shared by the legs, or 12 per leg)."""
+"""A scalar (every joint / axis) or a tuple: one per joint; or x y z shared by the legs, or 3 per leg."""
 BaseWeights = tuple[float, float, float, float, float, float]
 """Six base weights in ``BASE_WEIGHT_ORDER``."""
 
@@ -49,26 +50,42 @@ def weight_vector(value: float | Sequence[float], size: int, name: str) -> np.nd
         array = np.full(size, float(array))
     if array.shape != (size,):
         raise ValueError(f"{name}: expected a scalar or {size} values, got shape {array.shape}")
-    if not np.all(np.isfinite(array)) or np.any(array < 0):
-        raise ValueError(f"{name}: weights must be finite and non-negative, got {value}")
+    _check_values(array, value, name)
     return array
 
 
-def leg_weights(value: float | Sequence[float], name: str) -> np.ndarray:
-    """3 weights (x, y, z) shared by the four legs, or 12 (per leg) -> 12 (leg-major)."""
+def leg_weights(value: float | Sequence[float], n_feet: int, name: str) -> np.ndarray:
+    """3 weights (x, y, z) shared by the legs, or 3 per leg -> ``3 n_feet`` (leg-major)."""
     array = np.asarray(value, dtype=float)
     if array.ndim == 0:
         array = np.full(3, float(array))
     if array.shape == (3,):
-        array = np.tile(array, 4)
-    return weight_vector(array, 12, name)
+        array = np.tile(array, n_feet)
+    return weight_vector(array, 3 * n_feet, name)
+
+
+def _check_values(array: np.ndarray, value, name: str) -> None:
+    if not np.all(np.isfinite(array)) or np.any(array < 0):
+        raise ValueError(f"{name}: weights must be finite and non-negative, got {value}")
+
+
+def _check_shape(value: Weights, name: str, per_foot: bool = False) -> None:
+    """What a weight can be checked for without its robot: finite and non-negative, and for foot weights
+    a whole number of (x, y, z) triples (the counts: ``check_counts``)."""
+    array = np.asarray(value, dtype=float)
+    if array.ndim > 1 or array.size == 0:
+        raise ValueError(f"{name}: expected a scalar or a list of values, got {value}")
+    if per_foot and array.ndim == 1 and array.size % 3:
+        raise ValueError(f"{name}: expected x, y, z for every leg or 3 per leg, got {array.size} values")
+    _check_values(array, value, name)
 
 
 class WholeBodyWeights(StrictModel):
     """Weights of the whole-body cost (18) (docs/settings.md: "Cost"; running cost is ``0.5 dx' W dx dt``).
 
     ``base_position``/``base_velocity`` are in ``BASE_WEIGHT_ORDER``; joint and torque weights are scalars
-    (all joints) or 12 values; foot weights are 3 (x, y, z, every leg) or 12 values and apply to swing feet.
+    (all joints) or one per joint (12 on the Mini Cheetah); foot weights are 3 (x, y, z, every leg) or 3 per
+    leg and apply to swing feet.
     """
 
     base_position: BaseWeights = Field(
@@ -79,45 +96,60 @@ class WholeBodyWeights(StrictModel):
         (2.0, 2.0, 2.0, 1.0, 2.0, 2.0),
         description="base linear and angular velocity: x, y, z, yaw, pitch, roll",
     )
-    joint_position: Weights = Field(1.0, description="joint angles: one value or 12")
-    joint_velocity: Weights = Field(0.01, description="joint rates: one value or 12")
+    joint_position: Weights = Field(1.0, description="joint angles: one value or one per joint")
+    joint_velocity: Weights = Field(0.01, description="joint rates: one value or one per joint")
     torque: Weights = Field(
-        0.1, description="torque (regularised toward the gait's stance torques): one value or 12"
+        0.1, description="torque (regularised toward the gait's stance torques): one value or one per joint"
     )
     swing_foot_position: Weights = Field(
-        (10.0, 10.0, 10.0), description="swing-foot position against the reference's swing: x, y, z (or 12)"
+        (10.0, 10.0, 10.0),
+        description="swing-foot position against the reference's swing: x, y, z (or 3 per leg)",
     )
-    swing_foot_velocity: Weights = Field((2.0, 2.0, 2.0), description="swing-foot velocity: x, y, z (or 12)")
+    swing_foot_velocity: Weights = Field(
+        (2.0, 2.0, 2.0), description="swing-foot velocity: x, y, z (or 3 per leg)"
+    )
 
     @model_validator(mode="after")
     def _shapes(self) -> WholeBodyWeights:
-        """Every weight of the right count, finite and non-negative (``ValueError`` naming the field)."""
-        self.state_weights()
-        self.torque_weights()
-        self.foot_position_weights()
-        self.foot_velocity_weights()
+        """Every weight finite and non-negative, the base ones six (``ValueError`` naming the field); the
+        per-joint and per-leg counts are the robot's (``check_counts``)."""
+        for name in ("base_position", "base_velocity"):
+            weight_vector(getattr(self, name), 6, name)
+        for name in ("joint_position", "joint_velocity", "torque"):
+            _check_shape(getattr(self, name), name)
+        for name in ("swing_foot_position", "swing_foot_velocity"):
+            _check_shape(getattr(self, name), name, per_foot=True)
         return self
 
-    def state_weights(self) -> np.ndarray:
-        """36 weights in tangent order: base (6), joints (12), base velocity (6), joint velocity (12)."""
+    def check_counts(self, n_joints: int, n_feet: int) -> None:
+        """``ValueError`` naming the field when a per-joint or per-leg weight does not fit a robot with
+        ``n_joints`` joints and ``n_feet`` feet."""
+        self.state_weights(n_joints)
+        self.torque_weights(n_joints)
+        self.foot_position_weights(n_feet)
+        self.foot_velocity_weights(n_feet)
+
+    def state_weights(self, n_joints: int) -> np.ndarray:
+        """``2 (6 + n_joints)`` weights in tangent order: base (6), joints, base velocity (6), joint
+        velocities."""
         return np.concatenate(
             [
                 base_weights_to_tangent(weight_vector(self.base_position, 6, "base_position")),
-                weight_vector(self.joint_position, 12, "joint_position"),
+                weight_vector(self.joint_position, n_joints, "joint_position"),
                 base_weights_to_tangent(weight_vector(self.base_velocity, 6, "base_velocity")),
-                weight_vector(self.joint_velocity, 12, "joint_velocity"),
+                weight_vector(self.joint_velocity, n_joints, "joint_velocity"),
             ]
         )
 
-    def torque_weights(self) -> np.ndarray:
-        return weight_vector(self.torque, 12, "torque")
+    def torque_weights(self, n_joints: int) -> np.ndarray:
+        return weight_vector(self.torque, n_joints, "torque")
 
-    def foot_position_weights(self) -> np.ndarray:
-        """12 weights (leg-major, x y z per leg)."""
-        return leg_weights(self.swing_foot_position, "swing_foot_position")
+    def foot_position_weights(self, n_feet: int) -> np.ndarray:
+        """``3 n_feet`` weights (leg-major, x y z per leg)."""
+        return leg_weights(self.swing_foot_position, n_feet, "swing_foot_position")
 
-    def foot_velocity_weights(self) -> np.ndarray:
-        return leg_weights(self.swing_foot_velocity, "swing_foot_velocity")
+    def foot_velocity_weights(self, n_feet: int) -> np.ndarray:
+        return leg_weights(self.swing_foot_velocity, n_feet, "swing_foot_velocity")
 
     @classmethod
     def regular_running(cls) -> WholeBodyWeights:
@@ -189,14 +221,21 @@ class SRBWeights(StrictModel):
         (2.0, 2.0, 2.0, 1.0, 2.0, 2.0),
         description="base linear and angular velocity: x, y, z, yaw, pitch, roll",
     )
-    force: Weights = Field(0.01, description="GRF regularisation: one value, 3 shared by the feet, or 12")
+    force: Weights = Field(
+        0.01, description="GRF regularisation: one value, x y z shared by the feet, or 3 per foot"
+    )
 
     @model_validator(mode="after")
     def _shapes(self) -> SRBWeights:
-        """Every weight of the right count, finite and non-negative (``ValueError`` naming the field)."""
+        """Every weight finite and non-negative, the base ones six (``ValueError`` naming the field); the
+        per-foot count is the robot's (``check_counts``)."""
         self.state_weights()
-        self.force_weights()
+        _check_shape(self.force, "force", per_foot=True)
         return self
+
+    def check_counts(self, n_feet: int) -> None:
+        """``ValueError`` naming the field when the force weights do not fit a robot with ``n_feet`` feet."""
+        self.force_weights(n_feet)
 
     def state_weights(self) -> np.ndarray:
         """12 weights in the SRB tangent order ``[position, rotation (roll, pitch, yaw), linear velocity,
@@ -205,8 +244,9 @@ class SRBWeights(StrictModel):
         velocity = base_weights_to_tangent(weight_vector(self.base_velocity, 6, "base_velocity"))
         return np.concatenate([position, velocity])
 
-    def force_weights(self) -> np.ndarray:
-        return leg_weights(self.force, "force")
+    def force_weights(self, n_feet: int) -> np.ndarray:
+        """``3 n_feet`` weights (foot-major, x y z per foot)."""
+        return leg_weights(self.force, n_feet, "force")
 
     @classmethod
     def regular_running(cls) -> SRBWeights:

@@ -42,6 +42,7 @@ from cafe_mpc.control.ipc.channels import ControlBlock, MeasurementRing, PlanCha
 from cafe_mpc.control.loop import MpcLoop
 from cafe_mpc.control.plan_follower import NewestPlanFollower
 from cafe_mpc.control.update_clock import UpdateClock
+from cafe_mpc.core.compilation import CompileWatch
 from cafe_mpc.core.controller import LowLevelController
 from cafe_mpc.core.measurement import Measurement
 from cafe_mpc.core.plan import PlanFormat, PlanT
@@ -96,7 +97,10 @@ def _worker_main(
         worker = _Worker(planner, ring, plans, control, control_period, period, parent_pid)
         control.array[ControlBlock.RTI] = 1.0 if worker.rti else 0.0
         control.array[ControlBlock.READY] = 1.0  # built; numba kernels loaded
-        worker.run()
+        try:
+            worker.run()  # starts ``worker.compiles`` once the first plan is out
+        finally:
+            worker.compiles.stop()
         statistics = planner.statistics
     except BaseException as error:  # report, then exit: the main process turns it into MpcProcessError
         results.send(("error", f"{type(error).__name__}: {error}"))
@@ -105,6 +109,7 @@ def _worker_main(
         if statistics is not None:
             with contextlib.suppress(Exception):
                 results.send(("statistics", statistics))
+                results.send(("compilation", worker.compiles.summary()))
         if worker is not None:
             worker.commands = None  # drop its view of the control block before closing it
         for channel in (ring, plans, control):
@@ -134,6 +139,8 @@ class _Worker:
         self.rti = planner.settings.scheme == "rti" and planner.supports_rti
         self.commands: CommandChannel | None = control.commands()
         """Runtime commands from the main process (``ProcessMpcLoop.commands``)."""
+        self.compiles = CompileWatch()
+        """Kernels compiled (or loaded) in this process after its cold solve (``core.compilation``)."""
 
     def running(self) -> bool:
         """Until the stop flag is set or the main process is gone (do not outlive it)."""
@@ -151,6 +158,8 @@ class _Worker:
                 if self.ring.read(newest, self.buffer):
                     last_tick = newest
                     self._publish(self._state_update(newest), newest)
+                    if planner.started:  # the clock starts once the first plan is out
+                        self.compiles.start()
                 continue
             last_tick = self._rti_update(last_tick) if self.rti else self._one_phase_update(last_tick, newest)
 
@@ -265,6 +274,8 @@ class ProcessMpcLoop(MpcLoop[PlanT]):
         """The plans as this side received them: latencies, measurement times, update wall times, and the
         ticks of the PD fallback."""
         self.worker_statistics: MpcStatistics | None = None
+        self.worker_compilation: dict | None = None
+        """What the MPC process compiled after its cold solve (``core.compilation``), once it stopped."""
         """The MPC process's own records, sent when it stops."""
         self.worker_error: str | None = None
         self.failure: str | None = None
@@ -306,6 +317,11 @@ class ProcessMpcLoop(MpcLoop[PlanT]):
             summary["rate_hz"] = len(latencies) / duration if duration > 0 else None
         summary["pd_fallback_ticks"] = self.received.fallback_ticks
         summary["worker_error"] = self.worker_error
+        if self.worker_compilation is not None:  # the MPC process's own (core.compilation)
+            summary["mpc_process_compiles_during_run"] = self.worker_compilation["compiles_during_run"]
+            summary["mpc_process_kernels_loaded_during_run"] = self.worker_compilation[
+                "kernels_loaded_during_run"
+            ]
         return summary
 
     def reset(self) -> None:
@@ -321,9 +337,11 @@ class ProcessMpcLoop(MpcLoop[PlanT]):
         if self.process is not None:
             self._stop_process()
             self._measurements.clear()
+            self._plans.receive()  # a plan the stopped process published unread: not the new one's first
             self._control.array[: ControlBlock.COMMANDS] = 0.0
             self.plan, self.failure, self._failure_time = None, None, None
             self.received, self.worker_statistics, self.worker_error = MpcStatistics(), None, None
+            self.worker_compilation = None
         self._spawn()
         deadline = time.perf_counter() + self.startup_timeout
         stage("first (cold) MPC solve, in the MPC process")
@@ -453,6 +471,8 @@ class ProcessMpcLoop(MpcLoop[PlanT]):
             return False
         if kind == "statistics":
             self.worker_statistics = payload
+        elif kind == "compilation":
+            self.worker_compilation = payload
         elif kind == "error":
             self.worker_error = payload
         return True

@@ -215,7 +215,7 @@ class SRBDynamicsData:
 class SRBDynamics:
     """Discrete SRB dynamics (29), (30) with time step ``dt``; immutable and shareable between knots."""
 
-    def __init__(self, parameters: SRBParameters, dt: float = 0.05) -> None:
+    def __init__(self, parameters: SRBParameters, dt: float) -> None:
         if not (math.isfinite(dt) and dt > 0):
             raise ValueError(f"time step must be positive and finite, got {dt}")
         self.parameters = parameters

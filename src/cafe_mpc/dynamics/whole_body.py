@@ -30,6 +30,7 @@ from typing import Literal
 import numpy as np
 import pinocchio as pin
 
+from cafe_mpc.config import BAUMGARTE_ALPHA
 from cafe_mpc.core.contacts import as_contact_flags, flags_to_string
 from cafe_mpc.dynamics.kernels import (
     copy_force_derivatives,
@@ -142,7 +143,7 @@ class WholeBodyDynamics:
         robot: Robot,
         stance: tuple[bool, ...],
         dt: float,
-        baumgarte_alpha: float = 10.0,
+        baumgarte_alpha: float = BAUMGARTE_ALPHA,
         integration: IntegrationScheme = "explicit",
         damping: float = 0.0,
     ) -> None:

@@ -241,6 +241,58 @@ class StateEstimator:
         self.measurement = Measurement.zeros(robot.nq, robot.nv, n_feet)
         if len(self.measurement.q) - 7 != nj:
             raise ValueError("the estimator expects a floating base with 7 configuration coordinates")
+        self._compile_kernels()
+
+    def _compile_kernels(self) -> None:
+        """Call each compiled kernel a tick of the running filter calls, once, on scratch copies of the
+        filter's arrays (the same argument types; nothing of the filter changes): the first update only
+        initialises the filter, so without this a run's second tick would compile them (a first run's
+        tick stalled for seconds after the clock started; ``core.compilation``)."""
+        settings, n_feet, dt = self.settings, self.n_feet, 0.002
+        x, P = self.x.copy(), np.eye(len(self.x)) * 1e-3
+        kf_predict(x, P, np.zeros(3), dt, 1e-4, 1e-4, 1e-4, self.feet_start, np.full(n_feet, 1e-4))
+        kf_update_feet(
+            x,
+            P,
+            self.feet_start,
+            self.legs.relative.copy(),
+            self.base_velocity.copy(),
+            np.ones(n_feet),
+            self.ground_height.copy(),
+            settings.foot_height,
+            self._parameters.copy(),
+            1,
+            np.zeros(1, dtype=np.int64),
+            np.zeros(n_feet, dtype=np.bool_),
+            np.zeros_like(self._scratch),
+        )
+        knots = 3
+        planned_trust(
+            np.arange(knots) * 0.01,
+            np.full(knots, 0.01),
+            np.ones((knots, n_feet), dtype=np.bool_),
+            0.0,
+            self.contacts.window,
+            np.ones(n_feet, dtype=np.bool_),
+            np.zeros(n_feet),
+            np.ones(n_feet, dtype=np.bool_),
+            np.ones(n_feet),
+        )
+        if settings.foot_compliance > 0.0 and settings.foot_contact_frequency is not None:
+            forces = np.zeros((n_feet, 3))
+            foot_sink_step(
+                np.zeros(n_feet),
+                np.zeros(n_feet),
+                np.zeros(n_feet, dtype=np.bool_),
+                forces[:, 2],
+                np.ones(n_feet, dtype=np.bool_),
+                np.zeros(n_feet),
+                np.zeros(n_feet),
+                dt,
+                settings.foot_compliance,
+                settings.foot_contact_frequency,
+                settings.foot_contact_damping,
+            )
 
     @property
     def started(self) -> bool:

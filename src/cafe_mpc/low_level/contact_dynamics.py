@@ -13,7 +13,7 @@ from __future__ import annotations
 import numpy as np
 import pinocchio as pin
 
-from cafe_mpc.config import DEFAULT_FRICTION
+from cafe_mpc.config import BAUMGARTE_ALPHA, CONE_TOLERANCE, DEFAULT_FRICTION
 from cafe_mpc.robots.robot import Robot
 
 
@@ -41,7 +41,7 @@ class ContactDynamicsTerms:
     reads ``Jc qdd = -drift``), for the stance feet in leg order.
     """
 
-    def __init__(self, robot: Robot, alpha: float = 10.0) -> None:
+    def __init__(self, robot: Robot, alpha: float = BAUMGARTE_ALPHA) -> None:
         self.robot = robot
         self.model = robot.model
         self.data = robot.model.createData()
@@ -83,7 +83,7 @@ def contact_forces_for_torque(
     v: np.ndarray,
     tau: np.ndarray,
     stance: np.ndarray,
-    alpha: float = 10.0,
+    alpha: float = BAUMGARTE_ALPHA,
     terms: ContactDynamicsTerms | None = None,
 ) -> np.ndarray:
     """World-frame contact forces (n_feet x 3, zero rows for swing feet) implied by joint torques ``tau``.
@@ -110,7 +110,11 @@ class FrictionConeScorer:
     """Counts ticks whose torque implies a stance force outside the friction pyramid (any controller)."""
 
     def __init__(
-        self, robot: Robot, mu: float = DEFAULT_FRICTION, alpha: float = 10.0, tolerance: float = 1e-3
+        self,
+        robot: Robot,
+        mu: float = DEFAULT_FRICTION,
+        alpha: float = BAUMGARTE_ALPHA,
+        tolerance: float = CONE_TOLERANCE,
     ) -> None:
         self.robot = robot
         self.mu = float(mu)

@@ -9,32 +9,36 @@ from __future__ import annotations
 
 import numpy as np
 
+from cafe_mpc.config import PDSettings
 from cafe_mpc.core.controller import LowLevelController
 from cafe_mpc.core.measurement import Measurement
 from cafe_mpc.core.plan import KnotPlan
 from cafe_mpc.dynamics.statics import static_stance_torques
 from cafe_mpc.robots.robot import Robot
+from cafe_mpc.robots.scaling import IDENTITY, RobotScale
 
 
 class PDController(LowLevelController[KnotPlan]):
     """PD on the actuated joints toward ``q_target`` (standing pose by default), clamped to the torque
-    limits. The plan, if any, is ignored."""
+    limits. The plan, if any, is ignored. ``settings``: gains and feed-forward (the ``pd`` section;
+    ``config.PDSettings``), whose gains (the reference robot's) ``scale`` carries to the robot
+    (``robots.scaling``: the torque scale, times the time scale for the damping)."""
 
     def __init__(
         self,
         robot: Robot,
-        kp: float = 60.0,
-        kd: float = 1.5,
+        settings: PDSettings | None = None,
+        scale: RobotScale = IDENTITY,
         q_target: np.ndarray | None = None,
-        gravity_feedforward: bool = True,
     ) -> None:
-        if kp < 0 or kd < 0:
-            raise ValueError(f"PD gains must be non-negative, got kp={kp}, kd={kd}")
+        settings = settings or PDSettings()
         self.robot = robot
-        self.kp, self.kd = float(kp), float(kd)
+        self.kp, self.kd = scale.stiffness(settings.kp), scale.damping(settings.kd)
         self.q_target = (robot.q_standing if q_target is None else np.asarray(q_target, float)).copy()
         self.feedforward = (
-            static_stance_torques(robot, self.q_target) if gravity_feedforward else np.zeros(robot.nu)
+            static_stance_torques(robot, self.q_target)
+            if settings.gravity_feedforward
+            else np.zeros(robot.nu)
         )
         self.limits = robot.torque_limits
         self._joints_q = slice(robot.nq - robot.nu, robot.nq)

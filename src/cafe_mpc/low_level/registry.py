@@ -15,17 +15,18 @@ from cafe_mpc.config import ConfigError
 from cafe_mpc.core.controller import LowLevelController
 from cafe_mpc.low_level.pd import PDController
 from cafe_mpc.low_level.riccati import RiccatiController
-from cafe_mpc.low_level.vwbc import VWBCController, VWBCSettings
-from cafe_mpc.planners.base import PlannerSlice, Registry, RunContext
+from cafe_mpc.low_level.vwbc import VWBCController
+from cafe_mpc.planners.base import PlannerSlice, Registry
 from cafe_mpc.planners.cafe.plan import Plan
+from cafe_mpc.planners.resolved import ResolvedRun
 
 
 @dataclass(frozen=True)
 class LowLevelEntry:
-    """``build(run)``: the controller of a run; ``plan_type``: the plans it follows (None: it needs none and
-    is a closed-loop controller by itself, with no planner)."""
+    """``build(run)``: the controller of a resolved run (``planners.resolved.ResolvedRun``); ``plan_type``:
+    the plans it follows (None: it needs none and is a closed-loop controller by itself, with no planner)."""
 
-    build: Callable[[RunContext], LowLevelController]
+    build: Callable[[ResolvedRun], LowLevelController]
     plan_type: type | None
 
     @property
@@ -33,41 +34,29 @@ class LowLevelEntry:
         return self.plan_type is not None
 
 
-def build_pd(run: RunContext) -> PDController:
-    """Joint PD standing with the config's gains scaled to the robot (torque scale; damping also by time)."""
-    config, scale = run.config, run.scale
-    return PDController(
-        run.robot,
-        scale.stiffness(config.pd.kp),
-        scale.damping(config.pd.kd),
-        gravity_feedforward=config.pd.gravity_feedforward,
-    )
+def build_pd(run: ResolvedRun) -> PDController:
+    """Joint PD standing: the ``pd`` section, its gains carried to the robot."""
+    return PDController(run.robot, run.config.pd, run.scale)
 
 
-def build_riccati(run: RunContext) -> RiccatiController:
+def build_riccati(run: ResolvedRun) -> RiccatiController:
     """The Riccati feedback (33), clamped to the run's torque limits."""
     riccati = RiccatiController(run.robot)
     riccati.limits = run.torque_limits.copy()
     return riccati
 
 
-def build_vwbc(run: RunContext) -> VWBCController:
-    """The VWBC QP (34): the ``vwbc`` section, the plan's friction, the Baumgarte gain and the cone tolerance
-    of the reference robot scaled to the run's robot, the run's torque limits; off flat ground (``terrain``)
-    its contact detector measures heights above the stance feet's plane."""
-    config, scale = run.config, run.scale
-    try:
-        defaults = VWBCSettings.model_fields  # the reference robot's, scaled to the run's robot
-        settings = VWBCSettings(
-            **config.vwbc.model_dump(),
-            mu=config.vwbc.friction if config.vwbc.friction is not None else config.mpc.friction,
-            alpha=scale.rate(defaults["alpha"].default),
-            cone_tolerance=scale.force(defaults["cone_tolerance"].default),
-        )
-    except ValueError as error:
-        raise ConfigError(f"vwbc: {error}") from error
+def build_vwbc(run: ResolvedRun) -> VWBCController:
+    """The VWBC QP (34): the ``vwbc`` section, the run's torque limits, its VWBC contact model (the pyramid's
+    friction, the Baumgarte rate and the cone tolerance of the robot) and contact-detection thresholds; off
+    flat ground (``run.ground_plane``) its contact detector measures heights above the stance feet's plane."""
     return VWBCController(
-        run.robot, settings, torque_limits=run.torque_limits.copy(), ground_plane=config.terrain != "flat"
+        run.robot,
+        run.config.vwbc,
+        run.torque_limits.copy(),
+        run.vwbc_contact,
+        run.contact_detection,
+        ground_plane=run.ground_plane,
     )
 
 
@@ -83,7 +72,7 @@ LOW_LEVELS: Registry[LowLevelEntry] = Registry(
 """``wbc`` -> its entry; ``LOW_LEVELS.get(name)`` raises ``ConfigError`` naming the key for an unknown one."""
 
 
-def build_low_level(run: RunContext, planner: PlannerSlice) -> LowLevelController:
+def build_low_level(run: ResolvedRun, planner: PlannerSlice) -> LowLevelController:
     """The low level of a run under ``planner`` (module docstring); ``ConfigError`` (one line naming ``wbc``)
     when the ``wbc`` entry follows another plan type than the planner makes."""
     if planner.low_level is not None:

@@ -22,9 +22,10 @@ Contacts: Jacobians and forces are expressed in ``LOCAL_WORLD_ALIGNED`` at the f
 world-frame ground reaction forces, as in ``Plan.forces``); ``Jcdot v`` is the classical foot acceleration
 at zero joint acceleration. The stance set ``C`` is the plan knot's contact flags (the paper's choice);
 ``VWBCSettings.stance_source = "intersect"`` uses the feet that are planned *and* measured in contact
-(``Measurement.contacts``). Off flat ground (``ground_plane``, ``terrain: blind``) the pyramid (34f) and
-(34e) are taken about the normal of the contact detector's ground plane (``_StanceQP.orient_cone``): on a
-20 degree slope a cone about world z allows forces that slide the feet down.
+(``Measurement.contacts``), ``"detected"`` (the run config's default) the contact detector's
+(``low_level.contact_detection``). Off flat ground (``ground_plane``, ``terrain: blind``) the pyramid (34f)
+and (34e) are taken about the normal of the contact detector's ground plane (``_StanceQP.orient_cone``): on
+a 20 degree slope a cone about world z allows forces that slide the feet down.
 
 Solvers: one preallocated solver object and matrix set per stance pattern (sizes change with the number of
 stance feet). ProxQP (``proxsuite.proxqp.dense``, ``solver="proxqp"``) solves (34) as written; it is a
@@ -54,9 +55,8 @@ from collections import Counter
 
 import numpy as np
 import proxsuite
-from pydantic import Field
 
-from cafe_mpc.config import DEFAULT_FRICTION, VWBCConfig
+from cafe_mpc.config import ContactDetectionSettings, VWBCSettings
 from cafe_mpc.config.run import WarmStart
 from cafe_mpc.core.controller import LowLevelController
 from cafe_mpc.core.measurement import Measurement
@@ -68,6 +68,7 @@ from cafe_mpc.low_level.contact_dynamics import (
 )
 from cafe_mpc.low_level.riccati import state_error
 from cafe_mpc.planners.cafe.plan import Plan, riccati_torque
+from cafe_mpc.planners.resolved import ContactModel
 from cafe_mpc.robots.robot import Robot
 
 _PROXQP = proxsuite.proxqp
@@ -83,37 +84,6 @@ _SOLVED = _PROXQP.QPSolverOutput.PROXQP_SOLVED
 REAL_TIME_BUDGET_MS = 2.0
 
 
-class VWBCSettings(VWBCConfig):
-    """Parameters of the VWBC QP (34) and its solver: the run config's ``vwbc`` section (``solver``,
-    ``warm_start``, ``stance_source``, with their defaults), the friction the plan assumes and the rest.
-
-    ``solver``: ``"daqp"`` (DAQP, a dual active-set solver, on (34) condensed onto ``tau``) or ``"proxqp"``
-    (ProxQP on (34) as is).
-    ``warm_start``: ``"plan"`` (guess from the plan, the paper's choice: for ProxQP the primal
-    ``[qdd_fd, tau*, F*]`` with zero multipliers, for DAQP the constraints active at ``tau*``),
-    ``"previous"`` (previous tick's solution — ProxQP primal-dual, DAQP working set — when the stance
-    pattern is unchanged, else the plan guess), ``"equality"`` (ProxQP's default initial guess: the
-    equality-constrained QP's solution; for DAQP the same as ``"none"``) or ``"none"`` (cold start: ProxQP
-    from zero, DAQP from the empty working set).
-    ``mu``: friction coefficient of the pyramid (34f) (a run's ``mpc.friction``). ``alpha``: Baumgarte gain
-    of (34c), 1/s (the reference robot's; the assembly scales it to the run's robot).
-    ``time_budget_ms``: if set, a tick whose assembly + solve took longer falls back to the Riccati
-    torque. Off by default because a wall-clock rule makes simulated runs depend on machine load; slow
-    ticks (over ``REAL_TIME_BUDGET_MS``) are counted either way.
-    """
-
-    mu: float = Field(DEFAULT_FRICTION, gt=0.0)
-    alpha: float = Field(10.0, ge=0.0)
-    eps_abs: float = Field(1e-6, gt=0.0)
-    eps_rel: float = Field(0.0, ge=0.0)
-    max_iter: int = Field(200, ge=1)
-    regularization: float = Field(0.0, ge=0.0)
-    """On qdd and F (ProxQP only; DAQP's condensed QP has no qdd, F)."""
-    time_budget_ms: float | None = Field(None, gt=0.0)
-    cone_tolerance: float = Field(1e-3, ge=0.0)
-    """N; a force further than this outside the pyramid counts as a violation."""
-
-
 class _StanceQP:
     """Preallocated matrices of (34) for one stance pattern, shared by the solver backends.
 
@@ -124,7 +94,9 @@ class _StanceQP:
 
     solver_name = ""
 
-    def __init__(self, stance: tuple[bool, ...], nv: int, nu: int, limits: np.ndarray, s: VWBCSettings):
+    def __init__(
+        self, stance: tuple[bool, ...], nv: int, nu: int, limits: np.ndarray, s: VWBCSettings, mu: float
+    ):
         self.stance = np.array(stance, dtype=bool)
         nc = int(self.stance.sum())
         self.nc, self.nv, self.nu = nc, nv, nu
@@ -150,12 +122,12 @@ class _StanceQP:
             rows = nu + 4 * i
             for face, (axis, sign) in enumerate(((0, 1.0), (0, -1.0), (1, 1.0), (1, -1.0))):
                 self.C[rows + face, fx + axis] = sign
-                self.C[rows + face, fx + 2] = -s.mu
+                self.C[rows + face, fx + 2] = -mu
                 self.u[rows + face] = 0.0
             self.C[nu + 4 * nc + i, fx + 2] = 1.0
             self.l[nu + 4 * nc + i] = 0.0
         self.normal = np.array([0.0, 0.0, 1.0])  # the ground normal the pyramid is taken about
-        self.mu = s.mu
+        self.mu = mu
         self.x0 = np.zeros(n)  # primal warm start from the plan
         self.x = np.zeros(n)  # solution of the last solve
         self.iterations = 0
@@ -211,8 +183,10 @@ class _ProxQPStance(_StanceQP):
 
     solver_name = f"proxsuite.proxqp.dense {proxsuite.__version__}"
 
-    def __init__(self, stance: tuple[bool, ...], nv: int, nu: int, limits: np.ndarray, s: VWBCSettings):
-        super().__init__(stance, nv, nu, limits, s)
+    def __init__(
+        self, stance: tuple[bool, ...], nv: int, nu: int, limits: np.ndarray, s: VWBCSettings, mu: float
+    ):
+        super().__init__(stance, nv, nu, limits, s, mu)
         self.qp = _PROXQP.dense.QP(self.n, self.n_eq, self.n_in)
         self.qp.settings.eps_abs = s.eps_abs
         self.qp.settings.eps_rel = s.eps_rel
@@ -280,10 +254,12 @@ class _DaqpStance(_StanceQP):
     update fails, instead of solving stale data.
     """
 
-    def __init__(self, stance: tuple[bool, ...], nv: int, nu: int, limits: np.ndarray, s: VWBCSettings):
+    def __init__(
+        self, stance: tuple[bool, ...], nv: int, nu: int, limits: np.ndarray, s: VWBCSettings, mu: float
+    ):
         import daqp  # optional dependency: only with VWBCSettings.solver = "daqp"
 
-        super().__init__(stance, nv, nu, limits, s)
+        super().__init__(stance, nv, nu, limits, s, mu)
         self.solver_name = f"daqp {_package_version('daqp')}"
         self._daqp = daqp
         nc3, n_gen = 3 * self.nc, 5 * self.nc
@@ -387,9 +363,15 @@ class VWBCController(LowLevelController[Plan]):
     """VWBC (34) on the plan passed to ``compute``, with the Riccati fallback (33) and per-tick statistics.
 
     ``compute(t, measurement, plan)`` like every ``LowLevelController``; the measurement's contacts are used
-    by ``stance_source = "intersect"`` and counted in ``stance_mismatch_ticks``. The returned array is owned
-    by the controller and overwritten on the next call. ``ground_plane``: the contact detector measures the
-    feet's heights above the plane through their latest contact points (``terrain: blind``).
+    by ``stance_source = "intersect"`` (its state and foot forces by ``"detected"``) and counted in
+    ``stance_mismatch_ticks``. The returned array is owned by the controller and overwritten on the next
+    call. ``settings``: the QP and its solver (the ``vwbc``
+    section); ``contact``: the friction of the pyramid (34f), the Baumgarte rate of (34c) and the cone
+    tolerance of the violation count (a run's ``ContactModel``; default the reference robot's);
+    ``torque_limits``: (34d) (default the robot's); ``detection``: the contact detector's thresholds with
+    ``stance_source = "detected"`` (a run's, scaled to its robot; default ``settings.contact_detection`` as
+    written); ``ground_plane``: the contact detector measures the feet's heights above the plane through
+    their latest contact points (``terrain: blind``).
     """
 
     def __init__(
@@ -397,11 +379,14 @@ class VWBCController(LowLevelController[Plan]):
         robot: Robot,
         settings: VWBCSettings | None = None,
         torque_limits: np.ndarray | None = None,
+        contact: ContactModel | None = None,
+        detection: ContactDetectionSettings | None = None,
         ground_plane: bool = False,
     ) -> None:
         self.robot = robot
         self.model = robot.model
         self.settings = VWBCSettings() if settings is None else settings
+        self.contact = ContactModel() if contact is None else contact
         limits = robot.torque_limits if torque_limits is None else np.asarray(torque_limits, dtype=float)
         if limits.shape != (robot.nu,) or np.any(limits < 0):
             raise ValueError(f"torque limits must be {robot.nu} non-negative numbers")
@@ -415,9 +400,11 @@ class VWBCController(LowLevelController[Plan]):
             self.solver_name = f"daqp {_package_version('daqp')}"
         else:
             self.solver_name = _ProxQPStance.solver_name
-        self.terms = ContactDynamicsTerms(robot, self.settings.alpha)
+        self.terms = ContactDynamicsTerms(robot, self.contact.baumgarte_alpha)
         self.detector = (
-            ContactDetector(robot, self.settings.contact_detection, ground_plane)
+            ContactDetector(
+                robot, self.settings.contact_detection if detection is None else detection, ground_plane
+            )
             if self.settings.stance_source == "detected"
             else None
         )
@@ -465,7 +452,7 @@ class VWBCController(LowLevelController[Plan]):
         self._check_plan(plan)
         q, v, contacts = measurement.q, measurement.v, measurement.contacts
         start = time.perf_counter()
-        s = self.settings
+        s, contact = self.settings, self.contact
         k = plan.knot_at(t)
         self.last_knot = k
         dx = self.state_error(q, v, plan.xs[k])
@@ -501,11 +488,11 @@ class VWBCController(LowLevelController[Plan]):
             self._fallback(plan, k, dx, reason)
             try:  # score the fallback torque's implied forces like a Riccati controller's
                 self.last_forces[:] = contact_forces_for_torque(
-                    self.robot, q, v, self._torques, self._stance, s.alpha, terms=self.terms
+                    self.robot, q, v, self._torques, self._stance, contact.baumgarte_alpha, terms=self.terms
                 )
             except Exception:  # scoring only; the fallback torque stands
                 self.last_forces[:] = np.nan
-        if friction_cone_violation(self.last_forces[self._stance], s.mu) > s.cone_tolerance:
+        if friction_cone_violation(self.last_forces[self._stance], contact.friction) > contact.cone_tolerance:
             self.friction_cone_violations += 1
         return self._torques
 
@@ -514,7 +501,9 @@ class VWBCController(LowLevelController[Plan]):
         qp = self._qps.get(pattern)
         if qp is None:
             backend = _DaqpStance if self.settings.solver == "daqp" else _ProxQPStance
-            qp = backend(pattern, self.robot.nv, self.robot.nu, self.limits, self.settings)
+            qp = backend(
+                pattern, self.robot.nv, self.robot.nu, self.limits, self.settings, self.contact.friction
+            )
             self._qps[pattern] = qp
         return qp
 
@@ -629,4 +618,4 @@ class VWBCController(LowLevelController[Plan]):
         self, q: np.ndarray, v: np.ndarray, tau: np.ndarray, stance: np.ndarray
     ) -> np.ndarray:
         """Contact forces implied by ``tau`` through (34b)-(34c) (see the module function)."""
-        return contact_forces_for_torque(self.robot, q, v, tau, stance, self.settings.alpha)
+        return contact_forces_for_torque(self.robot, q, v, tau, stance, self.contact.baumgarte_alpha)

@@ -69,13 +69,13 @@ def residual_layout(
     ndx = 2 * nv
     n_feet = len(robot.foot_frame_ids)
     swing = [leg for leg in range(n_feet) if not stance[leg]]
-    position_weights = weights.foot_position_weights().reshape(n_feet, 3)
-    velocity_weights = weights.foot_velocity_weights().reshape(n_feet, 3)
+    position_weights = weights.foot_position_weights(n_feet).reshape(n_feet, 3)
+    velocity_weights = weights.foot_velocity_weights(n_feet).reshape(n_feet, 3)
     position_legs = np.array([leg for leg in swing if np.any(position_weights[leg] > 0)], dtype=np.int64)
     velocity_legs = np.array([leg for leg in swing if np.any(velocity_weights[leg] > 0)], dtype=np.int64)
-    torque_weights = weights.torque_weights()
+    torque_weights = weights.torque_weights(robot.nu)
     with_torque = nu > 0 and bool(np.any(torque_weights > 0))
-    state_weights = weights.state_weights()
+    state_weights = weights.state_weights(robot.nu)
     pieces = [state_weights]
     pieces += [position_weights[leg] for leg in position_legs]
     pieces += [velocity_weights[leg] for leg in velocity_legs]

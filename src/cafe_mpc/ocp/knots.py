@@ -24,6 +24,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 import pinocchio as pin
 
+from cafe_mpc.config import BAUMGARTE_ALPHA, SRB_DT, WHOLE_BODY_DT
 from cafe_mpc.config.weights import BaseError, SRBWeights, WholeBodyWeights
 from cafe_mpc.core.contacts import ContactFlags, as_contact_flags, flags_to_string, touchdown_flags
 from cafe_mpc.core.interfaces import ActionData, ActionModel, IdentityReset, ResetMap
@@ -555,15 +556,17 @@ class SRBKnot(ActionModel):
         self.dynamics = dynamics
         self.state = SRBState()
         self.next_state = self.state
-        self.nu = 12 if dynamics is not None else 0
+        reference = self._check_reference(reference)
+        n_feet = len(reference.foot_positions)
+        self.nu = 3 * n_feet if dynamics is not None else 0
         self.cost_scale = dynamics.dt if dynamics is not None else 1.0
         self.weights = weights
         self.state_weights = weights.state_weights()
-        self.force_weights = weights.force_weights() if dynamics is not None else np.zeros(12)
+        self.force_weights = weights.force_weights(n_feet) if dynamics is not None else np.zeros(3 * n_feet)
         self._diagonal = np.arange(12)
         self.layout = object()
         """Shared by knots made with ``with_reference``; data with the same layout is interchangeable."""
-        self.reference = self._check_reference(reference)
+        self.reference = reference
 
     @staticmethod
     def _check_reference(reference: SRBReference) -> SRBReference:
@@ -638,8 +641,8 @@ class SRBKnot(ActionModel):
 class WholeBodySettings:
     """Everything that configures whole-body knots (settings facts defaults)."""
 
-    dt: float = 0.01
-    baumgarte_alpha: float = 10.0
+    dt: float = WHOLE_BODY_DT
+    baumgarte_alpha: float = BAUMGARTE_ALPHA
     integration: IntegrationScheme = "explicit"
     contact_damping: float = 0.0
     running_weights: WholeBodyWeights = field(default_factory=WholeBodyWeights.regular_running)
@@ -754,7 +757,7 @@ class SRBSettings:
     from the robot given to ``SRBModelFactory`` (``dynamics.srb.srb_parameters``: legs lumped, rotors
     included); one of the two is needed."""
 
-    dt: float = 0.05
+    dt: float = SRB_DT
     parameters: SRBParameters | None = None
     running_weights: SRBWeights = field(default_factory=SRBWeights.regular_running)
     terminal_weights: SRBWeights = field(default_factory=SRBWeights.regular_terminal)

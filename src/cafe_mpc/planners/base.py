@@ -22,8 +22,8 @@ implement them.
 
 A planner is a vertical slice, one folder under ``planners/``: its problem, planner, plan type, its own low
 level if its plan needs one, and a ``PlannerSlice`` that says how a run config builds them (from the
-``RunContext`` the assembly resolves). ``planners.registry`` maps the config's ``planner`` key to the slices
-(``Registry``: an unknown name is one ``ConfigError`` line naming the key).
+``ResolvedRun`` the assembly resolves once: ``planners.resolved``). ``planners.registry`` maps the config's
+``planner`` key to the slices (``Registry``: an unknown name is one ``ConfigError`` line naming the key).
 """
 
 from __future__ import annotations
@@ -36,13 +36,13 @@ from typing import Generic, Protocol, TypeVar
 
 import numpy as np
 
-from cafe_mpc.config import ConfigError, MpcSettings, RunConfig
+from cafe_mpc.config import ConfigError, MpcSettings
 from cafe_mpc.core.controller import LowLevelController
 from cafe_mpc.core.plan import PlanFormat, PlanT
 from cafe_mpc.planners import collector
+from cafe_mpc.planners.resolved import ResolvedRun
 from cafe_mpc.reference.base import Reference
 from cafe_mpc.robots.robot import Robot
-from cafe_mpc.robots.scaling import RobotScale
 from cafe_mpc.solver import MSiLQRSolver, SolverOptions, SolverResult, SolveStatus
 
 logger = logging.getLogger(__name__)
@@ -305,6 +305,8 @@ class RecedingHorizonPlanner(Generic[PlanT]):
         if first:
             self.statistics.first_solve_time = time.perf_counter() - start
         self.previous = (built, result)
+        if first:
+            self._compile_kernels()
         if first and self.settings.warm_up > 0.0:
             self._warm_up(t)
         if first:
@@ -363,6 +365,11 @@ class RecedingHorizonPlanner(Generic[PlanT]):
     def _prepare_problem(self, built) -> None:
         """A last touch of a built problem before it is solved (default: nothing)."""
 
+    def _compile_kernels(self) -> None:
+        """After the first solve, before the clock starts: run once what later updates run and the first
+        solve did not, so that no kernel compiles after the clock starts (``core.compilation``; default:
+        nothing)."""
+
     def _warm_up(self, t0: float) -> None:
         """Make the solver data of the next updates before the clock starts (default: nothing)."""
 
@@ -378,25 +385,9 @@ class RecedingHorizonPlanner(Generic[PlanT]):
 
 # ------------------------------------------------------------------------------------------- registry
 @dataclass(frozen=True)
-class RunContext:
-    """What the assembly resolved of a run config for the builders of the registries: the config, the robot
-    it drives, the robot's scale (``robots.scaling``: the config's tuned values are the reference robot's;
-    the identity with ``scaling: none``) and the torque limits the plan and the low level respect."""
-
-    config: RunConfig
-    robot: Robot
-    scale: RobotScale
-    torque_limits: np.ndarray
-
-    @property
-    def control_period(self) -> float:
-        """Seconds between two low-level ticks (``simulation.control_rate_hz``)."""
-        return 1.0 / self.config.simulation.control_rate_hz
-
-
-@dataclass(frozen=True)
 class PlannerSlice(Generic[PlanT]):
-    """A planner as a run config builds it (module docstring).
+    """A planner as a run config builds it (module docstring), from the run resolved once
+    (``planners.resolved.ResolvedRun``).
 
     ``build(run, reference)``: the planner tracking ``reference``; ``plan_format(run)``: how its plans travel
     as arrays (the MPC process's plan channel); ``low_level(run)``: the low level of its own plan type, or
@@ -404,9 +395,9 @@ class PlannerSlice(Generic[PlanT]):
     which a low level it is paired with must follow."""
 
     plan_type: type[PlanT]
-    build: Callable[[RunContext, Reference], Planner[PlanT]]
-    plan_format: Callable[[RunContext], PlanFormat[PlanT]]
-    low_level: Callable[[RunContext], LowLevelController[PlanT]] | None = None
+    build: Callable[[ResolvedRun, Reference], Planner[PlanT]]
+    plan_format: Callable[[ResolvedRun], PlanFormat[PlanT]]
+    low_level: Callable[[ResolvedRun], LowLevelController[PlanT]] | None = None
 
 
 EntryT = TypeVar("EntryT")

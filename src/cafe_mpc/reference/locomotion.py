@@ -346,7 +346,7 @@ class LocomotionReference(Reference):
         library = GAITS.get(gait.name)
         self.time_scale = gait.period / library.period if library is not None else 1.0
         """Phase durations of this reference's gaits relative to the library's (the robot's Froude scaling:
-        ``assembly.scaling.scaled_gait``), applied to gaits switched to by name."""
+        ``assembly.resolve.scaled_gait``), applied to gaits switched to by name."""
         # what the compiled sampling (``reference.kernels``) reads, kept between updates: the gaits in force
         # as arrays and the torque references of their stances (remade when ``_segments`` changes), the
         # schedule's phases as arrays (remade with the schedule), and per-update scratch

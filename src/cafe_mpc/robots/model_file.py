@@ -36,6 +36,7 @@ import numpy as np
 import pinocchio as pin
 
 from cafe_mpc.robots.description import PlantParameters
+from cafe_mpc.robots.legs import JOINTS_PER_LEG
 
 if TYPE_CHECKING:
     import mujoco
@@ -259,6 +260,7 @@ def _mjcf_plant(
     _absolute_asset_paths(root, path.parent)
     worldbody = _remove_file_extras(root, path)
     base = _free_body_element(worldbody)
+    _order_legs(base, joint_names, path)
     _rename_base_and_feet(root, base, foot_frame_names, foot_geoms)
     _set_joints(worldbody, path, plant, joint_names)
     _add_foot_sites(root, worldbody, path, model, foot_frame_names, foot_geoms)
@@ -557,6 +559,34 @@ def _urdf_plant(
     )
     try:
         spec.compile()
-        return spec.to_xml()
+        text = spec.to_xml()
     except Exception as error:
         raise ModelFileError(f"the plant built from {path} does not compile: {error}") from error
+    root = ElementTree.fromstring(text)
+    if _order_legs(_free_body_element(root.find("worldbody")), joint_names, path):
+        text = ElementTree.tostring(root, encoding="unicode") + "\n"
+    return text
+
+
+def _order_legs(base: ElementTree.Element, joint_names: tuple[str, ...], path: Path) -> bool:
+    """The trunk's leg bodies put in the robot's leg order (``joint_names``, three per leg), so that
+    MuJoCo numbers the joints as the planning model does; returns whether the order changed."""
+    legs = [joint_names[i : i + JOINTS_PER_LEG] for i in range(0, len(joint_names), JOINTS_PER_LEG)]
+    children = list(base)
+    leg_bodies = []
+    for leg in legs:
+        bodies = [
+            child
+            for child in children
+            if child.tag == "body" and any(joint.get("name") == leg[0] for joint in child.iter("joint"))
+        ]
+        if len(bodies) != 1:
+            raise ModelFileError(f"joint {leg[0]!r} is not in one leg body on the trunk of {path}")
+        leg_bodies.append(bodies[0])
+    slots = sorted(children.index(body) for body in leg_bodies)
+    if [children[slot] for slot in slots] == leg_bodies:
+        return False
+    for slot, body in zip(slots, leg_bodies, strict=True):
+        children[slot] = body
+    base[:] = children
+    return True

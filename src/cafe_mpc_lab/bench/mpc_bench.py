@@ -26,8 +26,8 @@ DEFAULT_GAITS = ("trot", "bound")
 def bench_gait(preset: str, duration: float, overrides: list[str]) -> dict:
     """One closed-loop run of ``preset``; its MPC timing and tracking."""
     config = load_run_config(preset, [f"simulation.duration={duration}", "output.plots=false", *overrides])
-    robot, controller, log = simulate_run(config)
-    metrics = run_metrics(config, robot, controller, log)
+    run, controller, log = simulate_run(config)
+    metrics = run_metrics(run, controller, log)
     mpc = metrics["mpc"]
     iterations = np.asarray(controller.statistics.iteration_times) * 1e3
     knots = {"whole_body": None, "srb": None}

@@ -1,6 +1,6 @@
 """The controller of a run as the experiment harness sees it: the assembly's, its low level recorded.
 
-``build_run_controller(config, robot)`` is ``assembly.build_controller`` with the low-level controller
+``build_run_controller(run)`` is ``assembly.build_controller`` with the low-level controller
 wrapped in a ``LowLevelRecorder`` (any ``LowLevelController``: it reads ``last_request``), so the run can
 report what it asked for before clamping (the Riccati controller clamps to the torque limits; the paper's
 Fig. 9 shows the unclamped request) and which stance the plan assumed at every tick (for the friction-cone
@@ -28,7 +28,7 @@ from cafe_mpc.core.contacts import N_FEET
 from cafe_mpc.core.controller import LowLevelController
 from cafe_mpc.core.measurement import Measurement
 from cafe_mpc.core.plan import KnotPlan
-from cafe_mpc.robots.robot import Robot
+from cafe_mpc.planners.resolved import ResolvedRun
 
 
 @dataclass(frozen=True)
@@ -158,29 +158,30 @@ class LowLevelRecorder(LowLevelController):
         return requested, stance
 
 
-def build_recorder(config: RunConfig, robot: Robot) -> LowLevelRecorder:
+def build_recorder(run: ResolvedRun) -> LowLevelRecorder:
     """The run's low-level controller (``assembly.build_low_level``) wrapped in a recorder sized for the
     run's ticks."""
+    config = run.config
     ticks = config.simulation.duration * config.simulation.control_rate_hz  # the run's low-level calls
     return LowLevelRecorder(
-        build_low_level(config, robot),
+        build_low_level(run),
         capacity=int(np.ceil(ticks)) + 2,
-        n_feet=robot.n_feet,
+        n_feet=run.robot.n_feet,
         record_plans=config.output.render,  # the video draws the plan in effect at every frame
     )
 
 
-def build_run_controller(config: RunConfig, robot: Robot) -> RunController:
+def build_run_controller(run: ResolvedRun) -> RunController:
     """The controller of a run in simulated time (``assembly.build_controller``), its low level recorded."""
-    if runs_alone(config):
-        return build_controller(config, robot)
-    return build_controller(config, robot, low_level=build_recorder(config, robot))
+    if runs_alone(run.config):
+        return build_controller(run)
+    return build_controller(run, low_level=build_recorder(run))
 
 
-def build_run_process_loop(config: RunConfig, robot: Robot) -> MpcLoop:
+def build_run_process_loop(run: ResolvedRun) -> MpcLoop:
     """The MPC loop of a run against the wall clock, the planner in its own process
     (``assembly.build_mpc_loop``), its low level recorded."""
-    return build_mpc_loop(config, robot, "process", low_level=build_recorder(config, robot))
+    return build_mpc_loop(run, "process", low_level=build_recorder(run))
 
 
 def reference_of(controller: RunController):

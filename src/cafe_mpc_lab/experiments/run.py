@@ -22,14 +22,12 @@ import numpy as np
 import yaml
 
 from cafe_mpc.assembly.checks import robot_of
-from cafe_mpc.assembly.context import torque_limits_of
 from cafe_mpc.assembly.controllers import RunController, build_sensing_controller, low_level_name
-from cafe_mpc.assembly.references import reference_profile
-from cafe_mpc.assembly.scaling import run_scale, scaled_gait
+from cafe_mpc.assembly.resolve import resolve
 from cafe_mpc.config import RunConfig
 from cafe_mpc.control.process import MpcProcessError
 from cafe_mpc.core.measurement import Measurement
-from cafe_mpc.planners.cafe.setup import model_schedule, scaled_schedule
+from cafe_mpc.planners.resolved import ResolvedRun
 from cafe_mpc.robots.robot import Robot
 from cafe_mpc.robots.scaling import reference_scales
 from cafe_mpc_lab import LOGGERS
@@ -66,8 +64,10 @@ class RunResult:
 
 def simulate_run(
     config: RunConfig, progress=None, viewer: bool = False
-) -> tuple[Robot, RunController, SimulationLog]:
-    """Build robot and controller from ``config`` and run the closed loop (no files written).
+) -> tuple[ResolvedRun, RunController, SimulationLog]:
+    """Resolve ``config`` against its robot once (``assembly.resolve``), build the controller and the plant
+    from that, and run the closed loop (no files written). Returns the resolved run (its robot, and what the
+    controller was built with, for the metrics), the controller and the log.
 
     ``config.estimator``: ``ground_truth`` hands the controller the plant's state; ``kinematic_kf`` hands it
     the robot's sensor readings (``config.plant.sensors``, ``sim.sensors``) through the state estimator
@@ -92,18 +92,19 @@ def simulate_run(
 
         check_display()
     robot = robot_of(config)  # a config built in code gets the same checks as a loaded one
+    resolved = resolve(config, robot)
     # the plant (its scene, variation and sensors: domain randomisation) and the loop's options; the
     # controller's robot stays nominal
-    setup = build_plant(config, robot)
+    setup = build_plant(resolved)
     try:
         if config.simulation.realtime:
-            with build_run_process_loop(config, robot) as controller:
+            with build_run_process_loop(resolved) as controller:
                 q0 = setup.options.initial_q
                 controller.start(
                     0.0, Measurement.of_state(q0, np.zeros(robot.nv), np.ones(robot.n_feet, bool))
                 )
                 log, sensing, live = _closed_loop(
-                    config, robot, setup, controller, progress, viewer, realtime=True
+                    resolved, setup, controller, progress, viewer, realtime=True
                 )
             if controller.failure is not None:
                 raise MpcProcessError(
@@ -111,10 +112,8 @@ def simulate_run(
                     f"(at t = {log.time[-1]:.2f} s)"
                 )
         else:
-            controller = build_run_controller(config, robot)
-            log, sensing, live = _closed_loop(
-                config, robot, setup, controller, progress, viewer, realtime=False
-            )
+            controller = build_run_controller(resolved)
+            log, sensing, live = _closed_loop(resolved, setup, controller, progress, viewer, realtime=False)
     finally:
         setup.plant.close()
     if live is not None:
@@ -131,12 +130,11 @@ def simulate_run(
     if reference is not None:
         stance = [reference.stance_at(float(t)) for t in log.time]
         log.extra["gait_stance"] = np.array(stance, dtype=bool).reshape(-1, robot.n_feet)
-    return robot, controller, log
+    return resolved, controller, log
 
 
 def _closed_loop(
-    config: RunConfig,
-    robot: Robot,
+    run: ResolvedRun,
     setup: PlantSetup,
     controller: RunController,
     progress,
@@ -148,13 +146,13 @@ def _closed_loop(
     controller, which says when to stop; the pacer holds the wall clock already). Returns the log, the
     estimating front end and the viewer (None when not used)."""
     sensing = live = None
-    if config.estimator != "ground_truth":
+    if run.config.estimator != "ground_truth":
         q0 = setup.options.initial_q
-        sensing = build_sensing_controller(config, robot, controller, (float(q0[0]), float(q0[1])))
+        sensing = build_sensing_controller(run, controller, (float(q0[0]), float(q0[1])))
     if viewer:
         from cafe_mpc_lab.sim.viewer import LiveViewer
 
-        live = LiveViewer.following(robot, controller, realtime=not realtime)
+        live = LiveViewer.following(run.robot, controller, realtime=not realtime)
     stop = controller.should_stop if realtime else None
     options = replace(setup.options, progress=progress, stop=stop, observer=live)
     try:
@@ -167,12 +165,14 @@ def _closed_loop(
 
 def simulate_config(config: RunConfig, progress=None) -> tuple[Robot, SimulationLog]:
     """Build robot and controller from ``config`` and run the closed loop (no files written)."""
-    robot, _, log = simulate_run(config, progress)
-    return robot, log
+    resolved, _, log = simulate_run(config, progress)
+    return resolved.robot, log
 
 
-def run_metrics(config: RunConfig, robot: Robot, controller: RunController, log: SimulationLog) -> dict:
-    """Everything ``metrics.json`` reports: base metrics, tracking, the ``mpc`` and ``wbc`` blocks."""
+def run_metrics(run: ResolvedRun, controller: RunController, log: SimulationLog) -> dict:
+    """Everything ``metrics.json`` reports: base metrics, tracking, the ``mpc`` and ``wbc`` blocks. What the
+    controller ran with (the command profile, the schedule and gaits, the torque limits, the contact model)
+    is read from the run it was built from (``simulate_run``'s resolved run), not derived again."""
     from cafe_mpc_lab.report.metrics import (
         METRICS_WINDOW_START_S,
         base_metrics,
@@ -180,18 +180,21 @@ def run_metrics(config: RunConfig, robot: Robot, controller: RunController, log:
         wbc_metrics,
     )
 
-    metrics = base_metrics(robot, log, 1.0 / config.simulation.control_rate_hz)
+    config, robot = run.config, run.robot
+    metrics = base_metrics(robot, log, run.control_period)
     metrics["robot"] = robot.name
     metrics["controller"] = low_level_name(config)
     metrics["planner"] = config.planner
     metrics["gait"] = config.gait.name if config.gait is not None else None
-    profile = reference_profile(config, robot)
+    profile = run.command_profile
     metrics.update(tracking_metrics(robot, log, profile))  # the whole run, start included
     steady = tracking_metrics(robot, log, profile, window_start=METRICS_WINDOW_START_S)
     metrics["steady_state"] = steady  # the paper's steady-state window (the start from rest skipped)
     metrics["timing"] = timing_of(config, controller)
-    metrics["scaling"] = scaling_block(config, robot)
+    metrics["scaling"] = scaling_block(run)
     metrics["mpc"] = mpc_summary(controller, log)
+    # kernels compiled after the clock started (core.compilation): 0 unless a first run missed one
+    metrics.update(log.extra.get("compilation", {}))
     if "realtime" in log.extra:
         metrics["realtime"] = log.extra["realtime"]
     if "sensor" in log.extra:
@@ -207,32 +210,32 @@ def run_metrics(config: RunConfig, robot: Robot, controller: RunController, log:
         metrics["controller"],
         low_level_statistics=low_level_of(controller).statistics(),
         planned_stance=log.extra.get("planned_stance"),
-        torque_limits=torque_limits_of(config, robot),
-        mu=config.mpc.friction,
+        torque_limits=run.torque_limits,
+        contact=run.contact,
     )
     if config.reference is not None:  # acrobatic task (stored trajectory with a flight): report.task_metrics
         from cafe_mpc_lab.experiments.tasks import task_block
 
-        metrics["task"] = task_block(config, robot, log, reference_of(controller))
+        metrics["task"] = task_block(run, log, reference_of(controller))
     return metrics
 
 
-def scaling_block(config: RunConfig, robot: Robot) -> dict:
-    """``metrics.json``'s ``scaling``: the mode, the robot's factors against the reference robot."""
-    scale = run_scale(config, robot)
-    schedule = scaled_schedule(model_schedule(config.mpc), scale)
+def scaling_block(run: ResolvedRun) -> dict:
+    """``metrics.json``'s ``scaling``: the mode, the robot's factors against the reference robot, the
+    horizons and gait timing the run resolved."""
+    config, robot = run.config, run.robot
     block = {
         "mode": config.scaling,
         "reference": reference_scales(),
         "robot_leg_length": robot.leg_length,
         "robot_mass": robot.mass,
-        "factors": scale.summary(),
-        "whole_body_horizon_s": schedule.whole_body_horizon,
-        "srb_horizon_s": schedule.srb_horizon,
+        "factors": run.scale.summary(),
+        "whole_body_horizon_s": run.schedule.whole_body_horizon,
+        "srb_horizon_s": run.schedule.srb_horizon,
     }
-    if config.gait is not None:
-        block["gait_period_s"] = scaled_gait(config.gait.name, scale).period
-        block["swing_height_m"] = scale.distance(config.gait.swing_height)
+    if run.gait is not None:
+        block["gait_period_s"] = run.gait.cycle.period
+        block["swing_height_m"] = run.gait.swing_height
     return block
 
 
@@ -275,7 +278,7 @@ def run(
             package_logger.addHandler(handler)
             if package_logger.getEffectiveLevel() > logging.INFO:  # restored in ``finally``
                 package_logger.setLevel(logging.INFO)
-    bar = None
+    bars: list = []  # the progress bar, made when the run proper starts
     try:
         logger.info(
             "run %s: robot %s, controller %s, %.2f s",
@@ -288,18 +291,23 @@ def run(
         if show_progress and config.simulation.duration > 1.0 and not config.simulation.realtime:
             from tqdm import tqdm
 
-            bar = tqdm(
-                total=round(config.simulation.duration, 3),
-                unit="sim s",
-                bar_format="{l_bar}{bar}| {n:.2f}/{total:.2f} sim s [{elapsed}<{remaining}]",
-            )
-
-            def progress(dt: float, bar=bar) -> None:
+            def progress(dt: float) -> None:
+                # the bar starts with the run proper, after the set-up's stage lines (never among them)
+                if not bars:
+                    bars.append(
+                        tqdm(
+                            total=round(config.simulation.duration, 3),
+                            unit="sim s",
+                            bar_format="{l_bar}{bar}| {n:.2f}/{total:.2f} sim s [{elapsed}<{remaining}]",
+                        )
+                    )
+                bar = bars[0]
                 # float steps add up past the total by rounding: tqdm warned "clamping frac to range [0, 1]"
                 bar.update(min(dt, max(bar.total - bar.n, 0.0)))
 
-        robot, controller, log = simulate_run(config, progress, viewer=viewer)
-        metrics = run_metrics(config, robot, controller, log)
+        resolved, controller, log = simulate_run(config, progress, viewer=viewer)
+        robot = resolved.robot
+        metrics = run_metrics(resolved, controller, log)
         logger.info(
             "metrics: fell=%s, base height mean %.3f m, vx mean %.3f m/s, real-time factor %.2f",
             metrics["fell"],
@@ -323,7 +331,7 @@ def run(
                     robot,
                     log,
                     partial,
-                    commands=reference_profile(config, robot),
+                    commands=resolved.command_profile,
                     mpc_statistics=mpc_statistics_of(controller),
                     mpc_period=config.mpc.period,
                 )
@@ -345,10 +353,10 @@ def run(
                             task,
                             partial / "task.png",
                             metrics["task"],
-                            1.0 / config.simulation.control_rate_hz,
+                            resolved.control_period,
                         )
                         plot_task_torques(
-                            robot, log, task, partial / "task_torques.png", torque_limits_of(config, robot)
+                            robot, log, task, partial / "task_torques.png", resolved.torque_limits
                         )
             if config.output.render:
                 from cafe_mpc_lab.report.video import RenderUnavailable, render_run
@@ -379,9 +387,8 @@ def run(
                     metrics["render_error"] = str(error)
                     with open(partial / "metrics.json", "w") as handle:
                         json.dump(metrics, handle, indent=2)
-        if bar is not None:
-            bar.close()
-            bar = None
+        if bars:
+            bars.pop().close()
         if handler is not None:
             _release_loggers(package_loggers, previous_levels, handler)
             handler = None
@@ -395,6 +402,6 @@ def run(
             shutil.rmtree(partial, ignore_errors=True)
         raise
     finally:
-        if bar is not None:
-            bar.close()
+        if bars:
+            bars.pop().close()
         _release_loggers(package_loggers, previous_levels, handler)

@@ -37,7 +37,7 @@ import numpy as np
 import pinocchio as pin
 from pydantic import Field
 
-from cafe_mpc.assembly.context import torque_limits_of
+from cafe_mpc.assembly.resolve import resolve
 from cafe_mpc.core.physics import GRAVITY
 from cafe_mpc.ocp.contact_schedule import GaitCycle, get_gait
 from cafe_mpc.robots.robot import Robot
@@ -296,7 +296,7 @@ def gait_summary(result: RunResult) -> dict:
     if len(normal) >= width:
         box = np.ones(width) / width
         smoothed = np.stack([np.convolve(normal[:, j], box, mode="valid") for j in range(normal.shape[1])])
-    limits = torque_limits_of(config, robot)
+    limits = resolve(config, robot).torque_limits
     requested = log.extra.get("torque_requested")
     over = None
     if requested is not None and len(requested):

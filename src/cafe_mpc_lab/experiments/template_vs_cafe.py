@@ -160,12 +160,13 @@ def _video_of(result: RunResult) -> str | None:
 def plot_comparison(results: dict[str, RunResult], labels: dict[str, str], path: Path) -> Path:
     """Roll (integral of the body roll rate), base height and lateral position of each planner's run over the
     reference of the first run (paper Fig. 12); the planned flight shaded, a fall marked with x."""
-    from cafe_mpc.assembly.references import task_reference
+    from cafe_mpc.assembly.references import build_reference
+    from cafe_mpc.assembly.resolve import resolve
     from cafe_mpc_lab.report.task_metrics import reference_trace, task_from_reference
 
     first = next(iter(results.values()))
     robot = first.robot
-    reference = task_reference(first.config.reference, robot)
+    reference = build_reference(resolve(first.config, robot))
     task = task_from_reference(reference)
     end = max(float(r.log.time[-1]) for r in results.values() if r.log.ticks)
     times = np.arange(0.0, end, 0.01)

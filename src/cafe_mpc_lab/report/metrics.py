@@ -9,7 +9,8 @@ import numpy as np
 import pinocchio as pin
 from scipy.spatial.transform import Rotation
 
-from cafe_mpc.config import DEFAULT_FRICTION, VelocityCommand
+from cafe_mpc.config import VelocityCommand
+from cafe_mpc.planners.resolved import ContactModel
 from cafe_mpc.reference.locomotion import CommandProfile
 from cafe_mpc.robots.robot import Robot
 from cafe_mpc_lab.sim.loop import SimulationLog
@@ -185,17 +186,19 @@ def foot_slip_max(feet: np.ndarray, contacts: np.ndarray) -> float:
 
 
 def friction_cone_violations_post_hoc(
-    robot: Robot, log: SimulationLog, stance: np.ndarray, mu: float = DEFAULT_FRICTION
+    robot: Robot, log: SimulationLog, stance: np.ndarray, contact: ContactModel | None = None
 ) -> int:
     """Ticks whose commanded torque implies a stance force outside the friction pyramid.
 
     The forces are those the contact dynamics (34b)-(34c) give for the logged torque with the feet in
-    ``stance`` (N x 4) held (``FrictionConeScorer``), i.e. the VWBC's own check applied to any controller.
-    Ticks without a stance foot are not scored.
+    ``stance`` (N x 4) held (``FrictionConeScorer``), i.e. the VWBC's own check applied to any controller,
+    with the run's contact model (``contact``: friction, Baumgarte rate, tolerance; default the reference
+    robot's). Ticks without a stance foot are not scored.
     """
     from cafe_mpc.low_level.contact_dynamics import FrictionConeScorer
 
-    scorer = FrictionConeScorer(robot, mu=mu)
+    contact = contact or ContactModel()
+    scorer = FrictionConeScorer(robot, contact.friction, contact.baumgarte_alpha, contact.cone_tolerance)
     for tick in range(log.ticks):
         if stance[tick].any() and np.all(np.isfinite(log.torque_command[tick])):
             scorer.score(log.q[tick], log.v[tick], log.torque_command[tick], stance[tick])
@@ -208,21 +211,22 @@ def wbc_metrics(
     controller: str,
     low_level_statistics: dict | None = None,
     planned_stance: np.ndarray | None = None,
-    mu: float = DEFAULT_FRICTION,
+    contact: ContactModel | None = None,
     torque_limits: np.ndarray | None = None,
 ) -> dict:
-    """The low-level controller's block of ``metrics.json`` (issue 6).
+    """The low-level controller's block of ``metrics.json``.
 
-    ``low_level_statistics``: the low-level controller's ``statistics()`` (any ``LowLevelController``).
+    ``low_level_statistics``: the low-level controller's ``statistics()`` (any ``LowLevelController``);
+    ``torque_limits`` and ``contact``: what the run's controller was built with (its resolved run).
 
     * ``torque_limit_violations``: ticks where a commanded torque exceeds its (plan) limit: the controller's
       own count (``torque_limit_violations``, the Riccati controller's unclamped commands over the limit)
       when it keeps one; otherwise counted on the logged command (the VWBC and PD controllers respect the
       limits by construction, so this counts overshoot) against ``torque_limits`` (default: the robot
-      table's plan limits; a run with ``torque_limits: motor`` passes the motor limits).
+      table's plan limits; a run with ``torque_limits: motor`` has the motor limits).
     * ``friction_cone_violations``: the controller's own count (the VWBC's), else scored after the run
-      (``friction_cone_violations_post_hoc``) with the plan's stance (``planned_stance``) or, without a
-      plan (PD), the plant's measured contacts.
+      (``friction_cone_violations_post_hoc``, ``contact``) with the plan's stance (``planned_stance``) or,
+      without a plan (PD), the plant's measured contacts.
     * ``foot_slip_max_m``: ``foot_slip_max`` over the plant's contacts.
     * QP fields (``qp_iterations_histogram``, ``qp_solve_time_ms_median``/``_p99``, ``fallbacks``) from a
       controller that solves QPs (the VWBC); None for the others.
@@ -236,7 +240,7 @@ def wbc_metrics(
         cone = int(statistics["friction_cone_violations"])
     else:
         stance = log.contacts if planned_stance is None else planned_stance
-        cone = friction_cone_violations_post_hoc(robot, log, np.asarray(stance, dtype=bool), mu)
+        cone = friction_cone_violations_post_hoc(robot, log, np.asarray(stance, dtype=bool), contact)
     solves_qps = "qp_iterations_histogram" in statistics
     feet = foot_trajectories(robot, log.q)
 

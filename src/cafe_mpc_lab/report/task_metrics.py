@@ -52,7 +52,7 @@ from dataclasses import dataclass
 import mujoco
 import numpy as np
 
-from cafe_mpc.config import DEFAULT_FRICTION
+from cafe_mpc.planners.resolved import ContactModel
 from cafe_mpc.reference.base import Reference, ReferenceWindow
 from cafe_mpc.reference.composition import ComposedReference
 from cafe_mpc.reference.trajectory import TrajectoryReference
@@ -323,7 +323,7 @@ def _roll_violations(
     roll: np.ndarray,
     requested: np.ndarray | None,
     planned_stance: np.ndarray | None,
-    mu: float,
+    contact: ContactModel | None,
     limits: np.ndarray | None,
 ) -> tuple[int, int | None, dict | None]:
     """Over the ticks ``roll``: ticks above the motor limits, requests above the enforced limits (``None``
@@ -341,7 +341,7 @@ def _roll_violations(
     if log.ticks and roll.any():
         stance = log.contacts if planned_stance is None else np.asarray(planned_stance, dtype=bool)
         ticks = np.flatnonzero(roll)
-        cone = friction_cone_violations_post_hoc(robot, _rows(log, ticks), stance[ticks], mu)
+        cone = friction_cone_violations_post_hoc(robot, _rows(log, ticks), stance[ticks], contact)
     return motor_violations, request_violations, cone
 
 
@@ -410,14 +410,15 @@ def task_metrics(
     control_period: float,
     requested: np.ndarray | None = None,
     planned_stance: np.ndarray | None = None,
-    mu: float = DEFAULT_FRICTION,
+    contact: ContactModel | None = None,
     limits: np.ndarray | None = None,
     bar: Bar | None = None,
 ) -> dict:
     """The ``task`` block of ``metrics.json`` (see the module docstring). ``requested``: the low-level
     controller's torques before clamping (ticks, nu), ``planned_stance``: the plan knot's stance per tick,
-    ``limits``: the torque limits the controller enforces (default: the robot table's plan limits); ``bar``:
-    the scene's bar (its contacts are the log's ``extra["bar_contact"]``)."""
+    ``limits``: the torque limits the controller enforces (default: the robot table's plan limits);
+    ``contact``: the contact model the controller assumed (the friction-cone score; default the reference
+    robot's); ``bar``: the scene's bar (its contacts are the log's ``extra["bar_contact"]``)."""
     times = log.time
     roll_turned = float(np.sum(log.v[:, 3]) * control_period) if log.ticks else 0.0
     clearance = body_floor_clearance(robot, log.q) if log.ticks else {}
@@ -430,7 +431,7 @@ def task_metrics(
     unjudged = _unjudged_landing(log, task, landing, end_of_run)
     roll = (times >= task.start - 1e-9) & (times <= task.end + 1e-9)
     motor_violations, request_violations, cone = _roll_violations(
-        robot, log, roll, requested, planned_stance, mu, limits
+        robot, log, roll, requested, planned_stance, contact, limits
     )
     roll_ok = roll_turned >= task.roll_target - ROLL_TOLERANCE_RAD
     if not roll_ok and not log.fell and end_of_run < task.end - 1e-9:

@@ -1,7 +1,7 @@
 """A run config -> the plant its closed loop runs against, and what the loop does to it.
 
-``build_plant(config, robot)`` builds the plant of ``plant.kind`` (``PLANTS``) with its scene (terrain, the
-bar), its variation (``sim.randomization``), its sensors (what the controller reads: the state through
+``build_plant(run)`` builds the plant of a resolved run's ``plant.kind`` (``PLANTS``) with its scene (terrain,
+the bar), its variation (``sim.randomization``), its sensors (what the controller reads: the state through
 ``plant.sensor_noise`` and the latency jitter, or the robot's sensor readings when an estimator runs,
 ``sim.sensors``) and its height-map sensor (``plant.height_map``, ``sim.height_map``), and the
 ``SimulationOptions`` of the config: duration, control rate, the start state, pushes, fall criteria (from the
@@ -17,8 +17,8 @@ import functools
 from collections.abc import Callable
 from dataclasses import dataclass
 
-from cafe_mpc.assembly.scaling import run_scale
 from cafe_mpc.config import RunConfig
+from cafe_mpc.planners.resolved import ResolvedRun
 from cafe_mpc.robots.robot import Robot
 from cafe_mpc_lab.sim.gym_plant import GymQuadrupedPlant
 from cafe_mpc_lab.sim.loop import FallCriteria, Push, SimulationOptions, WallClockPacer
@@ -56,11 +56,12 @@ def plant_sensors(config: RunConfig, robot: Robot) -> PlantSensors:
     return sensor_model(config.plant, rate)
 
 
-def simulation_options(config: RunConfig, robot: Robot) -> SimulationOptions:
-    """The config's ``simulation`` and ``pushes``: duration, rate, the start state (standing,
-    ``initial_height_offset`` higher), pushes (their forces in N for this robot), fall criteria (scaled to
-    the robot; the base's height above the terrain under it, gaps bridged) and, for ``simulation.realtime``,
-    the wall-clock pacer."""
+def simulation_options(run: ResolvedRun) -> SimulationOptions:
+    """The run's ``simulation`` and ``pushes``: duration, rate, the start state (standing,
+    ``initial_height_offset`` higher), pushes (their forces in N for this robot), fall criteria (the fall
+    height scaled to the robot, measured from the terrain under the base, gaps bridged) and, for
+    ``simulation.realtime``, the wall-clock pacer."""
+    config, robot = run.config, run.robot
     simulation = config.simulation
     terrain = scene_of(config.scene).terrain
     q0 = robot.q_standing.copy()
@@ -71,7 +72,7 @@ def simulation_options(config: RunConfig, robot: Robot) -> SimulationOptions:
         initial_q=q0,
         pushes=tuple(Push(p.start, p.duration, p.force_on(robot.total_mass)) for p in config.pushes),
         fall=FallCriteria(
-            run_scale(config, robot).distance(simulation.fall.min_base_height),
+            run.scale.distance(simulation.fall.min_base_height),
             simulation.fall.max_tilt_rad,
             functools.partial(support_height, terrain) if terrain else None,
         ),
@@ -89,7 +90,9 @@ class PlantSetup:
     options: SimulationOptions
 
 
-def build_plant(config: RunConfig, robot: Robot) -> PlantSetup:
-    """The plant of ``config`` for ``robot`` and the options to simulate it with (module docstring)."""
+def build_plant(run: ResolvedRun) -> PlantSetup:
+    """The plant of a resolved run (its config's, for its robot) and the options to simulate it with (module
+    docstring)."""
+    config, robot = run.config, run.robot
     plant = plant_factory(config.plant.kind)(config, robot, plant_sensors(config, robot))
-    return PlantSetup(plant, scene_of(config.scene), simulation_options(config, robot))
+    return PlantSetup(plant, scene_of(config.scene), simulation_options(run))

@@ -24,7 +24,11 @@ What is mapped (``GymQuadrupedPlant``), and the environment's traps avoided:
   takes one physics step);
 * creating an environment writes ``<robot>-<scene>.xml`` into gym-quadruped's package folder and reads it
   back: parallel workers on one robot would read each other's half-written files, so construction holds an
-  exclusive file lock (``fcntl``) in the temporary folder.
+  exclusive file lock (``fcntl``) in the temporary folder;
+* the robot's sensors (for a state estimator, ``estimator: kinematic_kf``, the default): the environment's
+  model carries none of ours, so ``sim.sensors.StateSensors`` computes them from its state (IMU from the
+  trunk's rate and acceleration, encoders from the joints with the offsets removed, torques from the applied
+  command); ``after_step`` lets the IMU average over the physics steps as in our plant.
 
 Not supported here (the run config says so before anything runs): terrain, the bar and plant variations other
 than the floor friction (the environment's model is not ours to change). The floor friction is passed as
@@ -44,6 +48,7 @@ import io
 import os
 import tempfile
 import warnings
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import mujoco
@@ -54,7 +59,6 @@ from cafe_mpc.core.free_joint import planning_state
 from cafe_mpc.core.measurement import Measurement
 from cafe_mpc.robots.robot import Robot
 from cafe_mpc_lab.sim.plant import Plant, PlantSensors, checked_timestep
-from cafe_mpc_lab.sim.sensors import SensorSuite
 
 GYM_SCENES = ("flat", "perlin", "random_boxes", "random_pyramids", "stairs", "ramp", "slippery")
 """gym-quadruped's scene names (``QuadrupedEnv(scene=...)``)."""
@@ -125,8 +129,8 @@ class GymQuadrupedPlant(Plant):
 
     ``timestep``: the physics step (None: the robot file's); ``floor_friction``: the environment's
     ``ground_friction_coeff`` (None: the robot file's); ``scene``: gym-quadruped's scene (``GYM_SCENES``);
-    ``sensors``: what the controller reads of the state (the robot's own sensors, ``sim.sensors.SensorSuite``,
-    are our plant's only).
+    ``sensors``: what the controller reads (the true state unless given; the robot's sensors,
+    ``sim.sensors.SensorSuite``, computed from the environment's state: ``sim.sensors.StateSensors``).
     """
 
     kind = "gym-quadruped"
@@ -139,11 +143,6 @@ class GymQuadrupedPlant(Plant):
         scene: str = "flat",
         sensors: PlantSensors | None = None,
     ) -> None:
-        if isinstance(sensors, SensorSuite):
-            raise GymQuadrupedUnavailable(
-                "gym-quadruped's model carries none of the robot's IMU and joint sensors (sim.sensors): its "
-                "controller reads the state (estimator=ground_truth)"
-            )
         super().__init__(robot, sensors)
         timestep = checked_timestep(robot.plant.timestep if timestep is None else timestep)
         friction = robot.plant.floor_friction if floor_friction is None else float(floor_friction)
@@ -178,6 +177,8 @@ class GymQuadrupedPlant(Plant):
         self._ctrl = np.zeros(model.nu)
         self.termination: dict = {}
         """The environment's invalid contacts at its first termination (body pairs)."""
+        self.after_step: Callable[[mujoco.MjData], None] | None = None
+        """Called after every physics step (``sim.sensors.SensorSuite`` averages the IMU over the steps)."""
 
     @classmethod
     def from_config(
@@ -280,6 +281,8 @@ class GymQuadrupedPlant(Plant):
         self._ctrl[self.actuator_index] = np.asarray(torques, dtype=float) / self.gear
         for _ in range(n_steps):
             _, _, terminated, _, info = self.env.step(self._ctrl)
+            if self.after_step is not None:
+                self.after_step(self.data)
             if terminated and not self.trunk_touched_floor:
                 self.trunk_touched_floor = True
                 self.termination = {

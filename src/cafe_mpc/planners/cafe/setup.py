@@ -1,25 +1,26 @@
-"""The CAFE problem of a run config (paper Sec. IV-D): model schedule, weights scaled to the robot, knot
-factories, limits.
+"""The CAFE problem of a run (paper Sec. IV-D): model schedule, weights scaled to the robot, knot factories,
+limits.
 
-``build_problem(run)`` turns the ``mpc`` and ``costs`` sections into a ``CafeProblemBuilder``: the whole-body
+``build_problem(run)`` turns a resolved run (``planners.resolved.ResolvedRun``: its scaled model schedule,
+torque limits and contact model) and its ``costs`` section into a ``CafeProblemBuilder``: the whole-body
 knots (Eq. (18) costs at ``dt_w``, friction pyramid, torque limits and minimum base height as relaxed
 barriers) over the first ``Tw`` seconds, the SRB tail (Eq. (28), the robot's own mass and inertia:
 ``dynamics.srb.srb_parameters``) over the next ``Ts``, every tuned value scaled to the robot
-(``robots.scaling``: ``scaled_schedule``, ``scaled_weights``, ``scaled_srb_weights``). A composed
+(``robots.scaling``: ``scaled_weights``, ``scaled_srb_weights``, the minimum base height). A composed
 reference's stored trajectories ask for a second weight set (``task_weight_sets``: the ``reference.costs``
-section, knots of ``TRAJECTORY_WEIGHT_SET``).
+section, knots of ``TRAJECTORY_WEIGHT_SET``). ``model_schedule`` and ``scaled_schedule`` are what the
+assembly resolves the run's schedule with.
 """
 
 from __future__ import annotations
 
-from cafe_mpc.config import ConfigError, MpcConfig, RunConfig
+from cafe_mpc.config import ConfigError, MpcConfig
 from cafe_mpc.config.weights import SRBWeights, WholeBodyWeights
 from cafe_mpc.dynamics.srb import srb_parameters
 from cafe_mpc.ocp.constraints import BarrierParameters, WholeBodyConstraintSettings
 from cafe_mpc.ocp.knots import SRBModelFactory, SRBSettings, WholeBodyModelFactory, WholeBodySettings
-from cafe_mpc.planners.base import RunContext
 from cafe_mpc.planners.cafe.problem import CafeProblemBuilder, ModelSchedule
-from cafe_mpc.robots.robot import Robot
+from cafe_mpc.planners.resolved import ResolvedRun
 from cafe_mpc.robots.scaling import RobotScale
 
 TRAJECTORY_WEIGHT_SET = "barrel_roll"
@@ -32,13 +33,13 @@ def minimum_base_height(scale: RobotScale) -> float | None:
     return None if default is None else scale.distance(default)
 
 
-def plan_constraints(run: RunContext) -> WholeBodyConstraintSettings:
-    """The whole-body plan's constraints: the friction pyramid (26) at ``mpc.friction``, the run's torque
-    limits (27a) times ``mpc.plan_torque_fraction`` under a barrier of weight ``mpc.torque_barrier_eps``, the
-    minimum base height scaled to the robot."""
+def plan_constraints(run: ResolvedRun) -> WholeBodyConstraintSettings:
+    """The whole-body plan's constraints: the friction pyramid (26) at the run's friction (``mpc.friction``),
+    the run's torque limits (27a) times ``mpc.plan_torque_fraction`` under a barrier of weight
+    ``mpc.torque_barrier_eps``, the minimum base height scaled to the robot."""
     mpc = run.config.mpc
     return WholeBodyConstraintSettings(
-        friction_coefficient=mpc.friction,
+        friction_coefficient=run.contact.friction,
         torque_limit_values=tuple(float(limit) for limit in run.torque_limits * mpc.plan_torque_fraction),
         torque_barrier=BarrierParameters(1.0, mpc.torque_barrier_eps),
         minimum_base_height=minimum_base_height(run.scale),
@@ -56,18 +57,9 @@ def model_schedule(section: MpcConfig) -> ModelSchedule:
     )
 
 
-def run_schedule(config: RunConfig, scale: RobotScale) -> ModelSchedule:
-    """The run's model schedule (Tw, Ts, dt_w, dt_s) with its horizons scaled to the robot (``scale``)."""
-    try:
-        return scaled_schedule(model_schedule(config.mpc), scale)
-    except ValueError as error:
-        raise ConfigError(f"mpc: {error}") from error
-
-
-def build_problem(run: RunContext) -> CafeProblemBuilder:
+def build_problem(run: ResolvedRun) -> CafeProblemBuilder:
     """The CAFE problem builder of a run (see the module docstring)."""
-    config, robot, scale = run.config, run.robot, run.scale
-    schedule = run_schedule(config, scale)
+    config, scale = run.config, run.scale
     try:
         running = scaled_weights(config.costs.running, scale)
         terminal = scaled_weights(config.costs.terminal, scale)
@@ -76,27 +68,24 @@ def build_problem(run: RunContext) -> CafeProblemBuilder:
     except ValueError as error:
         raise ConfigError(f"costs: {error}") from error
     constraints = plan_constraints(run)
-    whole_body, srb = _knot_factories(
-        robot, scale, schedule, (running, terminal), (srb_running, srb_terminal), constraints
-    )
-    return CafeProblemBuilder(whole_body, srb, schedule, weights=task_weight_sets(run, schedule))
+    whole_body, srb = _knot_factories(run, (running, terminal), (srb_running, srb_terminal), constraints)
+    return CafeProblemBuilder(whole_body, srb, run.schedule, weights=task_weight_sets(run))
 
 
 def _knot_factories(
-    robot: Robot,
-    scale: RobotScale,
-    schedule: ModelSchedule,
+    run: ResolvedRun,
     weights: tuple[WholeBodyWeights, WholeBodyWeights],
     srb_weights: tuple[SRBWeights, SRBWeights],
     constraints: WholeBodyConstraintSettings,
     base_error: str = "tangent",
 ) -> tuple[WholeBodyModelFactory, SRBModelFactory]:
-    """The whole-body and SRB knot factories of one weight set (running, terminal weights of each)."""
+    """The whole-body and SRB knot factories of one weight set (running, terminal weights of each) at the
+    run's time steps and contact model."""
     whole_body = WholeBodyModelFactory(
-        robot,
+        run.robot,
         WholeBodySettings(
-            dt=schedule.whole_body_dt,
-            baumgarte_alpha=scale.rate(WholeBodySettings().baumgarte_alpha),
+            dt=run.schedule.whole_body_dt,
+            baumgarte_alpha=run.contact.baumgarte_alpha,
             running_weights=weights[0],
             terminal_weights=weights[1],
             constraints=constraints,
@@ -105,8 +94,8 @@ def _knot_factories(
     )
     srb = SRBModelFactory(
         SRBSettings(
-            dt=schedule.srb_dt,
-            parameters=srb_parameters(robot),
+            dt=run.schedule.srb_dt,
+            parameters=srb_parameters(run.robot),
             running_weights=srb_weights[0],
             terminal_weights=srb_weights[1],
         )
@@ -114,13 +103,11 @@ def _knot_factories(
     return whole_body, srb
 
 
-def task_weight_sets(
-    run: RunContext, schedule: ModelSchedule
-) -> dict[str, tuple[WholeBodyModelFactory, SRBModelFactory]]:
+def task_weight_sets(run: ResolvedRun) -> dict[str, tuple[WholeBodyModelFactory, SRBModelFactory]]:
     """The ``barrel_roll`` weight set's knot factories: the section's weights and base error, the regular
     constraints (minimum base height 0.20 m, ...) with the run's torque limits; the SRB tail with the same
     base weights (Eq. (28))."""
-    config, robot, scale = run.config, run.robot, run.scale
+    config, scale = run.config, run.scale
     section = config.reference
     if section is None:
         return {}
@@ -133,13 +120,7 @@ def task_weight_sets(
     except ValueError as error:
         raise ConfigError(f"reference: {error}") from error
     whole_body, srb = _knot_factories(
-        robot,
-        scale,
-        schedule,
-        (running, terminal),
-        (srb_running, srb_terminal),
-        constraints,
-        section.base_error,
+        run, (running, terminal), (srb_running, srb_terminal), constraints, section.base_error
     )
     return {TRAJECTORY_WEIGHT_SET: (whole_body, srb)}
 

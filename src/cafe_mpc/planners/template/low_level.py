@@ -18,31 +18,18 @@ torque before clamping.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import numpy as np
 import pinocchio as pin
 
+from cafe_mpc.config import TemplateSettings
 from cafe_mpc.core.controller import LowLevelController
 from cafe_mpc.core.measurement import Measurement
 from cafe_mpc.dynamics.leg_inverse_kinematics import LegInverseKinematics
 from cafe_mpc.planners.template.plan import TemplatePlan
 from cafe_mpc.robots.robot import Robot
+from cafe_mpc.robots.scaling import IDENTITY, RobotScale
 
 LWA = pin.ReferenceFrame.LOCAL_WORLD_ALIGNED
-
-
-@dataclass(frozen=True)
-class TemplateLowLevelSettings:
-    """Swing-leg joint PD gains (Nm/rad, Nm s/rad) and whether the legs' weight is compensated."""
-
-    swing_kp: float = 40.0
-    swing_kd: float = 1.0
-    leg_gravity: bool = True
-
-    def __post_init__(self) -> None:
-        if self.swing_kp < 0 or self.swing_kd < 0:
-            raise ValueError(f"swing gains must be non-negative, got kp={self.swing_kp}, kd={self.swing_kd}")
 
 
 def leg_joint_indices(robot: Robot) -> list[np.ndarray]:
@@ -84,18 +71,24 @@ def stance_torques(
 
 
 class TemplateLowLevelController(LowLevelController[TemplatePlan]):
-    """Stance legs ``J' F`` from the planned GRFs, swing legs joint PD on the Bezier swings (module
-    docstring). Needs a ``TemplatePlan``. ``torque_limits``: the clamp (default the robot's plan limits; a run
-    with ``torque_limits: motor`` passes the motor limits, as to the planner)."""
+    """Stance legs ``J' F`` from the planned GRFs (with the legs' own weight), swing legs joint PD on the
+    Bezier swings (module docstring). Needs a ``TemplatePlan``. ``settings``: the ``template`` section, whose
+    swing gains (the reference robot's) ``scale`` carries to the robot (``robots.scaling``: the torque scale,
+    times the time scale for the damping). ``torque_limits``: the clamp (default the robot's plan limits; a
+    run with ``torque_limits: motor`` passes the motor limits, as to the planner)."""
 
     def __init__(
         self,
         robot: Robot,
-        settings: TemplateLowLevelSettings | None = None,
+        settings: TemplateSettings | None = None,
+        scale: RobotScale = IDENTITY,
         torque_limits: np.ndarray | None = None,
     ) -> None:
         self.robot = robot
-        self.settings = settings or TemplateLowLevelSettings()
+        self.settings = settings or TemplateSettings()
+        self.swing_kp = scale.stiffness(self.settings.swing_kp)
+        self.swing_kd = scale.damping(self.settings.swing_kd)
+        """Swing-leg joint PD gains (Nm/rad, Nm s/rad) of this robot."""
         self.model = robot.model
         self.data = robot.model.createData()
         self.limits = np.asarray(robot.torque_limits if torque_limits is None else torque_limits, dtype=float)
@@ -136,9 +129,7 @@ class TemplateLowLevelController(LowLevelController[TemplatePlan]):
         stance = plan.contacts[k]
         if stance.any():
             self.planned_force_max = max(self.planned_force_max, float(np.max(plan.forces[k, stance, 2])))
-        torques = stance_torques(
-            robot, q, plan.forces[k], stance, self.settings.leg_gravity, model_data=self.data
-        )
+        torques = stance_torques(robot, q, plan.forces[k], stance, model_data=self.data)
         if not np.all(stance):
             plan.feet_at(t, self._positions[0], self._velocities[0])
             self._base[0] = q[:7]
@@ -151,7 +142,7 @@ class TemplateLowLevelController(LowLevelController[TemplatePlan]):
                 self._velocities,
                 out=self._ik_out,
             )
-            kp, kd = self.settings.swing_kp, self.settings.swing_kd
+            kp, kd = self.swing_kp, self.swing_kd
             for foot, leg in enumerate(self.legs):
                 if stance[foot]:
                     continue

@@ -55,13 +55,13 @@ from __future__ import annotations
 import bisect
 import logging
 import math
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, replace
 
 import numpy as np
 import pinocchio as pin
 from numba import njit
 
-from cafe_mpc.config import DEFAULT_FRICTION
+from cafe_mpc.config import DEFAULT_FRICTION, TemplateSettings
 from cafe_mpc.config.weights import SRBWeights
 from cafe_mpc.core.interfaces import MultiPhaseProblem, Phase
 from cafe_mpc.core.physics import GRAVITY
@@ -281,51 +281,11 @@ def terminal_weights(running: SRBWeights | None = None) -> SRBWeights:
     )
 
 
-@dataclass(frozen=True)
-class TemplateSettings:
-    """The template MPC's horizon, knot spacing, SRB model, weights and GRF constraints (module docstring).
+FRICTION_BARRIER = BarrierParameters(0.1, 0.01)
+"""Relaxed barrier of the GRF pyramid rows (the authors' HKD-MPC ReB: delta 0.1, eps 0.01)."""
 
-    ``horizon``/``dt``: planned time and nominal knot spacing (s). ``parameters``: SRB mass and inertia
-    (``template_srb(robot)`` in a run). ``running_weights``/``terminal_weights``: the SRB cost (28).
-    ``friction_coefficient``, ``friction_barrier``: the GRF pyramid (the authors' HKD-MPC ReB delta 0.1,
-    eps 0.01). ``leg_torque_limits``: also bound the leg torques ``-J' f`` of the stance legs
-    (``torque_limits``, default the robot's, with ``torque_barrier``: the whole-body knots' delta 1,
-    eps 0.01). ``centroidal_state``: start each update from the measured centroidal state
-    (``TemplateProblemBuilder.initial_state``). ``vertical_reference``: add the height and vertical speed
-    the gait's GRF references imply to the SRB reference (``VerticalOscillation``). ``predict_latency``: plan
-    from the state predicted at the time the plan will take effect (``TemplateMpc.predict_start``).
-    """
-
-    horizon: float = 0.5
-    dt: float = 0.01
-    parameters: SRBParameters = field(default_factory=SRBParameters)
-    running_weights: SRBWeights = field(default_factory=template_running_weights)
-    terminal_weights: SRBWeights = field(default_factory=terminal_weights)
-    centroidal_state: bool = True
-    vertical_reference: bool = True
-    predict_latency: bool = True
-    friction_coefficient: float = DEFAULT_FRICTION
-    friction_barrier: BarrierParameters = field(default_factory=lambda: BarrierParameters(0.1, 0.01))
-    leg_torque_limits: bool = True
-    torque_limits: tuple[float, ...] | None = None
-    torque_barrier: BarrierParameters = field(default_factory=lambda: BarrierParameters(1.0, 0.01))
-
-    def __post_init__(self) -> None:
-        if not (math.isfinite(self.dt) and self.dt >= TIME_QUANTUM - 1e-12):
-            raise ValueError(f"template dt must be at least {TIME_QUANTUM} s, got {self.dt}")
-        if abs(self.dt / TIME_QUANTUM - round(self.dt / TIME_QUANTUM)) > 1e-6:
-            raise ValueError(f"template dt must be a whole number of milliseconds, got {self.dt}")
-        if not (math.isfinite(self.horizon) and self.horizon >= 2 * self.dt - 1e-12):
-            raise ValueError(
-                f"template horizon must be at least two knots ({2 * self.dt} s), got {self.horizon}"
-            )
-        if not self.friction_coefficient > 0:
-            raise ValueError(f"friction coefficient must be positive, got {self.friction_coefficient}")
-
-    @property
-    def knots(self) -> int:
-        """Running knots per problem."""
-        return max(2, round(self.horizon / self.dt))
+TORQUE_BARRIER = BarrierParameters(1.0, 0.01)
+"""Relaxed barrier of the stance legs' torque rows ``-J' f`` (the whole-body knots' delta 1, eps 0.01)."""
 
 
 def template_srb(robot: Robot) -> tuple[SRBParameters, np.ndarray]:
@@ -425,29 +385,39 @@ class TemplateProblemBuilder:
     """
 
     def __init__(
-        self, robot: Robot, settings: TemplateSettings | None = None, com_offset: np.ndarray | None = None
+        self,
+        robot: Robot,
+        settings: TemplateSettings | None = None,
+        friction: float = DEFAULT_FRICTION,
+        torque_limits: np.ndarray | None = None,
     ) -> None:
         self.robot = robot
         self.settings = settings or TemplateSettings()
-        self.com_offset = np.zeros(3) if com_offset is None else np.asarray(com_offset, dtype=float).copy()
-        """Centre of mass in the base frame: the SRB's position ``c`` is the CoM (``template_srb``)."""
-        self.weight = self.settings.parameters.mass * self.settings.parameters.gravity
+        if not friction > 0:
+            raise ValueError(f"friction coefficient must be positive, got {friction}")
+        self.friction = float(friction)
+        """Friction coefficient of the GRF pyramid (a run's ``ContactModel.friction``)."""
+        self.parameters, self.com_offset = template_srb(robot)
+        """The SRB's mass and inertia, and its position: the centre of mass in the base frame."""
+        self.running_weights = template_running_weights()
+        self.weight = self.parameters.mass * self.parameters.gravity
         n = self.settings.knots
         # the grid's n + 1 times and up to one split per knot interval at the contact switches
         self.window = ReferenceWindow(2 * n + 1, robot.nq, robot.nv, robot.nu, robot.n_feet)
         self._dynamics: dict[int, SRBDynamics] = {}
         self._running: dict[tuple[int, int], ConstrainedSRBKnot] = {}
-        limits = self.settings.torque_limits
-        self.torque_limits = np.asarray(robot.torque_limits if limits is None else limits, dtype=float)
+        limits = robot.torque_limits if torque_limits is None else torque_limits
+        self.torque_limits = np.asarray(limits, dtype=float)
+        """The leg torque bound of the stance legs' ``-J' f`` (``settings.leg_torque_limits``)."""
         if self.torque_limits.shape != (robot.nu,) or np.any(self.torque_limits <= 0):
             raise ValueError(f"template torque limits need {robot.nu} positive values")
         self.inverse_kinematics = LegInverseKinematics(robot)
         self._data = robot.model.createData()
         self._oscillations: dict[str, VerticalOscillation] = {}
-        self._inertia_inverse = np.linalg.inv(np.asarray(self.settings.parameters.inertia, dtype=float))
+        self._inertia_inverse = np.linalg.inv(np.asarray(self.parameters.inertia, dtype=float))
         self._terminal = SRBKnot(
             None,
-            self.settings.terminal_weights,
+            terminal_weights(self.running_weights),
             SRBReference(SRBState().zero(), np.zeros((robot.n_feet, 3)), (True,) * robot.n_feet, self.weight),
         )
 
@@ -463,7 +433,7 @@ class TemplateProblemBuilder:
         """The SRB dynamics (29), (30) over ``milliseconds`` (one object per duration, shared by knots)."""
         dynamics = self._dynamics.get(milliseconds)
         if dynamics is None:
-            dynamics = SRBDynamics(self.settings.parameters, milliseconds * TIME_QUANTUM)
+            dynamics = SRBDynamics(self.parameters, milliseconds * TIME_QUANTUM)
             self._dynamics[milliseconds] = dynamics
         return dynamics
 
@@ -475,12 +445,12 @@ class TemplateProblemBuilder:
             feet = self.robot.n_feet
             knot = ConstrainedSRBKnot(
                 dynamics,
-                self.settings.running_weights,
+                self.running_weights,
                 SRBReference(SRBState().zero(), np.zeros((feet, 3)), (True,) * feet, self.weight),
-                self.settings.friction_coefficient,
-                self.settings.friction_barrier,
+                self.friction,
+                FRICTION_BARRIER,
                 self.torque_limits,
-                self.settings.torque_barrier,
+                TORQUE_BARRIER,
             )
             self._running[key] = knot
         return knot
@@ -567,7 +537,7 @@ class TemplateProblemBuilder:
             return
         oscillation = self._oscillations.get(gait.name)
         if oscillation is None:
-            oscillation = VerticalOscillation(gait, self.settings.parameters.gravity)
+            oscillation = VerticalOscillation(gait, self.parameters.gravity)
             self._oscillations[gait.name] = oscillation
         start = float(getattr(reference, "cycle_start", 0.0))
         for k, t in enumerate(times):

@@ -1,0 +1,154 @@
+"""A run config resolved once against its robot: ``resolve(config, robot) -> ResolvedRun``
+(``planners.resolved``), before anything is built.
+
+Every value a run derives from its config, and that more than one builder or the run's metrics read, is
+computed here and nowhere else:
+
+* the robot's scale (``run_scale``: ``scaling: robot`` reads the config's tuned values as the reference
+  robot's, ``robots.scaling``; the identity with ``scaling: none``);
+* the model schedule of the ``mpc`` section (Table I or an explicit split) with its horizons scaled
+  (``planners.cafe.setup.scaled_schedule``);
+* the torque limits the plan and the low level respect (``torque_limits_of``: the robot table's or the
+  motors');
+* the contact models: the friction the plan assumes (``mpc.friction``) and the VWBC's (``vwbc.friction``,
+  else the plan's), with the Baumgarte rate and the cone tolerance of the reference robot scaled to the
+  run's;
+* the contact detector's thresholds (``vwbc.contact_detection``): heights by the length scale, the early
+  window and the on-time margin by the time scale (``scaled_contact_detection``), for the VWBC's detector
+  and the reference's touchdown events;
+* the ground the controller assumes (``terrain``): flat, or the plane through the feet's latest contact
+  points (``ground_plane``) for the reference, the contact detector, the VWBC and the estimator;
+* the gaits (``gait`` and the gait segments of ``reference``): phase durations, swing height, Raibert gain,
+  foothold box, path gain and touchdown-event threshold scaled (``resolve_gait``);
+* what the run commands over time (``assembly.references.reference_profile``) and the control period.
+
+The builders then carry their own tuned values with ``run.scale``: the CAFE problem's cost weights, SRB force
+weight and minimum base height (``planners.cafe.setup``), the PD and template swing gains (their
+controllers), the fall height (the lab's plant).
+"""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+
+from cafe_mpc.assembly.references import reference_profile
+from cafe_mpc.config import (
+    BAUMGARTE_ALPHA,
+    CONE_TOLERANCE,
+    ConfigError,
+    ContactDetectionSettings,
+    GaitConfig,
+    RunConfig,
+)
+from cafe_mpc.ocp.contact_schedule import GaitCycle, get_gait
+from cafe_mpc.planners.cafe.setup import model_schedule, scaled_schedule
+from cafe_mpc.planners.resolved import ContactModel, ResolvedGait, ResolvedRun
+from cafe_mpc.reference.locomotion import FOOTHOLD_BOX
+from cafe_mpc.robots.robot import Robot
+from cafe_mpc.robots.scaling import IDENTITY, RobotScale, robot_scale
+
+
+def resolve(config: RunConfig, robot: Robot) -> ResolvedRun:
+    """The ``ResolvedRun`` of ``config`` driving ``robot`` (module docstring); ``ConfigError`` naming the
+    section of a value that does not resolve."""
+    scale = run_scale(config, robot)
+    try:
+        schedule = scaled_schedule(model_schedule(config.mpc), scale)
+    except ValueError as error:
+        raise ConfigError(f"mpc: {error}") from error
+    segments = config.reference.segments if config.reference is not None else []
+    gait = _gait(config.gait, scale, "gait")
+    segment_gaits = tuple(
+        _gait(segment.gait, scale, f"reference.segments.{index}.gait")
+        for index, segment in enumerate(segments)
+    )
+    contact = ContactModel(
+        friction=config.mpc.friction,
+        baumgarte_alpha=scale.rate(BAUMGARTE_ALPHA),
+        cone_tolerance=scale.force(CONE_TOLERANCE),
+    )
+    vwbc_friction = config.vwbc.friction
+    return ResolvedRun(
+        config=config,
+        robot=robot,
+        scale=scale,
+        schedule=schedule,
+        torque_limits=torque_limits_of(config, robot),
+        contact=contact,
+        vwbc_contact=contact if vwbc_friction is None else replace(contact, friction=vwbc_friction),
+        contact_detection=scaled_contact_detection(config.vwbc.contact_detection, scale),
+        ground_plane=config.terrain != "flat",
+        gait=gait,
+        segment_gaits=segment_gaits,
+        command_profile=reference_profile(config, robot),
+        control_period=1.0 / config.simulation.control_rate_hz,
+    )
+
+
+def run_scale(config: RunConfig, robot: Robot) -> RobotScale:
+    """The robot's scale, or the identity with ``scaling: none``."""
+    return robot_scale(robot) if config.scaling == "robot" else IDENTITY
+
+
+def torque_limits_of(config: RunConfig, robot: Robot) -> np.ndarray:
+    """The torque limits the plan and the low-level controller respect (``config.torque_limits``; a
+    read-only array)."""
+    if config.torque_limits == "motor":
+        limits = np.array(robot.plant.motor_torque_limits, dtype=float)
+    else:
+        limits = np.array(robot.torque_limits, dtype=float)
+    limits.setflags(write=False)
+    return limits
+
+
+def scaled_contact_detection(
+    settings: ContactDetectionSettings, scale: RobotScale
+) -> ContactDetectionSettings:
+    """The contact detector's thresholds carried to the robot: touchdown and release heights by the length
+    scale, the early window and the on-time margin by the time scale; the forces are already shares of the
+    robot's weight and the ground's height is the scene's."""
+    if scale.is_identity:
+        return settings
+    return settings.model_copy(
+        update={
+            "touchdown_height": scale.distance(settings.touchdown_height),
+            "release_height": scale.distance(settings.release_height),
+            "early_window": scale.duration(settings.early_window),
+            "on_time": scale.duration(settings.on_time),
+        }
+    )
+
+
+def resolve_gait(section: GaitConfig, scale: RobotScale) -> ResolvedGait:
+    """A gait section carried to the robot: its cycle's phase durations, the reference's Raibert gain and the
+    touchdown-event threshold by the time scale, the swing height and foothold box by the length scale, the
+    path gain (rad/m) by its inverse."""
+    events = section.touchdown_events
+    return ResolvedGait(
+        section=section,
+        cycle=scaled_gait(section.name, scale),
+        swing_height=scale.distance(section.swing_height),
+        raibert_gain=scale.duration(section.raibert_gain),
+        foothold_box=(scale.distance(FOOTHOLD_BOX[0]), scale.distance(FOOTHOLD_BOX[1])),
+        path_gain=section.path_gain / scale.distance(1.0),
+        touchdown_events=None if events is None else scale.duration(events),
+    )
+
+
+def _gait(section: GaitConfig | None, scale: RobotScale, key: str) -> ResolvedGait | None:
+    if section is None:
+        return None
+    try:
+        return resolve_gait(section, scale)
+    except ValueError as error:
+        raise ConfigError(f"{key}: {error}") from error
+
+
+def scaled_gait(name: str, scale: RobotScale) -> GaitCycle:
+    """The library gait with every phase duration times the Froude time scale."""
+    gait = get_gait(name)
+    if scale.time == 1.0:
+        return gait
+    return GaitCycle(gait.name, tuple((flags, duration * scale.time) for flags, duration in gait.cycle))
