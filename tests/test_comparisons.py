@@ -185,11 +185,13 @@ def test_experiment_help_and_list_show_the_registry(capsys):
         "push",
         "warm-start",
         "reliability",
+        "envelope",
         "template-vs-cafe",
         "template-gaits",
         "latency",
         "robots",
         "command-ranges",
+        "terrain",
     ]
     assert experiment_names() == names
     with pytest.raises(SystemExit):

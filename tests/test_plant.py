@@ -157,7 +157,7 @@ def test_every_plant_carries_the_robots_sensors():
     np.testing.assert_allclose(readings.joint_positions, robot.q_standing[7:], atol=1e-3)
     if GYM:
         gym_config = load_run_config("stand", ["robot=mini_cheetah_gym", "plant.kind=gym-quadruped"])
-        gym_setup = build_plant(gym_config, robot)
+        gym_setup = build_plant(resolve(gym_config, robot))
         try:
             plant = gym_setup.plant
             assert isinstance(plant.sensors, SensorSuite)

@@ -132,9 +132,10 @@ def process_planner(config_data: dict) -> Planner:
 
 
 def build_estimator(run: ResolvedRun) -> StateEstimator:
-    """The state estimator of a run (``kinematic_kf``: IMU attitude + leg-kinematics Kalman filter)."""
+    """The state estimator of a run (``kinematic_kf``: IMU attitude + leg-kinematics Kalman filter); off
+    flat ground (``run.ground_plane``) it does not drop stance feet for standing above z = 0."""
     try:
-        return StateEstimator(run.robot, run.config.kinematic_kf)
+        return StateEstimator(run.robot, run.config.kinematic_kf, flat_ground=not run.ground_plane)
     except ValueError as error:
         raise ConfigError(f"kinematic_kf: {error}") from error
 

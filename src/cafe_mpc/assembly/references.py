@@ -55,11 +55,15 @@ def reference_profile(config: RunConfig, robot: Robot) -> CommandProfile:
 
 
 def locomotion_reference(
-    gait: ResolvedGait, robot: Robot, detection: ContactDetectionSettings | None = None
+    gait: ResolvedGait,
+    robot: Robot,
+    detection: ContactDetectionSettings | None = None,
+    ground_plane: bool = False,
 ) -> LocomotionReference:
     """The heuristic locomotion reference (Sec. VI-A) of a resolved gait section (``ValueError`` if it cannot
     be built); with ``touchdown_events``, early touchdowns advance its clock, seen within ``detection``'s
-    early window and touchdown height (a run's, resolved for its robot; default as written)."""
+    early window and touchdown height (a run's, resolved for its robot; default as written); with
+    ``ground_plane`` its base and footholds follow the plane through the stance feet (``terrain: blind``)."""
     section = gait.section
     events = None
     if gait.touchdown_events is not None:
@@ -77,6 +81,7 @@ def locomotion_reference(
         path_gain=gait.path_gain,
         path_heading_limit=section.path_heading_limit,
         touchdown_events=events,
+        ground_plane=ground_plane,
     )
 
 
@@ -143,6 +148,6 @@ def build_reference(run: ResolvedRun) -> Reference:
     if run.gait is None:  # RunConfig rejects this; kept for configs built with model_construct
         raise ConfigError(f"wbc: {config.wbc!r} needs a gait section")
     try:
-        return locomotion_reference(run.gait, run.robot, run.contact_detection)
+        return locomotion_reference(run.gait, run.robot, run.contact_detection, run.ground_plane)
     except ValueError as error:
         raise ConfigError(f"gait: {error}") from error

@@ -16,6 +16,8 @@ computed here and nowhere else:
 * the contact detector's thresholds (``vwbc.contact_detection``): heights by the length scale, the early
   window and the on-time margin by the time scale (``scaled_contact_detection``), for the VWBC's detector
   and the reference's touchdown events;
+* the ground the controller assumes (``terrain``): flat, or the plane through the feet's latest contact
+  points (``ground_plane``) for the reference, the contact detector, the VWBC and the estimator;
 * the gaits (``gait`` and the gait segments of ``reference``): phase durations, swing height, Raibert gain,
   foothold box, path gain and touchdown-event threshold scaled (``resolve_gait``);
 * what the run commands over time (``assembly.references.reference_profile``) and the control period.
@@ -77,6 +79,7 @@ def resolve(config: RunConfig, robot: Robot) -> ResolvedRun:
         contact=contact,
         vwbc_contact=contact if vwbc_friction is None else replace(contact, friction=vwbc_friction),
         contact_detection=scaled_contact_detection(config.vwbc.contact_detection, scale),
+        ground_plane=config.terrain != "flat",
         gait=gait,
         segment_gaits=segment_gaits,
         command_profile=reference_profile(config, robot),

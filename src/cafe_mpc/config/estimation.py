@@ -138,7 +138,7 @@ class KinematicKFSettings(StrictModel):
         gt=0.0,
         le=1.0,
         description="m; null: off (MIT's choice); else a foot planned in stance higher than this above the "
-        "(flat) ground counts as not in contact (a late or missed touchdown)",
+        "(flat) ground counts as not in contact (a late or missed touchdown); only with terrain: flat",
     )
     initial_position_variance: float = Field(
         1e-4, gt=0.0, le=100.0, description="m^2, base and foot positions when the filter starts"

@@ -17,7 +17,7 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any, Literal
 
-from pydantic import ConfigDict, Field, field_validator, model_validator
+from pydantic import ConfigDict, Field, ValidationInfo, field_validator, model_validator
 
 from cafe_mpc.config.estimation import KinematicKFSettings
 from cafe_mpc.config.loading import StrictModel, load_model, read_yaml
@@ -115,6 +115,12 @@ class ContactDetectionSettings(StrictModel):
         0.015, ge=0.0, le=1.0, description="s; a touchdown this close to its planned time is on time"
     )
     ground_height: float = Field(0.0, description="m; the flat ground's height")
+    step_height: float = Field(
+        0.1,
+        gt=0.0,
+        le=0.5,
+        description="m; with a ground plane (terrain: blind), a loaded foot up to this above it touches down",
+    )
 
 
 class VWBCSettings(StrictModel):
@@ -530,46 +536,115 @@ class ReferenceConfig(StrictModel):
 
 
 class TerrainConfig(StrictModel):
-    """A piece of terrain in the plant's scene (``sim.terrain``: static MuJoCo boxes on the floor along the
-    world x axis). The controller still plans on flat ground: terrain tests its robustness.
+    """A piece of terrain in the plant's scene (``sim.terrain``: static MuJoCo geoms along the world x axis
+    from ``start``, ``width`` m across centred on ``center_y``). The controller does not see it: it plans on
+    flat ground or, with ``terrain: blind``, on the plane of its stance feet (docs/terrain.md).
 
     ``slope``: an incline rising at ``angle_deg`` over ``length`` m (horizontal), a flat top of ``top_length``
     m, then (``descend``) the same incline down. ``steps``: ``count`` steps of ``rise`` m up, each ``run`` m
-    deep, the top, then (``descend``) the same steps down."""
+    deep, the top, then (``descend``) the same steps down. ``stairs``: a building's staircase, ``count``
+    steps of ``rise`` and ``tread``, a landing of ``landing_length`` m after every ``flight_steps`` steps (0:
+    one flight), the top, then (``descend``) the same down. ``rough``: a random field ``length`` m long of
+    heights within ``+-amplitude`` of ``amplitude`` (from 0 to twice it) on a ``cell_size`` grid, drawn from
+    ``seed``. ``gaps``: ``count`` trenches ``gap_width`` m wide along x, ``spacing`` m apart, their bottom
+    ``depth`` m below the floor. Each kind takes only its own keys (``TERRAIN_KEYS``); those it does not
+    give take their defaults."""
 
-    kind: Literal["slope", "steps"] = Field(description="slope or steps")
+    model_config = ConfigDict(validate_default=True)  # a kind's keys it was not given get their defaults
+
+    kind: Literal["slope", "steps", "stairs", "rough", "gaps"] = Field(
+        description="slope | steps | stairs | rough | gaps"
+    )
     start: float = Field(1.0, ge=-50.0, le=500.0, description="m, world x where the terrain begins")
     width: float = Field(2.0, gt=0.0, le=50.0, description="m across (world y), centred on center_y")
     center_y: float = Field(0.0, ge=-50.0, le=50.0, description="m, world y of the centre line")
-    top_length: float = Field(1.0, ge=0.0, le=100.0, description="m of flat top")
-    descend: bool = Field(True, description="go down again after the top")
+    top_length: float | None = Field(
+        None, ge=0.0, le=100.0, description="slope, steps, stairs: m of flat top (default 1)"
+    )
+    descend: bool | None = Field(
+        None, description="slope, steps, stairs: go down again after the top (default true)"
+    )
     angle_deg: float | None = Field(None, gt=0.0, le=30.0, description="slope: incline, degrees")
-    length: float | None = Field(None, gt=0.0, le=100.0, description="slope: horizontal length, m")
-    count: int | None = Field(None, ge=1, le=50, description="steps: number of steps up")
-    rise: float | None = Field(None, gt=0.0, le=0.2, description="steps: m per step")
+    length: float | None = Field(
+        None, gt=0.0, le=100.0, description="slope: horizontal length of the incline; rough: the field's, m"
+    )
+    count: int | None = Field(None, ge=1, le=50, description="steps, stairs: steps up; gaps: trenches")
+    rise: float | None = Field(None, gt=0.0, le=0.2, description="steps, stairs: m per step")
     run: float | None = Field(None, ge=0.05, le=5.0, description="steps: m of tread per step")
+    tread: float | None = Field(None, ge=0.05, le=5.0, description="stairs: m of tread per step")
+    flight_steps: int | None = Field(
+        None, ge=0, le=50, description="stairs: steps per flight, a landing after each (0: one flight)"
+    )
+    landing_length: float | None = Field(None, ge=0.0, le=20.0, description="stairs: m of each landing")
+    amplitude: float | None = Field(
+        None, gt=0.0, le=0.2, description="rough: m, heights within +-amplitude of amplitude"
+    )
+    cell_size: float | None = Field(None, ge=0.02, le=2.0, description="rough: m between the field's heights")
+    seed: int | None = Field(
+        None, ge=0, description="rough: random stream of the field (same seed, same field)"
+    )
+    gap_width: float | None = Field(None, gt=0.0, le=2.0, description="gaps: m of each trench along x")
+    spacing: float | None = Field(None, gt=0.0, le=20.0, description="gaps: m of ground between trenches")
+    depth: float | None = Field(
+        None, gt=0.0, le=10.0, description="gaps: m from the floor to a trench's bottom"
+    )
 
-    @model_validator(mode="before")
+    @field_validator(
+        "top_length",
+        "descend",
+        "angle_deg",
+        "length",
+        "count",
+        "rise",
+        "run",
+        "tread",
+        "flight_steps",
+        "landing_length",
+        "amplitude",
+        "cell_size",
+        "seed",
+        "gap_width",
+        "spacing",
+        "depth",
+        mode="after",
+    )
     @classmethod
-    def _kind_fields(cls, data: Any) -> Any:
-        """Fill the kind's own keys with their defaults; reject the other kind's keys."""
-        if not isinstance(data, dict) or data.get("kind") not in _TERRAIN_KEYS:
-            return data
-        data = dict(data)
-        for kind, defaults in _TERRAIN_KEYS.items():
-            for key, default in defaults.items():
-                if kind == data["kind"] and data.get(key) is None:
-                    data[key] = default
-                elif kind != data["kind"] and data.get(key) is not None:
-                    raise ValueError(f"'{key}' belongs to terrain of kind {kind}, not {data['kind']}")
-        return data
+    def _kind_key(cls, value: Any, info: ValidationInfo) -> Any:
+        """A kind's own key: its default when not given; another kind's key: an error naming its kinds."""
+        kind, key = info.data.get("kind"), info.field_name
+        if kind is None:  # the kind itself is wrong: its own error says so
+            return value
+        if key in TERRAIN_KEYS[kind]:
+            return TERRAIN_KEYS[kind][key] if value is None else value
+        if value is not None:
+            owners = [name for name, keys in TERRAIN_KEYS.items() if key in keys]
+            raise ValueError(f"'{key}' belongs to terrain of kind {' or '.join(owners)}, not {kind}")
+        return None
+
+    @model_validator(mode="after")
+    def _fits(self) -> TerrainConfig:
+        if self.kind == "rough" and self.length is not None and self.cell_size is not None:
+            if min(self.length, self.width) < 2 * self.cell_size:
+                raise ValueError(
+                    f"rough terrain: length {self.length} m and width {self.width} m must hold two cells of "
+                    f"cell_size {self.cell_size} m"
+                )
+            cells = (self.length / self.cell_size + 1) * (self.width / self.cell_size + 1)
+            if cells > 250_000:
+                raise ValueError(f"rough terrain: {cells:.0f} heights is too many (at most 250000)")
+        return self
 
 
-_TERRAIN_KEYS: dict[str, dict[str, float]] = {
-    "slope": {"angle_deg": 5.0, "length": 1.0},
-    "steps": {"count": 3, "rise": 0.03, "run": 0.3},
+_SLOPED = {"top_length": 1.0, "descend": True}
+TERRAIN_KEYS: dict[str, dict[str, Any]] = {
+    "slope": {"angle_deg": 5.0, "length": 1.0, **_SLOPED},
+    "steps": {"count": 3, "rise": 0.03, "run": 0.3, **_SLOPED},
+    "stairs": {"count": 5, "rise": 0.1, "tread": 0.3, "flight_steps": 0, "landing_length": 1.0, **_SLOPED},
+    "rough": {"length": 2.0, "amplitude": 0.02, "cell_size": 0.1, "seed": 0},
+    "gaps": {"count": 3, "gap_width": 0.1, "spacing": 0.6, "depth": 1.0},
 }
-"""Each terrain kind's own keys and their defaults."""
+"""Each terrain kind's own keys and their defaults (the keys every kind has: ``start``, ``width``,
+``center_y``)."""
 
 
 class SceneConfig(StrictModel):
@@ -577,7 +652,7 @@ class SceneConfig(StrictModel):
     (``sim.bar``). The floor's friction is ``plant.floor_friction``."""
 
     terrain: list[TerrainConfig] = Field(
-        default_factory=list, description="slopes and steps on the floor (empty: flat floor)"
+        default_factory=list, description="slopes, steps, stairs, rough fields and gaps (empty: flat floor)"
     )
 
     bar_height: float | None = Field(
@@ -699,6 +774,40 @@ class SensorsConfig(StrictModel):
     encoders: EncoderSpec = EncoderSpec()
 
 
+class HeightMapConfig(StrictModel):
+    """The plant's height-map sensor (``sim.height_map``): vertical ray casts on a grid around the robot in
+    its heading frame, as a depth camera's elevation map would give, with Gaussian noise and a limited range.
+    Off by default; its maps go into the run's log (``terrain`` says whether the controller gets them)."""
+
+    enabled: bool = Field(False, description="measure height maps (off: no sensor, the robot runs blind)")
+    rate_hz: float = Field(
+        20.0, gt=0.0, le=1000.0, description="Hz, maps per second (at most the control rate)"
+    )
+    length: float = Field(1.2, gt=0.0, le=10.0, description="m, the grid's extent along the heading")
+    width: float = Field(0.8, gt=0.0, le=10.0, description="m, the grid's extent across the heading")
+    resolution: float = Field(0.04, ge=0.005, le=1.0, description="m between cell centres")
+    forward_offset: float = Field(
+        0.0, ge=-5.0, le=5.0, description="m, the grid's centre ahead of the base along the heading"
+    )
+    noise: float = Field(0.005, ge=0.0, le=0.5, description="m, standard deviation of each measured height")
+    range: float = Field(
+        1.0,
+        gt=0.0,
+        le=20.0,
+        description="m, farthest surface point from the base the sensor sees (else invalid)",
+    )
+
+    @model_validator(mode="after")
+    def _cells(self) -> HeightMapConfig:
+        columns, rows = round(self.length / self.resolution), round(self.width / self.resolution)
+        if min(columns, rows) < 2 or columns * rows > 40_000:
+            raise ValueError(
+                f"height_map: {self.length} m x {self.width} m at {self.resolution} m gives "
+                f"{columns} x {rows} cells; give at least 2 x 2 and at most 40000"
+            )
+        return self
+
+
 PlantScales = float | list[float]
 """One factor for every joint, or one per actuated joint (robot joint order)."""
 
@@ -737,6 +846,18 @@ class PlantConfig(StrictModel):
         default_factory=SensorsConfig,
         description="IMU and joint sensors the controller reads with estimator: kinematic_kf (sim.sensors)",
     )
+    height_map: HeightMapConfig = Field(
+        default_factory=HeightMapConfig,
+        description="height-map sensor: ray casts around the robot, logged at their rate (sim.height_map)",
+    )
+
+    @model_validator(mode="after")
+    def _height_map_plant(self) -> PlantConfig:
+        if self.height_map.enabled and self.kind != "mujoco":
+            raise ValueError(
+                f"plant.height_map: the height-map sensor needs plant.kind: mujoco, not {self.kind!r}"
+            )
+        return self
 
     @field_validator("link_mass_scales", "motor_strength_scales")
     @classmethod
@@ -849,7 +970,14 @@ class RunConfig(StrictModel):
         default_factory=PlantConfig, description="simulated plant and sensors (the controller never sees it)"
     )
     scene: SceneConfig = Field(
-        default_factory=SceneConfig, description="terrain in the plant's scene (the controller plans flat)"
+        default_factory=SceneConfig, description="terrain in the plant's scene (the controller: terrain)"
+    )
+    terrain: Literal["flat", "blind", "height_map"] = Field(
+        "flat",
+        description="the ground the controller believes in. flat: z = 0 (the paper's); blind: the plane "
+        "through the feet's latest contact points (core.ground), which the reference's base height, pitch "
+        "and footholds and the contact detector follow; height_map: as blind, with the plant's height maps "
+        "in the log (plant.height_map; the controllers do not use them yet). docs/terrain.md",
     )
     output: OutputConfig = Field(default_factory=OutputConfig, description="plots and video")
 
@@ -885,6 +1013,18 @@ class RunConfig(StrictModel):
                 f"plant.sensors.imu.rate_hz: {self.plant.sensors.imu.rate_hz} Hz is above the control rate "
                 f"simulation.control_rate_hz {self.simulation.control_rate_hz} Hz (the controller reads the "
                 "sensors once per tick)"
+            )
+        height_map = self.plant.height_map
+        if self.terrain == "height_map" and not height_map.enabled:
+            raise ValueError(
+                "terrain: 'height_map' needs the plant's height-map sensor (plant.height_map.enabled: true); "
+                "a robot without it runs blind (terrain: blind)"
+            )
+        if height_map.enabled and height_map.rate_hz > self.simulation.control_rate_hz * (1.0 + 1e-9):
+            raise ValueError(
+                f"plant.height_map.rate_hz: {height_map.rate_hz} Hz is above the control rate "
+                f"simulation.control_rate_hz {self.simulation.control_rate_hz} Hz (maps are taken at control "
+                "ticks)"
             )
         if self.estimator != "ground_truth" and self.plant.state_noise:
             raise ValueError(

@@ -179,9 +179,16 @@ class StateEstimator:
     ``update`` returns the estimator's own ``Measurement`` (overwritten on the next update).
     """
 
-    def __init__(self, robot: Robot, settings: KinematicKFSettings | None = None) -> None:
+    def __init__(
+        self, robot: Robot, settings: KinematicKFSettings | None = None, flat_ground: bool = True
+    ) -> None:
         settings = settings if settings is not None else KinematicKFSettings()
         self.robot = robot
+        self.flat_ground = flat_ground
+        """Whether the ground is flat at z = 0 (``terrain: flat``). Off it (``blind``) a foot planned in
+        stance is not dropped for standing above z = 0 (``contact_height_threshold``): on a step every foot
+        would be, the filter would lose its legs and drift on the IMU; with them it holds its stance feet at
+        z = 0, a frame that follows the ground (which the blind controller's ground plane expects)."""
         self.settings = settings
         n_feet, nj = robot.n_feet, robot.nu
         self.n_feet = n_feet
@@ -327,7 +334,7 @@ class StateEstimator:
         else:
             self.forces[:] = 0.0
         height_limit = settings.contact_height_threshold
-        if height_limit is not None and self._started:
+        if height_limit is not None and self._started and self.flat_ground:
             # a foot planned in stance that the legs put well above the ground is not on it (a missed or late
             # touchdown); flat ground, as the foot-height measurement assumes
             for foot in range(self.n_feet):

@@ -14,12 +14,17 @@ Bledt et al. ("Contact Model Fusion for Event-Based Locomotion in Unstructured T
 * the **ground force** the measurement carries (``Measurement.foot_forces``: from the joint torques through
   the leg Jacobians on a robot, ``estimation``; the plant's contact force in a ground-truth run): the foot
   pushes on something;
-* the **foot height** above the ground (forward kinematics of the measured state; flat ground at
-  ``ground_height``): the foot is where the ground is.
+* the **foot height** above the ground (forward kinematics of the measured state): the foot is where the
+  ground is. The ground is flat at ``ground_height`` (the paper's world), or, with ``ground_plane``, the
+  plane through the feet's latest detected contact points (``core.ground.GroundPlane``: a blind robot's
+  estimate of steps and slopes, ``terrain: blind``).
 
-In planned stance a foot is in contact once it is within ``touchdown_height`` of the ground (a foot still
-higher is a late touchdown: in the air, out of the stance set, its leg reaching for the planned foothold); in
-the early window of a swing it also needs a normal force above ``touchdown_force``. A foot leaves contact when
+In planned stance a foot is in contact once it is within ``touchdown_height`` of the ground or loaded (a foot
+still higher and unloaded is a late touchdown: in the air, out of the stance set, its leg reaching for the
+planned foothold); in the early window of a swing it needs both, a normal force above ``touchdown_force``
+and the ground within ``touchdown_height``. With a ground plane a loaded foot may be up to ``step_height``
+above the plane (a step up the plane does not know yet): the force is the evidence there, and it is the
+ground's, since a foot out of the stance set is not commanded to push. A foot leaves contact when
 its force drops below ``release_force`` with the foot higher than ``release_height``, or when its planned
 swing begins (the schedule decides lift-off). In planned stance the force is not asked for: on a robot it is
 estimated from the joint torques, which there are the stance torques this controller commands, so it would
@@ -36,6 +41,7 @@ import numpy as np
 import pinocchio as pin
 
 from cafe_mpc.config import ContactDetectionSettings
+from cafe_mpc.core.ground import GroundPlane
 from cafe_mpc.core.measurement import Measurement
 from cafe_mpc.core.physics import GRAVITY
 from cafe_mpc.core.plan import KnotPlan
@@ -43,11 +49,18 @@ from cafe_mpc.robots.robot import Robot
 
 
 class ContactDetector:
-    """Detected stance per foot (module docstring); preallocated, one Pinocchio data of its own."""
+    """Detected stance per foot (module docstring); preallocated, one Pinocchio data of its own.
 
-    def __init__(self, robot: Robot, settings: ContactDetectionSettings | None = None) -> None:
+    ``ground_plane``: heights above the plane through the feet's latest contact points (``ground``) instead
+    of above the flat ``settings.ground_height``."""
+
+    def __init__(
+        self, robot: Robot, settings: ContactDetectionSettings | None = None, ground_plane: bool = False
+    ) -> None:
         self.robot = robot
         self.settings = settings or ContactDetectionSettings()
+        self.ground = GroundPlane(robot.n_feet, self.settings.ground_height) if ground_plane else None
+        self.soles = np.zeros((robot.n_feet, 3))
         self.data = robot.model.createData()
         weight_share = robot.total_mass * GRAVITY / robot.n_feet
         self.touchdown_force = self.settings.touchdown_force * weight_share
@@ -60,6 +73,8 @@ class ContactDetector:
 
     def reset(self) -> None:
         self.in_contact[:] = True  # a robot starts standing
+        if self.ground is not None:
+            self.ground.reset()
         self.early_touchdowns = 0
         self.early_lead_sum = 0.0
         self.late_touchdown_ticks = 0
@@ -85,15 +100,21 @@ class ContactDetector:
         planned = plan.contacts[k]
         model, data = self.robot.model, self.data
         pin.framesForwardKinematics(model, data, measurement.q)
-        radius = self.robot.foot_radius
+        radius, ground, soles = self.robot.foot_radius, self.ground, self.soles
+        reach = s.touchdown_height if ground is None else s.step_height
         for foot, frame_id in enumerate(self.robot.foot_frame_ids):
-            height = data.oMf[frame_id].translation[2] - radius - s.ground_height
+            soles[foot] = data.oMf[frame_id].translation
+            soles[foot, 2] -= radius
+            if ground is None:
+                height = soles[foot, 2] - s.ground_height
+            else:
+                height = soles[foot, 2] - ground.height_at(soles[foot, 0], soles[foot, 1])
             self.heights[foot] = height
             force = measurement.foot_forces[foot, 2]
-            loaded = force > self.touchdown_force and height < s.touchdown_height
+            loaded = force > self.touchdown_force and height < reach
             if planned[foot]:
                 if not self.in_contact[foot]:
-                    self.in_contact[foot] = height < s.touchdown_height
+                    self.in_contact[foot] = height < s.touchdown_height or loaded
                 elif force < self.release_force and height > s.release_height:
                     self.in_contact[foot] = False
                 if not self.in_contact[foot]:
@@ -112,6 +133,8 @@ class ContactDetector:
                 if self.in_contact[foot]:
                     self.early_ticks += 1
             self._was_planned[foot] = planned[foot]
+        if ground is not None:
+            ground.observe(soles, self.in_contact)
         return self.in_contact
 
     def statistics(self) -> dict:

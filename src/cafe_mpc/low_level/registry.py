@@ -48,9 +48,15 @@ def build_riccati(run: ResolvedRun) -> RiccatiController:
 
 def build_vwbc(run: ResolvedRun) -> VWBCController:
     """The VWBC QP (34): the ``vwbc`` section, the run's torque limits, its VWBC contact model (the pyramid's
-    friction, the Baumgarte rate and the cone tolerance of the robot) and contact-detection thresholds."""
+    friction, the Baumgarte rate and the cone tolerance of the robot) and contact-detection thresholds; off
+    flat ground (``run.ground_plane``) its contact detector measures heights above the stance feet's plane."""
     return VWBCController(
-        run.robot, run.config.vwbc, run.torque_limits.copy(), run.vwbc_contact, run.contact_detection
+        run.robot,
+        run.config.vwbc,
+        run.torque_limits.copy(),
+        run.vwbc_contact,
+        run.contact_detection,
+        ground_plane=run.ground_plane,
     )
 
 

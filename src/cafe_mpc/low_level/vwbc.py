@@ -23,7 +23,9 @@ world-frame ground reaction forces, as in ``Plan.forces``); ``Jcdot v`` is the c
 at zero joint acceleration. The stance set ``C`` is the plan knot's contact flags (the paper's choice);
 ``VWBCSettings.stance_source = "intersect"`` uses the feet that are planned *and* measured in contact
 (``Measurement.contacts``), ``"detected"`` (the run config's default) the contact detector's
-(``low_level.contact_detection``).
+(``low_level.contact_detection``). Off flat ground (``ground_plane``, ``terrain: blind``) the pyramid (34f)
+and (34e) are taken about the normal of the contact detector's ground plane (``_StanceQP.orient_cone``): on
+a 20 degree slope a cone about world z allows forces that slide the feet down.
 
 Solvers: one preallocated solver object and matrix set per stance pattern (sizes change with the number of
 stance feet). ProxQP (``proxsuite.proxqp.dense``, ``solver="proxqp"``) solves (34) as written; it is a
@@ -124,12 +126,38 @@ class _StanceQP:
                 self.u[rows + face] = 0.0
             self.C[nu + 4 * nc + i, fx + 2] = 1.0
             self.l[nu + 4 * nc + i] = 0.0
+        self.normal = np.array([0.0, 0.0, 1.0])  # the ground normal the pyramid is taken about
+        self.mu = mu
         self.x0 = np.zeros(n)  # primal warm start from the plan
         self.x = np.zeros(n)  # solution of the last solve
         self.iterations = 0
         self.status = ""
         self.solved = False
         self.has_previous = False  # the backend holds a solution of this pattern from the previous tick
+
+    def orient_cone(self, normal: np.ndarray) -> None:
+        """Take the pyramid (34f) and the unilateral rows (34e) about the ground's unit ``normal`` (world)
+        instead of world z: faces ``+-t . F <= mu n . F`` for two tangents ``t`` of the ground, ``n . F >= 0``
+        (a sloped ground's cone; with ``n = z`` the rows of (34e)-(34f) as built)."""
+        if np.array_equal(normal, self.normal):
+            return
+        self.normal[:] = normal
+        along = np.array([normal[2], 0.0, -normal[0]])  # the ground's direction in the world x-z plane
+        along /= np.linalg.norm(along)
+        across = np.cross(normal, along)
+        nv, nu, nc = self.nv, self.nu, self.nc
+        for i in range(nc):
+            fx = nv + nu + 3 * i
+            rows = nu + 4 * i
+            for face, (tangent, sign) in enumerate(
+                ((along, 1.0), (along, -1.0), (across, 1.0), (across, -1.0))
+            ):
+                self.C[rows + face, fx : fx + 3] = sign * tangent - self.mu * normal
+            self.C[nu + 4 * nc + i, fx : fx + 3] = normal
+        self._cone_changed()
+
+    def _cone_changed(self) -> None:
+        """The backend's copy of the constraint rows follows ``C``."""
 
     def fill(self, terms: ContactDynamicsTerms, Quu: np.ndarray, g_tau: np.ndarray) -> None:
         """Write the tick's dynamics (34b)-(34c) and cost (34a) into the preallocated matrices."""
@@ -165,19 +193,26 @@ class _ProxQPStance(_StanceQP):
         self.qp.settings.max_iter = s.max_iter
         self.qp.settings.verbose = False
         self.initialized = False
+        self.cone_changed = False
         self.y0 = np.zeros(self.n_eq)
         self.z0 = np.zeros(self.n_in)
         self.prev_x = np.zeros(self.n)
         self.prev_y = np.zeros(self.n_eq)
         self.prev_z = np.zeros(self.n_in)
 
+    def _cone_changed(self) -> None:
+        self.cone_changed = True
+
     def solve(self, mode: WarmStart) -> None:
         qp = self.qp
         if not self.initialized:
             qp.init(self.H, self.g, self.A, self.b, self.C, self.l, self.u)
             self.initialized = True
+        elif self.cone_changed:
+            qp.update(H=self.H, g=self.g, A=self.A, b=self.b, C=self.C)
         else:
             qp.update(H=self.H, g=self.g, A=self.A, b=self.b)
+        self.cone_changed = False
         qp.settings.initial_guess = _INITIAL_GUESS[mode]
         if mode == "previous" and self.has_previous:
             qp.solve(self.prev_x, self.prev_y, self.prev_z)
@@ -242,6 +277,9 @@ class _DaqpStance(_StanceQP):
         self.model = daqp.Model()
         self.model_dims: tuple[int, int, int] | None = None  # (n, m, rows of A) of the last setup
         self.settings = {"primal_tol": s.eps_abs, "iter_limit": s.max_iter}
+
+    def _cone_changed(self) -> None:
+        self.Cf[:] = self.C[self.nu :, self.force]
 
     def _condense(self) -> tuple[np.ndarray, np.ndarray]:
         nv, nu = self.nv, self.nu
@@ -332,7 +370,8 @@ class VWBCController(LowLevelController[Plan]):
     tolerance of the violation count (a run's ``ContactModel``; default the reference robot's);
     ``torque_limits``: (34d) (default the robot's); ``detection``: the contact detector's thresholds with
     ``stance_source = "detected"`` (a run's, scaled to its robot; default ``settings.contact_detection`` as
-    written).
+    written); ``ground_plane``: the contact detector measures the feet's heights above the plane through
+    their latest contact points (``terrain: blind``).
     """
 
     def __init__(
@@ -342,6 +381,7 @@ class VWBCController(LowLevelController[Plan]):
         torque_limits: np.ndarray | None = None,
         contact: ContactModel | None = None,
         detection: ContactDetectionSettings | None = None,
+        ground_plane: bool = False,
     ) -> None:
         self.robot = robot
         self.model = robot.model
@@ -362,7 +402,9 @@ class VWBCController(LowLevelController[Plan]):
             self.solver_name = _ProxQPStance.solver_name
         self.terms = ContactDynamicsTerms(robot, self.contact.baumgarte_alpha)
         self.detector = (
-            ContactDetector(robot, self.settings.contact_detection if detection is None else detection)
+            ContactDetector(
+                robot, self.settings.contact_detection if detection is None else detection, ground_plane
+            )
             if self.settings.stance_source == "detected"
             else None
         )
@@ -470,6 +512,8 @@ class VWBCController(LowLevelController[Plan]):
         s, nv, nq = self.settings, self.robot.nv, self.robot.nq
         pattern = tuple(bool(c) for c in self._stance)
         qp = self._qp_for(pattern)
+        if self.detector is not None and self.detector.ground is not None:
+            qp.orient_cone(self.detector.ground.normal())
         self.terms.compute(q, v, self._stance)
         # linear term of (34a) in tau: Qux dx + Qu - Quu tau*
         np.matmul(plan.Qux[k], dx, out=self._g_tau)

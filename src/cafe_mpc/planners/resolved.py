@@ -3,10 +3,10 @@
 ``assembly.resolve(config, robot)`` makes the ``ResolvedRun`` before anything is built: the robot's scale
 (``robots.scaling``: the config's tuned values are the reference robot's), the model schedule with its
 horizons scaled, the torque limits the plan and the low level respect, the contact models of the plan and
-the VWBC (friction, Baumgarte rate, cone tolerance), the contact detector's thresholds, the gaits with their
-timings and lengths scaled, what the run commands over time, and the control period. The planner slices,
-the low-level registry, the reference, the estimator and the lab's plant and metrics read these values;
-none derives them from the config again.
+the VWBC (friction, Baumgarte rate, cone tolerance), the contact detector's thresholds, the ground the
+controller assumes (``terrain``), the gaits with their timings and lengths scaled, what the run commands
+over time, and the control period. The planner slices, the low-level registry, the reference, the estimator
+and the lab's plant and metrics read these values; none derives them from the config again.
 
 Each component's own settings are the schema's class for it (``config.MpcSettings``, ``PDSettings``,
 ``VWBCSettings``, ``TemplateSettings``, ``KinematicKFSettings``), reached through ``config``; what a run
@@ -80,7 +80,12 @@ class ResolvedRun:
     ``contact``: the contact model of the plan (``mpc.friction``), the whole-body knots and the post-hoc
     cone score; ``vwbc_contact``: the VWBC's (``vwbc.friction`` if set, else the plan's).
     ``contact_detection``: the contact detector's thresholds (``vwbc.contact_detection``, heights and times
-    scaled to the robot), read by the VWBC's detector and the reference's touchdown events. ``gait``: the
+    scaled to the robot), read by the VWBC's detector and the reference's touchdown events.
+    ``ground_plane``: the controller's ground is the plane through the feet's latest contact points
+    (``terrain`` blind or height_map, docs/terrain.md), read by the reference (base and footholds on it), the
+    contact detector (heights above it), the VWBC (its cone about the plane's normal) and the estimator
+    (stance feet not dropped for standing above z = 0); False (``terrain: flat``): flat ground at
+    ``contact_detection.ground_height``. ``gait``: the
     ``gait`` section resolved (None without one); ``segment_gaits``: each ``reference`` segment's gait
     resolved (None for the others). ``command_profile``: what the run commands over time (tracking metrics
     and plots). ``control_period``: seconds between two low-level ticks."""
@@ -93,6 +98,7 @@ class ResolvedRun:
     contact: ContactModel
     vwbc_contact: ContactModel
     contact_detection: ContactDetectionSettings
+    ground_plane: bool
     gait: ResolvedGait | None
     segment_gaits: tuple[ResolvedGait | None, ...]
     command_profile: CommandProfile

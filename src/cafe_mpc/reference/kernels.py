@@ -324,7 +324,8 @@ def _foothold(
 ) -> None:
     """``LocomotionReference.foothold``: the Raibert foothold (hip at mid-stance plus velocity feedback,
     clamped to the box about the hip at touchdown) into ``out`` (3). ``parameters`` = (Raibert gain,
-    measured world vx, vy, box x, box y, foot radius, swing height)."""
+    measured world vx, vy, box x, box y, foot radius, swing height, ground height, slope x, slope y, ground
+    centre x, y: ``core.ground.GroundPlane``, zeros on flat ground)."""
     ox, oy = offset[0], offset[1]
     x, y, yaw = _base_pose(
         anchor, profile_times, profile_starts, profile_slopes, gauss_nodes, gauss_weights, touchdown
@@ -356,7 +357,10 @@ def _foothold(
     move_x, move_y = _rotate(c, s, step_x, step_y)
     out[0] = nominal_x + move_x
     out[1] = nominal_y + move_y
-    out[2] = parameters[5]
+    # the ground plane under the foothold (zero on flat ground): height, slope x, y about its centre
+    ground = parameters[7] + parameters[8] * (out[0] - parameters[10])
+    ground += parameters[9] * (out[1] - parameters[11])
+    out[2] = parameters[5] + ground
 
 
 @njit(cache=True, nogil=True)

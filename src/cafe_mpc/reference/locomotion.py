@@ -22,6 +22,7 @@ import numpy as np
 import pinocchio as pin
 
 from cafe_mpc.config import VelocityCommand
+from cafe_mpc.core.ground import GroundPlane
 from cafe_mpc.core.physics import GRAVITY
 from cafe_mpc.dynamics.leg_inverse_kinematics import LegInverseKinematics
 from cafe_mpc.dynamics.statics import static_stance_torques
@@ -33,6 +34,9 @@ from cafe_mpc.robots.robot import Robot
 FOOTHOLD_BOX = (0.10, 0.06)
 """m; how far (x, y) a Raibert foothold may move from under the hip (the Mini Cheetah's; other robots' runs
 scale it with the leg length, ``robots.scaling``)."""
+GROUND_FOOT_SPEED = 0.2
+"""m/s; a foot planned in stance moving faster than this has not landed: its point does not enter the ground
+plane (``LocomotionReference.ground``)."""
 
 
 def validate_command(command: VelocityCommand, robot: Robot) -> None:
@@ -276,6 +280,7 @@ class LocomotionReference(Reference):
         path_gain: float = 0.0,
         path_heading_limit: float = 0.2,
         touchdown_events: tuple[float, float, float] | None = None,
+        ground_plane: bool = False,
     ) -> None:
         if not commands:
             commands = [VelocityCommand()]
@@ -318,6 +323,11 @@ class LocomotionReference(Reference):
         advanced to it (``advance_phase``). None: the schedule runs on its clock whatever the feet do."""
         self.phase_advances = 0
         self.phase_advance_total = 0.0
+        self.ground = GroundPlane(robot.n_feet) if ground_plane else None
+        """The plane through the stance feet's latest contact points (``core.ground``) that the base height,
+        its pitch and the footholds follow; None: flat ground at z = 0 (the paper's)."""
+        self._soles = np.zeros((robot.n_feet, 3))
+        self._still = np.zeros(robot.n_feet, dtype=bool)
         """(time, x y, yaw) the commanded path starts from: the first measured pose after a reset."""
         # anchor (re-set at every update)
         self.anchor_time = 0.0
@@ -354,7 +364,7 @@ class LocomotionReference(Reference):
         self._phase_ends = np.zeros(0)
         self._phase_flags = np.zeros((0, robot.n_feet), dtype=bool)
         self._anchor = np.zeros(4)
-        self._feet_parameters = np.zeros(7)
+        self._feet_parameters = np.zeros(12)
         self._factors = np.zeros(0)
         self._keys = np.zeros(0, dtype=np.int64)
         self._data = robot.model.createData()
@@ -588,8 +598,26 @@ class LocomotionReference(Reference):
             if stance[foot]:
                 position = data.oMf[frame_id].translation
                 self.stance_positions[foot] = position
-                self.stance_positions[foot, 2] = robot.foot_radius
+                if self.ground is None:
+                    self.stance_positions[foot, 2] = robot.foot_radius
                 self.liftoff_positions[foot] = position
+        if self.ground is not None:
+            self._observe_ground(q, v, stance)
+
+    def _observe_ground(self, q: np.ndarray, v: np.ndarray, stance: Sequence[bool]) -> None:
+        """The ground plane through the feet planned in stance that stand still (a foot planned in stance
+        that is still moving has not landed: a late touchdown, its leg hanging from a body that may be
+        rising; taking its point would lift the plane, the base with it and the foot again)."""
+        assert self.ground is not None
+        robot, data = self.robot, self._data
+        pin.forwardKinematics(robot.model, data, q, v)
+        still = self._still
+        for foot, frame_id in enumerate(robot.foot_frame_ids):
+            velocity = pin.getFrameVelocity(robot.model, data, frame_id, pin.LOCAL_WORLD_ALIGNED).linear
+            still[foot] = stance[foot] and float(np.linalg.norm(velocity)) < GROUND_FOOT_SPEED
+        np.copyto(self._soles, self.stance_positions)
+        self._soles[:, 2] -= robot.foot_radius
+        self.ground.observe(self._soles, still)
 
     def _landed_early(self, t: float) -> None:
         """Advance the gait's clock when a swing foot is on the ground before its planned touchdown (the
@@ -606,7 +634,8 @@ class LocomotionReference(Reference):
         for foot, frame_id in enumerate(self.robot.foot_frame_ids):
             if stance[foot]:
                 continue
-            sole = self._data.oMf[frame_id].translation[2] - self.robot.foot_radius
+            position = self._data.oMf[frame_id].translation
+            sole = position[2] - self.robot.foot_radius - self.ground_height_at(position[0], position[1])
             if sole > height:
                 continue
             touchdown = next(
@@ -643,6 +672,27 @@ class LocomotionReference(Reference):
         correction = max(-self.path_heading_limit, min(self.path_heading_limit, self.path_gain * cross))
         return path_yaw - correction
 
+    # ------------------------------------------------------------------------------------------- ground
+    def ground_height_at(self, x: float, y: float) -> float:
+        """The ground's height under world ``(x, y)`` as the reference believes it (0: flat ground)."""
+        return 0.0 if self.ground is None else self.ground.height_at(x, y)
+
+    def _follow_ground(self, state: np.ndarray) -> None:
+        """Base rows ``state[:, :7]`` (yaw-only attitude, height above z = 0) onto the ground plane: the
+        height above the plane under the base, pitched along the plane's slope in the heading."""
+        ground = self.ground
+        if ground is None:
+            return
+        state[:, 2] += ground.height + ground.slope[0] * (state[:, 0] - ground.centre[0])
+        state[:, 2] += ground.slope[1] * (state[:, 1] - ground.centre[1])
+        if not np.any(ground.slope):
+            return
+        half_yaw = np.arctan2(state[:, 5], state[:, 6])  # qz, qw of a yaw-only quaternion
+        rise = ground.slope[0] * np.cos(2.0 * half_yaw) + ground.slope[1] * np.sin(2.0 * half_yaw)
+        half_pitch = -0.5 * np.arctan(rise)
+        cy, sy, cp, sp = np.cos(half_yaw), np.sin(half_yaw), np.cos(half_pitch), np.sin(half_pitch)
+        state[:, 3], state[:, 4], state[:, 5], state[:, 6] = -sy * sp, cy * sp, sy * cp, cy * cp
+
     # ------------------------------------------------------------------------------------------- base
     def base_pose(self, t: float) -> tuple[np.ndarray, float]:
         """Reference base (x, y) and yaw at ``t >= anchor_time``, integrating the commands from the anchor
@@ -656,6 +706,7 @@ class LocomotionReference(Reference):
         xy, yaw = self.base_pose(t)
         vx, vy, yaw_rate, height = self.profile.values_at(t)
         q = np.concatenate([[xy[0], xy[1], height], quaternion_from_yaw(yaw), self.nominal_joints])
+        self._follow_ground(q[None, :7])
         v = np.zeros(self.robot.nv)
         v[0], v[1], v[5] = vx, vy, yaw_rate
         return q, v
@@ -678,7 +729,7 @@ class LocomotionReference(Reference):
         step = _yaw_rotation(-yaw) @ (target - nominal)
         step = np.clip(step, -self.foothold_box, self.foothold_box)
         xy = nominal + _yaw_rotation(yaw) @ step
-        return np.array([xy[0], xy[1], self.robot.foot_radius])
+        return np.array([xy[0], xy[1], self.robot.foot_radius + self.ground_height_at(xy[0], xy[1])])
 
     def _swings(self, foot: int, t0: float, t1: float) -> list[tuple[float, float, float]]:
         """Swing intervals ``(liftoff, touchdown, next stance duration)`` of ``foot`` overlapping [t0, t1]."""
@@ -742,6 +793,10 @@ class LocomotionReference(Reference):
         parameters[3:5] = self.foothold_box
         parameters[5] = self.robot.foot_radius
         parameters[6] = self.swing_height
+        if self.ground is not None:
+            parameters[7] = self.ground.height
+            parameters[8:10] = self.ground.slope
+            parameters[10:12] = self.ground.centre
         profile = self.profile
         sample_feet(
             np.ascontiguousarray(times, dtype=float),
@@ -837,6 +892,7 @@ class LocomotionReference(Reference):
                 keys,
             )
             state[:, 7:nq] = self.nominal_joints
+            self._follow_ground(state[:n])
             self._torques_into(keys, window.torque)
             window.forces[:, :, :2] = 0.0
             window.forces[:, :, 2] = window.stance * (factors * self.mass * GRAVITY)[:, None]

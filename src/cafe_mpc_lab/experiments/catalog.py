@@ -14,6 +14,7 @@ from cafe_mpc_lab.experiments.schedules import Schedules
 from cafe_mpc_lab.experiments.solve_times import SolveTimes
 from cafe_mpc_lab.experiments.template_gaits import TemplateGaits
 from cafe_mpc_lab.experiments.template_vs_cafe import TemplateVsCafe
+from cafe_mpc_lab.experiments.terrain import Terrain
 from cafe_mpc_lab.experiments.trot_schedules import TrotSchedules
 from cafe_mpc_lab.experiments.warm_start import WarmStart
 
@@ -30,6 +31,7 @@ EXPERIMENTS: tuple[type[Experiment], ...] = (
     Latency,
     Robots,
     CommandRanges,
+    Terrain,
 )
 """The experiments, in the order ``cafe-mpc experiment --list`` shows them."""
 

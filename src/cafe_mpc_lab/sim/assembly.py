@@ -1,10 +1,11 @@
 """A run config -> the plant its closed loop runs against, and what the loop does to it.
 
 ``build_plant(run)`` builds the plant of a resolved run's ``plant.kind`` (``PLANTS``) with its scene (terrain,
-the bar), its variation (``sim.randomization``) and its sensors (what the controller reads: the state through
+the bar), its variation (``sim.randomization``), its sensors (what the controller reads: the state through
 ``plant.sensor_noise`` and the latency jitter, or the robot's sensor readings when an estimator runs,
-``sim.sensors``), and the ``SimulationOptions`` of the config: duration, control rate, the start state,
-pushes, fall criteria and, in real time, the wall-clock pacer. The controller's ``Robot`` stays nominal.
+``sim.sensors``) and its height-map sensor (``plant.height_map``, ``sim.height_map``), and the
+``SimulationOptions`` of the config: duration, control rate, the start state, pushes, fall criteria (from the
+terrain under the base) and, in real time, the wall-clock pacer. The controller's ``Robot`` stays nominal.
 
 A new plant is one module with a ``sim.plant.Plant`` and one line in ``PLANTS`` (and its name among the
 config's ``plant.kind`` values).
@@ -12,6 +13,7 @@ config's ``plant.kind`` values).
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Callable
 from dataclasses import dataclass
 
@@ -25,6 +27,7 @@ from cafe_mpc_lab.sim.plant import Plant, PlantSensors
 from cafe_mpc_lab.sim.randomization import sensor_model
 from cafe_mpc_lab.sim.scene import Scene, scene_of
 from cafe_mpc_lab.sim.sensors import SensorSuite, sensor_spec
+from cafe_mpc_lab.sim.terrain import support_height
 
 PlantFactory = Callable[[RunConfig, Robot, PlantSensors], Plant]
 """Builds a plant from a run config, the robot and the sensors the controller reads."""
@@ -56,9 +59,11 @@ def plant_sensors(config: RunConfig, robot: Robot) -> PlantSensors:
 def simulation_options(run: ResolvedRun) -> SimulationOptions:
     """The run's ``simulation`` and ``pushes``: duration, rate, the start state (standing,
     ``initial_height_offset`` higher), pushes (their forces in N for this robot), fall criteria (the fall
-    height scaled to the robot) and, for ``simulation.realtime``, the wall-clock pacer."""
+    height scaled to the robot, measured from the terrain under the base, gaps bridged) and, for
+    ``simulation.realtime``, the wall-clock pacer."""
     config, robot = run.config, run.robot
     simulation = config.simulation
+    terrain = scene_of(config.scene).terrain
     q0 = robot.q_standing.copy()
     q0[2] += simulation.initial_height_offset
     return SimulationOptions(
@@ -66,7 +71,11 @@ def simulation_options(run: ResolvedRun) -> SimulationOptions:
         control_rate_hz=simulation.control_rate_hz,
         initial_q=q0,
         pushes=tuple(Push(p.start, p.duration, p.force_on(robot.total_mass)) for p in config.pushes),
-        fall=FallCriteria(run.scale.distance(simulation.fall.min_base_height), simulation.fall.max_tilt_rad),
+        fall=FallCriteria(
+            run.scale.distance(simulation.fall.min_base_height),
+            simulation.fall.max_tilt_rad,
+            functools.partial(support_height, terrain) if terrain else None,
+        ),
         stop_on_fall=simulation.stop_on_fall,
         pacer=WallClockPacer() if simulation.realtime else None,
     )

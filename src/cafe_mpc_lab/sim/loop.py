@@ -82,6 +82,9 @@ class SimulationLog:
     fall_reason: str = ""
     wall_time: float = 0.0
     extra: dict = field(default_factory=dict)
+    sampled: dict[str, np.ndarray] = field(default_factory=dict)
+    """Arrays recorded at their own rate rather than per tick (the height maps, ``sim.height_map``), with
+    their own times; saved whole in ``log.npz`` as ``sampled_<name>``."""
 
     @classmethod
     def allocate(cls, ticks: int, nq: int, nv: int, nu: int, n_feet: int) -> SimulationLog:
@@ -113,18 +116,22 @@ class SimulationLog:
             self.fall_reason,
             self.wall_time,
             self.extra,
+            self.sampled,
         )
 
     def save(self, path: str) -> None:
-        """Write the log as a compressed ``.npz`` file (per-tick arrays of ``extra`` as ``extra_<name>``)."""
+        """Write the log as a compressed ``.npz`` file (per-tick arrays of ``extra`` as ``extra_<name>``, the
+        ``sampled`` arrays as ``sampled_<name>``)."""
         extras = {
             f"extra_{name}": value[: self.ticks]
             for name, value in self.extra.items()
             if isinstance(value, np.ndarray) and value.ndim >= 1 and len(value) >= self.ticks
         }
+        sampled = {f"sampled_{name}": value for name, value in self.sampled.items()}
         np.savez_compressed(
             path,
             **extras,
+            **sampled,
             time=self.time[: self.ticks],
             q=self.q[: self.ticks],
             v=self.v[: self.ticks],
@@ -138,10 +145,33 @@ class SimulationLog:
 
 @dataclass(frozen=True)
 class FallCriteria:
-    """When the run counts as a fall: base too low, tilted too far, or the trunk hit the floor."""
+    """When the run counts as a fall: base too low, tilted too far, or the trunk hit the floor.
+
+    ``ground_height(x, y)``: the height the base's height is measured from, the terrain under it with gaps
+    bridged (``sim.terrain.support_height``); None: the floor at 0."""
 
     min_base_height: float = 0.10
     max_tilt_rad: float = 1.2  # angle between base z axis and world z
+    ground_height: Callable[[float, float], float] | None = None
+
+    def reason(self, q: np.ndarray, trunk_touched_floor: bool) -> str:
+        """Why the robot at ``q`` counts as fallen ("" when it does not): its base too low, tilted too far,
+        or its trunk on the ground (``trunk_touched_floor``)."""
+        if self.ground_height is None:
+            if q[2] < self.min_base_height:
+                return f"base height {q[2]:.3f} m below {self.min_base_height} m"
+        else:
+            ground = self.ground_height(float(q[0]), float(q[1]))
+            if q[2] - ground < self.min_base_height:
+                return (
+                    f"base {q[2] - ground:.3f} m above the terrain under it (at {ground:.3f} m), below "
+                    f"{self.min_base_height} m"
+                )
+        if base_tilt(q) > self.max_tilt_rad:
+            return f"base tilt {base_tilt(q):.2f} rad above {self.max_tilt_rad} rad"
+        if trunk_touched_floor:
+            return "trunk touched the floor"
+        return ""
 
 
 def base_tilt(q: np.ndarray) -> float:
@@ -195,7 +225,8 @@ def simulate(
     The controller gets what ``plant.sensors`` measure (a ``SensorController`` when they are the robot's
     sensor readings, ``sim.sensors.SensorSuite``); their summary goes into the log's ``extra``. With a bar
     in the plant's scene (``sim.bar``) the log's ``extra`` holds ``bar_contact`` (per tick: a robot geom
-    touched it) and ``bar`` (``touched_by``: those geoms).
+    touched it) and ``bar`` (``touched_by``: those geoms). A plant with a height-map sensor
+    (``Plant.height_map``) measures its maps at their rate and the log's ``sampled`` holds them.
     """
     robot = plant.robot
     control_period = 1.0 / options.control_rate_hz
@@ -206,12 +237,14 @@ def simulate(
         )
     fall, pacer, observer = options.fall, options.pacer, options.observer
     progress, stop = options.progress, options.stop
-    sensors = plant.sensors
+    sensors, height_maps = plant.sensors, plant.height_map
     plant.reset(robot.q_standing if options.initial_q is None else options.initial_q, options.initial_v)
     if observer is not None:
         observer.start(plant)
     controller.reset()
     sensors.reset()
+    if height_maps is not None:
+        height_maps.reset()
     ticks = round(options.duration * options.control_rate_hz)
     log = SimulationLog.allocate(ticks, robot.nq, robot.nv, robot.nu, robot.n_feet)
     bar_contact = np.zeros(ticks, dtype=bool)
@@ -228,6 +261,8 @@ def simulate(
             if pacer is not None:
                 pacer.wait(tick)
             state = plant.read_state()
+            if height_maps is not None:  # a map when one is due (the controllers do not take maps yet)
+                height_maps.observe(t, state.q)
             measured = sensors.measure(tick, plant, state)
             if pacer is not None:
                 pacer.mark(tick, TickPart.SENSE)
@@ -253,13 +288,7 @@ def simulate(
                 bar_contact[tick] = plant.bar_in_contact
             log.ticks = tick + 1
             if fall is not None and not log.fell:
-                reason = ""
-                if state.q[2] < fall.min_base_height:
-                    reason = f"base height {state.q[2]:.3f} m below {fall.min_base_height} m"
-                elif base_tilt(state.q) > fall.max_tilt_rad:
-                    reason = f"base tilt {base_tilt(state.q):.2f} rad above {fall.max_tilt_rad} rad"
-                elif plant.trunk_touched_floor:
-                    reason = "trunk touched the floor"
+                reason = fall.reason(state.q, plant.trunk_touched_floor)
                 if reason:
                     log.fell, log.fall_time, log.fall_reason = True, t, reason
                     logger.warning("robot fell at t = %.3f s: %s", t, reason)
@@ -285,6 +314,8 @@ def simulate(
         log.extra["realtime"] = pacer.summary(log.ticks)
     log.extra.update(sensors.log_extra())
     log.extra["compilation"] = compiles.summary()
+    if height_maps is not None:
+        log.sampled.update(height_maps.log_arrays())
     if plant.bar is not None:
         log.extra["bar"] = {"touched_by": plant.bar_touched_by()}
     return log.trimmed()

@@ -9,8 +9,9 @@ world frame; the conversion happens here (``core.free_joint``).
 The model carries the robot's sensors (``sim.sensors``): ``sim.sensors.SensorSuite`` reads them as a robot
 would (IMU and encoders with noise, bias and quantisation). A ``PlantVariation`` (``sim.randomization``)
 changes the plant's friction, masses and motor strengths after the model is loaded (domain randomisation),
-and the scene (``sim.scene``) adds slopes, steps and a bar; the ``Robot``, and so every controller, stays
-nominal (it plans on flat ground).
+and the scene (``sim.scene``) adds terrain and a bar; a height-map sensor (``sim.height_map``) measures the
+ground around the robot. The ``Robot``, and so every controller, stays nominal (it plans on flat ground or
+on the plane of its stance feet, ``terrain: blind``).
 """
 
 from __future__ import annotations
@@ -21,10 +22,12 @@ import mujoco
 import numpy as np
 
 from cafe_mpc.config import RunConfig
+from cafe_mpc.config.run import HeightMapConfig
 from cafe_mpc.core.free_joint import planning_state
 from cafe_mpc.core.measurement import Measurement
 from cafe_mpc.robots.robot import Robot
 from cafe_mpc_lab.sim.bar import BAR_NAME, geom_label
+from cafe_mpc_lab.sim.height_map import HeightMapSensor
 from cafe_mpc_lab.sim.plant import Plant, PlantSensors, checked_timestep
 from cafe_mpc_lab.sim.randomization import PlantVariation, apply_variation, plant_variation
 from cafe_mpc_lab.sim.scene import Scene, scene_of
@@ -35,7 +38,9 @@ class MujocoPlant(Plant):
     """MuJoCo simulation of a ``Robot`` from its robot file, varied by a ``PlantVariation``.
 
     ``timestep``: the physics step (None: the robot file's); ``scene``: terrain and bar (None: the flat
-    floor); ``sensors``: what the controller reads (``sim.plant.PlantSensors``; the true state by default).
+    floor); ``sensors``: what the controller reads (``sim.plant.PlantSensors``; the true state by default);
+    ``height_map``: the height-map sensor's settings (None or not ``enabled``: no sensor), its noise drawn
+    from ``seed``.
     """
 
     kind = "mujoco"
@@ -47,6 +52,8 @@ class MujocoPlant(Plant):
         variation: PlantVariation | None = None,
         scene: Scene | None = None,
         sensors: PlantSensors | None = None,
+        height_map: HeightMapConfig | None = None,
+        seed: int = 0,
     ) -> None:
         super().__init__(robot, sensors)
         self.scene = scene = scene if scene is not None else Scene()
@@ -90,16 +97,21 @@ class MujocoPlant(Plant):
         """Every robot geom that touched the bar since ``reset``."""
         self.after_step: Callable[[mujoco.MjData], None] | None = None
         """Called after every physics step (``sim.sensors.SensorSuite`` averages the IMU over the steps)."""
+        if height_map is not None and height_map.enabled:
+            self.height_map = HeightMapSensor(self.model, self.data, height_map, self.base_body, seed)
 
     @classmethod
     def from_config(cls, config: RunConfig, robot: Robot, sensors: PlantSensors | None = None) -> MujocoPlant:
-        """The plant of a run config: its ``simulation.plant_timestep``, ``plant`` variation and ``scene``."""
+        """The plant of a run config: its ``simulation.plant_timestep``, ``plant`` variation, ``scene`` and
+        height-map sensor (``plant.height_map``)."""
         return cls(
             robot,
             config.simulation.plant_timestep,
             plant_variation(config.plant),
             scene_of(config.scene),
             sensors,
+            config.plant.height_map,
+            config.plant.seed,
         )
 
     def _reset(self, q: np.ndarray, v: np.ndarray) -> None:

@@ -33,6 +33,7 @@ from cafe_mpc_lab.sim.randomization import SensorModel
 
 if TYPE_CHECKING:
     from cafe_mpc_lab.sim.bar import Bar
+    from cafe_mpc_lab.sim.height_map import HeightMapSensor
 
 DIVERGENCE_WARNINGS = (
     mujoco.mjtWarning.mjWARN_BADQPOS,
@@ -77,7 +78,8 @@ class Plant(ABC):
     shows them); ``base_body``, the trunk's body id in ``model``; ``torque_limits`` (Nm, joint order);
     ``sensors``, what the controller reads (the true state unless given); ``trunk_touched_floor``, set by
     ``read_state`` or ``step`` once the trunk touched the ground (a fall); ``bar``, the scene's bar to jump
-    over (``sim.bar``) or None, and ``bar_in_contact``, a robot geom touched it at the last ``read_state``.
+    over (``sim.bar``) or None, and ``bar_in_contact``, a robot geom touched it at the last ``read_state``;
+    ``height_map``, its height-map sensor (``sim.height_map``) or None.
     """
 
     kind: ClassVar[str]
@@ -87,6 +89,7 @@ class Plant(ABC):
     base_body: int
     torque_limits: np.ndarray
     bar: Bar | None = None
+    height_map: HeightMapSensor | None = None
 
     def __init__(self, robot: Robot, sensors: PlantSensors | None = None) -> None:
         self.robot = robot

@@ -3,10 +3,12 @@
 ``LiveViewer`` is a ``sim.loop.Observer`` (``SimulationOptions(observer=LiveViewer.following(robot,
 controller))``): it opens ``mujoco.viewer.launch_passive`` on the plant's model and data before the first
 tick and, after the ticks that fall on its frame rate, draws the plan (``robots.plan_overlay.draw_plan``
-into the viewer's ``user_scn``) and calls ``sync()``. The simulation stays in charge of time: the viewer
-never steps physics. By default the run is held to the wall clock (``realtime``: never faster than real
-time, so a fast simulation can be watched; a slower one is shown as fast as it runs). Closing the window
-ends the run early (the run still writes its results). The camera follows the base.
+into the viewer's ``user_scn``), with the plant's newest height map when it has a height-map sensor (green
+points at the measured heights: ``sim.height_map.draw_height_map``), and calls ``sync()``. The simulation
+stays in charge of time: the viewer never steps physics. By default the run is held to the wall clock
+(``realtime``: never faster than real time, so a fast simulation can be watched; a slower one is shown as
+fast as it runs). Closing the window ends the run early (the run still writes its results). The camera
+follows the base.
 
 The viewer needs a display (X11 or Wayland: ``DISPLAY``, ``WAYLAND_DISPLAY``; on a headless machine e.g.
 ``xvfb-run``). ``check_display()`` raises ``ViewerUnavailable`` with one line saying so before anything
@@ -34,6 +36,7 @@ from cafe_mpc.control.commands import GAIT_NAMES, CommandChannel, check_command
 from cafe_mpc.core.plan import KnotPlan
 from cafe_mpc.robots.plan_overlay import PlanOverlay, draw_plan
 from cafe_mpc.robots.robot import Robot
+from cafe_mpc_lab.sim.height_map import draw_height_map
 from cafe_mpc_lab.sim.plant import Plant
 
 
@@ -188,6 +191,8 @@ class LiveViewer:
         self.stop_reason = ""
         self.frames = 0
         self.overlay_geoms_max = 0
+        self.height_map_points_max = 0
+        self._plant: Plant | None = None
         self._handle = None
         self._next_frame = 0.0
         self._wall_start = 0.0
@@ -227,6 +232,7 @@ class LiveViewer:
         self._next_frame = 0.0
         self._wall_start = time.perf_counter()
         self.frames = 0
+        self._plant = plant
         self._draw(0.0)
 
     def update(self, t: float, plant: Plant) -> bool:
@@ -258,6 +264,10 @@ class LiveViewer:
             scene.ngeom = 0
             if self._overlay is not None:
                 self.overlay_geoms_max = max(self.overlay_geoms_max, draw_plan(scene, self._overlay, t))
+            sensor = self._plant.height_map if self._plant is not None else None
+            if sensor is not None and sensor.latest is not None:
+                points = draw_height_map(scene, sensor.latest)
+                self.height_map_points_max = max(self.height_map_points_max, points)
         if self.teleop is not None:
             import mujoco
 
@@ -282,6 +292,7 @@ class LiveViewer:
         return {
             "frames": int(self.frames),
             "overlay_geoms_max": int(self.overlay_geoms_max),
+            "height_map_points_max": int(self.height_map_points_max),
             "closed_by_user": bool(self.stop_reason),
             "fps": float(np.round(1.0 / self.period, 3)),
             "teleop_key_presses": int(self.teleop.presses) if self.teleop is not None else None,

@@ -1,0 +1,109 @@
+"""The ground a blind robot believes it stands on: a plane through the points where its feet last stood.
+
+A robot without a map of the terrain still knows where its feet are when they stand: the plane through
+each foot's latest contact point (the sole's position, from the measured state's leg kinematics, while the
+foot is in stance) is its estimate of the ground around it: its height under the base, its slope, its
+normal.
+
+``GroundPlane`` keeps one contact point per foot and refits ``z = height + slope_x (x - cx) + slope_y
+(y - cy)`` by least squares whenever a point changes (``cx, cy``: the points' centroid). With fewer than
+three points that span the plane (feet in a line), the slope stays zero and the height is the points'
+mean. The slope is limited to ``max_slope`` (rise per run) so that a misplaced point cannot tip the plane
+over. The reference (``reference.locomotion``: base height, pitch and footholds on the plane) and the
+contact detector (``low_level.contact_detection``: a foot's height above the plane) each keep their own,
+updated from the measurement they see.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+MAX_SLOPE = 0.7
+"""Rise per run of the steepest plane the estimate believes (35 degrees)."""
+
+
+class GroundPlane:
+    """A plane through the feet's latest contact points (module docstring); starts flat at ``height``."""
+
+    def __init__(self, n_feet: int, height: float = 0.0, max_slope: float = MAX_SLOPE) -> None:
+        if n_feet < 1:
+            raise ValueError(f"a ground plane needs at least one foot, got {n_feet}")
+        if not (math.isfinite(height) and math.isfinite(max_slope) and max_slope >= 0.0):
+            raise ValueError(
+                f"ground plane: height must be finite and max_slope >= 0, got {height}, {max_slope}"
+            )
+        self.n_feet = n_feet
+        self.initial_height = float(height)
+        self.max_slope = float(max_slope)
+        self.points = np.zeros((n_feet, 3))
+        """Each foot's latest contact point (world; the sole), valid where ``known``."""
+        self.known = np.zeros(n_feet, dtype=bool)
+        self._standing = np.zeros(n_feet, dtype=bool)
+        self._design = np.zeros((n_feet, 3))
+        self.reset()
+
+    def reset(self) -> None:
+        """Forget the contact points: flat at the initial height."""
+        self.known[:] = False
+        self._standing[:] = False
+        self.height = self.initial_height
+        self.slope = np.zeros(2)
+        self.centre = np.zeros(2)
+
+    def observe(self, soles: np.ndarray, stance: np.ndarray) -> None:
+        """The soles (world, ``(n_feet, 3)``) of the feet in ``stance`` are contact points now; refit.
+
+        A foot that stood at the last observation and still stands has not moved: if its measured height
+        changed, the measurement's frame moved (an estimator that holds its stance feet at z = 0 shifts its
+        heights when the feet stand on a new level). The older points of the feet that do not stand now
+        move by the same mean shift, so that every point is in the frame of the newest measurement."""
+        standing = np.asarray(stance, dtype=bool)
+        continuing = standing & self._standing
+        if continuing.any():
+            shift = float(np.mean(soles[continuing, 2] - self.points[continuing, 2]))
+            self.points[~standing & self.known, 2] += shift
+        self._standing[:] = standing
+        if standing.any():
+            self.points[standing] = soles[standing]
+            self.known[standing] = True
+            self._fit()
+
+    def _fit(self) -> None:
+        points = self.points[self.known]
+        centre = points[:, :2].mean(axis=0)
+        self.centre = centre
+        self.height = float(points[:, 2].mean())
+        self.slope = np.zeros(2)
+        if len(points) < 3:
+            return
+        design = self._design[: len(points)]
+        design[:, 0] = 1.0
+        design[:, 1:] = points[:, :2] - centre
+        # feet (nearly) in a line leave the slope across it unknown: keep it flat
+        singular = np.linalg.svd(design[:, 1:], compute_uv=False)
+        if singular[-1] < 1e-3:
+            return
+        solution, *_ = np.linalg.lstsq(design, points[:, 2], rcond=None)
+        slope = solution[1:]
+        norm = float(np.hypot(slope[0], slope[1]))
+        if norm > self.max_slope:
+            slope = slope * (self.max_slope / norm)
+        self.height = float(solution[0])
+        self.slope = slope
+
+    def height_at(self, x: float, y: float) -> float:
+        """The plane's height (world z) at world ``(x, y)``."""
+        return self.height + self.slope[0] * (x - self.centre[0]) + self.slope[1] * (y - self.centre[1])
+
+    def normal(self) -> np.ndarray:
+        """The plane's unit normal (world, pointing up)."""
+        normal = np.array([-self.slope[0], -self.slope[1], 1.0])
+        return normal / np.linalg.norm(normal)
+
+    def pitch_along(self, yaw: float) -> float:
+        """Pitch (rad, about the heading frame's y axis; negative: nose up) of a body lying on the plane with
+        heading ``yaw``."""
+        rise = self.slope[0] * math.cos(yaw) + self.slope[1] * math.sin(yaw)
+        return -math.atan(rise)

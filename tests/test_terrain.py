@@ -1,0 +1,285 @@
+"""Off the flat floor: the ground plane of the stance feet (``core.ground``), the reference, contact detector,
+VWBC cone and estimator that follow it (``terrain: blind``), the terrain experiment, and closed loops."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from cafe_mpc.assembly import build_estimator, load_run_config, resolve
+from cafe_mpc.config import ContactDetectionSettings, VelocityCommand
+from cafe_mpc.core.ground import GroundPlane
+from cafe_mpc.core.measurement import Measurement
+from cafe_mpc.core.physics import GRAVITY
+from cafe_mpc.low_level.contact_detection import ContactDetector
+from cafe_mpc.low_level.vwbc import VWBCSettings, _StanceQP
+from cafe_mpc.ocp.contact_schedule import get_gait
+from cafe_mpc.planners.cafe.plan import Plan
+from cafe_mpc.reference.locomotion import LocomotionReference, quaternion_from_yaw
+
+TICK = 0.002
+DT = 0.01
+
+
+def scripted_plan(robot, n: int = 30) -> Plan:
+    """Foot 0 swings until 0.1 s, then stands; the other feet stand throughout (knots 10 ms apart)."""
+    nu, ndx = robot.nu, 2 * robot.nv
+    times = np.arange(n) * DT
+    contacts = np.ones((n, robot.n_feet), dtype=bool)
+    contacts[times < 0.1 - 1e-9, 0] = False
+    return Plan(
+        times=times,
+        xs=np.tile(np.concatenate([robot.q_standing, np.zeros(robot.nv)]), (n + 1, 1)),
+        us=np.zeros((n, nu)),
+        K=np.zeros((n, nu, ndx)),
+        Qu=np.zeros((n, nu)),
+        Quu=np.tile(np.eye(nu), (n, 1, 1)),
+        Qux=np.zeros((n, nu, ndx)),
+        contacts=contacts,
+        forces=np.zeros((n, robot.n_feet, 3)),
+        dt=np.full(n, DT),
+    )
+
+
+def _pitched(robot, pitch: float) -> np.ndarray:
+    """The standing configuration with the base pitched by ``pitch`` (rad, about y; negative: nose up)."""
+    q = robot.q_standing.copy()
+    q[3:7] = [0.0, math.sin(0.5 * pitch), 0.0, math.cos(0.5 * pitch)]
+    return q
+
+
+# ------------------------------------------------------------------------------------------ plane
+def test_the_plane_through_four_contact_points_has_their_slope_and_height():
+    plane = GroundPlane(4)
+    points = np.array([[0.2, 0.1, 0.0], [0.2, -0.1, 0.0], [-0.2, 0.1, 0.0], [-0.2, -0.1, 0.0]])
+    points[:, 2] = 0.05 + 0.3 * points[:, 0] - 0.1 * points[:, 1]
+    plane.observe(points, np.ones(4, dtype=bool))
+    assert plane.slope == pytest.approx([0.3, -0.1])
+    assert plane.height_at(1.0, 2.0) == pytest.approx(0.05 + 0.3 - 0.2)
+    assert plane.normal() == pytest.approx(np.array([-0.3, 0.1, 1.0]) / math.sqrt(1.1))
+    assert plane.pitch_along(0.0) == pytest.approx(-math.atan(0.3))
+
+
+def test_feet_in_a_line_give_a_flat_plane_at_their_height_and_the_slope_is_limited():
+    plane = GroundPlane(4, max_slope=0.5)
+    line = np.array([[0.0, 0.0, 0.02], [0.3, 0.0, 0.04], [0.0, 0.0, 0.0], [0.0, 0.0, 0.0]])
+    plane.observe(line, np.array([True, True, False, False]))
+    assert np.all(plane.slope == 0.0) and plane.height == pytest.approx(0.03)
+    steep = np.array([[0.2, 0.1, 0.4], [0.2, -0.1, 0.4], [-0.2, 0.1, 0.0], [-0.2, -0.1, 0.0]])
+    plane.observe(steep, np.ones(4, dtype=bool))
+    assert float(np.hypot(*plane.slope)) == pytest.approx(0.5)
+    plane.reset()
+    assert plane.height == 0.0 and not plane.known.any()
+    with pytest.raises(ValueError, match="at least one foot"):
+        GroundPlane(0)
+
+
+def test_points_of_lifted_feet_follow_the_frame_of_the_standing_ones():
+    """Feet that keep standing but measure 3 cm lower (an estimator that re-levels its frame) move the older
+    points of the lifted feet down with them: the step between the pairs stays 4 cm."""
+    plane = GroundPlane(4)
+    soles = np.array([[0.2, 0.1, 0.04], [0.2, -0.1, 0.04], [-0.2, 0.1, 0.0], [-0.2, -0.1, 0.0]])
+    plane.observe(soles, np.ones(4, dtype=bool))
+    hind = np.array([False, False, True, True])
+    plane.observe(soles, hind)
+    soles[2:, 2] -= 0.03
+    plane.observe(soles, hind)
+    assert plane.points[:2, 2] == pytest.approx([0.01, 0.01])
+    assert plane.slope[0] == pytest.approx(0.1)
+
+
+# ------------------------------------------------------------------------------------------ reference
+def test_the_blind_reference_pitches_and_lifts_the_base_and_its_footholds_onto_the_plane(robot):
+    """Standing pitched nose-up on a 10 degree slope: the plane through the feet has the slope; the base's
+    reference sits the standing height above it, pitched with it, and footholds lie on it. Flat: z = 0."""
+    pitch = -math.radians(10.0)
+    q = _pitched(robot, pitch)
+    commands = [VelocityCommand(vx=0.5)]
+    blind = LocomotionReference(robot, get_gait("trot"), commands, start_stance=0.5, ground_plane=True)
+    flat = LocomotionReference(robot, get_gait("trot"), commands, start_stance=0.5)
+    for reference in (blind, flat):
+        reference.update(0.0, q, np.zeros(robot.nv))
+    assert blind.ground is not None and blind.ground.slope[0] == pytest.approx(math.tan(-pitch), rel=1e-6)
+    base, _ = blind.base_state(0.0)
+    ground = blind.ground.height_at(base[0], base[1])
+    assert base[2] == pytest.approx(robot.standing_height + ground)
+    assert base[3:7] == pytest.approx(np.array([0.0, math.sin(0.5 * pitch), 0.0, math.cos(0.5 * pitch)]))
+    foothold = blind.foothold(0, 0.8, 0.25)
+    assert foothold[2] == pytest.approx(robot.foot_radius + blind.ground.height_at(foothold[0], foothold[1]))
+    flat_base, _ = flat.base_state(0.0)
+    assert flat_base[2] == pytest.approx(robot.standing_height)
+    assert flat_base[3:7] == pytest.approx(quaternion_from_yaw(0.0))
+    assert flat.foothold(0, 0.8, 0.25)[2] == pytest.approx(robot.foot_radius)
+
+
+def test_a_hanging_foot_does_not_lift_the_plane(robot):
+    """A foot planned in stance that still moves (its leg hanging from a rising body) gives no point."""
+    reference = LocomotionReference(
+        robot, get_gait("trot"), [VelocityCommand()], start_stance=0.5, ground_plane=True
+    )
+    q = robot.q_standing.copy()
+    reference.update(0.0, q, np.zeros(robot.nv))
+    assert reference.ground is not None and reference.ground.height == pytest.approx(0.0, abs=1e-3)
+    q[2] += 0.05
+    rising = np.zeros(robot.nv)
+    rising[2] = 0.5  # m/s up: every foot moves with the base
+    reference.update(0.02, q, rising)
+    assert reference.ground.height == pytest.approx(0.0, abs=1e-3)
+    reference.update(0.04, q, np.zeros(robot.nv))
+    assert reference.ground.height == pytest.approx(0.05, abs=1e-3)
+
+
+# ------------------------------------------------------------------------------------------ detection
+def _step_up_measurement(robot, t: float, raise_foot: float, force: float) -> Measurement:
+    """The robot standing at z = 0 with foot 0 raised ``raise_foot`` (its knee bent: on a step) carrying
+    ``force`` N; the other feet carry their share."""
+    q = robot.q_standing.copy()
+    sole = robot.foot_positions(q)[0, 2]
+    low, high = 0.0, 1.5  # knee flexion that lifts foot 0 by raise_foot (bisection)
+    knee = 7 + 2
+    base_knee = q[knee]
+    for _ in range(60):
+        middle = 0.5 * (low + high)
+        q[knee] = base_knee + math.copysign(middle, base_knee)  # more flexion: the foot rises
+        if robot.foot_positions(q)[0, 2] - sole < raise_foot:
+            low = middle
+        else:
+            high = middle
+    forces = np.zeros((robot.n_feet, 3))
+    forces[:, 2] = robot.total_mass * GRAVITY / robot.n_feet
+    forces[0, 2] = force
+    return Measurement(t, q, np.zeros(robot.nv), np.ones(robot.n_feet, dtype=bool), forces)
+
+
+@pytest.mark.parametrize("ground_plane", [False, True])
+def test_a_foot_landing_on_a_step_up_is_in_stance_only_with_the_ground_plane(robot, ground_plane):
+    """Foot 0 lands 6 cm above the others (a step up) at its planned touchdown and carries its share: with
+    the plane, its load is the evidence (stance at once, and the plane rises to it); on flat ground it is
+    6 cm above the ground: a late touchdown, left out of the stance set."""
+    detector = ContactDetector(robot, ContactDetectionSettings(), ground_plane=ground_plane)
+    plan = scripted_plan(robot)
+    share = robot.total_mass * GRAVITY / robot.n_feet
+    stance = []
+    times = np.arange(0.0, 0.2, TICK)
+    for t in times:
+        landed = t >= 0.1
+        measurement = _step_up_measurement(robot, float(t), 0.06, share if landed else 0.0)
+        stance.append(bool(detector.update(float(t), measurement, plan)[0]))
+    after = np.array(stance)[times >= 0.1 + 1e-9]
+    if ground_plane:
+        assert after.all()
+        assert detector.ground is not None and detector.ground.points[0, 2] == pytest.approx(0.06, abs=2e-3)
+    else:
+        assert not after.any() and detector.late_touchdown_ticks > 0
+
+
+def test_an_unloaded_foot_above_the_plane_stays_out_of_stance(robot):
+    """Planned stance, 6 cm up, no force: in the air (late) with the plane too."""
+    detector = ContactDetector(robot, ContactDetectionSettings(), ground_plane=True)
+    plan = scripted_plan(robot)
+    flags = [
+        bool(detector.update(float(t), _step_up_measurement(robot, float(t), 0.06, 0.0), plan)[0])
+        for t in np.arange(0.1, 0.2, TICK)
+    ]
+    assert not any(flags)
+
+
+# ------------------------------------------------------------------------------------------ VWBC cone
+def test_the_vwbc_cone_turns_with_the_ground_normal(robot):
+    """About world z the rows are (34e)-(34f) as built; about a 20 degree slope's normal a force along the
+    normal is inside and a vertical one (tangential share tan 20 deg = 0.36 > 0.3) outside."""
+    qp = _StanceQP((True, False, False, False), robot.nv, robot.nu, robot.torque_limits, VWBCSettings(), 0.3)
+    built = qp.C.copy()
+    qp.orient_cone(np.array([0.0, 0.0, 1.0]))
+    assert np.array_equal(qp.C, built)
+    angle = math.radians(20.0)
+    normal = np.array([-math.sin(angle), 0.0, math.cos(angle)])
+    qp.orient_cone(normal)
+    rows = qp.C[robot.nu :, robot.nv + robot.nu : robot.nv + robot.nu + 3]
+    along_normal = 100.0 * normal
+    vertical = np.array([0.0, 0.0, 100.0])
+    assert np.all(rows[:4] @ along_normal <= 1e-9) and rows[4] @ along_normal > 0.0
+    assert np.any(rows[:4] @ vertical > 0.0)
+
+
+# ------------------------------------------------------------------------------------------ config
+def test_terrain_blind_reaches_the_reference_the_contact_detector_and_the_estimator(robot):
+    """``terrain: blind`` resolves to a ground plane that the reference and the VWBC's detector get and
+    that keeps the estimator's stance feet; ``flat`` (the default) none of these."""
+    from cafe_mpc.assembly import build_low_level
+    from cafe_mpc.assembly.references import build_reference
+
+    blind = resolve(load_run_config("trot", ["terrain=blind"]), robot)
+    flat = resolve(load_run_config("trot"), robot)
+    assert flat.config.terrain == "flat"
+    assert blind.ground_plane and not flat.ground_plane
+    assert build_reference(blind).ground is not None
+    assert build_reference(flat).ground is None
+    assert build_low_level(blind).detector.ground is not None
+    assert build_low_level(flat).detector.ground is None
+    assert not build_estimator(blind).flat_ground and build_estimator(flat).flat_ground
+
+
+# ------------------------------------------------------------------------------------------ experiment
+def test_the_terrain_experiment_makes_one_valid_run_per_gait_terrain_and_ground():
+    from cafe_mpc_lab.experiments.catalog import get_experiment
+    from cafe_mpc_lab.experiments.registry import PlanContext
+
+    experiment = get_experiment("terrain")
+    options = experiment.options_from({"gaits": "trot,bound", "terrains": "step4,slope10"})
+    plan = experiment.plan(options, PlanContext())
+    assert len(plan.variants) == 2 * 2 * 2
+    for variant in plan.variants:
+        config = load_run_config(variant.preset, [*experiment.default_overrides, *variant.overrides])
+        fields = dict(variant.fields)
+        assert config.terrain == fields["mode"] and len(config.scene.terrain) == 1
+        assert config.mpc.latency == "fixed" and config.mpc.fixed_latency == 0.02
+    assert plan.options["--modes"] == "flat,blind"
+
+
+# ------------------------------------------------------------------------------------------ closed loops
+@pytest.mark.slow
+def test_a_blind_bound_climbs_a_10_degree_slope_and_stays_up():
+    """The bound onto a 10 degree slope 0.5 m ahead, fixed 20 ms latency: on the flat-ground controller it
+    falls on the incline (at 3.2 s from 1 m ahead: docs/terrain.md); blind, its base follows the incline."""
+    from cafe_mpc_lab.experiments.run import simulate_run
+
+    config = load_run_config(
+        "bound",
+        [
+            "simulation.duration=3.5",
+            "mpc.latency=fixed",
+            "mpc.fixed_latency=0.02",
+            "terrain=blind",
+            "scene.terrain=[{kind: slope, start: 0.5, angle_deg: 10, length: 1.5}]",
+        ],
+    )
+    _, _, log = simulate_run(config)
+    assert not log.fell, log.fall_reason
+    x = log.q[-1, 0]
+    assert x > 1.0  # on the incline, 0.5 m up it
+    rise = (x - 0.5) * math.tan(math.radians(10.0))
+    assert log.q[-1, 2] - rise > 0.18  # the base stands above the incline, not on it
+
+
+@pytest.mark.slow
+def test_a_blind_pace_climbs_4_cm_steps_and_stays_up():
+    """The pace onto three 4 cm steps 1 m ahead, fixed 20 ms latency: the flat-ground controller falls on
+    the second step at 3.6 s (docs/terrain.md); blind, it is on the steps and up at 4.5 s."""
+    from cafe_mpc_lab.experiments.run import simulate_run
+
+    config = load_run_config(
+        "pace",
+        [
+            "simulation.duration=4.5",
+            "mpc.latency=fixed",
+            "mpc.fixed_latency=0.02",
+            "terrain=blind",
+            "scene.terrain=[{kind: steps, rise: 0.04}]",
+        ],
+    )
+    _, _, log = simulate_run(config)
+    assert not log.fell, log.fall_reason
+    assert log.q[-1, 0] > 1.6  # past the first step's tread
