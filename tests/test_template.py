@@ -267,8 +267,8 @@ def test_template_trot_stays_up_and_moves_forward():
 def test_template_bounds_with_the_short_flight_timing():
     """MIT's bound timing (0.104 s stance, 0.026 s flights), fixed latency, planned with the floor's friction
     (0.6): the template bounds for 2 s (1.3 s at the full 0.5 m/s), with a pitch oscillation that stays
-    bounded. With the controller's default margin (``mpc.friction`` 0.4) the template falls at 1.55 s (measured,
-    not analysed further)."""
+    bounded. With the controller's default margin (``mpc.friction`` 0.4) the template falls at 1.55 s
+    (measured, not analysed further)."""
     duration = 2.0
     config = load_run_config(
         "bound",
