@@ -145,6 +145,32 @@ def test_leg_inverse_kinematics_reaches_feet_and_matches_rates(robot):
     np.testing.assert_allclose((later - joints) / dt, rates, atol=1e-3)
 
 
+def test_holding_the_path_turns_the_heading_back_toward_the_commanded_line(robot):
+    """Trot at 0.5 m/s straight ahead from the origin: measured 1 s later 0.1 m left of the line with the
+    commanded heading, a reference that holds its path (``path_gain`` 1 rad/m) heads 0.1 rad to the right,
+    at most ``path_heading_limit`` for a larger error, and a reference that dead-reckons keeps the measured
+    heading."""
+
+    gait = get_gait("trot")
+    q = robot.q_standing.copy()
+    v = np.zeros(robot.nv)
+
+    def heading_after(offset: float, gain: float) -> float:
+        reference = LocomotionReference(
+            robot, gait, [VelocityCommand(vx=0.5)], path_gain=gain, path_heading_limit=0.2
+        )
+        reference.update(0.0, q, v)
+        moved = q.copy()
+        moved[:2] += (0.5, offset)
+        reference.update(1.0, moved, v)
+        return reference.anchor_yaw
+
+    assert heading_after(0.1, 1.0) == pytest.approx(-0.1)
+    assert heading_after(-0.1, 1.0) == pytest.approx(0.1)
+    assert heading_after(1.0, 1.0) == pytest.approx(-0.2)
+    assert heading_after(0.1, 0.0) == pytest.approx(0.0)
+
+
 def test_a_foot_on_the_ground_before_its_touchdown_advances_the_gaits_clock(robot):
     """Pronk (0.1 s stance, 0.2 s flight): measured standing (every foot on the ground) 50 ms before the
     planned touchdown, the reference's clock jumps 50 ms ahead so that its stance starts now; 10 ms before
