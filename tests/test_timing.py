@@ -261,6 +261,7 @@ def test_the_delay_predictor_carries_the_planned_state_along_its_own_plan(robot)
     settings = MpcSettings(latency="fixed", warm_up=0.0)
     mpc = RecedingHorizonMpc(robot, _reference(robot, "bound", start_stance=0.02), builder, settings)
     mpc.first_solver = MSiLQRSolver(replace(first_solve_options(), defect_tolerance=1e-10, max_iterations=60))
+    mpc.first_solver.workspace = mpc.solver.workspace  # the planner's solvers share one workspace
     plan = mpc.update(0.0, robot.q_standing, np.zeros(robot.nv))
     assert plan is not None
     touchdowns = np.flatnonzero(np.any(plan.contacts[1:] & ~plan.contacts[:-1], axis=1)) + 1

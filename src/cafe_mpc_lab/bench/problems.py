@@ -113,7 +113,7 @@ def whole_body_problem(robot: Robot, phases=TROT_CYCLE, dt: float = 0.01, seed: 
         [(tuple(s), n) for s, n in phases],
         dt,
         x_ref,
-        running.state_weights(),
-        terminal.state_weights(),
+        running.state_weights(robot.nu),
+        terminal.state_weights(robot.nu),
         float(running.torque),
     )
