@@ -28,8 +28,8 @@ def test_preset_loads_with_its_reference_section():
     "overrides, message",
     [
         (
-            ["reference.segments.1.trajectory=front-flip"],
-            "reference.segments.1: unknown trajectory 'front-flip'",
+            ["reference.segments.1.trajectory=moonwalk"],
+            "reference.segments.1: unknown trajectory 'moonwalk'",
         ),
         (["reference.segments.1.trajectory=missing.npz"], "missing.npz: does not exist"),
         (["reference.segments.1.trajectory=null"], "a trajectory segment needs 'trajectory'"),
