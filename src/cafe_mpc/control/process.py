@@ -37,6 +37,7 @@ from collections.abc import Callable
 
 import numpy as np
 
+from cafe_mpc.config import RecoveryConfig
 from cafe_mpc.control.commands import CommandChannel, apply_command
 from cafe_mpc.control.ipc.channels import ControlBlock, MeasurementRing, PlanChannel, PlanLayout
 from cafe_mpc.control.loop import MpcLoop
@@ -79,6 +80,7 @@ def _worker_main(
     control_name: str,
     control_period: float,
     period: float,
+    resync_after: float,
     parent_pid: int,
     results,
 ) -> None:
@@ -93,7 +95,7 @@ def _worker_main(
     worker = None
     try:
         planner = factory()
-        worker = _Worker(planner, ring, plans, control, control_period, period, parent_pid)
+        worker = _Worker(planner, ring, plans, control, control_period, period, resync_after, parent_pid)
         control.array[ControlBlock.RTI] = 1.0 if worker.rti else 0.0
         control.array[ControlBlock.READY] = 1.0  # built; numba kernels loaded
         worker.run()
@@ -122,11 +124,14 @@ class _Worker:
         control: ControlBlock,
         control_period: float,
         period: float,
+        resync_after: float,
         parent_pid: int,
     ) -> None:
         self.planner, self.ring, self.plans, self.control = planner, ring, plans, control
         self.control_period = control_period
         self.period = period
+        self.resync_ticks = max(round(resync_after / control_period), 1)
+        """A gap of more ticks than this between two measurements solved from: solve cold (``_resync``)."""
         self.parent_pid = parent_pid
         self.buffer = np.zeros(ring.slot - 2)
         self.nq, self.nv = ring.nq, ring.nv
@@ -147,12 +152,23 @@ class _Worker:
             if newest < 0 or newest == last_tick:
                 time.sleep(0.0002)
                 continue
-            if not planner.started:  # the cold solve, on the first measurement
+            if planner.started and last_tick >= 0 and newest - last_tick > self.resync_ticks:
+                self._resync()  # this process was stopped: its warm start is stale
+            if not planner.started:  # the cold solve, on the first measurement (or after a resync)
                 if self.ring.read(newest, self.buffer):
                     last_tick = newest
                     self._publish(self._state_update(newest), newest)
                 continue
             last_tick = self._rti_update(last_tick) if self.rti else self._one_phase_update(last_tick, newest)
+
+    def _resync(self) -> None:
+        """Forget the warm start (the planner's records stay): the next update is a cold solve from the
+        newest measurement, as a new process's first one would be."""
+        statistics = self.planner.statistics
+        self.planner.reset()
+        self.planner.statistics = statistics
+        self.clock.reset()
+        self.control.array[ControlBlock.RESYNCS] += 1.0
 
     def _take_command(self, t: float) -> None:
         """Apply a runtime command posted since the last update, from ``t`` on."""
@@ -198,6 +214,8 @@ class _Worker:
                 return last_tick
             time.sleep(0.0001)
         nq, nv = self.nq, self.nv
+        if self.ring.newest - tick > self.resync_ticks:  # stopped while waiting: ``run`` solves cold
+            return tick
         if not self.ring.read(tick, self.buffer):  # overwritten (the prepare outlasted the ring): newest
             tick = self.ring.newest
             if not self.ring.read(tick, self.buffer):
@@ -226,8 +244,10 @@ class ProcessMpcLoop(MpcLoop[PlanT]):
 
     ``factory`` builds the planner in the MPC process; ``plan_format``: how its plans travel (the plan
     channel's layout, ``core.plan.PlanFormat``); ``period``: the MPC period; ``scheme``: the scheme the
-    planner is set to run (the MPC process reports the one it runs once it is ready). Use as a context manager
-    (or call ``close()``): it owns shared memory and, once started, a process.
+    planner is set to run (the MPC process reports the one it runs once it is ready); ``recovery`` and
+    ``balance``: the safe ladder's settings and balance controller, and the supervision's (stall timeout,
+    restarts). Use as a context manager (or call ``close()``): it owns shared memory and, once started, a
+    process.
     """
 
     def __init__(
@@ -240,18 +260,21 @@ class ProcessMpcLoop(MpcLoop[PlanT]):
         control_period: float = 0.002,
         scheme: str = "rti",
         startup_timeout: float = 120.0,
-        stall_timeout: float | None = None,
+        recovery: RecoveryConfig | None = None,
+        balance: LowLevelController | None = None,
     ) -> None:
         if not control_period > 0:
             raise ValueError(f"control period must be positive, got {control_period}")
         self.robot = robot
         self.factory = factory
         self.low_level = low_level
-        self.follower = NewestPlanFollower(robot, low_level)
+        self.recovery = recovery if recovery is not None else RecoveryConfig()
+        self.follower = NewestPlanFollower(robot, low_level, self.recovery, balance)
         self.period = period
         self.control_period = float(control_period)
         self.startup_timeout = startup_timeout
-        self.stall_timeout = stall_timeout if stall_timeout is not None else max(0.5, 10 * period)
+        stall = self.recovery.stall_timeout
+        self.stall_timeout = stall if stall is not None else max(0.5, 10 * period)
         self._scheme = scheme
         self.layout = PlanLayout(plan_format)
         self._measurements = MeasurementRing(robot.nq, robot.nv, robot.n_feet)
@@ -260,21 +283,34 @@ class ProcessMpcLoop(MpcLoop[PlanT]):
         self.commands = self._control.commands()
         """Runtime commands for the MPC process (``control.commands``), taken at its next update; a command
         posted before a (re)start is taken by the new process's first update."""
-        self.plan: PlanT | None = None
+        self._plan: PlanT | None = None
         self.received = MpcStatistics()
         """The plans as this side received them: latencies, measurement times, update wall times, and the
-        ticks of the PD fallback."""
+        ticks of the safe ladder off the plans."""
         self.worker_statistics: MpcStatistics | None = None
-        """The MPC process's own records, sent when it stops."""
+        """The MPC process's own records, sent when it stops (the last process's, after restarts)."""
         self.worker_error: str | None = None
         self.failure: str | None = None
         self.process: multiprocessing.process.BaseProcess | None = None
         self._results = None
         self._reference: Reference | None = None
-        self._last_plan_time = 0.0
-        self._failure_time: float | None = None
         self._affinity = None
         self._closed = False
+        self._new_run()
+
+    def _new_run(self) -> None:
+        """Forget a previous run's supervision records."""
+        self.events: list[dict] = []
+        """What happened to the MPC process: ``{"t", "event", "detail"}`` (exited, stalled, resumed,
+        restarting, restarted, failed)."""
+        self.restarts: list[dict] = []
+        """Each restart: when (``t``), why, when the new process was built (``ready_at``) and sent its
+        first plan (``first_plan_at``), and ``restart_s`` between the two ends."""
+        self.processes = 0
+        self._restarting: dict | None = None
+        self._stalled_at: float | None = None
+        self._last_plan_time = 0.0
+        self._failure_time: float | None = None
 
     # ------------------------------------------------------------------------------------ interface
     @property
@@ -322,19 +358,21 @@ class ProcessMpcLoop(MpcLoop[PlanT]):
             self._stop_process()
             self._measurements.clear()
             self._control.array[: ControlBlock.COMMANDS] = 0.0
-            self.plan, self.failure, self._failure_time = None, None, None
+            self._plan, self.failure = None, None
             self.received, self.worker_statistics, self.worker_error = MpcStatistics(), None, None
+            self._new_run()
         self._spawn()
         deadline = time.perf_counter() + self.startup_timeout
         stage("first (cold) MPC solve, in the MPC process")
         self.publish(t, measurement)
-        while self.plan is None:
+        while self._plan is None:
             self._poll_plan(t, record=False)
-            if self.plan is not None:
+            if self._plan is not None:
                 break
-            self._check_alive()
-            if self.failure is not None:
-                raise MpcProcessError(self.failure)
+            if not self.process.is_alive():
+                self._read_results()
+                detail = f": {self.worker_error}" if self.worker_error else ""
+                raise MpcProcessError(f"the MPC process exited (code {self.process.exitcode}){detail}")
             if time.perf_counter() > deadline:
                 raise MpcProcessError(f"the MPC process sent no plan within {self.startup_timeout:.0f} s")
             time.sleep(0.002)
@@ -344,15 +382,9 @@ class ProcessMpcLoop(MpcLoop[PlanT]):
     def compute(self, t: float, measurement: Measurement) -> np.ndarray:
         self.publish(t, measurement)
         self._poll_plan(t, record=True)
-        plan = self.plan
-        if plan is not None and t - self._last_plan_time > self.stall_timeout and self.failure is None:
-            self._check_alive()
-            if self.failure is None:
-                self.failure = f"the MPC process delivered no plan for {t - self._last_plan_time:.2f} s"
-        if plan is not None and t >= plan.end_time and self.failure is None:
-            self._check_alive()
+        self._supervise(t)
         before = self.follower.fallback_ticks
-        torques = self.follower.compute(t, measurement, plan)
+        torques = self.follower.compute(t, measurement, self._plan)
         self.received.fallback_ticks += self.follower.fallback_ticks - before
         return torques
 
@@ -364,10 +396,29 @@ class ProcessMpcLoop(MpcLoop[PlanT]):
             self._failure_time = t
         return t - self._failure_time > 0.5
 
+    def fault_record(self, control_period: float) -> dict | None:
+        """The safe ladder's record and the MPC process's: its events, restarts (with how long each took from
+        the exit to the new process's first plan), how often it solved cold after being stopped, and the
+        failure if it could not be kept running; None when nothing happened."""
+        resyncs = int(self._control.array[ControlBlock.RESYNCS]) if not self._closed else self._resyncs
+        if not (self.follower.eventful or self.events or resyncs):
+            return None
+        record = {"ladder": self.follower.record(control_period)}
+        record["mpc"] = {
+            "processes": self.processes,
+            "events": list(self.events),
+            "restarts": list(self.restarts),
+            "resyncs": resyncs,
+            "stall_timeout_s": self.stall_timeout,
+            "failure": self.failure,
+        }
+        return record
+
     def close(self) -> None:
         """Stop the MPC process (politely, then by force) and free the shared memory. Idempotent."""
         if self._closed:
             return
+        self._resyncs = int(self._control.array[ControlBlock.RESYNCS])
         self._closed = True
         if self.process is not None:
             self._stop_process()
@@ -378,10 +429,90 @@ class ProcessMpcLoop(MpcLoop[PlanT]):
         for channel in (self._measurements, self._plans, self._control):
             channel.close(unlink=True)
 
+    _resyncs = 0
+
     def publish(self, t: float, measurement: Measurement) -> None:
         """Write the measurement of the tick at ``t`` into the ring for the MPC process (never blocks)."""
         tick = round(t / self.control_period)
         self._measurements.write(tick, t, measurement.q, measurement.v, measurement.contacts)
+
+    # ------------------------------------------------------------------------------------ supervision
+    def _event(self, t: float, event: str, detail: str = "") -> None:
+        """Record (and log) what happened to the MPC process at ``t``."""
+        self.events.append({"t": float(t), "event": event, "detail": detail})
+        logger.warning(
+            "t = %.3f s: MPC process %s%s", t, event.removeprefix("mpc_"), f": {detail}" * bool(detail)
+        )
+
+    def _supervise(self, t: float) -> None:
+        """Every tick: a dead process is restarted (or the loop fails, past the restart limit), one that
+        sends no plan for ``stall_timeout`` counts as stalled and, after ``recovery.stall_restart_after``
+        more, is killed and restarted; a new process that sends no plan within ``startup_timeout`` too."""
+        process = self.process
+        if self.failure is not None or process is None:
+            return
+        if not process.is_alive():
+            self._read_results()
+            detail = f"code {process.exitcode}" + (f", {self.worker_error}" if self.worker_error else "")
+            self._event(t, "mpc_exited", detail)
+            self._restart(t, f"the MPC process exited ({detail})")
+            return
+        restarting = self._restarting
+        if restarting is not None:
+            if restarting["ready_at"] is None and self._control.array[ControlBlock.READY] == 1.0:
+                restarting["ready_at"] = float(t)
+            if t - restarting["t"] > self.startup_timeout:
+                self._restart(t, f"the new MPC process sent no plan within {self.startup_timeout:g} s")
+            return
+        silence = t - self._last_plan_time
+        if self._stalled_at is None and silence > self.stall_timeout:
+            self._stalled_at = t
+            self._event(t, "mpc_stalled", f"no plan for {silence:.2f} s")
+        elif self._stalled_at is not None and t - self._stalled_at > self.recovery.stall_restart_after:
+            self._restart(t, f"the MPC process sent no plan for {silence:.2f} s")
+
+    def _restart(self, t: float, reason: str) -> None:
+        """Replace the MPC process by a new one (which solves cold from the newest measurement), unless
+        ``recovery.max_restarts_per_minute`` restarts happened in the last 60 s: then the loop fails and the
+        robot stays in the damped stance."""
+        self._poll_plan(t, record=True)  # the old process's last plan, if it sent one we have not read
+        recent = sum(1 for restart in self.restarts if restart["t"] > t - 60.0)
+        limit = self.recovery.max_restarts_per_minute
+        self._discard_process()
+        if recent >= limit:
+            self.failure = (
+                f"{reason}; {recent} restart(s) in the last minute, the limit "
+                f"(recovery.max_restarts_per_minute) is {limit}: the robot is held in the damped stance"
+            )
+            self.follower.fail(t, self.failure)
+            self._event(t, "mpc_failed", self.failure)
+            return
+        self._event(t, "mpc_restarting", reason)
+        self._plans.abandon_write()
+        self._control.array[ControlBlock.STOP] = 0.0
+        self._control.array[ControlBlock.READY] = 0.0
+        self._stalled_at = None
+        self._spawn()
+        self._restarting = {
+            "t": float(t),
+            "reason": reason,
+            "ready_at": None,
+            "first_plan_at": None,
+            "restart_s": None,
+        }
+        self.restarts.append(self._restarting)
+
+    def _discard_process(self) -> None:
+        """Kill the current MPC process if it still runs (a stopped one too), reap it, read what it sent."""
+        process = self.process
+        if process is None:
+            return
+        if process.is_alive():
+            process.kill()
+        process.join(timeout=2.0)
+        self._read_results()
+        with contextlib.suppress(Exception):
+            self._results.close()
 
     # ----------------------------------------------------------------------------------- the process
     def _spawn(self) -> None:
@@ -398,6 +529,7 @@ class ProcessMpcLoop(MpcLoop[PlanT]):
                 self._control.name,
                 self.control_period,
                 self.period,
+                self.recovery.resync_after,
                 os.getpid(),
                 child_end,
             ),
@@ -406,6 +538,7 @@ class ProcessMpcLoop(MpcLoop[PlanT]):
         )
         process.start()
         self.process = process  # started: from now on ``close`` stops it
+        self.processes += 1
         child_end.close()
         if self._affinity is None:
             with contextlib.suppress(AttributeError, OSError):
@@ -414,15 +547,22 @@ class ProcessMpcLoop(MpcLoop[PlanT]):
 
     def _stop_process(self) -> None:
         """Set the stop flag, read what the process sends while it exits (its statistics can exceed the
-        pipe's buffer: joining first would deadlock), then make sure it is gone."""
+        pipe's buffer: joining first would deadlock), then make sure it is gone. A stopped process (SIGSTOP)
+        is continued first."""
         with contextlib.suppress(Exception):
             self._control.array[ControlBlock.STOP] = 1.0
+        if self.process.is_alive():
+            with contextlib.suppress(OSError):
+                os.kill(self.process.pid, signal.SIGCONT)
         deadline = time.perf_counter() + 5.0
         while time.perf_counter() < deadline:
-            if self._results.poll(0.02):
-                if not self._receive():
-                    break  # the process closed its end
-            elif not self.process.is_alive():
+            try:
+                if self._results.poll(0.02):
+                    if not self._receive():
+                        break  # the process closed its end
+                elif not self.process.is_alive():
+                    break
+            except (OSError, ValueError):  # its pipe is closed already (a discarded process)
                 break
         self.process.join(timeout=1.0)
         if self.process.is_alive():
@@ -431,19 +571,38 @@ class ProcessMpcLoop(MpcLoop[PlanT]):
         if self.process.is_alive():
             self.process.kill()
             self.process.join(timeout=2.0)
-        self._results.close()
+        with contextlib.suppress(Exception):
+            self._results.close()
 
     def _poll_plan(self, t: float, record: bool) -> None:
         received = self._plans.receive()
         if received is None:
             return
         plan, measured_at, wall = received
-        self.plan = plan
+        self._plan = plan
         self._last_plan_time = t
+        self.follower.new_plan(t, measured_at)
         if record:
             self.received.latencies.append(t - measured_at)
             self.received.start_times.append(measured_at)
             self.received.update_times.append(wall)
+        restarting = self._restarting
+        if restarting is not None:
+            restarting["first_plan_at"] = float(t)
+            restarting["restart_s"] = float(t - restarting["t"])
+            self._restarting = None
+            self._scheme = "rti" if self._control.array[ControlBlock.RTI] == 1.0 else "one_phase"
+            self._event(t, "mpc_restarted", f"first plan {restarting['restart_s']:.2f} s after the restart")
+        elif self._stalled_at is not None:
+            self._event(t, "mpc_resumed", f"a plan again, {t - self._stalled_at:.2f} s after the stall")
+            self._stalled_at = None
+
+    def _read_results(self) -> None:
+        """Take every message the process has sent so far (never blocks)."""
+        with contextlib.suppress(OSError, ValueError, EOFError):
+            while self._results.poll(0):
+                if not self._receive():
+                    break
 
     def _receive(self) -> bool:
         """Take one message from the process; ``False`` once its end of the pipe is closed."""
@@ -456,13 +615,3 @@ class ProcessMpcLoop(MpcLoop[PlanT]):
         elif kind == "error":
             self.worker_error = payload
         return True
-
-    def _check_alive(self) -> None:
-        if self.process is None or self.process.is_alive() or self.failure is not None:
-            return
-        detail = ""
-        if self._results.poll(0):
-            self._receive()
-        if self.worker_error:
-            detail = f": {self.worker_error}"
-        self.failure = f"the MPC process exited (code {self.process.exitcode}){detail}"
