@@ -797,6 +797,13 @@ class RecoveryConfig(StrictModel):
     stale_after: float = Field(
         0.1, gt=0.0, le=10.0, description="s without a new plan: the ladder's last_plan step (still followed)"
     )
+    take_back_plans: int = Field(
+        3,
+        ge=1,
+        le=100,
+        description="fresh plans in a row (each measured after the robot left the plans, each within "
+        "stale_after of the one before) before they take the robot back from the balance or damped stance",
+    )
     stall_timeout: float | None = Field(
         None,
         gt=0.0,

@@ -7,16 +7,17 @@ it steps down a ladder of safe behaviours (``SafetyStep``; docs/faults.md):
 1. ``plan``: the low level follows the newest plan;
 2. ``last_plan``: no new plan for ``recovery.stale_after`` s; the last one is still followed while it lasts;
 3. ``balance``: the plan has run out (or there is none, or the low level returned non-finite torques, or
-   the loop holds the robot: its sensors are out, the MPC process is being restarted): the balance controller
-   (``low_level.balance``) holds the current stance, all feet down and the base level;
+   the loop holds the robot: its sensors are out): the balance controller (``low_level.balance``) holds the
+   current stance, all feet down and the base level;
 4. ``damped``: the balance controller held for ``recovery.balance_timeout`` s without a plan, or could not
    reach its stance, or the loop failed for good (``fail``): the damped PD stance (``low_level.pd``).
 
-A plan takes the robot back (to ``plan``) once it is fresh: from ``balance`` or ``damped``, only a plan
-solved from a measurement taken after the robot was taken off the plans (``new_plan``'s ``measured_at``), so
-that the gait resumes from the stance the ladder holds. Every step is recorded with its time and reason
-(``steps``; ``logging`` warnings), and ``record`` summarises them for ``metrics.json``. While the low level
-follows plans nothing of this changes what it does.
+Plans take the robot back (to ``plan``) once they are fresh again: ``recovery.take_back_plans`` in a row,
+each solved from a measurement taken after the robot was taken off the plans (``new_plan``'s
+``measured_at``; the gait resumes from the stance the ladder holds) and each within ``stale_after`` of the
+one before (a planner that is keeping up again, not one lucky plan from a struggling one). Every step is
+recorded with its time and reason (``steps``; ``logging`` warnings), and ``record`` summarises them for
+``metrics.json``. While the low level follows plans nothing of this changes what it does.
 
 ``PlanFollower`` closes a low level around one fixed plan (synthetic plans, offline trajectories).
 """
@@ -88,6 +89,7 @@ class NewestPlanFollower(Generic[PlanT]):
         self._last_plan_time: float | None = None
         self._resume_after = -math.inf
         self._plan_fresh = True
+        self._fresh_in_a_row = 0
         self._balance_since = 0.0
 
     def reset(self) -> None:
@@ -99,10 +101,22 @@ class NewestPlanFollower(Generic[PlanT]):
 
     # ----------------------------------------------------------------------------------- what it hears
     def new_plan(self, t: float, measured_at: float) -> None:
-        """A plan solved from the measurement of ``measured_at`` arrived at ``t``. Off the plans it takes the
-        robot back only if measured after the robot was taken off them (and after the last hold)."""
+        """A plan solved from the measurement of ``measured_at`` arrived at ``t``. Off the plans, plans take
+        the robot back once ``take_back_plans`` in a row were measured after it left them (and after the last
+        hold), each within ``stale_after`` of the one before."""
+        recovery = self.recovery
+        if measured_at < self._resume_after - 1e-9:
+            self._fresh_in_a_row = 0
+        elif (
+            self._fresh_in_a_row > 0
+            and self._last_plan_time is not None
+            and t - self._last_plan_time <= recovery.stale_after
+        ):
+            self._fresh_in_a_row += 1
+        else:
+            self._fresh_in_a_row = 1
         self._last_plan_time = t
-        self._plan_fresh = measured_at >= self._resume_after - 1e-9
+        self._plan_fresh = self._fresh_in_a_row >= recovery.take_back_plans
 
     def hold(self, t: float, source: str, reason: str | None) -> None:
         """``source`` (``sensors``, ``mpc``) asks to hold the robot off the plans (``reason``), or lets go
@@ -122,6 +136,7 @@ class NewestPlanFollower(Generic[PlanT]):
         """Plans measured before ``t`` take the robot back no more."""
         self._resume_after = max(self._resume_after, t)
         self._plan_fresh = False
+        self._fresh_in_a_row = 0
 
     @property
     def following(self) -> bool:
@@ -201,7 +216,7 @@ class NewestPlanFollower(Generic[PlanT]):
                 step = SafetyStep.DAMPED
                 reason += "; the balance stance is out of the legs' reach"
         self.step = step
-        self.steps.append({"t": float(t), "step": str(step), "reason": reason})
+        self.steps.append({"t": round(float(t), 6), "step": str(step), "reason": reason})
         quiet = SafetyStep.LAST_PLAN in (step, previous) and SafetyStep.PLAN in (step, previous)
         (logger.info if quiet else logger.warning)(
             "t = %.3f s: safe ladder %s -> %s (%s)", t, previous, step, reason

@@ -439,7 +439,7 @@ class ProcessMpcLoop(MpcLoop[PlanT]):
     # ------------------------------------------------------------------------------------ supervision
     def _event(self, t: float, event: str, detail: str = "") -> None:
         """Record (and log) what happened to the MPC process at ``t``."""
-        self.events.append({"t": float(t), "event": event, "detail": detail})
+        self.events.append({"t": round(float(t), 6), "event": event, "detail": detail})
         logger.warning(
             "t = %.3f s: MPC process %s%s", t, event.removeprefix("mpc_"), f": {detail}" * bool(detail)
         )
@@ -460,7 +460,7 @@ class ProcessMpcLoop(MpcLoop[PlanT]):
         restarting = self._restarting
         if restarting is not None:
             if restarting["ready_at"] is None and self._control.array[ControlBlock.READY] == 1.0:
-                restarting["ready_at"] = float(t)
+                restarting["ready_at"] = round(float(t), 6)
             if t - restarting["t"] > self.startup_timeout:
                 self._restart(t, f"the new MPC process sent no plan within {self.startup_timeout:g} s")
             return
@@ -494,7 +494,7 @@ class ProcessMpcLoop(MpcLoop[PlanT]):
         self._stalled_at = None
         self._spawn()
         self._restarting = {
-            "t": float(t),
+            "t": round(float(t), 6),
             "reason": reason,
             "ready_at": None,
             "first_plan_at": None,
@@ -588,8 +588,8 @@ class ProcessMpcLoop(MpcLoop[PlanT]):
             self.received.update_times.append(wall)
         restarting = self._restarting
         if restarting is not None:
-            restarting["first_plan_at"] = float(t)
-            restarting["restart_s"] = float(t - restarting["t"])
+            restarting["first_plan_at"] = round(float(t), 6)
+            restarting["restart_s"] = round(float(t - restarting["t"]), 6)
             self._restarting = None
             self._scheme = "rti" if self._control.array[ControlBlock.RTI] == 1.0 else "one_phase"
             self._event(t, "mpc_restarted", f"first plan {restarting['restart_s']:.2f} s after the restart")

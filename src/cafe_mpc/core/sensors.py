@@ -303,12 +303,12 @@ class SensorGuard:
         since = self._out_since[index]
         if out and math.isnan(since):
             self._out_since[index] = t
-            record = {"sensor": self._name(index), "start": float(t), "end": None}
+            record = {"sensor": self._name(index), "start": round(float(t), 6), "end": None}
             self._open[index] = record
             self.outages.append(record)
         elif not out and not math.isnan(since):
             self._out_since[index] = np.nan
-            self._open.pop(index)["end"] = float(t)
+            self._open.pop(index)["end"] = round(float(t), 6)
 
     def _name(self, index: int) -> str:
         return IMU if index == 0 else f"encoder {self.joint_names[index - 1]}"

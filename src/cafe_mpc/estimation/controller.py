@@ -7,7 +7,9 @@ simulation (``SensingController``) and in the library (``cafe_mpc.Controller.mea
    non-finite or out-of-range value is rejected and counted, the last good value held;
 2. the state estimator turns the checked reading into a ``Measurement``;
 3. an estimate that diverged (non-finite, or a base faster than ``estimate_speed_max``) restarts the
-   estimator from the robot standing where it was, counted.
+   estimator from the robot standing where it was, counted; so does the end of a sensor's outage that was
+   long enough to hold the robot off its plans (the estimate made without it is stale, the robot stands in
+   the balance stance).
 
 ``fault(t)`` says when the controller should hold the robot off its plans: a sensor out for longer than
 ``outage_limit``, or the estimator restarted less than ``outage_limit`` ago. ``record()`` is the ``sensors``
@@ -60,8 +62,9 @@ class SensorFrontEnd:
         self._last_xy[:] = position_xy
         self.estimator.reset(self.position_xy)
         self.guard.reset()
-        self.estimator_resets: list[float] = []
-        """When the estimator diverged and was restarted."""
+        self.estimator_resets: list[dict] = []
+        """When the estimator was restarted, and why (``t``, ``why``)."""
+        self._outage: str | None = None
 
     def measure(
         self, readings: SensorReadings, plan: KnotPlan | None, plan_time: float | None = None
@@ -69,16 +72,24 @@ class SensorFrontEnd:
         """The estimate of ``readings`` (checked first), with the stance of ``plan`` looked up at
         ``plan_time`` (default: the readings' time)."""
         checked = self.guard.check(readings)
+        t = float(checked.time)
+        outage = self.guard.outage(t)
+        if self._outage is not None and outage is None:
+            self._restart(t, f"the end of an outage ({self._outage})")
+        self._outage = outage
         measurement = self.estimator.update(checked, plan, plan_time)
         if not self._plausible(measurement):
-            t = float(checked.time)
-            self.estimator_resets.append(t)
-            logger.warning("t = %.3f s: the state estimate diverged; the estimator restarts standing", t)
-            self.estimator.reset(self._last_xy)  # where the last plausible estimate had the robot
+            self._restart(t, "the estimate diverged")
             measurement = self.estimator.update(checked, plan, plan_time)
         else:
             self._last_xy[:] = measurement.q[:2]
         return measurement
+
+    def _restart(self, t: float, why: str) -> None:
+        """Restart the estimator standing where the last plausible estimate had the robot."""
+        self.estimator_resets.append({"t": round(t, 6), "why": why})
+        logger.warning("t = %.3f s: the state estimator restarts standing (%s)", t, why)
+        self.estimator.reset(self._last_xy)
 
     def _plausible(self, measurement: Measurement) -> bool:
         velocity = self.estimator.world_velocity
@@ -95,8 +106,9 @@ class SensorFrontEnd:
         outage = self.guard.outage(t)
         if outage is not None:
             return outage
-        if self.estimator_resets and t - self.estimator_resets[-1] <= self.limits.outage_limit:
-            return f"the state estimator restarted at t = {self.estimator_resets[-1]:.3f} s"
+        if self.estimator_resets and t - self.estimator_resets[-1]["t"] <= self.limits.outage_limit:
+            last = self.estimator_resets[-1]
+            return f"the state estimator restarted at t = {last['t']:.3f} s ({last['why']})"
         return None
 
     @property
@@ -106,7 +118,7 @@ class SensorFrontEnd:
 
     def record(self) -> dict:
         """Rejected samples by kind, the sensors' outages, the estimator's restarts."""
-        return {**self.guard.summary(), "estimator_resets": list(self.estimator_resets)}
+        return {**self.guard.summary(), "estimator_resets": [dict(reset) for reset in self.estimator_resets]}
 
 
 class SensingController:

@@ -6,8 +6,8 @@ first ``compute`` after a ``reset``) it picks, from the measured state, a stance
 
 * the feet: each foot where it is in x-y; the feet in contact at their height, the others put down at the
   mean height of those (all of them when none is in contact);
-* the base: level (roll = pitch = 0, yaw as measured), at the robot's standing height above the feet and
-  centred over them as when standing;
+* the base: level (roll = pitch = 0, yaw as measured), where it is in x-y, at the robot's standing height
+  above the feet;
 * the joint angles of that stance (``dynamics.leg_inverse_kinematics``) and its statics: the weight shared
   by the feet so that the centre of mass is balanced (the minimum-norm vertical forces, each at least
   ``min_normal_force`` of the weight), ``tau_s = S (g(q_s) - sum J_i' f_i)``.
@@ -63,7 +63,8 @@ class BalanceController(LowLevelController[KnotPlan]):
         self.weight = robot.total_mass * GRAVITY
         standing = robot.foot_positions(robot.q_standing) - robot.q_standing[:3]
         self._standing_offset = standing.mean(axis=0)
-        """The feet's mean position relative to the base when standing (base frame, level)."""
+        """The feet's mean position relative to the base when standing (base frame, level): the base stands
+        ``-offset[2]`` above the feet."""
         # the joints of leg i are JOINTS_PER_LEG i .. (the leg inverse kinematics' convention)
         self._leg_joints = [
             np.arange(JOINTS_PER_LEG * leg, JOINTS_PER_LEG * (leg + 1)) for leg in range(n_feet)
@@ -110,13 +111,9 @@ class BalanceController(LowLevelController[KnotPlan]):
         ground = float(np.mean(self.feet[down, 2]))
         self.feet[~down, 2] = ground
         yaw = yaw_from_quaternion(q[3:7])
-        cos, sin = np.cos(yaw), np.sin(yaw)
-        offset = self._standing_offset
-        centre = self.feet.mean(axis=0)
         target = self.target
-        target[0] = centre[0] - (cos * offset[0] - sin * offset[1])
-        target[1] = centre[1] - (sin * offset[0] + cos * offset[1])
-        target[2] = centre[2] - offset[2]
+        target[:2] = q[:2]
+        target[2] = float(self.feet[:, 2].mean()) - self._standing_offset[2]
         target[3:7] = quaternion_from_yaw(yaw)
         joints, _, error = self.inverse_kinematics.solve(target[:7], self.feet, q[7:].copy())
         target[7:] = joints

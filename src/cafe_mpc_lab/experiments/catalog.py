@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from cafe_mpc.config import ConfigError
 from cafe_mpc_lab.experiments.command_ranges import CommandRanges
+from cafe_mpc_lab.experiments.faults import Faults
 from cafe_mpc_lab.experiments.latency import Latency
 from cafe_mpc_lab.experiments.push import Push
 from cafe_mpc_lab.experiments.registry import Experiment
@@ -28,6 +29,7 @@ EXPERIMENTS: tuple[type[Experiment], ...] = (
     Latency,
     Robots,
     CommandRanges,
+    Faults,
 )
 """The experiments, in the order ``cafe-mpc experiment --list`` shows them."""
 
