@@ -508,7 +508,7 @@ def _write_plots(
 
         plot_estimate(robot, log, partial / "estimator.png")
     if metrics.get("faults"):
-        from cafe_mpc_lab.experiments.faults import plot_run_faults
+        from cafe_mpc_lab.report.fault_plots import plot_run_faults
 
         plot_run_faults(log, metrics["faults"], partial / "faults.png", config.name)
     if metrics.get("task"):
