@@ -811,6 +811,11 @@ class RecoveryConfig(StrictModel):
         description="s without a plan from a live MPC process: it counts as stalled (null: 10 MPC periods, "
         "at least 0.5 s)",
     )
+    standby: bool = Field(
+        True,
+        description="keep a second MPC process built and waiting beside the running one (real time): it "
+        "takes over at once when that one dies or is restarted, a new standby is built after",
+    )
     stall_restart_after: float = Field(
         3.0, gt=0.0, le=600.0, description="s a stalled MPC process is waited for before it is restarted"
     )

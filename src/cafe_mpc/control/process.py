@@ -18,17 +18,22 @@ newest measurement, at most once per period, and runs the whole update.
 ``ProcessMpcLoop`` is the main-process side (``control.loop.MpcLoop``; the simulation's ``Controller``):
 ``start`` starts the MPC process (a new one on a later ``start``: a new planner, no stale warm start) and
 waits for its first plan; ``compute`` publishes each measurement, takes the newest plan as soon as it
-appears and runs the low-level controller on it, or the damped PD stance when there is no plan or the plan's
-horizon has run out (``control.plan_follower``). If the MPC process dies or stops delivering plans, the run
-keeps the last plan while it lasts, then holds the stance, and ``failure`` says why (the run then ends with
-``MpcProcessError``). ``close()`` (also on errors and Ctrl-C, via ``with``) stops the process and frees the
-shared memory; no process is left behind.
+appears and runs the low-level controller on it, or, when there is no fresh plan or the plan's
+horizon has run out, the safe ladder (``control.plan_follower``). The MPC process is supervised
+(``_supervise``, every tick): one that died is restarted, one that sends no plan for ``stall_timeout`` is
+stalled, taken back when its plans are fresh again or restarted after ``recovery.stall_restart_after``.
+A restart hands over to the standby, a second MPC process built beside the running one and waiting
+(``recovery.standby``; a new one is built ``STANDBY_AFTER`` s after the takeover), else starts a new process;
+either solves cold from the newest measurement. Past ``recovery.max_restarts_per_minute`` the robot stays in
+the damped stance and ``failure`` says why (the run then ends with ``MpcProcessError``). ``close()`` (also on
+errors and Ctrl-C, via ``with``) stops the processes and frees the shared memory; no process is left behind.
 """
 
 from __future__ import annotations
 
 import contextlib
 import logging
+import math
 import multiprocessing
 import os
 import signal
@@ -52,6 +57,12 @@ from cafe_mpc.reference.base import Reference
 from cafe_mpc.robots.robot import Robot
 
 logger = logging.getLogger(__name__)
+
+STANDBY_POLL = 0.005
+"""s between a standby MPC process's looks at whether it is its turn (the takeover's delay at most)."""
+STANDBY_AFTER = 2.0
+"""s after an MPC process took over (its first plan) before a new standby is built beside it: the build
+takes the MPC's CPU for a few seconds, not while the gait resumes."""
 
 PlannerFactory = Callable[[], Planner]
 """Builds the planner inside the MPC process (must be picklable: a module-level function or a partial)."""
@@ -82,9 +93,12 @@ def _worker_main(
     period: float,
     resync_after: float,
     parent_pid: int,
+    generation: int,
     results,
 ) -> None:
-    """The MPC process: measurements -> updates -> plans (module docstring), until told to stop."""
+    """The MPC process: measurements -> updates -> plans (module docstring), until told to stop. A standby
+    (``generation`` is not the control block's ``active``) builds its planner, says so and waits, built, until
+    it is made the active one (or told to stop)."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # the main process owns Ctrl-C and stops us
     _pin_to_cpu(-1)  # the last CPU; the 500 Hz loop keeps the first (see ProcessMpcLoop)
     nq, nv, n_feet = dimensions
@@ -95,7 +109,13 @@ def _worker_main(
     worker = None
     try:
         planner = factory()
-        worker = _Worker(planner, ring, plans, control, control_period, period, resync_after, parent_pid)
+        worker = _Worker(
+            planner, ring, plans, control, control_period, period, resync_after, parent_pid, generation
+        )
+        if control.array[ControlBlock.ACTIVE] != generation:
+            control.array[ControlBlock.STANDBY_READY] = 1.0  # built; numba kernels loaded
+            if not worker.wait_turn():
+                return
         control.array[ControlBlock.RTI] = 1.0 if worker.rti else 0.0
         control.array[ControlBlock.READY] = 1.0  # built; numba kernels loaded
         worker.run()
@@ -126,8 +146,10 @@ class _Worker:
         period: float,
         resync_after: float,
         parent_pid: int,
+        generation: int,
     ) -> None:
         self.planner, self.ring, self.plans, self.control = planner, ring, plans, control
+        self.generation = float(generation)
         self.control_period = control_period
         self.period = period
         self.resync_ticks = max(round(resync_after / control_period), 1)
@@ -141,8 +163,23 @@ class _Worker:
         """Runtime commands from the main process (``ProcessMpcLoop.commands``)."""
 
     def running(self) -> bool:
-        """Until the stop flag is set or the main process is gone (do not outlive it)."""
-        return self.control.array[ControlBlock.STOP] == 0.0 and os.getppid() == self.parent_pid
+        """Until the stop flag is set, another process is made the active one, or the main process is gone
+        (do not outlive it)."""
+        array = self.control.array
+        return (
+            array[ControlBlock.STOP] == 0.0
+            and array[ControlBlock.ACTIVE] == self.generation
+            and os.getppid() == self.parent_pid
+        )
+
+    def wait_turn(self) -> bool:
+        """A standby: wait until this process is made the active one (True) or told to stop (False)."""
+        array = self.control.array
+        while array[ControlBlock.STOP] == 0.0 and os.getppid() == self.parent_pid:
+            if array[ControlBlock.ACTIVE] == self.generation:
+                return True
+            time.sleep(STANDBY_POLL)
+        return False
 
     def run(self) -> None:
         planner = self.planner
@@ -292,7 +329,13 @@ class ProcessMpcLoop(MpcLoop[PlanT]):
         self.worker_error: str | None = None
         self.failure: str | None = None
         self.process: multiprocessing.process.BaseProcess | None = None
+        """The MPC process that runs (its plans are followed)."""
         self._results = None
+        self.standby: multiprocessing.process.BaseProcess | None = None
+        """With ``recovery.standby``: an MPC process built beside it, waiting to take over at once."""
+        self._standby_results = None
+        self._standby_generation = 0
+        self._generation = 0
         self._reference: Reference | None = None
         self._affinity = None
         self._closed = False
@@ -307,7 +350,10 @@ class ProcessMpcLoop(MpcLoop[PlanT]):
         """Each restart: when (``t``), why, when the new process was built (``ready_at``) and sent its
         first plan (``first_plan_at``), and ``restart_s`` between the two ends."""
         self.processes = 0
+        """MPC processes started (standbys included)."""
         self._restarting: dict | None = None
+        self._standby_due = math.inf
+        self._standby_exits: list[float] = []
         self._stalled_at: float | None = None
         self._last_plan_time = 0.0
         self._failure_time: float | None = None
@@ -350,18 +396,20 @@ class ProcessMpcLoop(MpcLoop[PlanT]):
 
     def start(self, t: float, measurement: Measurement) -> None:
         """Start the MPC process (after stopping the one a previous ``start`` started) on ``measurement``
-        and wait for its first plan: the cold solve runs before the clock starts, while the robot stands,
-        as on hardware."""
+        and wait for its first plan, and for the standby to be built (``recovery.standby``): the cold solve
+        runs before the clock starts, while the robot stands, as on hardware."""
         if self._closed:
             raise RuntimeError("this MPC loop is closed")
-        if self.process is not None:
-            self._stop_process()
+        if self.process is not None or self.standby is not None:
+            self._stop_processes()
             self._measurements.clear()
             self._control.array[: ControlBlock.COMMANDS] = 0.0
             self._plan, self.failure = None, None
             self.received, self.worker_statistics, self.worker_error = MpcStatistics(), None, None
             self._new_run()
         self._spawn()
+        if self.recovery.standby:
+            self._spawn_standby()
         deadline = time.perf_counter() + self.startup_timeout
         stage("first (cold) MPC solve, in the MPC process")
         self.publish(t, measurement)
@@ -376,6 +424,16 @@ class ProcessMpcLoop(MpcLoop[PlanT]):
             if time.perf_counter() > deadline:
                 raise MpcProcessError(f"the MPC process sent no plan within {self.startup_timeout:.0f} s")
             time.sleep(0.002)
+        while self.standby is not None and self._control.array[ControlBlock.STANDBY_READY] != 1.0:
+            if not self.standby.is_alive():
+                self._discard_standby()
+                detail = f": {self.worker_error}" if self.worker_error else ""
+                raise MpcProcessError(f"the standby MPC process exited while it was built{detail}")
+            if time.perf_counter() > deadline:
+                raise MpcProcessError(
+                    f"the standby MPC process was not built within {self.startup_timeout:.0f} s"
+                )
+            time.sleep(0.005)
         self._scheme = "rti" if self._control.array[ControlBlock.RTI] == 1.0 else "one_phase"
         self._last_plan_time = t
 
@@ -420,8 +478,7 @@ class ProcessMpcLoop(MpcLoop[PlanT]):
             return
         self._resyncs = int(self._control.array[ControlBlock.RESYNCS])
         self._closed = True
-        if self.process is not None:
-            self._stop_process()
+        self._stop_processes()
         if self._affinity is not None:
             with contextlib.suppress(OSError):
                 os.sched_setaffinity(0, self._affinity)
@@ -451,6 +508,7 @@ class ProcessMpcLoop(MpcLoop[PlanT]):
         process = self.process
         if self.failure is not None or process is None:
             return
+        self._supervise_standby(t)
         if not process.is_alive():
             self._read_results()
             detail = f"code {process.exitcode}" + (f", {self.worker_error}" if self.worker_error else "")
@@ -471,8 +529,31 @@ class ProcessMpcLoop(MpcLoop[PlanT]):
         elif self._stalled_at is not None and t - self._stalled_at > self.recovery.stall_restart_after:
             self._restart(t, f"the MPC process sent no plan for {silence:.2f} s")
 
+    def _supervise_standby(self, t: float) -> None:
+        """A standby that died is noted (and replaced, unless ``max_restarts_per_minute`` standbys died in the
+        last minute); a new standby is built ``STANDBY_AFTER`` s after a takeover."""
+        standby = self.standby
+        if standby is not None and not standby.is_alive():
+            self._discard_standby()
+            self._standby_exits.append(t)
+            recent = sum(1 for exit_time in self._standby_exits if exit_time > t - 60.0)
+            replace = recent <= self.recovery.max_restarts_per_minute
+            self._event(
+                t,
+                "mpc_standby_exited",
+                f"code {standby.exitcode}" + ("" if replace else "; no standby from now on"),
+            )
+            self._standby_due = t + STANDBY_AFTER if replace else math.inf
+        elif (
+            standby is None and self.recovery.standby and self._restarting is None and t >= self._standby_due
+        ):
+            self._standby_due = math.inf
+            self._spawn_standby()
+            logger.info("t = %.3f s: a new standby MPC process is being built", t)
+
     def _restart(self, t: float, reason: str) -> None:
-        """Replace the MPC process by a new one (which solves cold from the newest measurement), unless
+        """Replace the MPC process: the standby takes over when there is one (built, or still being built),
+        else a new process is started; either solves cold from the newest measurement. Unless
         ``recovery.max_restarts_per_minute`` restarts happened in the last 60 s: then the loop fails and the
         robot stays in the damped stance."""
         self._poll_plan(t, record=True)  # the old process's last plan, if it sent one we have not read
@@ -487,15 +568,27 @@ class ProcessMpcLoop(MpcLoop[PlanT]):
             self.follower.fail(t, self.failure)
             self._event(t, "mpc_failed", self.failure)
             return
-        self._event(t, "mpc_restarting", reason)
         self._plans.abandon_write()
-        self._control.array[ControlBlock.STOP] = 0.0
-        self._control.array[ControlBlock.READY] = 0.0
+        control = self._control.array
+        control[ControlBlock.STOP] = 0.0
+        control[ControlBlock.READY] = 0.0
         self._stalled_at = None
-        self._spawn()
+        self._standby_due = math.inf
+        standby = self.standby is not None and self.standby.is_alive()
+        if standby:
+            self._event(t, "mpc_restarting", f"{reason}; the standby MPC process takes over")
+            self.process, self._results = self.standby, self._standby_results
+            self.standby, self._standby_results = None, None
+            control[ControlBlock.STANDBY_READY] = 0.0
+            control[ControlBlock.ACTIVE] = float(self._standby_generation)
+        else:
+            self._event(t, "mpc_restarting", reason)
+            self._discard_standby()
+            self._spawn()
         self._restarting = {
             "t": round(float(t), 6),
             "reason": reason,
+            "standby": standby,
             "ready_at": None,
             "first_plan_at": None,
             "restart_s": None,
@@ -514,10 +607,41 @@ class ProcessMpcLoop(MpcLoop[PlanT]):
         with contextlib.suppress(Exception):
             self._results.close()
 
+    def _discard_standby(self) -> None:
+        """Kill the standby if it still runs, reap it, read what it sent (an error while it was built)."""
+        standby, results = self.standby, self._standby_results
+        if standby is None:
+            return
+        self.standby, self._standby_results = None, None
+        if standby.is_alive():
+            standby.kill()
+        standby.join(timeout=2.0)
+        with contextlib.suppress(OSError, ValueError, EOFError):
+            while results.poll(0):
+                kind, payload = results.recv()
+                if kind == "error":
+                    self.worker_error = payload
+        with contextlib.suppress(Exception):
+            results.close()
+
     # ----------------------------------------------------------------------------------- the process
     def _spawn(self) -> None:
+        """Start the MPC process that runs (the control block's ``active`` generation)."""
+        self._generation += 1
+        self._control.array[ControlBlock.ACTIVE] = float(self._generation)
+        self.process, self._results = self._launch(self._generation)
+
+    def _spawn_standby(self) -> None:
+        """Start a standby MPC process: it builds its planner and waits until it is made the active one."""
+        self._generation += 1
+        self._control.array[ControlBlock.STANDBY_READY] = 0.0
+        self._standby_generation = self._generation
+        self.standby, self._standby_results = self._launch(self._generation)
+
+    def _launch(self, generation: int):
+        """Start an MPC process of ``generation``; its process and the pipe of what it sends."""
         context = multiprocessing.get_context("spawn")
-        self._results, child_end = context.Pipe(duplex=False)
+        results, child_end = context.Pipe(duplex=False)
         process = context.Process(
             target=_worker_main,
             args=(
@@ -531,19 +655,29 @@ class ProcessMpcLoop(MpcLoop[PlanT]):
                 self.period,
                 self.recovery.resync_after,
                 os.getpid(),
+                generation,
                 child_end,
             ),
             name="cafe-mpc-solver",
             daemon=True,
         )
-        process.start()
-        self.process = process  # started: from now on ``close`` stops it
+        process.start()  # started: from now on ``close`` stops it (the caller keeps it)
         self.processes += 1
         child_end.close()
         if self._affinity is None:
             with contextlib.suppress(AttributeError, OSError):
                 self._affinity = os.sched_getaffinity(0)
         _pin_to_cpu(0)
+        return process, results
+
+    def _stop_processes(self) -> None:
+        """Stop the MPC process and the standby (the stop flag tells both), reap them."""
+        if self.process is not None:
+            self._stop_process()
+        standby = self.standby
+        if standby is not None:
+            standby.join(timeout=1.0)  # a built standby exits on the stop flag; one being built is killed
+            self._discard_standby()
 
     def _stop_process(self) -> None:
         """Set the stop flag, read what the process sends while it exits (its statistics can exceed the
@@ -591,6 +725,7 @@ class ProcessMpcLoop(MpcLoop[PlanT]):
             restarting["first_plan_at"] = round(float(t), 6)
             restarting["restart_s"] = round(float(t - restarting["t"]), 6)
             self._restarting = None
+            self._standby_due = t + STANDBY_AFTER
             self._scheme = "rti" if self._control.array[ControlBlock.RTI] == 1.0 else "one_phase"
             self._event(t, "mpc_restarted", f"first plan {restarting['restart_s']:.2f} s after the restart")
         elif self._stalled_at is not None:

@@ -7,7 +7,8 @@
   update's statistics, behind one seqlock; any plan type, laid out by its ``core.plan.PlanFormat``
   (``PlanLayout``);
 * ``ControlBlock`` (both ways): the stop flag, the ready flag, the scheme the MPC process runs, how often it
-  solved cold again after a gap (``resyncs``), and the runtime command channel (``control.commands``).
+  solved cold again after a gap (``resyncs``), which MPC process may run (``active``, with a standby waiting
+  built beside it) and the runtime command channel (``control.commands``).
 """
 
 from __future__ import annotations
@@ -176,13 +177,15 @@ class PlanChannel:
 
 
 class ControlBlock:
-    """``[stop, ready, rti, resyncs, command channel]`` (module docstring): the loop sets ``stop``, the MPC
-    process sets ``ready`` once its planner is built, ``rti`` when it runs the real-time iteration and counts
-    its cold solves after a gap in ``resyncs``; the command channel (``COMMAND_SIZE`` + 1 values) carries
-    runtime commands to the MPC process."""
+    """``[stop, ready, rti, resyncs, active, standby_ready, command channel]`` (module docstring): the loop
+    sets ``stop`` and ``active`` (the generation of the MPC process that may run; a standby process waits,
+    built, until it is its own), the running MPC process sets ``ready`` once its planner is built, ``rti``
+    when it runs the real-time iteration and counts its cold solves after a gap in ``resyncs``, a standby
+    sets ``standby_ready`` once built; the command channel (``COMMAND_SIZE`` + 1 values) carries runtime
+    commands to the MPC process."""
 
-    STOP, READY, RTI, RESYNCS = 0, 1, 2, 3
-    COMMANDS = 4
+    STOP, READY, RTI, RESYNCS, ACTIVE, STANDBY_READY = 0, 1, 2, 3, 4, 5
+    COMMANDS = 6
 
     def __init__(self, name: str | None = None) -> None:
         self.shared = SharedArray(self.COMMANDS + 1 + COMMAND_SIZE, name)
