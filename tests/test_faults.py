@@ -1,0 +1,178 @@
+"""Faults on the robot's side (docs/faults.md): each fault the plant injects (``plant.faults``), in a short
+run, keeps the robot up with finite torques and leaves the run's record; a run that ends in an error or is
+interrupted still writes its record; the MPC process killed or stopped is restarted or taken back and no
+process is left behind.
+
+No test asserts a time: the sensor faults run with fixed latency (deterministic), the MPC-process faults in
+real time, where only what happened (not when) is checked.
+"""
+
+from __future__ import annotations
+
+import json
+import multiprocessing
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from cafe_mpc.config import ConfigError, load_config
+from cafe_mpc_lab.experiments.run import run
+
+RECORD = {"config.yaml", "run.log", "metrics.json", "log.npz"}
+"""The files every run leaves, also one that ended early."""
+
+SENSOR_FAULTS = {
+    "imu_dropout": ("{kind: imu_dropout, start: 0.6, duration: 0.3}", "imu_late"),
+    "encoder_freeze": ("{kind: encoder_freeze, start: 0.6, duration: 0.3, joint: FR_knee}", "encoder_late"),
+    "nan_sample": ("{kind: nan_sample, start: 0.6, sensor: gyro, period: 0.2}", "gyro"),
+    "out_of_range": ("{kind: out_of_range, start: 0.6, sensor: accelerometer, period: 0.2}", "accelerometer"),
+}
+"""Each sensor fault, and the kind of rejected sample the sensing front end must count for it."""
+
+
+def _record(path: Path) -> dict:
+    assert {item.name for item in path.iterdir()} >= RECORD
+    return json.loads((path / "metrics.json").read_text())
+
+
+def _alive(pid: int) -> bool:
+    """Whether process ``pid`` exists and is not a zombie."""
+    try:
+        state = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0]
+    except OSError:
+        return False
+    return state != "Z"
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("kind", list(SENSOR_FAULTS))
+def test_a_sensor_fault_is_rejected_at_the_boundary_and_the_robot_walks_on(kind, tmp_path):
+    fault, rejected = SENSOR_FAULTS[kind]
+    config = load_config(
+        "trot",
+        [
+            "simulation.duration=1.6",
+            "mpc.latency=fixed",
+            "mpc.fixed_latency=0.02",
+            "output.plots=true",
+            f"plant.faults=[{fault}]",
+        ],
+    )
+    result = run(config, tmp_path / "run")
+    metrics = _record(tmp_path / "run")
+    assert not result.log.fell and "status" not in metrics
+    assert np.all(np.isfinite(result.log.torque_command))
+    faults = metrics["faults"]
+    assert faults["injected"][0]["kind"] == kind
+    assert faults["applied"] and faults["applied"][0]["kind"] == kind
+    assert faults["sensors"]["rejected"].get(rejected, 0) > 0, faults["sensors"]
+    for episode in (faults.get("ladder") or {}).get("episodes", []):
+        assert episode["back_at"] is not None, episode  # every episode off the plans ended on a plan
+    assert (tmp_path / "run" / "faults.png").exists()
+
+
+@pytest.mark.slow
+def test_an_imu_out_for_long_holds_the_balance_stance_until_fresh_plans_take_the_robot_back(tmp_path):
+    config = load_config(
+        "trot",
+        [
+            "simulation.duration=1.6",
+            "mpc.latency=fixed",
+            "mpc.fixed_latency=0.02",
+            "output.plots=false",
+            "plant.faults=[{kind: imu_dropout, start: 0.5, duration: 0.4}]",
+        ],
+    )
+    result = run(config, tmp_path / "run")
+    faults = result.metrics["faults"]
+    assert not result.log.fell
+    [outage] = faults["sensors"]["outages"]
+    assert outage["sensor"] == "imu" and outage["end"] is not None
+    [episode] = faults["ladder"]["episodes"]
+    assert episode["lowest"] == "balance" and "imu" in episode["reason"]
+    assert episode["back_at"] is not None and episode["back_at"] > outage["end"]
+    steps = result.log.extra["safety_step"]
+    assert steps.max() == 2 and steps[-1] == 0  # balance during the outage, the plan again at the end
+
+
+@pytest.mark.parametrize("ending", [RuntimeError, KeyboardInterrupt])
+def test_a_run_that_ends_in_an_error_or_ctrl_c_writes_its_record(ending, tmp_path, monkeypatch):
+    """An error (or Ctrl-C) inside the loop: the record of the ticks so far, marked failed (interrupted),
+    then the error again."""
+    from cafe_mpc.low_level.pd import PDController
+
+    original = PDController.compute
+
+    def failing(self, t, *args):
+        if t >= 0.2:
+            raise ending("injected by the test")
+        return original(self, t, *args)
+
+    monkeypatch.setattr(PDController, "compute", failing)
+    config = load_config("stand", ["simulation.duration=1.0", "output.plots=true"])
+    with pytest.raises(ending, match="injected by the test"):
+        run(config, tmp_path / "run")
+    metrics = _record(tmp_path / "run")
+    assert metrics["status"] == ("interrupted" if ending is KeyboardInterrupt else "failed")
+    assert "injected by the test" in metrics["error"]
+    assert metrics["sim_time_s"] == pytest.approx(0.2, abs=0.01)  # the ticks simulated before the error
+    assert (tmp_path / "run" / "base_height.png").exists()
+    assert not list(tmp_path.glob(".*partial"))
+
+
+def test_a_fault_that_does_not_fit_the_run_is_one_config_error():
+    with pytest.raises(ConfigError, match=r"plant\.faults\.0.*ground_truth"):
+        load_config("trot", ["estimator=ground_truth", "plant.faults=[{kind: imu_dropout, duration: 0.1}]"])
+    with pytest.raises(ConfigError, match=r"plant\.faults\.0.*realtime"):
+        load_config("trot", ["plant.faults=[{kind: mpc_kill, start: 1}]"])
+    with pytest.raises(ConfigError, match="needs 'joint'"):
+        load_config("trot", ["plant.faults=[{kind: encoder_freeze, duration: 0.1}]"])
+
+
+# ------------------------------------------------------------------------------------ MPC process
+def _realtime_fault(fault: str, tmp_path: Path) -> tuple[dict, object]:
+    config = load_config(
+        "trot",
+        [
+            "simulation.duration=3.0",
+            "simulation.realtime=true",
+            "output.plots=true",
+            f"plant.faults=[{fault}]",
+        ],
+    )
+    result = run(config, tmp_path / "run")
+    return _record(tmp_path / "run"), result
+
+
+@pytest.mark.slow
+@pytest.mark.realtime
+def test_a_killed_mpc_process_is_replaced_by_its_standby_and_leaves_no_process(tmp_path):
+    metrics, result = _realtime_fault("{kind: mpc_kill, start: 0.5}", tmp_path)
+    assert not result.log.fell and "status" not in metrics
+    assert np.all(np.isfinite(result.log.torque_command))
+    mpc = metrics["faults"]["mpc"]
+    events = [event["event"] for event in mpc["events"]]
+    assert events[:2] == ["mpc_exited", "mpc_restarting"], events
+    assert "code -9" in mpc["events"][0]["detail"]
+    [restart] = mpc["restarts"]
+    assert restart["standby"]  # the standby took over: no process was built from scratch
+    assert mpc["processes"] >= 2 and mpc["failure"] is None
+    killed = [item["pid"] for item in metrics["faults"]["applied"] if item["kind"] == "mpc_kill"]
+    assert killed and not any(_alive(pid) for pid in killed)
+    assert not multiprocessing.active_children()  # the MPC process and its standby are gone
+    assert (tmp_path / "run" / "faults.png").exists()
+
+
+@pytest.mark.slow
+@pytest.mark.realtime
+def test_a_stopped_mpc_process_is_continued_and_the_run_keeps_its_record(tmp_path):
+    metrics, result = _realtime_fault("{kind: mpc_stall, start: 0.5, duration: 1.0}", tmp_path)
+    assert not result.log.fell and "status" not in metrics
+    assert np.all(np.isfinite(result.log.torque_command))
+    faults = metrics["faults"]
+    applied = [item["kind"] for item in faults["applied"]]
+    assert applied == ["mpc_stall", "mpc_continue"]
+    assert "mpc_stalled" in [event["event"] for event in faults["mpc"]["events"]]
+    assert faults["ladder"]["episodes"], "the safe ladder never left the plans during a 1 s stall"
+    assert not multiprocessing.active_children()
