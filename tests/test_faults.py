@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import json
 import multiprocessing
+import time
 from pathlib import Path
 
 import numpy as np
@@ -176,3 +177,56 @@ def test_a_stopped_mpc_process_is_continued_and_the_run_keeps_its_record(tmp_pat
     assert "mpc_stalled" in [event["event"] for event in faults["mpc"]["events"]]
     assert faults["ladder"]["episodes"], "the safe ladder never left the plans during a 1 s stall"
     assert not multiprocessing.active_children()
+
+
+@pytest.mark.slow
+@pytest.mark.realtime
+def test_the_api_in_process_mode_restarts_a_killed_mpc_process_and_leaves_no_process():
+    """``Controller(mode="process")`` in a user's own MuJoCo loop: the MPC process killed by its id, the
+    loop goes on (finite torques, the robot up), the standby takes over and its plans take the robot back;
+    ``faults()`` says so; ``close`` leaves no process. The loop runs until that happened (at most 40 s of
+    simulated time: a bound on a loaded machine, not a timing check)."""
+    import os
+    import signal
+
+    import mujoco
+
+    from cafe_mpc.api import Controller
+
+    with Controller("trot", mode="process") as controller:
+        model = mujoco.MjModel.from_xml_string(controller.robot.mjcf)
+        data = mujoco.MjData(model)
+        data.qpos[:] = controller.standing_qpos()
+        mujoco.mj_forward(model, data)
+        substeps = round(controller.control_period / model.opt.timestep)
+        controller.reset(controller.measurement(data.qpos, data.qvel, time=0.0))
+        loop = controller._loop
+        killed = loop.process.pid
+        taken_back = False
+        start = time.perf_counter()
+        for tick in range(round(40.0 / controller.control_period)):
+            delay = start + tick * controller.control_period - time.perf_counter()
+            if delay > 0:  # against the wall clock, as on a robot
+                time.sleep(delay)
+            t = data.time
+            if tick == round(0.3 / controller.control_period):
+                os.kill(killed, signal.SIGKILL)
+            torques = controller.compute(t, controller.measurement(data.qpos, data.qvel, time=t))
+            assert np.all(np.isfinite(torques)), t
+            data.ctrl[:] = torques
+            for _ in range(substeps):
+                mujoco.mj_step(model, data)
+            assert data.qpos[2] > 0.15, f"the robot fell at t = {t:.2f} s"
+            faults = controller.faults()
+            episodes = faults.get("ladder", {}).get("episodes", [])
+            taken_back = bool(episodes) and all(episode["back_at"] is not None for episode in episodes)
+            if taken_back and (faults["mpc"]["restarts"] or [{}])[0].get("first_plan_at") is not None:
+                break
+        assert taken_back, controller.faults()
+        mpc = controller.faults()["mpc"]
+        assert [event["event"] for event in mpc["events"]][:2] == ["mpc_exited", "mpc_restarting"]
+        assert mpc["restarts"][0]["standby"] and controller.failure is None
+        processes = [loop.process, loop.standby]
+    assert not _alive(killed)
+    assert not any(process is not None and process.is_alive() for process in processes)
+    assert not [child for child in multiprocessing.active_children() if child.name == "cafe-mpc-solver"]
