@@ -1,7 +1,7 @@
 """The backward sweep of MS-iLQR on the ``bench solver`` problem: microseconds per sweep and per knot.
 
 The 25-knot whole-body trot problem of ``cafe_mpc_lab.bench.problems`` is solved once; then its last
-linearisation is swept backward repeatedly (``MSiLQRSolver._backward_pass``, Eqs. (8)-(10), (16)), and the
+linearisation is swept backward repeatedly (``MSiLQRSolver.backward``, Eqs. (8)-(10), (16)), and the
 two matrix products of one knot (``S F`` and ``F' S F``, the compiled kernel's BLAS calls) are timed alone.
 Medians over rounds; compare against the iteration time ``cafe-mpc bench solver`` reports.
 
@@ -48,7 +48,7 @@ def main() -> None:
     knots = sum(work.horizon for work in workspace.phases)
 
     def sweep() -> None:
-        solver._backward_pass(workspace)
+        solver.backward()
 
     work = workspace.phases[0]
     S, F, H = work.S[1].copy(), work.F[0].copy(), work.H[0].copy()

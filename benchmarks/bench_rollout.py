@@ -1,7 +1,7 @@
 """The line search's roll-out of MS-iLQR on the ``bench solver`` problem: microseconds per knot and trial.
 
 The 25-knot whole-body trot problem of ``cafe_mpc_lab.bench.problems`` is solved once and swept backward
-at its solution; then one trial step is rolled out repeatedly (``MSiLQRSolver._try_step``, Eqs. (11)-(13)
+at its solution; then one trial step is rolled out repeatedly (``MSiLQRSolver.try_step``, Eqs. (11)-(13)
 through the impact, Eq. (15)), with the hybrid roll-out (every knot shooting: Eq. (12)) and the nonlinear one
 (Eq. (13) everywhere), against the knots' ``calc`` alone at the same points (what the roll-out cannot do
 without). Interleaved rounds, medians; compare with Crocoddyl's ``forwardPass`` per knot.
@@ -28,10 +28,9 @@ def main(rounds: int = 15, calls: int = 20) -> None:
     solver = MSiLQRSolver(SolverOptions(max_iterations=10, max_al_iterations=1))
     solver.solve(peer.problem, peer.initial_xs, peer.initial_us)
     workspace = solver.workspace
-    solver._linearize(workspace)
-    solver._backward_pass(workspace)
+    solver.linearize()
+    solver.backward()
     knots = sum(work.horizon for work in workspace.phases)
-    x0 = peer.problem.x0
 
     def calcs() -> None:
         for work in workspace.phases:
@@ -40,8 +39,8 @@ def main(rounds: int = 15, calls: int = 20) -> None:
                 model.calc(data, xs[k], us[k])
 
     functions = {
-        "roll-out, hybrid (Eq. (12))": lambda: solver._try_step(workspace, x0, 0.5, False),
-        "roll-out, nonlinear (Eq. (13))": lambda: solver._try_step(workspace, x0, 0.5, True),
+        "roll-out, hybrid (Eq. (12))": lambda: solver.try_step(0.5, False),
+        "roll-out, nonlinear (Eq. (13))": lambda: solver.try_step(0.5, True),
         "the knots' calc alone": calcs,
     }
     samples: dict[str, list[float]] = {name: [] for name in functions}

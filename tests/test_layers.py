@@ -7,8 +7,9 @@ level, inside functions and methods, in ``try`` blocks. Exempt: imports under ``
 never run; they only name types for annotations, which ``from __future__ import annotations`` keeps
 unevaluated). The check reads the sources with ``ast``; nothing is imported.
 
-Besides the order: the settings schema (``config``) imports no other package of ``cafe_mpc``; the library
-front end (``api``) and the assembly (``assembly``: a config -> its controller) reach neither the experiment
+Besides the order: the settings schema (``config``) imports no other package of ``cafe_mpc``; the solver
+(``solver``) reaches nothing of the package but ``core``, through any chain of imports; the library front
+end (``api``) and the assembly (``assembly``: a config -> its controller) reach neither the experiment
 harness, the report, the simulator (``sim``) nor MuJoCo, through any chain of imports (and a subprocess that
 builds a ``cafe_mpc.Controller`` shows MuJoCo never loaded).
 """
@@ -289,6 +290,35 @@ def test_the_config_schema_imports_no_domain_package(graph):
         if component(target) != "config"
     )
     assert not found, "the config schema must not import the library:\n" + "\n".join(found)
+
+
+SOLVER = "solver"
+"""The generic MS-iLQR solver: it sees problems through ``core`` alone (the per-knot interface and the state
+manifolds' compiled operations)."""
+SOLVER_EXTERNAL = {"numpy", "numba", "scipy"}
+"""The packages outside the standard library the solver may import."""
+
+
+def test_the_solver_imports_only_core(graph):
+    """No module of ``solver`` imports, directly or through others, any part of the package but ``core``
+    (nor the lab), and none imports a third-party package but numpy, numba and scipy: the solver knows no
+    robot, dynamics, cost or setting."""
+    solver = {module for module in graph if component(module) == SOLVER}
+    assert solver, "no solver modules found"
+    found = sorted(
+        f"{module} reaches {target}"
+        for module in solver
+        for target in reachable(graph, {module})
+        if component(target) not in (SOLVER, "core")
+    )
+    assert not found, "the solver must import only core:\n" + "\n".join(found)
+    sources = package_sources((SOURCE,))
+    outside = {
+        module: sorted(external_imports(sources[module][0]) - set(sys.stdlib_module_names) - SOLVER_EXTERNAL)
+        for module in sorted(solver)
+    }
+    outside = {module: names for module, names in outside.items() if names}
+    assert not outside, f"the solver imports packages other than {sorted(SOLVER_EXTERNAL)}: {outside}"
 
 
 def test_the_api_and_the_assembly_reach_neither_harness_nor_simulator(graph):

@@ -143,3 +143,37 @@ def test_leg_inverse_kinematics_reaches_feet_and_matches_rates(robot):
     moved_base[3:7] = pin.Quaternion(pin.exp3(dt * base_velocity[3:]) @ np.eye(3)).coeffs()
     later, _, _ = ik.solve(moved_base, target + dt * velocity, joints)
     np.testing.assert_allclose((later - joints) / dt, rates, atol=1e-3)
+
+
+def test_a_foot_on_the_ground_before_its_touchdown_advances_the_gaits_clock(robot):
+    """Pronk (0.1 s stance, 0.2 s flight): measured standing (every foot on the ground) 50 ms before the
+    planned touchdown, the reference's clock jumps 50 ms ahead so that its stance starts now; 10 ms before
+    (under the 15 ms lead) or in the middle of the flight (outside the 80 ms window) it keeps its clock, and
+    without touchdown events it never moves."""
+
+    gait = get_gait("pronk")
+    stance, flight = gait.cycle[0][1], gait.cycle[1][1]
+    touchdown = stance + flight  # the second stance's planned start (cycle start 0)
+    events = (0.015, 0.08, 0.02)
+    q = robot.q_standing.copy()
+    v = np.zeros(robot.nv)
+
+    def measured_at(t: float, events=events) -> LocomotionReference:
+        reference = LocomotionReference(robot, gait, [VelocityCommand()], touchdown_events=events)
+        reference.update(t, q, v)
+        return reference
+
+    early = measured_at(touchdown - 0.05)
+    assert early.phase_advances == 1 and early.phase_advance_total == pytest.approx(0.05)
+    assert early.stance_at(touchdown - 0.05 + 1e-6) == (True, True, True, True)
+    assert early.switch_times(touchdown - 0.05, touchdown + 0.5)[0] == pytest.approx(
+        touchdown - 0.05 + stance
+    )
+    assert measured_at(touchdown - 0.01).phase_advances == 0
+    assert measured_at(stance + 0.05).phase_advances == 0
+    assert measured_at(touchdown - 0.05, events=None).phase_advances == 0
+    lifted = q.copy()
+    lifted[2] += 0.05  # every foot 5 cm above the ground: in flight, as planned
+    reference = LocomotionReference(robot, gait, [VelocityCommand()], touchdown_events=events)
+    reference.update(touchdown - 0.05, lifted, v)
+    assert reference.phase_advances == 0

@@ -18,7 +18,14 @@ section into a ``Reference``:
 from __future__ import annotations
 
 from cafe_mpc.assembly.scaling import run_scale, scaled_gait
-from cafe_mpc.config import ConfigError, GaitConfig, ReferenceConfig, RunConfig, VelocityCommand
+from cafe_mpc.config import (
+    ConfigError,
+    ContactDetectionSettings,
+    GaitConfig,
+    ReferenceConfig,
+    RunConfig,
+    VelocityCommand,
+)
 from cafe_mpc.ocp.contact_schedule import get_gait
 from cafe_mpc.planners.cafe.setup import TRAJECTORY_WEIGHT_SET
 from cafe_mpc.reference.base import Reference
@@ -53,9 +60,23 @@ def reference_profile(config: RunConfig, robot: Robot) -> CommandProfile:
     )
 
 
-def locomotion_reference(gait: GaitConfig, robot: Robot, scale: RobotScale = IDENTITY) -> LocomotionReference:
+def locomotion_reference(
+    gait: GaitConfig,
+    robot: Robot,
+    scale: RobotScale = IDENTITY,
+    detection: ContactDetectionSettings | None = None,
+) -> LocomotionReference:
     """The heuristic locomotion reference (Sec. VI-A) of a gait section, its timings and lengths scaled to the
-    robot (``ValueError`` if it cannot be built)."""
+    robot (``ValueError`` if it cannot be built); with ``gait.touchdown_events``, early touchdowns advance its
+    clock, seen with ``detection``'s windows and height."""
+    events = None
+    if gait.touchdown_events is not None:
+        detection = detection or ContactDetectionSettings()
+        events = (
+            scale.duration(gait.touchdown_events),
+            scale.duration(detection.early_window),
+            scale.distance(detection.touchdown_height),
+        )
     return LocomotionReference(
         robot,
         scaled_gait(gait.name, scale),
@@ -65,6 +86,9 @@ def locomotion_reference(gait: GaitConfig, robot: Robot, scale: RobotScale = IDE
         foothold_box=tuple(scale.distance(v) for v in FOOTHOLD_BOX),
         start_stance=gait.start_stance,
         command_ramp=gait.command_ramp,
+        path_gain=gait.path_gain / scale.distance(1.0),
+        path_heading_limit=gait.path_heading_limit,
+        touchdown_events=events,
     )
 
 
@@ -129,6 +153,6 @@ def build_reference(config: RunConfig, robot: Robot) -> Reference:
     if config.gait is None:  # RunConfig rejects this; kept for configs built with model_construct
         raise ConfigError(f"wbc: {config.wbc!r} needs a gait section")
     try:
-        return locomotion_reference(config.gait, robot, scale)
+        return locomotion_reference(config.gait, robot, scale, config.vwbc.contact_detection)
     except ValueError as error:
         raise ConfigError(f"gait: {error}") from error

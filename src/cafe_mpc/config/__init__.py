@@ -8,6 +8,7 @@ by dotted key, one-line validation errors, presets).
 from cafe_mpc.config.estimation import KinematicKFSettings
 from cafe_mpc.config.loading import ConfigError, StrictModel, format_validation_error, parse_override
 from cafe_mpc.config.run import (
+    CONTROLLER_FRICTION,
     DEFAULT_FRICTION,
     MPC_FAULTS,
     PAPER_BUDGET_FRACTION,
@@ -15,6 +16,7 @@ from cafe_mpc.config.run import (
     SENSOR_FAULTS,
     STANDING_CONTROLLERS,
     BalanceConfig,
+    ContactDetectionSettings,
     CostsConfig,
     EncoderSpec,
     FallConfig,
@@ -47,6 +49,7 @@ from cafe_mpc.config.run import (
 from cafe_mpc.config.weights import SRBWeights, WholeBodyWeights
 
 __all__ = [
+    "CONTROLLER_FRICTION",
     "DEFAULT_FRICTION",
     "MPC_FAULTS",
     "PAPER_BUDGET_FRACTION",
@@ -55,6 +58,7 @@ __all__ = [
     "STANDING_CONTROLLERS",
     "BalanceConfig",
     "ConfigError",
+    "ContactDetectionSettings",
     "CostsConfig",
     "EncoderSpec",
     "FallConfig",

@@ -95,6 +95,24 @@ WarmStart = Literal["previous", "plan", "equality", "none"]
 solution (ProxQP), or cold."""
 
 
+class ContactDetectionSettings(StrictModel):
+    """Thresholds of the contact detector (``wbc.contact_detection``): forces as fractions of a foot's share
+    of the robot's weight (``m g / n_feet``), heights in metres above the (flat) ground, the early window in
+    seconds before a planned touchdown."""
+
+    touchdown_force: float = Field(0.35, gt=0.0, le=5.0, description="touchdown above this x m g / n_feet")
+    release_force: float = Field(0.1, ge=0.0, le=5.0, description="release below this x m g / n_feet")
+    touchdown_height: float = Field(
+        0.02, gt=0.0, le=0.5, description="m; foot sole within this of the ground"
+    )
+    release_height: float = Field(0.03, gt=0.0, le=0.5, description="m; foot sole above this: released")
+    early_window: float = Field(0.08, ge=0.0, le=1.0, description="s before a planned touchdown that count")
+    on_time: float = Field(
+        0.015, ge=0.0, le=1.0, description="s; a touchdown this close to its planned time is on time"
+    )
+    ground_height: float = Field(0.0, description="m; the flat ground's height")
+
+
 class VWBCConfig(StrictModel):
     """The VWBC QP (34) solver: the run config's ``vwbc`` section, and the base of the controller's own
     settings (``low_level.vwbc.VWBCSettings``), which adds what the assembly derives (friction, robot-scaled
@@ -108,14 +126,32 @@ class VWBCConfig(StrictModel):
         description="previous tick's solution, the plan's guess, the equality-constrained solution (proxqp), "
         "or none (cold)",
     )
-    stance_source: Literal["plan", "intersect"] = Field(
-        "plan", description="plan: the plan knot's stance (the paper); intersect: planned and in contact"
+    friction: float | None = Field(
+        None,
+        gt=0.0,
+        le=2.0,
+        description="friction coefficient of the QP's pyramid (34f); null: the plan's (mpc.friction)",
+    )
+    stance_source: Literal["plan", "intersect", "detected"] = Field(
+        "detected",
+        description="detected: the contact detector's stance (low_level.contact_detection: force, foot "
+        "height and the schedule's prior); plan: the plan knot's stance (the paper's); intersect: planned "
+        "and in contact",
+    )
+    contact_detection: ContactDetectionSettings = Field(
+        default_factory=ContactDetectionSettings, description="thresholds of stance_source: detected"
     )
 
 
 DEFAULT_FRICTION = 0.6
-"""Friction coefficient a controller assumes unless told otherwise: ``mpc.friction``'s default, and the one
-source of every controller-side default (plan pyramid, VWBC cone, template, trajectory optimisation)."""
+"""The nominal floor's friction coefficient (the paper's, the Mini Cheetah table's): the default of the
+library's components built without a run config (plan pyramid, VWBC cone, template, trajectory
+optimisation)."""
+
+CONTROLLER_FRICTION = 0.4
+"""The friction coefficient a run's controller assumes (``mpc.friction``): the low end of the floors it must
+work on, not the nominal 0.6. Planned at 0.6, the approach pace of the running roll puts a tenth of its stance
+ticks at the cone's edge on a 0.6 floor and every gait slides on a lower one (docs/robustness.md)."""
 
 
 STANDING_CONTROLLERS = ("pd", "balance")
@@ -161,6 +197,25 @@ class GaitConfig(StrictModel):
         "at rest until the gait starts (start_stance), then ramps to the first command",
     )
     commands: list[VelocityCommand] = Field(default_factory=_default_commands, min_length=1)
+    path_gain: float = Field(
+        0.0,
+        ge=0.0,
+        le=10.0,
+        description="rad of heading per m off the commanded path (0: the commands are dead-reckoned from "
+        "each "
+        "measurement, as a joystick's; > 0: the reference holds the path the commands trace from the start)",
+    )
+    path_heading_limit: float = Field(
+        0.2, ge=0.0, le=1.0, description="rad; the largest heading correction toward the path"
+    )
+    touchdown_events: float | None = Field(
+        None,
+        ge=0.0,
+        le=0.5,
+        description="s; advance the gait's clock when a swing foot lands more than this before its planned "
+        "touchdown (seen at each MPC update within the contact detector's early window and height), so that "
+        "the plans stand on it; null: the schedule keeps its clock",
+    )
 
     @field_validator("name")
     @classmethod
@@ -304,11 +359,25 @@ class MpcConfig(MpcSettings):
     whole_body_dt: float = Field(0.01, gt=0.0, le=0.1, description="dt_w, s")
     srb_dt: float = Field(0.05, gt=0.0, le=0.5, description="dt_s, s")
     friction: float = Field(
-        DEFAULT_FRICTION,
+        CONTROLLER_FRICTION,
         gt=0.0,
         le=2.0,
         description="friction coefficient the controller assumes (plan's pyramid, VWBC's cone); the plant's "
         "own is plant.floor_friction, so a mismatch between the two is explicit",
+    )
+    torque_barrier_eps: float = Field(
+        0.01,
+        ge=0.0,
+        le=100.0,
+        description="weight of the plan's relaxed torque-limit barrier (delta 1 Nm); the authors' 0.01 lets "
+        "plans "
+        "ask for more than the low level can give",
+    )
+    plan_torque_fraction: float = Field(
+        1.0,
+        gt=0.0,
+        le=1.0,
+        description="the plan's torque limits as a fraction of the low level's (headroom for feedback)",
     )
 
     @model_validator(mode="after")

@@ -1,7 +1,7 @@
 """The small per-knot interface between optimal-control problems and the MS-iLQR solver.
 
-The solver (``cafe_mpc.solver``) depends on nothing but this module (and numpy). It follows Pinocchio's
-model/data split and Crocoddyl's action models:
+The solver (``cafe_mpc.solver``) depends on nothing but this package (``core``; and numpy, numba). It
+follows Pinocchio's model/data split and Crocoddyl's action models:
 
 * a *model* (``ActionModel``, ``ResetMap``, ``SwitchingConstraint``) is immutable after construction and
   may be shared by many knots (and by many problems);
@@ -11,7 +11,8 @@ model/data split and Crocoddyl's action models:
 
 States live on a manifold (``StateManifold``): the solver works in the tangent space (``ndx``) and uses
 ``integrate``/``difference`` to move between points, so the floating-base orientation can be a unit
-quaternion (no Euler-angle singularity at pitch +-pi/2) without the solver knowing.
+quaternion (no Euler-angle singularity at pitch +-pi/2) without the solver knowing. A manifold may hand the
+solver compiled forms of these operations (``CompiledStateOperations``), which its compiled kernels run.
 
 Conventions (all arrays are ``numpy.ndarray`` of float64):
 
@@ -31,33 +32,81 @@ from __future__ import annotations
 
 from abc import ABC, abstractmethod
 from dataclasses import dataclass, field
+from typing import NamedTuple
 
 import numpy as np
+from numba.core.dispatcher import Dispatcher
 
-STATE_PYTHON = 0
-"""``StateManifold.kernel`` of a manifold without compiled operations (the solver calls its methods)."""
-STATE_EUCLIDEAN = 1
-"""``StateManifold.kernel``: ``R^n`` (``+``, ``-``)."""
-STATE_FREE_FLYER = 2
-"""``StateManifold.kernel``: ``[q, v]`` of a robot with a free flyer at the root and vector-space joints after
-it (``dynamics.kernels``)."""
-STATE_SRB = 3
-"""``StateManifold.kernel``: the SRB state ``[c, quaternion, c_dot, omega]`` (``dynamics.srb_kernels``)."""
+from cafe_mpc.core.kernels import (
+    POINT_OPERATION,
+    TRANSPORT_OPERATION,
+    compiled_address,
+    euclidean_difference,
+    euclidean_integrate,
+    euclidean_transport_stacked,
+)
+
+
+class StateOperationAddresses(NamedTuple):
+    """Where a manifold's compiled operations are (``CompiledStateOperations.addresses``): what compiled code
+    calls (``core.kernels.call_state_operation``, ``call_state_transport``)."""
+
+    integrate: int
+    difference: int
+    transport_stacked: int
+
+
+class CompiledStateOperations:
+    """A state manifold's ``⊕``, ``⊖`` and tangent transport as numba-compiled functions (for compiled code).
+
+    ``integrate(x, dx, out)``: ``out = x ⊕ dx``; ``difference(x0, x1, out)``: ``out = x1 ⊖ x0``;
+    ``transport_stacked(x0, x1, left, right, out)``: ``out = ∂(x1 ⊖ x0)/∂x1 @ [left | right]``. Each is an
+    ``njit`` function of float64 arrays that returns nothing and equals the manifold's method bit for bit
+    (``integrate_into``, ``difference_into``, ``difference_jacobian_product_stacked``); the sizes follow from
+    the arrays'. The solver's compiled roll-out runs them inside its own compiled calls (several manifold
+    operations and the algebra between them in one call, Eqs. (11)-(13)), through ``addresses``; its
+    linearisation transports ``[Fx | Fu]`` with ``transport_stacked``. The manifold keeps its methods for
+    everything else (and for callers in Python).
+    """
+
+    __slots__ = ("_addresses", "difference", "integrate", "transport_stacked")
+
+    def __init__(self, integrate: Dispatcher, difference: Dispatcher, transport_stacked: Dispatcher) -> None:
+        self.integrate = integrate
+        self.difference = difference
+        self.transport_stacked = transport_stacked
+        self._addresses: StateOperationAddresses | None = None
+
+    @property
+    def addresses(self) -> StateOperationAddresses:
+        """The addresses of the three functions compiled for writable C-contiguous float64 arrays (compiled,
+        or loaded from numba's cache, on first use; valid in this process only)."""
+        if self._addresses is None:
+            self._addresses = StateOperationAddresses(
+                compiled_address(self.integrate, POINT_OPERATION),
+                compiled_address(self.difference, POINT_OPERATION),
+                compiled_address(self.transport_stacked, TRANSPORT_OPERATION),
+            )
+        return self._addresses
+
+    def __reduce__(self) -> tuple:
+        """Pickled (and copied) without the addresses, which belong to this process."""
+        return (CompiledStateOperations, (self.integrate, self.difference, self.transport_stacked))
 
 
 class StateManifold(ABC):
     """A state space with ``nx`` coordinates and an ``ndx``-dimensional tangent space.
 
-    ``kernel`` names the compiled ``integrate``/``difference`` that equal this manifold's methods bit for bit
-    (``STATE_EUCLIDEAN``, ...; ``dynamics.state_kernels`` dispatches on it), so that the solver's forward
-    roll-out can run them inside its own compiled calls; ``STATE_PYTHON`` (the default): none, the methods
-    are called. A manifold sets it with ``own_operations`` so that a subclass overriding ``integrate``,
-    ``difference`` or their ``_into`` forms falls back to ``STATE_PYTHON`` by itself.
+    ``compiled``: the manifold's operations as compiled functions (``CompiledStateOperations``), which the
+    solver's compiled roll-out and linearisation run in place of the methods; ``None`` (the default): none,
+    the solver calls the methods. A manifold sets it with ``own_operations`` so that a subclass overriding
+    one of the ``STATE_OPERATIONS`` (whose compiled form would then differ from the method) falls back to
+    its methods by itself.
     """
 
     nx: int
     ndx: int
-    kernel: int = STATE_PYTHON
+    compiled: CompiledStateOperations | None = None
 
     @abstractmethod
     def zero(self) -> np.ndarray:
@@ -111,13 +160,20 @@ class StateManifold(ABC):
         np.matmul(self.jacobian_difference(x0, x1)[1], matrix, out=out)
 
 
-STATE_OPERATIONS = ("integrate", "difference", "integrate_into", "difference_into")
-"""The operations a compiled ``StateManifold.kernel`` stands for."""
+STATE_OPERATIONS = (
+    "integrate",
+    "difference",
+    "integrate_into",
+    "difference_into",
+    "difference_jacobian_product",
+    "difference_jacobian_product_stacked",
+)
+"""The methods ``StateManifold.compiled`` stands for."""
 
 
 def own_operations(manifold: StateManifold, owner: type) -> bool:
     """Whether ``manifold``'s ``STATE_OPERATIONS`` are ``owner``'s own (no subclass overrides one), i.e.
-    whether the compiled kernel written for ``owner`` computes them."""
+    whether the compiled operations written for ``owner`` compute them."""
     cls = type(manifold)
     return all(getattr(cls, name, None) is getattr(owner, name, None) for name in STATE_OPERATIONS)
 
@@ -131,7 +187,7 @@ class EuclideanState(StateManifold):
         self.nx = n
         self.ndx = n
         # a subclass may override difference/integrate (e.g. angle wrapping)
-        self.kernel = STATE_EUCLIDEAN if own_operations(self, EuclideanState) else STATE_PYTHON
+        self.compiled = EUCLIDEAN_OPERATIONS if own_operations(self, EuclideanState) else None
         self._eye = np.eye(n)
 
     def zero(self) -> np.ndarray:
@@ -156,6 +212,12 @@ class EuclideanState(StateManifold):
         self, x0: np.ndarray, x1: np.ndarray, matrix: np.ndarray, out: np.ndarray
     ) -> None:
         out[:] = matrix
+
+
+EUCLIDEAN_OPERATIONS = CompiledStateOperations(
+    euclidean_integrate, euclidean_difference, euclidean_transport_stacked
+)
+"""``EuclideanState``'s compiled operations (``+``, ``-``, the identity transport)."""
 
 
 class ActionData:

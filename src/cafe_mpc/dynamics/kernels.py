@@ -450,6 +450,22 @@ def free_flyer_state_integrate(x: np.ndarray, dx: np.ndarray, nq: int, nv: int, 
 
 
 @njit(cache=True, nogil=True)
+def free_flyer_difference(x0: np.ndarray, x1: np.ndarray, out: np.ndarray) -> None:
+    """``free_flyer_state_difference`` with the sizes from the arrays' (``ndx = 2 nv``, ``nx = nq + nv``):
+    the free-flyer state's compiled ``difference`` (``core.interfaces.CompiledStateOperations``)."""
+    nv = out.shape[0] // 2
+    free_flyer_state_difference(x0, x1, x0.shape[0] - nv, nv, out)
+
+
+@njit(cache=True, nogil=True)
+def free_flyer_integrate(x: np.ndarray, dx: np.ndarray, out: np.ndarray) -> None:
+    """``free_flyer_state_integrate`` with the sizes from the arrays': the free-flyer state's compiled
+    ``integrate``."""
+    nv = dx.shape[0] // 2
+    free_flyer_state_integrate(x, dx, x.shape[0] - nv, nv, out)
+
+
+@njit(cache=True, nogil=True)
 def free_flyer_state_integrate_rows(
     xs: np.ndarray, dxs: np.ndarray, nq: int, nv: int, out: np.ndarray
 ) -> None:

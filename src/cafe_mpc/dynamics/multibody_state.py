@@ -10,7 +10,8 @@ and ``integrate``/``difference`` are Pinocchio's (SE(3) exponential/logarithm on
 addition on the joints and on the velocity), so the tangent of ``q`` has the same coordinates as ``v``. For
 the usual floating-base robot (a free flyer at the root, vector-space joints after it) the in-place versions
 are compiled kernels equal to Pinocchio's to round-off (``dynamics.kernels``; a fifth of the time of the
-Python call with its slicing, on the solver's hot path).
+Python call with its slicing, on the solver's hot path), which the manifold also hands to the solver's
+compiled kernels (``FREE_FLYER_OPERATIONS``).
 """
 
 from __future__ import annotations
@@ -18,15 +19,22 @@ from __future__ import annotations
 import numpy as np
 import pinocchio as pin
 
-from cafe_mpc.core.interfaces import STATE_FREE_FLYER, STATE_PYTHON, StateManifold, own_operations
+from cafe_mpc.core.interfaces import CompiledStateOperations, StateManifold, own_operations
 from cafe_mpc.core.kernels import stack_columns_left_multiplied
 from cafe_mpc.dynamics.kernels import (
+    free_flyer_difference,
     free_flyer_difference_jacobian,
     free_flyer_difference_jacobian_product_stacked,
+    free_flyer_integrate,
     free_flyer_state_difference,
     free_flyer_state_integrate,
     free_flyer_state_integrate_rows,
 )
+
+FREE_FLYER_OPERATIONS = CompiledStateOperations(
+    free_flyer_integrate, free_flyer_difference, free_flyer_difference_jacobian_product_stacked
+)
+"""The compiled operations of ``MultibodyState`` with a free flyer at the root (``dynamics.kernels``)."""
 
 
 class MultibodyState(StateManifold):
@@ -60,7 +68,7 @@ class MultibodyState(StateManifold):
         )
         """A free flyer at the root and vector-space joints after it: the compiled operations apply."""
         compiled = self.free_flyer_root and own_operations(self, MultibodyState)
-        self.kernel = STATE_FREE_FLYER if compiled else STATE_PYTHON
+        self.compiled = FREE_FLYER_OPERATIONS if compiled else None
 
     def zero(self) -> np.ndarray:
         return np.concatenate([pin.neutral(self.model), np.zeros(self.nv)])

@@ -31,11 +31,12 @@ import numpy as np
 import pinocchio as pin
 
 from cafe_mpc.core.contacts import N_FEET
-from cafe_mpc.core.interfaces import STATE_PYTHON, STATE_SRB, StateManifold, own_operations
+from cafe_mpc.core.interfaces import CompiledStateOperations, StateManifold, own_operations
 from cafe_mpc.core.physics import GRAVITY
 from cafe_mpc.dynamics.srb_kernels import (
     srb_difference,
     srb_difference_jacobian_product,
+    srb_difference_jacobian_product_stacked,
     srb_integrate,
     srb_step,
     srb_step_jacobians,
@@ -62,6 +63,12 @@ def quaternion_multiply(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     )
 
 
+SRB_OPERATIONS = CompiledStateOperations(
+    srb_integrate, srb_difference, srb_difference_jacobian_product_stacked
+)
+"""``SRBState``'s compiled operations (``dynamics.srb_kernels``)."""
+
+
 class SRBState(StateManifold):
     """``[c, quaternion, c_dot, omega]`` on ``R^3 x SO(3) x R^3 x R^3`` (see the module docstring)."""
 
@@ -69,7 +76,7 @@ class SRBState(StateManifold):
     ndx = 12
 
     def __init__(self) -> None:
-        self.kernel = STATE_SRB if own_operations(self, SRBState) else STATE_PYTHON
+        self.compiled = SRB_OPERATIONS if own_operations(self, SRBState) else None
 
     def zero(self) -> np.ndarray:
         x = np.zeros(13)

@@ -219,6 +219,17 @@ def srb_difference_jacobian_product(
             out[3 + i, j] = J[i, 0] * matrix[3, j] + J[i, 1] * matrix[4, j] + J[i, 2] * matrix[5, j]
 
 
+@njit(cache=True, nogil=True)
+def srb_difference_jacobian_product_stacked(
+    x0: np.ndarray, x1: np.ndarray, left: np.ndarray, right: np.ndarray, out: np.ndarray
+) -> None:
+    """``out = ∂(x1 ⊖ x0)/∂x1 @ [left | right]`` (``srb_difference_jacobian_product`` on either block of
+    columns)."""
+    n_left = left.shape[1]
+    srb_difference_jacobian_product(x0, x1, left, out[:, :n_left])
+    srb_difference_jacobian_product(x0, x1, right, out[:, n_left:])
+
+
 # -------------------------------------------------------------------------------------- SRB dynamics
 @njit(cache=True, nogil=True)
 def srb_step(

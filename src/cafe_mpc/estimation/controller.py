@@ -20,8 +20,10 @@ see sensors (``estimator: kinematic_kf``): every tick it runs the front end on t
 flags of the plan ``inner`` follows now (``inner.plan``, if it has one: both MPC loops, ``control.inline``
 and ``control.process``, do), tells ``inner`` of a sensor fault (``inner.report_sensors``, if it has one)
 and hands the estimate to ``inner.compute``. It runs in the caller's thread at the control rate, in every
-timing mode and in ``--realtime`` (where ``inner`` publishes the estimate to the MPC process). The estimate
-of every tick is recorded in preallocated arrays (``trace``) for the run's log and metrics.
+timing mode and in ``--realtime`` (where ``inner`` publishes the estimate to the MPC process). Readings
+stamped earlier than the tick (a late sample) give an estimate of their own time, which is carried to the
+tick at constant velocity before the controller sees it. The estimate of every tick is recorded in
+preallocated arrays (``trace``) for the run's log and metrics.
 """
 
 from __future__ import annotations
@@ -30,6 +32,7 @@ import logging
 import math
 
 import numpy as np
+import pinocchio as pin
 
 from cafe_mpc.config import SensorLimits
 from cafe_mpc.core.controller import Controller
@@ -39,6 +42,9 @@ from cafe_mpc.core.sensors import SensorGuard, SensorReadings
 from cafe_mpc.estimation.estimator import StateEstimator
 
 logger = logging.getLogger(__name__)
+
+LATE = 1e-6
+"""s: readings older than the tick by more than this are brought forward to it."""
 
 
 class SensorFrontEnd:
@@ -149,6 +155,9 @@ class SensingController:
         self._trust = np.zeros((capacity, robot.n_feet))
         self._count = 0
         self._reported: str | None = None
+        self._step = np.zeros(robot.nv)
+        self.late_ticks = 0
+        """Ticks whose readings were older than the tick and were brought forward (``_bring_forward``)."""
         self.last_measurement: Measurement | None = None
 
     @property
@@ -161,9 +170,12 @@ class SensingController:
         self.front_end.reset(self.position_xy)
         self._count = 0
         self._reported = None
+        self.late_ticks = 0
 
     def compute(self, t: float, readings: SensorReadings) -> np.ndarray:
         measurement = self.front_end.measure(readings, self.plan)
+        if t - measurement.time > LATE:
+            self._bring_forward(measurement, t)
         self.last_measurement = measurement
         self._record(measurement)
         fault = self.front_end.fault(t)
@@ -178,6 +190,17 @@ class SensingController:
         """The ``sensors`` part of the run's ``faults`` block (``SensorFrontEnd.record``), None when every
         sample was good."""
         return self.front_end.record() if self.front_end.eventful else None
+
+    def _bring_forward(self, measurement: Measurement, t: float) -> None:
+        """A late sample (its readings stamped ``measurement.time``, ``t`` now: a bus or a driver delayed
+        them) carried to ``t`` at constant velocity on the configuration manifold (``pin.integrate``: the
+        base screw-moves with its measured twist, the joints move at their rates), so that the low level and
+        the MPC act on the state of now; the velocities are kept."""
+        model = self.estimator.robot.model
+        np.multiply(measurement.v, t - measurement.time, out=self._step)
+        measurement.q[:] = pin.integrate(model, measurement.q, self._step)
+        measurement.time = float(t)
+        self.late_ticks += 1
 
     def _record(self, measurement: Measurement) -> None:
         if self._count == len(self._q):

@@ -72,7 +72,7 @@ def build_vwbc(run: RunContext) -> VWBCController:
         defaults = VWBCSettings.model_fields  # the reference robot's, scaled to the run's robot
         settings = VWBCSettings(
             **config.vwbc.model_dump(),
-            mu=config.mpc.friction,
+            mu=config.vwbc.friction if config.vwbc.friction is not None else config.mpc.friction,
             alpha=scale.rate(defaults["alpha"].default),
             cone_tolerance=scale.force(defaults["cone_tolerance"].default),
         )

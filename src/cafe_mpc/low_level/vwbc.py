@@ -58,6 +58,7 @@ from cafe_mpc.config import DEFAULT_FRICTION, VWBCConfig
 from cafe_mpc.config.run import WarmStart
 from cafe_mpc.core.controller import LowLevelController
 from cafe_mpc.core.measurement import Measurement
+from cafe_mpc.low_level.contact_detection import ContactDetector
 from cafe_mpc.low_level.contact_dynamics import (
     ContactDynamicsTerms,
     contact_forces_for_torque,
@@ -372,6 +373,11 @@ class VWBCController(LowLevelController[Plan]):
         else:
             self.solver_name = _ProxQPStance.solver_name
         self.terms = ContactDynamicsTerms(robot, self.settings.alpha)
+        self.detector = (
+            ContactDetector(robot, self.settings.contact_detection)
+            if self.settings.stance_source == "detected"
+            else None
+        )
         self._qps: dict[tuple[bool, ...], _StanceQP] = {}
         nv, nu = robot.nv, robot.nu
         self._dx = np.zeros(2 * nv)
@@ -395,6 +401,8 @@ class VWBCController(LowLevelController[Plan]):
     def reset(self) -> None:
         """Forget the previous tick's solution and the statistics."""
         self._previous_pattern = None
+        if self.detector is not None:
+            self.detector.reset()
         self.reset_statistics()
 
     def _check_plan(self, plan: Plan) -> None:
@@ -422,6 +430,8 @@ class VWBCController(LowLevelController[Plan]):
         contacts = np.asarray(contacts, dtype=bool)
         if s.stance_source == "intersect":
             self._stance &= contacts
+        elif self.detector is not None:
+            np.copyto(self._stance, self.detector.update(t, measurement, plan))
         if np.any(contacts != plan.contacts[k]):
             self.stance_mismatch_ticks += 1
         self.last_stance[:] = self._stance
@@ -566,6 +576,7 @@ class VWBCController(LowLevelController[Plan]):
             "slow_ticks": self.slow_ticks,
             "stance_mismatch_ticks": self.stance_mismatch_ticks,
             "warm_start": self.settings.warm_start,
+            **({"contact_detection": self.detector.statistics()} if self.detector is not None else {}),
             "solver": self.solver_name,
         }
 

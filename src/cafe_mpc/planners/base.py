@@ -73,9 +73,8 @@ def first_solve_options() -> SolverOptions:
 def update_solve_options(settings: MpcSettings) -> SolverOptions:
     """In-loop solver settings (the paper's: ``max_iterations`` iterations, one AL update, the budget)."""
     options = replace(
-        SolverOptions.paper_mpc(settings.period),
+        SolverOptions.paper_mpc(settings.budget),
         max_iterations=settings.max_iterations,
-        time_budget=settings.budget,
         regularization_initial=1e-6,
         regularization_min=1e-6,
         line_search_min_step=UPDATE_LINE_SEARCH_MIN_STEP,

@@ -273,6 +273,9 @@ class LocomotionReference(Reference):
         cycle_start: float = 0.0,
         start_stance: float = 0.0,
         command_ramp: float = 0.0,
+        path_gain: float = 0.0,
+        path_heading_limit: float = 0.2,
+        touchdown_events: tuple[float, float, float] | None = None,
     ) -> None:
         if not commands:
             commands = [VelocityCommand()]
@@ -300,6 +303,22 @@ class LocomotionReference(Reference):
         self.offsets = robot.foothold_offsets.copy()
         self.mass = robot.total_mass
         self.nominal_joints = robot.q_standing[7:].copy()
+        if not (math.isfinite(path_gain) and path_gain >= 0.0):
+            raise ValueError(f"path_gain must be >= 0 rad/m, got {path_gain}")
+        if not 0.0 <= path_heading_limit <= 1.0:
+            raise ValueError(f"path_heading_limit must be in [0, 1] rad, got {path_heading_limit}")
+        self.path_gain = float(path_gain)
+        """rad of heading per m of cross-track error (0: no path, the commands are dead-reckoned from the
+        measurement at every update)."""
+        self.path_heading_limit = float(path_heading_limit)
+        self.path_origin: tuple[float, np.ndarray, float] | None = None
+        self.touchdown_events = touchdown_events
+        """``(on_time, window, height)``: a swing foot found within ``height`` m of the ground with its
+        planned touchdown between ``on_time`` and ``window`` s ahead has landed early; the gait's clock is
+        advanced to it (``advance_phase``). None: the schedule runs on its clock whatever the feet do."""
+        self.phase_advances = 0
+        self.phase_advance_total = 0.0
+        """(time, x y, yaw) the commanded path starts from: the first measured pose after a reset."""
         # anchor (re-set at every update)
         self.anchor_time = 0.0
         self.anchor_xy = np.zeros(2)
@@ -556,10 +575,14 @@ class LocomotionReference(Reference):
         self.anchor_time = t
         self.anchor_xy = q[:2].copy()
         self.anchor_yaw = yaw_from_quaternion(q[3:7])
+        if self.path_gain > 0.0:
+            self.anchor_yaw = self._path_heading(t, self.anchor_xy, self.anchor_yaw)
         rotation = _quaternion_matrix(q[3:7])
         self.measured_velocity_xy = (rotation @ v[:3])[:2]
         robot, data = self.robot, self._data
         pin.framesForwardKinematics(robot.model, data, q)
+        if self.touchdown_events is not None:
+            self._landed_early(t)
         stance = self.stance_at(t)
         for foot, frame_id in enumerate(robot.foot_frame_ids):
             if stance[foot]:
@@ -567,6 +590,58 @@ class LocomotionReference(Reference):
                 self.stance_positions[foot] = position
                 self.stance_positions[foot, 2] = robot.foot_radius
                 self.liftoff_positions[foot] = position
+
+    def _landed_early(self, t: float) -> None:
+        """Advance the gait's clock when a swing foot is on the ground before its planned touchdown (the
+        placements of the measured configuration in ``self._data``): the plans then give it, and the feet
+        planned to land with it, their stance from now (event-based timing, as Bledt et al.'s contact fusion
+        does for the Cheetah 3), instead of a flight the robot is no longer in."""
+        assert self.touchdown_events is not None
+        on_time, window, height = self.touchdown_events
+        if t < self.start_stance or self._segments[-1].start > t + TIME_TOLERANCE:
+            return  # standing still, or a gait switch pending: the schedule decides
+        stance = self.stance_at(t)
+        phases = self.schedule(t, t + window).phases
+        lead = None
+        for foot, frame_id in enumerate(self.robot.foot_frame_ids):
+            if stance[foot]:
+                continue
+            sole = self._data.oMf[frame_id].translation[2] - self.robot.foot_radius
+            if sole > height:
+                continue
+            touchdown = next(
+                (p.start for p in phases if p.start > t and p.stance[foot] and p.start - t <= window), None
+            )
+            if touchdown is not None and touchdown - t > on_time:
+                lead = touchdown - t if lead is None else min(lead, touchdown - t)
+        if lead is not None:
+            self.advance_phase(t, lead)
+
+    def advance_phase(self, t: float, lead: float) -> None:
+        """From ``t`` on, the gait in force runs ``lead`` seconds ahead (its cycle starts that much earlier):
+        what was planned for ``t + lead`` happens at ``t``."""
+        current = self._segments[-1]
+        self._segments.append(_GaitSegment.of(t, current.gait, current.cycle_start - lead))
+        self._schedule_window = (math.inf, -math.inf)
+        self.phase_advances += 1
+        self.phase_advance_total += lead
+
+    def _path_heading(self, t: float, xy: np.ndarray, yaw: float) -> float:
+        """The heading the reference takes from the measured pose at ``t`` when it holds the commanded path:
+        the path's heading at ``t`` (the commands integrated from ``path_origin``), turned toward the path
+        by ``path_gain`` per metre of cross-track error, at most ``path_heading_limit`` (a pure-pursuit
+        lane keeper: dead-reckoning the commands from each measurement lets sensor bias and slip move
+        the robot off its line, which a task fixed in the world, a bar to roll over, cannot afford)."""
+        if self.path_origin is None:
+            self.path_origin = (t, xy.copy(), yaw)
+            return yaw
+        start, origin, origin_yaw = self.path_origin
+        displacement, turn = self.profile.heading_displacement(start, t)
+        path_xy = origin + _yaw_rotation(origin_yaw) @ displacement
+        path_yaw = origin_yaw + turn
+        cross = float((_yaw_rotation(path_yaw).T @ (xy - path_xy))[1])
+        correction = max(-self.path_heading_limit, min(self.path_heading_limit, self.path_gain * cross))
+        return path_yaw - correction
 
     # ------------------------------------------------------------------------------------------- base
     def base_pose(self, t: float) -> tuple[np.ndarray, float]:

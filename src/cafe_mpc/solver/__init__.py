@@ -7,7 +7,9 @@ from cafe_mpc.solver.results import (
     SolverResult,
     SolverStatistics,
     SolveStatus,
+    SweepOutcome,
     TrajectoryEvaluation,
+    TrajectoryTotals,
 )
 from cafe_mpc.solver.workspace import PhaseWorkspace, Workspace
 
@@ -19,7 +21,9 @@ __all__ = [
     "SolverOptions",
     "SolverResult",
     "SolverStatistics",
+    "SweepOutcome",
     "TrajectoryEvaluation",
+    "TrajectoryTotals",
     "Workspace",
     "evaluate_trajectory",
 ]

@@ -15,7 +15,9 @@ the unregularised ``Quu`` so that the expected cost change of the quadratic mode
 The forward roll-out (Eqs. (11)-(13)) cannot be one compiled call per phase (each knot's ``calc`` is the
 model's, e.g. Pinocchio's), but everything between two ``calc`` calls is: ``rollout_knot_end`` takes the
 state the knot's model produced, sets the next trial state and defect, and forms the next knot's control,
-with the manifold's compiled ``⊕``/``⊖`` (``dynamics.state_kernels``), in place of five separate calls.
+with the manifold's compiled ``⊕``/``⊖``, in place of five separate calls. The manifold hands those over
+as the addresses of its compiled functions (``CompiledStateOperations.addresses``, ``core.interfaces``),
+which the kernels call through ``core.kernels``: one compiled kernel serves every manifold that has them.
 """
 
 from __future__ import annotations
@@ -23,7 +25,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from cafe_mpc.dynamics.state_kernels import state_difference, state_integrate
+from cafe_mpc.core.kernels import call_state_operation, call_state_transport, same_point, stack_columns
 
 CHOLESKY_FAILED = 1
 """Status of ``backward_phase`` when ``Quu + mu I`` is not positive definite (or not finite)."""
@@ -253,8 +255,29 @@ def _affine_rows(
 
 
 @njit(cache=True, nogil=True)
+def transport_stacked(
+    transport: int, x_nominal: np.ndarray, y: np.ndarray, left: np.ndarray, right: np.ndarray, out: np.ndarray
+) -> None:
+    """``out = ∂(y ⊖ x̄)/∂y @ [left | right]`` (a knot's ``[A | B]`` from its ``[Fx | Fu]``, in the tangent
+    space at the next nominal state) by the manifold's compiled ``transport_stacked`` (its address); the plain
+    ``[left | right]`` when ``y == x̄`` (no defect: the Jacobian is the identity). ``y``, ``left``, ``right``
+    (the model's) are used as they are when C-contiguous, as they always are here, else copied."""
+    if same_point(x_nominal, y):
+        stack_columns(left, right, out)
+    else:
+        call_state_transport(
+            transport,
+            x_nominal,
+            np.ascontiguousarray(y),
+            np.ascontiguousarray(left),
+            np.ascontiguousarray(right),
+            out,
+        )
+
+
+@njit(cache=True, nogil=True)
 def rollout_policy(
-    kind: int,
+    difference: int,
     k: int,
     alpha: float,
     xs: np.ndarray,
@@ -267,14 +290,16 @@ def rollout_policy(
     du: np.ndarray,
 ) -> None:
     """The trial control of knot ``k`` (Eq. (11)): ``dx = xs_try[k] ⊖ xs[k]``, then ``policy_step``
-    (``us_try[k]``, ``du``). ``kind``: the state manifold's compiled operations (``StateManifold.kernel``)."""
-    state_difference(kind, xs[k], xs_try[k], dx)
+    (``us_try[k]``, ``du``). ``difference``: the address of the state manifold's compiled ``difference``
+    (``CompiledStateOperations.addresses``)."""
+    call_state_operation(difference, xs[k], xs_try[k], dx)
     policy_step(us[k], kff[k], K[k], dx, alpha, us_try[k], du)
 
 
 @njit(cache=True, nogil=True)
 def rollout_knot_end(
-    kind: int,
+    integrate: int,
+    difference: int,
     k: int,
     alpha: float,
     x_next: np.ndarray,
@@ -293,7 +318,8 @@ def rollout_knot_end(
     step: np.ndarray,
 ) -> None:
     """The roll-out after knot ``k``'s ``calc`` produced ``x_next = f(x'_k, u'_k)``, with ``dx``, ``du`` the
-    knot's ``δx``, ``δu`` (``rollout_policy``).
+    knot's ``δx``, ``δu`` (``rollout_policy``); ``integrate``, ``difference``: the addresses of the state
+    manifold's compiled operations.
 
     A roll-out knot ``k + 1`` (``rollout[k + 1]``) takes ``x_next`` (Eq. (13)) and no defect; a shooting knot
     follows the linearised dynamics with the full defect (Eq. (12) in the tangent space at the next nominal
@@ -309,10 +335,10 @@ def rollout_knot_end(
             defects_try[j, i] = 0.0
     else:
         linear_step(F[k], dx, du, defects[j], step)  # Eq. (12)
-        state_integrate(kind, xs[j], step, xs_try[j])
-        state_difference(kind, xs_try[j], x_next, defects_try[j])
+        call_state_operation(integrate, xs[j], step, xs_try[j])
+        call_state_operation(difference, xs_try[j], np.ascontiguousarray(x_next), defects_try[j])
     if j < us.shape[0]:
-        rollout_policy(kind, j, alpha, xs, xs_try, us, us_try, kff, K, dx, du)
+        rollout_policy(difference, j, alpha, xs, xs_try, us, us_try, kff, K, dx, du)
 
 
 @njit(cache=True, nogil=True)

@@ -5,9 +5,13 @@ terminal models, reset maps between phases and switching (phase-terminal) equali
 on manifolds; every perturbation, defect and value-function model is expressed in the tangent space at the
 nominal state, defects are ``d_{k+1} = f(x̄_k, ū_k) ⊖ x̄_{k+1}`` (Eq. (4)) and ``P(x̄_N) ⊖ x̄_0`` (Eq. (15)).
 
+The steps are public, as in Crocoddyl's solvers, and ``solve`` is made of them: ``linearize`` (the
+derivatives Eq. (8) needs), ``backward`` (Eqs. (7)-(10), (16)), ``try_step`` (the line search's trial,
+Eqs. (11)-(13), (15)); ``prepare`` and ``feedback`` are the real-time iteration's two phases.
+
 One inner iteration:
 
-* **Backward sweep** (Eqs. (8), (9), (10)) with the defect terms ``ŝ = s + S d``, Gauss-Newton (the
+* **Backward sweep** (Eqs. (7)-(10)) with the defect terms ``ŝ = s + S d``, Gauss-Newton (the
   second-order dynamics terms of (8d)-(8f) and (16c) are dropped: iLQR), across reset maps with Eq. (16)
   and the reset Jacobian, with ``mu I`` added to ``Quu`` (Cholesky; on failure ``mu`` grows and the sweep
   restarts). The value function is updated with the regularised gains and the *unregularised* ``Quu``
@@ -52,7 +56,7 @@ from typing import Literal
 import numpy as np
 
 from cafe_mpc.core.buffers import ArrayLender, ArraySet
-from cafe_mpc.core.interfaces import STATE_PYTHON, MultiPhaseProblem
+from cafe_mpc.core.interfaces import MultiPhaseProblem
 from cafe_mpc.solver.kernels import (
     CHOLESKY_FAILED,
     backward_phase,
@@ -68,32 +72,37 @@ from cafe_mpc.solver.results import (
     SolveStatus,
     SweepOutcome,
     TrajectoryEvaluation,
+    TrajectoryTotals,
 )
 from cafe_mpc.solver.workspace import EMPTY_CONTROL, PhaseWorkspace, Workspace
 
 
-class _Totals:
-    """Cost and feasibility of one trajectory (nominal or trial)."""
+class _Run:
+    """The state of one ``solve`` (or ``prepare``) between its steps."""
 
     __slots__ = (
-        "augmented_cost",
-        "cost",
-        "defect_l1",
-        "defect_max",
-        "inequality_violation",
-        "switching_violation",
+        "inner_converged",
+        "last_iteration_time",
+        "nominal",
+        "pending_step",
+        "policy_valid",
+        "start",
+        "statistics",
+        "status",
     )
 
-    def __init__(self) -> None:
-        self.cost = 0.0
-        self.augmented_cost = 0.0
-        self.defect_l1 = 0.0
-        self.defect_max = 0.0
-        self.inequality_violation = 0.0
-        self.switching_violation = 0.0
-
-    def finite(self) -> bool:
-        return math.isfinite(self.augmented_cost) and math.isfinite(self.defect_l1)
+    def __init__(self, start: float, statistics: SolverStatistics, nominal: TrajectoryTotals) -> None:
+        self.start = start
+        self.statistics = statistics
+        self.nominal = nominal
+        self.status = SolveStatus.MAX_ITERATIONS
+        self.inner_converged = False
+        self.policy_valid = False
+        """The workspace's policy is the sweep's at the nominal (or its shift to it)."""
+        self.last_iteration_time = 0.0
+        self.pending_step: float | None = None
+        """The step of the last accepted iteration while the derivatives are not yet those at its result (the
+        linearisation is deferred to the next iteration, or replaced by a shift: ``final_policy``)."""
 
 
 class MSiLQRSolver:
@@ -143,139 +152,78 @@ class MSiLQRSolver:
         ``initial_multipliers``/``initial_penalties``: augmented-Lagrangian parameters per phase (warm start
         of the AL loop; ``None`` entries use ``0`` and ``options.al_initial_penalty``).
 
+        The steps: evaluate and linearise the guess; per augmented-Lagrangian iteration up to
+        ``max_iterations`` MS-iLQR iterations (``backward``, then a line search of ``try_step`` trials), then
+        the multiplier update; last the policy at the returned trajectory (``final_policy``).
+
         Raises ``ValueError`` when the initial guess has the wrong shapes or a non-finite cost or defect.
         """
         options = self.options
-        start = time.perf_counter()
-        workspace = self._prepare_workspace(problem)
-        seed_states = self._initialize(workspace, initial_xs, initial_us, rollout_knots)
-        self._initialize_augmented_lagrangian(workspace, initial_multipliers, initial_penalties)
-
-        stats = SolverStatistics()
-        # the first linearisation fused with the evaluation (each knot's calc_diff right after its calc,
-        # while its data are in the cache), except on a thread pool
-        fused = options.threads == 1
-        nominal = self._evaluate_nominal(workspace, problem.x0, seed_states, stats if fused else None)
-        data_at_nominal = True
-        if not nominal.finite():
-            raise ValueError("the initial guess has a non-finite cost or defect")
-        clock = time.perf_counter()
-        stats.setup_time = clock - start - stats.linearize_time
-        if not fused:
-            self._linearize(workspace)
-            stats.linearize_time += time.perf_counter() - clock
-            stats.linearizations += 1
-        self._regularization = options.regularization_initial
-        status, inner_converged, policy_valid = SolveStatus.MAX_ITERATIONS, False, False
-        last_iteration_time = 0.0
-        # step of the last accepted iteration while the data are not yet linearised at its result (the
-        # linearisation is deferred to the next iteration, or replaced by a shift: ``final_policy``)
-        pending_step: float | None = None
+        run = self._start(
+            problem, initial_xs, initial_us, rollout_knots, initial_multipliers, initial_penalties
+        )
         for al_iteration in range(options.max_al_iterations):
-            stats.al_iterations = al_iteration + 1
-            inner_converged, status = False, SolveStatus.MAX_ITERATIONS
-            for _ in range(options.max_iterations):
-                elapsed = time.perf_counter() - start
-                budget = options.time_budget
-                if budget is not None and stats.iterations > 0 and elapsed + last_iteration_time > budget:
-                    status = SolveStatus.TIME_BUDGET
-                    break
-                iteration_start = time.perf_counter()
-                if pending_step is not None:
-                    clock = time.perf_counter()
-                    self._linearize(workspace)
-                    stats.linearize_time += time.perf_counter() - clock
-                    stats.linearizations += 1
-                    pending_step = None
-                clock = time.perf_counter()
-                outcome = self._backward_pass_with_regularization(workspace, stats)
-                stats.backward_time += time.perf_counter() - clock
-                policy_valid = outcome == SweepOutcome.OK
-                if not policy_valid:
-                    status = SolveStatus(outcome.value)
-                    break
-                decrease = -(self._expected_linear + 0.5 * self._expected_quadratic)
-                if (
-                    nominal.defect_max <= options.defect_tolerance
-                    and decrease <= options.expected_decrease_tolerance
-                ):
-                    inner_converged, status = True, SolveStatus.CONVERGED
-                    break
-                regularization = self._regularization
-                clock = time.perf_counter()
-                trial, alpha, n_trials, mode = self._line_search(workspace, problem.x0, nominal)
-                stats.line_search_time += time.perf_counter() - clock
-                data_at_nominal = trial is not None  # a failed search leaves trial points in the data
-                cost_change = math.inf
-                if trial is not None:
-                    cost_change = trial.augmented_cost - nominal.augmented_cost
-                    for work in workspace.phases:
-                        work.swap_trial()
-                    nominal = trial
-                    pending_step = alpha
-                    policy_valid = False
-                    self._regularization = max(
-                        regularization / options.regularization_decrease, options.regularization_min
-                    )
-                last_iteration_time = time.perf_counter() - iteration_start
-                self._record(
-                    stats, nominal, regularization, decrease, alpha, n_trials, mode, last_iteration_time
-                )
-                if trial is None:
-                    if not self._increase_regularization():
-                        status = SolveStatus.REGULARIZATION_LIMIT
-                        break
-                elif (
-                    nominal.defect_max <= options.defect_tolerance
-                    and abs(cost_change) <= options.cost_change_tolerance
-                ):
-                    inner_converged, status = True, SolveStatus.CONVERGED
-                    break
-            if status in (SolveStatus.REGULARIZATION_LIMIT, SolveStatus.NON_FINITE):
-                break
-            if nominal.switching_violation <= options.switching_tolerance:
+            run.statistics.al_iterations = al_iteration + 1
+            self._iterate(run)
+            if run.status in (SolveStatus.REGULARIZATION_LIMIT, SolveStatus.NON_FINITE):
                 break
             # Also after the last AL iteration and when the wall-clock budget ran out: the parameters
             # warm-start the next (MPC) solve (skipping it on a budget stop froze the touchdown multipliers).
-            self._update_augmented_lagrangian(workspace)
-            nominal = self._totals_from_nominal(workspace, nominal)
-            policy_valid = False
-            if status == SolveStatus.TIME_BUDGET:
+            if not self._update_multipliers(run) or run.status == SolveStatus.TIME_BUDGET:
                 break
+        return self._finish(run, options.final_backward_pass)
 
-        if options.final_backward_pass and not policy_valid and status != SolveStatus.NON_FINITE:
-            if pending_step is not None and options.final_policy == "shift":
-                # first-order move of the last sweep's expansion point to the accepted step's result
-                for work in workspace.phases:
-                    work.Qu *= 1.0 - pending_step
-                    work.k *= 1.0 - pending_step
-                policy_valid = True
-            else:
-                if pending_step is not None:
-                    clock = time.perf_counter()
-                    self._linearize(workspace)
-                    stats.linearize_time += time.perf_counter() - clock
-                    stats.linearizations += 1
-                clock = time.perf_counter()
-                policy_valid = self._backward_pass_with_regularization(workspace, stats) == SweepOutcome.OK
-                stats.backward_time += time.perf_counter() - clock
-        converged = inner_converged and nominal.switching_violation <= options.switching_tolerance
-        if status == SolveStatus.CONVERGED and not converged:
-            status = SolveStatus.MAX_ITERATIONS
-        stats.solve_time = time.perf_counter() - start
-        if not data_at_nominal:
-            self._recalc_running(workspace)
-        return self._make_result(
-            workspace,
-            nominal,
-            converged,
-            status,
-            stats,
-            policy_valid,
-            options.keep_value_function,
-            options.copy_policy,
-            self._lender.take() if options.lend_results else None,
+    def prepare(
+        self,
+        problem: MultiPhaseProblem,
+        initial_xs: Sequence[np.ndarray | None] | None = None,
+        initial_us: Sequence[np.ndarray | None] | None = None,
+        rollout_knots: Sequence[object] | None = None,
+        *,
+        initial_multipliers: Sequence[np.ndarray | None] | None = None,
+        initial_penalties: Sequence[float | None] | None = None,
+    ) -> SolverResult:
+        """The preparation phase of the real-time iteration: the policy at the initial guess, no step.
+
+        Evaluates and linearises the guess (arguments as ``solve``'s), updates the augmented-Lagrangian
+        parameters where a switching constraint is violated (once per ``max_al_iterations``), and sweeps
+        backward there (Eqs. (7)-(10), (16)): the result is the guess with its policy (``K``, ``k``, ``Qu``,
+        ``Quu``, ``Qux``), what ``feedback`` embeds a measured state into (with ``feedforward=1`` it takes
+        the prepared step). The same as ``solve`` with ``max_iterations=0``, whatever ``max_iterations``
+        and ``final_backward_pass`` say.
+        """
+        options = self.options
+        run = self._start(
+            problem, initial_xs, initial_us, rollout_knots, initial_multipliers, initial_penalties
         )
+        for al_iteration in range(options.max_al_iterations):
+            run.statistics.al_iterations = al_iteration + 1
+            if not self._update_multipliers(run):
+                break
+        return self._finish(run, final_backward_pass=True)
+
+    def linearize(self) -> None:
+        """Derivatives at the nominal trajectory of the current problem (the last ``solve``'s or
+        ``prepare``'s): the cost derivatives, ``[A_k | B_k]`` of every running knot and the reset Jacobians,
+        in the tangent spaces at the nominal states (the inputs of Eq. (8)).
+
+        The knots' data must hold the nominal's evaluation; after a ``try_step`` that was not accepted (or a
+        nonlinear ``feedback``) they hold another point's (``RuntimeError``)."""
+        workspace = self._current_workspace()
+        if workspace.data_off_nominal:
+            raise RuntimeError(
+                "the knots' data are not at the nominal (a trial step or a nonlinear feedback)"
+            )
+        self._linearize(workspace)
+
+    def backward(self, statistics: SolverStatistics | None = None) -> SweepOutcome:
+        """The backward sweep at the last linearisation (Eqs. (7)-(10) with the defect terms, Eq. (16) across
+        reset maps, ``mu I`` added to ``Quu``): the policy ``K``, ``k`` and ``Qu``, ``Quu``, ``Qux`` in the
+        workspace, and the model of the cost change a step makes (the line search's). After a failed
+        Cholesky factorisation ``mu`` grows and the sweep restarts (counted in ``statistics``).
+
+        Returns ``OK``, ``REGULARIZATION_LIMIT`` (``mu`` passed ``regularization_max``) or ``NON_FINITE``."""
+        return self._backward_pass_with_regularization(self._current_workspace(), statistics)
 
     def feedback(
         self,
@@ -287,21 +235,22 @@ class MSiLQRSolver:
         """The feedback phase of the real-time iteration: embed a measured initial state into a prepared
         solution through its policy (paper Eqs. (11)-(13)).
 
-        ``prepared`` is the result of the last ``solve`` of this solver (its workspace still holds the
-        linearisation ``A``, ``B`` and reset Jacobians the policy was computed from). From ``dx_0 = x0 ⊖
-        xs_0``: ``du_k = a k_k + K_k dx_k``, ``u'_k = us_k + du_k`` and, with ``rollout = "linear"``,
-        ``dx_{k+1} = A_k dx_k + B_k du_k + a d_{k+1}`` (across a reset ``dx_0 = P dx_N + a d_0``) and ``x'_k =
-        xs_k ⊕ dx_k`` (the tangential predictor of the real-time iteration: matrix products only); with
-        ``"nonlinear"``, ``x'_{k+1} = f(x'_k, u'_k)`` and the reset maps themselves (one model evaluation per
-        knot). ``a = feedforward``: 0 when the preparation already took its step (the solution's remaining
-        feed-forward is then ``(1 - step) k``, not applied again), 1 to take the prepared Newton step here.
-        With ``x0`` equal to ``xs_0`` and ``a = 0`` the result is the prepared solution. The returned policy
-        is the prepared one moved to the new trajectory to first order: ``K``, ``Quu``, ``Qux`` unchanged,
-        ``Qu`` and ``k`` scaled by ``1 - a`` (as ``final_policy = "shift"`` does).
+        ``prepared`` is the result of the last ``prepare`` (or ``solve``) of this solver (its workspace
+        still holds the linearisation ``A``, ``B`` and reset Jacobians the policy was computed from). From
+        ``dx_0 = x0 ⊖ xs_0``: ``du_k = a k_k + K_k dx_k``, ``u'_k = us_k + du_k`` and, with
+        ``rollout = "linear"``, ``dx_{k+1} = A_k dx_k + B_k du_k + a d_{k+1}`` (across a reset
+        ``dx_0 = P dx_N + a d_0``) and ``x'_k = xs_k ⊕ dx_k`` (the tangential predictor of the real-time
+        iteration: matrix products only); with ``"nonlinear"``, ``x'_{k+1} = f(x'_k, u'_k)`` and the reset
+        maps themselves (one model evaluation per knot). ``a = feedforward``: 0 when the preparation already
+        took its step (the solution's remaining feed-forward is then ``(1 - step) k``, not applied again), 1
+        to take the prepared Newton step here (after ``prepare``). With ``x0`` equal to ``xs_0`` and
+        ``a = 0`` the result is the prepared solution. The returned policy is the prepared one moved to the
+        new trajectory to first order: ``K``, ``Quu``, ``Qux`` unchanged, ``Qu`` and ``k`` scaled by
+        ``1 - a`` (as ``final_policy = "shift"`` does).
         """
         workspace = self.workspace
         if workspace is None or len(workspace.phases) != len(prepared.phases):
-            raise ValueError("feedback needs the result of this solver's last solve")
+            raise ValueError("feedback needs the result of this solver's last prepare or solve")
         x0 = np.asarray(x0, dtype=float)
         first = workspace.phases[0]
         if x0.shape != (first.nx,):
@@ -329,6 +278,7 @@ class MSiLQRSolver:
                 dx = previous.reset_jacobian @ dx + a * solution.defects[0]
                 out_x[0] = work.integrate(xs[0], dx)
             if nonlinear:
+                workspace.data_off_nominal = True
                 for k in range(n):
                     du = a * kff[k] + K[k] @ dx
                     out_u[k] = us[k] + du
@@ -382,6 +332,170 @@ class MSiLQRSolver:
             switching_violation=totals.switching_violation,
             inequality_violation=totals.inequality_violation,
         )
+
+    # ------------------------------------------------------------------------------------ steps of a solve
+    def _start(
+        self,
+        problem: MultiPhaseProblem,
+        initial_xs: Sequence[np.ndarray | None] | None,
+        initial_us: Sequence[np.ndarray | None] | None,
+        rollout_knots: Sequence[object] | None,
+        initial_multipliers: Sequence[np.ndarray | None] | None,
+        initial_penalties: Sequence[float | None] | None,
+    ) -> _Run:
+        """Set the guess (``solve``'s arguments), evaluate it (Eqs. (4), (13), (15)) and linearise it: the
+        first linearisation fused with the evaluation (each knot's ``calc_diff`` right after its ``calc``,
+        while its data are in the cache), except on a thread pool."""
+        options = self.options
+        start = time.perf_counter()
+        workspace = self._prepare_workspace(problem)
+        seed_states = self._initialize(workspace, initial_xs, initial_us, rollout_knots)
+        self._initialize_augmented_lagrangian(workspace, initial_multipliers, initial_penalties)
+        statistics = SolverStatistics()
+        fused = options.threads == 1
+        nominal = self._evaluate_nominal(workspace, problem.x0, seed_states, statistics if fused else None)
+        if not nominal.finite():
+            raise ValueError("the initial guess has a non-finite cost or defect")
+        statistics.setup_time = time.perf_counter() - start - statistics.linearize_time
+        if not fused:
+            self._timed_linearize(statistics)
+        self._regularization = options.regularization_initial
+        return _Run(start, statistics, nominal)
+
+    def _iterate(self, run: _Run) -> None:
+        """Up to ``max_iterations`` MS-iLQR iterations, while the time budget lasts (an iteration is not
+        started when the elapsed time plus the last iteration's would exceed it; the first always runs)."""
+        options = self.options
+        run.inner_converged, run.status = False, SolveStatus.MAX_ITERATIONS
+        for _ in range(options.max_iterations):
+            elapsed = time.perf_counter() - run.start
+            budget = options.time_budget
+            if (
+                budget is not None
+                and run.statistics.iterations > 0
+                and elapsed + run.last_iteration_time > budget
+            ):
+                run.status = SolveStatus.TIME_BUDGET
+                return
+            if not self._iteration(run):
+                return
+
+    def _iteration(self, run: _Run) -> bool:
+        """One MS-iLQR iteration: the deferred linearisation, the backward sweep, the convergence test, the
+        line search and the regularisation's update. Returns whether the inner loop goes on."""
+        options, statistics = self.options, run.statistics
+        iteration_start = time.perf_counter()
+        if run.pending_step is not None:
+            self._timed_linearize(statistics)
+            run.pending_step = None
+        outcome = self._timed_backward(statistics)
+        run.policy_valid = outcome == SweepOutcome.OK
+        if not run.policy_valid:
+            run.status = SolveStatus(outcome.value)
+            return False
+        decrease = -(self._expected_linear + 0.5 * self._expected_quadratic)
+        nominal = run.nominal
+        if nominal.defect_max <= options.defect_tolerance and decrease <= options.expected_decrease_tolerance:
+            run.inner_converged, run.status = True, SolveStatus.CONVERGED
+            return False
+        regularization = self._regularization
+        clock = time.perf_counter()
+        trial, alpha, n_trials, mode = self._line_search(nominal)
+        statistics.line_search_time += time.perf_counter() - clock
+        cost_change = math.inf
+        if trial is not None:
+            cost_change = trial.augmented_cost - nominal.augmented_cost
+            self._accept_trial()
+            run.nominal = trial
+            run.pending_step = alpha
+            run.policy_valid = False
+            self._regularization = max(
+                regularization / options.regularization_decrease, options.regularization_min
+            )
+        run.last_iteration_time = time.perf_counter() - iteration_start
+        self._record(
+            statistics, run.nominal, regularization, decrease, alpha, n_trials, mode, run.last_iteration_time
+        )
+        if trial is None:
+            if not self._increase_regularization():
+                run.status = SolveStatus.REGULARIZATION_LIMIT
+                return False
+        elif (
+            run.nominal.defect_max <= options.defect_tolerance
+            and abs(cost_change) <= options.cost_change_tolerance
+        ):
+            run.inner_converged, run.status = True, SolveStatus.CONVERGED
+            return False
+        return True
+
+    def _update_multipliers(self, run: _Run) -> bool:
+        """The augmented-Lagrangian update (``_update_augmented_lagrangian``) unless every switching
+        constraint meets ``switching_tolerance``; returns whether it was made (the policy is then stale)."""
+        if run.nominal.switching_violation <= self.options.switching_tolerance:
+            return False
+        workspace = self._current_workspace()
+        self._update_augmented_lagrangian(workspace)
+        run.nominal = self._totals_from_nominal(workspace, run.nominal)
+        run.policy_valid = False
+        return True
+
+    def _finish(self, run: _Run, final_backward_pass: bool) -> SolverResult:
+        """The policy at the returned trajectory (``final_backward_pass``, ``final_policy``), the status and
+        the result."""
+        options, statistics = self.options, run.statistics
+        workspace = self._current_workspace()
+        if final_backward_pass and not run.policy_valid and run.status != SolveStatus.NON_FINITE:
+            if run.pending_step is not None and options.final_policy == "shift":
+                self._shift_policy(run.pending_step)
+                run.policy_valid = True
+            else:
+                if run.pending_step is not None:
+                    self._timed_linearize(statistics)
+                run.policy_valid = self._timed_backward(statistics) == SweepOutcome.OK
+        converged = run.inner_converged and run.nominal.switching_violation <= options.switching_tolerance
+        status = run.status
+        if status == SolveStatus.CONVERGED and not converged:
+            status = SolveStatus.MAX_ITERATIONS
+        statistics.solve_time = time.perf_counter() - run.start
+        if workspace.data_off_nominal:
+            self._recalc_running(workspace)
+        return self._make_result(
+            workspace,
+            run.nominal,
+            converged,
+            status,
+            statistics,
+            run.policy_valid,
+            options.keep_value_function,
+            options.copy_policy,
+            self._lender.take() if options.lend_results else None,
+        )
+
+    def _shift_policy(self, step: float) -> None:
+        """Move the last sweep's expansion point to the result of the step ``step`` it was taken with, to
+        first order (``final_policy = "shift"``): ``Qu`` and ``k`` scaled by ``1 - step``."""
+        for work in self._current_workspace().phases:
+            work.Qu *= 1.0 - step
+            work.k *= 1.0 - step
+
+    def _timed_linearize(self, statistics: SolverStatistics) -> None:
+        clock = time.perf_counter()
+        self._linearize(self._current_workspace())
+        statistics.linearize_time += time.perf_counter() - clock
+        statistics.linearizations += 1
+
+    def _timed_backward(self, statistics: SolverStatistics) -> SweepOutcome:
+        clock = time.perf_counter()
+        outcome = self._backward_pass_with_regularization(self._current_workspace(), statistics)
+        statistics.backward_time += time.perf_counter() - clock
+        return outcome
+
+    def _current_workspace(self) -> Workspace:
+        """The workspace of the current problem (``RuntimeError`` before the first ``solve``/``prepare``)."""
+        workspace = self.workspace
+        if workspace is None or workspace.problem is None:
+            raise RuntimeError("no problem yet: call solve or prepare first")
+        return workspace
 
     # ---------------------------------------------------------------------------------------------- set-up
     def _prepare_workspace(self, problem: MultiPhaseProblem) -> Workspace:
@@ -444,7 +558,7 @@ class MSiLQRSolver:
         x0: np.ndarray,
         seed_states: list[np.ndarray],
         linearize: SolverStatistics | None = None,
-    ) -> _Totals:
+    ) -> TrajectoryTotals:
         """Evaluate cost, defects (Eqs. (4), (15)) and switching constraints of the nominal trajectory.
 
         States flagged in ``seed_states`` are overwritten by simulating the dynamics (roll-out, Eq. (13)); the
@@ -452,7 +566,7 @@ class MSiLQRSolver:
         get the time it took) every knot is also linearised right after its evaluation, as ``_linearize``
         does (same results, the knot's data still in the cache).
         """
-        totals = _Totals()
+        totals = TrajectoryTotals()
         previous: PhaseWorkspace | None = None
         clock = time.perf_counter
         linearize_time = 0.0
@@ -501,13 +615,14 @@ class MSiLQRSolver:
         if linearize is not None:
             linearize.linearize_time += linearize_time
             linearize.linearizations += 1
+        workspace.data_off_nominal = False
         self._sum_defects(workspace, totals, trial=False)
         totals.augmented_cost += totals.cost
         return totals
 
     @staticmethod
     def _evaluate_phase_end(
-        work: PhaseWorkspace, x_end: np.ndarray, switching_out: np.ndarray, totals: _Totals
+        work: PhaseWorkspace, x_end: np.ndarray, switching_out: np.ndarray, totals: TrajectoryTotals
     ) -> None:
         """Terminal cost, switching constraint (with its augmented-Lagrangian terms) and reset map."""
         data = work.terminal_data
@@ -529,7 +644,7 @@ class MSiLQRSolver:
             work.reset_map.calc(work.reset_data, x_end)
 
     @staticmethod
-    def _sum_defects(workspace: Workspace, totals: _Totals, trial: bool) -> None:
+    def _sum_defects(workspace: Workspace, totals: TrajectoryTotals, trial: bool) -> None:
         for work in workspace.phases:
             magnitudes = np.abs(work.defects_try if trial else work.defects, out=work.magnitudes)
             if magnitudes.size:
@@ -545,7 +660,7 @@ class MSiLQRSolver:
                 total += float(work.multiplier @ value) + 0.5 * work.penalty * float(value @ value)
         return total
 
-    def _totals_from_nominal(self, workspace: Workspace, nominal: _Totals) -> _Totals:
+    def _totals_from_nominal(self, workspace: Workspace, nominal: TrajectoryTotals) -> TrajectoryTotals:
         """The nominal totals after the augmented-Lagrangian parameters changed."""
         nominal.augmented_cost = nominal.cost + self._augmented_lagrangian_terms(workspace)
         return nominal
@@ -599,9 +714,10 @@ class MSiLQRSolver:
 
     # -------------------------------------------------------------------------------------- backward sweep
     def _backward_pass_with_regularization(
-        self, workspace: Workspace, stats: SolverStatistics
+        self, workspace: Workspace, stats: SolverStatistics | None
     ) -> SweepOutcome:
-        """Run the backward sweep, raising ``mu`` after each failed Cholesky factorisation.
+        """Run the backward sweep, raising ``mu`` after each failed Cholesky factorisation (counted in
+        ``stats``, if given).
 
         Returns ``OK``, ``REGULARIZATION_LIMIT`` or ``NON_FINITE``.
         """
@@ -609,7 +725,8 @@ class MSiLQRSolver:
             outcome = self._backward_pass(workspace)
             if outcome != SweepOutcome.CHOLESKY:
                 return outcome
-            stats.backward_failures += 1
+            if stats is not None:
+                stats.backward_failures += 1
             if not self._increase_regularization():
                 return SweepOutcome.REGULARIZATION_LIMIT
 
@@ -697,9 +814,7 @@ class MSiLQRSolver:
         return self._regularization <= options.regularization_max
 
     # --------------------------------------------------------------------------------------- forward sweep
-    def _line_search(
-        self, workspace: Workspace, x0: np.ndarray, nominal: _Totals
-    ) -> tuple[_Totals | None, float, int, str]:
+    def _line_search(self, nominal: TrajectoryTotals) -> tuple[TrajectoryTotals | None, float, int, str]:
         """Backtracking on the merit ``J + ρ ||d||_1`` with the Armijo test (see the module docstring).
 
         Infeasible nominal: the hybrid roll-out of Eqs. (12)-(13) first; if it fails the test, the same step
@@ -730,7 +845,7 @@ class MSiLQRSolver:
             for nonlinear in (True,) if feasible else (False, True):
                 n_trials += 1
                 try:
-                    trial = self._try_step(workspace, x0, alpha, nonlinear)
+                    trial = self.try_step(alpha, nonlinear)
                 except (FloatingPointError, np.linalg.LinAlgError):
                     # A model that cannot evaluate the trial point (e.g. a singular contact KKT system far
                     # from the nominal) rejects the step like a non-finite cost does.
@@ -740,14 +855,21 @@ class MSiLQRSolver:
             alpha *= options.line_search_decrease
         return None, 0.0, n_trials, ""
 
-    def _try_step(self, workspace: Workspace, x0: np.ndarray, alpha: float, nonlinear: bool) -> _Totals:
-        """Hybrid forward roll-out, Eqs. (11)-(13), through reset maps (Eq. (15)); writes the trial arrays.
+    def try_step(self, alpha: float, nonlinear: bool = False) -> TrajectoryTotals:
+        """The trial roll-out of the step ``alpha`` along the last backward sweep's policy (the line search's
+        trial): the controls of Eq. (11), ``u' = ū + α k + K (x' ⊖ x̄)``; a shooting knot follows the
+        linearised dynamics with the full defect (Eq. (12)), a roll-out knot the model (Eq. (13)); across a
+        reset the same with the reset map and its defect (Eq. (15)). ``nonlinear``: every knot is a roll-out
+        knot (Eq. (13) everywhere: no defects left). Writes the workspace's trial arrays (``xs_try``,
+        ``us_try``, ``defects_try``) and returns their cost and feasibility; the nominal is unchanged (the
+        knots' data then hold the trial's evaluation).
 
-        ``nonlinear``: treat every knot as a roll-out knot (Eq. (13) everywhere). Between two knots' ``calc``
-        one compiled call (``rollout_knot_end``) does the rest of the roll-out on manifolds with compiled
-        operations; on others the workspace's Python equivalent.
+        Between two knots' ``calc`` one compiled call (``rollout_knot_end``) does the rest of the roll-out on
+        manifolds with compiled operations; on others the workspace's Python equivalent.
         """
-        totals = _Totals()
+        workspace = self._current_workspace()
+        workspace.data_off_nominal = True
+        totals = TrajectoryTotals()
         previous: PhaseWorkspace | None = None
         dx_end = EMPTY_CONTROL
         for work in workspace.phases:
@@ -765,26 +887,28 @@ class MSiLQRSolver:
                 else:
                     xs_try[0] = work.integrate(xs[0], previous.reset_jacobian @ dx_end + defects[0])
                     defects_try[0] = work.difference(xs_try[0], reset_state)
-            kind = work.state_kernel
+            operations = work.operations
+            if operations is not None:
+                integrate, difference = operations.integrate, operations.difference
             us, kff, K, F = work.us, work.k, work.K, work.F
             dx, du, step = work.dx, work.du, work.step
             if work.horizon:
-                if kind == STATE_PYTHON:
+                if operations is None:
                     work.rollout_policy(0, alpha)
                 else:
-                    rollout_policy(kind, 0, alpha, xs, xs_try, us, us_try, kff, K, dx, du)  # Eq. (11)
+                    rollout_policy(difference, 0, alpha, xs, xs_try, us, us_try, kff, K, dx, du)  # Eq. (11)
             cost, violation = totals.cost, totals.inequality_violation
             for k, (model, data) in enumerate(zip(work.models, work.running_data, strict=True)):
                 model.calc(data, xs_try[k], us_try[k])
                 cost += data.cost
                 if data.constraint_violation > violation:
                     violation = data.constraint_violation
-                if kind == STATE_PYTHON:
+                if operations is None:
                     work.rollout_knot_end(k, alpha, data.x_next, rollout)
                 else:  # Eqs. (12), (13), then (11) for knot k + 1
                     rollout_knot_end(
-                        kind, k, alpha, data.x_next, rollout, xs, xs_try, us, us_try, kff, K, F,
-                        defects, defects_try, dx, du, step,
+                        integrate, difference, k, alpha, data.x_next, rollout, xs, xs_try, us, us_try, kff,
+                        K, F, defects, defects_try, dx, du, step,
                     )  # fmt: skip
             totals.cost, totals.inequality_violation = cost, violation
             dx_end = work.dx_end
@@ -796,6 +920,14 @@ class MSiLQRSolver:
         self._sum_defects(workspace, totals, trial=True)
         totals.augmented_cost += totals.cost
         return totals
+
+    def _accept_trial(self) -> None:
+        """Make the trial of the last ``try_step`` the nominal (no copies; the knots' data hold its
+        evaluation)."""
+        workspace = self._current_workspace()
+        for work in workspace.phases:
+            work.swap_trial()
+        workspace.data_off_nominal = False
 
     # -------------------------------------------------------------------------------- augmented Lagrangian
     def _update_augmented_lagrangian(self, workspace: Workspace) -> None:
@@ -814,7 +946,7 @@ class MSiLQRSolver:
     def _record(
         self,
         stats: SolverStatistics,
-        nominal: _Totals,
+        nominal: TrajectoryTotals,
         regularization: float,
         decrease: float,
         alpha: float,
@@ -838,7 +970,7 @@ class MSiLQRSolver:
         stats.iteration_times.append(duration)
         self._log(stats, nominal, alpha)
 
-    def _log(self, stats: SolverStatistics, nominal: _Totals, alpha: float) -> None:
+    def _log(self, stats: SolverStatistics, nominal: TrajectoryTotals, alpha: float) -> None:
         if not self.options.verbose:
             return
         if stats.iterations == 1:
@@ -863,7 +995,7 @@ class MSiLQRSolver:
     @staticmethod
     def _make_result(
         workspace: Workspace,
-        nominal: _Totals,
+        nominal: TrajectoryTotals,
         converged: bool,
         status: SolveStatus,
         stats: SolverStatistics,

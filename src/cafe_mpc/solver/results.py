@@ -7,6 +7,7 @@ rows of buffers the solver lends and writes again only once nothing refers to th
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from enum import StrEnum
 
@@ -29,13 +30,45 @@ class SolveStatus(StrEnum):
 
 
 class SweepOutcome(StrEnum):
-    """The result of one backward sweep (Eqs. (8)-(10), (16)) inside a solve."""
+    """The result of a backward sweep (Eqs. (8)-(10), (16); ``MSiLQRSolver.backward``)."""
 
     OK = "ok"
     CHOLESKY = "cholesky"
     """``Quu + mu I`` was not positive definite (raise ``mu`` and sweep again)."""
     REGULARIZATION_LIMIT = "regularization_limit"
     NON_FINITE = "non_finite"
+
+
+class TrajectoryTotals:
+    """Cost and feasibility of one trajectory of a solve: the nominal, or a trial step
+    (``MSiLQRSolver.try_step``).
+
+    ``cost``: running and terminal costs (barrier terms included); ``augmented_cost``: plus the
+    augmented-Lagrangian terms of the switching constraints (Eq. (2)); ``defect_l1``, ``defect_max``: the L1
+    and max norms of all defects (Eqs. (4), (15)); ``inequality_violation``: the largest
+    ``constraint_violation`` the models reported; ``switching_violation``: the largest ``|g_i|``.
+    """
+
+    __slots__ = (
+        "augmented_cost",
+        "cost",
+        "defect_l1",
+        "defect_max",
+        "inequality_violation",
+        "switching_violation",
+    )
+
+    def __init__(self) -> None:
+        self.cost = 0.0
+        self.augmented_cost = 0.0
+        self.defect_l1 = 0.0
+        self.defect_max = 0.0
+        self.inequality_violation = 0.0
+        self.switching_violation = 0.0
+
+    def finite(self) -> bool:
+        """Whether the augmented cost and the defects' norm are finite."""
+        return math.isfinite(self.augmented_cost) and math.isfinite(self.defect_l1)
 
 
 @dataclass

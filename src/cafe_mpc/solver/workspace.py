@@ -27,7 +27,6 @@ from collections.abc import Iterable, Sequence
 import numpy as np
 
 from cafe_mpc.core.interfaces import (
-    STATE_PYTHON,
     ActionData,
     ConstraintData,
     EuclideanState,
@@ -35,10 +34,10 @@ from cafe_mpc.core.interfaces import (
     Phase,
     ResetData,
     StateManifold,
+    StateOperationAddresses,
 )
 from cafe_mpc.core.kernels import same_point, stack_columns
-from cafe_mpc.dynamics.state_kernels import state_transport_stacked
-from cafe_mpc.solver.kernels import linear_step, policy_step
+from cafe_mpc.solver.kernels import linear_step, policy_step, transport_stacked
 
 EMPTY_CONTROL = np.zeros(0)
 """The control of terminal knots (size 0; writable so compiled kernels see one array type)."""
@@ -169,8 +168,10 @@ class PhaseWorkspace:
         self.state: StateManifold = phase.state
         # Exact type: a subclass may override difference/integrate (e.g. angle wrapping).
         self.euclidean = type(self.state) is EuclideanState
-        self.state_kernel = self.state.kernel
-        """The manifold's compiled operations (``StateManifold.kernel``), for the roll-out's kernels."""
+        compiled = self.state.compiled
+        self.operations: StateOperationAddresses | None = None if compiled is None else compiled.addresses
+        """Where the manifold's compiled operations are (``CompiledStateOperations.addresses``), for the
+        roll-out's and the linearisation's kernels; ``None``: the manifold has none (its methods are used)."""
         self.running_data = running_data
         self.terminal_data = terminal_data
         self.reset_map = phase.reset_map if has_next_phase else None
@@ -273,8 +274,9 @@ class PhaseWorkspace:
         self, x_nominal: np.ndarray, y: np.ndarray, Fx: np.ndarray, Fu: np.ndarray, out: np.ndarray
     ) -> None:
         """``out = ∂(y ⊖ x̄)/∂y @ [Fx | Fu]``: the knot's ``[A | B]`` (the identity map without a defect)."""
-        if self.state_kernel != STATE_PYTHON:
-            state_transport_stacked(self.state_kernel, x_nominal, y, Fx, Fu, out)
+        operations = self.operations
+        if operations is not None:
+            transport_stacked(operations.transport_stacked, x_nominal, y, Fx, Fu, out)
         elif same_point(x_nominal, y):
             stack_columns(Fx, Fu, out)
         else:
@@ -345,6 +347,9 @@ class Workspace:
     def __init__(self, problem: MultiPhaseProblem | None = None) -> None:
         self.problem: MultiPhaseProblem | None = None
         self.phases: list[PhaseWorkspace] = []
+        self.data_off_nominal = False
+        """The knots' data hold an evaluation away from the nominal trajectory (a trial step's,
+        ``MSiLQRSolver.try_step``, or a nonlinear feedback's), not the nominal's."""
         self._data = _DataPool()
         self._free: list[PhaseWorkspace] = []
         if problem is not None:

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from cafe_mpc.config import ConfigError
 from cafe_mpc_lab.experiments.command_ranges import CommandRanges
+from cafe_mpc_lab.experiments.envelope import Envelope
 from cafe_mpc_lab.experiments.faults import Faults
 from cafe_mpc_lab.experiments.latency import Latency
 from cafe_mpc_lab.experiments.push import Push
@@ -24,6 +25,7 @@ EXPERIMENTS: tuple[type[Experiment], ...] = (
     Push,
     WarmStart,
     Reliability,
+    Envelope,
     TemplateVsCafe,
     TemplateGaits,
     Latency,

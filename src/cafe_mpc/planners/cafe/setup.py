@@ -15,7 +15,7 @@ from __future__ import annotations
 from cafe_mpc.config import ConfigError, MpcConfig, RunConfig
 from cafe_mpc.config.weights import SRBWeights, WholeBodyWeights
 from cafe_mpc.dynamics.srb import srb_parameters
-from cafe_mpc.ocp.constraints import WholeBodyConstraintSettings
+from cafe_mpc.ocp.constraints import BarrierParameters, WholeBodyConstraintSettings
 from cafe_mpc.ocp.knots import SRBModelFactory, SRBSettings, WholeBodyModelFactory, WholeBodySettings
 from cafe_mpc.planners.base import RunContext
 from cafe_mpc.planners.cafe.problem import CafeProblemBuilder, ModelSchedule
@@ -30,6 +30,19 @@ def minimum_base_height(scale: RobotScale) -> float | None:
     """The whole-body knots' minimum base height (``WholeBodyConstraintSettings``) scaled to the robot."""
     default = WholeBodyConstraintSettings().minimum_base_height
     return None if default is None else scale.distance(default)
+
+
+def plan_constraints(run: RunContext) -> WholeBodyConstraintSettings:
+    """The whole-body plan's constraints: the friction pyramid (26) at ``mpc.friction``, the run's torque
+    limits (27a) times ``mpc.plan_torque_fraction`` under a barrier of weight ``mpc.torque_barrier_eps``, the
+    minimum base height scaled to the robot."""
+    mpc = run.config.mpc
+    return WholeBodyConstraintSettings(
+        friction_coefficient=mpc.friction,
+        torque_limit_values=tuple(float(limit) for limit in run.torque_limits * mpc.plan_torque_fraction),
+        torque_barrier=BarrierParameters(1.0, mpc.torque_barrier_eps),
+        minimum_base_height=minimum_base_height(run.scale),
+    )
 
 
 def model_schedule(section: MpcConfig) -> ModelSchedule:
@@ -62,12 +75,7 @@ def build_problem(run: RunContext) -> CafeProblemBuilder:
         srb_terminal = scaled_srb_weights(config.costs.srb_terminal, scale)
     except ValueError as error:
         raise ConfigError(f"costs: {error}") from error
-    limits = None if config.torque_limits == "plan" else tuple(run.torque_limits.tolist())
-    constraints = WholeBodyConstraintSettings(
-        friction_coefficient=config.mpc.friction,
-        torque_limit_values=limits,
-        minimum_base_height=minimum_base_height(scale),
-    )
+    constraints = plan_constraints(run)
     whole_body, srb = _knot_factories(
         robot, scale, schedule, (running, terminal), (srb_running, srb_terminal), constraints
     )
@@ -121,11 +129,7 @@ def task_weight_sets(
         terminal = scaled_weights(section.costs.terminal, scale)
         srb_running = SRBWeights.from_whole_body(running, force=srb_force_weight(scale))
         srb_terminal = SRBWeights.from_whole_body(terminal, force=0.0)
-        constraints = WholeBodyConstraintSettings(
-            friction_coefficient=config.mpc.friction,
-            torque_limit_values=tuple(float(limit) for limit in run.torque_limits),
-            minimum_base_height=minimum_base_height(scale),
-        )
+        constraints = plan_constraints(run)
     except ValueError as error:
         raise ConfigError(f"reference: {error}") from error
     whole_body, srb = _knot_factories(

@@ -1,0 +1,125 @@
+"""Contact detection: which feet are on the ground, from what the robot senses and what the plan expects.
+
+The paper's VWBC takes its stance set from the plan's contact schedule and names seeding it with contact
+detection as future work (Sec. VIII-A): a foot that lands before its planned touchdown is then driven along
+its swing curve into the ground (it scuffs, and the body picks up the moment of that push), and a foot planned
+in stance that has not landed yet is given forces it cannot produce. The detector fuses, per foot and tick, as
+Bledt et al. ("Contact Model Fusion for Event-Based Locomotion in Unstructured Terrains", ICRA 2018) do:
+
+* the **schedule's prior**: a touchdown only counts in planned stance or in the last ``early_window`` seconds
+  of a swing before its planned touchdown (a foot still loaded just after a planned lift-off is lifting off,
+  not landing); one within ``on_time`` of its planned time is on time (the plan's knots are 10 ms apart: its
+  impact lands the foot then, and the plan's swing torques for those few milliseconds are what the paper's
+  VWBC applies);
+* the **ground force** the measurement carries (``Measurement.foot_forces``: from the joint torques through
+  the leg Jacobians on a robot, ``estimation``; the plant's contact force in a ground-truth run): the foot
+  pushes on something;
+* the **foot height** above the ground (forward kinematics of the measured state; flat ground at
+  ``ground_height``): the foot is where the ground is.
+
+In planned stance a foot is in contact once it is within ``touchdown_height`` of the ground (a foot still
+higher is a late touchdown: in the air, out of the stance set, its leg reaching for the planned foothold); in
+the early window of a swing it also needs a normal force above ``touchdown_force``. A foot leaves contact when
+its force drops below ``release_force`` with the foot higher than ``release_height``, or when its planned
+swing begins (the schedule decides lift-off). In planned stance the force is not asked for: on a robot it is
+estimated from the joint torques, which there are the stance torques this controller commands, so it would
+only echo the schedule. Forces are thresholds on the robot's weight share (``mg / n_feet``), so one
+setting holds for every robot.
+
+``update(t, measurement, plan)`` returns the detected stance flags (an array the detector owns); counters of
+early and late touchdowns and of the ticks where detection and plan disagree feed the run's statistics.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pinocchio as pin
+
+from cafe_mpc.config import ContactDetectionSettings
+from cafe_mpc.core.measurement import Measurement
+from cafe_mpc.core.physics import GRAVITY
+from cafe_mpc.core.plan import KnotPlan
+from cafe_mpc.robots.robot import Robot
+
+
+class ContactDetector:
+    """Detected stance per foot (module docstring); preallocated, one Pinocchio data of its own."""
+
+    def __init__(self, robot: Robot, settings: ContactDetectionSettings | None = None) -> None:
+        self.robot = robot
+        self.settings = settings or ContactDetectionSettings()
+        self.data = robot.model.createData()
+        weight_share = robot.total_mass * GRAVITY / robot.n_feet
+        self.touchdown_force = self.settings.touchdown_force * weight_share
+        self.release_force = self.settings.release_force * weight_share
+        self.in_contact = np.zeros(robot.n_feet, dtype=bool)
+        self.heights = np.zeros(robot.n_feet)
+        self._plan: KnotPlan | None = None
+        self._next_touchdown = np.zeros((0, robot.n_feet))
+        self.reset()
+
+    def reset(self) -> None:
+        self.in_contact[:] = True  # a robot starts standing
+        self.early_touchdowns = 0
+        self.early_lead_sum = 0.0
+        self.late_touchdown_ticks = 0
+        self.early_ticks = 0
+        self._was_planned = np.ones(self.robot.n_feet, dtype=bool)
+
+    def _index_plan(self, plan: KnotPlan) -> None:
+        """Per knot and foot, the time the foot's next planned stance starts (its own time if the knot is a
+        stance knot; inf if no stance follows within the plan)."""
+        n = len(plan.times)
+        self._next_touchdown = np.full((n, self.robot.n_feet), np.inf)
+        for k in range(n - 1, -1, -1):
+            later = self._next_touchdown[k + 1] if k + 1 < n else self._next_touchdown[k]
+            self._next_touchdown[k] = np.where(plan.contacts[k], plan.times[k], later)
+        self._plan = plan
+
+    def update(self, t: float, measurement: Measurement, plan: KnotPlan) -> np.ndarray:
+        """The detected stance flags at ``t`` (owned by the detector, overwritten next tick)."""
+        if plan is not self._plan:
+            self._index_plan(plan)
+        s = self.settings
+        k = plan.knot_at(t)
+        planned = plan.contacts[k]
+        model, data = self.robot.model, self.data
+        pin.framesForwardKinematics(model, data, measurement.q)
+        radius = self.robot.foot_radius
+        for foot, frame_id in enumerate(self.robot.foot_frame_ids):
+            height = data.oMf[frame_id].translation[2] - radius - s.ground_height
+            self.heights[foot] = height
+            force = measurement.foot_forces[foot, 2]
+            loaded = force > self.touchdown_force and height < s.touchdown_height
+            if planned[foot]:
+                if not self.in_contact[foot]:
+                    self.in_contact[foot] = height < s.touchdown_height
+                elif force < self.release_force and height > s.release_height:
+                    self.in_contact[foot] = False
+                if not self.in_contact[foot]:
+                    self.late_touchdown_ticks += 1
+            else:
+                if self._was_planned[foot]:  # the planned swing has begun: the schedule lifts the foot
+                    self.in_contact[foot] = False
+                lead = self._next_touchdown[k, foot] - t
+                soon = s.on_time < lead <= s.early_window
+                if not self.in_contact[foot] and soon and loaded:
+                    self.in_contact[foot] = True
+                    self.early_touchdowns += 1
+                    self.early_lead_sum += lead
+                elif self.in_contact[foot] and force < self.release_force and height > s.release_height:
+                    self.in_contact[foot] = False
+                if self.in_contact[foot]:
+                    self.early_ticks += 1
+            self._was_planned[foot] = planned[foot]
+        return self.in_contact
+
+    def statistics(self) -> dict:
+        return {
+            "early_touchdowns": self.early_touchdowns,
+            "early_touchdown_lead_s_mean": (
+                self.early_lead_sum / self.early_touchdowns if self.early_touchdowns else None
+            ),
+            "early_touchdown_ticks": self.early_ticks,
+            "late_touchdown_ticks": self.late_touchdown_ticks,
+        }
