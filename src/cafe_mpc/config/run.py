@@ -899,8 +899,8 @@ class RecoveryConfig(StrictModel):
         0.4,
         gt=0.0,
         le=60.0,
-        description="s between two measurements the MPC process solved from (it was stopped) after which it "
-        "solves cold again from the newest",
+        description="s the MPC process went without looking at the measurements (it was stopped; its own "
+        "updates do not count) after which it solves cold again from the newest",
     )
     balance_timeout: float = Field(
         10.0, gt=0.0, le=3600.0, description="s the balance stance holds without a plan before the damped one"

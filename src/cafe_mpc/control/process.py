@@ -153,7 +153,9 @@ class _Worker:
         self.control_period = control_period
         self.period = period
         self.resync_ticks = max(round(resync_after / control_period), 1)
-        """A gap of more ticks than this between two measurements solved from: solve cold (``_resync``)."""
+        """A gap of more ticks than this between two looks at the measurements: solve cold (``_stopped``)."""
+        self._looked = -1
+        """The newest measurement's tick when this process last looked (``_stopped``)."""
         self.parent_pid = parent_pid
         self.buffer = np.zeros(ring.slot - 2)
         self.nq, self.nv = ring.nq, ring.nv
@@ -185,18 +187,31 @@ class _Worker:
         planner = self.planner
         last_tick = -1
         while self.running():
-            newest = self.ring.newest
+            if self._stopped() and planner.started:
+                self._resync()  # this process was stopped: its warm start is stale
+            newest = self._looked
             if newest < 0 or newest == last_tick:
                 time.sleep(0.0002)
                 continue
-            if planner.started and last_tick >= 0 and newest - last_tick > self.resync_ticks:
-                self._resync()  # this process was stopped: its warm start is stale
             if not planner.started:  # the cold solve, on the first measurement (or after a resync)
                 if self.ring.read(newest, self.buffer):
                     last_tick = newest
                     self._publish(self._state_update(newest), newest)
-                continue
-            last_tick = self._rti_update(last_tick) if self.rti else self._one_phase_update(last_tick, newest)
+            elif self.rti:
+                last_tick = self._rti_update(last_tick)
+            else:
+                last_tick = self._one_phase_update(last_tick, newest)
+            self._looked = self.ring.newest  # an update's own time is no gap
+
+    def _stopped(self) -> bool:
+        """Whether the measurements moved on by more than ``resync_after`` since this process last looked
+        (between two looks it only sleeps a moment or runs an update: a longer gap means it was stopped, a
+        SIGSTOP or a machine that did not run it); look now (``_looked``). A slow update is no gap: a cold
+        solve that outlasts ``resync_after`` must not cause the next one."""
+        newest = self.ring.newest
+        gap = self._looked >= 0 and newest - self._looked > self.resync_ticks
+        self._looked = newest
+        return gap
 
     def _resync(self) -> None:
         """Forget the warm start (the planner's records stay): the next update is a cold solve from the
@@ -246,12 +261,16 @@ class _Worker:
             prepared = planner.prepare(t_next, predicted[: self.nq], predicted[self.nq :])
             if prepared:
                 self.clock.record_preparation(planner.statistics.prepare_times[-1])
-        while self.ring.newest < tick:
+        self._looked = self.ring.newest  # the preparation's own time is no gap
+        stopped = False
+        while not stopped and self.ring.newest < tick:
             if not self.running():
                 return last_tick
+            stopped = self._stopped()
             time.sleep(0.0001)
         nq, nv = self.nq, self.nv
-        if self.ring.newest - tick > self.resync_ticks:  # stopped while waiting: ``run`` solves cold
+        if stopped or self._stopped():  # stopped while waiting: solve cold from the newest next
+            self._resync()
             return tick
         if not self.ring.read(tick, self.buffer):  # overwritten (the prepare outlasted the ring): newest
             tick = self.ring.newest

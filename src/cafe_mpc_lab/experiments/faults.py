@@ -25,8 +25,8 @@ from pathlib import Path
 import numpy as np
 from pydantic import Field, model_validator
 
-from cafe_mpc.assembly.checks import load_run_config
-from cafe_mpc.config import MPC_FAULTS
+from cafe_mpc.assembly.checks import load_run_config, robot_of
+from cafe_mpc.config import MPC_FAULTS, available_presets
 from cafe_mpc.control.plan_follower import SafetyStep
 from cafe_mpc_lab.experiments.common import RunStore, fall_fields, fell_text, num
 from cafe_mpc_lab.experiments.options import ExperimentOptions, names, numbers
@@ -79,8 +79,6 @@ class FaultsOptions(ExperimentOptions):
     @model_validator(mode="after")
     def _task_given(self) -> FaultsOptions:
         if not self.task:
-            from cafe_mpc.config import available_presets
-
             raise ValueError(f"--task PRESET is required (presets: {', '.join(available_presets())})")
         return self
 
@@ -149,8 +147,6 @@ class Faults(Experiment):
     def plan(self, options: FaultsOptions, context: PlanContext) -> ExperimentPlan:
         task = str(options.task)
         config = load_run_config(task, list(context.overrides))  # a bad preset or override: one error now
-        from cafe_mpc.assembly.checks import robot_of
-
         joints = robot_of(config).joint_names
         return ExperimentPlan(fault_variants(task, options.kinds, options.times, joints))
 
