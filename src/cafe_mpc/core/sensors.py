@@ -313,6 +313,11 @@ class SensorGuard:
     def _name(self, index: int) -> str:
         return IMU if index == 0 else f"encoder {self.joint_names[index - 1]}"
 
+    def imu_out_for(self, t: float) -> float:
+        """How long the IMU has been out at ``t`` (0 while it is in)."""
+        since = float(self._out_since[0])
+        return 0.0 if math.isnan(since) else t - since
+
     def outage(self, t: float) -> str | None:
         """The sensor out for longest, if longer than ``outage_limit`` at ``t`` (what and since when), else
         None."""

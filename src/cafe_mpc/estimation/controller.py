@@ -7,9 +7,10 @@ simulation (``SensingController``) and in the library (``cafe_mpc.Controller.mea
    non-finite or out-of-range value is rejected and counted, the last good value held;
 2. the state estimator turns the checked reading into a ``Measurement``;
 3. an estimate that diverged (non-finite, or a base faster than ``estimate_speed_max``) restarts the
-   estimator from the robot standing where it was, counted; so does the end of a sensor's outage that was
-   long enough to hold the robot off its plans (the estimate made without it is stale, the robot stands in
-   the balance stance).
+   estimator from the robot standing where it was (its velocity from the stance legs), counted; so does the
+   end of an IMU outage that was long enough to hold the robot off its plans (the attitude and the velocity
+   integrated without it are stale; the robot stands in the balance stance). An encoder's outage needs no
+   restart: the other legs carried the estimate, and the leg is read again.
 
 ``fault(t)`` says when the controller should hold the robot off its plans: a sensor out for longer than
 ``outage_limit``, or the estimator restarted less than ``outage_limit`` ago. ``record()`` is the ``sensors``
@@ -70,7 +71,7 @@ class SensorFrontEnd:
         self.guard.reset()
         self.estimator_resets: list[dict] = []
         """When the estimator was restarted, and why (``t``, ``why``)."""
-        self._outage: str | None = None
+        self._imu_out = False
 
     def measure(
         self, readings: SensorReadings, plan: KnotPlan | None, plan_time: float | None = None
@@ -79,10 +80,10 @@ class SensorFrontEnd:
         ``plan_time`` (default: the readings' time)."""
         checked = self.guard.check(readings)
         t = float(checked.time)
-        outage = self.guard.outage(t)
-        if self._outage is not None and outage is None:
-            self._restart(t, f"the end of an outage ({self._outage})")
-        self._outage = outage
+        imu_out = self.guard.imu_out_for(t) > self.limits.outage_limit
+        if self._imu_out and not imu_out:
+            self._restart(t, "the end of an IMU outage")
+        self._imu_out = imu_out
         measurement = self.estimator.update(checked, plan, plan_time)
         if not self._plausible(measurement):
             self._restart(t, "the estimate diverged")
@@ -95,7 +96,7 @@ class SensorFrontEnd:
         """Restart the estimator standing where the last plausible estimate had the robot."""
         self.estimator_resets.append({"t": round(t, 6), "why": why})
         logger.warning("t = %.3f s: the state estimator restarts standing (%s)", t, why)
-        self.estimator.reset(self._last_xy)
+        self.estimator.reset(self._last_xy, moving=True)
 
     def _plausible(self, measurement: Measurement) -> bool:
         velocity = self.estimator.world_velocity
