@@ -251,3 +251,93 @@ def test_the_fault_experiment_plans_each_fault_and_runs_the_mpc_faults_in_real_t
     assert stalls == [0.2, 0.2, 0.5, 0.5, 2.0, 2.0]
     with pytest.raises(ConfigError, match="--task PRESET is required"):
         prepare("faults", None, [], {})
+
+
+# ------------------------------------------------------------------------------ the pieces, alone
+def test_the_safe_ladder_steps_down_and_only_fresh_plans_take_the_robot_back(robot):
+    """plan -> last_plan (stale) -> balance (plan ran out) -> plan again only after ``take_back_plans``
+    fresh plans in a row measured since; a hold (sensors) keeps it off; ``fail`` is the damped stance for
+    good; no step returns a non-finite torque, also for a non-finite measurement."""
+    from cafe_mpc.config import RecoveryConfig
+    from cafe_mpc.control.plan_follower import NewestPlanFollower
+    from cafe_mpc.core.measurement import Measurement
+    from cafe_mpc.low_level.riccati import RiccatiController
+    from cafe_mpc.low_level.synthetic import synthetic_plan
+
+    recovery = RecoveryConfig(stale_after=0.05, take_back_plans=2)
+    follower = NewestPlanFollower(robot, RiccatiController(robot), recovery)
+    plan = synthetic_plan(robot, knots=10, dt=0.02)  # 0.2 s
+    stand = Measurement.of_state(robot.q_standing, np.zeros(robot.nv), np.ones(robot.n_feet, dtype=bool))
+    follower.new_plan(0.0, 0.0)
+    assert np.all(np.isfinite(follower.compute(0.01, stand, plan))) and follower.step == "plan"
+    follower.compute(0.08, stand, plan)
+    assert follower.step == "last_plan" and follower.following
+    torques = follower.compute(0.25, stand, plan)  # past the plan's end
+    assert follower.step == "balance" and np.all(np.isfinite(torques))
+    later = synthetic_plan(robot, knots=10, dt=0.02, t0=0.2)
+    follower.new_plan(0.26, 0.19)  # measured before the robot left the plans: not fresh
+    follower.compute(0.27, stand, later)
+    assert follower.step == "balance"
+    follower.new_plan(0.28, 0.26)  # one fresh plan of the two asked for
+    follower.compute(0.29, stand, later)
+    assert follower.step == "balance"
+    follower.new_plan(0.30, 0.28)
+    follower.compute(0.31, stand, later)
+    assert follower.step == "plan"
+    follower.hold(0.32, "sensors", "imu out")
+    follower.compute(0.33, stand, later)
+    assert follower.step == "balance" and "imu out" in follower.steps[-1]["reason"]
+    follower.hold(0.34, "sensors", None)
+    follower.fail(0.35, "gave up")
+    follower.new_plan(0.36, 0.36)
+    follower.new_plan(0.37, 0.37)
+    nonfinite = Measurement.of_state(robot.q_standing, np.full(robot.nv, np.nan), np.ones(4, dtype=bool))
+    assert np.all(np.isfinite(follower.compute(0.38, nonfinite, later)))
+    assert follower.step == "damped"
+    record = follower.record(0.002)
+    assert [episode["lowest"] for episode in record["episodes"]] == ["balance", "damped"]
+    assert record["episodes"][0]["back_at"] == 0.31 and record["episodes"][1]["back_at"] is None
+    assert record["failure"] == "gave up"
+
+
+def test_the_sensor_guard_holds_bad_samples_counts_them_and_reports_an_outage(robot):
+    from cafe_mpc.config import SensorLimits
+    from cafe_mpc.core.sensors import SensorGuard, SensorReadings
+
+    guard = SensorGuard(
+        SensorLimits(), robot.position_lower, robot.position_upper, robot.velocity_limits, robot.joint_names
+    )
+    readings = SensorReadings.zeros(robot.nu)
+    readings.joint_positions[:] = robot.q_standing[7:]
+    readings.accelerometer[2] = 9.81
+    bad_first = SensorReadings.zeros(robot.nu)
+    bad_first.gyro[0] = np.nan
+    with pytest.raises(ValueError, match="gyro"):
+        guard.check(bad_first)  # nothing to hold yet
+    guard.check(readings)
+    for tick in range(1, 100):
+        readings.time = tick * 0.002
+        readings.gyro[:] = 0.1 if tick < 10 else np.nan  # out from tick 10 on
+        readings.joint_positions[2] = 50.0 if tick == 5 else robot.q_standing[9]
+        readings.imu_time = readings.time
+        checked = guard.check(readings)
+        assert np.all(np.isfinite(checked.gyro)) and abs(checked.joint_positions[2]) < 10.0
+    assert checked.gyro[0] == 0.1  # the last good sample, held
+    assert guard.counts == {"gyro": 90, "joint_position": 1}
+    assert guard.outage(readings.time).startswith("imu out since t = 0.020 s")
+    readings.time += 0.002
+    readings.gyro[:] = 0.0
+    guard.check(readings)
+    [imu] = [outage for outage in guard.outages if outage["sensor"] == "imu"]
+    assert guard.outage(readings.time) is None and imu["end"] == pytest.approx(readings.time)
+    assert [outage["sensor"] for outage in guard.outages] == [f"encoder {robot.joint_names[2]}", "imu"]
+
+
+def test_the_balance_controller_stands_by_itself(tmp_path):
+    """``wbc: balance``: the safe ladder's balance controller holds the standing robot (torques finite and
+    within the limits)."""
+    config = load_config("stand", ["wbc=balance", "simulation.duration=1.0", "output.plots=false"])
+    result = run(config, None)
+    assert not result.log.fell and np.all(np.isfinite(result.log.torque_command))
+    assert abs(result.metrics["base_height_mean"] - 0.25) < 0.03
+    assert result.metrics["torque_limit_ticks"] == 0
