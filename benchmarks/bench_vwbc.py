@@ -11,7 +11,12 @@ of one-iteration ticks and fallbacks. ProxQP counts proximal augmented-Lagrangia
 active-set changes (comparable to the paper's qpOASES numbers). The Riccati controller (33) is scored on
 the same states for friction-pyramid violations.
 
+``--detection``: what contact detection (``stance_source: detected``) adds to a tick. The default VWBC with
+the plan's stance and with the detected stance, on the same states, in interleaved rounds; the median of the
+per-round ratios of the median tick times, and both medians / p99.
+
     .venv/bin/python benchmarks/bench_vwbc.py [--ticks 400] [--json]
+    .venv/bin/python benchmarks/bench_vwbc.py --detection [--rounds 15]
 """
 
 from __future__ import annotations
@@ -21,6 +26,7 @@ import importlib.util
 import json
 import platform
 import sys
+import time
 
 import numpy as np
 import pinocchio as pin
@@ -82,12 +88,58 @@ def riccati_violations(robot, plan, scenario: dict, ticks: int) -> int:
     return scorer.violations
 
 
+def detection_cost(robot, ticks: int, rounds: int) -> dict:
+    """Tick times of the default VWBC with the plan's and with the detected stance (trot scenario),
+    measured in alternating rounds in this process (module docstring)."""
+    scenario = SCENARIOS["trot"]
+    plan = synthetic_plan(robot, stance=np.array(scenario["stance"]), knots=20, seed=1)
+    measured = [
+        Measurement.of_state(q, v, scenario["stance"]) for q, v in states(robot, ticks, scenario["v_scale"])
+    ]
+    controllers = {
+        source: VWBCController(robot, VWBCSettings(stance_source=source)) for source in ("plan", "detected")
+    }
+    ticks_ms: dict[str, list[float]] = {source: [] for source in controllers}
+    ratios = []
+    for _ in range(rounds):
+        medians = {}
+        for source, vwbc in controllers.items():
+            vwbc.reset()
+            times = np.empty(ticks)
+            for i, measurement in enumerate(measured):
+                start = time.perf_counter()
+                vwbc.compute(0.002 * i, measurement, plan)
+                times[i] = time.perf_counter() - start
+            ticks_ms[source].extend(1e3 * times)
+            medians[source] = float(np.median(times))
+        ratios.append(medians["detected"] / medians["plan"])
+    return {
+        "ticks": ticks,
+        "rounds": rounds,
+        "ratio_detected_to_plan_median": float(np.median(ratios)),
+        **{
+            f"{source}_tick_ms": {
+                "median": float(np.median(values)),
+                "p99": float(np.percentile(values, 99)),
+            }
+            for source, values in ticks_ms.items()
+        },
+    }
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--ticks", type=int, default=400, help="ticks per run (default 400)")
     parser.add_argument("--json", action="store_true", help="print the results as JSON")
+    parser.add_argument("--detection", action="store_true", help="what contact detection adds to a tick")
+    parser.add_argument("--rounds", type=int, default=15, help="interleaved rounds of --detection")
     args = parser.parse_args(argv)
     robot = load_robot("mini_cheetah")
+    if args.detection:
+        cost = detection_cost(robot, args.ticks, args.rounds)
+        cost["machine"] = {"python": platform.python_version(), "processor": platform.machine()}
+        print(json.dumps(cost, indent=2))
+        return 0
     solvers = ["proxqp"] + (["daqp"] if importlib.util.find_spec("daqp") else [])
     results: dict = {
         "machine": {"python": platform.python_version(), "processor": platform.machine()},

@@ -123,8 +123,10 @@ def test_nominal_contacts_follow_the_plan(robot, detector):
 def test_a_heavier_trunk_lands_early_in_the_pace_and_detection_keeps_it_up():
     """A reliability trial that fell (running roll's approach pace, trunk 9 % heavier, the sensors' noise of
     seed 1, fixed latency): the body flies lower than planned, the right feet land 70 ms before their planned
-    touchdown and, driven along their swings, scuff and roll the robot over (it falls at 0.79 s with the
-    schedule's stance, ``vwbc.stance_source=plan``). With the detected stance it paces on."""
+    touchdown and, driven along their swings, scuff and roll the robot over (it falls at 0.78 s with the
+    schedule's stance, ``vwbc.stance_source=plan``). With the detected stance it paces on. The controller
+    plans with the floor's friction (0.6), as when the trial fell: with the default margin (0.4) this trial
+    no longer lands early enough to need the detector."""
     from cafe_mpc.config import load_config
     from cafe_mpc_lab.experiments.run import simulate_run
 
@@ -137,6 +139,7 @@ def test_a_heavier_trunk_lands_early_in_the_pace_and_detection_keeps_it_up():
             "simulation.duration=1.0",
             "mpc.warm_up=0.2",
             "vwbc.stance_source=detected",
+            "mpc.friction=0.6",
         ],
     )
     _, controller, log = simulate_run(config)
