@@ -44,7 +44,7 @@ def test_an_unknown_name_is_one_config_error_line_naming_the_key(robot):
     with pytest.raises(ConfigError, match=r"^planner: unknown planner 'hkd'; known: cafe, template$"):
         PLANNERS.get("hkd")
     with pytest.raises(
-        ConfigError, match=r"^wbc: unknown low-level controller 'qp'; known: pd, riccati, vwbc$"
+        ConfigError, match=r"^wbc: unknown low-level controller 'qp'; known: pd, balance, riccati, vwbc$"
     ):
         LOW_LEVELS.get("qp")
     # a config that bypassed the schema (model_copy does not validate) meets the same error when built
