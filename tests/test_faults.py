@@ -249,6 +249,7 @@ def test_the_fault_experiment_plans_each_fault_and_runs_the_mpc_faults_in_real_t
         c.plant.faults[0].duration for c in prepared.configs.values() if c.plant.faults[0].kind == "mpc_stall"
     )
     assert stalls == [0.2, 0.2, 0.5, 0.5, 2.0, 2.0]
+    assert prepared.command == "cafe-mpc experiment faults --duration 7 --task trot --times 2,3"
     with pytest.raises(ConfigError, match="--task PRESET is required"):
         prepare("faults", None, [], {})
 

@@ -148,7 +148,12 @@ class Faults(Experiment):
         task = str(options.task)
         config = load_run_config(task, list(context.overrides))  # a bad preset or override: one error now
         joints = robot_of(config).joint_names
-        return ExperimentPlan(fault_variants(task, options.kinds, options.times, joints))
+        plan_options = {"--task": task}
+        if tuple(options.kinds) != FAULT_KINDS:
+            plan_options["--kinds"] = ",".join(options.kinds)
+        if tuple(options.times) != DEFAULT_TIMES:
+            plan_options["--times"] = ",".join(f"{t:g}" for t in options.times)
+        return ExperimentPlan(fault_variants(task, options.kinds, options.times, joints), plan_options)
 
     def summarize(self, result: RunResult, variant: Variant) -> dict:
         return fault_summary(result, dict(variant.fields))
