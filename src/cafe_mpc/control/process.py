@@ -215,10 +215,11 @@ class _Worker:
 
     def _resync(self) -> None:
         """Forget the warm start (the planner's records stay): the next update is a cold solve from the
-        newest measurement, as a new process's first one would be."""
+        newest measurement (without the warm-up: its solver's data exist already)."""
         statistics = self.planner.statistics
         self.planner.reset()
         self.planner.statistics = statistics
+        self.planner.settings.warm_up = 0.0  # its solver's data exist already: the cold solve alone
         self.clock.reset()
         self.control.array[ControlBlock.RESYNCS] += 1.0
 
