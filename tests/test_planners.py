@@ -19,7 +19,6 @@ from cafe_mpc.core.controller import LowLevelController
 from cafe_mpc.core.measurement import Measurement
 from cafe_mpc.core.plan import PlanFormat, interval_at
 from cafe_mpc.low_level import registry as low_levels
-from cafe_mpc.low_level.pd import PDController
 from cafe_mpc.low_level.registry import LOW_LEVELS
 from cafe_mpc.low_level.riccati import RiccatiController
 from cafe_mpc.low_level.synthetic import synthetic_plan
@@ -46,7 +45,7 @@ def test_an_unknown_name_is_one_config_error_line_naming_the_key(robot):
     with pytest.raises(ConfigError, match=r"^planner: unknown planner 'hkd'; known: cafe, template$"):
         PLANNERS.get("hkd")
     with pytest.raises(
-        ConfigError, match=r"^wbc: unknown low-level controller 'qp'; known: pd, riccati, vwbc$"
+        ConfigError, match=r"^wbc: unknown low-level controller 'qp'; known: pd, balance, riccati, vwbc$"
     ):
         LOW_LEVELS.get("qp")
     # a config that bypassed the schema (model_copy does not validate) meets the same error when built
@@ -276,22 +275,24 @@ def test_the_plan_channel_carries_either_plan_type(robot, kind):
 
 
 @pytest.mark.parametrize("kind", ["cafe", "template"])
-def test_the_follower_runs_any_plan_type_and_falls_back_to_the_pd_stance(robot, kind):
-    """The one follower of both loops: the low level on a plan of its type while the plan lasts; the PD
-    stance without a plan or past the plan's end (counted)."""
+def test_the_follower_runs_any_plan_type_and_falls_back_to_the_safe_ladder(robot, kind):
+    """The one follower of both loops: the low level on a plan of its type while the plan lasts; the safe
+    ladder's balance stance past the plan's end or without a plan (counted; control.plan_follower)."""
     if kind == "cafe":
         low_level, plan = RiccatiController(robot), synthetic_plan(robot, knots=4, dt=0.02)
     else:
         low_level, plan = TemplateLowLevelController(robot), _template_plan(robot)
     follower = NewestPlanFollower(robot, low_level)
     q = robot.q_standing.copy()
-    q[7:] += 0.05  # off the standing pose: the PD stance and the low level disagree
+    q[7:] += 0.05  # off the standing pose: the safe stance and the low level disagree
     measurement = Measurement.of_state(q, np.zeros(robot.nv), np.ones(robot.n_feet, dtype=bool))
-    pd = PDController(robot).compute(0.0, measurement).copy()
+    follower.new_plan(0.0, 0.0)
     inside = follower.compute(0.005, measurement, plan).copy()
     expected = type(low_level)(robot).compute(0.005, measurement, plan)
     np.testing.assert_allclose(inside, expected)
-    assert not np.allclose(inside, pd) and follower.fallback_ticks == 0
-    np.testing.assert_allclose(follower.compute(plan.end_time + 0.01, measurement, plan), pd)
-    np.testing.assert_allclose(follower.compute(0.0, measurement, None), pd)
+    assert follower.step == "plan" and follower.fallback_ticks == 0
+    past_end = follower.compute(plan.end_time + 0.01, measurement, plan)
+    assert follower.step == "balance" and np.all(np.isfinite(past_end))
+    assert not np.allclose(past_end, inside)
+    follower.compute(plan.end_time + 0.02, measurement, None)
     assert follower.fallback_ticks == 2

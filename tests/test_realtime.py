@@ -1,13 +1,15 @@
 """Real-time mode (``--realtime``): the MPC in its own process, faults, and that nothing is left behind.
 
 Nothing here asserts timing (machines differ); the tests check that the run starts, delivers plans through
-the shared-memory channels, records its real-time metrics, falls back to a damped stance when the MPC
-process dies or stalls, ends with one clear error, and stops its process and frees its shared memory on
-success, on errors and on Ctrl-C.
+the shared-memory channels, records its real-time metrics, holds a stance when the MPC process dies or
+stalls and no restart is allowed, ends with one clear error that leaves the run's record, and stops its
+processes and frees its shared memory on success, on errors and on Ctrl-C. The MPC process's restarts and
+injected faults: tests/test_faults.py.
 """
 
 from __future__ import annotations
 
+import json
 import multiprocessing
 import os
 import signal
@@ -21,7 +23,7 @@ import pytest
 
 from cafe_mpc.assembly.controllers import process_planner
 from cafe_mpc.assembly.resolve import resolve
-from cafe_mpc.config import load_config
+from cafe_mpc.config import RecoveryConfig, load_config
 from cafe_mpc.control.ipc.shared import shared_block_prefix
 from cafe_mpc.control.process import ProcessMpcLoop
 from cafe_mpc.core.measurement import Measurement
@@ -116,15 +118,20 @@ def crashing_mpc(config_data: dict, after: int, mode: str) -> CrashingMpc:
 
 @pytest.mark.parametrize("mode", ["crash", "stall"])
 @pytest.mark.slow
-def test_a_dead_or_stalled_mpc_process_holds_a_stance_and_ends_with_one_error(mode, robot):
+def test_a_dead_or_stalled_mpc_process_without_restarts_holds_a_stance_and_ends_with_one_error(mode, robot):
+    """``recovery.max_restarts_per_minute: 0``: the loop gives up at once and holds the damped stance."""
     import functools
 
     before = _shared_memory_blocks()
     config = load_config("trot", ["simulation.duration=3.0", "output.plots=false"])
     factory = functools.partial(crashing_mpc, config.model_dump(mode="json"), 5, mode)
     plans = plan_format(25, robot.nq + robot.nv, robot.nu, 2 * robot.nv, robot.n_feet)
+    wait = 0.3 if mode == "stall" else 10.0  # a crash: a slow process on a loaded machine is no stall
+    recovery = RecoveryConfig(
+        stall_timeout=wait, stall_restart_after=wait, max_restarts_per_minute=0, standby=False
+    )
     controller = ProcessMpcLoop(
-        robot, factory, build_recorder(resolve(config, robot)), plans, 0.02, stall_timeout=0.3
+        robot, factory, build_recorder(resolve(config, robot)), plans, 0.02, recovery=recovery
     )
     with controller:
         controller.start(0.0, Measurement.of_state(robot.q_standing, np.zeros(robot.nv), np.ones(4, bool)))
@@ -133,7 +140,8 @@ def test_a_dead_or_stalled_mpc_process_holds_a_stance_and_ends_with_one_error(mo
         log = simulate(MujocoPlant(robot), controller, options)
     assert controller.failure is not None
     assert ("exited" in controller.failure) if mode == "crash" else ("no plan" in controller.failure)
-    assert controller.received.fallback_ticks > 0  # the damped stance held the robot after the plan ran out
+    assert controller.received.fallback_ticks > 0  # the safe ladder held the robot after the plan ran out
+    assert controller.follower.step == "damped"
     assert log.time[-1] < 2.9  # the run ended early, soon after the failure
     assert not log.fell
     assert not controller.process.is_alive()
@@ -143,14 +151,18 @@ def test_a_dead_or_stalled_mpc_process_holds_a_stance_and_ends_with_one_error(mo
 
 @pytest.mark.slow
 def test_the_command_line_reports_a_dead_mpc_process(monkeypatch, tmp_path, capsys):
-    """``cafe-mpc run --realtime`` ends with one line and a non-zero status when the MPC process dies."""
+    """``cafe-mpc run --realtime`` ends with one line and a non-zero status when the MPC process dies and
+    may not be restarted; the run's record (config, metrics.json saying it failed, the log) is written."""
     import cafe_mpc.assembly.controllers as controllers
     from cafe_mpc_lab.cli import main
 
     original = controllers.process_planner
     monkeypatch.setattr(controllers, "process_planner", _crashing_process_planner)
     try:
-        status = main(["run", "trot", "--realtime", "--duration", "2", "--out", str(tmp_path / "out")])
+        command = ["run", "trot", "--realtime", "--duration", "2", "--out", str(tmp_path / "out")]
+        status = main(
+            [*command, "--set", "recovery.max_restarts_per_minute=0", "--set", "recovery.standby=false"]
+        )
     finally:
         monkeypatch.setattr(controllers, "process_planner", original)
     assert status == 1
@@ -158,7 +170,12 @@ def test_the_command_line_reports_a_dead_mpc_process(monkeypatch, tmp_path, caps
     errors = [line for line in lines if line.startswith("cafe-mpc: error:")]
     # the run's stage lines (issue 22) come first; the error is one line, the last
     assert errors == [lines[-1]] and "MPC process" in lines[-1]
-    assert not (tmp_path / "out").exists()  # a failed run leaves no result folder
+    record = tmp_path / "out"
+    metrics = json.loads((record / "metrics.json").read_text())
+    assert metrics["status"] == "failed" and "MPC process" in metrics["error"]
+    assert metrics["faults"]["mpc"]["events"][0]["event"] == "mpc_exited"
+    assert metrics["faults"]["ladder"]["failure"] is not None
+    assert {"config.yaml", "run.log", "log.npz"} <= {path.name for path in record.iterdir()}
     assert not multiprocessing.active_children()
 
 
@@ -200,7 +217,6 @@ def _command_line(pid: int) -> str:
 def test_bench_mpc_reports_each_gait_as_json(capsys):
     """``cafe-mpc bench mpc --json``: one object per gait with the fields BENCHMARKS.md is made from (no
     timing is asserted)."""
-    import json
 
     from cafe_mpc_lab.cli import main
 

@@ -164,7 +164,7 @@ def test_the_summary_says_what_matters_in_words_with_units():
     assert "measured latency" in mpc and "compute times x2" in mpc and "2 failed" in mpc
     assert status["MPC"] == "warn"
     low = summary.findings[4].text
-    assert "1 QP fallback " in low and "457 of 5000 ticks held by the PD standing fallback" in low
+    assert "1 QP fallback " in low and "457 of 5000 ticks held off the plans by the safe ladder" in low
     assert "3 ticks outside the friction cone" in low and "29.8 mm" in low
     assert "2.3 mm" in summary.findings[1].text
     assert summary.findings[-1].text == "ground_truth: the controller saw the simulator's state"

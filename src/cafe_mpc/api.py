@@ -29,7 +29,10 @@ Two ways to run the MPC (``mode``):
   --realtime``): ``compute`` never waits for a solve, it follows the newest plan. For a loop that runs in
   real time (a robot, or a simulator paced by the wall clock); ``reset`` starts the process (a new one on a
   later ``reset``), ``close()`` (or ``with``) stops it and frees its shared memory. If the MPC process dies
-  or stalls the robot is held in a damped stance and ``failure`` says why.
+  it is restarted (``recovery.max_restarts_per_minute``), if it stalls it is taken back when it delivers
+  again (or restarted after ``recovery.stall_restart_after``); meanwhile the safe ladder holds the robot
+  (the last plan, the balance stance, the damped stance: docs/faults.md). Past the restart limit the robot
+  stays in the damped stance and ``failure`` says why.
 
 Either way the controller is the run config resolved once (``assembly``) and one MPC loop
 (``control.loop.MpcLoop``) of the planner the config names, with the state estimator the assembly builds for
@@ -40,7 +43,10 @@ Measurements are in the planning model's coordinates (``core.measurement.Measure
 MuJoCo's free-joint state (``core.free_joint``). A robot has no such state: ``measurement_from_sensors(...)``
 estimates it from the IMU and the joint encoders (``estimation.estimator.StateEstimator``, the config's
 ``kinematic_kf`` tuning) with the stance of the plan the controller follows; call it once per tick, before
-``compute``::
+``compute``. Every reading is checked first (``core.sensors.SensorGuard``, the config's ``recovery.sensors``):
+a missing, late, non-finite or out-of-range sample is rejected and its last good value held, and a sensor
+out for longer than ``outage_limit`` (or an estimate that diverged) holds the robot off its plans until it
+is back; ``faults()`` reports what happened::
 
     measurement = controller.measurement_from_sensors(t, quaternion, gyro, accelerometer, q_joints, v_joints)
     controller.reset(measurement)          # first tick (robot standing)
@@ -76,7 +82,7 @@ from cafe_mpc.core.free_joint import free_joint_measurement, free_joint_qpos
 from cafe_mpc.core.measurement import Measurement
 from cafe_mpc.core.plan import KnotPlan
 from cafe_mpc.core.sensors import SensorReadings
-from cafe_mpc.estimation.estimator import StateEstimator
+from cafe_mpc.estimation.controller import SensorFrontEnd
 from cafe_mpc.planners.resolved import ResolvedRun
 from cafe_mpc.robots.robot import Robot
 
@@ -121,7 +127,8 @@ class Controller:
         self._t0 = 0.0
         self._started = False
         self._closed = False
-        self._estimator: StateEstimator | None = None  # built on the first measurement_from_sensors
+        self._sensing: SensorFrontEnd | None = None  # built on the first measurement_from_sensors
+        self._sensor_fault: str | None = None
         self._readings = SensorReadings.zeros(self.robot.nu)
         first = config.gait.commands[0] if config.gait is not None else VelocityCommand()
         self._command = (first.vx, first.vy, first.yaw_rate, first.height)
@@ -261,6 +268,17 @@ class Controller:
         """``process`` mode: why the MPC process stopped delivering plans (None while all is well)."""
         return self._loop.failure
 
+    def faults(self) -> dict:
+        """What went wrong so far and what the controller did: ``ladder`` (the safe ladder's steps with
+        their times, the episodes off the plans and how long until a fresh plan took the robot back) and, in
+        ``process`` mode, ``mpc`` (the MPC process's exits, stalls and restarts, each restart's duration);
+        ``sensors`` (rejected samples by kind, outages, estimator restarts) once ``measurement_from_sensors``
+        is in use. Empty sections are left out."""
+        record = dict(self._loop.fault_record(self.control_period) or {})
+        if self._sensing is not None and self._sensing.eventful:
+            record["sensors"] = self._sensing.record()
+        return record
+
     def statistics(self) -> dict:
         """The MPC's update statistics so far (``MpcLoop.summary``: solves, failures, update and latency
         medians, ...); in ``process`` mode the plans received here (the MPC process's own records arrive when
@@ -295,6 +313,8 @@ class Controller:
         joint_velocities: Sequence[float] | np.ndarray,
         joint_torques: Sequence[float] | np.ndarray | None = None,
         scalar_first: bool = False,
+        imu_time: float | None = None,
+        joint_times: Sequence[float] | np.ndarray | None = None,
     ) -> Measurement:
         """The ``Measurement`` the state estimator makes of a robot's sensor readings at ``time`` (your
         clock).
@@ -302,16 +322,19 @@ class Controller:
         ``orientation``: the IMU's attitude estimate, base to world, quaternion ``(x, y, z, w)`` (``(w, x,
         y, z)`` with ``scalar_first``; e.g. MuJoCo's ``framequat``); ``gyro``: base-frame angular velocity
         (rad/s); ``accelerometer``: base-frame specific force (m/s^2, +9.81 up at rest); joint angles, rates
-        and (optional, for the foot-load compensation) torques in the robot's joint order. The IMU is assumed
-        at the base frame's origin with the base's axes. Call once per control tick, before ``compute``: the
+        and (optional, for the foot-load compensation) torques in the robot's joint order; ``imu_time`` and
+        ``joint_times``: when the IMU and each encoder took the samples given (your clock; None: at ``time``),
+        which tells a driver's repeated old sample from a new one. The IMU is assumed at the base frame's
+        origin with the base's axes. Call once per control tick, before ``compute``: the
         estimator (``estimation.estimator.StateEstimator``, the config's ``kinematic_kf`` section) integrates
         from one call to the next and uses the stance of the plan followed now. Its first call (or the first
-        after ``reset_estimator``) starts it with the robot standing at x-y ``(0, 0)``. Bad readings raise
-        ``ValueError`` naming the field (``core.sensors.SensorReadings.fill``). The returned object is reused
-        by the next call."""
-        if self._estimator is None:
-            self._estimator = build_estimator(self.run)
-            self._estimator.reset()
+        after ``reset_estimator``) starts it with the robot standing at x-y ``(0, 0)``. Each reading is
+        checked at the boundary (module docstring): a bad sample is held at its last good value and counted
+        (``faults()``), a sensor out for too long holds the robot off its plans; a value of the wrong shape
+        raises ``ValueError`` naming the field (``core.sensors.SensorReadings.fill``), as does a bad sample
+        in the very first reading (there is nothing to hold yet). The returned object is reused by the next
+        call."""
+        sensing = self._sensing_front_end()
         readings = self._readings
         readings.fill(
             time,
@@ -322,15 +345,27 @@ class Controller:
             joint_velocities,
             joint_torques,
             scalar_first,
+            imu_time,
+            joint_times,
         )
-        return self._estimator.update(readings, self.plan, plan_time=readings.time - self._t0)
+        plan_time = readings.time - self._t0
+        measurement = sensing.measure(readings, self.plan, plan_time=plan_time)
+        fault = sensing.fault(readings.time)
+        if fault != self._sensor_fault:
+            self._loop.report_sensors(plan_time, fault)
+            self._sensor_fault = fault
+        return measurement
+
+    def _sensing_front_end(self) -> SensorFrontEnd:
+        if self._sensing is None:
+            estimator = build_estimator(self.run)
+            self._sensing = SensorFrontEnd(estimator, self.run.config.recovery.sensors)
+        return self._sensing
 
     def reset_estimator(self, position_xy: Sequence[float] = (0.0, 0.0)) -> None:
         """Restart the state estimator: its next ``measurement_from_sensors`` starts it with the robot
         standing at ``position_xy`` (the odometry origin)."""
-        if self._estimator is None:
-            self._estimator = build_estimator(self.run)
-        self._estimator.reset(np.asarray(position_xy, dtype=float))
+        self._sensing_front_end().reset(np.asarray(position_xy, dtype=float))
 
     def standing_qpos(self) -> np.ndarray:
         """MuJoCo ``qpos`` of the robot standing (where the presets start), for ``robot.mjcf``'s model."""

@@ -14,11 +14,11 @@ torque limits and the contact model):
 * ``build_mpc_loop``: the planner's MPC loop over the low level (``control.loop.MpcLoop``), ``inline``
   (``control.inline``: in simulated time, one MPC worker, fixed or measured latency) or in its own
   ``process`` against the wall clock (``control.process``; the process builds its planner with
-  ``process_planner``);
+  ``process_planner``), with the safe ladder of the ``recovery`` section and its balance controller;
 * ``build_controller``: the closed loop of a run in simulated time: the inline MPC loop, or the low level
   alone when it follows no plan (``wbc: pd``);
-* ``build_estimator`` / ``build_sensing_controller``: the state estimator, and a controller behind it, for
-  runs that read the robot's sensors.
+* ``build_estimator`` / ``build_sensing_controller``: the state estimator, and a controller behind it and
+  the sensing front end (``recovery.sensors``), for runs that read the robot's sensors.
 
 A builder that is given a ``low_level`` uses it (the experiment harness passes one wrapped in its recorder);
 otherwise it builds ``build_low_level``'s. Every setting the library rejects becomes a ``ConfigError``
@@ -97,9 +97,16 @@ def build_mpc_loop(
     planner = PLANNERS.get(config.planner)
     if low_level is None:
         low_level = low_levels.build_low_level(run, planner)
+    balance = low_levels.build_balance(run)  # the safe ladder's (control.plan_follower)
     if mode == "inline":
-        reference = build_reference(run)
-        return InlineMpcLoop(run.robot, planner.build(run, reference), low_level, run.control_period)
+        return InlineMpcLoop(
+            run.robot,
+            planner.build(run, build_reference(run)),
+            low_level,
+            run.control_period,
+            recovery=config.recovery,
+            balance=balance,
+        )
     loop = ProcessMpcLoop(
         run.robot,
         functools.partial(process_planner, config.model_dump(mode="json")),
@@ -108,6 +115,8 @@ def build_mpc_loop(
         config.mpc.period,
         control_period=run.control_period,
         scheme=config.mpc.scheme,
+        recovery=config.recovery,
+        balance=balance,
     )
     loop.reference = build_reference(run)  # for the run's report (gait stance)
     return loop
@@ -154,4 +163,6 @@ def build_sensing_controller(
     if capacity is None:
         simulation = run.config.simulation
         capacity = int(np.ceil(simulation.duration * simulation.control_rate_hz)) + 2
-    return SensingController(inner, estimator, capacity=capacity, position_xy=position_xy)
+    return SensingController(
+        inner, estimator, capacity=capacity, position_xy=position_xy, limits=run.config.recovery.sensors
+    )

@@ -186,6 +186,10 @@ work on, not the nominal 0.6. Planned at 0.6, the approach pace of the running r
 ticks at the cone's edge on a 0.6 floor and every gait slides on a lower one (docs/robustness.md)."""
 
 
+STANDING_CONTROLLERS = ("pd", "balance")
+"""``wbc`` values that stand in place by themselves, without a planner (no gait, no reference)."""
+
+
 PAPER_BUDGET_FRACTION = 0.9
 """The share of the MPC period a solve may take in measured mode (the paper's budget: 18 ms of 20 ms)."""
 
@@ -812,6 +816,95 @@ PlantScales = float | list[float]
 """One factor for every joint, or one per actuated joint (robot joint order)."""
 
 
+FaultKind = Literal["imu_dropout", "encoder_freeze", "nan_sample", "out_of_range", "mpc_kill", "mpc_stall"]
+"""What a fault the lab injects does (``FaultConfig``)."""
+
+SENSOR_FAULTS = ("imu_dropout", "encoder_freeze", "nan_sample", "out_of_range")
+"""Faults of the robot's sensors (they need ``estimator: kinematic_kf``: the controller reads sensors)."""
+MPC_FAULTS = ("mpc_kill", "mpc_stall")
+"""Faults of the MPC process (they need ``simulation.realtime``: the MPC in its own process)."""
+
+FaultSensor = Literal["orientation", "gyro", "accelerometer", "joint_position", "joint_velocity"]
+"""A sensor field a bad sample can hit."""
+
+
+class FaultConfig(StrictModel):
+    """A fault the lab injects into a run (``cafe_mpc_lab.sim.faults``; docs/faults.md).
+
+    ``imu_dropout``: no new IMU sample from ``start`` for ``duration`` s (the driver repeats the last one,
+    with its old time stamp). ``encoder_freeze``: the same for one joint's encoder (``joint``).
+    ``nan_sample`` / ``out_of_range``: one sample of ``sensor`` (for a joint sensor, of ``joint``, or of every
+    joint when null) is NaN / ``value`` every ``period`` s from ``start`` (for ``duration`` s, null: to the
+    end). ``mpc_kill``: the MPC process is killed (SIGKILL) at ``start``. ``mpc_stall``: it is stopped
+    (SIGSTOP) at ``start`` and continued (SIGCONT) ``duration`` s later."""
+
+    kind: FaultKind = Field(
+        description="imu_dropout | encoder_freeze | nan_sample | out_of_range (sensors) | mpc_kill | "
+        "mpc_stall (the MPC process, simulation.realtime)"
+    )
+    start: float = Field(0.0, ge=0.0, le=3600.0, description="s, when the fault begins")
+    duration: float | None = Field(
+        None,
+        gt=0.0,
+        le=3600.0,
+        description="s the fault lasts (imu_dropout, encoder_freeze, mpc_stall; bad samples: null, to the "
+        "end)",
+    )
+    joint: int | str | None = Field(
+        None, description="encoder_freeze, bad joint samples: the joint (index or name; null: every joint)"
+    )
+    sensor: FaultSensor | None = Field(
+        None,
+        description="nan_sample, out_of_range: orientation | gyro | accelerometer | joint_position | "
+        "joint_velocity",
+    )
+    period: float | None = Field(
+        None, gt=0.0, le=3600.0, description="nan_sample, out_of_range: s between two bad samples"
+    )
+    value: float | None = Field(
+        None, description="out_of_range: the value the bad sample reads (default 1e3)"
+    )
+
+    @model_validator(mode="after")
+    def _kind_fields(self) -> FaultConfig:
+        needs: dict[str, tuple[str, ...]] = {
+            "imu_dropout": ("duration",),
+            "encoder_freeze": ("duration", "joint"),
+            "nan_sample": ("sensor", "period"),
+            "out_of_range": ("sensor", "period"),
+            "mpc_kill": (),
+            "mpc_stall": ("duration",),
+        }
+        allowed: dict[str, tuple[str, ...]] = {
+            "imu_dropout": ("duration",),
+            "encoder_freeze": ("duration", "joint"),
+            "nan_sample": ("sensor", "period", "duration", "joint"),
+            "out_of_range": ("sensor", "period", "duration", "joint", "value"),
+            "mpc_kill": (),
+            "mpc_stall": ("duration",),
+        }
+        for key in needs[self.kind]:
+            if getattr(self, key) is None:
+                raise ValueError(f"a fault of kind {self.kind} needs '{key}'")
+        for key in ("duration", "joint", "sensor", "period", "value"):
+            if getattr(self, key) is not None and key not in allowed[self.kind]:
+                raise ValueError(f"'{key}' does not apply to a fault of kind {self.kind}")
+        if self.joint is not None and self.sensor in ("orientation", "gyro", "accelerometer"):
+            raise ValueError(f"'joint' does not apply to a bad {self.sensor} sample")
+        if isinstance(self.joint, int) and self.joint < 0:
+            raise ValueError(f"joint must be an index >= 0 or a joint name, got {self.joint}")
+        if self.value is not None and not math.isfinite(self.value):
+            raise ValueError(f"value must be finite (nan_sample writes NaN), got {self.value}")
+        return self
+
+    @property
+    def end(self) -> float:
+        """When the fault ends (inf: at the end of the run; a kill is a moment)."""
+        if self.kind == "mpc_kill":
+            return self.start
+        return self.start + self.duration if self.duration is not None else math.inf
+
+
 class PlantConfig(StrictModel):
     """The simulated robot's deviations from its robot table, and what its sensors do (domain randomisation,
     paper Sec. VII-C3). Only the MuJoCo plant and the controller's measurements change; the controller's model
@@ -850,6 +943,11 @@ class PlantConfig(StrictModel):
         default_factory=HeightMapConfig,
         description="height-map sensor: ray casts around the robot, logged at their rate (sim.height_map)",
     )
+    faults: list[FaultConfig] = Field(
+        default_factory=list,
+        description="faults injected into the run: sensor dropouts, frozen encoders, bad samples, the MPC "
+        "process killed or stalled (sim.faults; docs/faults.md)",
+    )
 
     @model_validator(mode="after")
     def _height_map_plant(self) -> PlantConfig:
@@ -871,6 +969,110 @@ class PlantConfig(StrictModel):
     def state_noise(self) -> bool:
         """Whether ``sensor_noise`` perturbs the state (only the ground-truth estimator can have it)."""
         return not self.sensor_noise.is_zero
+
+
+class BalanceConfig(StrictModel):
+    """The balance controller of the safe ladder (``low_level.balance``; ``wbc: balance`` standing): all
+    feet down where they are, the base level at the standing height above them, the stance's static torques
+    plus joint PD, the implied foot forces inside the friction pyramid. Gains are the reference robot's,
+    scaled to the run's robot as the PD gains are."""
+
+    kp: float = Field(
+        60.0, ge=0.0, le=1000.0, description="Nm/rad, joint stiffness toward the balance posture"
+    )
+    kd: float = Field(2.0, ge=0.0, le=100.0, description="Nm s/rad, joint damping")
+    min_normal_force: float = Field(
+        0.05,
+        ge=0.0,
+        le=0.5,
+        description="share of the weight every foot on the ground keeps pressing with (the statics' forces "
+        "and the pyramid's lower bound)",
+    )
+
+
+class SensorLimits(StrictModel):
+    """What the sensing front end accepts of a reading (``core.sensors.SensorGuard``): a value outside these
+    limits, non-finite, or a sample older than ``max_sample_age`` is rejected, counted, and the last good one
+    held; a sensor out for longer than ``outage_limit`` sends the MPC loop down its safe ladder."""
+
+    gyro_max: float = Field(
+        34.9, gt=0.0, le=1000.0, description="rad/s, the gyro's range (VectorNav VN-100: 2000 deg/s)"
+    )
+    accelerometer_max: float = Field(
+        157.0, gt=0.0, le=10000.0, description="m/s^2, the accelerometer's range (VN-100: 16 g)"
+    )
+    joint_position_margin: float = Field(
+        0.3, ge=0.0, le=3.0, description="rad a joint reading may lie beyond the robot's joint limits"
+    )
+    joint_velocity_factor: float = Field(
+        2.0, gt=0.0, le=100.0, description="a joint rate may reach this many times the robot's velocity limit"
+    )
+    max_sample_age: float = Field(
+        0.02, gt=0.0, le=1.0, description="s; a sample whose time stamp is older is late (missing)"
+    )
+    outage_limit: float = Field(
+        0.1,
+        gt=0.0,
+        le=10.0,
+        description="s a sensor may stay out (its last good value held) before the MPC loop holds the "
+        "balance stance until it is back",
+    )
+    estimate_speed_max: float = Field(
+        10.0, gt=0.0, le=100.0, description="m/s; a faster base estimate counts as a diverged estimator"
+    )
+
+
+class RecoveryConfig(StrictModel):
+    """What the controller does when plans stop coming or sensors fail (docs/faults.md): the safe ladder
+    (follow the last plan while it lasts, then the balance stance, then the damped stance), restarting or
+    taking back the MPC process, and the sensing front end's limits."""
+
+    stale_after: float = Field(
+        0.1, gt=0.0, le=10.0, description="s without a new plan: the ladder's last_plan step (still followed)"
+    )
+    take_back_plans: int = Field(
+        3,
+        ge=1,
+        le=100,
+        description="fresh plans in a row (each measured after the robot left the plans, each within "
+        "stale_after of the one before) before they take the robot back from the balance or damped stance",
+    )
+    stall_timeout: float | None = Field(
+        None,
+        gt=0.0,
+        le=60.0,
+        description="s without a plan from a live MPC process: it counts as stalled (null: 10 MPC periods, "
+        "at least 0.5 s)",
+    )
+    standby: bool = Field(
+        True,
+        description="keep a second MPC process built and waiting beside the running one (real time): it "
+        "takes over at once when that one dies or is restarted, a new standby is built after",
+    )
+    stall_restart_after: float = Field(
+        3.0, gt=0.0, le=600.0, description="s a stalled MPC process is waited for before it is restarted"
+    )
+    max_restarts_per_minute: int = Field(
+        3,
+        ge=0,
+        le=100,
+        description="MPC process restarts allowed within 60 s; one more and the robot stays in the damped "
+        "stance and the run fails (0: never restart)",
+    )
+    resync_after: float = Field(
+        0.4,
+        gt=0.0,
+        le=60.0,
+        description="s the MPC process went without looking at the measurements (it was stopped; its own "
+        "updates do not count) after which it solves cold again from the newest",
+    )
+    balance_timeout: float = Field(
+        10.0, gt=0.0, le=3600.0, description="s the balance stance holds without a plan before the damped one"
+    )
+    balance: BalanceConfig = Field(default_factory=BalanceConfig, description="the balance controller")
+    sensors: SensorLimits = Field(
+        default_factory=SensorLimits, description="what the sensing front end accepts (core.sensors)"
+    )
 
 
 class TemplateSettings(StrictModel):
@@ -928,8 +1130,10 @@ class RunConfig(StrictModel):
         "leg length and mass (robots.scaling; docs/robots.md); none: used as written. The Mini Cheetah's "
         "factors are 1",
     )
-    wbc: Literal["pd", "riccati", "vwbc"] = Field(
-        "pd", description="pd: stand in place; riccati / vwbc: CAFE-MPC with that low-level controller"
+    wbc: Literal["pd", "balance", "riccati", "vwbc"] = Field(
+        "pd",
+        description="pd: stand in place (joint PD); balance: stand in place (the safe ladder's balance "
+        "controller); riccati / vwbc: CAFE-MPC with that low-level controller",
     )
     pd: PDSettings = Field(
         default_factory=PDSettings, description="gains of the standing controller (wbc: pd)"
@@ -980,21 +1184,26 @@ class RunConfig(StrictModel):
         "in the log (plant.height_map; the controllers do not use them yet). docs/terrain.md",
     )
     output: OutputConfig = Field(default_factory=OutputConfig, description="plots and video")
+    recovery: RecoveryConfig = Field(
+        default_factory=RecoveryConfig,
+        description="the safe ladder, MPC process restarts and sensor limits (docs/faults.md)",
+    )
 
     @model_validator(mode="after")
     def _controller_matches_gait(self) -> RunConfig:
-        if self.wbc == "pd" and self.gait is not None:
+        standing = self.wbc in STANDING_CONTROLLERS
+        if standing and self.gait is not None:
             raise ValueError(
-                f"wbc: 'pd' stands in place and cannot follow gait {self.gait.name!r}; use wbc=riccati or "
-                "wbc=vwbc (or gait=null to stand)"
+                f"wbc: {self.wbc!r} stands in place and cannot follow gait {self.gait.name!r}; use "
+                "wbc=riccati or wbc=vwbc (or gait=null to stand)"
             )
-        if self.wbc == "pd" and self.reference is not None:
+        if standing and self.reference is not None:
             raise ValueError(
-                "wbc: 'pd' stands in place and cannot follow a reference; use wbc=vwbc or riccati"
+                f"wbc: {self.wbc!r} stands in place and cannot follow a reference; use wbc=vwbc or riccati"
             )
         if self.gait is not None and self.reference is not None:
             raise ValueError("give either a gait section or a reference section, not both (set gait=null)")
-        if self.wbc != "pd" and self.gait is None and self.reference is None:
+        if not standing and self.gait is None and self.reference is None:
             raise ValueError(
                 f"wbc: {self.wbc!r} runs CAFE-MPC and needs a gait section (e.g. --set gait.name=trot) "
                 "or a reference section"
@@ -1032,6 +1241,17 @@ class RunConfig(StrictModel):
                 f"{self.estimator!r} does not see; set the sensors' noise in plant.sensors (or use "
                 "estimator: ground_truth)"
             )
+        for index, fault in enumerate(self.plant.faults):
+            if fault.kind in SENSOR_FAULTS and self.estimator == "ground_truth":
+                raise ValueError(
+                    f"plant.faults.{index}: a fault of kind {fault.kind} hits the robot's sensors, which "
+                    "estimator: ground_truth does not read (use estimator: kinematic_kf)"
+                )
+            if fault.kind in MPC_FAULTS and not (self.simulation.realtime and not standing):
+                raise ValueError(
+                    f"plant.faults.{index}: a fault of kind {fault.kind} hits the MPC process, which only a "
+                    "real-time MPC run has (simulation.realtime: true, wbc: vwbc or riccati)"
+                )
         return self
 
 

@@ -30,9 +30,10 @@ solve runs before the clock starts, as on the robot, where the MPC is started wh
 plan is active from t = 0 (and the first preparation is made then too).
 
 The low-level controller follows the newest plan at every tick. A failed update keeps the previous plan;
-with no plan, or once the plan's horizon has run out, the robot is held by the PD standing controller
-(damped stance), counted in ``pd_fallback_ticks`` (``control.plan_follower``). The same interface with the
-planner in its own process against the wall clock is ``control.process``.
+with no plan, or once the plan's horizon has run out, the safe ladder holds the robot (the balance stance,
+then the damped one; ``control.plan_follower``), counted in ``pd_fallback_ticks``, until a plan measured
+since takes it back. The same interface with the planner in its own process against the wall clock is
+``control.process``.
 """
 
 from __future__ import annotations
@@ -42,7 +43,7 @@ import time
 
 import numpy as np
 
-from cafe_mpc.config import MpcSettings
+from cafe_mpc.config import MpcSettings, RecoveryConfig
 from cafe_mpc.control.commands import CommandChannel, apply_command
 from cafe_mpc.control.loop import MpcLoop
 from cafe_mpc.control.plan_follower import NewestPlanFollower
@@ -62,7 +63,9 @@ class InlineMpcLoop(MpcLoop[PlanT]):
     """A planner's MPC loop in simulated time (the simulation's ``Controller``); see the module docstring.
 
     ``control_period``: the period of the ticks ``compute`` is called at (updates happen on ticks: a
-    preparation is made for the tick its measurement will come from).
+    preparation is made for the tick its measurement will come from). ``recovery`` and ``balance``: the safe
+    ladder's settings and balance controller (``control.plan_follower``; defaults: ``RecoveryConfig()``,
+    ``BalanceController(robot)``).
     """
 
     def __init__(
@@ -71,6 +74,8 @@ class InlineMpcLoop(MpcLoop[PlanT]):
         planner: Planner[PlanT],
         low_level: LowLevelController[PlanT],
         control_period: float = 0.002,
+        recovery: RecoveryConfig | None = None,
+        balance: LowLevelController | None = None,
     ) -> None:
         if not control_period > 0:
             raise ValueError(f"control period must be positive, got {control_period}")
@@ -80,8 +85,8 @@ class InlineMpcLoop(MpcLoop[PlanT]):
         self._scheme = self.settings.scheme if planner.supports_rti else "one_phase"
         self.low_level = low_level
         self.control_period = float(control_period)
-        self.follower = NewestPlanFollower(robot, low_level)
-        self.plan: PlanT | None = None
+        self.follower = NewestPlanFollower(robot, low_level, recovery, balance)
+        self._plan: PlanT | None = None
         self.pending: list[tuple[float, float, PlanT | None]] = []
         """(time it takes effect, its measurement time, plan) of the updates not yet in effect."""
         self.next_update = 0.0
@@ -130,7 +135,7 @@ class InlineMpcLoop(MpcLoop[PlanT]):
 
     # -------------------------------------------------------------------------------------- interface
     def reset(self) -> None:
-        self.plan, self.pending = None, []
+        self._plan, self.pending = None, []
         self.planner.reset()
         self.next_update = 0.0
         self.worker_free = 0.0
@@ -151,7 +156,7 @@ class InlineMpcLoop(MpcLoop[PlanT]):
             self._update(t, state)
             self._activate_pending(t)
         before = self.follower.fallback_ticks
-        torques = self.follower.compute(t, state, self.plan)
+        torques = self.follower.compute(t, state, self._plan)
         self.statistics.fallback_ticks += self.follower.fallback_ticks - before
         return torques
 
@@ -159,7 +164,8 @@ class InlineMpcLoop(MpcLoop[PlanT]):
         while self.pending and t + 1e-9 >= self.pending[0][0]:
             _, start, plan = self.pending.pop(0)
             if plan is not None:
-                self.plan = plan
+                self._plan = plan
+                self.follower.new_plan(t, start)
                 self.statistics.latencies.append(t - start)
 
     # ----------------------------------------------------------------------------------------- updates
@@ -174,7 +180,8 @@ class InlineMpcLoop(MpcLoop[PlanT]):
             stage("first (cold) MPC solve")
             plan = self.planner.update(t, state.q, state.v)
             if plan is not None:
-                self.plan = plan
+                self._plan = plan
+                self.follower.new_plan(t, t)
                 self.statistics.latencies.append(0.0)
                 if self.scheme == "rti":
                     self._prepare(self.clock.tick_at_or_after(t + self.settings.period))
@@ -247,7 +254,7 @@ class InlineMpcLoop(MpcLoop[PlanT]):
 
     def _plan_in_effect(self, t: float) -> PlanT | None:
         """The plan the low level follows at ``t`` given the plans published and in flight now."""
-        plan = self.plan
+        plan = self._plan
         for effective, _, pending in self.pending:
             if effective <= t + 1e-9 and pending is not None:
                 plan = pending

@@ -9,19 +9,26 @@ carries the plans between them:
 * ``control.process.ProcessMpcLoop``: the planner in its own process against the wall clock, plans and
   measurements through shared memory (``control.ipc``).
 
-Both follow the newest plan with the same follower and PD fallback (``control.plan_follower``) and take
-runtime commands through the same channel (``commands``, ``control.commands``). The interface:
+Both follow the newest plan with the same follower and its safe ladder (``control.plan_follower``: the last
+plan while it lasts, then the balance stance, then the damped stance) and take runtime commands through the
+same channel (``commands``, ``control.commands``). The interface:
 
 * ``reset()``: make ready for a run (the follower's counters; inline also the plans and the planner's warm
   starts, so that the next ``start`` or ``compute`` is a cold solve);
 * ``start(t, measurement)``: the cold first solve before the clock starts, as on the robot (process: start the
   MPC process, or a new one, and wait for its first plan);
 * ``compute(t, measurement) -> torques``: at the control rate;
-* ``plan``: the plan in effect (None before the first); ``reference``: the reference the run tracks;
+* ``plan``: the plan the low level follows (None before the first, and while the safe ladder holds the
+  robot off the plans); ``reference``: the reference the run tracks;
   ``scheme``: the update scheme in use (``rti`` or ``one_phase``); ``low_level``;
 * ``statistics``: the planner's per-update records (``MpcStatistics``; process: the MPC process's, once it
   has stopped), ``summary(duration)``: the ``mpc`` block of a run's metrics;
-* ``failure`` and ``should_stop(t)``: why the run must end (the MPC process died or stalled), and when;
+* ``report_sensors(t, fault)``: the sensing front end says a sensor has been out too long (``fault``: what),
+  or that all are back (None): the robot is held off the plans meanwhile;
+* ``fault_record(control_period)``: what the safe ladder (and the MPC process's supervision) did, for
+  ``metrics.json``'s ``faults`` block; None when nothing happened;
+* ``failure`` and ``should_stop(t)``: why the run must end (the MPC process could not be kept running), and
+  when;
 * ``close()`` (also ``with``): stop what the loop started; idempotent.
 """
 
@@ -33,6 +40,7 @@ from typing import Generic
 import numpy as np
 
 from cafe_mpc.control.commands import CommandChannel
+from cafe_mpc.control.plan_follower import NewestPlanFollower
 from cafe_mpc.core.controller import LowLevelController
 from cafe_mpc.core.measurement import Measurement
 from cafe_mpc.core.plan import PlanT
@@ -45,12 +53,24 @@ class MpcLoop(ABC, Generic[PlanT]):
 
     low_level: LowLevelController[PlanT]
     """What follows the plan at the control rate."""
+    follower: NewestPlanFollower[PlanT]
+    """The low level on the newest plan, with the safe ladder."""
     commands: CommandChannel
     """Runtime commands (``cafe_mpc.Controller.set_command``, teleop), taken at the planner's next update."""
-    plan: PlanT | None
-    """The plan the low level follows now (None before the first)."""
     failure: str | None = None
-    """Why the run must end (the MPC process died or stalled); None while all is well."""
+    """Why the run must end (the MPC process could not be kept running); None while all is well."""
+    _plan: PlanT | None = None
+
+    @property
+    def plan(self) -> PlanT | None:
+        """The plan the low level follows now (None before the first, and while the safe ladder holds the
+        robot off the plans)."""
+        return self._plan if self.follower.following else None
+
+    @property
+    def newest_plan(self) -> PlanT | None:
+        """The newest plan received, followed or not."""
+        return self._plan
 
     @property
     @abstractmethod
@@ -83,6 +103,17 @@ class MpcLoop(ABC, Generic[PlanT]):
     def summary(self, duration: float | None = None) -> dict:
         """The ``mpc`` block of a run's metrics (update times, iterations, latency, fallback ticks); with the
         run's ``duration``, also the achieved update rate ``rate_hz``."""
+
+    def report_sensors(self, t: float, fault: str | None) -> None:
+        """A sensor has been out for too long (``fault``: which, since when): hold the robot off the plans
+        (balance) until all are back (``None``); plans count again once measured after that."""
+        self.follower.hold(t, "sensors", fault)
+
+    def fault_record(self, control_period: float) -> dict | None:
+        """What the safe ladder did (``NewestPlanFollower.record``), None when it never left the plans."""
+        if not self.follower.eventful:
+            return None
+        return {"ladder": self.follower.record(control_period)}
 
     def should_stop(self, t: float) -> bool:
         """Whether the run should end at ``t`` (after a ``failure``)."""

@@ -18,17 +18,22 @@ newest measurement, at most once per period, and runs the whole update.
 ``ProcessMpcLoop`` is the main-process side (``control.loop.MpcLoop``; the simulation's ``Controller``):
 ``start`` starts the MPC process (a new one on a later ``start``: a new planner, no stale warm start) and
 waits for its first plan; ``compute`` publishes each measurement, takes the newest plan as soon as it
-appears and runs the low-level controller on it, or the damped PD stance when there is no plan or the plan's
-horizon has run out (``control.plan_follower``). If the MPC process dies or stops delivering plans, the run
-keeps the last plan while it lasts, then holds the stance, and ``failure`` says why (the run then ends with
-``MpcProcessError``). ``close()`` (also on errors and Ctrl-C, via ``with``) stops the process and frees the
-shared memory; no process is left behind.
+appears and runs the low-level controller on it, or, when there is no fresh plan or the plan's
+horizon has run out, the safe ladder (``control.plan_follower``). The MPC process is supervised
+(``_supervise``, every tick): one that died is restarted, one that sends no plan for ``stall_timeout`` is
+stalled, taken back when its plans are fresh again or restarted after ``recovery.stall_restart_after``.
+A restart hands over to the standby, a second MPC process built beside the running one and waiting
+(``recovery.standby``; a new one is built ``STANDBY_AFTER`` s after the takeover), else starts a new process;
+either solves cold from the newest measurement. Past ``recovery.max_restarts_per_minute`` the robot stays in
+the damped stance and ``failure`` says why (the run then ends with ``MpcProcessError``). ``close()`` (also on
+errors and Ctrl-C, via ``with``) stops the processes and frees the shared memory; no process is left behind.
 """
 
 from __future__ import annotations
 
 import contextlib
 import logging
+import math
 import multiprocessing
 import os
 import signal
@@ -37,6 +42,7 @@ from collections.abc import Callable
 
 import numpy as np
 
+from cafe_mpc.config import RecoveryConfig
 from cafe_mpc.control.commands import CommandChannel, apply_command
 from cafe_mpc.control.ipc.channels import ControlBlock, MeasurementRing, PlanChannel, PlanLayout
 from cafe_mpc.control.loop import MpcLoop
@@ -52,6 +58,12 @@ from cafe_mpc.reference.base import Reference
 from cafe_mpc.robots.robot import Robot
 
 logger = logging.getLogger(__name__)
+
+STANDBY_POLL = 0.005
+"""s between a standby MPC process's looks at whether it is its turn (the takeover's delay at most)."""
+STANDBY_AFTER = 2.0
+"""s after an MPC process took over (its first plan) before a new standby is built beside it: the build
+takes the MPC's CPU for a few seconds, not while the gait resumes."""
 
 PlannerFactory = Callable[[], Planner]
 """Builds the planner inside the MPC process (must be picklable: a module-level function or a partial)."""
@@ -80,10 +92,14 @@ def _worker_main(
     control_name: str,
     control_period: float,
     period: float,
+    resync_after: float,
     parent_pid: int,
+    generation: int,
     results,
 ) -> None:
-    """The MPC process: measurements -> updates -> plans (module docstring), until told to stop."""
+    """The MPC process: measurements -> updates -> plans (module docstring), until told to stop. A standby
+    (``generation`` is not the control block's ``active``) builds its planner, says so and waits, built, until
+    it is made the active one (or told to stop)."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # the main process owns Ctrl-C and stops us
     _pin_to_cpu(-1)  # the last CPU; the 500 Hz loop keeps the first (see ProcessMpcLoop)
     nq, nv, n_feet = dimensions
@@ -94,7 +110,13 @@ def _worker_main(
     worker = None
     try:
         planner = factory()
-        worker = _Worker(planner, ring, plans, control, control_period, period, parent_pid)
+        worker = _Worker(
+            planner, ring, plans, control, control_period, period, resync_after, parent_pid, generation
+        )
+        if control.array[ControlBlock.ACTIVE] != generation:
+            control.array[ControlBlock.STANDBY_READY] = 1.0  # built; numba kernels loaded
+            if not worker.wait_turn():
+                return
         control.array[ControlBlock.RTI] = 1.0 if worker.rti else 0.0
         control.array[ControlBlock.READY] = 1.0  # built; numba kernels loaded
         try:
@@ -127,11 +149,18 @@ class _Worker:
         control: ControlBlock,
         control_period: float,
         period: float,
+        resync_after: float,
         parent_pid: int,
+        generation: int,
     ) -> None:
         self.planner, self.ring, self.plans, self.control = planner, ring, plans, control
+        self.generation = float(generation)
         self.control_period = control_period
         self.period = period
+        self.resync_ticks = max(round(resync_after / control_period), 1)
+        """A gap of more ticks than this between two looks at the measurements: solve cold (``_stopped``)."""
+        self._looked = -1
+        """The newest measurement's tick when this process last looked (``_stopped``)."""
         self.parent_pid = parent_pid
         self.buffer = np.zeros(ring.slot - 2)
         self.nq, self.nv = ring.nq, ring.nv
@@ -143,25 +172,65 @@ class _Worker:
         """Kernels compiled (or loaded) in this process after its cold solve (``core.compilation``)."""
 
     def running(self) -> bool:
-        """Until the stop flag is set or the main process is gone (do not outlive it)."""
-        return self.control.array[ControlBlock.STOP] == 0.0 and os.getppid() == self.parent_pid
+        """Until the stop flag is set, another process is made the active one, or the main process is gone
+        (do not outlive it)."""
+        array = self.control.array
+        return (
+            array[ControlBlock.STOP] == 0.0
+            and array[ControlBlock.ACTIVE] == self.generation
+            and os.getppid() == self.parent_pid
+        )
+
+    def wait_turn(self) -> bool:
+        """A standby: wait until this process is made the active one (True) or told to stop (False)."""
+        array = self.control.array
+        while array[ControlBlock.STOP] == 0.0 and os.getppid() == self.parent_pid:
+            if array[ControlBlock.ACTIVE] == self.generation:
+                return True
+            time.sleep(STANDBY_POLL)
+        return False
 
     def run(self) -> None:
         planner = self.planner
         last_tick = -1
         while self.running():
-            newest = self.ring.newest
+            if self._stopped() and planner.started:
+                self._resync()  # this process was stopped: its warm start is stale
+            newest = self._looked
             if newest < 0 or newest == last_tick:
                 time.sleep(0.0002)
                 continue
-            if not planner.started:  # the cold solve, on the first measurement
+            if not planner.started:  # the cold solve, on the first measurement (or after a resync)
                 if self.ring.read(newest, self.buffer):
                     last_tick = newest
                     self._publish(self._state_update(newest), newest)
                     if planner.started:  # the clock starts once the first plan is out
                         self.compiles.start()
-                continue
-            last_tick = self._rti_update(last_tick) if self.rti else self._one_phase_update(last_tick, newest)
+            elif self.rti:
+                last_tick = self._rti_update(last_tick)
+            else:
+                last_tick = self._one_phase_update(last_tick, newest)
+            self._looked = self.ring.newest  # an update's own time is no gap
+
+    def _stopped(self) -> bool:
+        """Whether the measurements moved on by more than ``resync_after`` since this process last looked
+        (between two looks it only sleeps a moment or runs an update: a longer gap means it was stopped, a
+        SIGSTOP or a machine that did not run it); look now (``_looked``). A slow update is no gap: a cold
+        solve that outlasts ``resync_after`` must not cause the next one."""
+        newest = self.ring.newest
+        gap = self._looked >= 0 and newest - self._looked > self.resync_ticks
+        self._looked = newest
+        return gap
+
+    def _resync(self) -> None:
+        """Forget the warm start (the planner's records stay): the next update is a cold solve from the
+        newest measurement (without the warm-up: its solver's data exist already)."""
+        statistics = self.planner.statistics
+        self.planner.reset()
+        self.planner.statistics = statistics
+        self.planner.settings.warm_up = 0.0  # its solver's data exist already: the cold solve alone
+        self.clock.reset()
+        self.control.array[ControlBlock.RESYNCS] += 1.0
 
     def _take_command(self, t: float) -> None:
         """Apply a runtime command posted since the last update, from ``t`` on."""
@@ -202,11 +271,17 @@ class _Worker:
             prepared = planner.prepare(t_next, predicted[: self.nq], predicted[self.nq :])
             if prepared:
                 self.clock.record_preparation(planner.statistics.prepare_times[-1])
-        while self.ring.newest < tick:
+        self._looked = self.ring.newest  # the preparation's own time is no gap
+        stopped = False
+        while not stopped and self.ring.newest < tick:
             if not self.running():
                 return last_tick
+            stopped = self._stopped()
             time.sleep(0.0001)
         nq, nv = self.nq, self.nv
+        if stopped or self._stopped():  # stopped while waiting: solve cold from the newest next
+            self._resync()
+            return tick
         if not self.ring.read(tick, self.buffer):  # overwritten (the prepare outlasted the ring): newest
             tick = self.ring.newest
             if not self.ring.read(tick, self.buffer):
@@ -235,8 +310,10 @@ class ProcessMpcLoop(MpcLoop[PlanT]):
 
     ``factory`` builds the planner in the MPC process; ``plan_format``: how its plans travel (the plan
     channel's layout, ``core.plan.PlanFormat``); ``period``: the MPC period; ``scheme``: the scheme the
-    planner is set to run (the MPC process reports the one it runs once it is ready). Use as a context manager
-    (or call ``close()``): it owns shared memory and, once started, a process.
+    planner is set to run (the MPC process reports the one it runs once it is ready); ``recovery`` and
+    ``balance``: the safe ladder's settings and balance controller, and the supervision's (stall timeout,
+    restarts). Use as a context manager (or call ``close()``): it owns shared memory and, once started, a
+    process.
     """
 
     def __init__(
@@ -249,18 +326,21 @@ class ProcessMpcLoop(MpcLoop[PlanT]):
         control_period: float = 0.002,
         scheme: str = "rti",
         startup_timeout: float = 120.0,
-        stall_timeout: float | None = None,
+        recovery: RecoveryConfig | None = None,
+        balance: LowLevelController | None = None,
     ) -> None:
         if not control_period > 0:
             raise ValueError(f"control period must be positive, got {control_period}")
         self.robot = robot
         self.factory = factory
         self.low_level = low_level
-        self.follower = NewestPlanFollower(robot, low_level)
+        self.recovery = recovery if recovery is not None else RecoveryConfig()
+        self.follower = NewestPlanFollower(robot, low_level, self.recovery, balance)
         self.period = period
         self.control_period = float(control_period)
         self.startup_timeout = startup_timeout
-        self.stall_timeout = stall_timeout if stall_timeout is not None else max(0.5, 10 * period)
+        stall = self.recovery.stall_timeout
+        self.stall_timeout = stall if stall is not None else max(0.5, 10 * period)
         self._scheme = scheme
         self.layout = PlanLayout(plan_format)
         self._measurements = MeasurementRing(robot.nq, robot.nv, robot.n_feet)
@@ -269,23 +349,46 @@ class ProcessMpcLoop(MpcLoop[PlanT]):
         self.commands = self._control.commands()
         """Runtime commands for the MPC process (``control.commands``), taken at its next update; a command
         posted before a (re)start is taken by the new process's first update."""
-        self.plan: PlanT | None = None
+        self._plan: PlanT | None = None
         self.received = MpcStatistics()
         """The plans as this side received them: latencies, measurement times, update wall times, and the
-        ticks of the PD fallback."""
+        ticks of the safe ladder off the plans."""
         self.worker_statistics: MpcStatistics | None = None
+        """The MPC process's own records, sent when it stops (the last process's, after restarts)."""
         self.worker_compilation: dict | None = None
-        """What the MPC process compiled after its cold solve (``core.compilation``), once it stopped."""
-        """The MPC process's own records, sent when it stops."""
+        """What the MPC process compiled after its cold solve (``core.compilation``), once it stopped (the
+        last process's, after restarts)."""
         self.worker_error: str | None = None
         self.failure: str | None = None
         self.process: multiprocessing.process.BaseProcess | None = None
+        """The MPC process that runs (its plans are followed)."""
         self._results = None
+        self.standby: multiprocessing.process.BaseProcess | None = None
+        """With ``recovery.standby``: an MPC process built beside it, waiting to take over at once."""
+        self._standby_results = None
+        self._standby_generation = 0
+        self._generation = 0
         self._reference: Reference | None = None
-        self._last_plan_time = 0.0
-        self._failure_time: float | None = None
         self._affinity = None
         self._closed = False
+        self._new_run()
+
+    def _new_run(self) -> None:
+        """Forget a previous run's supervision records."""
+        self.events: list[dict] = []
+        """What happened to the MPC process: ``{"t", "event", "detail"}`` (exited, stalled, resumed,
+        restarting, restarted, failed)."""
+        self.restarts: list[dict] = []
+        """Each restart: when (``t``), why, when the new process was built (``ready_at``) and sent its
+        first plan (``first_plan_at``), and ``restart_s`` between the two ends."""
+        self.processes = 0
+        """MPC processes started (standbys included)."""
+        self._restarting: dict | None = None
+        self._standby_due = math.inf
+        self._standby_exits: list[float] = []
+        self._stalled_at: float | None = None
+        self._last_plan_time = 0.0
+        self._failure_time: float | None = None
 
     # ------------------------------------------------------------------------------------ interface
     @property
@@ -330,47 +433,55 @@ class ProcessMpcLoop(MpcLoop[PlanT]):
 
     def start(self, t: float, measurement: Measurement) -> None:
         """Start the MPC process (after stopping the one a previous ``start`` started) on ``measurement``
-        and wait for its first plan: the cold solve runs before the clock starts, while the robot stands,
-        as on hardware."""
+        and wait for its first plan, and for the standby to be built (``recovery.standby``): the cold solve
+        runs before the clock starts, while the robot stands, as on hardware."""
         if self._closed:
             raise RuntimeError("this MPC loop is closed")
-        if self.process is not None:
-            self._stop_process()
+        if self.process is not None or self.standby is not None:
+            self._stop_processes()
             self._measurements.clear()
             self._plans.receive()  # a plan the stopped process published unread: not the new one's first
             self._control.array[: ControlBlock.COMMANDS] = 0.0
-            self.plan, self.failure, self._failure_time = None, None, None
+            self._plan, self.failure = None, None
             self.received, self.worker_statistics, self.worker_error = MpcStatistics(), None, None
             self.worker_compilation = None
+            self._new_run()
         self._spawn()
+        if self.recovery.standby:
+            self._spawn_standby()
         deadline = time.perf_counter() + self.startup_timeout
         stage("first (cold) MPC solve, in the MPC process")
         self.publish(t, measurement)
-        while self.plan is None:
+        while self._plan is None:
             self._poll_plan(t, record=False)
-            if self.plan is not None:
+            if self._plan is not None:
                 break
-            self._check_alive()
-            if self.failure is not None:
-                raise MpcProcessError(self.failure)
+            if not self.process.is_alive():
+                self._read_results()
+                detail = f": {self.worker_error}" if self.worker_error else ""
+                raise MpcProcessError(f"the MPC process exited (code {self.process.exitcode}){detail}")
             if time.perf_counter() > deadline:
                 raise MpcProcessError(f"the MPC process sent no plan within {self.startup_timeout:.0f} s")
             time.sleep(0.002)
+        while self.standby is not None and self._control.array[ControlBlock.STANDBY_READY] != 1.0:
+            if not self.standby.is_alive():
+                self._discard_standby()
+                detail = f": {self.worker_error}" if self.worker_error else ""
+                raise MpcProcessError(f"the standby MPC process exited while it was built{detail}")
+            if time.perf_counter() > deadline:
+                raise MpcProcessError(
+                    f"the standby MPC process was not built within {self.startup_timeout:.0f} s"
+                )
+            time.sleep(0.005)
         self._scheme = "rti" if self._control.array[ControlBlock.RTI] == 1.0 else "one_phase"
         self._last_plan_time = t
 
     def compute(self, t: float, measurement: Measurement) -> np.ndarray:
         self.publish(t, measurement)
         self._poll_plan(t, record=True)
-        plan = self.plan
-        if plan is not None and t - self._last_plan_time > self.stall_timeout and self.failure is None:
-            self._check_alive()
-            if self.failure is None:
-                self.failure = f"the MPC process delivered no plan for {t - self._last_plan_time:.2f} s"
-        if plan is not None and t >= plan.end_time and self.failure is None:
-            self._check_alive()
+        self._supervise(t)
         before = self.follower.fallback_ticks
-        torques = self.follower.compute(t, measurement, plan)
+        torques = self.follower.compute(t, measurement, self._plan)
         self.received.fallback_ticks += self.follower.fallback_ticks - before
         return torques
 
@@ -382,13 +493,31 @@ class ProcessMpcLoop(MpcLoop[PlanT]):
             self._failure_time = t
         return t - self._failure_time > 0.5
 
+    def fault_record(self, control_period: float) -> dict | None:
+        """The safe ladder's record and the MPC process's: its events, restarts (with how long each took from
+        the exit to the new process's first plan), how often it solved cold after being stopped, and the
+        failure if it could not be kept running; None when nothing happened."""
+        resyncs = int(self._control.array[ControlBlock.RESYNCS]) if not self._closed else self._resyncs
+        if not (self.follower.eventful or self.events or resyncs):
+            return None
+        record = {"ladder": self.follower.record(control_period)}
+        record["mpc"] = {
+            "processes": self.processes,
+            "events": list(self.events),
+            "restarts": list(self.restarts),
+            "resyncs": resyncs,
+            "stall_timeout_s": self.stall_timeout,
+            "failure": self.failure,
+        }
+        return record
+
     def close(self) -> None:
         """Stop the MPC process (politely, then by force) and free the shared memory. Idempotent."""
         if self._closed:
             return
+        self._resyncs = int(self._control.array[ControlBlock.RESYNCS])
         self._closed = True
-        if self.process is not None:
-            self._stop_process()
+        self._stop_processes()
         if self._affinity is not None:
             with contextlib.suppress(OSError):
                 os.sched_setaffinity(0, self._affinity)
@@ -396,15 +525,162 @@ class ProcessMpcLoop(MpcLoop[PlanT]):
         for channel in (self._measurements, self._plans, self._control):
             channel.close(unlink=True)
 
+    _resyncs = 0
+
     def publish(self, t: float, measurement: Measurement) -> None:
         """Write the measurement of the tick at ``t`` into the ring for the MPC process (never blocks)."""
         tick = round(t / self.control_period)
         self._measurements.write(tick, t, measurement.q, measurement.v, measurement.contacts)
 
+    # ------------------------------------------------------------------------------------ supervision
+    def _event(self, t: float, event: str, detail: str = "") -> None:
+        """Record (and log) what happened to the MPC process at ``t``."""
+        self.events.append({"t": round(float(t), 6), "event": event, "detail": detail})
+        logger.warning(
+            "t = %.3f s: MPC process %s%s", t, event.removeprefix("mpc_"), f": {detail}" * bool(detail)
+        )
+
+    def _supervise(self, t: float) -> None:
+        """Every tick: a dead process is restarted (or the loop fails, past the restart limit), one that
+        sends no plan for ``stall_timeout`` counts as stalled and, after ``recovery.stall_restart_after``
+        more, is killed and restarted; a new process that sends no plan within ``startup_timeout`` too."""
+        process = self.process
+        if self.failure is not None or process is None:
+            return
+        self._supervise_standby(t)
+        if not process.is_alive():
+            self._read_results()
+            detail = f"code {process.exitcode}" + (f", {self.worker_error}" if self.worker_error else "")
+            self._event(t, "mpc_exited", detail)
+            self._restart(t, f"the MPC process exited ({detail})")
+            return
+        restarting = self._restarting
+        if restarting is not None:
+            if restarting["ready_at"] is None and self._control.array[ControlBlock.READY] == 1.0:
+                restarting["ready_at"] = round(float(t), 6)
+            if t - restarting["t"] > self.startup_timeout:
+                self._restart(t, f"the new MPC process sent no plan within {self.startup_timeout:g} s")
+            return
+        silence = t - self._last_plan_time
+        if self._stalled_at is None and silence > self.stall_timeout:
+            self._stalled_at = t
+            self._event(t, "mpc_stalled", f"no plan for {silence:.2f} s")
+        elif self._stalled_at is not None and t - self._stalled_at > self.recovery.stall_restart_after:
+            self._restart(t, f"the MPC process sent no plan for {silence:.2f} s")
+
+    def _supervise_standby(self, t: float) -> None:
+        """A standby that died is noted (and replaced, unless ``max_restarts_per_minute`` standbys died in the
+        last minute); a new standby is built ``STANDBY_AFTER`` s after a takeover."""
+        standby = self.standby
+        if standby is not None and not standby.is_alive():
+            self._discard_standby()
+            self._standby_exits.append(t)
+            recent = sum(1 for exit_time in self._standby_exits if exit_time > t - 60.0)
+            replace = recent <= self.recovery.max_restarts_per_minute
+            self._event(
+                t,
+                "mpc_standby_exited",
+                f"code {standby.exitcode}" + ("" if replace else "; no standby from now on"),
+            )
+            self._standby_due = t + STANDBY_AFTER if replace else math.inf
+        elif (
+            standby is None and self.recovery.standby and self._restarting is None and t >= self._standby_due
+        ):
+            self._standby_due = math.inf
+            self._spawn_standby()
+            logger.info("t = %.3f s: a new standby MPC process is being built", t)
+
+    def _restart(self, t: float, reason: str) -> None:
+        """Replace the MPC process: the standby takes over when there is one (built, or still being built),
+        else a new process is started; either solves cold from the newest measurement. Unless
+        ``recovery.max_restarts_per_minute`` restarts happened in the last 60 s: then the loop fails and the
+        robot stays in the damped stance."""
+        self._poll_plan(t, record=True)  # the old process's last plan, if it sent one we have not read
+        recent = sum(1 for restart in self.restarts if restart["t"] > t - 60.0)
+        limit = self.recovery.max_restarts_per_minute
+        self._discard_process()
+        if recent >= limit:
+            self.failure = (
+                f"{reason}; {recent} restart(s) in the last minute, the limit "
+                f"(recovery.max_restarts_per_minute) is {limit}: the robot is held in the damped stance"
+            )
+            self.follower.fail(t, self.failure)
+            self._event(t, "mpc_failed", self.failure)
+            return
+        self._plans.abandon_write()
+        control = self._control.array
+        control[ControlBlock.STOP] = 0.0
+        control[ControlBlock.READY] = 0.0
+        self._stalled_at = None
+        self._standby_due = math.inf
+        standby = self.standby is not None and self.standby.is_alive()
+        if standby:
+            self._event(t, "mpc_restarting", f"{reason}; the standby MPC process takes over")
+            self.process, self._results = self.standby, self._standby_results
+            self.standby, self._standby_results = None, None
+            control[ControlBlock.STANDBY_READY] = 0.0
+            control[ControlBlock.ACTIVE] = float(self._standby_generation)
+        else:
+            self._event(t, "mpc_restarting", reason)
+            self._discard_standby()
+            self._spawn()
+        self._restarting = {
+            "t": round(float(t), 6),
+            "reason": reason,
+            "standby": standby,
+            "ready_at": None,
+            "first_plan_at": None,
+            "restart_s": None,
+        }
+        self.restarts.append(self._restarting)
+
+    def _discard_process(self) -> None:
+        """Kill the current MPC process if it still runs (a stopped one too), reap it, read what it sent."""
+        process = self.process
+        if process is None:
+            return
+        if process.is_alive():
+            process.kill()
+        process.join(timeout=2.0)
+        self._read_results()
+        with contextlib.suppress(Exception):
+            self._results.close()
+
+    def _discard_standby(self) -> None:
+        """Kill the standby if it still runs, reap it, read what it sent (an error while it was built)."""
+        standby, results = self.standby, self._standby_results
+        if standby is None:
+            return
+        self.standby, self._standby_results = None, None
+        if standby.is_alive():
+            standby.kill()
+        standby.join(timeout=2.0)
+        with contextlib.suppress(OSError, ValueError, EOFError):
+            while results.poll(0):
+                kind, payload = results.recv()
+                if kind == "error":
+                    self.worker_error = payload
+        with contextlib.suppress(Exception):
+            results.close()
+
     # ----------------------------------------------------------------------------------- the process
     def _spawn(self) -> None:
+        """Start the MPC process that runs (the control block's ``active`` generation)."""
+        self._generation += 1
+        self._control.array[ControlBlock.ACTIVE] = float(self._generation)
+        self.process, self._results = self._launch(self._generation)
+
+    def _spawn_standby(self) -> None:
+        """Start a standby MPC process: it builds its planner and waits until it is made the active one."""
+        self._generation += 1
+        self._control.array[ControlBlock.STANDBY_READY] = 0.0
+        self._standby_generation = self._generation
+        self.standby, self._standby_results = self._launch(self._generation)
+
+    def _launch(self, generation: int):
+        """Start an MPC process of ``generation``; its process and the pipe of what it sends."""
         context = multiprocessing.get_context("spawn")
-        self._results, child_end = context.Pipe(duplex=False)
+        results, child_end = context.Pipe(duplex=False)
         process = context.Process(
             target=_worker_main,
             args=(
@@ -416,31 +692,50 @@ class ProcessMpcLoop(MpcLoop[PlanT]):
                 self._control.name,
                 self.control_period,
                 self.period,
+                self.recovery.resync_after,
                 os.getpid(),
+                generation,
                 child_end,
             ),
             name="cafe-mpc-solver",
             daemon=True,
         )
-        process.start()
-        self.process = process  # started: from now on ``close`` stops it
+        process.start()  # started: from now on ``close`` stops it (the caller keeps it)
+        self.processes += 1
         child_end.close()
         if self._affinity is None:
             with contextlib.suppress(AttributeError, OSError):
                 self._affinity = os.sched_getaffinity(0)
         _pin_to_cpu(0)
+        return process, results
+
+    def _stop_processes(self) -> None:
+        """Stop the MPC process and the standby (the stop flag tells both), reap them."""
+        if self.process is not None:
+            self._stop_process()
+        standby = self.standby
+        if standby is not None:
+            standby.join(timeout=1.0)  # a built standby exits on the stop flag; one being built is killed
+            self._discard_standby()
 
     def _stop_process(self) -> None:
         """Set the stop flag, read what the process sends while it exits (its statistics can exceed the
-        pipe's buffer: joining first would deadlock), then make sure it is gone."""
+        pipe's buffer: joining first would deadlock), then make sure it is gone. A stopped process (SIGSTOP)
+        is continued first."""
         with contextlib.suppress(Exception):
             self._control.array[ControlBlock.STOP] = 1.0
+        if self.process.is_alive():
+            with contextlib.suppress(OSError):
+                os.kill(self.process.pid, signal.SIGCONT)
         deadline = time.perf_counter() + 5.0
         while time.perf_counter() < deadline:
-            if self._results.poll(0.02):
-                if not self._receive():
-                    break  # the process closed its end
-            elif not self.process.is_alive():
+            try:
+                if self._results.poll(0.02):
+                    if not self._receive():
+                        break  # the process closed its end
+                elif not self.process.is_alive():
+                    break
+            except (OSError, ValueError):  # its pipe is closed already (a discarded process)
                 break
         self.process.join(timeout=1.0)
         if self.process.is_alive():
@@ -449,19 +744,39 @@ class ProcessMpcLoop(MpcLoop[PlanT]):
         if self.process.is_alive():
             self.process.kill()
             self.process.join(timeout=2.0)
-        self._results.close()
+        with contextlib.suppress(Exception):
+            self._results.close()
 
     def _poll_plan(self, t: float, record: bool) -> None:
         received = self._plans.receive()
         if received is None:
             return
         plan, measured_at, wall = received
-        self.plan = plan
+        self._plan = plan
         self._last_plan_time = t
+        self.follower.new_plan(t, measured_at)
         if record:
             self.received.latencies.append(t - measured_at)
             self.received.start_times.append(measured_at)
             self.received.update_times.append(wall)
+        restarting = self._restarting
+        if restarting is not None:
+            restarting["first_plan_at"] = round(float(t), 6)
+            restarting["restart_s"] = round(float(t - restarting["t"]), 6)
+            self._restarting = None
+            self._standby_due = t + STANDBY_AFTER
+            self._scheme = "rti" if self._control.array[ControlBlock.RTI] == 1.0 else "one_phase"
+            self._event(t, "mpc_restarted", f"first plan {restarting['restart_s']:.2f} s after the restart")
+        elif self._stalled_at is not None:
+            self._event(t, "mpc_resumed", f"a plan again, {t - self._stalled_at:.2f} s after the stall")
+            self._stalled_at = None
+
+    def _read_results(self) -> None:
+        """Take every message the process has sent so far (never blocks)."""
+        with contextlib.suppress(OSError, ValueError, EOFError):
+            while self._results.poll(0):
+                if not self._receive():
+                    break
 
     def _receive(self) -> bool:
         """Take one message from the process; ``False`` once its end of the pipe is closed."""
@@ -476,13 +791,3 @@ class ProcessMpcLoop(MpcLoop[PlanT]):
         elif kind == "error":
             self.worker_error = payload
         return True
-
-    def _check_alive(self) -> None:
-        if self.process is None or self.process.is_alive() or self.failure is not None:
-            return
-        detail = ""
-        if self._results.poll(0):
-            self._receive()
-        if self.worker_error:
-            detail = f": {self.worker_error}"
-        self.failure = f"the MPC process exited (code {self.process.exitcode}){detail}"

@@ -1,31 +1,136 @@
-"""A controller fed by sensor readings: the state estimator in front of any ``core.controller.Controller``.
+"""The sensing front end, and a controller fed by sensor readings behind it.
 
-``SensingController(inner, estimator)`` is what the closed loop calls when the controller must see sensors
-(``estimator: kinematic_kf``): every tick it runs the estimator on the readings, with the stance flags of the
-plan ``inner`` follows now (``inner.plan``, if it has one: both MPC loops, ``control.inline`` and
-``control.process``, do), and hands the estimate to ``inner.compute``. It runs in the caller's thread at the
-control rate, in every timing mode and in ``--realtime`` (where ``inner`` publishes the estimate to the MPC
-process). Readings stamped earlier than the tick (a late sample) give an estimate of their own time, which is
-carried to the tick at constant velocity before the controller sees it. The estimate of every tick is
-recorded in preallocated arrays (``trace``) for the run's log and metrics.
+``SensorFrontEnd(estimator, limits)`` is what stands between a robot's sensors and its controller, in the
+simulation (``SensingController``) and in the library (``cafe_mpc.Controller.measurement_from_sensors``):
+
+1. every reading is checked sample by sample (``core.sensors.SensorGuard``): a missing or late sample, a
+   non-finite or out-of-range value is rejected and counted, the last good value held;
+2. the state estimator turns the checked reading into a ``Measurement``;
+3. an estimate that diverged (non-finite, or a base faster than ``estimate_speed_max``) restarts the
+   estimator from the robot standing where it was (its velocity from the stance legs), counted; so does the
+   end of an IMU outage that was long enough to hold the robot off its plans (the attitude and the velocity
+   integrated without it are stale; the robot stands in the balance stance). An encoder's outage needs no
+   restart: the other legs carried the estimate, and the leg is read again.
+
+``fault(t)`` says when the controller should hold the robot off its plans: a sensor out for longer than
+``outage_limit``, or the estimator restarted less than ``outage_limit`` ago. ``record()`` is the ``sensors``
+part of a run's ``faults`` block.
+
+``SensingController(inner, estimator, limits=...)`` is what the closed loop calls when the controller must
+see sensors (``estimator: kinematic_kf``): every tick it runs the front end on the readings, with the stance
+flags of the plan ``inner`` follows now (``inner.plan``, if it has one: both MPC loops, ``control.inline``
+and ``control.process``, do), tells ``inner`` of a sensor fault (``inner.report_sensors``, if it has one)
+and hands the estimate to ``inner.compute``. It runs in the caller's thread at the control rate, in every
+timing mode and in ``--realtime`` (where ``inner`` publishes the estimate to the MPC process). Readings
+stamped earlier than the tick (a late sample) give an estimate of their own time, which is carried to the
+tick at constant velocity before the controller sees it. The estimate of every tick is recorded in
+preallocated arrays (``trace``) for the run's log and metrics.
 """
 
 from __future__ import annotations
 
+import logging
+import math
+
 import numpy as np
 import pinocchio as pin
 
+from cafe_mpc.config import SensorLimits
 from cafe_mpc.core.controller import Controller
 from cafe_mpc.core.measurement import Measurement
-from cafe_mpc.core.sensors import SensorReadings
+from cafe_mpc.core.plan import KnotPlan
+from cafe_mpc.core.sensors import SensorGuard, SensorReadings
 from cafe_mpc.estimation.estimator import StateEstimator
+
+logger = logging.getLogger(__name__)
 
 LATE = 1e-6
 """s: readings older than the tick by more than this are brought forward to it."""
 
 
+class SensorFrontEnd:
+    """Readings -> ``SensorGuard`` -> ``StateEstimator`` -> divergence check -> ``Measurement`` (module
+    docstring). ``limits``: the config's ``recovery.sensors`` (default: ``SensorLimits()``)."""
+
+    def __init__(self, estimator: StateEstimator, limits: SensorLimits | None = None) -> None:
+        robot = estimator.robot
+        self.estimator = estimator
+        self.limits = limits if limits is not None else SensorLimits()
+        self.guard = SensorGuard(
+            self.limits, robot.position_lower, robot.position_upper, robot.velocity_limits, robot.joint_names
+        )
+        self.position_xy = np.zeros(2)
+        self._last_xy = np.zeros(2)
+        self.reset()
+
+    def reset(self, position_xy: tuple[float, float] | np.ndarray = (0.0, 0.0)) -> None:
+        """A new run: the estimator starts with the robot standing at ``position_xy`` at the next reading."""
+        self.position_xy[:] = position_xy
+        self._last_xy[:] = position_xy
+        self.estimator.reset(self.position_xy)
+        self.guard.reset()
+        self.estimator_resets: list[dict] = []
+        """When the estimator was restarted, and why (``t``, ``why``)."""
+        self._imu_out = False
+
+    def measure(
+        self, readings: SensorReadings, plan: KnotPlan | None, plan_time: float | None = None
+    ) -> Measurement:
+        """The estimate of ``readings`` (checked first), with the stance of ``plan`` looked up at
+        ``plan_time`` (default: the readings' time)."""
+        checked = self.guard.check(readings)
+        t = float(checked.time)
+        imu_out = self.guard.imu_out_for(t) > self.limits.outage_limit
+        if self._imu_out and not imu_out:
+            self._restart(t, "the end of an IMU outage")
+        self._imu_out = imu_out
+        measurement = self.estimator.update(checked, plan, plan_time)
+        if not self._plausible(measurement):
+            self._restart(t, "the estimate diverged")
+            measurement = self.estimator.update(checked, plan, plan_time)
+        else:
+            self._last_xy[:] = measurement.q[:2]
+        return measurement
+
+    def _restart(self, t: float, why: str) -> None:
+        """Restart the estimator standing where the last plausible estimate had the robot."""
+        self.estimator_resets.append({"t": round(t, 6), "why": why})
+        logger.warning("t = %.3f s: the state estimator restarts standing (%s)", t, why)
+        self.estimator.reset(self._last_xy, moving=True)
+
+    def _plausible(self, measurement: Measurement) -> bool:
+        velocity = self.estimator.world_velocity
+        speed = math.sqrt(float(np.dot(velocity, velocity)))
+        return (
+            speed <= self.limits.estimate_speed_max  # NaN fails too
+            and bool(np.all(np.isfinite(measurement.q)))
+            and bool(np.all(np.isfinite(measurement.v)))
+        )
+
+    def fault(self, t: float) -> str | None:
+        """Why the robot should be held off its plans at ``t`` (a sensor out too long, the estimator
+        restarting), else None."""
+        outage = self.guard.outage(t)
+        if outage is not None:
+            return outage
+        if self.estimator_resets and t - self.estimator_resets[-1]["t"] <= self.limits.outage_limit:
+            last = self.estimator_resets[-1]
+            return f"the state estimator restarted at t = {last['t']:.3f} s ({last['why']})"
+        return None
+
+    @property
+    def eventful(self) -> bool:
+        """Whether any sample was rejected or the estimator restarted."""
+        return bool(self.guard.counts or self.guard.outages or self.estimator_resets)
+
+    def record(self) -> dict:
+        """Rejected samples by kind, the sensors' outages, the estimator's restarts."""
+        return {**self.guard.summary(), "estimator_resets": [dict(reset) for reset in self.estimator_resets]}
+
+
 class SensingController:
-    """Sensor readings -> ``StateEstimator`` -> ``inner`` (see the module docstring).
+    """Sensor readings -> ``SensorFrontEnd`` (``estimator``, ``limits``) -> ``inner`` (see the module
+    docstring).
 
     ``capacity``: ticks to preallocate for the record (it grows if a run outlasts it); ``position_xy``: the
     base's x-y where the run starts (the odometry origin, ``StateEstimator.reset``).
@@ -37,17 +142,20 @@ class SensingController:
         estimator: StateEstimator,
         capacity: int = 0,
         position_xy: tuple[float, float] = (0.0, 0.0),
+        limits: SensorLimits | None = None,
     ) -> None:
         self.inner = inner
+        self.front_end = SensorFrontEnd(estimator, limits)
         self.estimator = estimator
         self.position_xy = (float(position_xy[0]), float(position_xy[1]))
-        robot = estimator.robot
+        robot = self.estimator.robot
         capacity = max(int(capacity), 1)
         self._q = np.zeros((capacity, robot.nq))
         self._v = np.zeros((capacity, robot.nv))
         self._contacts = np.zeros((capacity, robot.n_feet), dtype=bool)
         self._trust = np.zeros((capacity, robot.n_feet))
         self._count = 0
+        self._reported: str | None = None
         self._step = np.zeros(robot.nv)
         self.late_ticks = 0
         """Ticks whose readings were older than the tick and were brought forward (``_bring_forward``)."""
@@ -60,17 +168,29 @@ class SensingController:
 
     def reset(self) -> None:
         self.inner.reset()
-        self.estimator.reset(self.position_xy)
+        self.front_end.reset(self.position_xy)
         self._count = 0
+        self._reported = None
         self.late_ticks = 0
 
     def compute(self, t: float, readings: SensorReadings) -> np.ndarray:
-        measurement = self.estimator.update(readings, self.plan)
+        measurement = self.front_end.measure(readings, self.plan)
         if t - measurement.time > LATE:
             self._bring_forward(measurement, t)
         self.last_measurement = measurement
         self._record(measurement)
+        fault = self.front_end.fault(t)
+        if fault != self._reported:
+            report = getattr(self.inner, "report_sensors", None)
+            if report is not None:
+                report(t, fault)
+            self._reported = fault
         return self.inner.compute(t, measurement)
+
+    def fault_record(self) -> dict | None:
+        """The ``sensors`` part of the run's ``faults`` block (``SensorFrontEnd.record``), None when every
+        sample was good."""
+        return self.front_end.record() if self.front_end.eventful else None
 
     def _bring_forward(self, measurement: Measurement, t: float) -> None:
         """A late sample (its readings stamped ``measurement.time``, ``t`` now: a bus or a driver delayed

@@ -238,6 +238,7 @@ class StateEstimator:
         self._position_xy = np.zeros(2)
         self._last_time = 0.0
         self._started = False
+        self._moving = False
         self.measurement = Measurement.zeros(robot.nq, robot.nv, n_feet)
         if len(self.measurement.q) - 7 != nj:
             raise ValueError("the estimator expects a floating base with 7 configuration coordinates")
@@ -298,10 +299,14 @@ class StateEstimator:
     def started(self) -> bool:
         return self._started
 
-    def reset(self, position_xy: tuple[float, float] | np.ndarray = (0.0, 0.0)) -> None:
-        """Forget the run; the next ``update`` initialises the filter with its base at ``position_xy``."""
+    def reset(self, position_xy: tuple[float, float] | np.ndarray = (0.0, 0.0), moving: bool = False) -> None:
+        """Forget the run; the next ``update`` initialises the filter with its base at ``position_xy``.
+        ``moving``: a restart during a run (the sensing front end's): the velocity starts from the legs'
+        kinematics of the feet on the ground, not at zero (a wrong start would make every foot disagree
+        with the prediction, taken for slipping, and the error would stay)."""
         self._position_xy[:] = position_xy
         self._started = False
+        self._moving = moving
         self.contacts.reset()
 
     # ------------------------------------------------------------------------------------------ update
@@ -436,7 +441,8 @@ class StateEstimator:
                 self.ground_height[foot] = self.foot_height
 
     def _initialise(self, t: float) -> None:
-        """The robot standing: base height from the feet in planned stance (all if none), velocity zero."""
+        """The robot standing: base height from the feet in planned stance (all if none), velocity zero (or,
+        restarted ``moving``, the stance legs' mean)."""
         settings = self.settings
         relative = self.legs.relative
         stance = self.in_contact if np.any(self.in_contact) else np.ones(self.n_feet, dtype=np.bool_)
@@ -444,6 +450,8 @@ class StateEstimator:
         self.x[:] = 0.0
         self.x[:2] = self._position_xy
         self.x[2] = height
+        if self._moving:
+            self.x[3:6] = self.base_velocity[stance].mean(axis=0)
         start = self.feet_start
         for foot in range(self.n_feet):
             self.x[start + 3 * foot : start + 3 + 3 * foot] = self.x[:3] + relative[foot]

@@ -1,9 +1,11 @@
 """The low-level controllers a run config's ``wbc`` key names, and the low level of a run.
 
 ``LOW_LEVELS``: ``wbc`` -> ``LowLevelEntry`` (how a run config builds it, the plan type it follows): ``pd``
-(joint PD standing; it follows no plan and runs alone, without a planner), ``riccati`` (Eq. (33)) and ``vwbc``
-(Eq. (34)) on CAFE-MPC's ``Plan``. ``build_low_level(run, planner)``: the planner's own low level when its
-slice has one (the template's), else the ``wbc`` entry, which must follow the planner's plan type.
+(joint PD standing) and ``balance`` (the safe ladder's balance controller, ``low_level.balance``) follow no
+plan and run alone, without a planner; ``riccati`` (Eq. (33)) and ``vwbc`` (Eq. (34)) follow CAFE-MPC's
+``Plan``. ``build_balance(run)`` is also what every MPC loop's safe ladder holds the robot with.
+``build_low_level(run, planner)``: the planner's own low level when its slice has one (the template's), else
+the ``wbc`` entry, which must follow the planner's plan type.
 """
 
 from __future__ import annotations
@@ -13,6 +15,7 @@ from dataclasses import dataclass
 
 from cafe_mpc.config import ConfigError
 from cafe_mpc.core.controller import LowLevelController
+from cafe_mpc.low_level.balance import BalanceController
 from cafe_mpc.low_level.pd import PDController
 from cafe_mpc.low_level.riccati import RiccatiController
 from cafe_mpc.low_level.vwbc import VWBCController
@@ -37,6 +40,16 @@ class LowLevelEntry:
 def build_pd(run: ResolvedRun) -> PDController:
     """Joint PD standing: the ``pd`` section, its gains carried to the robot."""
     return PDController(run.robot, run.config.pd, run.scale)
+
+
+def build_balance(run: ResolvedRun) -> BalanceController:
+    """The balance controller (``recovery.balance``): its gains scaled to the robot as the PD gains are, the
+    run's torque limits and the friction the MPC assumes."""
+    config, scale = run.config, run.scale
+    settings = config.recovery.balance
+    gains = {"kp": scale.stiffness(settings.kp), "kd": scale.damping(settings.kd)}
+    scaled = settings.model_copy(update=gains)
+    return BalanceController(run.robot, scaled, run.torque_limits.copy(), run.contact.friction)
 
 
 def build_riccati(run: ResolvedRun) -> RiccatiController:
@@ -65,6 +78,7 @@ LOW_LEVELS: Registry[LowLevelEntry] = Registry(
     "low-level controller",
     {
         "pd": LowLevelEntry(build_pd, None),
+        "balance": LowLevelEntry(build_balance, None),
         "riccati": LowLevelEntry(build_riccati, Plan),
         "vwbc": LowLevelEntry(build_vwbc, Plan),
     },

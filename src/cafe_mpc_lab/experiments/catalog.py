@@ -5,6 +5,7 @@ from __future__ import annotations
 from cafe_mpc.config import ConfigError
 from cafe_mpc_lab.experiments.command_ranges import CommandRanges
 from cafe_mpc_lab.experiments.envelope import Envelope
+from cafe_mpc_lab.experiments.faults import Faults
 from cafe_mpc_lab.experiments.latency import Latency
 from cafe_mpc_lab.experiments.push import Push
 from cafe_mpc_lab.experiments.registry import Experiment
@@ -32,6 +33,7 @@ EXPERIMENTS: tuple[type[Experiment], ...] = (
     Robots,
     CommandRanges,
     Terrain,
+    Faults,
 )
 """The experiments, in the order ``cafe-mpc experiment --list`` shows them."""
 

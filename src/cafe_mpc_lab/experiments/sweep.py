@@ -10,7 +10,10 @@
    --nthreads 1``); ``scheduler="synchronous"`` runs everything in this process, one run after the other
    (debugging, profiling);
 3. submits one task per run (``execute_task``: simulate, compute the metrics and the experiment's summary in
-   the worker, return the run's files as bytes, so workers need no shared file system);
+   the worker, return the run's files as bytes, so workers need no shared file system); real-time runs
+   (``simulation.realtime``: an experiment's variant may ask for one) run in this process instead, one after
+   the other once the others are done: each needs the machine to itself, and a worker may not start the
+   MPC process;
 4. as each task completes, writes its folder (``<out>/<run>/``, renamed into place when complete) and
    appends its row to ``results.csv`` (flushed to disk), with a progress bar over the runs;
 5. at the end writes ``comparison.json``, ``comparison.md``, ``comparison.png`` (and the experiment's own
@@ -323,11 +326,28 @@ def _run_pending(
         write(f"[{done}/{total}] {prepared.experiment.name}: {variant.name}: {_outcome_text(row)}")
         bar.update(1)
 
+    # real-time runs (the MPC in its own process, against the wall clock) run here, one after the other once
+    # the others are done: each needs the machine to itself, and a Dask worker may not start processes
+    here = [name for name in tasks if client is None or prepared.configs[name].simulation.realtime]
     try:
-        if client is None:
-            for task in tasks.values():
-                record(execute_task(task))
-            return
+        if client is not None:
+            _run_on_cluster(client, {name: task for name, task in tasks.items() if name not in here}, record)
+        for name in here:
+            record(execute_task(tasks[name]))
+    except KeyboardInterrupt:
+        bar.close()
+        say(
+            f"interrupted: {done} of {total} runs finished in {out_dir}; continue with the same command and "
+            f"--resume --out {out_dir}"
+        )
+        raise
+    finally:
+        bar.close()
+
+
+def _run_on_cluster(client: Any, tasks: dict[str, RunTask], record: Callable[[RunOutcome], None]) -> None:
+    """Submit ``tasks`` to the Dask cluster and ``record`` each outcome as it completes."""
+    if tasks:
         from distributed import as_completed
 
         futures = {
@@ -346,15 +366,6 @@ def _run_pending(
         except BaseException:
             client.cancel(list(futures))
             raise
-    except KeyboardInterrupt:
-        bar.close()
-        say(
-            f"interrupted: {done} of {total} runs finished in {out_dir}; continue with the same command and "
-            f"--resume --out {out_dir}"
-        )
-        raise
-    finally:
-        bar.close()
 
 
 def _outcome_text(row: dict) -> str:

@@ -474,7 +474,7 @@ def _low_level_findings(metrics: dict) -> list[Finding]:
     if pd:
         ticks = metrics.get("control_ticks")
         share = f" of {ticks}" if ticks else ""
-        parts.append(f"{pd}{share} ticks held by the PD standing fallback (no plan in effect)")
+        parts.append(f"{pd}{share} ticks held off the plans by the safe ladder (balance or damped stance)")
         status = "warn"
     for key, words in (
         ("torque_limit_violations", "over the torque limits"),

@@ -3,9 +3,10 @@
 ``build_plant(run)`` builds the plant of a resolved run's ``plant.kind`` (``PLANTS``) with its scene (terrain,
 the bar), its variation (``sim.randomization``), its sensors (what the controller reads: the state through
 ``plant.sensor_noise`` and the latency jitter, or the robot's sensor readings when an estimator runs,
-``sim.sensors``) and its height-map sensor (``plant.height_map``, ``sim.height_map``), and the
-``SimulationOptions`` of the config: duration, control rate, the start state, pushes, fall criteria (from the
-terrain under the base) and, in real time, the wall-clock pacer. The controller's ``Robot`` stays nominal.
+``sim.sensors``, with the sensor faults of ``plant.faults``, ``sim.faults``) and its height-map sensor
+(``plant.height_map``, ``sim.height_map``), and the ``SimulationOptions`` of the config: duration, control
+rate, the start state, pushes, fall criteria (from the terrain under the base) and, in real time, the
+wall-clock pacer. The controller's ``Robot`` stays nominal.
 
 A new plant is one module with a ``sim.plant.Plant`` and one line in ``PLANTS`` (and its name among the
 config's ``plant.kind`` values).
@@ -17,9 +18,10 @@ import functools
 from collections.abc import Callable
 from dataclasses import dataclass
 
-from cafe_mpc.config import RunConfig
+from cafe_mpc.config import SENSOR_FAULTS, ConfigError, RunConfig
 from cafe_mpc.planners.resolved import ResolvedRun
 from cafe_mpc.robots.robot import Robot
+from cafe_mpc_lab.sim.faults import FaultySensors, joint_index
 from cafe_mpc_lab.sim.gym_plant import GymQuadrupedPlant
 from cafe_mpc_lab.sim.loop import FallCriteria, Push, SimulationOptions, WallClockPacer
 from cafe_mpc_lab.sim.mujoco_plant import MujocoPlant
@@ -49,10 +51,21 @@ def plant_factory(kind: str) -> PlantFactory:
 
 def plant_sensors(config: RunConfig, robot: Robot) -> PlantSensors:
     """What the controller reads: the robot's sensor readings for a state estimator
-    (``plant.sensors``), else the true state through ``plant.sensor_noise`` and the latency jitter."""
+    (``plant.sensors``, with ``plant.faults``' sensor faults), else the true state through
+    ``plant.sensor_noise`` and the latency jitter. ``ConfigError`` naming the key for a fault's unknown
+    joint."""
     rate = config.simulation.control_rate_hz
     if config.estimator != "ground_truth":
-        return SensorSuite(robot.nu, sensor_spec(config.plant, rate), rate)
+        suite = SensorSuite(robot.nu, sensor_spec(config.plant, rate), rate)
+        faults = [fault for fault in config.plant.faults if fault.kind in SENSOR_FAULTS]
+        if not faults:
+            return suite
+        for index, fault in enumerate(config.plant.faults):
+            try:
+                joint_index(fault.joint, robot.joint_names)
+            except ValueError as error:
+                raise ConfigError(f"plant.faults.{index}.joint: {error}") from error
+        return FaultySensors(suite, faults, robot.joint_names)
     return sensor_model(config.plant, rate)
 
 

@@ -5,7 +5,8 @@ The controller sees what the plant's sensors give it (``Plant.sensors``: the sta
 hold) until its next call. Push disturbances are world-frame forces on the base over time intervals. Every
 control tick is logged into preallocated arrays; the log records the plant's true state. The plant comes
 built (its scene, variation and sensors: ``sim.assembly.build_plant`` for a run config); what the loop does
-to it is a ``SimulationOptions``.
+to it is a ``SimulationOptions``. ``Simulation`` keeps its log when the run ends early, by an error or
+Ctrl-C: ``simulation.log`` then holds every tick simulated (a run's record up to that point).
 """
 
 from __future__ import annotations
@@ -191,7 +192,8 @@ class SimulationOptions:
     run against the wall clock (tick ``k`` starts ``k / control_rate_hz`` seconds after the clock starts;
     ``WallClockPacer``), the real-time mode; without it the simulation runs as fast as it can. ``stop(t)``:
     end the run early when it returns true (checked after each tick). ``observer``: watches the plant after
-    every tick (the live viewer) and may end the run early.
+    every tick (the live viewer) and may end the run early. ``before_tick(t)``: called at the start of each
+    tick, before the plant is read (fault injection, ``sim.faults``).
     """
 
     duration: float
@@ -205,6 +207,7 @@ class SimulationOptions:
     pacer: WallClockPacer | None = None
     stop: Callable[[float], bool] | None = None
     observer: Observer | None = None
+    before_tick: Callable[[float], None] | None = None
 
     def __post_init__(self) -> None:
         if not self.duration > 0:
@@ -220,46 +223,89 @@ class SimulationOptions:
 def simulate(
     plant: Plant, controller: Controller | SensorController, options: SimulationOptions
 ) -> SimulationLog:
-    """Run ``controller`` on ``plant`` for ``options.duration`` seconds of simulated time.
+    """Run ``controller`` on ``plant`` for ``options.duration`` seconds of simulated time (``Simulation``)."""
+    return Simulation(plant, controller, options).run()
+
+
+class Simulation:
+    """One closed-loop run of ``controller`` on ``plant`` (``run``).
 
     The controller gets what ``plant.sensors`` measure (a ``SensorController`` when they are the robot's
     sensor readings, ``sim.sensors.SensorSuite``); their summary goes into the log's ``extra``. With a bar
     in the plant's scene (``sim.bar``) the log's ``extra`` holds ``bar_contact`` (per tick: a robot geom
     touched it) and ``bar`` (``touched_by``: those geoms). A plant with a height-map sensor
-    (``Plant.height_map``) measures its maps at their rate and the log's ``sampled`` holds them.
+    (``Plant.height_map``) measures its maps at their rate and the log's ``sampled`` holds them. Kernels
+    compiled once the run proper has started are in the log's ``extra["compilation"]``
+    (``core.compilation``). ``log``: None before ``run``; after it returns or raises, the log of every tick
+    simulated.
     """
-    robot = plant.robot
-    control_period = 1.0 / options.control_rate_hz
-    substeps = round(control_period / plant.timestep)
-    if substeps < 1 or abs(substeps * plant.timestep - control_period) > 1e-9:
-        raise ValueError(
-            f"control period {control_period} s must be a whole multiple of the plant step {plant.timestep} s"
-        )
-    fall, pacer, observer = options.fall, options.pacer, options.observer
-    progress, stop = options.progress, options.stop
-    sensors, height_maps = plant.sensors, plant.height_map
-    plant.reset(robot.q_standing if options.initial_q is None else options.initial_q, options.initial_v)
-    if observer is not None:
-        observer.start(plant)
-    controller.reset()
-    sensors.reset()
-    if height_maps is not None:
-        height_maps.reset()
-    ticks = round(options.duration * options.control_rate_hz)
-    log = SimulationLog.allocate(ticks, robot.nq, robot.nv, robot.nu, robot.n_feet)
-    bar_contact = np.zeros(ticks, dtype=bool)
-    if plant.bar is not None:  # sim.bar: which ticks a robot geom touched the bar (log.npz extra_bar_contact)
-        log.extra["bar_contact"] = bar_contact
-    external = np.zeros(3)
-    if pacer is not None:
-        pacer.start(control_period, ticks)
-    start_wall = time.perf_counter()
-    compiles = CompileWatch()  # kernels compiled once the run proper has started (``core.compilation``)
-    try:
+
+    def __init__(
+        self, plant: Plant, controller: Controller | SensorController, options: SimulationOptions
+    ) -> None:
+        self.plant = plant
+        self.controller = controller
+        self.options = options
+        self.log: SimulationLog | None = None
+        self.compiles = CompileWatch()
+
+    def run(self) -> SimulationLog:
+        plant, controller, options = self.plant, self.controller, self.options
+        robot = plant.robot
+        control_period = 1.0 / options.control_rate_hz
+        substeps = round(control_period / plant.timestep)
+        if substeps < 1 or abs(substeps * plant.timestep - control_period) > 1e-9:
+            raise ValueError(
+                f"control period {control_period} s must be a whole multiple of the plant step "
+                f"{plant.timestep} s"
+            )
+        sensors, height_maps = plant.sensors, plant.height_map
+        plant.reset(robot.q_standing if options.initial_q is None else options.initial_q, options.initial_v)
+        if options.observer is not None:
+            options.observer.start(plant)
+        controller.reset()
+        sensors.reset()
+        if height_maps is not None:
+            height_maps.reset()
+        ticks = round(options.duration * options.control_rate_hz)
+        log = SimulationLog.allocate(ticks, robot.nq, robot.nv, robot.nu, robot.n_feet)
+        bar_contact = np.zeros(ticks, dtype=bool)
+        if plant.bar is not None:  # sim.bar: which ticks a robot geom touched the bar (extra_bar_contact)
+            log.extra["bar_contact"] = bar_contact
+        if options.pacer is not None:
+            options.pacer.start(control_period, ticks)
+        start_wall = time.perf_counter()
+        try:
+            self._ticks(log, bar_contact, ticks, control_period, substeps)
+        finally:
+            self.compiles.stop()
+            log.wall_time = time.perf_counter() - start_wall
+            if options.pacer is not None:
+                log.extra["realtime"] = options.pacer.summary(log.ticks)
+            log.extra.update(sensors.log_extra())
+            log.extra["compilation"] = self.compiles.summary()
+            if height_maps is not None:
+                log.sampled.update(height_maps.log_arrays())
+            if plant.bar is not None:
+                log.extra["bar"] = {"touched_by": plant.bar_touched_by()}
+            self.log = log.trimmed()
+        return self.log
+
+    def _ticks(
+        self, log: SimulationLog, bar_contact: np.ndarray, ticks: int, control_period: float, substeps: int
+    ) -> None:
+        plant, controller, options = self.plant, self.controller, self.options
+        robot = plant.robot
+        fall, pacer, observer = options.fall, options.pacer, options.observer
+        progress, stop, before_tick = options.progress, options.stop, options.before_tick
+        sensors, height_maps = plant.sensors, plant.height_map
+        external = np.zeros(3)
         for tick in range(ticks):
             t = tick * control_period
             if pacer is not None:
                 pacer.wait(tick)
+            if before_tick is not None:
+                before_tick(t)
             state = plant.read_state()
             if height_maps is not None:  # a map when one is due (the controllers do not take maps yet)
                 height_maps.observe(t, state.q)
@@ -299,7 +345,7 @@ def simulate(
                 pacer.mark(tick, TickPart.STEP)
             if tick == 0:  # the first tick ran the cold solve (and the warm-up): the run proper starts now
                 stage(f"running {options.duration:g} s of simulated time")
-                compiles.start()
+                self.compiles.start()
             if progress is not None:
                 progress(control_period)
             if stop is not None and stop(t):
@@ -307,18 +353,6 @@ def simulate(
             if observer is not None and not observer.update(t + control_period, plant):
                 logger.warning("run stopped at t = %.3f s: %s", t + control_period, observer.stop_reason)
                 break
-    finally:
-        compiles.stop()
-    log.wall_time = time.perf_counter() - start_wall
-    if pacer is not None:
-        log.extra["realtime"] = pacer.summary(log.ticks)
-    log.extra.update(sensors.log_extra())
-    log.extra["compilation"] = compiles.summary()
-    if height_maps is not None:
-        log.sampled.update(height_maps.log_arrays())
-    if plant.bar is not None:
-        log.extra["bar"] = {"touched_by": plant.bar_touched_by()}
-    return log.trimmed()
 
 
 class TickPart:

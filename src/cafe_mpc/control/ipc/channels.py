@@ -6,8 +6,9 @@
 * ``PlanChannel`` (MPC -> loop): the newest plan, the time of the measurement it was solved from and its
   update's statistics, behind one seqlock; any plan type, laid out by its ``core.plan.PlanFormat``
   (``PlanLayout``);
-* ``ControlBlock`` (both ways): the stop flag, the ready flag and the scheme the MPC process runs, and the
-  runtime command channel (``control.commands``).
+* ``ControlBlock`` (both ways): the stop flag, the ready flag, the scheme the MPC process runs, how often it
+  solved cold again after a gap (``resyncs``), which MPC process may run (``active``, with a standby waiting
+  built beside it) and the runtime command channel (``control.commands``).
 """
 
 from __future__ import annotations
@@ -162,18 +163,29 @@ class PlanChannel:
         self._seen = sequence
         return self.layout.read(self._copy)
 
+    def abandon_write(self) -> None:
+        """The writer died (a killed MPC process): close a write it left under way, so that the next writer's
+        plans read again, without ever reading the torn one."""
+        lock = self.lock
+        if int(lock.sequence) % 2:
+            lock.end_write()
+            self._seen = lock.sequence
+
     def close(self, unlink: bool) -> None:
         self.lock = None  # type: ignore[assignment]
         self.shared.close(unlink)
 
 
 class ControlBlock:
-    """``[stop, ready, rti, command channel]`` (module docstring): the loop sets ``stop``, the MPC process
-    sets ``ready`` once its planner is built and ``rti`` when it runs the real-time iteration; the command
-    channel (``COMMAND_SIZE`` + 1 values) carries runtime commands to the MPC process."""
+    """``[stop, ready, rti, resyncs, active, standby_ready, command channel]`` (module docstring): the loop
+    sets ``stop`` and ``active`` (the generation of the MPC process that may run; a standby process waits,
+    built, until it is its own), the running MPC process sets ``ready`` once its planner is built, ``rti``
+    when it runs the real-time iteration and counts its cold solves after a gap in ``resyncs``, a standby
+    sets ``standby_ready`` once built; the command channel (``COMMAND_SIZE`` + 1 values) carries runtime
+    commands to the MPC process."""
 
-    STOP, READY, RTI = 0, 1, 2
-    COMMANDS = 3
+    STOP, READY, RTI, RESYNCS, ACTIVE, STANDBY_READY = 0, 1, 2, 3, 4, 5
+    COMMANDS = 6
 
     def __init__(self, name: str | None = None) -> None:
         self.shared = SharedArray(self.COMMANDS + 1 + COMMAND_SIZE, name)
