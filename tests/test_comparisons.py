@@ -192,6 +192,7 @@ def test_experiment_help_and_list_show_the_registry(capsys):
         "robots",
         "command-ranges",
         "terrain",
+        "faults",
     ]
     assert experiment_names() == names
     with pytest.raises(SystemExit):

@@ -360,6 +360,10 @@ def run(
     (module docstring: also when the run fails or is interrupted, then marked so in ``metrics.json`` and
     the error raised again once the record is written). ``viewer``: watch it live in MuJoCo's viewer
     (``simulate_run``)."""
+    if viewer:  # before anything is written: a missing display is one clear line, not a failed run's record
+        from cafe_mpc_lab.sim.viewer import check_display
+
+        check_display()
     partial: Path | None = None
     handler: logging.Handler | None = None
     package_loggers = [logging.getLogger(name) for name in LOGGERS]
