@@ -193,8 +193,27 @@ def _tread_height(treads: Sequence[Tread], x: float) -> float | None:
     return None
 
 
+class _Treads:
+    """What a piece made of flat treads (``treads``: name, start, end, height) answers from them: where it
+    ends, its boxes and its height under a point (``Steps``, ``Stairs``)."""
+
+    treads: list[Tread]
+    center_y: float
+    width: float
+
+    @property
+    def end(self) -> float:
+        return self.treads[-1][2]
+
+    def boxes(self) -> list[Box]:
+        return _tread_boxes(self.treads, self.center_y, self.width)
+
+    def height_at(self, x: float, y: float = 0.0) -> float | None:
+        return _tread_height(self.treads, x) if _across(self, y) else None
+
+
 @dataclass(frozen=True)
-class Steps:
+class Steps(_Treads):
     """``count`` steps of ``rise`` m, each ``run`` m deep, a top of ``top_length`` m, then down."""
 
     start: float = 1.0
@@ -220,19 +239,9 @@ class Steps:
         risers = [(str(step), self.run, (step + 1) * self.rise) for step in range(self.count)]
         return _staircase(self.start, risers, self.top_length, self.descend)
 
-    @property
-    def end(self) -> float:
-        return self.treads[-1][2]
-
-    def boxes(self) -> list[Box]:
-        return _tread_boxes(self.treads, self.center_y, self.width)
-
-    def height_at(self, x: float, y: float = 0.0) -> float | None:
-        return _tread_height(self.treads, x) if _across(self, y) else None
-
 
 @dataclass(frozen=True)
-class Stairs:
+class Stairs(_Treads):
     """A staircase: ``count`` steps of ``rise`` m and ``tread`` m, a landing of ``landing_length`` m after
     every ``flight_steps`` steps (0: one flight, no landing), a top of ``top_length`` m, then (``descend``)
     the same staircase down."""
@@ -270,16 +279,6 @@ class Stairs:
             if last_of_flight and step + 1 < self.count and self.landing_length > 0:
                 risers.append((f"landing{step}", self.landing_length, (step + 1) * self.rise))
         return _staircase(self.start, risers, self.top_length, self.descend)
-
-    @property
-    def end(self) -> float:
-        return self.treads[-1][2]
-
-    def boxes(self) -> list[Box]:
-        return _tread_boxes(self.treads, self.center_y, self.width)
-
-    def height_at(self, x: float, y: float = 0.0) -> float | None:
-        return _tread_height(self.treads, x) if _across(self, y) else None
 
 
 @dataclass(frozen=True)
