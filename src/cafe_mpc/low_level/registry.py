@@ -5,7 +5,9 @@
 plan and run alone, without a planner; ``riccati`` (Eq. (33)) and ``vwbc`` (Eq. (34)) follow CAFE-MPC's
 ``Plan``. ``build_balance(run)`` is also what every MPC loop's safe ladder holds the robot with.
 ``build_low_level(run, planner)``: the planner's own low level when its slice has one (the template's), else
-the ``wbc`` entry, which must follow the planner's plan type.
+the ``wbc`` entry, which must follow the planner's plan type. Every low level built here sends its torques
+for the run's calibrated motors (``low_level.motor_strength``: ``tau / run.motor_strength``; itself when the
+strengths are 1).
 """
 
 from __future__ import annotations
@@ -16,6 +18,7 @@ from dataclasses import dataclass
 from cafe_mpc.config import ConfigError
 from cafe_mpc.core.controller import LowLevelController
 from cafe_mpc.low_level.balance import BalanceController
+from cafe_mpc.low_level.motor_strength import with_motor_strength
 from cafe_mpc.low_level.pd import PDController
 from cafe_mpc.low_level.riccati import RiccatiController
 from cafe_mpc.low_level.vwbc import VWBCController
@@ -37,40 +40,44 @@ class LowLevelEntry:
         return self.plan_type is not None
 
 
-def build_pd(run: ResolvedRun) -> PDController:
+def build_pd(run: ResolvedRun) -> LowLevelController:
     """Joint PD standing: the ``pd`` section, its gains carried to the robot."""
-    return PDController(run.robot, run.config.pd, run.scale)
+    return with_motor_strength(
+        PDController(run.controller_robot, run.config.pd, run.scale), run.motor_strength
+    )
 
 
-def build_balance(run: ResolvedRun) -> BalanceController:
+def build_balance(run: ResolvedRun) -> LowLevelController:
     """The balance controller (``recovery.balance``): its gains scaled to the robot as the PD gains are, the
     run's torque limits and the friction the MPC assumes."""
     config, scale = run.config, run.scale
     settings = config.recovery.balance
     gains = {"kp": scale.stiffness(settings.kp), "kd": scale.damping(settings.kd)}
     scaled = settings.model_copy(update=gains)
-    return BalanceController(run.robot, scaled, run.torque_limits.copy(), run.contact.friction)
+    balance = BalanceController(run.controller_robot, scaled, run.torque_limits.copy(), run.contact.friction)
+    return with_motor_strength(balance, run.motor_strength)
 
 
-def build_riccati(run: ResolvedRun) -> RiccatiController:
+def build_riccati(run: ResolvedRun) -> LowLevelController:
     """The Riccati feedback (33), clamped to the run's torque limits."""
-    riccati = RiccatiController(run.robot)
+    riccati = RiccatiController(run.controller_robot)
     riccati.limits = run.torque_limits.copy()
-    return riccati
+    return with_motor_strength(riccati, run.motor_strength)
 
 
-def build_vwbc(run: ResolvedRun) -> VWBCController:
+def build_vwbc(run: ResolvedRun) -> LowLevelController:
     """The VWBC QP (34): the ``vwbc`` section, the run's torque limits, its VWBC contact model (the pyramid's
     friction, the Baumgarte rate and the cone tolerance of the robot) and contact-detection thresholds; off
     flat ground (``run.ground_plane``) its contact detector measures heights above the stance feet's plane."""
-    return VWBCController(
-        run.robot,
+    vwbc = VWBCController(
+        run.controller_robot,
         run.config.vwbc,
         run.torque_limits.copy(),
         run.vwbc_contact,
         run.contact_detection,
         ground_plane=run.ground_plane,
     )
+    return with_motor_strength(vwbc, run.motor_strength)
 
 
 LOW_LEVELS: Registry[LowLevelEntry] = Registry(
@@ -90,7 +97,7 @@ def build_low_level(run: ResolvedRun, planner: PlannerSlice) -> LowLevelControll
     """The low level of a run under ``planner`` (module docstring); ``ConfigError`` (one line naming ``wbc``)
     when the ``wbc`` entry follows another plan type than the planner makes."""
     if planner.low_level is not None:
-        return planner.low_level(run)
+        return with_motor_strength(planner.low_level(run), run.motor_strength)
     name = run.config.wbc
     entry = LOW_LEVELS.get(name)
     if entry.needs_plan and entry.plan_type is not planner.plan_type:

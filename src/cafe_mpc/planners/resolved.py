@@ -72,11 +72,18 @@ class ResolvedGait:
 class ResolvedRun:
     """A run config resolved against its robot (module docstring).
 
-    ``config``, ``robot``: the run config and the robot it drives. ``scale``: the robot's scale (the identity
-    with ``scaling: none``), for the component settings tuned on the reference robot. ``schedule``: the
+    ``config``, ``robot``: the run config and the robot it drives, as its robot file describes it (what the
+    lab's plant is built from). ``controller_robot``: the robot as the controller models it, ``robot`` with
+    the config's ``calibration`` (``robots.calibration``: payload and link masses in its Pinocchio model,
+    torque limits times the motors' strengths; ``robot`` itself by default): every planner, low level,
+    reference and estimator is built from it. ``motor_strength``: the calibrated torque each motor delivers
+    per commanded torque (read-only, ones by default); the low level sends ``tau / motor_strength``
+    (``low_level.motor_strength``). ``scale``: the robot's scale (the robot file's; the identity with
+    ``scaling: none``), for the component settings tuned on the reference robot. ``schedule``: the
     ``mpc`` section's model schedule (Tw, Ts, dt_w, dt_s), its horizons scaled. ``torque_limits``: what the
-    plan and the low level respect (``torque_limits``: the robot table's or the motors'; read-only; the CAFE
-    plan takes ``mpc.plan_torque_fraction`` of them, ``planners.cafe.setup.plan_constraints``).
+    plan and the low level respect (``torque_limits``: the robot table's or the motors', times
+    ``motor_strength``; read-only; the CAFE plan takes ``mpc.plan_torque_fraction`` of them,
+    ``planners.cafe.setup.plan_constraints``).
     ``contact``: the contact model of the plan (``mpc.friction``), the whole-body knots and the post-hoc
     cone score; ``vwbc_contact``: the VWBC's (``vwbc.friction`` if set, else the plan's).
     ``contact_detection``: the contact detector's thresholds (``vwbc.contact_detection``, heights and times
@@ -92,6 +99,8 @@ class ResolvedRun:
 
     config: RunConfig
     robot: Robot
+    controller_robot: Robot
+    motor_strength: np.ndarray
     scale: RobotScale
     schedule: ModelSchedule
     torque_limits: np.ndarray

@@ -9,6 +9,9 @@ direction and start time, the biases' signs); the preset's estimator and sensors
 set exactly (``friction 0.35``: every trial on a 0.35 floor); the push's magnitude and the biases are drawn
 uniformly up to it, as in the reliability test.
 
+``--oracle`` tells each trial's controller its plant (``reliability.oracle_overrides``: a diagnostic of
+whether knowing the model would help, not something a robot can do).
+
 Timing: ``mpc.latency=fixed`` like the reliability test (a seed reproduces its trial on any worker). Each
 point's rate comes with its Wilson 95 % interval; ``comparison.png`` draws one curve per factor.
 """
@@ -30,6 +33,8 @@ from cafe_mpc_lab.experiments.reliability import (
     Reliability,
     _flow,
     _succeeded,
+    check_oracle_overrides,
+    oracle_overrides,
     sample_trial,
     wilson_interval,
 )
@@ -79,6 +84,11 @@ class EnvelopeOptions(ExperimentOptions):
     trials: integer(1, 10_000) = Field(10, description="trials per point (default 10)")
     seed: integer(0, 2**31) = Field(0, description="seed of a point's first trial (default 0)")
     seeds: integers(0) | None = Field(None, description="exactly these seeds at every point")
+    oracle: bool = Field(
+        False,
+        description="diagnostic: tell the controller each trial's plant (masses, motor strengths as its "
+        "calibration; friction at the usual margin), which a robot never knows",
+    )
 
     @model_validator(mode="after")
     def _check(self) -> EnvelopeOptions:
@@ -148,6 +158,8 @@ class Envelope(Experiment):
         existing = [push.model_dump(mode="json", exclude_none=True) for push in base.pushes]
         sensors = base.plant.sensors.model_dump(mode="json")
         task_name = Path(task).stem if task.endswith((".yaml", ".yml")) else task
+        if options.oracle:
+            check_oracle_overrides(context.overrides)
         variants = []
         for factor in options.factor_names:
             for value in options.points(factor):
@@ -155,12 +167,15 @@ class Envelope(Experiment):
                 for seed in options.trial_seeds:
                     plant, push = sample_trial(ranges, seed, robot.nu, duration, base.estimator, sensors)
                     plant["mass_scale"] = mass
+                    oracle = (
+                        oracle_overrides(plant, base, robot.plant.floor_friction) if options.oracle else ()
+                    )
                     pushes = [*existing, push] if ranges.push.max_velocity_change > 0 else existing
                     variants.append(
                         Variant(
                             f"{factor}-{value:g}-{seed:04d}",
                             task,
-                            (f"plant={_flow(plant)}", f"pushes={_flow(pushes)}"),
+                            (f"plant={_flow(plant)}", f"pushes={_flow(pushes)}", *oracle),
                             f"{factor} {value:g}, seed {seed}",
                             group=factor,
                             variant=task_name,
@@ -176,6 +191,8 @@ class Envelope(Experiment):
         else:
             plan_options["--trials"] = str(options.trials)
             plan_options["--seed"] = str(options.seed)
+        if options.oracle:
+            plan_options["--oracle"] = ""
         return ExperimentPlan(variants, plan_options, drop_files=("log.npz",))
 
     def summarize(self, result: RunResult, variant: Variant) -> dict:

@@ -13,6 +13,11 @@ simulated robot and its sensors change, never the controller's model. ``numpy.ra
 them, so a seed is a trial: ``--seeds 7`` re-runs trial 7 alone, and so does
 ``cafe-mpc run OUT/trial-0007/config.yaml``.
 
+``--oracle`` is a diagnostic, not a controller: each trial's controller is told its plant (masses and motor
+strengths as its ``calibration``, the floor's friction at the usual margin: ``oracle_overrides``), which a
+robot never is. A failure that the oracle removes comes from not knowing the model, and online estimation
+of that factor can address it; one that stays is a limit of the robot or of the motion.
+
 Timing: trials run with ``mpc.latency=fixed`` (a plan acts 20 ms after its measurement, deterministic and
 independent of the machine's load, so a seed reproduces its trial on any worker); the latency jitter comes on
 top of it. ``--set mpc.latency=measured`` gives the presets' measured mode (honest only with one worker per
@@ -34,6 +39,7 @@ from __future__ import annotations
 import copy
 import json
 import math
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -43,7 +49,7 @@ from matplotlib.ticker import MaxNLocator
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
 from cafe_mpc.assembly.checks import load_run_config
-from cafe_mpc.config import ConfigError, SensorNoise, format_validation_error
+from cafe_mpc.config import ConfigError, RunConfig, SensorNoise, format_validation_error
 from cafe_mpc_lab.experiments.common import RunStore, fall_fields, markdown_table, num, pct
 from cafe_mpc_lab.experiments.options import ExperimentOptions, integer, integers, number
 from cafe_mpc_lab.experiments.registry import Experiment, ExperimentPlan, PlanContext, Variant
@@ -221,6 +227,39 @@ def sample_trial(
     return plant, push
 
 
+ORACLE_KEYS = ("calibration", "mpc.friction", "vwbc.friction")
+"""What ``--oracle`` sets per trial (``oracle_overrides``)."""
+
+
+def oracle_overrides(plant: dict, base: RunConfig, nominal_friction: float) -> tuple[str, ...]:
+    """The ``--oracle`` overrides of a trial: the controller told the plant's randomised values, which a
+    robot never is. A diagnostic: it says whether a failure under a model error comes from not knowing the
+    model (then online estimation can fix it) or from the robot's physical limits (then it cannot).
+
+    The plant's mass, trunk, link and motor factors become the controller's ``calibration`` (its model and
+    its torque commands, ``robots.calibration``); the friction the controller assumes keeps its ratio to the
+    floor's: ``mpc.friction`` (and ``vwbc.friction`` when the base config sets it) times the trial's floor
+    friction over the robot table's (``nominal_friction``; 0.4 / 0.6 on the Mini Cheetah)."""
+    calibration = {
+        key: plant.get(key, 1.0)
+        for key in ("mass_scale", "body_mass_scale", "link_mass_scales", "motor_strength_scales")
+    }
+    floor = plant.get("floor_friction") or nominal_friction
+    ratio = floor / nominal_friction
+    overrides = [f"calibration={_flow(calibration)}", f"mpc.friction={round(base.mpc.friction * ratio, 6)}"]
+    if base.vwbc.friction is not None:
+        overrides.append(f"vwbc.friction={round(base.vwbc.friction * ratio, 6)}")
+    return tuple(overrides)
+
+
+def check_oracle_overrides(overrides: Sequence[str]) -> None:
+    """``--oracle`` sets ``ORACLE_KEYS`` per trial: ``--set`` must leave them alone."""
+    for item in overrides:
+        key = item.split("=", 1)[0].strip()
+        if any(key == k or key.startswith(k + ".") or k.startswith(key + ".") for k in ORACLE_KEYS):
+            raise ConfigError(f"--set {key}: --oracle sets it per trial (the plant's values)")
+
+
 def _flow(value: Any) -> str:
     """A value as one line of YAML (JSON is YAML)."""
     return json.dumps(value, separators=(", ", ": "))
@@ -268,6 +307,11 @@ class ReliabilityOptions(ExperimentOptions):
     keep_logs: bool = Field(
         False, description="keep every trial's log.npz (default: config, metrics and run.log only)"
     )
+    oracle: bool = Field(
+        False,
+        description="diagnostic: tell the controller each trial's plant (masses, motor strengths as its "
+        "calibration; friction at the usual margin), which a robot never knows",
+    )
 
     @model_validator(mode="after")
     def _task_and_seeds(self) -> ReliabilityOptions:
@@ -310,13 +354,18 @@ class Reliability(Experiment):
         extra = [f"simulation.duration={context.duration}"] if context.duration is not None else []
         base = load_run_config(str(task), [*context.overrides, *extra])
         duration = base.simulation.duration
-        n_joints = load_robot(base.robot).nu
+        robot = load_robot(base.robot)
+        n_joints = robot.nu
         existing = [push.model_dump(mode="json", exclude_none=True) for push in base.pushes]
         task_name = Path(str(task)).stem if str(task).endswith((".yaml", ".yml")) else str(task)
         variants = []
         sensors = base.plant.sensors.model_dump(mode="json")
+        if options.oracle:
+            check_oracle_overrides(context.overrides)
+        nominal_friction = robot.plant.floor_friction
         for seed in seeds:
             plant, push = sample_trial(ranges, seed, n_joints, duration, base.estimator, sensors)
+            oracle = oracle_overrides(plant, base, nominal_friction) if options.oracle else ()
             dv = push["velocity_change"]
             magnitude = math.hypot(dv[0], dv[1])
             links, motors = plant["link_mass_scales"], plant["motor_strength_scales"]
@@ -324,7 +373,7 @@ class Reliability(Experiment):
                 Variant(
                     f"trial-{seed:04d}",  # the same name whichever sweep the seed is in
                     str(task),
-                    (f"plant={_flow(plant)}", f"pushes={_flow([*existing, push])}"),
+                    (f"plant={_flow(plant)}", f"pushes={_flow([*existing, push])}", *oracle),
                     f"seed {seed}",
                     variant=task_name,
                     seed=seed,
@@ -353,6 +402,8 @@ class Reliability(Experiment):
             plan_options["--max-push"] = f"{max_push:g}"
         if options.keep_logs:
             plan_options["--keep-logs"] = ""
+        if options.oracle:
+            plan_options["--oracle"] = ""
         self.ranges = ranges
         return ExperimentPlan(variants, plan_options, drop_files=() if options.keep_logs else ("log.npz",))
 

@@ -82,7 +82,7 @@ def _knot_factories(
     """The whole-body and SRB knot factories of one weight set (running, terminal weights of each) at the
     run's time steps and contact model."""
     whole_body = WholeBodyModelFactory(
-        run.robot,
+        run.controller_robot,
         WholeBodySettings(
             dt=run.schedule.whole_body_dt,
             baumgarte_alpha=run.contact.baumgarte_alpha,
@@ -95,7 +95,7 @@ def _knot_factories(
     srb = SRBModelFactory(
         SRBSettings(
             dt=run.schedule.srb_dt,
-            parameters=srb_parameters(run.robot),
+            parameters=srb_parameters(run.controller_robot),
             running_weights=srb_weights[0],
             terminal_weights=srb_weights[1],
         )

@@ -22,13 +22,13 @@ SWITCH_KNOTS = 16
 def build_planner(run: ResolvedRun, reference: Reference) -> RecedingHorizonMpc:
     """The CAFE-MPC planner of a run: the CAFE problem with its model schedule (Sec. IV-D) tracking
     ``reference``, receding-horizon settings from the ``mpc`` section."""
-    return RecedingHorizonMpc(run.robot, reference, build_problem(run), run.config.mpc)
+    return RecedingHorizonMpc(run.controller_robot, reference, build_problem(run), run.config.mpc)
 
 
 def build_plan_format(run: ResolvedRun) -> PlanFormat[Plan]:
     """How the run's plans travel as arrays: at most the whole-body grid's knots plus the splits at contact
     switches."""
-    robot = run.robot
+    robot = run.controller_robot
     capacity = run.schedule.whole_body_knots + SWITCH_KNOTS
     return plan_format(capacity, robot.nq + robot.nv, robot.nu, 2 * robot.nv, robot.n_feet)
 

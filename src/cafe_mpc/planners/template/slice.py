@@ -22,19 +22,23 @@ from cafe_mpc.reference.base import Reference
 
 def build_planner(run: ResolvedRun, reference: Reference) -> TemplateMpc:
     """The template MPC of a run: the SRB-only plan of the run's reference."""
-    builder = TemplateProblemBuilder(run.robot, run.config.template, run.contact.friction, run.torque_limits)
-    return TemplateMpc(run.robot, reference, builder, run.config.mpc)
+    builder = TemplateProblemBuilder(
+        run.controller_robot, run.config.template, run.contact.friction, run.torque_limits
+    )
+    return TemplateMpc(run.controller_robot, reference, builder, run.config.mpc)
 
 
 def build_low_level(run: ResolvedRun) -> TemplateLowLevelController:
     """The template's low level: its swing gains carried to the robot, the run's torque limits."""
-    return TemplateLowLevelController(run.robot, run.config.template, run.scale, run.torque_limits.copy())
+    return TemplateLowLevelController(
+        run.controller_robot, run.config.template, run.scale, run.torque_limits.copy()
+    )
 
 
 def build_plan_format(run: ResolvedRun) -> PlanFormat[TemplatePlan]:
     """How the run's plans travel as arrays: the grid's intervals, each split at most once by a contact
     switch (``TemplateProblemBuilder.knot_times``)."""
-    return template_plan_format(2 * run.config.template.knots, run.robot.n_feet)
+    return template_plan_format(2 * run.config.template.knots, run.controller_robot.n_feet)
 
 
 SLICE = PlannerSlice(TemplatePlan, build_planner, build_plan_format, low_level=build_low_level)
