@@ -1,6 +1,6 @@
-"""The controller's calibration (``calibration`` section, ``robots.calibration``): a known payload, link masses
-and motor strengths change the model every part of the controller is built from and the torques it sends;
-the defaults change nothing. The lab's ``--oracle`` diagnostic copies a trial's plant into it."""
+"""The controller's calibration (``calibration`` section, ``robots.calibration``): a known payload, link
+masses and motor strengths change the model every part of the controller is built from and the torques it
+sends; the defaults change nothing. The lab's ``--oracle`` diagnostic copies a trial's plant into it."""
 
 from __future__ import annotations
 
@@ -105,11 +105,11 @@ def test_the_low_level_commands_torque_over_strength(robot):
 
 
 def test_calibration_errors_name_the_key(robot):
-    with pytest.raises(ConfigError, match="calibration.body_mass_scale"):
+    with pytest.raises(ConfigError, match=r"calibration\.body_mass_scale"):
         load_run_config("trot", ["calibration.body_mass_scale=2.0"])
-    with pytest.raises(ConfigError, match="calibration.link_mass_scales"):
+    with pytest.raises(ConfigError, match=r"calibration\.link_mass_scales"):
         load_run_config("trot", ["calibration.link_mass_scales=[1.0, 1.1]"])
-    with pytest.raises(ConfigError, match="calibration.motor_strength_scales"):
+    with pytest.raises(ConfigError, match=r"calibration\.motor_strength_scales"):
         load_run_config("trot", ["calibration.motor_strength_scales=0.2"])
     with pytest.raises(ValueError, match="link_mass_scales"):
         calibrated_robot(robot, ModelCalibration(link_mass_scales=(1.0, 1.1)))
@@ -117,7 +117,12 @@ def test_calibration_errors_name_the_key(robot):
 
 def test_the_oracle_tells_the_controller_the_plant(robot):
     base = load_run_config("running-barrel-roll")
-    plant = {"floor_friction": 0.35, "body_mass_scale": 1.05, "mass_scale": 1.15, "motor_strength_scales": 0.85}
+    plant = {
+        "floor_friction": 0.35,
+        "body_mass_scale": 1.05,
+        "mass_scale": 1.15,
+        "motor_strength_scales": 0.85,
+    }
     overrides = oracle_overrides(plant, base, robot.plant.floor_friction)
     config = load_run_config("running-barrel-roll", ["plant={floor_friction: 0.35}", *overrides])
     assert config.calibration.mass_scale == 1.15 and config.calibration.body_mass_scale == 1.05
