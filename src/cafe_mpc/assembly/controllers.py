@@ -98,6 +98,7 @@ def build_mpc_loop(
     if low_level is None:
         low_level = low_levels.build_low_level(run, planner)
     balance = low_levels.build_balance(run)  # the safe ladder's (control.plan_follower)
+    damped = low_levels.build_damped(run)
     if mode == "inline":
         return InlineMpcLoop(
             run.controller_robot,
@@ -106,6 +107,7 @@ def build_mpc_loop(
             run.control_period,
             recovery=config.recovery,
             balance=balance,
+            damped=damped,
         )
     loop = ProcessMpcLoop(
         run.controller_robot,
@@ -117,6 +119,7 @@ def build_mpc_loop(
         scheme=config.mpc.scheme,
         recovery=config.recovery,
         balance=balance,
+        damped=damped,
     )
     loop.reference = build_reference(run)  # for the run's report (gait stance)
     return loop

@@ -63,9 +63,9 @@ class InlineMpcLoop(MpcLoop[PlanT]):
     """A planner's MPC loop in simulated time (the simulation's ``Controller``); see the module docstring.
 
     ``control_period``: the period of the ticks ``compute`` is called at (updates happen on ticks: a
-    preparation is made for the tick its measurement will come from). ``recovery`` and ``balance``: the safe
-    ladder's settings and balance controller (``control.plan_follower``; defaults: ``RecoveryConfig()``,
-    ``BalanceController(robot)``).
+    preparation is made for the tick its measurement will come from). ``recovery``, ``balance`` and
+    ``damped``: the safe ladder's settings, balance controller and damped stance (``control.plan_follower``;
+    defaults: ``RecoveryConfig()``, ``BalanceController(robot)``, ``PDController(robot)``).
     """
 
     def __init__(
@@ -76,6 +76,7 @@ class InlineMpcLoop(MpcLoop[PlanT]):
         control_period: float = 0.002,
         recovery: RecoveryConfig | None = None,
         balance: LowLevelController | None = None,
+        damped: LowLevelController | None = None,
     ) -> None:
         if not control_period > 0:
             raise ValueError(f"control period must be positive, got {control_period}")
@@ -85,7 +86,7 @@ class InlineMpcLoop(MpcLoop[PlanT]):
         self._scheme = self.settings.scheme if planner.supports_rti else "one_phase"
         self.low_level = low_level
         self.control_period = float(control_period)
-        self.follower = NewestPlanFollower(robot, low_level, recovery, balance)
+        self.follower = NewestPlanFollower(robot, low_level, recovery, balance, damped)
         self._plan: PlanT | None = None
         self.pending: list[tuple[float, float, PlanT | None]] = []
         """(time it takes effect, its measurement time, plan) of the updates not yet in effect."""

@@ -58,9 +58,10 @@ FOLLOWING = (SafetyStep.PLAN, SafetyStep.LAST_PLAN)
 class NewestPlanFollower(Generic[PlanT]):
     """The low level on the newest plan, or the safe ladder (module docstring).
 
-    ``balance``: the balance controller (default: ``BalanceController(robot)``); the damped stance is
-    ``PDController(robot)``. ``fallback_ticks`` counts the ticks on neither plan step. The loop tells it of
-    every plan it receives (``new_plan``), of holds (``hold``) and of a failure for good (``fail``).
+    ``balance``: the balance controller (default: ``BalanceController(robot)``); ``damped``: the damped
+    stance (default: ``PDController(robot)``). ``fallback_ticks`` counts the ticks on neither plan step. The
+    loop tells it of every plan it receives (``new_plan``), of holds (``hold``) and of a failure for good
+    (``fail``).
     """
 
     def __init__(
@@ -69,11 +70,12 @@ class NewestPlanFollower(Generic[PlanT]):
         low_level: LowLevelController[PlanT],
         recovery: RecoveryConfig | None = None,
         balance: LowLevelController | None = None,
+        damped: LowLevelController | None = None,
     ) -> None:
         self.low_level = low_level
         self.recovery = recovery if recovery is not None else RecoveryConfig()
         self.balance = balance if balance is not None else BalanceController(robot)
-        self.fallback = PDController(robot)
+        self.fallback = damped if damped is not None else PDController(robot)
         self.fallback_ticks = 0
         self._reset_ladder()
 

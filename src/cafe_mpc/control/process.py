@@ -310,10 +310,10 @@ class ProcessMpcLoop(MpcLoop[PlanT]):
 
     ``factory`` builds the planner in the MPC process; ``plan_format``: how its plans travel (the plan
     channel's layout, ``core.plan.PlanFormat``); ``period``: the MPC period; ``scheme``: the scheme the
-    planner is set to run (the MPC process reports the one it runs once it is ready); ``recovery`` and
-    ``balance``: the safe ladder's settings and balance controller, and the supervision's (stall timeout,
-    restarts). Use as a context manager (or call ``close()``): it owns shared memory and, once started, a
-    process.
+    planner is set to run (the MPC process reports the one it runs once it is ready); ``recovery``,
+    ``balance`` and ``damped``: the safe ladder's settings, balance controller and damped stance, and the
+    supervision's (stall timeout, restarts). Use as a context manager (or call ``close()``): it owns shared
+    memory and, once started, a process.
     """
 
     def __init__(
@@ -328,6 +328,7 @@ class ProcessMpcLoop(MpcLoop[PlanT]):
         startup_timeout: float = 120.0,
         recovery: RecoveryConfig | None = None,
         balance: LowLevelController | None = None,
+        damped: LowLevelController | None = None,
     ) -> None:
         if not control_period > 0:
             raise ValueError(f"control period must be positive, got {control_period}")
@@ -335,7 +336,7 @@ class ProcessMpcLoop(MpcLoop[PlanT]):
         self.factory = factory
         self.low_level = low_level
         self.recovery = recovery if recovery is not None else RecoveryConfig()
-        self.follower = NewestPlanFollower(robot, low_level, self.recovery, balance)
+        self.follower = NewestPlanFollower(robot, low_level, self.recovery, balance, damped)
         self.period = period
         self.control_period = float(control_period)
         self.startup_timeout = startup_timeout

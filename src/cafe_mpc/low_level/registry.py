@@ -3,7 +3,8 @@
 ``LOW_LEVELS``: ``wbc`` -> ``LowLevelEntry`` (how a run config builds it, the plan type it follows): ``pd``
 (joint PD standing) and ``balance`` (the safe ladder's balance controller, ``low_level.balance``) follow no
 plan and run alone, without a planner; ``riccati`` (Eq. (33)) and ``vwbc`` (Eq. (34)) follow CAFE-MPC's
-``Plan``. ``build_balance(run)`` is also what every MPC loop's safe ladder holds the robot with.
+``Plan``. ``build_balance(run)`` and ``build_damped(run)`` are what every MPC loop's safe ladder holds the
+robot with.
 ``build_low_level(run, planner)``: the planner's own low level when its slice has one (the template's), else
 the ``wbc`` entry, which must follow the planner's plan type. Every low level built here sends its torques
 for the run's calibrated motors (``low_level.motor_strength``: ``tau / run.motor_strength``; itself when the
@@ -56,6 +57,11 @@ def build_balance(run: ResolvedRun) -> LowLevelController:
     scaled = settings.model_copy(update=gains)
     balance = BalanceController(run.controller_robot, scaled, run.torque_limits.copy(), run.contact.friction)
     return with_motor_strength(balance, run.motor_strength)
+
+
+def build_damped(run: ResolvedRun) -> LowLevelController:
+    """The safe ladder's last rung, the damped PD stance (``low_level.pd`` with its default gains)."""
+    return with_motor_strength(PDController(run.controller_robot), run.motor_strength)
 
 
 def build_riccati(run: ResolvedRun) -> LowLevelController:
