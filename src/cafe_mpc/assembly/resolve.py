@@ -66,10 +66,8 @@ def resolve(config: RunConfig, robot: Robot) -> ResolvedRun:
     except ValueError as error:
         raise ConfigError(f"calibration: {error}") from error
     motor_strength.setflags(write=False)
-    torque_limits = torque_limits_of(config, robot)
-    if not calibration.is_identity:
-        torque_limits = torque_limits * motor_strength
-        torque_limits.setflags(write=False)
+    torque_limits = torque_limits_of(config, robot) * motor_strength  # exact with the default strengths
+    torque_limits.setflags(write=False)
     try:
         schedule = scaled_schedule(model_schedule(config.mpc), scale)
     except ValueError as error:

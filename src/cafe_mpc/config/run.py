@@ -1000,20 +1000,6 @@ class CalibrationConfig(StrictModel):
                 raise ValueError(f"factors must be in [0.5, 1.5], got {item}")
         return value
 
-    @property
-    def is_identity(self) -> bool:
-        """Whether the controller uses the robot file's model and motors as they are."""
-        return all(
-            item == 1.0
-            for value in (
-                self.mass_scale,
-                self.body_mass_scale,
-                self.link_mass_scales,
-                self.motor_strength_scales,
-            )
-            for item in (value if isinstance(value, list) else [value])
-        )
-
 
 class BalanceConfig(StrictModel):
     """The balance controller of the safe ladder (``low_level.balance``; ``wbc: balance`` standing): all
