@@ -127,7 +127,7 @@ def test_the_oracle_tells_the_controller_the_plant(robot):
     config = load_run_config("running-barrel-roll", ["plant={floor_friction: 0.35}", *overrides])
     assert config.calibration.mass_scale == 1.15 and config.calibration.body_mass_scale == 1.05
     assert config.calibration.motor_strength_scales == 0.85 and config.calibration.link_mass_scales == 1.0
-    assert config.mpc.friction == pytest.approx(0.35 * base.mpc.friction / robot.plant.floor_friction)
+    assert config.mpc.friction == pytest.approx(0.35 * base.mpc.friction / robot.plant.floor_friction, abs=1e-6)
     check_oracle_overrides(["mpc.latency=fixed"])
     with pytest.raises(ConfigError, match="--oracle"):
         check_oracle_overrides(["mpc.friction=0.5"])

@@ -21,7 +21,8 @@ from cafe_mpc.core.plan import PlanT
 
 class MotorStrengthCompensation(LowLevelController[PlanT], Generic[PlanT]):
     """``inner``'s torques divided by each motor's ``strength`` (positive, one per joint) (module
-    docstring); ``reset`` and ``statistics`` are the inner controller's."""
+    docstring); ``reset`` and ``statistics`` are the inner controller's. Without a plan it is a closed-loop
+    controller by itself, as a PD or balance stance that runs alone is."""
 
     def __init__(self, inner: LowLevelController[PlanT], strength: np.ndarray) -> None:
         strength = np.array(strength, dtype=float)
@@ -39,7 +40,7 @@ class MotorStrengthCompensation(LowLevelController[PlanT], Generic[PlanT]):
         self.inner.reset()
         self._commands[:] = 0.0
 
-    def compute(self, t: float, measurement: Measurement, plan: PlanT | None) -> np.ndarray:
+    def compute(self, t: float, measurement: Measurement, plan: PlanT | None = None) -> np.ndarray:
         torques = self.inner.compute(t, measurement, plan)
         np.divide(torques, self.strength, out=self._commands)
         return self._commands
