@@ -127,7 +127,9 @@ def test_the_oracle_tells_the_controller_the_plant(robot):
     config = load_run_config("running-barrel-roll", ["plant={floor_friction: 0.35}", *overrides])
     assert config.calibration.mass_scale == 1.15 and config.calibration.body_mass_scale == 1.05
     assert config.calibration.motor_strength_scales == 0.85 and config.calibration.link_mass_scales == 1.0
-    assert config.mpc.friction == pytest.approx(0.35 * base.mpc.friction / robot.plant.floor_friction, abs=1e-6)
+    assert config.mpc.friction == pytest.approx(
+        0.35 * base.mpc.friction / robot.plant.floor_friction, abs=1e-6
+    )
     check_oracle_overrides(["mpc.latency=fixed"])
     with pytest.raises(ConfigError, match="--oracle"):
         check_oracle_overrides(["mpc.friction=0.5"])
@@ -144,13 +146,16 @@ def _height_error(overrides: list[str]) -> float:
 
 @pytest.mark.slow
 def test_a_calibrated_stand_holds_its_height_with_a_payload_and_weak_motors():
+    """PD stance with its gravity feed-forward: a trunk 30 % heavier and motors at 0.8 make it sag 5 mm below
+    its nominal stance; told both, it stands within a few tenths of a millimetre of the nominal stance."""
+    nominal = _height_error([])
     plant = "plant={body_mass_scale: 1.3, motor_strength_scales: 0.8}"
     uncalibrated = _height_error([plant])
     calibrated = _height_error(
         [plant, "calibration.body_mass_scale=1.3", "calibration.motor_strength_scales=0.8"]
     )
-    assert calibrated < 0.3 * uncalibrated
-    assert calibrated < 0.003
+    assert uncalibrated - nominal > 0.003
+    assert abs(calibrated - nominal) < 0.1 * (uncalibrated - nominal)
 
 
 @pytest.mark.slow
