@@ -160,12 +160,14 @@ def test_a_calibrated_stand_holds_its_height_with_a_payload_and_weak_motors():
 
 @pytest.mark.slow
 def test_a_calibrated_trot_holds_its_height_with_a_payload():
-    """CAFE-MPC over the VWBC, fixed 20 ms: with a trunk 30 % heavier than its model the trot sags; told the
-    payload (its whole-body knots, SRB tail and VWBC model), it holds the reference height."""
+    """CAFE-MPC over the VWBC, fixed 20 ms: with a trunk 30 % heavier than its model the trot runs 17 mm
+    below its reference height; told the payload (its whole-body knots, SRB tail and VWBC model), 2 mm, as
+    the nominal trot does."""
     common = ["mpc.latency=fixed", "mpc.fixed_latency=0.02", "plant={body_mass_scale: 1.3}"]
     uncalibrated = _trot_height_error(common)
     calibrated = _trot_height_error([*common, "calibration.body_mass_scale=1.3"])
-    assert calibrated < 0.5 * uncalibrated
+    assert uncalibrated > 0.01
+    assert calibrated < 0.25 * uncalibrated
 
 
 def _trot_height_error(overrides: list[str]) -> float:
