@@ -284,8 +284,9 @@ class _Worker:
             if not self.ring.read(tick, self.buffer):
                 return last_tick
             prepared = False
-        t = float(self.buffer[0])
         q, v = self.buffer[1 : 1 + nq], self.buffer[1 + nq : 1 + nq + nv]
+        # the tick's measurement is the state at the tick (a robot's clock stamps it a little off the grid)
+        t = t_next if prepared else float(self.buffer[0])
         plan = planner.feedback(t, q, v) if prepared else planner.update(t, q, v)
         self._publish(plan, tick)
         return tick
