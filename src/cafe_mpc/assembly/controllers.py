@@ -120,6 +120,7 @@ def build_mpc_loop(
         recovery=config.recovery,
         balance=balance,
         damped=damped,
+        lock_memory=config.simulation.realtime and config.simulation.lock_memory,
     )
     loop.reference = build_reference(run)  # for the run's report (gait stance)
     return loop
