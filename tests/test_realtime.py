@@ -239,3 +239,43 @@ def test_bench_mpc_reports_each_gait_as_json(capsys):
         assert key in rows[0]
     assert rows[0]["timing_mode"] == "measured"
     assert main(["bench", "mpc", "--gaits", "walk"]) == 2  # unknown preset: one clear error
+
+
+class RobotClock:
+    """A controller seen through a robot's clock: every tick's time a little off the control grid."""
+
+    def __init__(self, inner, offset: float) -> None:
+        self.inner, self.offset = inner, offset
+
+    def reset(self) -> None:
+        self.inner.reset()
+
+    def compute(self, t, measurement):
+        return self.inner.compute(t + self.offset, measurement)
+
+
+@pytest.mark.slow
+@pytest.mark.realtime
+def test_a_prepared_update_is_fed_back_when_the_robots_clock_is_off_the_grid(robot):
+    """Over a robot's wire the measurements carry the robot's time stamps, never exactly ``tick * period``:
+    the MPC process must still feed back the update it prepared for that tick (it refused every one)."""
+    import functools
+
+    config = load_config("trot", ["output.plots=false"])
+    factory = functools.partial(process_planner, config.model_dump(mode="json"))
+    plans = plan_format(25, robot.nq + robot.nv, robot.nu, 2 * robot.nv, robot.n_feet)
+    controller = ProcessMpcLoop(
+        robot,
+        factory,
+        build_recorder(resolve(config, robot)),
+        plans,
+        0.02,
+        recovery=RecoveryConfig(standby=False),
+    )
+    with controller:
+        controller.start(0.0, Measurement.of_state(robot.q_standing, np.zeros(robot.nv), np.ones(4, bool)))
+        options = SimulationOptions(1.5, pacer=WallClockPacer())
+        simulate(MujocoPlant(robot), RobotClock(controller, 0.0004), options)
+    assert controller.scheme == "rti"
+    assert controller.statistics.failures == 0
+    assert controller.summary(1.5)["plans_received"] >= 10

@@ -185,6 +185,27 @@ def test_task_yaml_round_trip_and_overrides(tmp_path, task):
         load_task("somersault")
 
 
+def test_torque_limits_from_the_joints_or_the_motors_with_a_margin(robot):
+    """The TO's torque limits: the robot table's, the motors' saturation, or one value on every joint, each
+    times the fraction the trajectory may use; a fraction outside (0, 1] is refused by its key."""
+    joints = load_task("barrel-roll").constraints
+    assert joints.torque_limits(robot) == pytest.approx(robot.torque_limits)
+    motor = load_task(
+        "barrel-roll", ["constraints.torque_limit_source=motor", "constraints.torque_limit_fraction=0.9"]
+    ).constraints
+    assert motor.torque_limits(robot) == pytest.approx(0.9 * robot.plant.motor_torque_limits)
+    assert not np.allclose(robot.plant.motor_torque_limits, robot.torque_limits)  # the knees differ
+    single = load_task(
+        "barrel-roll", ["constraints.torque_limit=20", "constraints.torque_limit_fraction=0.5"]
+    )
+    assert single.constraints.torque_limits(robot) == pytest.approx([10.0] * robot.nu)
+    for bad in ("0", "1.2"):
+        with pytest.raises(TrajOptTaskError, match="torque_limit_fraction"):
+            load_task("barrel-roll", [f"constraints.torque_limit_fraction={bad}"])
+    with pytest.raises(TrajOptTaskError, match="torque_limit_source"):
+        load_task("barrel-roll", ["constraints.torque_limit_source=datasheet"])
+
+
 def test_plots_of_the_shipped_trajectory(tmp_path, robot, task, shipped):
     paths = write_plots(robot, task, shipped, tmp_path)
     assert sorted(p.name for p in paths) == [

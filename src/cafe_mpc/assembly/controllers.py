@@ -117,6 +117,7 @@ def build_mpc_loop(
         scheme=config.mpc.scheme,
         recovery=config.recovery,
         balance=balance,
+        lock_memory=config.simulation.realtime and config.simulation.lock_memory,
     )
     loop.reference = build_reference(run)  # for the run's report (gait stance)
     return loop

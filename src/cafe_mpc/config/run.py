@@ -46,6 +46,18 @@ class SimulationConfig(StrictModel):
         description="run against the wall clock: plant + low level at control_rate_hz in this process, "
         "the MPC in its own process (cafe-mpc run --realtime)",
     )
+    realtime_priority: int = Field(
+        50,
+        ge=0,
+        le=99,
+        description="with realtime: the 500 Hz loop's thread in SCHED_FIFO at this priority where the OS "
+        "allows it (root or CAP_SYS_NICE; elsewhere the normal class, said in the run's record); 0: off",
+    )
+    lock_memory: bool = Field(
+        True,
+        description="with realtime: lock the loop's and the MPC process's memory (mlockall) so that no tick "
+        "waits for a page the OS reclaimed (root or CAP_IPC_LOCK; elsewhere said in the run's record)",
+    )
     fall: FallConfig = Field(default_factory=FallConfig, description="what counts as a fall")
 
     @model_validator(mode="after")

@@ -47,6 +47,7 @@ from cafe_mpc.control.commands import CommandChannel, apply_command
 from cafe_mpc.control.ipc.channels import ControlBlock, MeasurementRing, PlanChannel, PlanLayout
 from cafe_mpc.control.loop import MpcLoop
 from cafe_mpc.control.plan_follower import NewestPlanFollower
+from cafe_mpc.control.scheduling import CpuPlan, lock_memory, pin_every_thread, pin_this_thread
 from cafe_mpc.control.update_clock import UpdateClock
 from cafe_mpc.core.compilation import CompileWatch
 from cafe_mpc.core.controller import LowLevelController
@@ -73,15 +74,6 @@ class MpcProcessError(RuntimeError):
     """The MPC process died, failed to start, or stopped delivering plans."""
 
 
-def _pin_to_cpu(index: int) -> None:
-    """Pin this process to one of the CPUs it may use (``index`` into them), when there are at least two: the
-    500 Hz loop and the MPC then do not migrate between cores or share one. No-op where unsupported."""
-    with contextlib.suppress(AttributeError, OSError):
-        cpus = sorted(os.sched_getaffinity(0))
-        if len(cpus) >= 2:
-            os.sched_setaffinity(0, {cpus[index]})
-
-
 # ------------------------------------------------------------------------------------- MPC process
 def _worker_main(
     factory: PlannerFactory,
@@ -95,13 +87,18 @@ def _worker_main(
     resync_after: float,
     parent_pid: int,
     generation: int,
+    cpu: int | None,
+    lock: bool,
     results,
 ) -> None:
     """The MPC process: measurements -> updates -> plans (module docstring), until told to stop. A standby
     (``generation`` is not the control block's ``active``) builds its planner, says so and waits, built, until
-    it is made the active one (or told to stop)."""
+    it is made the active one (or told to stop). Every thread of it runs on ``cpu`` (``CpuPlan.mpc_cpu``:
+    not the 500 Hz loop's core; None: anywhere); with ``lock`` its memory is locked (``lock_memory``)."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # the main process owns Ctrl-C and stops us
-    _pin_to_cpu(-1)  # the last CPU; the 500 Hz loop keeps the first (see ProcessMpcLoop)
+    pin_every_thread(cpu)
+    if lock:
+        logger.debug("MPC process memory: %s", lock_memory())
     nq, nv, n_feet = dimensions
     ring = MeasurementRing(nq, nv, n_feet, measurement_name)
     plans = PlanChannel(layout, plan_name)
@@ -287,8 +284,9 @@ class _Worker:
             if not self.ring.read(tick, self.buffer):
                 return last_tick
             prepared = False
-        t = float(self.buffer[0])
         q, v = self.buffer[1 : 1 + nq], self.buffer[1 + nq : 1 + nq + nv]
+        # the tick's measurement is the state at the tick (a robot's clock stamps it a little off the grid)
+        t = t_next if prepared else float(self.buffer[0])
         plan = planner.feedback(t, q, v) if prepared else planner.update(t, q, v)
         self._publish(plan, tick)
         return tick
@@ -312,8 +310,8 @@ class ProcessMpcLoop(MpcLoop[PlanT]):
     channel's layout, ``core.plan.PlanFormat``); ``period``: the MPC period; ``scheme``: the scheme the
     planner is set to run (the MPC process reports the one it runs once it is ready); ``recovery`` and
     ``balance``: the safe ladder's settings and balance controller, and the supervision's (stall timeout,
-    restarts). Use as a context manager (or call ``close()``): it owns shared memory and, once started, a
-    process.
+    restarts). ``lock_memory``: each MPC process locks its memory (``control.scheduling.lock_memory``). Use
+    as a context manager (or call ``close()``): it owns shared memory and, once started, a process.
     """
 
     def __init__(
@@ -328,6 +326,7 @@ class ProcessMpcLoop(MpcLoop[PlanT]):
         startup_timeout: float = 120.0,
         recovery: RecoveryConfig | None = None,
         balance: LowLevelController | None = None,
+        lock_memory: bool = False,
     ) -> None:
         if not control_period > 0:
             raise ValueError(f"control period must be positive, got {control_period}")
@@ -339,6 +338,7 @@ class ProcessMpcLoop(MpcLoop[PlanT]):
         self.period = period
         self.control_period = float(control_period)
         self.startup_timeout = startup_timeout
+        self.lock_memory = lock_memory
         stall = self.recovery.stall_timeout
         self.stall_timeout = stall if stall is not None else max(0.5, 10 * period)
         self._scheme = scheme
@@ -370,6 +370,7 @@ class ProcessMpcLoop(MpcLoop[PlanT]):
         self._generation = 0
         self._reference: Reference | None = None
         self._affinity = None
+        self._cpus: CpuPlan | None = None
         self._closed = False
         self._new_run()
 
@@ -679,6 +680,10 @@ class ProcessMpcLoop(MpcLoop[PlanT]):
 
     def _launch(self, generation: int):
         """Start an MPC process of ``generation``; its process and the pipe of what it sends."""
+        if self._cpus is None:  # before this process pins itself: the CPUs it was given
+            self._cpus = CpuPlan.of_this_process()
+            with contextlib.suppress(AttributeError, OSError):
+                self._affinity = os.sched_getaffinity(0)
         context = multiprocessing.get_context("spawn")
         results, child_end = context.Pipe(duplex=False)
         process = context.Process(
@@ -695,6 +700,8 @@ class ProcessMpcLoop(MpcLoop[PlanT]):
                 self.recovery.resync_after,
                 os.getpid(),
                 generation,
+                self._cpus.mpc_cpu,
+                self.lock_memory,
                 child_end,
             ),
             name="cafe-mpc-solver",
@@ -703,10 +710,7 @@ class ProcessMpcLoop(MpcLoop[PlanT]):
         process.start()  # started: from now on ``close`` stops it (the caller keeps it)
         self.processes += 1
         child_end.close()
-        if self._affinity is None:
-            with contextlib.suppress(AttributeError, OSError):
-                self._affinity = os.sched_getaffinity(0)
-        _pin_to_cpu(0)
+        pin_this_thread(self._cpus.loop_cpu)  # the 500 Hz loop's thread (the caller's)
         return process, results
 
     def _stop_processes(self) -> None:

@@ -36,6 +36,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from cafe_mpc.api import Controller
+from cafe_mpc.control.scheduling import RealTimePriority, lock_memory, unlock_memory
 from cafe_mpc.deploy.limits import CommandLimiter
 from cafe_mpc.deploy.settings import DeploySettings
 from cafe_mpc.deploy.startup import StartupRefused, check_joints, check_link, check_upright, tilt_of
@@ -73,6 +74,10 @@ class DeploymentReport:
     link: dict = field(default_factory=dict)
     clamps: dict = field(default_factory=dict)
     mpc: dict = field(default_factory=dict)
+    scheduling: str = "normal"
+    """The loop thread's scheduling class (``control.scheduling.RealTimePriority``)."""
+    memory: str = "not locked"
+    """Whether the deployment's memory was locked (``control.scheduling.lock_memory``)."""
 
     def as_dict(self) -> dict:
         return {
@@ -91,6 +96,8 @@ class DeploymentReport:
             "link": self.link,
             "clamps": self.clamps,
             "mpc": self.mpc,
+            "scheduling": self.scheduling,
+            "memory": self.memory,
         }
 
 
@@ -126,6 +133,7 @@ class Deployment:
         self.period = controller.control_period
         self.limiter = CommandLimiter(robot, self.settings, self.period)
         self.report = DeploymentReport()
+        self._priority: RealTimePriority | None = None
         self.standing = np.array(robot.q_standing[7:], dtype=float)
         self.lying = np.array(robot.hardware.lying_pose, dtype=float)
         self._command = JointCommand.zeros(robot.nu)
@@ -151,6 +159,7 @@ class Deployment:
                     report.outcome = "dry-run"
                     report.message = "checks passed; nothing commanded"
                     return report
+                self._real_time()
                 self._stand_up(state)
                 if self._hold(self.settings.hold_duration) and self._start_mpc():
                     self._run_mpc()
@@ -175,8 +184,24 @@ class Deployment:
                     self._damp_safely()
                 raise
             finally:
+                if self._priority is not None:
+                    self._priority.release()
+                if self.report.memory == "locked":
+                    unlock_memory()
                 self._finish()
         return report
+
+    def _real_time(self) -> None:
+        """Against a wall clock: the loop's thread at real-time priority and the memory locked
+        (``control.scheduling``), where the OS allows it; the report says what it got. Nothing in simulated
+        time (a loop that never sleeps must not hold a real-time class)."""
+        settings, report = self.settings, self.report
+        if not getattr(self.interface.clock, "realtime", False):
+            return
+        report.memory = lock_memory() if settings.lock_memory else "not locked (off)"
+        self._priority = RealTimePriority(settings.realtime_priority)
+        self._priority.acquire()
+        report.scheduling = self._priority.description
 
     # ------------------------------------------------------------------------------------ start-up
     def _wait_and_check(self) -> RobotState:

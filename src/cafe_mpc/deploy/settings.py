@@ -70,3 +70,15 @@ class DeploySettings(StrictModel):
     spin: float = Field(
         0.0005, ge=0.0, description="s; the loop sleeps until this long before a tick, then spins (lateness)"
     )
+    realtime_priority: int = Field(
+        0,
+        ge=0,
+        le=99,
+        description="the 500 Hz loop's thread in SCHED_FIFO at this priority once the checks pass, where the "
+        "OS allows it (root or CAP_SYS_NICE; the report says what it got); 0: the normal class (the default: "
+        "with `sim-robot` on the same 2-core machine it starved the simulator, docs/deploy.md)",
+    )
+    lock_memory: bool = Field(
+        True,
+        description="lock the deployment's memory (mlockall) once the checks pass: no page faults mid-run",
+    )

@@ -253,6 +253,8 @@ class TrajOptResult:
     stages: list[StageResult]
     check: TrajectoryCheck
     wall_time: float
+    torque_limits: tuple[float, ...] = ()
+    """The per-joint limits the solve used (``ConstraintSpec.torque_limits``), Nm."""
 
     @property
     def final(self) -> SolverResult:
@@ -266,6 +268,13 @@ class TrajOptResult:
     def iterations(self) -> int:
         return sum(stage.result.statistics.iterations for stage in self.stages)
 
+    def _max_torque_share(self) -> float | None:
+        """The largest ``|tau_j| / limit_j`` over the knots (above 1: the relaxed barrier let a torque past
+        its limit), or None without limits."""
+        if not self.torque_limits:
+            return None
+        return float(np.max(np.abs(self.trajectory.us) / np.asarray(self.torque_limits)))
+
     def summary(self) -> dict:
         """The numbers of ``summary.json`` (issue 11 names plus diagnostics)."""
         final, check = self.final, self.check
@@ -277,7 +286,9 @@ class TrajOptResult:
             "landing_time_s": check.landing_time,
             "max_defect": check.max_defect,
             "max_abs_torque": check.max_abs_torque,
-            "torque_limit": self.task.constraints.torque_limit,  # null: the robot's joints.torque_limits
+            "torque_limit": self.task.constraints.torque_limit,  # null: torque_limit_source's limits
+            "torque_limits_nm": list(self.torque_limits),
+            "max_torque_share_of_limit": self._max_torque_share(),
             "iterations": self.iterations,
             "wall_time_s": self.wall_time,
             "solver_defect_max": final.defect_max,
@@ -361,7 +372,8 @@ def solve_task(
     assert built is not None and previous is not None
     trajectory = trajectory_from_solution(built, previous)
     check = check_trajectory(robot, trajectory, task.phase_surface_heights())
-    return TrajOptResult(task, trajectory, stages, check, time.perf_counter() - start)
+    limits = task.constraints.torque_limits(robot)
+    return TrajOptResult(task, trajectory, stages, check, time.perf_counter() - start, limits)
 
 
 def trajectory_from_solution(built: TrajOptProblem, result: SolverResult) -> WholeBodyTrajectory:

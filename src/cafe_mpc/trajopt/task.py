@@ -200,7 +200,22 @@ class ConstraintSpec(StrictModel):
     """
 
     torque_limit: float | None = Field(
-        None, gt=0.0, description="|tau| limit of every joint, Nm (null: the robot's joints.torque_limits)"
+        None,
+        gt=0.0,
+        description="|tau| limit of every joint, Nm (null: the robot's limits named by torque_limit_source)",
+    )
+    torque_limit_source: Literal["joints", "motor"] = Field(
+        "joints",
+        description="with torque_limit null: joints (the robot table's joints.torque_limits, 17 Nm on every "
+        "Mini Cheetah joint) or motor (the motors' saturation, plant.motor_torque_limits: 17/17/26 Nm), the "
+        "limits a run with torque_limits: motor plans and acts with",
+    )
+    torque_limit_fraction: float = Field(
+        1.0,
+        gt=0.0,
+        le=1.0,
+        description="the limits the trajectory may use as a fraction of the torque limits above: a margin "
+        "that the closed loop's feedback (and a motor weaker than its datasheet) can draw on",
     )
     joint_speed_limit: float | None = Field(
         20.0, gt=0.0, description="|qdot| limit of every joint, rad/s (null: the robot's velocity_limits)"
@@ -210,10 +225,15 @@ class ConstraintSpec(StrictModel):
     warm_up_barriers: BarrierSetSpec | None = Field(default_factory=_mpc_barriers)
 
     def torque_limits(self, robot: Robot) -> tuple[float, ...]:
-        """Per-joint ``|tau|`` limits, Nm: ``torque_limit`` on every joint, or the robot's own limits."""
-        if self.torque_limit is None:
-            return tuple(float(limit) for limit in robot.torque_limits)
-        return (float(self.torque_limit),) * robot.nu
+        """Per-joint ``|tau|`` limits the trajectory may use, Nm: ``torque_limit`` on every joint, or the
+        robot's own limits (``torque_limit_source``), times ``torque_limit_fraction``."""
+        if self.torque_limit is not None:
+            limits = np.full(robot.nu, float(self.torque_limit))
+        elif self.torque_limit_source == "motor":
+            limits = np.asarray(robot.plant.motor_torque_limits, dtype=float)
+        else:
+            limits = np.asarray(robot.torque_limits, dtype=float)
+        return tuple(float(limit) for limit in limits * self.torque_limit_fraction)
 
     def settings(
         self, minimum_height: float | None, barriers: BarrierSetSpec, robot: Robot

@@ -505,6 +505,11 @@ def _realtime_findings(metrics: dict) -> list[Finding]:
     text = f"{_count(missed, 'tick')} of the 500 Hz loop started more than 1 ms late"
     if realtime.get("missed_ticks_not_scheduled"):
         text += f" ({realtime['missed_ticks_not_scheduled']} because the OS did not run the loop in time)"
+    if _is_number(realtime.get("tick_lateness_ms_p99")):
+        p99, worst = realtime["tick_lateness_ms_p99"], realtime["tick_lateness_ms_max"]
+        text += f"; lateness p99 {p99:.2f} ms, max {worst:.1f} ms"
+    if realtime.get("scheduling"):
+        text += f"; {realtime['scheduling']}, memory {realtime.get('memory', 'not locked')}"
     return [Finding("Real-time loop", text, "warn" if missed else "ok")]
 
 

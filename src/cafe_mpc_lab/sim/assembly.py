@@ -90,7 +90,9 @@ def simulation_options(run: ResolvedRun) -> SimulationOptions:
             functools.partial(support_height, terrain) if terrain else None,
         ),
         stop_on_fall=simulation.stop_on_fall,
-        pacer=WallClockPacer() if simulation.realtime else None,
+        pacer=WallClockPacer(priority=simulation.realtime_priority, lock_pages=simulation.lock_memory)
+        if simulation.realtime
+        else None,
     )
 
 

@@ -19,6 +19,13 @@ from typing import Protocol
 
 import numpy as np
 
+from cafe_mpc.control.scheduling import (
+    RealTimePriority,
+    host_steal_seconds,
+    lock_memory,
+    unlock_memory,
+    usable_cpus,
+)
 from cafe_mpc.core.compilation import CompileWatch
 from cafe_mpc.core.controller import Controller
 from cafe_mpc.core.progress import stage
@@ -372,20 +379,41 @@ class WallClockPacer:
 
     Sleeps until shortly before the tick (``spin``), then spins: ``time.sleep`` alone overshoots, and a busy
     machine wakes a sleeping process late by a millisecond or more (measured: with a 0.4 ms spin window, 1-8
-    of 5000 ticks started 1.5-5.7 ms late while the MPC process ran on the other core). A tick that starts
-    more than ``miss_threshold`` after its slot counts as missed; the simulation still advances one control
-    period per tick (the plant is not slowed down to hide it). ``work`` records how long each tick's own work
-    took, which tells a tick that was too slow from a process that was not scheduled. Python's garbage
-    collector is paused during the run (``gc.freeze`` keeps the objects made during set-up out of later
-    collections).
+    of 5000 ticks started 1.5-5.7 ms late while the MPC process ran on the other core). With ``priority``
+    (1-99) and two CPUs or more, the loop's thread runs in ``SCHED_FIFO``
+    (``control.scheduling.RealTimePriority``) where the OS allows it: no ordinary thread on its core preempts
+    it, it wakes on time from a short sleep, and it spins only ``fifo_spin`` (a real-time thread that never
+    sleeps is throttled by Linux). With ``lock_pages`` the process's memory is locked for the run
+    (``control.scheduling.lock_memory``: no page faults in bursts of slow ticks on a machine that reclaims
+    idle pages). The schedule starts after
+    tick 0, which runs the controller's first step (``first_tick_ms``). A tick that starts more than
+    ``miss_threshold`` after its slot counts as missed; the simulation still advances one control period
+    per tick (the plant is not slowed down to hide it). ``work`` records how long each tick's own work took,
+    which tells a tick that was too slow from a process that was not scheduled. Python's garbage collector
+    is paused during the run (``gc.freeze`` keeps the objects made during set-up out of later collections).
     """
 
-    def __init__(self, miss_threshold: float = 0.001, spin: float = 0.0015) -> None:
+    def __init__(
+        self,
+        miss_threshold: float = 0.001,
+        spin: float = 0.0015,
+        priority: int = 0,
+        fifo_spin: float = 0.0003,
+        lock_pages: bool = False,
+    ) -> None:
         self.miss_threshold = miss_threshold
         self.spin = spin
+        self.fifo_spin = fifo_spin
+        self.priority = RealTimePriority(priority)
+        self.lock_pages = lock_pages
+        self.memory = "not locked (off)"
         self.lateness = np.zeros(0)
+        self.first_tick = 0.0
+        """Wall time of tick 0 (the controller's first step), s: before the schedule starts."""
         self._period = 0.0
         self._start = 0.0
+        self._spin = spin
+        self._steal: float | None = None
         self._gc_was_enabled = False
 
     def start(self, period: float, ticks: int) -> None:
@@ -402,15 +430,25 @@ class WallClockPacer:
         gc.collect()
         gc.freeze()
         gc.disable()
+        if self.lock_pages:
+            self.memory = lock_memory()
+        # SCHED_FIFO only with a core left for the MPC process: on one CPU the loop would starve it
+        fifo = usable_cpus() >= 2 and self.priority.acquire()
+        self._spin = self.fifo_spin if fifo else self.spin
+        self._steal = host_steal_seconds()
         self._start = time.perf_counter()
 
     def wait(self, tick: int) -> None:
+        if tick == 1:  # the schedule starts once tick 0 (the controller's first step) is done
+            now = time.perf_counter()
+            self.first_tick = self.work[0] = now - self._start
+            self._start = now - self._period
         target = self._start + tick * self._period
-        if tick > 0:
+        if tick > 1:
             self.work[tick - 1] = time.perf_counter() - (target - self._period + self.lateness[tick - 1])
         remaining = target - time.perf_counter()
-        if remaining > self.spin:
-            time.sleep(remaining - self.spin)
+        if remaining > self._spin:
+            time.sleep(remaining - self._spin)
         while time.perf_counter() < target:
             pass
         now = time.perf_counter()
@@ -427,17 +465,27 @@ class WallClockPacer:
     def summary(self, ticks: int) -> dict:
         import gc
 
+        self.priority.release()
+        steal = host_steal_seconds()
+        if self.memory == "locked":
+            unlock_memory()
         if self._gc_was_enabled:
             gc.enable()
         gc.unfreeze()
         lateness = self.lateness[:ticks]
-        work = self.work[: max(ticks - 1, 0)]
+        work = self.work[1 : max(ticks - 1, 1)]
         missed = lateness > self.miss_threshold
         # a late tick whose predecessor's own work fitted in the period: the process was not running
         # (another process or the host had the CPU), not too slow
-        preempted = missed[1:] & (work < self._period) if ticks > 1 else np.zeros(0, dtype=bool)
+        preempted = missed[2:] & (work < self._period) if ticks > 2 else np.zeros(0, dtype=bool)
         return {
             "control_rate_hz": 1.0 / self._period if self._period else None,
+            "scheduling": self.priority.description,
+            "memory": self.memory,
+            "host_steal_ms": (steal - self._steal) * 1e3
+            if steal is not None and self._steal is not None
+            else None,
+            "first_tick_ms": self.first_tick * 1e3,
             "ticks": int(ticks),
             "missed_ticks": int(np.sum(missed)),
             "missed_ticks_not_scheduled": int(np.sum(preempted)),
