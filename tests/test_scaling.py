@@ -75,7 +75,7 @@ def test_a_big_robot_gets_scaled_settings_and_none_turns_it_off():
     assert detection.touchdown_height == pytest.approx(0.02 * scale.length)
     assert detection.release_height == pytest.approx(0.03 * scale.length)
     assert detection.early_window == pytest.approx(0.08 * math.sqrt(scale.length))
-    assert detection.on_time == pytest.approx(0.015 * math.sqrt(scale.length))
+    assert detection.on_time == pytest.approx(0.025 * math.sqrt(scale.length))
     assert detection.touchdown_force == 0.35 and detection.ground_height == 0.0  # weight shares, the scene's
     overrides = ["robot=b2", "gait.touchdown_events=0.01", "gait.path_gain=1"]
     events = resolve(load_config("trot", overrides), robot)

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from cafe_mpc.assembly import build_controller, build_low_level, build_planner, load_run_config, resolve
-from cafe_mpc.config import CONTROLLER_FRICTION, ConfigError
+from cafe_mpc.config import CONTROLLER_FRICTION, VWBC_FRICTION_HEADROOM, ConfigError
 from cafe_mpc_lab.sim.mujoco_plant import MujocoPlant
 from cafe_mpc_lab.sim.randomization import PlantVariation, plant_variation, terrain_geoms
 from cafe_mpc_lab.sim.scene import Scene, scene_of
@@ -96,7 +96,8 @@ def test_mpc_friction_is_the_controllers_own_and_independent_of_the_plant(robot)
     assert run.contact.friction == 0.35
     mpc = build_planner(run)
     assert mpc.builder.whole_body.settings.constraints.friction_coefficient == 0.35
-    assert build_low_level(run).contact.friction == 0.35
+    # the VWBC's pyramid (34f) leaves headroom over the plan's relaxed one unless set apart
+    assert build_low_level(run).contact.friction == pytest.approx(VWBC_FRICTION_HEADROOM * 0.35)
     apart = resolve(load_run_config("trot", ["mpc.friction=0.35", "vwbc.friction=0.5"]), robot)
     assert (apart.contact.friction, apart.vwbc_contact.friction) == (0.35, 0.5)
     assert build_low_level(apart).contact.friction == 0.5  # the VWBC's pyramid (34f) and its cone count
@@ -108,7 +109,7 @@ def test_mpc_friction_is_the_controllers_own_and_independent_of_the_plant(robot)
     default = load_run_config("trot")
     assert default.mpc.friction == CONTROLLER_FRICTION == 0.4
     assert default.plant.floor_friction is None  # the robot table's 0.6
-    assert build_low_level(resolve(default, robot)).contact.friction == 0.4
+    assert build_low_level(resolve(default, robot)).contact.friction == pytest.approx(0.5)
 
 
 @pytest.mark.slow

@@ -14,8 +14,8 @@ computed here and nowhere else:
 * the torque limits the plan and the low level respect (``torque_limits_of``: the robot table's or the
   motors', times the calibrated motor strengths);
 * the contact models: the friction the plan assumes (``mpc.friction``) and the VWBC's (``vwbc.friction``,
-  else the plan's), with the Baumgarte rate and the cone tolerance of the reference robot scaled to the
-  run's;
+  else the plan's times ``VWBC_FRICTION_HEADROOM``), with the Baumgarte rate and the cone tolerance of the
+  reference robot scaled to the run's;
 * the contact detector's thresholds (``vwbc.contact_detection``): heights by the length scale, the early
   window and the on-time margin by the time scale (``scaled_contact_detection``), for the VWBC's detector
   and the reference's touchdown events;
@@ -40,6 +40,7 @@ from cafe_mpc.assembly.references import reference_profile
 from cafe_mpc.config import (
     BAUMGARTE_ALPHA,
     CONE_TOLERANCE,
+    VWBC_FRICTION_HEADROOM,
     CalibrationConfig,
     ConfigError,
     ContactDetectionSettings,
@@ -84,6 +85,8 @@ def resolve(config: RunConfig, robot: Robot) -> ResolvedRun:
         cone_tolerance=scale.force(CONE_TOLERANCE),
     )
     vwbc_friction = config.vwbc.friction
+    if vwbc_friction is None:
+        vwbc_friction = VWBC_FRICTION_HEADROOM * config.mpc.friction
     return ResolvedRun(
         config=config,
         robot=robot,
@@ -93,7 +96,7 @@ def resolve(config: RunConfig, robot: Robot) -> ResolvedRun:
         schedule=schedule,
         torque_limits=torque_limits,
         contact=contact,
-        vwbc_contact=contact if vwbc_friction is None else replace(contact, friction=vwbc_friction),
+        vwbc_contact=replace(contact, friction=vwbc_friction),
         contact_detection=scaled_contact_detection(config.vwbc.contact_detection, scale),
         ground_plane=config.terrain != "flat",
         gait=gait,

@@ -124,7 +124,7 @@ class ContactDetectionSettings(StrictModel):
     release_height: float = Field(0.03, gt=0.0, le=0.5, description="m; foot sole above this: released")
     early_window: float = Field(0.08, ge=0.0, le=1.0, description="s before a planned touchdown that count")
     on_time: float = Field(
-        0.015, ge=0.0, le=1.0, description="s; a touchdown this close to its planned time is on time"
+        0.025, ge=0.0, le=1.0, description="s; a touchdown this close to its planned time is on time"
     )
     ground_height: float = Field(0.0, description="m; the flat ground's height")
     step_height: float = Field(
@@ -165,7 +165,8 @@ class VWBCSettings(StrictModel):
         None,
         gt=0.0,
         le=2.0,
-        description="friction coefficient of the QP's pyramid (34f); null: the plan's (mpc.friction)",
+        description="friction coefficient of the QP's pyramid (34f); null: 1.25 x the plan's (mpc.friction), "
+        "headroom over the plan's relaxed pyramid",
     )
     stance_source: Literal["plan", "intersect", "detected"] = Field(
         "detected",
@@ -196,6 +197,13 @@ CONTROLLER_FRICTION = 0.4
 """The friction coefficient a run's controller assumes (``mpc.friction``): the low end of the floors it must
 work on, not the nominal 0.6. Planned at 0.6, the approach pace of the running roll puts a tenth of its stance
 ticks at the cone's edge on a 0.6 floor and every gait slides on a lower one (docs/robustness.md)."""
+
+VWBC_FRICTION_HEADROOM = 1.25
+"""The VWBC's pyramid (34f) over the plan's (26) when ``vwbc.friction`` is not set: ``1.25 mpc.friction`` (0.5
+for the plan's 0.4). The plan's pyramid is a relaxed barrier, so its forces may pass its edge by a little; the
+VWBC's is hard. At one coefficient for both, the low level clipped the forces the plans hold pitch with where
+the plans lean on them: the bound's hind feet sat at the VWBC's edge in half their stance ticks and the trunk
+rode 1.5-2.5 cm high, pitched nose-down (docs/robustness.md)."""
 
 
 STANDING_CONTROLLERS = ("pd", "balance")

@@ -10,7 +10,10 @@ Bledt et al. ("Contact Model Fusion for Event-Based Locomotion in Unstructured T
   of a swing before its planned touchdown (a foot still loaded just after a planned lift-off is lifting off,
   not landing); one within ``on_time`` of its planned time is on time (the plan's knots are 10 ms apart: its
   impact lands the foot then, and the plan's swing torques for those few milliseconds are what the paper's
-  VWBC applies);
+  VWBC applies). A foot taken into the stance set early is driven by the swing knot's policy (torques planned
+  for a foot in the air) while the ground holds it. In the nominal bound the front feet meet the ground 15-20
+  ms before their planned touchdown; counted early (a 15 ms margin), those feet raised the trunk by 1.5 cm
+  and its speed by 0.03 m/s, so the default margin is 25 ms (docs/robustness.md);
 * the **ground force** the measurement carries (``Measurement.foot_forces``: from the joint torques through
   the leg Jacobians on a robot, ``estimation``; the plant's contact force in a ground-truth run): the foot
   pushes on something;

@@ -85,7 +85,8 @@ class ResolvedRun:
     ``motor_strength``; read-only; the CAFE plan takes ``mpc.plan_torque_fraction`` of them,
     ``planners.cafe.setup.plan_constraints``).
     ``contact``: the contact model of the plan (``mpc.friction``), the whole-body knots and the post-hoc
-    cone score; ``vwbc_contact``: the VWBC's (``vwbc.friction`` if set, else the plan's).
+    cone score; ``vwbc_contact``: the VWBC's (``vwbc.friction`` if set, else the plan's times
+    ``config.VWBC_FRICTION_HEADROOM``).
     ``contact_detection``: the contact detector's thresholds (``vwbc.contact_detection``, heights and times
     scaled to the robot), read by the VWBC's detector and the reference's touchdown events.
     ``ground_plane``: the controller's ground is the plane through the feet's latest contact points
