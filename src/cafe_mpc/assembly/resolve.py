@@ -40,6 +40,7 @@ from cafe_mpc.assembly.references import reference_profile
 from cafe_mpc.config import (
     BAUMGARTE_ALPHA,
     CONE_TOLERANCE,
+    ON_TIME_OFF_FLAT,
     VWBC_FRICTION_HEADROOM,
     CalibrationConfig,
     ConfigError,
@@ -97,7 +98,7 @@ def resolve(config: RunConfig, robot: Robot) -> ResolvedRun:
         torque_limits=torque_limits,
         contact=contact,
         vwbc_contact=replace(contact, friction=vwbc_friction),
-        contact_detection=scaled_contact_detection(config.vwbc.contact_detection, scale),
+        contact_detection=scaled_contact_detection(detection_settings(config), scale),
         ground_plane=config.terrain != "flat",
         gait=gait,
         segment_gaits=segment_gaits,
@@ -135,6 +136,15 @@ def torque_limits_of(config: RunConfig, robot: Robot) -> np.ndarray:
         limits = np.array(robot.torque_limits, dtype=float)
     limits.setflags(write=False)
     return limits
+
+
+def detection_settings(config: RunConfig) -> ContactDetectionSettings:
+    """``vwbc.contact_detection`` with its on-time margin for terrain (``ON_TIME_OFF_FLAT``) when the run has
+    terrain and the config does not set it."""
+    settings = config.vwbc.contact_detection
+    if config.terrain != "flat" and "on_time" not in settings.model_fields_set:
+        return settings.model_copy(update={"on_time": ON_TIME_OFF_FLAT})
+    return settings
 
 
 def scaled_contact_detection(

@@ -124,7 +124,11 @@ class ContactDetectionSettings(StrictModel):
     release_height: float = Field(0.03, gt=0.0, le=0.5, description="m; foot sole above this: released")
     early_window: float = Field(0.08, ge=0.0, le=1.0, description="s before a planned touchdown that count")
     on_time: float = Field(
-        0.025, ge=0.0, le=1.0, description="s; a touchdown this close to its planned time is on time"
+        0.025,
+        ge=0.0,
+        le=1.0,
+        description="s; a touchdown this close to its planned time is on time (not set, with terrain other "
+        "than flat: config.ON_TIME_OFF_FLAT, 0.015)",
     )
     ground_height: float = Field(0.0, description="m; the flat ground's height")
     step_height: float = Field(
@@ -197,6 +201,12 @@ CONTROLLER_FRICTION = 0.4
 """The friction coefficient a run's controller assumes (``mpc.friction``): the low end of the floors it must
 work on, not the nominal 0.6. Planned at 0.6, the approach pace of the running roll puts a tenth of its stance
 ticks at the cone's edge on a 0.6 floor and every gait slides on a lower one (docs/robustness.md)."""
+
+ON_TIME_OFF_FLAT = 0.015
+"""s: ``vwbc.contact_detection.on_time`` when it is not set and the run has terrain (``terrain`` not
+``flat``). On flat ground 25 ms keeps the bound's front feet, which land 15-20 ms early, under the plan's
+stance timing; off it a foot landing early is what the detector is for: with 25 ms the blind bound fell on a
+10 degree slope at 3.74 s, with 15 ms it climbed it (docs/terrain.md)."""
 
 VWBC_FRICTION_HEADROOM = 1.25
 """The VWBC's pyramid (34f) over the plan's (26) when ``vwbc.friction`` is not set: ``1.25 mpc.friction`` (0.5
