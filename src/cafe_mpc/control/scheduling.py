@@ -20,6 +20,7 @@ from __future__ import annotations
 import contextlib
 import ctypes
 import ctypes.util
+import functools
 import os
 from dataclasses import dataclass
 
@@ -116,13 +117,18 @@ MCL_CURRENT, MCL_FUTURE = 1, 2
 """``mlockall`` flags (Linux): the pages mapped now, and those mapped later."""
 
 
+@functools.cache
+def _libc() -> ctypes.CDLL:
+    """The C library (``mlockall``, ``munlockall``), loaded once."""
+    return ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6", use_errno=True)
+
+
 def lock_memory() -> str:
     """Lock every page of this process in memory, now and later (``mlockall``), so that no tick of a
     real-time loop waits for a page the OS took away. Needs root, ``CAP_IPC_LOCK`` or a large enough
     ``RLIMIT_MEMLOCK``; elsewhere nothing is locked. Returns what happened, for the run's record."""
     try:
-        libc = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6", use_errno=True)
-        result = libc.mlockall(MCL_CURRENT | MCL_FUTURE)
+        result = _libc().mlockall(MCL_CURRENT | MCL_FUTURE)
     except (OSError, AttributeError) as error:
         return f"not locked ({type(error).__name__})"
     if result != 0:
@@ -133,7 +139,7 @@ def lock_memory() -> str:
 def unlock_memory() -> None:
     """Undo ``lock_memory`` (no-op where it did nothing)."""
     with contextlib.suppress(OSError, AttributeError):
-        ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6").munlockall()
+        _libc().munlockall()
 
 
 def host_steal_seconds() -> float | None:

@@ -80,12 +80,7 @@ class BalanceController(LowLevelController[KnotPlan]):
         self._torques = np.zeros(nu)
         self._force = np.zeros(3)
         self.last_request = np.zeros(nu)
-        self.engaged = False
-        self.engagements = 0
-        self.ticks = 0
-        self.friction_clips = 0
-        self.torque_clips = 0
-        self.ik_error_max = 0.0
+        self.reset()
 
     def reset(self) -> None:
         self.engaged = False
