@@ -150,6 +150,8 @@ class InlineMpcLoop(MpcLoop[PlanT]):
             self._update(t, state)
 
     def compute(self, t: float, state: Measurement) -> np.ndarray:
+        if state.height_map is not None:  # a new height map: the reference plans on it from now
+            self.reference.observe_height_map(state.height_map, state.q)
         # A plan that comes due now takes effect before the worker starts the next update.
         self._activate_pending(t)
         idle = self.scheme == "rti" or not self.pending

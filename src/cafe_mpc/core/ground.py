@@ -48,6 +48,8 @@ class GroundPlane:
         """Forget the contact points: flat at the initial height."""
         self.known[:] = False
         self._standing[:] = False
+        self.frame_shift = 0.0
+        """How far the measurement's frame has moved up in all (the sum of the shifts ``observe`` saw)."""
         self.height = self.initial_height
         self.slope = np.zeros(2)
         self.centre = np.zeros(2)
@@ -64,6 +66,7 @@ class GroundPlane:
         if continuing.any():
             shift = float(np.mean(soles[continuing, 2] - self.points[continuing, 2]))
             self.points[~standing & self.known, 2] += shift
+            self.frame_shift += shift
         self._standing[:] = standing
         if standing.any():
             self.points[standing] = soles[standing]

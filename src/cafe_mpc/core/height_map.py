@@ -6,6 +6,11 @@ cell ``(row, column)`` has its centre at ``origin + R(yaw) @ (column, row) * res
 where ``valid`` is true (a cell the sensor did not see: out of its range, no surface below, occluded). The
 lab's plant makes them (``cafe_mpc_lab.sim.height_map``: ray casts, as a depth camera's elevation map);
 ``height_at`` and ``normal_at`` read the surface between the cell centres by bilinear interpolation.
+
+A map reaches the controller as a sensor on the trunk measures it: relative to the base (``relative_to``: the
+base at the origin, heights from the base's height, the grid's axes in the heading frame), and the controller
+places it in its own frame at its estimate of the base's pose (``placed_at``): a robot knows the map's pose
+only through its state estimate.
 """
 
 from __future__ import annotations
@@ -53,6 +58,21 @@ class HeightMap:
     def shape(self) -> tuple[int, int]:
         """``(rows, columns)``."""
         return self.heights.shape  # type: ignore[return-value]
+
+    def relative_to(self, x: float, y: float, z: float, yaw: float) -> HeightMap:
+        """This map (world frame) seen from a base at world ``(x, y, z)`` heading ``yaw``: origin and yaw in
+        the base's heading frame, heights above the base's height (``placed_at`` undoes it)."""
+        cos, sin = math.cos(yaw), math.sin(yaw)
+        dx, dy = self.origin[0] - x, self.origin[1] - y
+        origin = (cos * dx + sin * dy, -sin * dx + cos * dy)
+        return HeightMap(origin, self.yaw - yaw, self.resolution, self.heights - z, self.valid, self.time)
+
+    def placed_at(self, x: float, y: float, z: float, yaw: float) -> HeightMap:
+        """A map relative to the base (``relative_to``) placed at a base at ``(x, y, z)`` heading ``yaw``."""
+        cos, sin = math.cos(yaw), math.sin(yaw)
+        ox, oy = self.origin
+        origin = (x + cos * ox - sin * oy, y + sin * ox + cos * oy)
+        return HeightMap(origin, self.yaw + yaw, self.resolution, self.heights + z, self.valid, self.time)
 
     def cell_centres(self) -> np.ndarray:
         """World ``(x, y)`` of every cell's centre, ``(rows, columns, 2)``."""

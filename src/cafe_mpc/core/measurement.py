@@ -11,6 +11,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from cafe_mpc.core.height_map import HeightMap
+
 
 @dataclass
 class Measurement:
@@ -22,6 +24,9 @@ class Measurement:
     v: np.ndarray  # (nv,)
     contacts: np.ndarray  # (n_feet,) bool, leg order
     foot_forces: np.ndarray  # (n_feet, 3) world-frame ground reaction forces on the feet
+    height_map: HeightMap | None = None
+    """The height map measured at this tick, relative to the base (``HeightMap.relative_to``); None on the
+    ticks without a new map and on robots without the sensor."""
 
     @classmethod
     def zeros(cls, nq: int, nv: int, n_feet: int) -> Measurement:

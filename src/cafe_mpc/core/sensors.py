@@ -33,6 +33,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from cafe_mpc.config import SensorLimits
+from cafe_mpc.core.height_map import HeightMap
 from cafe_mpc.core.physics import GRAVITY
 
 
@@ -51,6 +52,7 @@ class SensorReadings:
     joint_torques: np.ndarray  # (nj,) Nm (NaN: not measured)
     imu_time: float = math.nan  # when the IMU sampled (NaN: at ``time``)
     joint_times: np.ndarray = field(default_factory=lambda: np.zeros(0))  # (nj,) when each encoder sampled
+    height_map: HeightMap | None = None  # the map measured at this tick, relative to the base (or None)
 
     def __post_init__(self) -> None:
         if len(self.joint_times) != len(self.joint_positions):

@@ -175,6 +175,7 @@ class SensingController:
 
     def compute(self, t: float, readings: SensorReadings) -> np.ndarray:
         measurement = self.front_end.measure(readings, self.plan)
+        measurement.height_map = readings.height_map  # placed at the estimated pose by the controller
         if t - measurement.time > LATE:
             self._bring_forward(measurement, t)
         self.last_measurement = measurement

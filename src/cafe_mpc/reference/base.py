@@ -21,6 +21,7 @@ from abc import ABC, abstractmethod
 
 import numpy as np
 
+from cafe_mpc.core.height_map import HeightMap
 from cafe_mpc.core.kernels import all_finite
 
 STANCE_TIME_EPS = 1e-7
@@ -102,6 +103,10 @@ class Reference(ABC):
 
     def update(self, t: float, q: np.ndarray, v: np.ndarray) -> None:  # noqa: B027 - optional hook
         """Re-anchor on the measured state before an MPC update (default: nothing)."""
+
+    def observe_height_map(self, height_map: HeightMap, q: np.ndarray) -> None:  # noqa: B027 - optional hook
+        """A height map relative to the base (``core.height_map``) taken at the tick of the measured state
+        ``q``: references that plan on terrain place it at ``q`` (default: ignored)."""
 
     @abstractmethod
     def stance_at(self, t: float) -> tuple[bool, ...]:

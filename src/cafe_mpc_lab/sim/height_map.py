@@ -12,8 +12,10 @@ the ground's geoms into a geom group that no robot geom uses (``ground_group``) 
 group filter on that group, excluding the trunk's body as well; the bar (``sim.bar``) is not ground.
 
 The closed loop (``sim.loop.simulate``) asks the plant's sensor (``Plant.height_map``) at every control tick
-and it measures when a map is due; the maps it took go into the run's log at their rate
-(``SimulationLog.sampled``: ``height_map_time``, ``height_map_origin``, ``height_map_yaw``,
+and it measures when a map is due; a new map goes to the controller with that tick's readings
+(``Measurement.height_map`` / ``SensorReadings.height_map``), relative to the base (``relative``: the
+controller places it at its own estimate of the base's pose); the maps it took go into the run's log at
+their rate (``SimulationLog.sampled``: ``height_map_time``, ``height_map_origin``, ``height_map_yaw``,
 ``height_map_heights``, ``height_map_valid``, ``height_map_resolution``; ``log.npz``: ``sampled_<name>``),
 and ``maps_of`` turns them back into ``HeightMap``. The live viewer draws the newest one
 (``draw_height_map``).
@@ -152,6 +154,15 @@ class HeightMapSensor:
             y + sin * self._origin_offset[0] + cos * self._origin_offset[1],
         )
         return HeightMap(origin, yaw, self.resolution, heights, valid, float(t))
+
+    @staticmethod
+    def relative(height_map: HeightMap, q: np.ndarray) -> HeightMap:
+        """``height_map`` as the trunk's sensor gives it to the controller: relative to the base at ``q``
+        (its position and heading; ``HeightMap.relative_to``), its noise kept."""
+        x, y, z = float(q[0]), float(q[1]), float(q[2])
+        qx, qy, qz, qw = (float(value) for value in q[3:7])
+        yaw = math.atan2(2.0 * (qw * qz + qx * qy), 1.0 - 2.0 * (qy * qy + qz * qz))
+        return height_map.relative_to(x, y, z, yaw)
 
     def log_arrays(self) -> dict[str, np.ndarray]:
         """The maps taken since ``reset``, stacked for the run's log (module docstring)."""

@@ -241,7 +241,9 @@ class Simulation:
     sensor readings, ``sim.sensors.SensorSuite``); their summary goes into the log's ``extra``. With a bar
     in the plant's scene (``sim.bar``) the log's ``extra`` holds ``bar_contact`` (per tick: a robot geom
     touched it) and ``bar`` (``touched_by``: those geoms). A plant with a height-map sensor
-    (``Plant.height_map``) measures its maps at their rate and the log's ``sampled`` holds them. Kernels
+    (``Plant.height_map``) measures its maps at their rate; each goes to the controller with the readings of
+    its tick (``height_map``: relative to the base, ``HeightMapSensor.relative``) and the log's ``sampled``
+    holds them (world frame). Kernels
     compiled once the run proper has started are in the log's ``extra["compilation"]``
     (``core.compilation``). ``log``: None before ``run``; after it returns or raises, the log of every tick
     simulated.
@@ -314,9 +316,10 @@ class Simulation:
             if before_tick is not None:
                 before_tick(t)
             state = plant.read_state()
-            if height_maps is not None:  # a map when one is due (the controllers do not take maps yet)
-                height_maps.observe(t, state.q)
+            height_map = height_maps.observe(t, state.q) if height_maps is not None else None
             measured = sensors.measure(tick, plant, state)
+            # a new map goes with this tick's readings, as the trunk's sensor sees it: relative to the base
+            measured.height_map = None if height_map is None else height_maps.relative(height_map, state.q)
             if pacer is not None:
                 pacer.mark(tick, TickPart.SENSE)
             torques = np.asarray(controller.compute(t, measured), dtype=float)  # type: ignore[arg-type]
