@@ -19,7 +19,13 @@ run, for tracking metrics and plots; a stored run's plots make it from the store
 
 from __future__ import annotations
 
-from cafe_mpc.config import ConfigError, ContactDetectionSettings, RunConfig, VelocityCommand
+from cafe_mpc.config import (
+    ConfigError,
+    ContactDetectionSettings,
+    RunConfig,
+    TerrainMapSettings,
+    VelocityCommand,
+)
 from cafe_mpc.ocp.contact_schedule import get_gait
 from cafe_mpc.planners.cafe.setup import TRAJECTORY_WEIGHT_SET
 from cafe_mpc.planners.resolved import ResolvedGait, ResolvedRun
@@ -59,11 +65,13 @@ def locomotion_reference(
     robot: Robot,
     detection: ContactDetectionSettings | None = None,
     ground_plane: bool = False,
+    terrain_map: TerrainMapSettings | None = None,
 ) -> LocomotionReference:
     """The heuristic locomotion reference (Sec. VI-A) of a resolved gait section (``ValueError`` if it cannot
     be built); with ``touchdown_events``, early touchdowns advance its clock, seen within ``detection``'s
     early window and touchdown height (a run's, resolved for its robot; default as written); with
-    ``ground_plane`` its base and footholds follow the plane through the stance feet (``terrain: blind``)."""
+    ``ground_plane`` its base and footholds follow the plane through the stance feet (``terrain: blind``),
+    with ``terrain_map`` the height maps it is given (``terrain: height_map``)."""
     section = gait.section
     events = None
     if gait.touchdown_events is not None:
@@ -82,6 +90,7 @@ def locomotion_reference(
         path_heading_limit=section.path_heading_limit,
         touchdown_events=events,
         ground_plane=ground_plane,
+        terrain_map=terrain_map,
     )
 
 
@@ -148,6 +157,8 @@ def build_reference(run: ResolvedRun) -> Reference:
     if run.gait is None:  # RunConfig rejects this; kept for configs built with model_construct
         raise ConfigError(f"wbc: {config.wbc!r} needs a gait section")
     try:
-        return locomotion_reference(run.gait, run.controller_robot, run.contact_detection, run.ground_plane)
+        return locomotion_reference(
+            run.gait, run.controller_robot, run.contact_detection, run.ground_plane, run.terrain_map
+        )
     except ValueError as error:
         raise ConfigError(f"gait: {error}") from error

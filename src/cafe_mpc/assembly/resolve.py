@@ -47,6 +47,7 @@ from cafe_mpc.config import (
     ContactDetectionSettings,
     GaitConfig,
     RunConfig,
+    TerrainMapSettings,
 )
 from cafe_mpc.ocp.contact_schedule import GaitCycle, get_gait
 from cafe_mpc.planners.cafe.setup import model_schedule, scaled_schedule
@@ -100,6 +101,7 @@ def resolve(config: RunConfig, robot: Robot) -> ResolvedRun:
         vwbc_contact=replace(contact, friction=vwbc_friction),
         contact_detection=scaled_contact_detection(detection_settings(config), scale),
         ground_plane=config.terrain != "flat",
+        terrain_map=scaled_terrain_map(config.terrain_map, scale) if config.terrain == "height_map" else None,
         gait=gait,
         segment_gaits=segment_gaits,
         command_profile=reference_profile(config, robot),
@@ -161,6 +163,18 @@ def scaled_contact_detection(
             "release_height": scale.distance(settings.release_height),
             "early_window": scale.duration(settings.early_window),
             "on_time": scale.duration(settings.on_time),
+        }
+    )
+
+
+def scaled_terrain_map(settings: TerrainMapSettings, scale: RobotScale) -> TerrainMapSettings:
+    """How the reference plans on the height map, its lengths carried to the robot."""
+    if scale.is_identity:
+        return settings
+    return settings.model_copy(
+        update={
+            name: scale.distance(getattr(settings, name))
+            for name in ("edge_margin", "flat_tolerance", "foothold_search", "swing_clearance", "base_window")
         }
     )
 

@@ -842,6 +842,44 @@ class HeightMapConfig(StrictModel):
         return self
 
 
+class TerrainMapSettings(StrictModel):
+    """How the reference plans on the height map (``terrain: height_map``; ``reference.terrain_map``): the
+    footholds on flat spots of the map, the swing apexes above the terrain between lift-off and touchdown,
+    the base's height and pitch from the terrain under the hips. Lengths are the reference robot's (a run
+    scales them to its robot)."""
+
+    edge_margin: float = Field(
+        0.04,
+        gt=0.0,
+        le=0.5,
+        description="m; a flat spot is a cell whose neighbours this far around (at least one cell) lie "
+        "within flat_tolerance of each other",
+    )
+    flat_tolerance: float = Field(
+        0.03,
+        gt=0.0,
+        le=0.5,
+        description="m; the spread of heights a flat spot allows (above the map's noise)",
+    )
+    foothold_search: float = Field(
+        0.1, ge=0.0, le=0.5, description="m; how far a foothold off a flat spot may move to the nearest one"
+    )
+    swing_clearance: float = Field(
+        0.03,
+        ge=0.0,
+        le=0.2,
+        description="m; how far a swing foot passes above terrain higher than its lift-off or touchdown "
+        "ground (a riser), at every point of the swing",
+    )
+    base_window: float = Field(
+        0.3,
+        gt=0.0,
+        le=2.0,
+        description="m; the square over which the terrain under each hip is averaged for the base's height "
+        "and pitch",
+    )
+
+
 PlantScales = float | list[float]
 """One factor for every joint, or one per actuated joint (robot joint order)."""
 
@@ -1245,8 +1283,13 @@ class RunConfig(StrictModel):
         "flat",
         description="the ground the controller believes in. flat: z = 0 (the paper's); blind: the plane "
         "through the feet's latest contact points (core.ground), which the reference's base height, pitch "
-        "and footholds and the contact detector follow; height_map: as blind, with the plant's height maps "
-        "in the log (plant.height_map; the controllers do not use them yet). docs/terrain.md",
+        "and footholds and the contact detector follow; height_map: as blind, and the reference plans on the "
+        "maps of the plant's height-map sensor (plant.height_map; terrain_map): footholds on flat spots, "
+        "swings above the terrain, base height and pitch from it. docs/terrain.md",
+    )
+    terrain_map: TerrainMapSettings = Field(
+        default_factory=TerrainMapSettings,
+        description="how the reference plans on the height map (terrain: height_map; reference.terrain_map)",
     )
     output: OutputConfig = Field(default_factory=OutputConfig, description="plots and video")
     recovery: RecoveryConfig = Field(
@@ -1293,6 +1336,11 @@ class RunConfig(StrictModel):
             raise ValueError(
                 "terrain: 'height_map' needs the plant's height-map sensor (plant.height_map.enabled: true); "
                 "a robot without it runs blind (terrain: blind)"
+            )
+        if self.terrain == "height_map" and self.simulation.realtime:
+            raise ValueError(
+                "terrain: 'height_map' runs with the MPC in the simulation's loop only (simulation.realtime: "
+                "false); the MPC process does not receive the maps"
             )
         if height_map.enabled and height_map.rate_hz > self.simulation.control_rate_hz * (1.0 + 1e-9):
             raise ValueError(

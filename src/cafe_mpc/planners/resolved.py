@@ -26,6 +26,7 @@ from cafe_mpc.config import (
     ContactDetectionSettings,
     GaitConfig,
     RunConfig,
+    TerrainMapSettings,
 )
 from cafe_mpc.ocp.contact_schedule import GaitCycle
 from cafe_mpc.planners.cafe.problem import ModelSchedule
@@ -93,7 +94,9 @@ class ResolvedRun:
     (``terrain`` blind or height_map, docs/terrain.md), read by the reference (base and footholds on it), the
     contact detector (heights above it), the VWBC (its cone about the plane's normal) and the estimator
     (stance feet not dropped for standing above z = 0); False (``terrain: flat``): flat ground at
-    ``contact_detection.ground_height``. ``gait``: the
+    ``contact_detection.ground_height``. ``terrain_map``: how the reference plans on the height maps
+    (``terrain: height_map``; the config's ``terrain_map``, lengths scaled to the robot), else None.
+    ``gait``: the
     ``gait`` section resolved (None without one); ``segment_gaits``: each ``reference`` segment's gait
     resolved (None for the others). ``command_profile``: what the run commands over time (tracking metrics
     and plots). ``control_period``: seconds between two low-level ticks."""
@@ -109,6 +112,7 @@ class ResolvedRun:
     vwbc_contact: ContactModel
     contact_detection: ContactDetectionSettings
     ground_plane: bool
+    terrain_map: TerrainMapSettings | None
     gait: ResolvedGait | None
     segment_gaits: tuple[ResolvedGait | None, ...]
     command_profile: CommandProfile

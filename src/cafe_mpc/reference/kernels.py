@@ -52,6 +52,40 @@ def sample_foot(
     ``swing_height`` above the higher end at mid-swing, zero velocity at both ends); elsewhere stance on the
     end of the last segment that touched down before ``t`` (``stance_position`` before any). Writes column
     ``foot`` of ``stance`` (n, n_feet), ``positions`` and ``velocities`` (n, n_feet, 3)."""
+    floors = np.full(liftoffs.shape[0], -np.inf)
+    sample_foot_floored(
+        times,
+        liftoffs,
+        touchdowns,
+        starts,
+        ends,
+        stance_position,
+        swing_height,
+        floors,
+        foot,
+        stance,
+        positions,
+        velocities,
+    )
+
+
+@njit(cache=True, nogil=True)
+def sample_foot_floored(
+    times: np.ndarray,
+    liftoffs: np.ndarray,
+    touchdowns: np.ndarray,
+    starts: np.ndarray,
+    ends: np.ndarray,
+    stance_position: np.ndarray,
+    swing_height: float,
+    apex_floors: np.ndarray,
+    foot: int,
+    stance: np.ndarray,
+    positions: np.ndarray,
+    velocities: np.ndarray,
+) -> None:
+    """``sample_foot`` with each swing's apex at least ``apex_floors[j]`` (world z; -inf: no floor, the
+    apex ``swing_height`` above the higher end): a swing over terrain higher than its ends clears it."""
     tolerance = 1e-9
     for i in range(times.shape[0]):
         t = times[i]
@@ -69,7 +103,7 @@ def sample_foot(
                     positions[i, foot, a] = starts[j, a] + delta * blend
                     velocities[i, foot, a] = delta * dblend / duration
                 z0, z1 = starts[j, 2], ends[j, 2]
-                apex = max(z0, z1) + swing_height
+                apex = max(max(z0, z1) + swing_height, apex_floors[j])
                 if s < 0.5:
                     blend, dblend = _bezier(2.0 * s)
                     positions[i, foot, 2] = z0 + (apex - z0) * blend
@@ -363,6 +397,172 @@ def _foothold(
     out[2] = parameters[5] + ground
 
 
+# ------------------------------------------------------------------------------------ terrain (height map)
+TERRAIN_ENABLED, TERRAIN_ORIGIN_X, TERRAIN_ORIGIN_Y, TERRAIN_COS, TERRAIN_SIN = 0, 1, 2, 3, 4
+TERRAIN_RESOLUTION, TERRAIN_SEARCH, TERRAIN_OFFSET, TERRAIN_CLEARANCE = 5, 6, 7, 8
+TERRAIN_PARAMETERS = 9
+"""The ``terrain`` array of the kernels (``reference.terrain_map.TerrainMap``): a map in use (1) or none (0),
+the grid's origin (world x, y of cell (0, 0)), the cosine and sine of its yaw, its resolution (m), how far a
+foothold may move to a flat spot (m), a height offset added to every height read (m: how far the
+estimator's frame moved since the map was placed) and the clearance (m) a swing keeps above terrain that
+rises above its ends' ground (a riser)."""
+
+
+@njit(cache=True, nogil=True)
+def map_height(grid: np.ndarray, terrain: np.ndarray, x: float, y: float) -> float:
+    """``core.height_map.HeightMap.height_at`` of a grid of heights (NaN: not seen) placed by ``terrain``:
+    bilinear between the four cell centres around world ``(x, y)``, plus the offset; NaN outside the grid
+    or next to a cell not seen."""
+    dx, dy = x - terrain[TERRAIN_ORIGIN_X], y - terrain[TERRAIN_ORIGIN_Y]
+    cos, sin, resolution = terrain[TERRAIN_COS], terrain[TERRAIN_SIN], terrain[TERRAIN_RESOLUTION]
+    column = (cos * dx + sin * dy) / resolution
+    row = (-sin * dx + cos * dy) / resolution
+    rows, columns = grid.shape
+    tolerance = 1e-9
+    if not (-tolerance <= column <= columns - 1 + tolerance and -tolerance <= row <= rows - 1 + tolerance):
+        return np.nan
+    c0 = min(max(math.floor(column), 0), max(columns - 2, 0))
+    r0 = min(max(math.floor(row), 0), max(rows - 2, 0))
+    c1, r1 = min(c0 + 1, columns - 1), min(r0 + 1, rows - 1)
+    fr = min(max(row - r0, 0.0), 1.0)
+    fc = min(max(column - c0, 0.0), 1.0)
+    low = (1.0 - fc) * grid[r0, c0] + fc * grid[r0, c1]
+    high = (1.0 - fc) * grid[r1, c0] + fc * grid[r1, c1]
+    return (1.0 - fr) * low + fr * high + terrain[TERRAIN_OFFSET]
+
+
+@njit(cache=True, nogil=True)
+def map_height_bound(grid: np.ndarray, terrain: np.ndarray, x: float, y: float) -> float:
+    """The highest of the (seen) four cell centres around world ``(x, y)``, plus the offset: a bound on the
+    terrain there that an edge between two cell centres cannot hide (the bilinear ``map_height`` ramps
+    over it); NaN outside the grid or where none of the four was seen."""
+    dx, dy = x - terrain[TERRAIN_ORIGIN_X], y - terrain[TERRAIN_ORIGIN_Y]
+    cos, sin, resolution = terrain[TERRAIN_COS], terrain[TERRAIN_SIN], terrain[TERRAIN_RESOLUTION]
+    column = (cos * dx + sin * dy) / resolution
+    row = (-sin * dx + cos * dy) / resolution
+    rows, columns = grid.shape
+    tolerance = 1e-9
+    if not (-tolerance <= column <= columns - 1 + tolerance and -tolerance <= row <= rows - 1 + tolerance):
+        return np.nan
+    c0 = min(max(math.floor(column), 0), max(columns - 2, 0))
+    r0 = min(max(math.floor(row), 0), max(rows - 2, 0))
+    highest = -np.inf
+    for r in range(r0, min(r0 + 1, rows - 1) + 1):
+        for c in range(c0, min(c0 + 1, columns - 1) + 1):
+            if math.isfinite(grid[r, c]) and grid[r, c] > highest:
+                highest = grid[r, c]
+    if not math.isfinite(highest):
+        return np.nan
+    return highest + terrain[TERRAIN_OFFSET]
+
+
+@njit(cache=True, nogil=True)
+def map_heights(
+    grid: np.ndarray, terrain: np.ndarray, xs: np.ndarray, ys: np.ndarray, out: np.ndarray
+) -> None:
+    """``map_height`` at every ``(xs[i], ys[i])`` into ``out``."""
+    for i in range(xs.shape[0]):
+        out[i] = map_height(grid, terrain, xs[i], ys[i])
+
+
+@njit(cache=True, nogil=True)
+def terrain_foothold(
+    heights: np.ndarray, footholds: np.ndarray, terrain: np.ndarray, foot_radius: float, out: np.ndarray
+) -> None:
+    """A planned foothold ``out`` (world x, y, z) onto the map: where the four cells around it are flat
+    spots (``footholds``: a flat spot's height, NaN elsewhere; ``reference.terrain_map``) its height is
+    theirs; else it moves to the nearest flat spot's centre within ``terrain[TERRAIN_SEARCH]`` m; with none
+    there it stays, at the map's height (``heights``) if the map saw it, else at the height it had (the
+    ground plane's)."""
+    z = map_height(footholds, terrain, out[0], out[1])
+    if math.isfinite(z):
+        out[2] = foot_radius + z
+        return
+    cos, sin, resolution = terrain[TERRAIN_COS], terrain[TERRAIN_SIN], terrain[TERRAIN_RESOLUTION]
+    dx, dy = out[0] - terrain[TERRAIN_ORIGIN_X], out[1] - terrain[TERRAIN_ORIGIN_Y]
+    column = (cos * dx + sin * dy) / resolution
+    row = (-sin * dx + cos * dy) / resolution
+    reach = terrain[TERRAIN_SEARCH] / resolution
+    rows, columns = footholds.shape
+    best, best_row, best_column = reach * reach, -1, -1
+    for r in range(max(math.floor(row - reach), 0), min(math.ceil(row + reach), rows - 1) + 1):
+        for c in range(max(math.floor(column - reach), 0), min(math.ceil(column + reach), columns - 1) + 1):
+            if not math.isfinite(footholds[r, c]):
+                continue
+            distance = (r - row) * (r - row) + (c - column) * (c - column)
+            if distance <= best:
+                best, best_row, best_column = distance, r, c
+    if best_row >= 0:
+        along, across = best_column * resolution, best_row * resolution
+        out[0] = terrain[TERRAIN_ORIGIN_X] + cos * along - sin * across
+        out[1] = terrain[TERRAIN_ORIGIN_Y] + sin * along + cos * across
+        out[2] = foot_radius + footholds[best_row, best_column] + terrain[TERRAIN_OFFSET]
+        return
+    z = map_height(heights, terrain, out[0], out[1])
+    if math.isfinite(z):
+        out[2] = foot_radius + z
+
+
+@njit(cache=True, nogil=True)
+def highest_between(heights: np.ndarray, terrain: np.ndarray, start: np.ndarray, end: np.ndarray) -> float:
+    """The highest point the map saw on the segment from ``start`` to ``end`` (world x, y), sampled every
+    half cell; -inf when it saw none of it."""
+    dx, dy = end[0] - start[0], end[1] - start[1]
+    samples = math.ceil(math.sqrt(dx * dx + dy * dy) / (0.5 * terrain[TERRAIN_RESOLUTION])) + 1
+    highest = -np.inf
+    for i in range(samples + 1):
+        s = i / samples
+        z = map_height(heights, terrain, start[0] + s * dx, start[1] + s * dy)
+        if math.isfinite(z) and z > highest:
+            highest = z
+    return highest
+
+
+SWING_SAMPLES = 24
+"""Times along a swing at which ``swing_apex_floor`` checks the terrain under the foot."""
+
+
+@njit(cache=True, nogil=True)
+def swing_apex_floor(
+    heights: np.ndarray,
+    terrain: np.ndarray,
+    start: np.ndarray,
+    end: np.ndarray,
+    foot_radius: float,
+    swing_height: float,
+) -> float:
+    """The lowest apex of a ``sample_foot`` swing from ``start`` to ``end`` (world, foot centres) over the
+    map: ``swing_height`` above the highest point between its ends (``highest_between``) at mid-swing, and
+    high enough that at every sampled time the foot passes ``terrain[TERRAIN_CLEARANCE]`` above terrain
+    (``map_height_bound``: the highest cell around it) that rises above the ground of the swing's nearer
+    end (a riser close to lift-off is met early in the rise, while the planar blend has moved little), at
+    most ``swing_height`` more; -inf without a map under the swing."""
+    highest = highest_between(heights, terrain, start, end)
+    if not math.isfinite(highest):
+        return -np.inf
+    apex = foot_radius + highest + swing_height
+    clearance = terrain[TERRAIN_CLEARANCE]
+    floor = apex
+    for k in range(1, SWING_SAMPLES):
+        s = k / SWING_SAMPLES
+        blend, _ = _bezier(s)
+        z = map_height_bound(
+            heights, terrain, start[0] + (end[0] - start[0]) * blend, start[1] + (end[1] - start[1]) * blend
+        )
+        if not math.isfinite(z):
+            continue
+        need = z + foot_radius + clearance
+        if s < 0.5:
+            lift, _ = _bezier(2.0 * s)
+            if z > start[2] - foot_radius + 0.5 * clearance and need > start[2] and lift > 1e-9:
+                floor = max(floor, start[2] + (need - start[2]) / lift)
+        else:
+            fall, _ = _bezier(2.0 * s - 1.0)
+            if z > end[2] - foot_radius + 0.5 * clearance and need > end[2] and fall < 1.0 - 1e-9:
+                floor = max(floor, (need - end[2] * fall) / (1.0 - fall))
+    return min(floor, apex + swing_height)
+
+
 @njit(cache=True, nogil=True)
 def sample_feet(
     times: np.ndarray,
@@ -381,6 +581,9 @@ def sample_feet(
     gauss_weights: np.ndarray,
     offsets: np.ndarray,
     parameters: np.ndarray,
+    terrain: np.ndarray,
+    heights: np.ndarray,
+    footholds: np.ndarray,
     stance: np.ndarray,
     positions: np.ndarray,
     velocities: np.ndarray,
@@ -389,12 +592,16 @@ def sample_feet(
     ``phase_starts``, ``phase_ends``, ``phase_flags`` (phases, feet)) overlapping ``[t0, t1]``, each with
     the stance that follows it (``_swings``), their lift-off points (the measured lift-off point for a
     swing that started by the anchor, else the previous foothold) and Raibert footholds (``_foothold``),
-    then the foot sampled at ``times`` (``sample_foot``)."""
+    then the foot sampled at ``times`` (``sample_foot``). With a height map (``terrain``, ``heights``,
+    ``footholds``: ``reference.terrain_map``) each foothold moves onto it (``terrain_foothold``) and each
+    swing's apex clears the terrain between its ends (``swing_apex_floor``)."""
     count = phase_starts.shape[0]
     liftoffs = np.empty(count)
     touchdowns = np.empty(count)
     starts = np.empty((count, 3))
     ends = np.empty((count, 3))
+    floors = np.full(count, -np.inf)
+    mapped = terrain[TERRAIN_ENABLED] > 0.0
     for foot in range(stance_positions.shape[0]):
         n_swings = 0
         start_position = stance_positions[foot]
@@ -430,12 +637,17 @@ def sample_feet(
                         max(stance_duration, 1e-3),
                         ends[j],
                     )
+                    if mapped:
+                        terrain_foothold(heights, footholds, terrain, parameters[5], ends[j])
+                        floors[j] = swing_apex_floor(
+                            heights, terrain, starts[j], ends[j], parameters[5], parameters[6]
+                        )
                     start_position = ends[j]
                     n_swings += 1
                 index = end_index + 1
             else:
                 index += 1
-        sample_foot(
+        sample_foot_floored(
             times,
             liftoffs[:n_swings],
             touchdowns[:n_swings],
@@ -443,6 +655,7 @@ def sample_feet(
             ends[:n_swings],
             stance_positions[foot],
             parameters[6],
+            floors[:n_swings],
             foot,
             stance,
             positions,

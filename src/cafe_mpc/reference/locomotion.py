@@ -21,14 +21,16 @@ from dataclasses import dataclass
 import numpy as np
 import pinocchio as pin
 
-from cafe_mpc.config import VelocityCommand
+from cafe_mpc.config import TerrainMapSettings, VelocityCommand
 from cafe_mpc.core.ground import GroundPlane
+from cafe_mpc.core.height_map import HeightMap
 from cafe_mpc.core.physics import GRAVITY
 from cafe_mpc.dynamics.leg_inverse_kinematics import LegInverseKinematics
 from cafe_mpc.dynamics.statics import static_stance_torques
 from cafe_mpc.ocp.contact_schedule import GAITS, TIME_TOLERANCE, ContactPhase, ContactSchedule, GaitCycle
 from cafe_mpc.reference.base import STANCE_TIME_EPS, Reference, ReferenceWindow, switches_inside
-from cafe_mpc.reference.kernels import sample_base, sample_feet
+from cafe_mpc.reference.kernels import map_heights, sample_base, sample_feet, terrain_foothold
+from cafe_mpc.reference.terrain_map import TerrainMap
 from cafe_mpc.robots.robot import Robot
 
 FOOTHOLD_BOX = (0.10, 0.06)
@@ -281,6 +283,7 @@ class LocomotionReference(Reference):
         path_heading_limit: float = 0.2,
         touchdown_events: tuple[float, float, float] | None = None,
         ground_plane: bool = False,
+        terrain_map: TerrainMapSettings | None = None,
     ) -> None:
         if not commands:
             commands = [VelocityCommand()]
@@ -326,6 +329,17 @@ class LocomotionReference(Reference):
         self.ground = GroundPlane(robot.n_feet) if ground_plane else None
         """The plane through the stance feet's latest contact points (``core.ground``) that the base height,
         its pitch and the footholds follow; None: flat ground at z = 0 (the paper's)."""
+        if terrain_map is not None and self.ground is None:
+            raise ValueError(
+                "a reference on a height map (terrain_map) needs the ground plane (ground_plane)"
+            )
+        self.terrain = TerrainMap(terrain_map) if terrain_map is not None else None
+        """The newest height map (``reference.terrain_map``, ``terrain: height_map``): the footholds on its
+        flat spots, the swings above it, the base's height and pitch from it; where it has not seen, and
+        before the first map, the ground plane. None: the ground plane alone (``terrain: blind``)."""
+        hips = self.offsets[:, 0]
+        self._front_feet = hips > 0.0
+        self._hip_span = float(np.mean(hips[hips > 0.0]) - np.mean(hips[hips <= 0.0]))
         self._soles = np.zeros((robot.n_feet, 3))
         self._still = np.zeros(robot.n_feet, dtype=bool)
         """(time, x y, yaw) the commanded path starts from: the first measured pose after a reset."""
@@ -603,6 +617,8 @@ class LocomotionReference(Reference):
                 self.liftoff_positions[foot] = position
         if self.ground is not None:
             self._observe_ground(q, v, stance)
+            if self.terrain is not None:
+                self.terrain.follow_frame(self.ground.frame_shift)
 
     def _observe_ground(self, q: np.ndarray, v: np.ndarray, stance: Sequence[bool]) -> None:
         """The ground plane through the feet planned in stance that stand still (a foot planned in stance
@@ -674,14 +690,34 @@ class LocomotionReference(Reference):
 
     # ------------------------------------------------------------------------------------------- ground
     def ground_height_at(self, x: float, y: float) -> float:
-        """The ground's height under world ``(x, y)`` as the reference believes it (0: flat ground)."""
+        """The ground's height under world ``(x, y)`` as the reference believes it (0: flat ground; the
+        height map's where it saw, else the ground plane's)."""
+        if self.terrain is not None and self.terrain.available:
+            height = np.zeros(1)
+            map_heights(self.terrain.heights, self.terrain.parameters, np.array([x]), np.array([y]), height)
+            if math.isfinite(height[0]):
+                return float(height[0])
         return 0.0 if self.ground is None else self.ground.height_at(x, y)
+
+    def observe_height_map(self, height_map: HeightMap, q: np.ndarray) -> None:
+        """A height map relative to the base (``HeightMap.relative_to``), placed at the measured base pose
+        ``q`` (the estimate of the tick it was taken at): the newest terrain the reference plans on. Ignored
+        without ``terrain_map`` (``terrain: flat | blind``)."""
+        if self.terrain is None:
+            return
+        assert self.ground is not None
+        yaw = yaw_from_quaternion(q[3:7])
+        placed = height_map.placed_at(float(q[0]), float(q[1]), float(q[2]), yaw)
+        self.terrain.place(placed, self.ground.frame_shift)
 
     def _follow_ground(self, state: np.ndarray) -> None:
         """Base rows ``state[:, :7]`` (yaw-only attitude, height above z = 0) onto the ground plane: the
         height above the plane under the base, pitched along the plane's slope in the heading."""
         ground = self.ground
         if ground is None:
+            return
+        if self.terrain is not None and self.terrain.available:
+            self._follow_terrain(state)
             return
         state[:, 2] += ground.height + ground.slope[0] * (state[:, 0] - ground.centre[0])
         state[:, 2] += ground.slope[1] * (state[:, 1] - ground.centre[1])
@@ -690,6 +726,31 @@ class LocomotionReference(Reference):
         half_yaw = np.arctan2(state[:, 5], state[:, 6])  # qz, qw of a yaw-only quaternion
         rise = ground.slope[0] * np.cos(2.0 * half_yaw) + ground.slope[1] * np.sin(2.0 * half_yaw)
         half_pitch = -0.5 * np.arctan(rise)
+        cy, sy, cp, sp = np.cos(half_yaw), np.sin(half_yaw), np.cos(half_pitch), np.sin(half_pitch)
+        state[:, 3], state[:, 4], state[:, 5], state[:, 6] = -sy * sp, cy * sp, sy * cp, cy * cp
+
+    def _follow_terrain(self, state: np.ndarray) -> None:
+        """Base rows ``state[:, :7]`` onto the height map: the commanded height above the mean of the
+        terrain under the four hips (``TerrainMap.smooth``; the ground plane where the map has not seen),
+        pitched by the rise from the hind hips' terrain to the front hips'."""
+        assert self.terrain is not None and self.ground is not None
+        n = state.shape[0]
+        half_yaw = np.arctan2(state[:, 5], state[:, 6])
+        cos, sin = np.cos(2.0 * half_yaw), np.sin(2.0 * half_yaw)
+        terrain = np.zeros((n, len(self.offsets)))
+        column = np.zeros(n)
+        ground = self.ground
+        for foot, (ox, oy) in enumerate(self.offsets):
+            xs = state[:, 0] + cos * ox - sin * oy
+            ys = state[:, 1] + sin * ox + cos * oy
+            map_heights(self.terrain.smooth, self.terrain.parameters, xs, ys, column)
+            plane = ground.height + ground.slope[0] * (xs - ground.centre[0])
+            plane += ground.slope[1] * (ys - ground.centre[1])
+            terrain[:, foot] = np.where(np.isfinite(column), column, plane)
+        front = terrain[:, self._front_feet].mean(axis=1)
+        hind = terrain[:, ~self._front_feet].mean(axis=1)
+        state[:, 2] += terrain.mean(axis=1)
+        half_pitch = -0.5 * np.arctan((front - hind) / self._hip_span)
         cy, sy, cp, sp = np.cos(half_yaw), np.sin(half_yaw), np.cos(half_pitch), np.sin(half_pitch)
         state[:, 3], state[:, 4], state[:, 5], state[:, 6] = -sy * sp, cy * sp, sy * cp, cy * cp
 
@@ -718,7 +779,8 @@ class LocomotionReference(Reference):
         return xy + _yaw_rotation(yaw) @ self.offsets[foot]
 
     def foothold(self, foot: int, touchdown_time: float, stance_duration: float) -> np.ndarray:
-        """Raibert foothold (Sec. VI-A): the hip at mid-stance plus velocity feedback, clamped to a box."""
+        """Raibert foothold (Sec. VI-A): the hip at mid-stance plus velocity feedback, clamped to a box; on
+        the ground the reference believes in (``ground_height_at``), on a height map moved to a flat spot."""
         nominal = self.hip_xy(touchdown_time, foot)
         mid_stance = self.hip_xy(touchdown_time + 0.5 * stance_duration, foot)
         vx, vy, _, _ = self.profile.values_at(touchdown_time)
@@ -729,7 +791,15 @@ class LocomotionReference(Reference):
         step = _yaw_rotation(-yaw) @ (target - nominal)
         step = np.clip(step, -self.foothold_box, self.foothold_box)
         xy = nominal + _yaw_rotation(yaw) @ step
-        return np.array([xy[0], xy[1], self.robot.foot_radius + self.ground_height_at(xy[0], xy[1])])
+        foothold = np.array([xy[0], xy[1], self.robot.foot_radius + self.ground_height_at(xy[0], xy[1])])
+        terrain = self.terrain
+        if (
+            terrain is not None and terrain.available
+        ):  # onto a flat spot of the map (kernels.terrain_foothold)
+            terrain_foothold(
+                terrain.heights, terrain.footholds, terrain.parameters, self.robot.foot_radius, foothold
+            )
+        return foothold
 
     def _swings(self, foot: int, t0: float, t1: float) -> list[tuple[float, float, float]]:
         """Swing intervals ``(liftoff, touchdown, next stance duration)`` of ``foot`` overlapping [t0, t1]."""
@@ -798,6 +868,7 @@ class LocomotionReference(Reference):
             parameters[8:10] = self.ground.slope
             parameters[10:12] = self.ground.centre
         profile = self.profile
+        terrain = self.terrain if self.terrain is not None else _NO_TERRAIN
         sample_feet(
             np.ascontiguousarray(times, dtype=float),
             t0,
@@ -815,6 +886,9 @@ class LocomotionReference(Reference):
             _GAUSS_WEIGHT_ARRAY,
             np.ascontiguousarray(self.offsets, dtype=float),
             parameters,
+            terrain.parameters,
+            terrain.heights,
+            terrain.footholds,
             stance,
             positions,
             velocities,
@@ -933,6 +1007,10 @@ class LocomotionReference(Reference):
             share = np.array([[self.support_factor(float(t)) * self.mass * GRAVITY] for t in times])
         forces[..., 2] = np.where(stance, share, 0.0)
         return forces
+
+
+_NO_TERRAIN = TerrainMap(TerrainMapSettings())
+"""No map: what the compiled sampling reads on flat ground and blind (``TerrainMap`` before ``place``)."""
 
 
 def _quaternion_matrix(quaternion_xyzw: np.ndarray) -> np.ndarray:

@@ -1,0 +1,131 @@
+"""The terrain a locomotion reference plans on from a height map (``terrain: height_map``).
+
+The robot's height-map sensor gives a ``core.height_map.HeightMap`` relative to its base; the controller
+places it at its estimate of the base's pose (``HeightMap.placed_at``) and hands it to the reference
+(``LocomotionReference.observe_height_map``), which keeps the newest in a ``TerrainMap``. From each map it
+makes, once, what the compiled sampling (``reference.kernels``) reads:
+
+* ``heights``: the map's heights, NaN where it saw nothing;
+* ``footholds``: the height of each *flat spot*, NaN elsewhere: a cell whose neighbours within
+  ``edge_margin`` (at least one cell each way; beyond the grid's border, the border's) were all seen and
+  spread by at most ``flat_tolerance``; a
+  foothold lands on one (``kernels.terrain_foothold``: where it is, or the nearest within
+  ``foothold_search``), so that a foot is not planned on an edge;
+* ``smooth``: the heights averaged over a square of ``base_window`` around each cell (NaN where none was
+  seen), the terrain under the hips that the base's height and pitch follow.
+
+Heights are in the frame of the estimate the map was placed with. A state estimator that measures its
+stance feet at z = 0 moves that frame when the feet reach a new level; the reference's ground plane sees
+the move (``core.ground.GroundPlane.frame_shift``) and the map follows it (``offset``): a map is used for
+up to a sensor period after it was taken.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numpy.lib.stride_tricks import sliding_window_view
+
+from cafe_mpc.config import TerrainMapSettings
+from cafe_mpc.core.height_map import HeightMap
+from cafe_mpc.reference.kernels import (
+    TERRAIN_CLEARANCE,
+    TERRAIN_COS,
+    TERRAIN_ENABLED,
+    TERRAIN_OFFSET,
+    TERRAIN_ORIGIN_X,
+    TERRAIN_ORIGIN_Y,
+    TERRAIN_PARAMETERS,
+    TERRAIN_RESOLUTION,
+    TERRAIN_SEARCH,
+    TERRAIN_SIN,
+)
+
+
+def _windows(grid: np.ndarray, half: int, beyond: str) -> np.ndarray:
+    """Every cell's ``(2 half + 1)^2`` neighbourhood, ``(rows, columns, side, side)``; beyond the grid NaN
+    (``beyond`` "unseen") or the border's cells repeated ("edge")."""
+    if beyond == "edge":
+        padded = np.pad(grid, half, mode="edge")
+    else:
+        padded = np.pad(grid, half, constant_values=np.nan)
+    return sliding_window_view(padded, (2 * half + 1, 2 * half + 1))
+
+
+def flat_spots(heights: np.ndarray, resolution: float, settings: TerrainMapSettings) -> np.ndarray:
+    """The height of each flat spot of ``heights`` (NaN: not seen), NaN elsewhere (module docstring): the
+    mean of its neighbourhood within ``edge_margin``, all seen, spread at most ``flat_tolerance``."""
+    half = max(1, round(settings.edge_margin / resolution))
+    windows = _windows(heights, half, "edge")  # the grid's border is not an edge of the terrain
+    seen = np.all(np.isfinite(windows), axis=(2, 3))
+    spots = np.full(heights.shape, np.nan)
+    if not seen.any():
+        return spots
+    inside = windows[seen]
+    spread = inside.max(axis=(1, 2)) - inside.min(axis=(1, 2))
+    flat = spread <= settings.flat_tolerance
+    values = np.full(len(inside), np.nan)
+    values[flat] = inside[flat].mean(axis=(1, 2))
+    spots[seen] = values
+    return spots
+
+
+def smoothed(heights: np.ndarray, resolution: float, window: float) -> np.ndarray:
+    """The mean of the seen heights in a square of side ``window`` around each cell (NaN where none)."""
+    half = max(0, round(0.5 * window / resolution))
+    windows = _windows(heights, half, "unseen")
+    seen = np.isfinite(windows)
+    counts = seen.sum(axis=(2, 3))
+    sums = np.where(seen, windows, 0.0).sum(axis=(2, 3))
+    return np.where(counts > 0, sums / np.maximum(counts, 1), np.nan)
+
+
+class TerrainMap:
+    """The newest height map as the reference reads it (module docstring); none until ``place``."""
+
+    def __init__(self, settings: TerrainMapSettings) -> None:
+        self.settings = settings
+        self.parameters = np.zeros(TERRAIN_PARAMETERS)
+        """The kernels' ``terrain`` array (``kernels.TERRAIN_PARAMETERS``); ``TERRAIN_ENABLED`` 0: no map."""
+        self.reset()
+
+    def reset(self) -> None:
+        """No map."""
+        self.parameters[:] = 0.0
+        self.parameters[TERRAIN_COS] = 1.0
+        self.parameters[TERRAIN_RESOLUTION] = 1.0
+        self.heights = np.full((1, 1), np.nan)
+        self.footholds = np.full((1, 1), np.nan)
+        self.smooth = np.full((1, 1), np.nan)
+        self.time = -math.inf
+        self._shift_at_place = 0.0
+
+    @property
+    def available(self) -> bool:
+        """Whether a map has been placed."""
+        return bool(self.parameters[TERRAIN_ENABLED] > 0.0)
+
+    def place(self, height_map: HeightMap, frame_shift: float = 0.0) -> None:
+        """Take ``height_map`` (placed in the controller's frame) as the newest; ``frame_shift``: the
+        estimator frame's accumulated move now (``GroundPlane.frame_shift``)."""
+        heights = np.where(height_map.valid, height_map.heights, np.nan)
+        resolution = height_map.resolution
+        self.heights = np.ascontiguousarray(heights)
+        self.footholds = np.ascontiguousarray(flat_spots(heights, resolution, self.settings))
+        self.smooth = np.ascontiguousarray(smoothed(heights, resolution, self.settings.base_window))
+        p = self.parameters
+        p[TERRAIN_ENABLED] = 1.0
+        p[TERRAIN_ORIGIN_X], p[TERRAIN_ORIGIN_Y] = height_map.origin
+        p[TERRAIN_COS], p[TERRAIN_SIN] = math.cos(height_map.yaw), math.sin(height_map.yaw)
+        p[TERRAIN_RESOLUTION] = resolution
+        p[TERRAIN_SEARCH] = self.settings.foothold_search
+        p[TERRAIN_OFFSET] = 0.0
+        p[TERRAIN_CLEARANCE] = self.settings.swing_clearance
+        self.time = height_map.time
+        self._shift_at_place = frame_shift
+
+    def follow_frame(self, frame_shift: float) -> None:
+        """The estimator's frame has moved by ``frame_shift`` in all (``GroundPlane.frame_shift``): the
+        map's heights move with it."""
+        self.parameters[TERRAIN_OFFSET] = frame_shift - self._shift_at_place

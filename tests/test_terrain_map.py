@@ -1,0 +1,159 @@
+"""Planning on the height map (``terrain: height_map``): the map relative to the base and placed again
+(``core.height_map``), its flat spots and the footholds moved onto them, the swing apex above the terrain
+(``reference.kernels``, ``reference.terrain_map``), the locomotion reference on a map, and a closed loop."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from cafe_mpc.assembly import build_reference, load_run_config, resolve
+from cafe_mpc.config import TerrainMapSettings, VelocityCommand
+from cafe_mpc.core.height_map import HeightMap
+from cafe_mpc.ocp.contact_schedule import get_gait
+from cafe_mpc.reference.kernels import highest_between, map_height, terrain_foothold
+from cafe_mpc.reference.locomotion import LocomotionReference
+from cafe_mpc.reference.terrain_map import TerrainMap
+
+RESOLUTION = 0.04
+EDGE = 0.5
+RISE = 0.1
+RADIUS = 0.02
+
+
+def step_map(noise: float = 0.0, seed: int = 0) -> HeightMap:
+    """A world map of a step up of ``RISE`` at x = ``EDGE`` (x from 0 to 1.16 m, y from -0.4 to 0.4 m)."""
+    columns, rows = 30, 21
+    x = np.arange(columns) * RESOLUTION
+    heights = np.tile(np.where(x >= EDGE, RISE, 0.0), (rows, 1))
+    heights += np.random.default_rng(seed).normal(0.0, noise, heights.shape) if noise else 0.0
+    return HeightMap((0.0, -0.4), 0.0, RESOLUTION, heights, np.ones((rows, columns), dtype=bool))
+
+
+def test_a_map_relative_to_the_base_placed_at_its_pose_is_the_world_map_again():
+    world = step_map()
+    relative = world.relative_to(0.3, 0.1, 0.32, 0.4)
+    assert relative.height_at(*_base_frame(0.8, 0.0, 0.3, 0.1, 0.4)) == pytest.approx(RISE - 0.32)
+    placed = relative.placed_at(0.3, 0.1, 0.32, 0.4)
+    for x, y in [(0.2, 0.0), (0.8, 0.1), (EDGE + 0.01, -0.2)]:
+        assert placed.height_at(x, y) == pytest.approx(world.height_at(x, y))
+    # placed at an estimate 5 cm lower and 2 cm behind: the ground moves with the estimate
+    shifted = relative.placed_at(0.28, 0.1, 0.27, 0.4)
+    assert shifted.height_at(0.78, 0.0) == pytest.approx(RISE - 0.05)
+
+
+def _base_frame(x: float, y: float, bx: float, by: float, yaw: float) -> tuple[float, float]:
+    dx, dy = x - bx, y - by
+    return math.cos(yaw) * dx + math.sin(yaw) * dy, -math.sin(yaw) * dx + math.cos(yaw) * dy
+
+
+def test_flat_spots_keep_away_from_the_edge_even_with_the_sensors_noise():
+    terrain = TerrainMap(TerrainMapSettings(edge_margin=0.04, flat_tolerance=0.03))
+    terrain.place(step_map(noise=0.005))
+    x = np.arange(terrain.footholds.shape[1]) * RESOLUTION
+    flat = np.isfinite(terrain.footholds)
+    near_edge = np.abs(x - EDGE) < 0.03  # the columns on either side of the riser
+    assert near_edge.sum() == 2 and not flat[:, near_edge].any()
+    assert flat[:, np.abs(x - EDGE) > 0.05].all()
+    assert np.nanmax(np.abs(terrain.footholds[:, x > EDGE + 0.1] - RISE)) < 0.01
+
+
+@pytest.mark.parametrize(
+    ("x", "side"),
+    [(EDGE - 0.01, "low"), (EDGE + 0.005, "high"), (EDGE + 0.03, "high"), (EDGE - 0.04, "low")],
+)
+def test_a_foothold_on_the_edge_moves_to_the_nearest_flat_spot_at_its_height(x, side):
+    terrain = TerrainMap(TerrainMapSettings(edge_margin=0.04, flat_tolerance=0.03, foothold_search=0.1))
+    terrain.place(step_map())
+    foothold = np.array([x, 0.05, 0.0])
+    terrain_foothold(terrain.heights, terrain.footholds, terrain.parameters, RADIUS, foothold)
+    moved = abs(foothold[0] - x)
+    assert 0.0 < moved <= 0.1
+    assert abs(foothold[0] - EDGE) >= 0.05  # a cell and more from the riser: the foot's sole fits
+    assert foothold[2] == pytest.approx(RADIUS + (RISE if side == "high" else 0.0))
+    assert (foothold[0] > EDGE) == (side == "high")
+
+
+def test_a_foothold_on_a_flat_spot_keeps_its_place_and_takes_the_maps_height():
+    terrain = TerrainMap(TerrainMapSettings())
+    terrain.place(step_map())
+    on_top, before = np.array([0.83, 0.013, 0.0]), np.array([0.21, -0.1, 0.5])
+    for foothold, height in ((on_top, RISE), (before, 0.0)):
+        xy = foothold[:2].copy()
+        terrain_foothold(terrain.heights, terrain.footholds, terrain.parameters, RADIUS, foothold)
+        assert foothold[:2] == pytest.approx(xy)
+        assert foothold[2] == pytest.approx(RADIUS + height)
+    # beyond the map: the height it had (the ground plane's) stays
+    outside = np.array([3.0, 0.0, 0.07])
+    terrain_foothold(terrain.heights, terrain.footholds, terrain.parameters, RADIUS, outside)
+    assert outside.tolist() == [3.0, 0.0, 0.07]
+
+
+def test_the_highest_point_between_two_footholds_and_the_frames_offset():
+    terrain = TerrainMap(TerrainMapSettings())
+    terrain.place(step_map(), frame_shift=0.0)
+    low, high, near = np.array([0.3, 0.0, 0.0]), np.array([0.7, 0.0, 0.0]), np.array([0.4, 0.0, 0.0])
+    far, farther = np.array([3.3, 0.0, 0.0]), np.array([3.7, 0.0, 0.0])
+    assert highest_between(terrain.heights, terrain.parameters, low, high) == pytest.approx(RISE)
+    assert highest_between(terrain.heights, terrain.parameters, low, near) == pytest.approx(0.0)
+    assert highest_between(terrain.heights, terrain.parameters, far, farther) == -np.inf
+    terrain.follow_frame(-0.1)  # the estimator's frame moved 10 cm down: so did the map
+    assert map_height(terrain.heights, terrain.parameters, 0.8, 0.0) == pytest.approx(0.0)
+
+
+def test_the_reference_on_a_map_steps_onto_flat_spots_swings_over_the_riser_and_pitches_up(robot):
+    """Standing 0.35 m before a 10 cm step up, trotting forward: with the map, the first footholds past
+    the riser are on its top at its height and off the edge, the swings clear the riser by the swing
+    height, and the base pitches nose-up and rises over the step; blind (no map) everything stays flat."""
+    commands = [VelocityCommand(vx=0.5)]
+    settings = TerrainMapSettings()
+    mapped = LocomotionReference(
+        robot, get_gait("trot"), commands, start_stance=0.1, ground_plane=True, terrain_map=settings
+    )
+    blind = LocomotionReference(robot, get_gait("trot"), commands, start_stance=0.1, ground_plane=True)
+    q = robot.q_standing.copy()
+    q[0] = EDGE - 0.35
+    for reference in (mapped, blind):
+        reference.update(0.0, q, np.zeros(robot.nv))
+        relative = step_map().relative_to(q[0], q[1], q[2], 0.0)
+        reference.observe_height_map(relative, q)
+    assert mapped.terrain is not None and mapped.terrain.available
+    times = np.arange(0.0, 1.2, 0.01)
+    stance, positions, _ = mapped.feet(times)
+    flat_stance, flat_positions, _ = blind.feet(times)
+    soles = positions[..., 2] - robot.foot_radius
+    assert np.allclose(flat_positions[flat_stance][:, 2], robot.foot_radius)
+    assert np.max(flat_positions[..., 2]) < robot.foot_radius + 0.07  # the swing height, no more
+    on_top = stance & (positions[..., 0] > EDGE)
+    assert on_top.any()
+    assert soles[on_top] == pytest.approx(RISE, abs=1e-9)
+    assert np.all(np.abs(positions[stance][:, 0] - EDGE) >= 0.05)  # no foot stands near the riser
+    crossing = ~stance & (positions[..., 0] > EDGE - 0.02) & (positions[..., 0] < EDGE + 0.02)
+    assert crossing.any() and np.all(soles[crossing] > RISE)  # swings pass above the riser
+    later, _ = mapped.base_state(1.0)
+    before, _ = mapped.base_state(0.0)
+    pitch = lambda q: 2.0 * math.asin(q[4])  # noqa: E731 - yaw is zero
+    assert pitch(later) < -0.05 or later[2] > before[2] + 0.03  # pitching up onto the step or above it
+    assert blind.base_state(1.0)[0][2] == pytest.approx(robot.standing_height)
+
+
+def test_a_blind_reference_ignores_height_maps(robot):
+    reference = LocomotionReference(robot, get_gait("trot"), [VelocityCommand()], ground_plane=True)
+    reference.observe_height_map(step_map(), robot.q_standing)
+    assert reference.terrain is None
+    with pytest.raises(ValueError, match="ground plane"):
+        LocomotionReference(robot, get_gait("trot"), [VelocityCommand()], terrain_map=TerrainMapSettings())
+
+
+def test_terrain_height_map_in_the_config_reaches_the_reference_and_rejects_the_mpc_process(robot):
+    config = load_run_config("stairs", ["simulation.duration=1"])
+    assert config.terrain == "height_map" and config.plant.height_map.enabled
+    run = resolve(config, robot)
+    assert run.terrain_map == config.terrain_map
+    reference = build_reference(run)
+    assert isinstance(reference, LocomotionReference) and reference.terrain is not None
+    assert resolve(load_run_config("trot", ["terrain=blind"]), robot).terrain_map is None
+    with pytest.raises(Exception, match="MPC process"):
+        load_run_config("stairs", ["simulation.realtime=true"])
