@@ -1,10 +1,12 @@
-"""``cafe-mpc experiment terrain``: gaits over steps and slopes, on the flat-ground controller and blind.
+"""``cafe-mpc experiment terrain``: gaits over steps, stairs and slopes: flat-ground, blind, height map.
 
 Each run is one gait preset walking at its command onto one piece of terrain (``scene.terrain``, starting
-1 m ahead; the named pieces in ``TERRAINS``: three steps of 2, 4 or 8 cm, up and down, or a 10 degree slope
-over 1.5 m and a 20 degree one over 1 m, each up and down again) with the controller's ground ``terrain``:
-``flat`` (the paper's controller, z = 0 everywhere) or ``blind`` (the plane through the stance feet:
-``core.ground``, docs/terrain.md). By default with the fixed 20 ms latency, so every row is deterministic
+1 m ahead; the named pieces in ``TERRAINS``: three steps of 2, 4, 6, 8 or 10 cm, up and down, five stairs
+of 10 cm rise and 30 cm tread, up and down, or a 10 degree slope over 1.5 m and a 20 degree one over 1 m,
+each up and down again) with the controller's ground ``terrain``: ``flat`` (the paper's controller, z = 0
+everywhere), ``blind`` (the plane through the stance feet: ``core.ground``, docs/terrain.md) or
+``height_map`` (the plant's height-map sensor on, ``HEIGHT_MAP_SENSOR``: the reference plans on its maps).
+By default with the fixed 20 ms latency, so every row is deterministic
 and its ``cafe-mpc run`` command (``runs.md``) reproduces it. The table gives whether and when the robot
 fell, how far it got and whether that was past the piece (onto its top, and over it).
 """
@@ -23,34 +25,44 @@ from cafe_mpc_lab.experiments.options import ExperimentOptions, names
 from cafe_mpc_lab.experiments.registry import Experiment, ExperimentPlan, PlanContext, Variant
 from cafe_mpc_lab.experiments.run import RunResult
 from cafe_mpc_lab.report.figures import new_figure, save_figure
-from cafe_mpc_lab.sim.terrain import Slope, Steps, terrain_piece
+from cafe_mpc_lab.sim.terrain import Slope, Stairs, Steps, terrain_piece
 
 TERRAINS: dict[str, str] = {
     "step2": "{kind: steps, rise: 0.02}",
     "step4": "{kind: steps, rise: 0.04}",
+    "step6": "{kind: steps, rise: 0.06}",
     "step8": "{kind: steps, rise: 0.08}",
+    "step10": "{kind: steps, rise: 0.1}",
+    "stairs10": "{kind: stairs, count: 5, rise: 0.1, tread: 0.3}",
     "slope10": "{kind: slope, angle_deg: 10, length: 1.5}",
     "slope20": "{kind: slope, angle_deg: 20, length: 1.0}",
 }
 """The named pieces of terrain (``scene.terrain`` entries; the rest of each kind's keys at their defaults:
 from x = 1 m, 3 steps of 0.3 m, a 1 m top, down again)."""
-MODES = ("flat", "blind")
+DEFAULT_TERRAINS = ("step2", "step4", "step8", "slope10", "slope20")
+MODES = ("flat", "blind", "height_map")
 """The controller's ground (``terrain``) the experiment compares."""
+DEFAULT_MODES = ("flat", "blind")
+HEIGHT_MAP_SENSOR = ("plant.height_map.enabled=true", "plant.height_map.forward_offset=0.3")
+"""The height-map sensor of the ``height_map`` runs: the plant's defaults, its grid centred 0.3 m ahead
+of the base (it sees 0.9 m ahead and 0.3 m behind)."""
 DEFAULT_GAITS = ("trot", "pace", "bound")
 TerrainNames = names(tuple(TERRAINS))
 ModeNames = names(MODES)
 
 
-def _piece(name: str) -> Slope | Steps:
+def _piece(name: str) -> Slope | Steps | Stairs:
     """The ``sim.terrain`` piece of a named terrain."""
     piece = terrain_piece(TerrainConfig(**yaml.safe_load(TERRAINS[name])))
-    assert isinstance(piece, Slope | Steps)
+    assert isinstance(piece, Slope | Steps | Stairs)
     return piece
 
 
-def _top(piece: Slope | Steps) -> float:
+def _top(piece: Slope | Steps | Stairs) -> float:
     """World x where the piece's top begins."""
-    return piece.start + (piece.length if isinstance(piece, Slope) else piece.count * piece.run)
+    if isinstance(piece, Slope):
+        return piece.start + piece.length
+    return next(begin for _, begin, _, height in piece.treads if height >= piece.height - 1e-12)
 
 
 class TerrainOptions(ExperimentOptions):
@@ -60,23 +72,24 @@ class TerrainOptions(ExperimentOptions):
         json_schema_extra={"metavar": "G,..."},
     )
     terrains: TerrainNames = Field(
-        tuple(TERRAINS),
-        description=f"named terrain pieces: {', '.join(TERRAINS)} (default: all)",
+        DEFAULT_TERRAINS,
+        description=f"named terrain pieces: {', '.join(TERRAINS)} (default: {', '.join(DEFAULT_TERRAINS)})",
         json_schema_extra={"metavar": "T,..."},
     )
     modes: ModeNames = Field(
-        MODES,
-        description="the controller's ground: flat (z = 0), blind (the stance feet's plane); default both",
-        json_schema_extra={"metavar": "flat,blind"},
+        DEFAULT_MODES,
+        description="the controller's ground: flat (z = 0), blind (the stance feet's plane), height_map "
+        "(the sensor's maps); default flat, blind",
+        json_schema_extra={"metavar": "flat,blind,height_map"},
     )
 
 
 class Terrain(Experiment):
     name = "terrain"
-    title = "Gaits over steps and slopes: the flat-ground controller against the blind ground estimate"
+    title = "Gaits over steps, stairs and slopes: the flat-ground controller, blind, and on the height map"
     paper = "beyond the paper (its experiments are on flat ground); issue 'off the flat floor'"
     default_duration = 10.0
-    varied_keys = ("scene.terrain", "terrain")
+    varied_keys = ("scene.terrain", "terrain", "plant.height_map.enabled", "plant.height_map.forward_offset")
     default_overrides = ("mpc.latency=fixed", "mpc.fixed_latency=0.02")
     Options = TerrainOptions
 
@@ -85,7 +98,11 @@ class Terrain(Experiment):
             Variant(
                 f"{gait}-{terrain}-{mode}",
                 gait,
-                (f"scene.terrain=[{TERRAINS[terrain]}]", f"terrain={mode}"),
+                (
+                    f"scene.terrain=[{TERRAINS[terrain]}]",
+                    f"terrain={mode}",
+                    *(HEIGHT_MAP_SENSOR if mode == "height_map" else ()),
+                ),
                 f"{gait}, {terrain}, {mode}",
                 group=gait,
                 fields=(("gait", gait), ("terrain_piece", terrain), ("mode", mode)),
