@@ -1009,7 +1009,8 @@ class PlantConfig(StrictModel):
     )
     height_map: HeightMapConfig = Field(
         default_factory=HeightMapConfig,
-        description="height-map sensor: ray casts around the robot, logged at their rate (sim.height_map)",
+        description="height-map sensor: ray casts around the robot at their rate, logged and handed to the "
+        "controller with that tick's readings (sim.height_map; terrain: height_map plans on them)",
     )
     faults: list[FaultConfig] = Field(
         default_factory=list,
