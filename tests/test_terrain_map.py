@@ -157,3 +157,29 @@ def test_terrain_height_map_in_the_config_reaches_the_reference_and_rejects_the_
     assert resolve(load_run_config("trot", ["terrain=blind"]), robot).terrain_map is None
     with pytest.raises(Exception, match="MPC process"):
         load_run_config("stairs", ["simulation.realtime=true"])
+
+
+# ------------------------------------------------------------------------------------------ closed loop
+@pytest.mark.slow
+def test_a_trot_on_the_height_map_climbs_an_8_cm_step_the_blind_trot_falls_on():
+    """The trot onto one 8 cm step 0.6 m ahead, fixed 20 ms latency, the state estimated: blind, its swing
+    (6 cm above lift-off) meets the riser and it falls (at 1.97 s); on the height map its footholds land on
+    the step's top away from the edge, its swings clear the riser, and it stands on the top at 3.5 s."""
+    from cafe_mpc_lab.experiments.run import simulate_run
+
+    config = load_run_config(
+        "trot",
+        [
+            "simulation.duration=3.5",
+            "mpc.latency=fixed",
+            "mpc.fixed_latency=0.02",
+            "terrain=height_map",
+            "plant.height_map.enabled=true",
+            "plant.height_map.forward_offset=0.3",
+            "scene.terrain=[{kind: steps, count: 1, rise: 0.08, start: 0.6}]",
+        ],
+    )
+    _, _, log = simulate_run(config)
+    assert not log.fell, log.fall_reason
+    assert log.q[-1, 0] > 0.6 + 0.25  # every hip over the step
+    assert log.q[-1, 2] - 0.08 > 0.2  # the base stands above the step's top

@@ -503,13 +503,20 @@ def terrain_foothold(
         out[2] = foot_radius + z
 
 
+MAX_SWING_LENGTH = 10.0
+"""m; ``highest_between`` samples no longer segment (a bound on its work whatever the states)."""
+
+
 @njit(cache=True, nogil=True)
 def highest_between(heights: np.ndarray, terrain: np.ndarray, start: np.ndarray, end: np.ndarray) -> float:
     """The highest point the map saw on the segment from ``start`` to ``end`` (world x, y), sampled every
-    half cell; -inf when it saw none of it."""
+    half cell; -inf when it saw none of it (or the segment is not shorter than ``MAX_SWING_LENGTH``)."""
     dx, dy = end[0] - start[0], end[1] - start[1]
-    samples = math.ceil(math.sqrt(dx * dx + dy * dy) / (0.5 * terrain[TERRAIN_RESOLUTION])) + 1
+    length = math.sqrt(dx * dx + dy * dy)
     highest = -np.inf
+    if not length < MAX_SWING_LENGTH:  # a step longer than any leg's (or not finite): no sampling
+        return highest
+    samples = math.ceil(length / (0.5 * terrain[TERRAIN_RESOLUTION])) + 1
     for i in range(samples + 1):
         s = i / samples
         z = map_height(heights, terrain, start[0] + s * dx, start[1] + s * dy)
