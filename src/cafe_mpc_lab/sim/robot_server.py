@@ -29,6 +29,7 @@ from pathlib import Path
 
 import numpy as np
 
+from cafe_mpc.control.scheduling import RealTimePriority
 from cafe_mpc.robot_io.interface import JointCommand, RobotState, WallClock
 from cafe_mpc.robot_io.unitree.messages import WireFormatError
 from cafe_mpc.robot_io.unitree.robot import UnitreeDdsRobotSide
@@ -80,6 +81,8 @@ class SimRobotSummary:
     late_ticks: int = 0
     round_trip_ms_p50: float | None = None
     round_trip_ms_p99: float | None = None
+    scheduling: str = "normal"
+    """The physics loop's scheduling class (``realtime_priority``)."""
     outages: list = field(default_factory=list)
     """(start, end) s of simulated time of the outages SIGUSR1 started."""
     trace: dict = field(default_factory=dict)
@@ -100,9 +103,11 @@ class SimRobotServer:
         link: LinkModel | None = None,
         seed: int = 0,
         signal_outage: float = 0.3,
+        realtime_priority: int = 0,
     ) -> None:
         if rate_hz <= 0:
             raise ValueError(f"rate_hz must be positive, got {rate_hz}")
+        self.priority = RealTimePriority(realtime_priority)
         self.robot = robot
         self.plant = MujocoMotorPlant(robot)
         self.period = 1.0 / rate_hz
@@ -188,6 +193,8 @@ class SimRobotServer:
         plant.lie_down()
         trace: dict[str, list[float]] = {name: [] for name in ("t", "x", "z", "vx", "tilt", "kp_mean")}
         clock = WallClock(spin=0.0)
+        self.priority.acquire()
+        summary.scheduling = self.priority.description
         self.side.open()
         say(f"sim-robot: {self.robot.name} lying, publishing rt/lowstate on {self.side.where()}")
         start = next_tick = clock.now()
@@ -216,6 +223,7 @@ class SimRobotServer:
                     ):
                         trace[name].append(round(float(value), 4))
         finally:
+            self.priority.release()
             self.side.close()
             summary.duration = plant.time
             summary.wall_time = clock.now() - start
