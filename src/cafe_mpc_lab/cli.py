@@ -649,7 +649,13 @@ def _command_sim_robot(arguments: argparse.Namespace) -> int:
             signal_outage=arguments.signal_outage,
             realtime_priority=arguments.realtime_priority,
         )
-        server.run(arguments.duration, Path(arguments.out) if arguments.out else None)
+        viewer = None
+        if arguments.viewer:
+            from cafe_mpc_lab.sim.viewer import LiveViewer, check_display
+
+            check_display()
+            viewer = LiveViewer(robot, lambda: None, realtime=False)
+        server.run(arguments.duration, Path(arguments.out) if arguments.out else None, viewer=viewer)
     except RobotInterfaceError as error:
         print(f"cafe-mpc: error: {error}", file=sys.stderr)
         return EXIT_FAILED
@@ -855,6 +861,9 @@ def _add_robot_io_parsers(commands: argparse._SubParsersAction, presets: str) ->
         default=SIM_ROBOT_PRIORITY,
         help="the physics loop in SCHED_FIFO at this priority where the OS allows it, as a robot's own "
         f"firmware runs hard real time (default {SIM_ROBOT_PRIORITY}; 0: the normal class)",
+    )
+    sim_robot.add_argument(
+        "--viewer", action="store_true", help="watch the simulated robot in MuJoCo's viewer (needs a display)"
     )
     sim_robot.add_argument("--out", help="write the summary (JSON, with the true base motion) here")
     sim_robot.set_defaults(handler=_command_sim_robot)
