@@ -57,6 +57,10 @@ class RobotLoadError(ValueError):
     """A robot file that does not load, with the reason."""
 
 
+IMU_FRAME = "imu"
+"""The name of the IMU's frame (an MJCF's site) on the trunk in a robot's model file."""
+
+
 @dataclass(frozen=True, eq=False)
 class Robot:
     """Immutable description of a quadruped for planning (Pinocchio) and simulation (MuJoCo)."""
@@ -115,6 +119,20 @@ class Robot:
     @property
     def n_feet(self) -> int:
         return len(self.foot_frame_ids)
+
+    @property
+    def imu_rotation(self) -> np.ndarray:
+        """Base <- IMU rotation: the planning model's ``imu`` frame on the trunk (an MJCF's ``imu`` site, as
+        its author mounted the IMU); the identity when the model has none (the IMU on the base's axes). The
+        sensing front end turns the IMU's readings into the base frame with it
+        (``core.sensors.ImuMounting``)."""
+        model = self.model
+        if not model.existFrame(IMU_FRAME):
+            return np.eye(3)
+        frame = model.frames[model.getFrameId(IMU_FRAME)]
+        if frame.parentJoint != 1:  # not on the trunk (joint 1: the root's free joint)
+            return np.eye(3)
+        return np.array(frame.placement.rotation, dtype=float)
 
     @property
     def total_mass(self) -> float:
