@@ -53,7 +53,6 @@ def sample_foot(
     end of the last segment that touched down before ``t`` (``stance_position`` before any). Writes column
     ``foot`` of ``stance`` (n, n_feet), ``positions`` and ``velocities`` (n, n_feet, 3)."""
     floors = np.full(liftoffs.shape[0], -np.inf)
-    grounds = np.empty(stance.shape)
     sample_foot_floored(
         times,
         liftoffs,
@@ -67,7 +66,6 @@ def sample_foot(
         stance,
         positions,
         velocities,
-        grounds,
     )
 
 
@@ -85,12 +83,9 @@ def sample_foot_floored(
     stance: np.ndarray,
     positions: np.ndarray,
     velocities: np.ndarray,
-    grounds: np.ndarray,
 ) -> None:
     """``sample_foot`` with each swing's apex at least ``apex_floors[j]`` (world z; -inf: no floor, the
-    apex ``swing_height`` above the higher end): a swing over terrain higher than its ends clears it.
-    ``grounds`` (n, n_feet) gets the height of the foot's support: the stance foot's, a swinging foot's
-    touchdown point (foot centres, world z)."""
+    apex ``swing_height`` above the higher end): a swing over terrain higher than its ends clears it."""
     tolerance = 1e-9
     for i in range(times.shape[0]):
         t = times[i]
@@ -117,13 +112,11 @@ def sample_foot_floored(
                     blend, dblend = _bezier(2.0 * s - 1.0)
                     positions[i, foot, 2] = apex + (z1 - apex) * blend
                     velocities[i, foot, 2] = (z1 - apex) * dblend * 2.0 / duration
-                grounds[i, foot] = z1
                 break
             if t >= touchdown - tolerance:
                 px, py, pz = ends[j, 0], ends[j, 1], ends[j, 2]
         stance[i, foot] = not in_swing
         if not in_swing:
-            grounds[i, foot] = pz
             positions[i, foot, 0] = px
             positions[i, foot, 1] = py
             positions[i, foot, 2] = pz
@@ -601,7 +594,6 @@ def sample_feet(
     stance: np.ndarray,
     positions: np.ndarray,
     velocities: np.ndarray,
-    grounds: np.ndarray,
 ) -> None:
     """``LocomotionReference.sample_feet`` in one call: per foot, the swings of the schedule (phases
     ``phase_starts``, ``phase_ends``, ``phase_flags`` (phases, feet)) overlapping ``[t0, t1]``, each with
@@ -675,7 +667,6 @@ def sample_feet(
             stance,
             positions,
             velocities,
-            grounds,
         )
 
 

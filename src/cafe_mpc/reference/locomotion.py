@@ -355,7 +355,6 @@ class LocomotionReference(Reference):
         self.inverse_kinematics = LegInverseKinematics(robot)
         self._stance_torques: dict[tuple[tuple[bool, ...], float], np.ndarray] = {}
         self._feet_stance = np.zeros((0, robot.n_feet), dtype=bool)
-        self._feet_grounds = np.zeros((0, robot.n_feet))
         self._segments = [_GaitSegment.of(-math.inf, gait, self.cycle_start)]
         """The gait in force over time: the config's, then each ``set_gait`` from its cycle boundary on."""
         library = GAITS.get(gait.name)
@@ -711,16 +710,14 @@ class LocomotionReference(Reference):
         placed = height_map.placed_at(float(q[0]), float(q[1]), float(q[2]), yaw)
         self.terrain.place(placed, self.ground.frame_shift)
 
-    def _follow_ground(self, state: np.ndarray, grounds: np.ndarray | None = None) -> None:
+    def _follow_ground(self, state: np.ndarray) -> None:
         """Base rows ``state[:, :7]`` (yaw-only attitude, height above z = 0) onto the ground plane: the
-        height above the plane under the base, pitched along the plane's slope in the heading; on a height
-        map onto the terrain (``_follow_terrain``; ``grounds``: the feet's supports of each row, if
-        sampled)."""
+        height above the plane under the base, pitched along the plane's slope in the heading."""
         ground = self.ground
         if ground is None:
             return
         if self.terrain is not None and self.terrain.available:
-            self._follow_terrain(state, grounds)
+            self._follow_terrain(state)
             return
         state[:, 2] += ground.height + ground.slope[0] * (state[:, 0] - ground.centre[0])
         state[:, 2] += ground.slope[1] * (state[:, 1] - ground.centre[1])
@@ -732,30 +729,24 @@ class LocomotionReference(Reference):
         cy, sy, cp, sp = np.cos(half_yaw), np.sin(half_yaw), np.cos(half_pitch), np.sin(half_pitch)
         state[:, 3], state[:, 4], state[:, 5], state[:, 6] = -sy * sp, cy * sp, sy * cp, cy * cp
 
-    def _follow_terrain(self, state: np.ndarray, grounds: np.ndarray | None = None) -> None:
+    def _follow_terrain(self, state: np.ndarray) -> None:
         """Base rows ``state[:, :7]`` onto the height map: the commanded height above the mean of the
-        terrain under the feet, pitched by the rise from the hind feet's terrain to the front feet's. The
-        terrain under a foot is its support (``grounds``: a stance foot's height, a swinging foot's
-        touchdown point's, so that the base rises as a front foot swings up a step), or, without the feet
-        (``base_state``), the terrain under its hip (``TerrainMap.smooth``; the ground plane where the map
-        has not seen)."""
+        terrain under the four hips (``TerrainMap.smooth``; the ground plane where the map has not seen),
+        pitched by the rise from the hind hips' terrain to the front hips'."""
         assert self.terrain is not None and self.ground is not None
         n = state.shape[0]
         half_yaw = np.arctan2(state[:, 5], state[:, 6])
         cos, sin = np.cos(2.0 * half_yaw), np.sin(2.0 * half_yaw)
-        if grounds is not None:
-            terrain = grounds - self.robot.foot_radius
-        else:
-            terrain = np.zeros((n, len(self.offsets)))
-            column = np.zeros(n)
-            ground = self.ground
-            for foot, (ox, oy) in enumerate(self.offsets):
-                xs = state[:, 0] + cos * ox - sin * oy
-                ys = state[:, 1] + sin * ox + cos * oy
-                map_heights(self.terrain.smooth, self.terrain.parameters, xs, ys, column)
-                plane = ground.height + ground.slope[0] * (xs - ground.centre[0])
-                plane += ground.slope[1] * (ys - ground.centre[1])
-                terrain[:, foot] = np.where(np.isfinite(column), column, plane)
+        terrain = np.zeros((n, len(self.offsets)))
+        column = np.zeros(n)
+        ground = self.ground
+        for foot, (ox, oy) in enumerate(self.offsets):
+            xs = state[:, 0] + cos * ox - sin * oy
+            ys = state[:, 1] + sin * ox + cos * oy
+            map_heights(self.terrain.smooth, self.terrain.parameters, xs, ys, column)
+            plane = ground.height + ground.slope[0] * (xs - ground.centre[0])
+            plane += ground.slope[1] * (ys - ground.centre[1])
+            terrain[:, foot] = np.where(np.isfinite(column), column, plane)
         front = terrain[:, self._front_feet].mean(axis=1)
         hind = terrain[:, ~self._front_feet].mean(axis=1)
         state[:, 2] += terrain.mean(axis=1)
@@ -860,14 +851,10 @@ class LocomotionReference(Reference):
         stance: np.ndarray,
         positions: np.ndarray,
         velocities: np.ndarray,
-        grounds: np.ndarray | None = None,
     ) -> None:
         """``feet`` into given arrays: the swings overlapping ``[t0, t1]`` (``_swings``) with their Raibert
         footholds (``foothold``) and Bezier curves, all feet in one compiled call
-        (``reference.kernels.sample_feet``); ``grounds`` (n, n_feet), if given, the height of each foot's
-        support (a stance foot's, a swinging foot's touchdown point)."""
-        if grounds is None:
-            grounds = np.empty(stance.shape)
+        (``reference.kernels.sample_feet``)."""
         phase_starts, phase_ends, phase_flags = self._phase_arrays(t0, t1)
         self._set_anchor()
         parameters = self._feet_parameters
@@ -905,7 +892,6 @@ class LocomotionReference(Reference):
             stance,
             positions,
             velocities,
-            grounds,
         )
 
     def _set_anchor(self) -> None:
@@ -945,10 +931,9 @@ class LocomotionReference(Reference):
         if n:
             if self._feet_stance.shape[0] < n:
                 self._feet_stance = np.zeros((window.capacity, self.robot.n_feet), dtype=bool)
-                self._feet_grounds = np.zeros((window.capacity, self.robot.n_feet))
             t0 = min(float(times[0]), self.anchor_time)
             t1 = float(max(times[-1], times[0]))
-            self.sample_feet(times, t0, t1, self._feet_stance, positions, velocities, self._feet_grounds)
+            self.sample_feet(times, t0, t1, self._feet_stance, positions, velocities)
         state = window.state
         if n:
             # base_state, stance_at, support_factor and stance_torque of every time, compiled
@@ -981,7 +966,7 @@ class LocomotionReference(Reference):
                 keys,
             )
             state[:, 7:nq] = self.nominal_joints
-            self._follow_ground(state[:n], self._feet_grounds[:n])
+            self._follow_ground(state[:n])
             self._torques_into(keys, window.torque)
             window.forces[:, :, :2] = 0.0
             window.forces[:, :, 2] = window.stance * (factors * self.mass * GRAVITY)[:, None]
