@@ -846,13 +846,17 @@ PlantScales = float | list[float]
 """One factor for every joint, or one per actuated joint (robot joint order)."""
 
 
-FaultKind = Literal["imu_dropout", "encoder_freeze", "nan_sample", "out_of_range", "mpc_kill", "mpc_stall"]
+FaultKind = Literal[
+    "imu_dropout", "encoder_freeze", "nan_sample", "out_of_range", "mpc_kill", "mpc_stall", "mpc_pause"
+]
 """What a fault the lab injects does (``FaultConfig``)."""
 
 SENSOR_FAULTS = ("imu_dropout", "encoder_freeze", "nan_sample", "out_of_range")
 """Faults of the robot's sensors (they need ``estimator: kinematic_kf``: the controller reads sensors)."""
 MPC_FAULTS = ("mpc_kill", "mpc_stall")
 """Faults of the MPC process (they need ``simulation.realtime``: the MPC in its own process)."""
+INLINE_MPC_FAULTS = ("mpc_pause",)
+"""Faults of the MPC in simulated time (they need an MPC run that is not ``simulation.realtime``)."""
 
 FaultSensor = Literal["orientation", "gyro", "accelerometer", "joint_position", "joint_velocity"]
 """A sensor field a bad sample can hit."""
@@ -866,19 +870,21 @@ class FaultConfig(StrictModel):
     ``nan_sample`` / ``out_of_range``: one sample of ``sensor`` (for a joint sensor, of ``joint``, or of every
     joint when null) is NaN / ``value`` every ``period`` s from ``start`` (for ``duration`` s, null: to the
     end). ``mpc_kill``: the MPC process is killed (SIGKILL) at ``start``. ``mpc_stall``: it is stopped
-    (SIGSTOP) at ``start`` and continued (SIGCONT) ``duration`` s later."""
+    (SIGSTOP) at ``start`` and continued (SIGCONT) ``duration`` s later. ``mpc_pause``: the MPC in
+    simulated time sends no plan from ``start`` for ``duration`` s and then solves cold
+    (``InlineMpcLoop.withhold_plans``: a stall or restart, deterministic with a fixed latency)."""
 
     kind: FaultKind = Field(
         description="imu_dropout | encoder_freeze | nan_sample | out_of_range (sensors) | mpc_kill | "
-        "mpc_stall (the MPC process, simulation.realtime)"
+        "mpc_stall (the MPC process, simulation.realtime) | mpc_pause (the MPC in simulated time)"
     )
     start: float = Field(0.0, ge=0.0, le=3600.0, description="s, when the fault begins")
     duration: float | None = Field(
         None,
         gt=0.0,
         le=3600.0,
-        description="s the fault lasts (imu_dropout, encoder_freeze, mpc_stall; bad samples: null, to the "
-        "end)",
+        description="s the fault lasts (imu_dropout, encoder_freeze, mpc_stall, mpc_pause; bad samples: "
+        "null, to the end)",
     )
     joint: int | str | None = Field(
         None, description="encoder_freeze, bad joint samples: the joint (index or name; null: every joint)"
@@ -904,6 +910,7 @@ class FaultConfig(StrictModel):
             "out_of_range": ("sensor", "period"),
             "mpc_kill": (),
             "mpc_stall": ("duration",),
+            "mpc_pause": ("duration",),
         }
         allowed: dict[str, tuple[str, ...]] = {
             "imu_dropout": ("duration",),
@@ -912,6 +919,7 @@ class FaultConfig(StrictModel):
             "out_of_range": ("sensor", "period", "duration", "joint", "value"),
             "mpc_kill": (),
             "mpc_stall": ("duration",),
+            "mpc_pause": ("duration",),
         }
         for key in needs[self.kind]:
             if getattr(self, key) is None:
@@ -1096,6 +1104,20 @@ class RecoveryConfig(StrictModel):
         le=100,
         description="fresh plans in a row (each measured after the robot left the plans, each within "
         "stale_after of the one before) before they take the robot back from the balance or damped stance",
+    )
+    restart_gait: bool = Field(
+        True,
+        description="after an episode off the plans the gait restarts from the stance the robot stands in: "
+        "the MPC plans all feet down while the robot is held, and once it is taken back a stand of "
+        "restart_stand and then the gait from its first phase, the commands ramped in from rest (false: the "
+        "gait goes on from where its clock is)",
+    )
+    restart_stand: float | None = Field(
+        None,
+        ge=0.0,
+        le=5.0,
+        description="s on all feet after a take-back before the gait restarts (null: the gait's "
+        "start_stance)",
     )
     stall_timeout: float | None = Field(
         None,
@@ -1316,6 +1338,12 @@ class RunConfig(StrictModel):
                 raise ValueError(
                     f"plant.faults.{index}: a fault of kind {fault.kind} hits the MPC process, which only a "
                     "real-time MPC run has (simulation.realtime: true, wbc: vwbc or riccati)"
+                )
+            if fault.kind in INLINE_MPC_FAULTS and (self.simulation.realtime or standing):
+                raise ValueError(
+                    f"plant.faults.{index}: a fault of kind {fault.kind} withholds the plans of the MPC in "
+                    "simulated time, which only an MPC run that is not real time has (simulation.realtime: "
+                    "false, wbc: vwbc or riccati; in real time: mpc_stall)"
                 )
         return self
 
