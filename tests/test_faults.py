@@ -239,7 +239,7 @@ def test_the_fault_experiment_plans_each_fault_and_runs_the_mpc_faults_in_real_t
 
     prepared = prepare("faults", None, [], {"task": "trot", "times": "2,3"})
     names = [variant.name for variant in prepared.plan.variants]
-    assert len(names) == 2 * 11 and len(set(names)) == len(names)  # 11 faults at each of 2 times
+    assert len(names) == 2 * 14 and len(set(names)) == len(names)  # 14 faults at each of 2 times
     for name, config in prepared.configs.items():
         [fault] = config.plant.faults
         assert fault.start in (2.0, 3.0) and name.startswith(fault.kind)
