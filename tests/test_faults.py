@@ -129,6 +129,12 @@ def test_a_fault_that_does_not_fit_the_run_is_one_config_error():
         load_config("trot", ["plant.faults=[{kind: mpc_kill, start: 1}]"])
     with pytest.raises(ConfigError, match="needs 'joint'"):
         load_config("trot", ["plant.faults=[{kind: encoder_freeze, duration: 0.1}]"])
+    with pytest.raises(ConfigError, match=r"plant\.faults\.0.*mpc_pause.*not real time"):
+        load_config(
+            "trot", ["simulation.realtime=true", "plant.faults=[{kind: mpc_pause, start: 1, duration: 0.5}]"]
+        )
+    with pytest.raises(ConfigError, match="needs 'duration'"):
+        load_config("trot", ["plant.faults=[{kind: mpc_pause, start: 1}]"])
 
 
 # ------------------------------------------------------------------------------------ MPC process
