@@ -183,6 +183,10 @@ def test_a_stopped_mpc_process_is_continued_and_the_run_keeps_its_record(tmp_pat
     assert applied == ["mpc_stall", "mpc_continue"]
     assert "mpc_stalled" in [event["event"] for event in faults["mpc"]["events"]]
     assert faults["ladder"]["episodes"], "the safe ladder never left the plans during a 1 s stall"
+    for episode in faults["ladder"]["episodes"]:  # taken back by plans that stand (the gait restarts)
+        if episode["back_at"] is not None:
+            tick = int(np.searchsorted(result.log.time, episode["back_at"] - 1e-9))
+            assert result.log.extra["planned_stance"][tick].all(), episode
     assert not multiprocessing.active_children()
 
 

@@ -139,4 +139,6 @@ def test_a_bound_taken_back_after_withheld_plans_restarts_from_stance_and_stays_
     gait = reference.gait
     assert reference.stance_at(released_at + stand + STANCE_TIME_EPS) == gait.cycle[0][0]
     assert reference.stance_at(released_at + 0.5 * stand) == ALL_FEET
+    tick = int(np.searchsorted(result.log.time, episode["back_at"] - 1e-9))
+    assert result.log.extra["planned_stance"][tick].all()  # taken back by a plan that stands
     assert stepping_again(result.log, episode["back_at"]) is not None
