@@ -11,15 +11,17 @@ limit). ``SupportRatioEstimator`` estimates ``r``; ``low_level.motor_strength`` 
 
 **The impulse balance.** Over a stretch of settled stance (the stance set unchanged for ``settle`` s), the
 vertical momentum of the whole robot changes by what the ground gives minus gravity:
-``k m (v_c(t1) - v_c(t0) + g T) = integral of sum_i F_i`` over the stance feet. A stance leg's force is
-``F_i = J_i^-T (g_i(q) - s tau_i)`` (its joints' static equation, ``g_i`` the leg's generalised gravity,
-``J_i`` the foot's 3 x 3 world-frame Jacobian in its own joints; the legs' inertial terms are left out, they
-average out over a stance), so with the model's ``m``, ``g_i`` and the torques sent,
+``k m (v_c(t1) - v_c(t0) + g T) = integral of sum_i F_i`` over the stance feet. A stance leg's force comes
+from its joints' rows of the equations of motion (19), ``J_i' F_i = k (M qdd + h)_i - s tau_i`` (``J_i``
+the foot's 3 x 3 world-frame Jacobian in its own joints; ``(M qdd + h)_i`` the leg joints' rows of the
+model's inverse dynamics, Pinocchio's RNEA at the last tick's state with the acceleration the velocities
+changed by since, gravity included), so with the model's ``m`` and the torques sent,
 
-    r = s / k = (m (dv_c + g T) - integral sum_i e_z' J_i^-T g_i) / integral sum_i (-e_z' J_i^-T tau_i).
+    r = s / k = (m (dv_c + g T) - int sum_i e_z' J_i^-T (M qdd + h)_i) / int sum_i (-e_z' J_i^-T tau_i).
 
-Nothing needs the robot's vertical acceleration: the momentum change comes from the centre-of-mass velocity
-of the estimated state (Pinocchio, the model's masses) at the stretch's ends. Stretches are summed until
+The momentum change comes from the centre-of-mass velocity of the estimated state (Pinocchio, the model's
+masses) at the stretch's ends; the legs' accelerations from the estimated velocities of consecutive ticks
+(an impulse: their noise does not add up). Stretches are summed until
 ``window`` s of them make one estimate; an estimate needs its commanded support to be at least
 ``min_support`` of the weight, is clipped to ``[lower, upper]`` and enters a first-order filter over
 ``time_constant`` s of stance. The ratio is 1 until ``min_windows`` estimates were accepted.
@@ -72,7 +74,10 @@ class SupportRatioEstimator:
         self._jacobians = np.zeros((n_feet, 3, 3))
         self._leg_torques = np.zeros(3 * n_feet)
         self._forces = np.zeros((n_feet, 3))
-        self._gravity_forces = np.zeros((n_feet, 3))
+        self._dynamics_forces = np.zeros((n_feet, 3))
+        self._last_q = np.zeros(robot.nq)
+        self._last_v = np.zeros(robot.nv)
+        self._acceleration = np.zeros(robot.nv)
         self._contacts = np.zeros(n_feet, dtype=bool)
         self.reset()
 
@@ -92,12 +97,11 @@ class SupportRatioEstimator:
         self._stretch_velocity = 0.0
         self._last_velocity = 0.0
         self._commanded_rate = 0.0  # N: sum of -e_z' J^-T tau over the stance feet at the last command
-        self._gravity_rate = 0.0  # N: sum of e_z' J^-T g over the stance feet at the last command
         self._commanded = 0.0  # N s over the stretch so far
-        self._gravity = 0.0
+        self._dynamics = 0.0  # N s: the legs' own dynamics, sum of e_z' J^-T (M qdd + h) over the stretch
         self._window_demand = 0.0  # N s: m (dv_c + g T) of the window's finished stretches
         self._window_commanded = 0.0
-        self._window_gravity = 0.0
+        self._window_dynamics = 0.0
         self._window_time = 0.0
 
     # ------------------------------------------------------------------------------------------ per tick
@@ -119,7 +123,7 @@ class SupportRatioEstimator:
         if self._in_stretch and settled and not gap and not changed:
             dt = t - self._last_time
             self._commanded += self._commanded_rate * dt
-            self._gravity += self._gravity_rate * dt
+            self._dynamics += self._leg_dynamics(measurement.v, dt) * dt
             self._last_velocity = velocity
         elif self._in_stretch:
             self._close_stretch()
@@ -133,9 +137,8 @@ class SupportRatioEstimator:
             for leg, frame_id in enumerate(self.frame_ids):
                 full = pin.getFrameJacobian(model, data, frame_id, LWA)
                 self._jacobians[leg] = full[:3, self.leg_v[leg]]
-            gravity = pin.computeGeneralizedGravity(model, data, measurement.q)
-            np.negative(gravity[self.leg_v.reshape(-1)], out=self._leg_torques)
-            leg_ground_forces(self._jacobians, self._leg_torques, 3, self._gravity_forces)
+            np.copyto(self._last_q, measurement.q)
+            np.copyto(self._last_v, measurement.v)
             if self._in_stretch and self._window_time + (t - self._stretch_start) >= self.settings.window:
                 self._close_stretch()
                 self._close_window(t)
@@ -146,17 +149,27 @@ class SupportRatioEstimator:
         held until the next ``observe``."""
         if not self._usable:
             self._commanded_rate = 0.0
-            self._gravity_rate = 0.0
             return
         np.take(torques, self.leg_joints, out=self._leg_torques)
         leg_ground_forces(self._jacobians, self._leg_torques, 3, self._forces)
-        commanded = gravity = 0.0
+        self._commanded_rate = self._stance_vertical(self._forces)
+
+    def _leg_dynamics(self, velocity: np.ndarray, dt: float) -> float:
+        """N: the stance legs' vertical ``e_z' J^-T (M qdd + h)`` over the last interval (RNEA at the last
+        tick's state, ``qdd`` from its velocity to ``velocity``; the last tick's Jacobians)."""
+        np.subtract(velocity, self._last_v, out=self._acceleration)
+        self._acceleration /= dt
+        inverse = pin.rnea(self.model, self.data, self._last_q, self._last_v, self._acceleration)
+        np.negative(inverse[self.leg_v.reshape(-1)], out=self._leg_torques)
+        leg_ground_forces(self._jacobians, self._leg_torques, 3, self._dynamics_forces)
+        return self._stance_vertical(self._dynamics_forces)
+
+    def _stance_vertical(self, forces: np.ndarray) -> float:
+        total = 0.0
         for leg in range(len(self.frame_ids)):
             if self._contacts[leg]:
-                commanded += self._forces[leg, 2]
-                gravity += self._gravity_forces[leg, 2]
-        self._commanded_rate = commanded
-        self._gravity_rate = gravity
+                total += forces[leg, 2]
+        return total
 
     # ------------------------------------------------------------------------------------------ windows
     def _open_stretch(self, t: float, velocity: float) -> None:
@@ -165,7 +178,7 @@ class SupportRatioEstimator:
         self._stretch_velocity = velocity
         self._last_velocity = velocity
         self._commanded = 0.0
-        self._gravity = 0.0
+        self._dynamics = 0.0
 
     def _close_stretch(self) -> None:
         duration = self._last_time - self._stretch_start
@@ -174,14 +187,14 @@ class SupportRatioEstimator:
             return
         self._window_demand += self.mass * (self._last_velocity - self._stretch_velocity + GRAVITY * duration)
         self._window_commanded += self._commanded
-        self._window_gravity += self._gravity
+        self._window_dynamics += self._dynamics
         self._window_time += duration
 
     def _close_window(self, t: float) -> None:
         settings = self.settings
         duration, commanded = self._window_time, self._window_commanded
-        demand = self._window_demand - self._window_gravity
-        self._window_demand = self._window_commanded = self._window_gravity = self._window_time = 0.0
+        demand = self._window_demand - self._window_dynamics
+        self._window_demand = self._window_commanded = self._window_dynamics = self._window_time = 0.0
         weight_impulse = self.mass * GRAVITY * duration
         if commanded < settings.min_support * weight_impulse or demand <= 0.0:
             self.rejected += 1
@@ -195,12 +208,12 @@ class SupportRatioEstimator:
         self.windows += 1
         if self.windows >= settings.min_windows:
             self.ratio = self.filtered
-        self.history.append((round(t, 4), round(estimate, 4), round(self.filtered, 4)))
+        self.history.append((round(t, 4), round(float(estimate), 4), round(float(self.filtered), 4)))
 
     def statistics(self) -> dict:
         """The ratio applied at the end, the windows accepted and rejected, and every accepted window."""
         return {
-            "ratio": round(self.ratio, 4),
+            "ratio": round(float(self.ratio), 4),
             "windows": self.windows,
             "rejected_windows": self.rejected,
             "history": [list(entry) for entry in self.history],
