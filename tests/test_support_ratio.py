@@ -63,6 +63,32 @@ def test_the_ratio_is_bounded(robot):
     assert estimator.ratio == pytest.approx(0.7)
 
 
+def test_a_take_off_is_left_out_and_a_payload_taken_in(robot):
+    """Settled at the nominal ratio, two windows' time of 20 % more commanded support (feet the flags miss)
+    leave the estimate about where it was; more in a row (``outlier_windows``) are a real change."""
+    settings = OnlineCalibrationConfig(enabled=True)
+    estimator = SupportRatioEstimator(robot, settings, PERIOD)
+    measurement = Measurement.of_state(robot.q_standing.copy(), np.zeros(robot.nv), np.ones(4, dtype=bool))
+    nominal = static_stance_torques(robot, robot.q_standing)
+    heavier = static_stance_torques(
+        calibrated_robot(robot, ModelCalibration(mass_scale=1.2)), robot.q_standing
+    )
+    ticks_per_window = round(settings.window / PERIOD)
+    tick = 0
+    for torques, windows in ((nominal, 6), (heavier, 2)):
+        for _ in range(windows * ticks_per_window):
+            estimator.observe(tick * PERIOD, measurement)
+            estimator.command(torques)
+            tick += 1
+    assert estimator.ratio > 0.985  # the windows mixing both moved it a little; taken in, 0.9 or less
+    assert estimator.rejected >= 1
+    for _ in range(2 * ticks_per_window):
+        estimator.observe(tick * PERIOD, measurement)
+        estimator.command(heavier)
+        tick += 1
+    assert estimator.ratio < 0.97
+
+
 def test_the_switch_builds_the_online_low_level(robot):
     """Off by default (the calibrated low level as before); on, the low level divides by the strength and
     the ratio, and reports the estimate in its statistics."""

@@ -1032,6 +1032,16 @@ class OnlineCalibrationConfig(StrictModel):
         le=1.0,
         description="a window counts only if its commanded support is at least this share of the weight",
     )
+    outlier: float = Field(
+        0.05,
+        gt=0.0,
+        le=1.0,
+        description="once applied, a window off the estimate by more than this share is left out (feet "
+        "on the ground the stance flags miss: a take-off, a landing) unless outlier_windows in a row are",
+    )
+    outlier_windows: int = Field(
+        3, ge=1, le=100, description="windows off the estimate in a row that are taken as a real change"
+    )
     lower: float = Field(0.7, ge=0.3, le=1.0, description="lowest ratio applied")
     upper: float = Field(1.4, ge=1.0, le=3.0, description="highest ratio applied")
 

@@ -24,7 +24,10 @@ masses) at the stretch's ends; the legs' accelerations from the estimated veloci
 (an impulse: their noise does not add up). Stretches are summed until
 ``window`` s of them make one estimate; an estimate needs its commanded support to be at least
 ``min_support`` of the weight, is clipped to ``[lower, upper]`` and enters a first-order filter over
-``time_constant`` s of stance. The ratio is 1 until ``min_windows`` estimates were accepted.
+``time_constant`` s of stance. The ratio is 1 until ``min_windows`` estimates were accepted; from then on
+an estimate off the filtered one by more than ``outlier`` (a share) is left out unless ``outlier_windows``
+in a row are: a take-off or a landing, where feet touch the ground before their flags say so and carry
+support the balance does not count, gives a few such windows; a payload picked up gives them all along.
 
 Stance feet are the measurement's contact flags (the plan's, gated by the estimator, or the detected ones).
 The flags changing, a gap between ticks (the low level did not run: the safe ladder held the robot) or a
@@ -54,9 +57,10 @@ MAX_GAP_TICKS = 1.5
 
 class SupportRatioEstimator:
     """``r`` = delivered support / commanded support relative to the model (module docstring), estimated
-    from ``observe(t, measurement)`` before the low level's torques of a tick and ``command(torques)``
-    after them (the torques the motors are sent, in the model's units). ``ratio``: the value to apply;
-    ``history``: ``(time, window estimate, filtered)`` of every accepted window."""
+        from ``observe(t, measurement)`` before the low level's torques of a tick and ``command(torques)``
+        after them (the torques the motors are sent, in the model's units). ``ratio``: the value to apply;
+        ``history``: ``(time, window estimate, filtered)`` of every window with enough support (an outlier
+    leaves the filtered value as it was)."""
 
     def __init__(self, robot: Robot, settings: OnlineCalibrationConfig, control_period: float) -> None:
         if not (math.isfinite(control_period) and control_period > 0.0):
@@ -88,6 +92,7 @@ class SupportRatioEstimator:
         self.windows = 0
         self.rejected = 0
         self.history: list[tuple[float, float, float]] = []
+        self._outliers = 0  # windows in a row off the applied estimate by more than ``outlier``
         self._last_time = -math.inf
         self._changed_at = -math.inf
         self._contacts[:] = False
@@ -200,6 +205,16 @@ class SupportRatioEstimator:
             self.rejected += 1
             return
         estimate = min(max(demand / commanded, settings.lower), settings.upper)
+        if (
+            self.windows >= settings.min_windows
+            and abs(estimate - self.filtered) > settings.outlier * self.filtered
+        ):
+            self._outliers += 1
+            if self._outliers < settings.outlier_windows:
+                self.rejected += 1
+                self.history.append((round(t, 4), round(float(estimate), 4), round(float(self.filtered), 4)))
+                return
+        self._outliers = 0
         if self.windows == 0:
             self.filtered = estimate
         else:
