@@ -20,6 +20,7 @@ from cafe_mpc.deploy.runner import Deployment
 from cafe_mpc.deploy.settings import DeploySettings
 from cafe_mpc.deploy.startup import StartupRefused
 from cafe_mpc.robot_io.inprocess import InProcessRobot
+from cafe_mpc.robot_io.interface import Clock, JointCommand, LinkHealth, RobotInterface, RobotState
 from cafe_mpc_lab.sim.motor_plant import MujocoMotorPlant
 
 SOURCES = Path(__file__).resolve().parents[1] / "src"
@@ -271,3 +272,64 @@ def _steer(teleop) -> None:
     assert answer.startswith("refused") and teleop.vx < 4.0
     assert teleop.handle("?").startswith("commands:")
     assert teleop.handle("q") == "stopping: lying down"
+
+
+class _ScriptedClock(Clock):
+    """A wall clock in name (``realtime``) whose time moves only when the loop sleeps: deterministic."""
+
+    realtime = True
+
+    def __init__(self) -> None:
+        self.t = 0.0
+
+    def now(self) -> float:
+        return self.t
+
+    def sleep_until(self, t: float) -> None:
+        self.t = max(self.t, t)
+
+
+class _PeriodicRobot(RobotInterface):
+    """States arriving every ``period`` s from ``phase`` s on; each command written records how long after
+    the newest state's arrival it left."""
+
+    def __init__(self, robot, period: float, phase: float) -> None:
+        self.n_joints = robot.nu
+        self.clock = _ScriptedClock()
+        self.period, self.phase = period, phase
+        self.state = RobotState.zeros(robot.nu, robot.n_feet)
+        self.answered: list[tuple[int, float]] = []
+
+    def read(self) -> RobotState:
+        arrived = int(np.floor((self.clock.t - self.phase) / self.period + 1e-9)) + 1
+        self.state.sequence = arrived
+        self.state.received = self.phase + (arrived - 1) * self.period
+        return self.state
+
+    def write(self, command: JointCommand) -> None:
+        state = self.read()
+        self.answered.append((state.sequence, self.clock.t - state.received))
+
+    def health(self) -> LinkHealth:
+        raise NotImplementedError
+
+    def open(self) -> None: ...
+
+    def close(self) -> None: ...
+
+
+@pytest.mark.parametrize("sync", [True, False])
+def test_ticks_lock_onto_the_robots_states(trot_controller, sync):
+    """With ``sync_to_state`` each command leaves as soon as the state it answers arrived (the robot's
+    states 1.3 ms out of phase with the loop's start); a free-running loop answers it 0.7 ms later."""
+    robot = _PeriodicRobot(trot_controller.robot, trot_controller.control_period, phase=0.0013)
+    deployment = Deployment(robot, trot_controller, DeploySettings(sync_to_state=sync), say=lambda _: None)
+    command = JointCommand.zeros(robot.n_joints)
+    for _ in range(60):
+        deployment._tick(lambda now, state, stale: command)
+    sequences, delays = zip(*robot.answered[10:], strict=True)
+    assert np.all(np.diff(sequences) == 1)  # every state answered once, none skipped
+    if sync:
+        assert max(delays) < 0.2e-3
+    else:
+        assert min(delays) > 0.6e-3

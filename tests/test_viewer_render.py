@@ -176,6 +176,23 @@ def test_closing_the_viewer_window_ends_the_run(xvfb_display):
     assert result.stdout.strip() == "False the viewer window was closed"
 
 
+@pytest.mark.display
+@pytest.mark.slow
+def test_sim_robot_shows_the_robot_on_the_wire_in_the_viewer(tmp_path, xvfb_display):
+    summary_file = tmp_path / "sim.json"
+    result = subprocess.run(
+        [*CLI, "sim-robot", "--viewer", "--duration", "0.5", "--domain", "7", "--out", str(summary_file)],
+        env=_with_display(xvfb_display),
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    assert result.returncode == 0, result.stderr
+    summary = json.loads(summary_file.read_text())
+    assert summary["viewer_frames"] >= 10  # 30 frames per simulated second
+    assert summary["duration"] >= 0.5
+
+
 @pytest.mark.slow
 def test_viewer_without_a_display_is_one_clear_line(tmp_path):
     environment = {

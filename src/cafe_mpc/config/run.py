@@ -181,6 +181,13 @@ class VWBCSettings(StrictModel):
     contact_detection: ContactDetectionSettings = Field(
         default_factory=ContactDetectionSettings, description="thresholds of stance_source: detected"
     )
+    state_reference: Literal["knot", "interpolated"] = Field(
+        "knot",
+        description="the planned state x* of the state error in (34a): knot: x*_k of the knot whose "
+        "interval holds t, held over the interval (the paper's); interpolated: the plan's state at t, "
+        "between x*_k and x*_k+1 (Plan.state_at). In fast motions the held x*_k falls behind within an "
+        "interval and the feedback takes back the planned push (docs/tasks.md, backflip)",
+    )
     eps_abs: float = Field(1e-6, gt=0.0, le=1.0, description="absolute tolerance of the QP solver")
     eps_rel: float = Field(0.0, ge=0.0, le=1.0, description="relative tolerance of the QP solver (proxqp)")
     max_iter: int = Field(200, ge=1, le=100000, description="iterations of one QP solve")

@@ -36,6 +36,29 @@ from cafe_mpc.config import SensorLimits
 from cafe_mpc.core.physics import GRAVITY
 
 
+def rotation_to_quaternion(rotation: np.ndarray) -> np.ndarray:
+    """The unit quaternion ``(x, y, z, w)`` of a rotation matrix (Shepperd's method: the largest of the four
+    squares first, so no division by a small number)."""
+    r = np.asarray(rotation, dtype=float)
+    trace = r[0, 0] + r[1, 1] + r[2, 2]
+    squares = (trace, r[0, 0], r[1, 1], r[2, 2])
+    largest = int(np.argmax(squares))
+    if largest == 0:
+        w = 0.5 * math.sqrt(1.0 + trace)
+        x, y, z = (r[2, 1] - r[1, 2]) / (4 * w), (r[0, 2] - r[2, 0]) / (4 * w), (r[1, 0] - r[0, 1]) / (4 * w)
+    elif largest == 1:
+        x = 0.5 * math.sqrt(1.0 + r[0, 0] - r[1, 1] - r[2, 2])
+        w, y, z = (r[2, 1] - r[1, 2]) / (4 * x), (r[0, 1] + r[1, 0]) / (4 * x), (r[0, 2] + r[2, 0]) / (4 * x)
+    elif largest == 2:
+        y = 0.5 * math.sqrt(1.0 - r[0, 0] + r[1, 1] - r[2, 2])
+        w, x, z = (r[0, 2] - r[2, 0]) / (4 * y), (r[0, 1] + r[1, 0]) / (4 * y), (r[1, 2] + r[2, 1]) / (4 * y)
+    else:
+        z = 0.5 * math.sqrt(1.0 - r[0, 0] - r[1, 1] + r[2, 2])
+        w, x, y = (r[1, 0] - r[0, 1]) / (4 * z), (r[0, 2] + r[2, 0]) / (4 * z), (r[1, 2] + r[2, 1]) / (4 * z)
+    quaternion = np.array([x, y, z, w])
+    return quaternion / np.linalg.norm(quaternion)
+
+
 @dataclass
 class SensorReadings:
     """One tick of sensor readings (a producer may overwrite its arrays in place on its next read: copy what
@@ -165,6 +188,43 @@ class SensorReadings:
 
 IMU = "imu"
 """The IMU's name in ``SensorGuard``'s records (the encoders are named by their joints)."""
+
+
+class ImuMounting:
+    """An IMU mounted turned against the trunk, its readings expressed in the base frame (what every
+    estimator assumes): ``rotation`` is base <- IMU (the robot description's ``imu`` frame,
+    ``Robot.imu_rotation``). The gyro and accelerometer are turned by it and the orientation composed with
+    its inverse (``q_world_base = q_world_imu q_imu_base``). The IMU's offset from the base origin is not
+    compensated (the accelerometer's lever-arm terms: a few centimetres on the robots shipped). Writes into
+    its own reading (no allocation); the input is left as it is."""
+
+    def __init__(self, rotation: np.ndarray, n_joints: int) -> None:
+        rotation = np.asarray(rotation, dtype=float)
+        if rotation.shape != (3, 3) or not np.allclose(rotation @ rotation.T, np.eye(3), atol=1e-6):
+            raise ValueError(f"an IMU mounting must be a 3 x 3 rotation matrix, got {rotation.tolist()}")
+        self.rotation = rotation
+        self._imu_from_base = rotation_to_quaternion(rotation.T)
+        self.readings = SensorReadings.zeros(n_joints)
+
+    @staticmethod
+    def needed(rotation: np.ndarray) -> bool:
+        """Whether an IMU turned by ``rotation`` needs the transform (not the identity)."""
+        return not np.allclose(rotation, np.eye(3), atol=1e-9)
+
+    def to_base(self, readings: SensorReadings) -> SensorReadings:
+        """``readings`` with the IMU's values in the base frame (this object's reading, overwritten)."""
+        out = self.readings
+        out.copy_from(readings)
+        np.dot(self.rotation, readings.gyro, out=out.gyro)
+        np.dot(self.rotation, readings.accelerometer, out=out.accelerometer)
+        x1, y1, z1, w1 = readings.orientation
+        x2, y2, z2, w2 = self._imu_from_base
+        orientation = out.orientation
+        orientation[0] = w1 * x2 + x1 * w2 + y1 * z2 - z1 * y2
+        orientation[1] = w1 * y2 - x1 * z2 + y1 * w2 + z1 * x2
+        orientation[2] = w1 * z2 + x1 * y2 - y1 * x2 + z1 * w2
+        orientation[3] = w1 * w2 - x1 * x2 - y1 * y2 - z1 * z2
+        return out
 
 
 class SensorGuard:

@@ -45,6 +45,13 @@ from cafe_mpc.robot_io.interface import JointCommand, RobotInterface, RobotState
 logger = logging.getLogger(__name__)
 
 LATENESS_WINDOW = 30_000
+STATE_LEAD = 0.1
+"""Periods before a state is expected that a state-synchronised tick starts waiting for it."""
+STATE_WAIT = 0.5
+"""Periods past a tick's time that a state-synchronised tick waits for the next state before it runs on
+the newest one it has (a state lost or late)."""
+STATE_POLL = 1e-4
+"""s between two looks for the next state while a state-synchronised tick waits."""
 """Ticks whose lateness the report summarises (the last minute at 500 Hz: a long run keeps no more)."""
 
 
@@ -140,6 +147,7 @@ class Deployment:
         self._stop = threading.Event()
         self._start_time = 0.0
         self._next_tick: float | None = None
+        self._last_sequence = -1
         self._lateness: deque[float] = deque(maxlen=LATENESS_WINDOW)
         self._cpu: deque[float] = deque(maxlen=LATENESS_WINDOW)
 
@@ -237,18 +245,30 @@ class Deployment:
     # ------------------------------------------------------------------------------------ the ticks
     def _tick(self, command_of: Callable[[float, RobotState, bool], JointCommand | None]) -> bool:
         """One control tick: wait for it, read the state, ask ``command_of(t, state, stale)`` for the
-        command, hold it to the limits and send it. False when ``command_of`` returned None (phase over)."""
+        command, hold it to the limits and send it. False when ``command_of`` returned None (phase over).
+
+        Against a wall clock with ``sync_to_state`` the tick starts when the robot's next state arrives
+        (``_wait_for_state``) and the next one is scheduled a period after that arrival: the loop locks
+        onto the robot's clock, so that a command answers the newest state at once instead of up to a
+        period later (a free-running loop's phase against the robot's is arbitrary)."""
         clock = self.interface.clock
         if self._next_tick is None:
             self._next_tick = clock.now()
         clock.sleep_until(self._next_tick)
+        synced = self.settings.sync_to_state and clock.realtime
+        scheduled = self._next_tick + (STATE_LEAD * self.period if synced else 0.0)
+        state = self._wait_for_state() if synced else self.interface.read()
         now = clock.now()
-        self._lateness.append(now - self._next_tick)
-        if now - self._next_tick > 0.5 * self.period:
+        lateness = max(now - scheduled, 0.0)
+        self._lateness.append(lateness)
+        if lateness > 0.5 * self.period:
             self.report.late_ticks += 1
-        self._next_tick = max(self._next_tick + self.period, now - 0.5 * self.period)
+        if synced and state.sequence != self._last_sequence:
+            self._next_tick = max(state.received + (1.0 - STATE_LEAD) * self.period, now)
+        else:
+            self._next_tick = max(self._next_tick + self.period, now - 0.5 * self.period)
+        self._last_sequence = state.sequence
         cpu_start = time.thread_time()
-        state = self.interface.read()
         stale = now - state.received > self.settings.stale_after
         command = command_of(now, state, stale)
         if command is None:
@@ -259,6 +279,18 @@ class Deployment:
         self.report.ticks += 1
         self._cpu.append(time.thread_time() - cpu_start)
         return True
+
+    def _wait_for_state(self) -> RobotState:
+        """The robot's next state, or the newest one after ``STATE_WAIT`` periods past the tick (a state
+        lost or late: the tick runs on what it has, and the stale check sees its age)."""
+        interface = self.interface
+        clock = interface.clock
+        deadline = self._next_tick + STATE_WAIT * self.period
+        state = interface.read()
+        while state.sequence == self._last_sequence and clock.now() < deadline:
+            clock.sleep_until(clock.now() + STATE_POLL)
+            state = interface.read()
+        return state
 
     def _check_fall(self, state: RobotState, stale: bool) -> None:
         if not stale and tilt_of(state.readings.orientation) > self.settings.fall_tilt:

@@ -70,6 +70,12 @@ class DeploySettings(StrictModel):
     spin: float = Field(
         0.0005, ge=0.0, description="s; the loop sleeps until this long before a tick, then spins (lateness)"
     )
+    sync_to_state: bool = Field(
+        True,
+        description="against a wall clock, start each tick when the robot's next state arrives (waiting "
+        "up to half a period past the tick's time), so that the command answers the newest state at once: on "
+        "`sim-robot`'s loopback the round trip is one period instead of up to two (docs/deploy.md)",
+    )
     realtime_priority: int = Field(
         0,
         ge=0,

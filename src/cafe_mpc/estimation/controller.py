@@ -39,7 +39,7 @@ from cafe_mpc.config import SensorLimits
 from cafe_mpc.core.controller import Controller
 from cafe_mpc.core.measurement import Measurement
 from cafe_mpc.core.plan import KnotPlan
-from cafe_mpc.core.sensors import SensorGuard, SensorReadings
+from cafe_mpc.core.sensors import ImuMounting, SensorGuard, SensorReadings
 from cafe_mpc.estimation.estimator import StateEstimator
 
 logger = logging.getLogger(__name__)
@@ -59,6 +59,9 @@ class SensorFrontEnd:
         self.guard = SensorGuard(
             self.limits, robot.position_lower, robot.position_upper, robot.velocity_limits, robot.joint_names
         )
+        rotation = robot.imu_rotation
+        self.mounting = ImuMounting(rotation, robot.nu) if ImuMounting.needed(rotation) else None
+        """The IMU's readings into the base frame, for an IMU mounted turned (None: on the base's axes)."""
         self.position_xy = np.zeros(2)
         self._last_xy = np.zeros(2)
         self.reset()
@@ -79,6 +82,8 @@ class SensorFrontEnd:
         """The estimate of ``readings`` (checked first), with the stance of ``plan`` looked up at
         ``plan_time`` (default: the readings' time)."""
         checked = self.guard.check(readings)
+        if self.mounting is not None:
+            checked = self.mounting.to_base(checked)
         t = float(checked.time)
         imu_out = self.guard.imu_out_for(t) > self.limits.outage_limit
         if self._imu_out and not imu_out:

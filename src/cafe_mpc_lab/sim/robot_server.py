@@ -29,11 +29,13 @@ from pathlib import Path
 
 import numpy as np
 
+from cafe_mpc.control.scheduling import RealTimePriority
 from cafe_mpc.robot_io.interface import JointCommand, RobotState, WallClock
 from cafe_mpc.robot_io.unitree.messages import WireFormatError
 from cafe_mpc.robot_io.unitree.robot import UnitreeDdsRobotSide
 from cafe_mpc.robots.robot import Robot
 from cafe_mpc_lab.sim.motor_plant import MujocoMotorPlant
+from cafe_mpc_lab.sim.viewer import LiveViewer
 
 TRACE_RATE_HZ = 50.0
 
@@ -80,6 +82,10 @@ class SimRobotSummary:
     late_ticks: int = 0
     round_trip_ms_p50: float | None = None
     round_trip_ms_p99: float | None = None
+    viewer_frames: int | None = None
+    """Frames the viewer drew (None: no viewer)."""
+    scheduling: str = "normal"
+    """The physics loop's scheduling class (``realtime_priority``)."""
     outages: list = field(default_factory=list)
     """(start, end) s of simulated time of the outages SIGUSR1 started."""
     trace: dict = field(default_factory=dict)
@@ -100,9 +106,11 @@ class SimRobotServer:
         link: LinkModel | None = None,
         seed: int = 0,
         signal_outage: float = 0.3,
+        realtime_priority: int = 0,
     ) -> None:
         if rate_hz <= 0:
             raise ValueError(f"rate_hz must be positive, got {rate_hz}")
+        self.priority = RealTimePriority(realtime_priority)
         self.robot = robot
         self.plant = MujocoMotorPlant(robot)
         self.period = 1.0 / rate_hz
@@ -179,8 +187,16 @@ class SimRobotServer:
             self.side.send_state(self._outbox.popleft()[1])
             summary.states_published += 1
 
-    def run(self, duration: float | None = None, out: Path | None = None, say=print) -> SimRobotSummary:
-        """Serve until ``duration`` s of simulated time (None: until stopped); the summary to ``out``."""
+    def run(
+        self,
+        duration: float | None = None,
+        out: Path | None = None,
+        say=print,
+        viewer: LiveViewer | None = None,
+    ) -> SimRobotSummary:
+        """Serve until ``duration`` s of simulated time (None: until stopped); the summary to ``out``.
+        ``viewer``: MuJoCo's viewer on the plant (started here, in the normal scheduling class; closing its
+        window ends the run)."""
         plant, summary = self.plant, self.summary
         for signal_number in (signal.SIGINT, signal.SIGTERM):
             signal.signal(signal_number, self.stop)
@@ -188,6 +204,10 @@ class SimRobotServer:
         plant.lie_down()
         trace: dict[str, list[float]] = {name: [] for name in ("t", "x", "z", "vx", "tilt", "kp_mean")}
         clock = WallClock(spin=0.0)
+        if viewer is not None:
+            viewer.start(plant.plant)
+        self.priority.acquire()
+        summary.scheduling = self.priority.description
         self.side.open()
         say(f"sim-robot: {self.robot.name} lying, publishing rt/lowstate on {self.side.where()}")
         start = next_tick = clock.now()
@@ -203,6 +223,9 @@ class SimRobotServer:
                 for _ in range(self.substeps):
                     plant.step_command(self._command)
                 self._publish(now)
+                if viewer is not None and not viewer.update(plant.time, plant.plant):
+                    say(f"sim-robot: {viewer.stop_reason}")
+                    self._stop = True
                 if plant.time >= next_trace:
                     next_trace += 1.0 / TRACE_RATE_HZ
                     position, velocity = plant.base_position(), plant.base_velocity()
@@ -216,6 +239,10 @@ class SimRobotServer:
                     ):
                         trace[name].append(round(float(value), 4))
         finally:
+            self.priority.release()
+            if viewer is not None:
+                viewer.close()
+                summary.viewer_frames = viewer.frames
             self.side.close()
             summary.duration = plant.time
             summary.wall_time = clock.now() - start

