@@ -56,6 +56,19 @@ def test_no_stance_no_estimate(robot):
     assert estimator.windows == 0 and estimator.ratio == 1.0
 
 
+def test_a_non_finite_state_leaves_the_ratio_alone(robot):
+    """A diverged estimate (NaN velocities) gives no window and never a NaN ratio."""
+    settings = OnlineCalibrationConfig(enabled=True)
+    estimator = SupportRatioEstimator(robot, settings, PERIOD)
+    velocity = np.full(robot.nv, np.nan)
+    measurement = Measurement.of_state(robot.q_standing.copy(), velocity, np.ones(4, dtype=bool))
+    torques = static_stance_torques(robot, robot.q_standing)
+    for tick in range(500):
+        estimator.observe(tick * PERIOD, measurement)
+        estimator.command(torques)
+    assert estimator.windows == 0 and estimator.ratio == 1.0 and estimator.rejected > 0
+
+
 def test_the_ratio_is_bounded(robot):
     """A robot that seems twice as heavy as its model is corrected by at most ``lower`` (0.7)."""
     heavier = calibrated_robot(robot, ModelCalibration(mass_scale=1.5, body_mass_scale=1.4))

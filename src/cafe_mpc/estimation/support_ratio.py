@@ -201,10 +201,14 @@ class SupportRatioEstimator:
         demand = self._window_demand - self._window_dynamics
         self._window_demand = self._window_commanded = self._window_dynamics = self._window_time = 0.0
         weight_impulse = self.mass * GRAVITY * duration
-        if commanded < settings.min_support * weight_impulse or demand <= 0.0:
+        if not (commanded >= settings.min_support * weight_impulse and demand > 0.0):  # NaN fails too
             self.rejected += 1
             return
-        estimate = min(max(demand / commanded, settings.lower), settings.upper)
+        estimate = demand / commanded
+        if not math.isfinite(estimate):
+            self.rejected += 1
+            return
+        estimate = min(max(estimate, settings.lower), settings.upper)
         if (
             self.windows >= settings.min_windows
             and abs(estimate - self.filtered) > settings.outlier * self.filtered
