@@ -505,21 +505,27 @@ class MinimumBaseHeight(WholeBodyInequality):
 
 
 class FrictionPyramid(WholeBodyInequality):
-    """Inner friction pyramid and unilateral force (26) on every stance foot's KKT force."""
+    """Inner friction pyramid and unilateral force (26) on every stance foot's KKT force, the unilateral
+    row raised to ``minimum_normal_force``."""
 
     name = "friction"
     needs_control = True
     needs_forces = True
 
-    def __init__(self, n_contacts: int, mu: float, barrier: BarrierParameters) -> None:
+    def __init__(
+        self, n_contacts: int, mu: float, barrier: BarrierParameters, minimum_normal_force: float = 0.0
+    ) -> None:
         self.n_contacts = n_contacts
         self.mu = float(mu)
         self.dim = 5 * n_contacts
         self.barrier = barrier
         self.matrix = np.kron(np.eye(n_contacts), friction_pyramid_matrix(self.mu))
+        self.offset = np.zeros(self.dim)
+        self.offset[::5] = minimum_normal_force
 
     def calc(self, cd, kd, x, u) -> None:
         np.matmul(self.matrix, kd.dynamics.forces, out=cd.g)
+        cd.g -= self.offset
 
     def calc_diff(self, cd, kd, x, u) -> None:
         np.matmul(self.matrix, kd.dynamics.dforces_dx, out=cd.Gx)
@@ -537,7 +543,12 @@ def whole_body_inequalities(
     n_contacts = sum(stance)
     if running and settings.friction_cone and n_contacts:
         constraints.append(
-            FrictionPyramid(n_contacts, settings.friction_coefficient, settings.friction_barrier)
+            FrictionPyramid(
+                n_contacts,
+                settings.friction_coefficient,
+                settings.friction_barrier,
+                settings.minimum_normal_force,
+            )
         )
     if running and settings.torque_limits:
         limits = (

@@ -12,6 +12,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
+from cafe_mpc.core.physics import GRAVITY
 from cafe_mpc.reference.trajectory_file import load_packaged_trajectory, packaged_trajectory_path
 from cafe_mpc.robots.robot import load_robot
 from cafe_mpc.solver import MSiLQRSolver
@@ -81,13 +82,14 @@ def test_first_iterations_reduce_the_defect(robot, name):
 
 @pytest.mark.parametrize(("name", "target"), FLIPS)
 def test_shipped_flip_is_feasible_and_current(robot, name, target):
-    """The shipped flip: defects <= 1e-3 under the planning model, the robot's torque limits, feet on the
-    floor at the touchdown, no leg joint below the floor, 2 pi about the pitch axis at the landing, made
-    from the current task file."""
+    """The shipped flip: defects <= 1e-3 under the planning model, its task's torque limits (per joint, 0.2 Nm
+    for the relaxed barrier), feet on the floor at the touchdown, no leg joint below the floor, 2 pi about
+    the pitch axis at the landing, made from the current task file."""
     trajectory = load_packaged_trajectory(name, robot)
     check = check_trajectory(robot, trajectory)
     assert check.max_defect <= 1e-3
-    assert check.max_abs_torque <= float(np.max(robot.torque_limits)) + 0.5
+    limits = np.asarray(load_task(name).constraints.torque_limits(robot))
+    assert np.all(np.abs(trajectory.us) <= limits + 0.2)
     assert check.max_touchdown_height_error <= 2e-3
     assert check.min_leg_joint_height >= 0.0
     assert check.rotation_axis == 1
@@ -102,3 +104,18 @@ def test_go2_barrel_roll_converges(go2):
     assert result.converged
     assert result.check.max_defect <= 1e-3
     assert result.check.roll_at_landing == pytest.approx(TWO_PI, abs=0.1)
+
+
+def test_shipped_backflip_keeps_its_push_feet_loaded_and_a_torque_margin(robot):
+    """The shipped backflip's push and hind push keep every stance foot at >= 0.45 x its weight share (the
+    task's 0.5 under a relaxed barrier; a foot planned at no load floats above the floor in closed loop and
+    the hind push found no ground), and its torques at <= 0.8 x the motors' limits (+0.2 Nm), the margin the
+    closed loop's plans (0.9 x) and feedback use."""
+    trajectory = load_packaged_trajectory("backflip", robot)
+    share = robot.total_mass * GRAVITY / robot.n_feet
+    push = trajectory.times[:-1] < trajectory.switching_times[2] - 1e-9
+    stance = trajectory.contacts[push].astype(bool)
+    normal = trajectory.forces[push][..., 2]
+    assert np.all(normal[stance] >= 0.45 * share)
+    motors = np.asarray(robot.plant.motor_torque_limits)
+    assert np.all(np.abs(trajectory.us) <= 0.8 * motors + 0.2)

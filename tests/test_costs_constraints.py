@@ -246,6 +246,35 @@ def test_friction_pyramid_values(robot, factory):
     np.testing.assert_allclose(data.g[:5], [fz, 0.6 * fz - fx, 0.6 * fz + fx, 0.6 * fz - fy, 0.6 * fz + fy])
 
 
+def test_minimum_normal_force_raises_the_unilateral_row(robot):
+    """With ``minimum_normal_force`` the unilateral row of (26) is ``fz - fz_min`` and the face rows stay;
+    the fused knot equals the term-by-term one (cost, gradient, Hessian) with it."""
+    rng = np.random.default_rng(7)
+    x, u = random_state(robot, rng, 0.1, 0.5), 5.0 * rng.standard_normal(12)
+    stance = (1, 0, 1, 1)
+    plain = WholeBodyModelFactory(robot).running_knot(stance)
+    settings = WholeBodySettings(constraints=WholeBodyConstraintSettings(minimum_normal_force=12.0))
+    raised = WholeBodyModelFactory(robot, settings).running_knot(stance)
+    data, raised_data = plain.create_data(), raised.create_data()
+    plain.calc(data, x, u)
+    raised.calc(raised_data, x, u)
+    shift = np.zeros(15)
+    shift[::5] = 12.0
+    np.testing.assert_allclose(raised_data.g[:15], data.g[:15] - shift)
+    assert raised_data.cost != pytest.approx(data.cost)
+    terms = reference_knot(robot, stance, True, settings)
+    term_data = terms.create_data()
+    raised.calc_diff(raised_data, x, u)
+    terms.calc(term_data, x, u)
+    terms.calc_diff(term_data, x, u)
+    assert raised_data.cost == pytest.approx(term_data.cost, rel=1e-12)
+    for name in ("Lx", "Lu", "Luu"):
+        expected = getattr(term_data, name)
+        np.testing.assert_allclose(getattr(raised_data, name), expected, atol=1e-12 * np.abs(expected).max())
+    with pytest.raises(ValueError, match="minimum normal force"):
+        WholeBodyConstraintSettings(minimum_normal_force=-1.0)
+
+
 def test_constraint_violation_is_reported(robot, factory):
     knot = factory.running_knot((1, 1, 1, 1))
     data = knot.create_data()

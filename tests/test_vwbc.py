@@ -440,3 +440,57 @@ def test_exception_in_qp_solver_falls_back_and_recovers(robot, solver, error, mo
     tau = vwbc.compute(0.004, measured(q, v), plan).copy()  # ... and rebuilt on the next tick
     assert vwbc.last_used_qp and vwbc.statistics()["fallbacks"] == 1
     np.testing.assert_allclose(tau, cold_solution(robot, plan, vwbc.settings, 0.004, q, v, limits), atol=1e-4)
+
+
+def moving_plan(robot, touchdown=False):
+    """A two-knot plan (dt 0.02 s) whose second state is away from the first (configuration and velocity);
+    ``touchdown``: the first knot is a flight knot, so its interval ends in a touchdown."""
+    plan = synthetic_plan(robot, knots=2, dt=0.02, seed=4)
+    nq = robot.nq
+    rng = np.random.default_rng(5)
+    xs = plan.xs.copy()
+    xs[1, :nq] = pin.integrate(robot.model, xs[0, :nq], 0.05 * rng.normal(size=robot.nv))
+    xs[1, nq:] = xs[0, nq:] + rng.normal(size=robot.nv)
+    xs[2] = xs[1]
+    contacts = plan.contacts.copy()
+    if touchdown:
+        contacts[0] = False
+    return Plan(plan.times, xs, plan.us, plan.K, plan.Qu, plan.Quu, plan.Qux, contacts, plan.forces, plan.dt)
+
+
+def test_plan_state_at_interpolates_inside_the_knot(robot):
+    """``Plan.state_at``: the configuration on the manifold and the velocity linearly between the knot's state
+    and the next; the velocity held over an interval that ends in a touchdown; clamped to the interval."""
+    nq = robot.nq
+    out = np.zeros(nq + robot.nv)
+    plan = moving_plan(robot)
+    x0, x1 = plan.xs[0], plan.xs[1]
+    np.testing.assert_allclose(plan.state_at(robot.model, 0.0, 0, out), x0)
+    middle = plan.state_at(robot.model, 0.015, 0, out).copy()
+    np.testing.assert_allclose(middle[:nq], pin.interpolate(robot.model, x0[:nq], x1[:nq], 0.75))
+    np.testing.assert_allclose(middle[nq:], 0.25 * x0[nq:] + 0.75 * x1[nq:])
+    np.testing.assert_allclose(plan.state_at(robot.model, 0.5, 0, out), x1)  # clamped to the interval
+    landing = moving_plan(robot, touchdown=True)
+    state = landing.state_at(robot.model, 0.015, 0, out)
+    np.testing.assert_allclose(state[:nq], middle[:nq])
+    np.testing.assert_allclose(state[nq:], x0[nq:])  # the next state holds the velocity after the impact
+
+
+@pytest.mark.parametrize("solver", SOLVERS)
+def test_interpolated_state_reference_follows_the_plan_inside_the_knot(robot, solver):
+    """With ``state_reference: interpolated`` a robot exactly on the plan's state at t (between two knots)
+    gets the knot's planned torque, as one on ``x*_k`` at the knot's start does; measured against the held
+    ``x*_k`` (the default) the same robot gets a feedback torque."""
+    plan = moving_plan(robot)
+    q, v = np.split(plan.state_at(robot.model, 0.015, 0, np.zeros(robot.nq + robot.nv)), [robot.nq])
+    interpolated = VWBCController(
+        robot, VWBCSettings(solver=solver, eps_abs=1e-10, state_reference="interpolated"), GENEROUS
+    )
+    held = VWBCController(robot, VWBCSettings(solver=solver, eps_abs=1e-10), GENEROUS)
+    on_knot = VWBCController(robot, VWBCSettings(solver=solver, eps_abs=1e-10), GENEROUS)
+    x0 = plan.xs[0]
+    reference = on_knot.compute(0.0, measured(x0[: robot.nq], x0[robot.nq :]), plan).copy()
+    tau = interpolated.compute(0.015, measured(q, v), plan).copy()
+    assert interpolated.last_used_qp and on_knot.last_used_qp
+    np.testing.assert_allclose(tau, reference, atol=1e-6)
+    assert np.max(np.abs(held.compute(0.015, measured(q, v), plan) - reference)) > 1.0

@@ -181,6 +181,13 @@ class VWBCSettings(StrictModel):
     contact_detection: ContactDetectionSettings = Field(
         default_factory=ContactDetectionSettings, description="thresholds of stance_source: detected"
     )
+    state_reference: Literal["knot", "interpolated"] = Field(
+        "knot",
+        description="the planned state x* of the state error in (34a): knot: x*_k of the knot whose "
+        "interval holds t, held over the interval (the paper's); interpolated: the plan's state at t, "
+        "between x*_k and x*_k+1 (Plan.state_at). In fast motions the held x*_k falls behind within an "
+        "interval and the feedback takes back the planned push (docs/tasks.md, backflip)",
+    )
     eps_abs: float = Field(1e-6, gt=0.0, le=1.0, description="absolute tolerance of the QP solver")
     eps_rel: float = Field(0.0, ge=0.0, le=1.0, description="relative tolerance of the QP solver (proxqp)")
     max_iter: int = Field(200, ge=1, le=100000, description="iterations of one QP solve")
@@ -1009,6 +1016,58 @@ class PlantConfig(StrictModel):
         return not self.sensor_noise.is_zero
 
 
+class OnlineCalibrationConfig(StrictModel):
+    """The controller's estimate, while it runs, of how much support its motors give per commanded torque
+    relative to its model (``estimation.support_ratio``): a payload (the robot heavier than its model) and
+    weaker motors look alike in what the robot senses, so one ratio ``r`` = motor strength / mass factor is
+    estimated, from the impulse the stance legs' commanded torques give against the momentum the robot
+    gains (IMU and leg kinematics), and the low level sends ``tau / r`` (``low_level.motor_strength``). On
+    top of the ``calibration`` factors; off by default."""
+
+    enabled: bool = Field(False, description="estimate the support ratio online and scale the commands by it")
+    window: float = Field(
+        0.2, gt=0.0, le=2.0, description="s of settled stance per estimate (one impulse balance)"
+    )
+    time_constant: float = Field(
+        0.4,
+        ge=0.0,
+        le=10.0,
+        description="s of settled stance over which the estimates are averaged (first-order filter; 0: the "
+        "last window's)",
+    )
+    settle: float = Field(
+        0.02, ge=0.0, le=0.2, description="s after a change of the stance set before its ticks count"
+    )
+    min_windows: int = Field(
+        2, ge=1, le=100, description="windows accepted before the estimate is applied (1 until then)"
+    )
+    min_support: float = Field(
+        0.3,
+        gt=0.0,
+        le=1.0,
+        description="a window counts only if its commanded support is at least this share of the weight",
+    )
+    outlier: float = Field(
+        0.05,
+        gt=0.0,
+        le=1.0,
+        description="once applied, a window off the estimate by more than this share is left out (feet "
+        "on the ground the stance flags miss: a take-off, a landing) unless outlier_windows in a row are",
+    )
+    outlier_windows: int = Field(
+        3, ge=1, le=100, description="windows off the estimate in a row that are taken as a real change"
+    )
+    lower: float = Field(0.7, ge=0.3, le=1.0, description="lowest ratio applied")
+    upper: float = Field(
+        1.0,
+        ge=1.0,
+        le=3.0,
+        description="highest ratio applied (1: a robot lighter or stronger than its model keeps its surplus; "
+        "scaling its commands down cost two of 22 randomised running rolls their take-off height, "
+        "docs/robustness.md)",
+    )
+
+
 class CalibrationConfig(StrictModel):
     """What the controller knows of its robot beyond the robot file: a weighed payload, measured link
     masses, calibrated motors. Applied once to the controller's model (``robots.calibration``, resolved in
@@ -1028,6 +1087,12 @@ class CalibrationConfig(StrictModel):
     link_mass_scales: PlantScales = Field(1.0, description="leg-link mass and inertia factors (0.5-1.5)")
     motor_strength_scales: PlantScales = Field(
         1.0, description="torque each motor delivers per commanded torque, as calibrated (0.5-1.5)"
+    )
+
+    online: OnlineCalibrationConfig = Field(
+        default_factory=OnlineCalibrationConfig,
+        description="the support ratio (motor strength / mass factor) estimated while running, applied on "
+        "top of these factors (estimation.support_ratio)",
     )
 
     @field_validator("link_mass_scales", "motor_strength_scales")

@@ -11,7 +11,11 @@ At each low-level tick (500 Hz) the VWBC solves
 
 with ``Q_k(dx, dtau) = 0.5 dtau' Quu dtau + dtau' (Qux dx + Qu)`` (the dx-only terms of the action-value
 function (6) are constant in the QP and dropped). ``k`` is the plan knot whose interval holds ``t`` and ``dx =
-x ⊖ x*_k`` uses the Riccati controller's convention (``pin.difference(q*, q)``, ``v - v*``). Without the
+x ⊖ x*_k`` uses the Riccati controller's convention (``pin.difference(q*, q)``, ``v - v*``). With
+``VWBCSettings.state_reference = "interpolated"`` ``x*_k`` is replaced by the plan's state at ``t``
+(``Plan.state_at``): over a 10 ms knot of a flip's push the state moves by several tenths of a rad/s in
+pitch rate, and the feedback on the error to the held ``x*_k`` took back up to half the planned force by the
+interval's end (docs/tasks.md, backflip). Without the
 inequality constraints the dynamics (34b)-(34c) determine ``qdd`` and ``F`` from ``tau``, so the minimiser is
 the unconstrained policy (7) ``tau* - Quu^{-1} (Qux dx + Qu)`` (with ``Qu = 0`` exactly the Riccati torque
 (33)). The QP is therefore strictly convex on its feasible set although its Hessian is singular in ``qdd`` and
@@ -411,6 +415,7 @@ class VWBCController(LowLevelController[Plan]):
         self._qps: dict[tuple[bool, ...], _StanceQP] = {}
         nv, nu = robot.nv, robot.nu
         self._dx = np.zeros(2 * nv)
+        self._x_plan = np.zeros(robot.nq + nv)  # the plan's state at t (state_reference: interpolated)
         self._g_tau = np.zeros(nu)
         self._torques = np.zeros(nu)
         self.last_request = self._torques  # the QP respects the limits: the request is the output
@@ -455,7 +460,8 @@ class VWBCController(LowLevelController[Plan]):
         s, contact = self.settings, self.contact
         k = plan.knot_at(t)
         self.last_knot = k
-        dx = self.state_error(q, v, plan.xs[k])
+        x_plan = plan.xs[k] if s.state_reference == "knot" else plan.state_at(self.model, t, k, self._x_plan)
+        dx = self.state_error(q, v, x_plan)
         np.copyto(self._stance, plan.contacts[k])
         contacts = np.asarray(contacts, dtype=bool)
         if s.stance_source == "intersect":

@@ -4,7 +4,9 @@ Inequalities ``g(x, u) >= 0`` of a knot become the cost ``eps * B(g)`` (``Relaxe
 knot's time step on running knots) with Gauss-Newton Hessian ``G' diag(eps B'') G``, and their worst
 violation is reported in ``ActionData.constraint_violation``:
 
-* friction pyramid with unilateral force (26) on the stance-foot forces, ``[fz, mu fz -+ fx, mu fz -+ fy]``;
+* friction pyramid with unilateral force (26) on the stance-foot forces, ``[fz - fz_min, mu fz -+ fx,
+  mu fz -+ fy]`` (``fz_min = minimum_normal_force``, 0 in (26): a stance foot planned at no load floats
+  just above the floor of a compliant plant and cannot push at once when its load is asked for);
   the forces are outputs of the KKT dynamics, so ``G = P dF/d(x, u)`` uses the dynamics derivatives;
 * torque limits (27a), joint position limits (27b), joint speed limits (27c), as boxes
   ``[upper - z, z - lower]``;
@@ -64,6 +66,8 @@ class WholeBodyConstraintSettings:
     joint_position_limits: bool = True
     joint_velocity_limits: bool = True
     minimum_base_height: float | None = 0.20
+    minimum_normal_force: float = 0.0
+    """N; the least normal force of every stance foot (the pyramid's unilateral row, ``fz >= fz_min``)."""
     friction_barrier: BarrierParameters = field(default_factory=lambda: BarrierParameters(0.2, 0.05))
     torque_barrier: BarrierParameters = field(default_factory=lambda: BarrierParameters(1.0, 0.01))
     # eps below is 10x (joints) and 100x (height) smaller than the published values: -ln g has a non-zero
@@ -78,6 +82,8 @@ class WholeBodyConstraintSettings:
     def __post_init__(self) -> None:
         if not (math.isfinite(self.friction_coefficient) and self.friction_coefficient > 0):
             raise ValueError(f"friction coefficient must be positive, got {self.friction_coefficient}")
+        if not (math.isfinite(self.minimum_normal_force) and self.minimum_normal_force >= 0):
+            raise ValueError(f"minimum normal force must be finite and >= 0, got {self.minimum_normal_force}")
         if self.minimum_base_height is not None and not math.isfinite(self.minimum_base_height):
             raise ValueError("minimum base height must be finite or None")
         if self.torque_limit_values is not None and len(self.torque_limit_values) != 12:

@@ -6,9 +6,9 @@ A whole-body knot (``cafe_mpc.ocp.knots.WholeBodyKnot``) stacks everything it pr
   positions and velocities (3 rows per swing foot), torque regularisation (``nu`` rows); the cost is
   ``0.5 r' diag(w) r`` (times ``dt`` on running knots);
 * the **constraint values** ``g >= 0`` of (26), (27) and the minimum base height, each priced by the relaxed
-  barrier ``eps B(g)`` (Sec. III-B-2): friction pyramid rows ``[fz, mu fz -+ fx, mu fz -+ fy]`` per stance
-  foot, box rows ``sign * z + offset`` on one coordinate of ``x`` or ``u`` (torque, joint-position and
-  joint-speed limits), and the base-height row.
+  barrier ``eps B(g)`` (Sec. III-B-2): friction pyramid rows ``[fz - fz_min, mu fz -+ fx, mu fz -+ fy]`` per
+  stance foot (``fz_min``: the knot's minimum normal force, 0 in (26)), box rows ``sign * z + offset`` on
+  one coordinate of ``x`` or ``u`` (torque, joint-position and joint-speed limits), and the base-height row.
 
 ``whole_body_cost`` fills the residual rows (the state rows too, for a free-flyer robot or the ``"world"``
 base error), the constraint values, and returns cost and worst violation; ``whole_body_derivatives`` forms
@@ -68,7 +68,8 @@ INT_SECTIONS = 16
 POSITION_LEGS, VELOCITY_LEGS, BOX_ON_CONTROL, BOX_INDEX, BOX_COLUMN = range(5)
 STANCE_LEGS, BASE_ROWS, BASE_MASK = range(5, 8)
 FLOAT_SECTIONS = INT_SECTIONS + 9
-MU, MINIMUM_HEIGHT, SCALE = range(3)
+MU, MINIMUM_HEIGHT, SCALE, MINIMUM_NORMAL_FORCE = range(4)
+FLOAT_SCALARS = 4
 """The float scalars, before the float sections."""
 WEIGHTS, BOX_SIGN, BOX_OFFSET, DELTA, EPS = range(5)
 WORK_SECTIONS = FLOAT_SECTIONS + 6
@@ -139,11 +140,12 @@ def whole_body_cost(
     box_index = _section(h, h, INT_SECTIONS, BOX_INDEX, HEADER)
     stance_legs = _section(h, h, INT_SECTIONS, STANCE_LEGS, HEADER)
     mu, minimum_height, scale = floats[MU], floats[MINIMUM_HEIGHT], floats[SCALE]
-    w = _section(floats, h, FLOAT_SECTIONS, WEIGHTS, 3)
-    box_sign = _section(floats, h, FLOAT_SECTIONS, BOX_SIGN, 3)
-    box_offset = _section(floats, h, FLOAT_SECTIONS, BOX_OFFSET, 3)
-    delta = _section(floats, h, FLOAT_SECTIONS, DELTA, 3)
-    eps = _section(floats, h, FLOAT_SECTIONS, EPS, 3)
+    minimum_normal_force = floats[MINIMUM_NORMAL_FORCE]
+    w = _section(floats, h, FLOAT_SECTIONS, WEIGHTS, FLOAT_SCALARS)
+    box_sign = _section(floats, h, FLOAT_SECTIONS, BOX_SIGN, FLOAT_SCALARS)
+    box_offset = _section(floats, h, FLOAT_SECTIONS, BOX_OFFSET, FLOAT_SCALARS)
+    delta = _section(floats, h, FLOAT_SECTIONS, DELTA, FLOAT_SCALARS)
+    eps = _section(floats, h, FLOAT_SECTIONS, EPS, FLOAT_SCALARS)
     r = _section(work, h, WORK_SECTIONS, R, 0)
     wr = _section(work, h, WORK_SECTIONS, WR, 0)
     g = _section(work, h, WORK_SECTIONS, G, 0)
@@ -194,7 +196,7 @@ def whole_body_cost(
     # constraint values
     for c in range(n_friction):
         fx, fy, fz = forces[3 * c], forces[3 * c + 1], forces[3 * c + 2]
-        g[5 * c] = fz
+        g[5 * c] = fz - minimum_normal_force
         g[5 * c + 1] = mu * fz - fx
         g[5 * c + 2] = mu * fz + fx
         g[5 * c + 3] = mu * fz - fy
@@ -251,8 +253,8 @@ def whole_body_derivatives(
     base_rows = _section(h, h, INT_SECTIONS, BASE_ROWS, HEADER)
     base_mask = _section(h, h, INT_SECTIONS, BASE_MASK, HEADER)
     mu, scale = floats[MU], floats[SCALE]
-    w = _section(floats, h, FLOAT_SECTIONS, WEIGHTS, 3)
-    box_sign = _section(floats, h, FLOAT_SECTIONS, BOX_SIGN, 3)
+    w = _section(floats, h, FLOAT_SECTIONS, WEIGHTS, FLOAT_SCALARS)
+    box_sign = _section(floats, h, FLOAT_SECTIONS, BOX_SIGN, FLOAT_SCALARS)
     wr = _section(work, h, WORK_SECTIONS, WR, 0)
     d1 = _section(work, h, WORK_SECTIONS, D1, 0)
     d2 = _section(work, h, WORK_SECTIONS, D2, 0)

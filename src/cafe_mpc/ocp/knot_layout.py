@@ -101,9 +101,10 @@ def residual_layout(
 class ConstraintLayout:
     """Row blocks of the stacked constraints ``g >= 0`` and their barrier parameters.
 
-    ``n_friction`` stance feet priced by the pyramid (26) with ``friction_coefficient`` (rows
-    ``0 .. FRICTION_ROWS n_friction``); then one box row per bound: ``box_on_control`` (a control or a state
-    coordinate), ``box_index`` (the coordinate in ``u`` or ``x``), ``box_column`` (its tangent column),
+    ``n_friction`` stance feet priced by the pyramid (26) with ``friction_coefficient`` and its unilateral
+    row raised to ``minimum_normal_force`` (rows ``0 .. FRICTION_ROWS n_friction``); then one box row per
+    bound: ``box_on_control`` (a control or a state coordinate), ``box_index`` (the coordinate in ``u`` or
+    ``x``), ``box_column`` (its tangent column),
     ``box_sign`` and ``box_offset`` (``g = sign * value + offset``); then the base height row at
     ``height_index`` (-1: none) with ``minimum_height``. ``barrier_delta``/``barrier_eps``: the relaxed
     barrier of every row.
@@ -111,6 +112,7 @@ class ConstraintLayout:
 
     n_friction: int
     friction_coefficient: float
+    minimum_normal_force: float
     box_on_control: np.ndarray
     box_index: np.ndarray
     box_column: np.ndarray
@@ -141,10 +143,12 @@ def constraint_layout(
     epsilons: list[np.ndarray] = []
     n_friction = 0
     friction_coefficient = DEFAULT_FRICTION
+    minimum_normal_force = 0.0
     n_contacts = sum(stance)
     if settings is not None and running and settings.friction_cone and n_contacts:
         n_friction = n_contacts
         friction_coefficient = float(settings.friction_coefficient)
+        minimum_normal_force = float(settings.minimum_normal_force)
         deltas.append(np.full(FRICTION_ROWS * n_contacts, settings.friction_barrier.delta))
         epsilons.append(np.full(FRICTION_ROWS * n_contacts, settings.friction_barrier.eps))
     on_control, index, column, sign, offset = [], [], [], [], []
@@ -198,6 +202,7 @@ def constraint_layout(
     return ConstraintLayout(
         n_friction=n_friction,
         friction_coefficient=friction_coefficient,
+        minimum_normal_force=minimum_normal_force,
         box_on_control=np.array(on_control, dtype=np.bool_),
         box_index=np.array(index, dtype=np.int64),
         box_column=np.array(column, dtype=np.int64),

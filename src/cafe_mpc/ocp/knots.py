@@ -262,6 +262,7 @@ class WholeBodyKnot(ActionModel):
         self.base_rows, self.base_mask = residual.base_rows, residual.base_mask
         self.kinematics = FootKinematics(robot, self.position_legs.tolist(), self.velocity_legs.tolist())
         self.n_friction, self.friction_coefficient = limits.n_friction, limits.friction_coefficient
+        self.minimum_normal_force = limits.minimum_normal_force
         self.box_on_control, self.box_index, self.box_column = (
             limits.box_on_control,
             limits.box_index,
@@ -366,7 +367,10 @@ class WholeBodyKnot(ActionModel):
         packed.pack_sections(header, packed.WORK_SECTIONS, [np.zeros(size) for size in sizes], float)
         self._integers = np.concatenate([header, integers])
         self._floats = np.concatenate(
-            [[self.friction_coefficient, self.minimum_height, self.cost_scale], floats]
+            [
+                [self.friction_coefficient, self.minimum_height, self.cost_scale, self.minimum_normal_force],
+                floats,
+            ]
         )
 
     def _work_section(self, work: np.ndarray, section: int) -> np.ndarray:

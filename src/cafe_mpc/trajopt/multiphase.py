@@ -190,7 +190,9 @@ def build_problem(robot: Robot, task: TrajOptTask, barriers: BarrierSetSpec | No
             dt=dt,
             running_weights=spec.running.weights(),
             terminal_weights=spec.terminal.weights(),
-            constraints=task.constraints.settings(spec.minimum_height, barriers, planning),
+            constraints=task.constraints.settings(
+                spec.minimum_height, barriers, planning, spec.minimum_normal_force
+            ),
             base_error="world",
         )
         factory = WholeBodyModelFactory(planning, settings)

@@ -27,6 +27,7 @@ from pydantic import Field, field_validator, model_validator
 from cafe_mpc.config import DEFAULT_FRICTION
 from cafe_mpc.config.loading import ConfigError, StrictModel
 from cafe_mpc.config.weights import WholeBodyWeights
+from cafe_mpc.core.physics import GRAVITY
 from cafe_mpc.ocp.constraints import BarrierParameters, WholeBodyConstraintSettings
 from cafe_mpc.reference.trajectory_file import parse_contact_code
 from cafe_mpc.robots.robot import Robot
@@ -116,7 +117,8 @@ class WeightsSpec(StrictModel):
 
 
 class PhaseSpec(StrictModel):
-    """One phase: its contacts, the keyframe it ends on, its weights and its minimum base height."""
+    """One phase: its contacts, the keyframe it ends on, its weights, its minimum base height and the least
+    normal force of its stance feet."""
 
     name: str
     contacts: str = Field(description="contact code: FS, FT or stance legs joined by '-' (FR-HR)")
@@ -124,6 +126,14 @@ class PhaseSpec(StrictModel):
     running: WeightsSpec
     terminal: WeightsSpec
     minimum_height: float | None = Field(None, ge=0.0, le=1.0, description="minimum base height (m)")
+    minimum_normal_force: float = Field(
+        0.0,
+        ge=0.0,
+        le=2.0,
+        description="least normal force of every stance foot, x m g / n_feet (the robot's weight share; "
+        "0: the pyramid (26) as is). A stance foot planned at no load floats just above the floor in closed "
+        "loop and cannot push at once when the next phase loads it",
+    )
     surface_height: float | None = Field(
         None,
         ge=-1.0,
@@ -236,12 +246,18 @@ class ConstraintSpec(StrictModel):
         return tuple(float(limit) for limit in limits * self.torque_limit_fraction)
 
     def settings(
-        self, minimum_height: float | None, barriers: BarrierSetSpec, robot: Robot
+        self,
+        minimum_height: float | None,
+        barriers: BarrierSetSpec,
+        robot: Robot,
+        minimum_normal_force: float = 0.0,
     ) -> WholeBodyConstraintSettings:
-        """Knot constraint settings (joint speed limits come from the planning robot, see ``multiphase``)."""
+        """Knot constraint settings (joint speed limits come from the planning robot, see ``multiphase``);
+        ``minimum_normal_force`` as a fraction of the robot's weight share ``m g / n_feet``."""
         return WholeBodyConstraintSettings(
             friction_coefficient=self.friction_coefficient,
             minimum_base_height=minimum_height,
+            minimum_normal_force=minimum_normal_force * robot.total_mass * GRAVITY / robot.n_feet,
             friction_barrier=barriers.friction.parameters(),
             torque_barrier=barriers.torque.parameters(),
             joint_position_barrier=barriers.joint_position.parameters(),

@@ -6,6 +6,9 @@ Q-function pieces ``Qu, Quu, Qux`` (paper Eq. (6)-(8)), stance flags and planned
 ``[t_k, t_k+1)`` contains ``t`` (zero-order hold: its torque acts over that interval in the plan's own
 discretisation, as in the authors' controller; the nearest knot would pick, half an interval before a
 touchdown, a knot of the next contact phase). ``riccati_torque`` is the plan's feedback law (33).
+``state_at(model, t, k, out)`` is the planned state at ``t`` inside that interval (configuration on the
+manifold, velocity linearly between ``x*_k`` and ``x*_k+1``): the state a low level running faster than the
+knots may measure its error against instead of ``x*_k`` held over the interval.
 
 ``PlanBuffers`` lends the arrays an MPC writes its plans into, so that an update allocates no plan, and
 never lends arrays a published plan still uses.
@@ -18,6 +21,7 @@ import functools
 from dataclasses import dataclass
 
 import numpy as np
+import pinocchio as pin
 
 from cafe_mpc.core.buffers import ArrayLender
 from cafe_mpc.core.kernels import all_finite
@@ -92,6 +96,25 @@ class Plan:
     def knot_at(self, t: float) -> int:
         """Index of the knot whose interval contains ``t`` (clamped to the plan; module docstring)."""
         return interval_at(self.times, t)
+
+    def state_at(self, model: pin.Model, t: float, k: int, out: np.ndarray) -> np.ndarray:
+        """The planned state at ``t`` in knot ``k``'s interval, written into ``out``: the configuration
+        interpolated on the manifold between ``q*_k`` and ``q*_k+1`` (``pin.interpolate``), the velocity
+        linearly between ``v*_k`` and ``v*_k+1``, except over an interval that ends in a touchdown, whose
+        ``v*_k+1`` is the velocity after the impact: there ``v*_k`` is held. ``t`` outside the interval is
+        clamped to it."""
+        nq = model.nq
+        start, step = self.times[k], self.dt[k]
+        s = min(max((t - start) / step, 0.0), 1.0)
+        current, following = self.xs[k], self.xs[k + 1]
+        out[:nq] = pin.interpolate(model, current[:nq], following[:nq], s)
+        touchdown = k + 1 < len(self.contacts) and bool(np.any(self.contacts[k + 1] & ~self.contacts[k]))
+        if touchdown:
+            out[nq:] = current[nq:]
+        else:
+            np.multiply(current[nq:], 1.0 - s, out=out[nq:])
+            out[nq:] += s * following[nq:]
+        return out
 
     def knot_configurations(self, nq: int) -> np.ndarray:
         """The planned configurations ``q*`` at the ``n + 1`` knot times (a view of ``xs``)."""
