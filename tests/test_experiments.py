@@ -17,6 +17,7 @@ from cafe_mpc.config import ConfigError, VelocityCommand, available_presets
 from cafe_mpc.control.inline import InlineMpcLoop
 from cafe_mpc.core.measurement import Measurement
 from cafe_mpc.dynamics.srb import srb_parameters
+from cafe_mpc.low_level.motor_strength import MotorStrengthCompensation, OnlineSupportCompensation
 from cafe_mpc.low_level.pd import PDController
 from cafe_mpc.low_level.riccati import RiccatiController
 from cafe_mpc.low_level.synthetic import synthetic_plan
@@ -109,7 +110,10 @@ def test_every_preset_loads_and_builds_its_controller(robot, preset):
         return
     assert isinstance(controller, InlineMpcLoop)
     expected = {"riccati": RiccatiController, "vwbc": VWBCController}[config.wbc]
-    assert isinstance(low_level_of(controller), expected)
+    low_level = low_level_of(controller)
+    while isinstance(low_level, (MotorStrengthCompensation, OnlineSupportCompensation)):
+        low_level = low_level.inner  # the commands for the motors (calibration, its online estimate)
+    assert isinstance(low_level, expected)
     assert controller.planner.builder.schedule == model_schedule(config.mpc)
     assert controller.settings.period == config.mpc.period
     if config.gait is not None:  # presets with a reference section (barrel-roll) have no gait

@@ -129,6 +129,12 @@ def test_a_fault_that_does_not_fit_the_run_is_one_config_error():
         load_config("trot", ["plant.faults=[{kind: mpc_kill, start: 1}]"])
     with pytest.raises(ConfigError, match="needs 'joint'"):
         load_config("trot", ["plant.faults=[{kind: encoder_freeze, duration: 0.1}]"])
+    with pytest.raises(ConfigError, match=r"plant\.faults\.0.*mpc_pause.*not real time"):
+        load_config(
+            "trot", ["simulation.realtime=true", "plant.faults=[{kind: mpc_pause, start: 1, duration: 0.5}]"]
+        )
+    with pytest.raises(ConfigError, match="needs 'duration'"):
+        load_config("trot", ["plant.faults=[{kind: mpc_pause, start: 1}]"])
 
 
 # ------------------------------------------------------------------------------------ MPC process
@@ -177,6 +183,10 @@ def test_a_stopped_mpc_process_is_continued_and_the_run_keeps_its_record(tmp_pat
     assert applied == ["mpc_stall", "mpc_continue"]
     assert "mpc_stalled" in [event["event"] for event in faults["mpc"]["events"]]
     assert faults["ladder"]["episodes"], "the safe ladder never left the plans during a 1 s stall"
+    for episode in faults["ladder"]["episodes"]:  # taken back by plans that stand (the gait restarts)
+        if episode["back_at"] is not None:
+            tick = int(np.searchsorted(result.log.time, episode["back_at"] - 1e-9))
+            assert result.log.extra["planned_stance"][tick].all(), episode
     assert not multiprocessing.active_children()
 
 
@@ -239,7 +249,7 @@ def test_the_fault_experiment_plans_each_fault_and_runs_the_mpc_faults_in_real_t
 
     prepared = prepare("faults", None, [], {"task": "trot", "times": "2,3"})
     names = [variant.name for variant in prepared.plan.variants]
-    assert len(names) == 2 * 11 and len(set(names)) == len(names)  # 11 faults at each of 2 times
+    assert len(names) == 2 * 14 and len(set(names)) == len(names)  # 14 faults at each of 2 times
     for name, config in prepared.configs.items():
         [fault] = config.plant.faults
         assert fault.start in (2.0, 3.0) and name.startswith(fault.kind)

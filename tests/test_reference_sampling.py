@@ -9,6 +9,8 @@ stored trajectory's compiled ``sample`` is compared with its ``sample_python``, 
 re-joined, with a weight-set override) with the composition written plainly.
 """
 
+import math
+
 import numpy as np
 import pytest
 
@@ -109,7 +111,7 @@ def measured_state(robot, t: float) -> tuple[np.ndarray, np.ndarray]:
     return q, v
 
 
-@pytest.mark.parametrize("switch", [False, True])
+@pytest.mark.parametrize("switch", [False, True, "restart"])
 def test_compiled_sample_matches_the_straightforward_one(robot, switch):
     commands = [
         VelocityCommand(start=0.0, vx=0.5, yaw_rate=0.4),
@@ -122,6 +124,10 @@ def test_compiled_sample_matches_the_straightforward_one(robot, switch):
         reference.set_gait(1.5, "bound")
     window = ReferenceWindow(80, robot.nq, robot.nv, robot.nu, robot.n_feet)
     for t in np.arange(0.0, 2.6, 0.13):
+        if switch == "restart" and abs(t - 1.04) < 1e-6:  # held by the safe ladder, then taken back
+            reference.restart_gait(float(t), math.inf)
+        if switch == "restart" and abs(t - 1.56) < 1e-6:
+            reference.restart_gait(float(t), 0.3)
         q, v = measured_state(robot, float(t))
         reference.update(float(t), q, v)
         whole_body = t + np.concatenate([[0.0, 0.004], 0.004 + 0.01 * np.arange(1, 40)])

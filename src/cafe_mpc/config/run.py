@@ -891,13 +891,17 @@ PlantScales = float | list[float]
 """One factor for every joint, or one per actuated joint (robot joint order)."""
 
 
-FaultKind = Literal["imu_dropout", "encoder_freeze", "nan_sample", "out_of_range", "mpc_kill", "mpc_stall"]
+FaultKind = Literal[
+    "imu_dropout", "encoder_freeze", "nan_sample", "out_of_range", "mpc_kill", "mpc_stall", "mpc_pause"
+]
 """What a fault the lab injects does (``FaultConfig``)."""
 
 SENSOR_FAULTS = ("imu_dropout", "encoder_freeze", "nan_sample", "out_of_range")
 """Faults of the robot's sensors (they need ``estimator: kinematic_kf``: the controller reads sensors)."""
 MPC_FAULTS = ("mpc_kill", "mpc_stall")
 """Faults of the MPC process (they need ``simulation.realtime``: the MPC in its own process)."""
+INLINE_MPC_FAULTS = ("mpc_pause",)
+"""Faults of the MPC in simulated time (they need an MPC run that is not ``simulation.realtime``)."""
 
 FaultSensor = Literal["orientation", "gyro", "accelerometer", "joint_position", "joint_velocity"]
 """A sensor field a bad sample can hit."""
@@ -911,19 +915,21 @@ class FaultConfig(StrictModel):
     ``nan_sample`` / ``out_of_range``: one sample of ``sensor`` (for a joint sensor, of ``joint``, or of every
     joint when null) is NaN / ``value`` every ``period`` s from ``start`` (for ``duration`` s, null: to the
     end). ``mpc_kill``: the MPC process is killed (SIGKILL) at ``start``. ``mpc_stall``: it is stopped
-    (SIGSTOP) at ``start`` and continued (SIGCONT) ``duration`` s later."""
+    (SIGSTOP) at ``start`` and continued (SIGCONT) ``duration`` s later. ``mpc_pause``: the MPC in
+    simulated time sends no plan from ``start`` for ``duration`` s and then solves cold
+    (``InlineMpcLoop.withhold_plans``: a stall or restart, deterministic with a fixed latency)."""
 
     kind: FaultKind = Field(
         description="imu_dropout | encoder_freeze | nan_sample | out_of_range (sensors) | mpc_kill | "
-        "mpc_stall (the MPC process, simulation.realtime)"
+        "mpc_stall (the MPC process, simulation.realtime) | mpc_pause (the MPC in simulated time)"
     )
     start: float = Field(0.0, ge=0.0, le=3600.0, description="s, when the fault begins")
     duration: float | None = Field(
         None,
         gt=0.0,
         le=3600.0,
-        description="s the fault lasts (imu_dropout, encoder_freeze, mpc_stall; bad samples: null, to the "
-        "end)",
+        description="s the fault lasts (imu_dropout, encoder_freeze, mpc_stall, mpc_pause; bad samples: "
+        "null, to the end)",
     )
     joint: int | str | None = Field(
         None, description="encoder_freeze, bad joint samples: the joint (index or name; null: every joint)"
@@ -949,6 +955,7 @@ class FaultConfig(StrictModel):
             "out_of_range": ("sensor", "period"),
             "mpc_kill": (),
             "mpc_stall": ("duration",),
+            "mpc_pause": ("duration",),
         }
         allowed: dict[str, tuple[str, ...]] = {
             "imu_dropout": ("duration",),
@@ -957,6 +964,7 @@ class FaultConfig(StrictModel):
             "out_of_range": ("sensor", "period", "duration", "joint", "value"),
             "mpc_kill": (),
             "mpc_stall": ("duration",),
+            "mpc_pause": ("duration",),
         }
         for key in needs[self.kind]:
             if getattr(self, key) is None:
@@ -1047,6 +1055,58 @@ class PlantConfig(StrictModel):
         return not self.sensor_noise.is_zero
 
 
+class OnlineCalibrationConfig(StrictModel):
+    """The controller's estimate, while it runs, of how much support its motors give per commanded torque
+    relative to its model (``estimation.support_ratio``): a payload (the robot heavier than its model) and
+    weaker motors look alike in what the robot senses, so one ratio ``r`` = motor strength / mass factor is
+    estimated, from the impulse the stance legs' commanded torques give against the momentum the robot
+    gains (IMU and leg kinematics), and the low level sends ``tau / r`` (``low_level.motor_strength``). On
+    top of the ``calibration`` factors; off by default."""
+
+    enabled: bool = Field(False, description="estimate the support ratio online and scale the commands by it")
+    window: float = Field(
+        0.2, gt=0.0, le=2.0, description="s of settled stance per estimate (one impulse balance)"
+    )
+    time_constant: float = Field(
+        0.4,
+        ge=0.0,
+        le=10.0,
+        description="s of settled stance over which the estimates are averaged (first-order filter; 0: the "
+        "last window's)",
+    )
+    settle: float = Field(
+        0.02, ge=0.0, le=0.2, description="s after a change of the stance set before its ticks count"
+    )
+    min_windows: int = Field(
+        2, ge=1, le=100, description="windows accepted before the estimate is applied (1 until then)"
+    )
+    min_support: float = Field(
+        0.3,
+        gt=0.0,
+        le=1.0,
+        description="a window counts only if its commanded support is at least this share of the weight",
+    )
+    outlier: float = Field(
+        0.05,
+        gt=0.0,
+        le=1.0,
+        description="once applied, a window off the estimate by more than this share is left out (feet "
+        "on the ground the stance flags miss: a take-off, a landing) unless outlier_windows in a row are",
+    )
+    outlier_windows: int = Field(
+        3, ge=1, le=100, description="windows off the estimate in a row that are taken as a real change"
+    )
+    lower: float = Field(0.7, ge=0.3, le=1.0, description="lowest ratio applied")
+    upper: float = Field(
+        1.0,
+        ge=1.0,
+        le=3.0,
+        description="highest ratio applied (1: a robot lighter or stronger than its model keeps its surplus; "
+        "scaling its commands down cost two of 22 randomised running rolls their take-off height, "
+        "docs/robustness.md)",
+    )
+
+
 class CalibrationConfig(StrictModel):
     """What the controller knows of its robot beyond the robot file: a weighed payload, measured link
     masses, calibrated motors. Applied once to the controller's model (``robots.calibration``, resolved in
@@ -1066,6 +1126,12 @@ class CalibrationConfig(StrictModel):
     link_mass_scales: PlantScales = Field(1.0, description="leg-link mass and inertia factors (0.5-1.5)")
     motor_strength_scales: PlantScales = Field(
         1.0, description="torque each motor delivers per commanded torque, as calibrated (0.5-1.5)"
+    )
+
+    online: OnlineCalibrationConfig = Field(
+        default_factory=OnlineCalibrationConfig,
+        description="the support ratio (motor strength / mass factor) estimated while running, applied on "
+        "top of these factors (estimation.support_ratio)",
     )
 
     @field_validator("link_mass_scales", "motor_strength_scales")
@@ -1142,6 +1208,20 @@ class RecoveryConfig(StrictModel):
         le=100,
         description="fresh plans in a row (each measured after the robot left the plans, each within "
         "stale_after of the one before) before they take the robot back from the balance or damped stance",
+    )
+    restart_gait: bool = Field(
+        True,
+        description="after an episode off the plans the gait restarts from the stance the robot stands in: "
+        "the MPC plans all feet down while the robot is held, and once it is taken back a stand of "
+        "restart_stand and then the gait from its first phase, the commands ramped in from rest (false: the "
+        "gait goes on from where its clock is)",
+    )
+    restart_stand: float | None = Field(
+        None,
+        ge=0.0,
+        le=5.0,
+        description="s on all feet after a take-back before the gait restarts (null: the gait's "
+        "start_stance)",
     )
     stall_timeout: float | None = Field(
         None,
@@ -1372,6 +1452,12 @@ class RunConfig(StrictModel):
                 raise ValueError(
                     f"plant.faults.{index}: a fault of kind {fault.kind} hits the MPC process, which only a "
                     "real-time MPC run has (simulation.realtime: true, wbc: vwbc or riccati)"
+                )
+            if fault.kind in INLINE_MPC_FAULTS and (self.simulation.realtime or standing):
+                raise ValueError(
+                    f"plant.faults.{index}: a fault of kind {fault.kind} withholds the plans of the MPC in "
+                    "simulated time, which only an MPC run that is not real time has (simulation.realtime: "
+                    "false, wbc: vwbc or riccati; in real time: mpc_stall)"
                 )
         return self
 

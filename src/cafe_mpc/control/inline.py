@@ -39,20 +39,21 @@ since takes it back. The same interface with the planner in its own process agai
 from __future__ import annotations
 
 import logging
+import math
 import time
 
 import numpy as np
 
 from cafe_mpc.config import MpcSettings, RecoveryConfig
 from cafe_mpc.control.commands import CommandChannel, apply_command
-from cafe_mpc.control.loop import MpcLoop
+from cafe_mpc.control.loop import GaitRestart, MpcLoop
 from cafe_mpc.control.plan_follower import NewestPlanFollower
 from cafe_mpc.control.update_clock import UpdateClock
 from cafe_mpc.core.controller import LowLevelController
 from cafe_mpc.core.measurement import Measurement
 from cafe_mpc.core.plan import PlanT
 from cafe_mpc.core.progress import stage
-from cafe_mpc.planners.base import PLANNER_ERRORS, MpcStatistics, Planner
+from cafe_mpc.planners.base import PLANNER_ERRORS, MpcStatistics, Planner, forget_warm_start
 from cafe_mpc.reference.base import Reference
 from cafe_mpc.robots.robot import Robot
 
@@ -99,6 +100,14 @@ class InlineMpcLoop(MpcLoop[PlanT]):
         fixed latency with ``MpcSettings.delay_compensation``), else 0."""
         self.commands = CommandChannel()
         """Runtime commands (``cafe_mpc.Controller.set_command``, teleop), taken at the next MPC update."""
+        recovery = self.follower.recovery
+        self.gait_restart = GaitRestart(planner.reference, recovery.restart_stand, recovery.restart_gait)
+        """The gait restarted from stance after an episode off the plans (``control.loop.GaitRestart``)."""
+        self._withheld = (math.inf, math.inf)
+        self._cold_after_withholding = False
+        self._cold_in_loop = False
+        """The planner was made to solve cold after withheld plans: its cold solve runs in the loop, its plan
+        takes effect after the update's latency (not at once, as the first one's before the clock)."""
 
     @property
     def reference(self) -> Reference:
@@ -142,6 +151,16 @@ class InlineMpcLoop(MpcLoop[PlanT]):
         self.worker_free = 0.0
         self.clock.reset()
         self.follower.reset()
+        self._cold_after_withholding = self._cold_in_loop = False
+
+    def withhold_plans(self, start: float, end: float) -> None:
+        """Withhold the plans on ``[start, end)``: no update starts and no plan takes effect (those in flight
+        are lost), what a stalled or restarting MPC process does to the robot, here in simulated time (the
+        lab's ``mpc_pause`` fault); the first update after ``end`` solves cold from its measurement, its plan
+        after the update's latency, as a stalled process that resumes (``control.process``)."""
+        if not (math.isfinite(start) and math.isfinite(end) and 0.0 <= start < end):
+            raise ValueError(f"plans can be withheld on a finite interval, got [{start}, {end})")
+        self._withheld = (float(start), float(end))
 
     def start(self, t: float, state: Measurement) -> None:
         """Run the cold first solve now, from ``state`` at time ``t`` (before the clock starts, as on the
@@ -152,12 +171,23 @@ class InlineMpcLoop(MpcLoop[PlanT]):
     def compute(self, t: float, state: Measurement) -> np.ndarray:
         if state.height_map is not None:  # a new height map: the reference plans on it from now
             self.reference.observe_height_map(state.height_map, state.q)
-        # A plan that comes due now takes effect before the worker starts the next update.
-        self._activate_pending(t)
-        idle = self.scheme == "rti" or not self.pending
-        if idle and t + 1e-9 >= self.next_update:
-            self._update(t, state)
+        withheld_from, withheld_until = self._withheld
+        if withheld_from - 1e-9 <= t < withheld_until - 1e-9:
+            self.pending.clear()
+            self._cold_after_withholding = True
+        else:
+            if self._cold_after_withholding:
+                self._cold_after_withholding = False
+                forget_warm_start(self.planner)
+                self._cold_in_loop = True
+                self.clock.reset()
+                self.next_update = self.worker_free = t
+            # A plan that comes due now takes effect before the worker starts the next update.
             self._activate_pending(t)
+            idle = self.scheme == "rti" or not self.pending
+            if idle and t + 1e-9 >= self.next_update:
+                self._update(t, state)
+                self._activate_pending(t)
         before = self.follower.fallback_ticks
         torques = self.follower.compute(t, state, self._plan)
         self.statistics.fallback_ticks += self.follower.fallback_ticks - before
@@ -176,6 +206,10 @@ class InlineMpcLoop(MpcLoop[PlanT]):
         command = self.commands.take()
         if command is not None:  # from this update on (with rti: the preparation made after its feedback)
             apply_command(self.reference, t, command)
+        restarted = self.gait_restart.observe(t, not self.follower.following)
+        if self._cold_in_loop and not self.planner.started:
+            self._update_one_phase(t, state)
+            return
         before_clock = not self.planner.started
         if before_clock:
             # The cold solve runs before the clock starts: its plan acts at once, the next update follows
@@ -191,7 +225,7 @@ class InlineMpcLoop(MpcLoop[PlanT]):
             self.next_update = t + self.settings.period
             return
         if self.scheme == "rti":
-            self._update_rti(t, state)
+            self._update_rti(t, state, restarted)
         else:
             self._update_one_phase(t, state)
 
@@ -205,14 +239,15 @@ class InlineMpcLoop(MpcLoop[PlanT]):
         self.pending.append((t + latency, t, plan))
         self.next_update = t + max(settings.period, latency)
 
-    def _update_rti(self, t: float, state: Measurement) -> None:
-        """Feedback for the measurement of ``t`` (or a one-phase update when no preparation waits for it),
-        then the preparation of the next update (module docstring)."""
+    def _update_rti(self, t: float, state: Measurement, restarted: bool = False) -> None:
+        """Feedback for the measurement of ``t`` (or a one-phase update when no preparation waits for it, or
+        the gait was ``restarted`` since it was made), then the preparation of the next update (module
+        docstring)."""
         planner, settings, statistics = self.planner, self.settings, self.statistics
         measured = settings.latency == "measured"
         start = self._problem_start(t)
         prepared_time = planner.prepared_time
-        prepared = prepared_time is not None and abs(prepared_time - start) <= 1e-9
+        prepared = not restarted and prepared_time is not None and abs(prepared_time - start) <= 1e-9
         if prepared:
             plan = self._feedback(t, start, state)
             work = statistics.feedback_times[-1] if plan is not None else 0.0

@@ -34,6 +34,8 @@ same channel (``commands``, ``control.commands``). The interface:
 
 from __future__ import annotations
 
+import logging
+import math
 from abc import ABC, abstractmethod
 from typing import Generic
 
@@ -46,6 +48,39 @@ from cafe_mpc.core.measurement import Measurement
 from cafe_mpc.core.plan import PlanT
 from cafe_mpc.planners.base import MpcStatistics
 from cafe_mpc.reference.base import Reference
+
+logger = logging.getLogger(__name__)
+
+
+class GaitRestart:
+    """Restarts the gait from the stance the robot stands in after the safe ladder held it (docs/faults.md),
+    on the MPC's side of either transport, at its updates: told with each measurement whether the robot was
+    off the plans then (``held``), the first update from a held measurement makes the reference stand from
+    its time until further notice (``restart_gait(t, inf)``: the plans that take the robot back stand where
+    it stands, not mid-cycle in a gait it is no longer in); the first from a measurement after the robot was
+    taken back makes it stand ``stand`` s more and then start the gait from its first phase
+    (``restart_gait(t, stand)``). ``stand`` None: the reference's own start stance. A reference without
+    ``restart_gait`` (a stored trajectory, a composed task) goes on as it is; so does every reference with
+    ``enabled`` False."""
+
+    def __init__(self, reference: Reference, stand: float | None, enabled: bool = True) -> None:
+        self.restart = getattr(reference, "restart_gait", None) if enabled else None
+        self.stand = float(stand if stand is not None else getattr(reference, "start_stance", 0.0))
+        self.held = False
+
+    def observe(self, t: float, held: bool) -> bool:
+        """The update at ``t`` is solved from a measurement taken while the robot was ``held`` off the plans:
+        whether the reference was restarted now (a preparation made before is stale)."""
+        if held == self.held or self.restart is None:
+            return False
+        self.held = held
+        self.restart(t, math.inf if held else self.stand)
+        logger.info(
+            "t = %.3f s: the gait %s",
+            t,
+            "stands until the robot is taken back" if held else "restarts from stance",
+        )
+        return True
 
 
 class MpcLoop(ABC, Generic[PlanT]):

@@ -45,7 +45,7 @@ import numpy as np
 from cafe_mpc.config import RecoveryConfig
 from cafe_mpc.control.commands import CommandChannel, apply_command
 from cafe_mpc.control.ipc.channels import ControlBlock, MeasurementRing, PlanChannel, PlanLayout
-from cafe_mpc.control.loop import MpcLoop
+from cafe_mpc.control.loop import GaitRestart, MpcLoop
 from cafe_mpc.control.plan_follower import NewestPlanFollower
 from cafe_mpc.control.scheduling import CpuPlan, lock_memory, pin_every_thread, pin_this_thread
 from cafe_mpc.control.update_clock import UpdateClock
@@ -54,7 +54,7 @@ from cafe_mpc.core.controller import LowLevelController
 from cafe_mpc.core.measurement import Measurement
 from cafe_mpc.core.plan import PlanFormat, PlanT
 from cafe_mpc.core.progress import stage
-from cafe_mpc.planners.base import MpcStatistics, Planner
+from cafe_mpc.planners.base import MpcStatistics, Planner, forget_warm_start
 from cafe_mpc.reference.base import Reference
 from cafe_mpc.robots.robot import Robot
 
@@ -85,6 +85,7 @@ def _worker_main(
     control_period: float,
     period: float,
     resync_after: float,
+    restart: tuple[bool, float | None],
     parent_pid: int,
     generation: int,
     cpu: int | None,
@@ -108,7 +109,16 @@ def _worker_main(
     try:
         planner = factory()
         worker = _Worker(
-            planner, ring, plans, control, control_period, period, resync_after, parent_pid, generation
+            planner,
+            ring,
+            plans,
+            control,
+            control_period,
+            period,
+            resync_after,
+            restart,
+            parent_pid,
+            generation,
         )
         if control.array[ControlBlock.ACTIVE] != generation:
             control.array[ControlBlock.STANDBY_READY] = 1.0  # built; numba kernels loaded
@@ -147,6 +157,7 @@ class _Worker:
         control_period: float,
         period: float,
         resync_after: float,
+        restart: tuple[bool, float | None],
         parent_pid: int,
         generation: int,
     ) -> None:
@@ -167,6 +178,9 @@ class _Worker:
         """Runtime commands from the main process (``ProcessMpcLoop.commands``)."""
         self.compiles = CompileWatch()
         """Kernels compiled (or loaded) in this process after its cold solve (``core.compilation``)."""
+        self.gait_restart = GaitRestart(planner.reference, restart[1], restart[0])
+        """The gait restarted from stance after an episode off the plans (``control.loop.GaitRestart``;
+        ``restart``: ``recovery.restart_gait`` and ``restart_stand``)."""
 
     def running(self) -> bool:
         """Until the stop flag is set, another process is made the active one, or the main process is gone
@@ -222,9 +236,7 @@ class _Worker:
     def _resync(self) -> None:
         """Forget the warm start (the planner's records stay): the next update is a cold solve from the
         newest measurement (without the warm-up: its solver's data exist already)."""
-        statistics = self.planner.statistics
-        self.planner.reset()
-        self.planner.statistics = statistics
+        forget_warm_start(self.planner)
         self.planner.settings.warm_up = 0.0  # its solver's data exist already: the cold solve alone
         self.clock.reset()
         self.control.array[ControlBlock.RESYNCS] += 1.0
@@ -235,10 +247,15 @@ class _Worker:
         if command is not None:
             apply_command(self.planner.reference, t, command)
 
+    def _held(self) -> bool:
+        """Whether the measurement in ``buffer`` was taken while the robot was held off the plans."""
+        return self.buffer[self.ring.HELD] > 0.5
+
     def _state_update(self, tick: int):
         """A one-phase update from the measurement of ``tick`` (in ``buffer``)."""
         nq, nv = self.nq, self.nv
         self._take_command(float(self.buffer[0]))
+        self.gait_restart.observe(float(self.buffer[0]), self._held())
         return self.planner.update(
             float(self.buffer[0]), self.buffer[1 : 1 + nq], self.buffer[1 + nq : 1 + nq + nv]
         )
@@ -287,6 +304,8 @@ class _Worker:
         q, v = self.buffer[1 : 1 + nq], self.buffer[1 + nq : 1 + nq + nv]
         # the tick's measurement is the state at the tick (a robot's clock stamps it a little off the grid)
         t = t_next if prepared else float(self.buffer[0])
+        if self.gait_restart.observe(t, self._held()):
+            prepared = False  # made for the gait before the restart: a one-phase update
         plan = planner.feedback(t, q, v) if prepared else planner.update(t, q, v)
         self._publish(plan, tick)
         return tick
@@ -531,9 +550,12 @@ class ProcessMpcLoop(MpcLoop[PlanT]):
     _resyncs = 0
 
     def publish(self, t: float, measurement: Measurement) -> None:
-        """Write the measurement of the tick at ``t`` into the ring for the MPC process (never blocks)."""
+        """Write the measurement of the tick at ``t`` into the ring for the MPC process (never blocks), with
+        whether the safe ladder holds the robot off the plans (the MPC restarts the gait from stance:
+        ``control.loop.GaitRestart``)."""
         tick = round(t / self.control_period)
-        self._measurements.write(tick, t, measurement.q, measurement.v, measurement.contacts)
+        held = not self.follower.following
+        self._measurements.write(tick, t, measurement.q, measurement.v, measurement.contacts, held)
 
     # ------------------------------------------------------------------------------------ supervision
     def _event(self, t: float, event: str, detail: str = "") -> None:
@@ -700,6 +722,7 @@ class ProcessMpcLoop(MpcLoop[PlanT]):
                 self.control_period,
                 self.period,
                 self.recovery.resync_after,
+                (self.recovery.restart_gait, self.recovery.restart_stand),
                 os.getpid(),
                 generation,
                 self._cpus.mpc_cpu,

@@ -16,10 +16,17 @@ from __future__ import annotations
 from collections.abc import Callable
 from dataclasses import dataclass
 
+import numpy as np
+
 from cafe_mpc.config import ConfigError
 from cafe_mpc.core.controller import LowLevelController
+from cafe_mpc.estimation.support_ratio import SupportRatioEstimator
 from cafe_mpc.low_level.balance import BalanceController
-from cafe_mpc.low_level.motor_strength import with_motor_strength
+from cafe_mpc.low_level.motor_strength import (
+    MotorStrengthCompensation,
+    OnlineSupportCompensation,
+    with_motor_strength,
+)
 from cafe_mpc.low_level.pd import PDController
 from cafe_mpc.low_level.riccati import RiccatiController
 from cafe_mpc.low_level.vwbc import VWBCController
@@ -100,10 +107,11 @@ LOW_LEVELS: Registry[LowLevelEntry] = Registry(
 
 
 def build_low_level(run: ResolvedRun, planner: PlannerSlice) -> LowLevelController:
-    """The low level of a run under ``planner`` (module docstring); ``ConfigError`` (one line naming ``wbc``)
+    """The low level of a run under ``planner`` (module docstring), with the support ratio estimated online
+    when ``calibration.online`` is on (``with_online_support``); ``ConfigError`` (one line naming ``wbc``)
     when the ``wbc`` entry follows another plan type than the planner makes."""
     if planner.low_level is not None:
-        return with_motor_strength(planner.low_level(run), run.motor_strength)
+        return with_online_support(run, with_motor_strength(planner.low_level(run), run.motor_strength))
     name = run.config.wbc
     entry = LOW_LEVELS.get(name)
     if entry.needs_plan and entry.plan_type is not planner.plan_type:
@@ -111,4 +119,19 @@ def build_low_level(run: ResolvedRun, planner: PlannerSlice) -> LowLevelControll
             f"wbc: {name!r} follows {entry.plan_type.__name__} plans; planner {run.config.planner!r} makes "
             f"{planner.plan_type.__name__} plans"
         )
-    return entry.build(run)
+    return with_online_support(run, entry.build(run))
+
+
+def with_online_support(run: ResolvedRun, low_level: LowLevelController) -> LowLevelController:
+    """``low_level`` (as ``build_low_level`` made it) with the support ratio estimated and applied online
+    (``low_level.motor_strength.OnlineSupportCompensation`` around the inner low level, in place of the
+    calibrated strengths' division) when ``calibration.online.enabled``, else ``low_level`` itself. The
+    commands stay within the motors' own limits (``robot.plant.motor_torque_limits``). The safe ladder's
+    balance and damped stances keep the calibrated strengths alone."""
+    settings = run.config.calibration.online
+    if not settings.enabled:
+        return low_level
+    inner = low_level.inner if isinstance(low_level, MotorStrengthCompensation) else low_level
+    estimator = SupportRatioEstimator(run.controller_robot, settings, run.control_period)
+    limits = np.asarray(run.robot.plant.motor_torque_limits, dtype=float)
+    return OnlineSupportCompensation(inner, run.motor_strength, estimator, limits)

@@ -232,6 +232,15 @@ class Planner(Protocol[PlanT]):
     ) -> np.ndarray: ...
 
 
+def forget_warm_start(planner: Planner) -> None:
+    """Drop ``planner``'s warm start and any waiting preparation, its records kept: its next update is a cold
+    solve from its measurement (an MPC that was away: a stalled process that resumes, ``control.process``,
+    or plans withheld, ``control.inline``)."""
+    statistics = planner.statistics
+    planner.reset()
+    planner.statistics = statistics
+
+
 PLANNER_ERRORS = (ValueError, FloatingPointError, np.linalg.LinAlgError, RuntimeError)
 """What a failed update raises inside (a singular system, a non-finite value, a bad reference): caught,
 counted and logged; the previous plan stays."""

@@ -220,7 +220,8 @@ def sample_base(
     gaits: np.ndarray,
     phase_ends: np.ndarray,
     phase_flags: np.ndarray,
-    start_stance: float,
+    stand_from: float,
+    stand_until: float,
     stance_eps: float,
     time_tolerance: float,
     nq: int,
@@ -231,12 +232,13 @@ def sample_base(
 ) -> None:
     """The locomotion reference's base, flags and load class at every time (``LocomotionReference.sample``).
 
-    ``anchor`` = (time, x, y, yaw); ``gaits`` (segments, 5) = (start, cycle start, period, support factor,
-    phases) of each gait in force (``_GaitSegment``), their cycles' phase ends and flags padded to
+    ``anchor`` = (time, x, y, yaw); all feet stand on ``[stand_from, stand_until)`` (the start stance, or a
+    gait restart's stand: load class 0); ``gaits`` (segments, 5) = (start, cycle start, period, support
+    factor, phases) of each gait in force (``_GaitSegment``), their cycles' phase ends and flags padded to
     ``phase_ends`` (segments, phases) and ``phase_flags`` (segments, phases, feet). Writes the base pose
     ``state[:, :7]`` and the base twist ``state[:, nq : nq + 6]``, the stance flags of the interval starting
     at each time, the support factor and ``keys``: ``load class * 2^feet + flag bits`` (load class 0: the
-    initial stand, ``1 + s``: gait segment ``s``), the index of the knot's torque reference in the table
+    stand, ``1 + s``: gait segment ``s``), the index of the knot's torque reference in the table
     the reference keeps.
     """
     anchor_time, anchor_x, anchor_y, anchor_yaw = anchor[0], anchor[1], anchor[2], anchor[3]
@@ -248,7 +250,7 @@ def sample_base(
         # contact flags a hair after t (LocomotionReference.stance_at)
         flag_time = t + stance_eps
         code = 0
-        if flag_time < start_stance - 1e-9:
+        if stand_from - 1e-9 <= flag_time < stand_until - 1e-9:
             for foot in range(n_feet):
                 stance[i, foot] = True
                 code |= 1 << foot
@@ -266,7 +268,7 @@ def sample_base(
                 if flag:
                     code |= 1 << foot
         # support factor at t (LocomotionReference.support_factor)
-        if t < start_stance - 1e-9:
+        if stand_from - 1e-9 <= t < stand_until - 1e-9:
             load = 0
             factors[i] = 1.0 / n_feet
         else:

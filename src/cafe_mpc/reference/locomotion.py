@@ -114,6 +114,11 @@ class CommandProfile:
                 else:
                     times.append(end)
                     values.append(goal)
+        self._set_breakpoints(times, values)
+
+    def _set_breakpoints(self, times: Sequence[float], values: Sequence[np.ndarray]) -> None:
+        """The profile's breakpoints ``times`` and ``values`` (linear between two, a step where two times are
+        equal) and what the hot paths read of them."""
         self.times = np.array(times)
         self.values = np.array(values)
         # the same as plain floats, per segment [times[i], times[i + 1]): start value and slope (the hot path,
@@ -135,6 +140,25 @@ class CommandProfile:
     @property
     def breakpoints(self) -> np.ndarray:
         return self.times
+
+    def spliced(self, at: float, after: CommandProfile) -> CommandProfile:
+        """This profile before ``at`` and ``after`` from ``at`` on (a step at ``at``): what a gait restart
+        (``LocomotionReference.restart_gait``) commands."""
+        times = [float(t) for t in self.times if t < at]
+        values = [value for t, value in zip(self.times, self.values, strict=True) if t < at]
+        times += [at, at]
+        values += [self.at(at), after.at(at)]
+        for t, value in zip(after.times, after.values, strict=True):
+            if t > at:
+                times.append(float(t))
+                values.append(value)
+        profile = CommandProfile.__new__(CommandProfile)
+        profile.commands = list(after.commands)
+        profile.standing_height = after.standing_height
+        profile.ramp = after.ramp
+        profile.rest_until = after.rest_until
+        profile._set_breakpoints(times, values)
+        return profile
 
     def _segment(self, t: float) -> int:
         """Index of the segment holding ``t`` (a step's new value from its start on)."""
@@ -305,7 +329,13 @@ class LocomotionReference(Reference):
         (``cycle_start`` is then ignored). Dynamic gaits such as bounding cannot start from rest in their
         first phase: a short stand lets the first plans load the legs and lean into the gait."""
         self.cycle_start = self.start_stance if self.start_stance > 0 else cycle_start
-        self.profile = CommandProfile(self.commands, robot.standing_height, command_ramp, self.start_stance)
+        self.command_ramp = float(command_ramp)
+        self._stand = (-math.inf, self.start_stance)
+        """``(from, until)``: all feet stand on this interval and the commands rest (with a ramp): the start
+        stance, or the stand of the latest ``restart_gait`` (``until`` inf: until the next one)."""
+        self.restarts: list[tuple[float, float]] = []
+        """Each ``restart_gait``: ``(t, stand)``."""
+        self.profile = self._command_profile()
         """The commanded velocities and height over time: steps, or (``command_ramp`` > 0) rest until the
         gait starts, then linear ramps to each command."""
         self.offsets = robot.foothold_offsets.copy()
@@ -387,6 +417,52 @@ class LocomotionReference(Reference):
         self._ik_errors = np.zeros(0)
         self._warm_up()
 
+    def _command_profile(self) -> CommandProfile:
+        """The commands over time: ramped from rest after the start stance (``command_ramp`` > 0), and after a
+        gait restart at rest from its start, ramped again from rest after its stand (a stand until further
+        notice rests until then, also with steps)."""
+        profile = CommandProfile(
+            self.commands, self.robot.standing_height, self.command_ramp, self.start_stance
+        )
+        if not self.restarts:
+            return profile
+        stand_from, stand_until = self._stand
+        if math.isinf(stand_until):
+            rest = CommandProfile([VelocityCommand()], self.robot.standing_height)
+            return profile.spliced(stand_from, rest)
+        if self.command_ramp == 0.0:
+            return profile
+        ramped = CommandProfile(self.commands, self.robot.standing_height, self.command_ramp, stand_until)
+        return profile.spliced(stand_from, ramped)
+
+    def restart_gait(self, t: float, stand: float) -> None:
+        """Restart the gait from the stance the robot stands in (after the safe ladder held it;
+        docs/faults.md): from ``t`` all feet stand for ``stand`` s (``math.inf``: until the next restart)
+        and the commands rest, then the gait in force (``target_gait``) starts its first cycle, from its
+        first phase, the commands ramped in from rest as at the start (``command_ramp``). Switches and phase
+        advances after ``t`` are dropped; the commanded path (``path_gain``) starts again from the next
+        measured pose."""
+        if not (math.isfinite(t) and stand >= 0.0):
+            raise ValueError(
+                f"a gait restart needs a finite time and a stand >= 0 s, got t = {t}, stand = {stand}"
+            )
+        t, until = float(t), float(t) + float(stand)
+        target = self.target_gait
+        segments = [segment for segment in self._segments if segment.start <= t + TIME_TOLERANCE]
+        start = until if math.isfinite(until) else t  # a stand until further notice: taken up by the next
+        segments.append(_GaitSegment.of(start, target, start))
+        self._segments = segments
+        self._stand = (t, until)
+        self.restarts.append((t, float(stand)))
+        self.path_origin = None
+        self.profile = self._command_profile()
+        self._schedule_window = (math.inf, -math.inf)
+
+    def _standing(self, t: float) -> bool:
+        """Whether all feet stand at ``t`` for the start stance or a restart's stand (``_stand``)."""
+        stand_from, stand_until = self._stand
+        return stand_from - 1e-9 <= t < stand_until - 1e-9
+
     def _warm_up(self) -> None:
         """Sample two knots once, so that the compiled kernels are compiled (or loaded from numba's cache)
         now and not in the first MPC update; the cached schedule is put back as it was, so the samples of
@@ -442,8 +518,9 @@ class LocomotionReference(Reference):
         if current.gait.cycle == gait.cycle:  # a pending switch away from it is cancelled
             self._schedule_window = (math.inf, -math.inf)
             return t
-        if t < self.start_stance - TIME_TOLERANCE:
-            switch = self.start_stance
+        stand_until = self._stand[1]
+        if t < stand_until - TIME_TOLERANCE:  # the gait starts (again) after the stand: so does this one
+            switch = stand_until if math.isfinite(stand_until) else t
         else:
             cycles = math.ceil((t - current.cycle_start) / current.period - TIME_TOLERANCE)
             switch = current.cycle_start + cycles * current.period
@@ -471,9 +548,7 @@ class LocomotionReference(Reference):
         if not kept and t > 0.0:  # the first command (held before its own start) holds until t
             kept = [self.commands[0].model_copy(update={"start": 0.0})]
         self.commands = [*kept, command.model_copy(update={"start": t if kept else 0.0})]
-        self.profile = CommandProfile(
-            self.commands, self.robot.standing_height, self.profile.ramp, self.start_stance
-        )
+        self.profile = self._command_profile()
 
     # --------------------------------------------------------------------------------------- schedule
     def schedule(self, t0: float, t1: float) -> ContactSchedule:
@@ -482,7 +557,7 @@ class LocomotionReference(Reference):
             longest = max(segment.period for segment in self._segments)
             start = max(0.0, t0 - 2.0 * longest)
             end = t1 + 4.0 * longest
-            if start < self.start_stance - 1e-6:
+            if start < self.start_stance - 1e-6 and not self.restarts:
                 stand = ContactPhase((True, True, True, True), start, self.start_stance)
                 gait = self.gait.schedule(self.start_stance, max(end, self.start_stance + self.gait.period))
                 phases = list(gait.phases)
@@ -495,9 +570,24 @@ class LocomotionReference(Reference):
                 self._schedule = self.gait.schedule(start, end, cycle_start=self.cycle_start)
             if len(self._segments) > 1:
                 self._schedule = self._switched(self._schedule, start, end)
+            if self.restarts:
+                self._schedule = self._stood(self._schedule, *self._stand)
             self._schedule_window = (start, end)
         assert self._schedule is not None
         return self._schedule
+
+    def _stood(self, base: ContactSchedule, stand_from: float, stand_until: float) -> ContactSchedule:
+        """``base`` with all feet standing on ``[stand_from, stand_until)`` (a gait restart's stand), adjacent
+        equal phases merged."""
+        pieces: list[ContactPhase] = []
+        phases = base.phases
+        for phase in phases:
+            _add_phase(pieces, phase.stance, phase.start, min(phase.end, stand_from))
+        standing = (True,) * self.robot.n_feet
+        _add_phase(pieces, standing, max(stand_from, phases[0].start), min(stand_until, phases[-1].end))
+        for phase in phases:
+            _add_phase(pieces, phase.stance, max(phase.start, stand_until), phase.end)
+        return ContactSchedule(pieces)
 
     def _switched(self, base: ContactSchedule, start: float, end: float) -> ContactSchedule:
         """``base`` (the config's gait over ``[start, end]``) with the ``set_gait`` switches applied: each
@@ -505,12 +595,7 @@ class LocomotionReference(Reference):
         pieces: list[ContactPhase] = []
 
         def add(stance: tuple[bool, ...], a: float, b: float) -> None:
-            if b - a <= TIME_TOLERANCE:
-                return
-            if pieces and pieces[-1].stance == stance and abs(pieces[-1].end - a) <= TIME_TOLERANCE:
-                pieces[-1] = ContactPhase(stance, pieces[-1].start, b)
-            else:
-                pieces.append(ContactPhase(stance, a, b))
+            _add_phase(pieces, stance, a, b)
 
         bounds = [segment.start for segment in self._segments[1:]] + [math.inf]
         first_switch = bounds[0]
@@ -535,7 +620,7 @@ class LocomotionReference(Reference):
         return switches_inside(times[bisect.bisect_right(times, t0) : bisect.bisect_left(times, t1)], t0, t1)
 
     def stance_at(self, t: float) -> tuple[bool, bool, bool, bool]:
-        if t < self.start_stance - 1e-9:
+        if self._standing(t):
             return (True, True, True, True)
         return self._flags_at(t)
 
@@ -642,7 +727,7 @@ class LocomotionReference(Reference):
         does for the Cheetah 3), instead of a flight the robot is no longer in."""
         assert self.touchdown_events is not None
         on_time, window, height = self.touchdown_events
-        if t < self.start_stance or self._segments[-1].start > t + TIME_TOLERANCE:
+        if t < self._stand[1] or self._segments[-1].start > t + TIME_TOLERANCE:
             return  # standing still, or a gait switch pending: the schedule decides
         stance = self.stance_at(t)
         phases = self.schedule(t, t + window).phases
@@ -956,7 +1041,8 @@ class LocomotionReference(Reference):
                 gaits,
                 phase_ends,
                 phase_flags,
-                self.start_stance,
+                self._stand[0],
+                self._stand[1],
                 STANCE_TIME_EPS,
                 TIME_TOLERANCE,
                 nq,
@@ -988,7 +1074,7 @@ class LocomotionReference(Reference):
     def support_factor(self, t: float) -> float:
         """Vertical force of a stance foot at ``t`` in units of the weight, averaged over the gait cycle
         (``GaitCycle.support_factor``: 1/2 trotting, 1 bounding); 1/4 during the initial stand."""
-        if t < self.start_stance - 1e-9:
+        if self._standing(t):
             return 1.0 / self.robot.n_feet
         return self._segment_at(t).support_factor
 
@@ -1011,6 +1097,17 @@ class LocomotionReference(Reference):
 
 _NO_TERRAIN = TerrainMap(TerrainMapSettings())
 """No map: what the compiled sampling reads on flat ground and blind (``TerrainMap`` before ``place``)."""
+
+
+def _add_phase(pieces: list[ContactPhase], stance: tuple[bool, ...], a: float, b: float) -> None:
+    """Append the phase ``stance`` on ``[a, b)`` to ``pieces`` (nothing if shorter than ``TIME_TOLERANCE``),
+    merged into the last one when that has the same flags and ends at ``a``."""
+    if b - a <= TIME_TOLERANCE:
+        return
+    if pieces and pieces[-1].stance == stance and abs(pieces[-1].end - a) <= TIME_TOLERANCE:
+        pieces[-1] = ContactPhase(stance, pieces[-1].start, b)
+    else:
+        pieces.append(ContactPhase(stance, a, b))
 
 
 def _quaternion_matrix(quaternion_xyzw: np.ndarray) -> np.ndarray:

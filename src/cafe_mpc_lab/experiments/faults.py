@@ -7,7 +7,8 @@ plant (``plant.faults``, ``sim.faults``):
 * the sensors, with fixed latency (deterministic; these run in parallel): the IMU drops out for 50 and 500
   ms (``imu_dropout``), one knee encoder freezes for 100 and 500 ms (``encoder_freeze``), one NaN sample per
   second of the gyro and of every joint angle (``nan_sample``), one out-of-range accelerometer sample per
-  second (``out_of_range``);
+  second (``out_of_range``); the MPC's plans withheld for 0.2, 0.5 and 2 s, then a cold solve
+  (``mpc_pause``: a stall or restart of the planner in simulated time);
 * the MPC process, in real time (``simulation.realtime``; one after the other, each with the machine to
   itself): killed (``mpc_kill``), stopped for 0.2, 0.5 and 2 s (``mpc_stall``).
 
@@ -35,11 +36,20 @@ from cafe_mpc_lab.experiments.run import RunResult
 from cafe_mpc_lab.report.fault_plots import plot_ladders
 from cafe_mpc_lab.sim.loop import SimulationLog
 
-FAULT_KINDS = ("imu_dropout", "encoder_freeze", "nan_sample", "out_of_range", "mpc_kill", "mpc_stall")
+FAULT_KINDS = (
+    "imu_dropout",
+    "encoder_freeze",
+    "nan_sample",
+    "out_of_range",
+    "mpc_pause",
+    "mpc_kill",
+    "mpc_stall",
+)
 """The kinds ``--kinds`` chooses from, in the table's order."""
 DURATIONS: dict[str, tuple[float, ...]] = {
     "imu_dropout": (0.05, 0.5),
     "encoder_freeze": (0.1, 0.5),
+    "mpc_pause": (0.2, 0.5, 2.0),
     "mpc_stall": (0.2, 0.5, 2.0),
 }
 """s; each kind that lasts is run with each of these."""

@@ -29,7 +29,7 @@ import yaml
 from cafe_mpc.assembly.checks import robot_of
 from cafe_mpc.assembly.controllers import RunController, build_sensing_controller, low_level_name
 from cafe_mpc.assembly.resolve import resolve
-from cafe_mpc.config import MPC_FAULTS, RunConfig
+from cafe_mpc.config import INLINE_MPC_FAULTS, MPC_FAULTS, RunConfig
 from cafe_mpc.control.plan_follower import SafetyStep
 from cafe_mpc.control.process import MpcProcessError
 from cafe_mpc.core.measurement import Measurement
@@ -49,7 +49,7 @@ from cafe_mpc_lab.experiments.controllers import (
     timing_of,
 )
 from cafe_mpc_lab.sim.assembly import PlantSetup, build_plant
-from cafe_mpc_lab.sim.faults import ProcessFaults
+from cafe_mpc_lab.sim.faults import PlanPause, ProcessFaults
 from cafe_mpc_lab.sim.loop import Simulation, SimulationLog
 from cafe_mpc_lab.sim.scene import scene_of
 
@@ -83,7 +83,7 @@ class RunState:
     log: SimulationLog | None = None
     sensing: SensingController | None = None
     live: LiveViewer | None = None
-    process_faults: ProcessFaults | None = None
+    process_faults: ProcessFaults | PlanPause | None = None
     extras_done: bool = field(default=False, repr=False)
 
 
@@ -238,6 +238,9 @@ def _closed_loop(
     before_tick = None
     if realtime and any(fault.kind in MPC_FAULTS for fault in config.plant.faults):
         state.process_faults = ProcessFaults(config.plant.faults, lambda: _mpc_pid(controller))
+        before_tick = state.process_faults
+    elif any(fault.kind in INLINE_MPC_FAULTS for fault in config.plant.faults):
+        state.process_faults = PlanPause(config.plant.faults, controller.withhold_plans)
         before_tick = state.process_faults
     options = replace(
         setup.options, progress=progress, stop=stop, observer=state.live, before_tick=before_tick

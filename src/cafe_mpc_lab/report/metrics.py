@@ -230,6 +230,7 @@ def wbc_metrics(
     * ``foot_slip_max_m``: ``foot_slip_max`` over the plant's contacts.
     * QP fields (``qp_iterations_histogram``, ``qp_solve_time_ms_median``/``_p99``, ``fallbacks``) from a
       controller that solves QPs (the VWBC); None for the others.
+    * ``support_ratio``: the online estimate's record (``calibration.online``), only when it ran.
     """
     statistics = low_level_statistics or {}
     limits = robot.torque_limits if torque_limits is None else np.asarray(torque_limits, dtype=float)
@@ -258,4 +259,5 @@ def wbc_metrics(
         "qp_solve_time_ms_median": finite_or_none(statistics.get("qp_solve_time_ms_median")),
         "qp_solve_time_ms_p99": finite_or_none(statistics.get("qp_solve_time_ms_p99")),
         "fallbacks": int(statistics["fallbacks"]) if solves_qps else None,
+        **({"support_ratio": statistics["support_ratio"]} if "support_ratio" in statistics else {}),
     }

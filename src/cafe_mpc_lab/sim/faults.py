@@ -8,6 +8,9 @@ can see what the controller does about them.
 * ``ProcessFaults`` signals the MPC process of a real-time run (``control.process``): ``mpc_kill`` (SIGKILL at
   ``start``), ``mpc_stall`` (SIGSTOP at ``start``, SIGCONT ``duration`` s later). It is called at the start of
   every control tick (``SimulationOptions.before_tick``); ``close`` continues a process it left stopped.
+* ``PlanPause`` withholds the plans of the MPC in simulated time (``mpc_pause``: none from ``start`` for
+  ``duration`` s, then a cold solve; ``control.inline.InlineMpcLoop.withhold_plans``): a stall or a restart
+  of the planner, deterministic with a fixed latency, so that a take-back can be tested.
 
 Both keep what they did (``applied``) for the run's ``faults`` block.
 """
@@ -23,7 +26,7 @@ from collections.abc import Callable, Sequence
 
 import numpy as np
 
-from cafe_mpc.config import MPC_FAULTS, SENSOR_FAULTS, FaultConfig
+from cafe_mpc.config import INLINE_MPC_FAULTS, MPC_FAULTS, SENSOR_FAULTS, FaultConfig
 from cafe_mpc.core.measurement import Measurement
 from cafe_mpc.core.sensors import SensorReadings
 from cafe_mpc_lab.sim.plant import Plant, PlantSensors
@@ -191,3 +194,27 @@ class ProcessFaults:
             with contextlib.suppress(ProcessLookupError):
                 os.kill(pid, signal.SIGCONT)
         self._stopped.clear()
+
+
+class PlanPause:
+    """Withholds the plans of an MPC loop in simulated time at the times of ``plant.faults``' ``mpc_pause``
+    faults (module docstring): each is handed to ``withhold(start, end)`` when its start comes (called at
+    the start of every control tick, ``SimulationOptions.before_tick``)."""
+
+    def __init__(self, faults: Sequence[FaultConfig], withhold: Callable[[float, float], None]) -> None:
+        self.faults = [fault for fault in faults if fault.kind in INLINE_MPC_FAULTS]
+        self.withhold = withhold
+        self._done = [False] * len(self.faults)
+        self.applied: list[dict] = []
+
+    def __call__(self, t: float) -> None:
+        for index, fault in enumerate(self.faults):
+            if self._done[index] or t + 1e-9 < fault.start:
+                continue
+            self._done[index] = True
+            self.withhold(t, t + (fault.end - fault.start))
+            self.applied.append({"kind": fault.kind, "t": round(float(t), 6), "until": round(fault.end, 6)})
+            logger.warning("t = %.3f s: injected fault %s: no plan until %.3f s", t, fault.kind, fault.end)
+
+    def close(self) -> None:
+        """Nothing to undo (the interval ends by itself)."""

@@ -1,8 +1,8 @@
 """The channels between the control loop and the MPC process (``control.process``), in shared memory.
 
-* ``MeasurementRing`` (loop -> MPC): time, ``q``, ``v``, contacts of the last ``RING_TICKS`` control ticks,
-  one seqlock slot per tick, so the MPC can read the measurement of the tick it prepared for even after newer
-  ones arrived;
+* ``MeasurementRing`` (loop -> MPC): time, ``q``, ``v``, contacts of the last ``RING_TICKS`` control ticks
+  and whether the safe ladder held the robot off the plans then (``held``), one seqlock slot per tick, so
+  the MPC can read the measurement of the tick it prepared for even after newer ones arrived;
 * ``PlanChannel`` (MPC -> loop): the newest plan, the time of the measurement it was solved from and its
   update's statistics, behind one seqlock; any plan type, laid out by its ``core.plan.PlanFormat``
   (``PlanLayout``);
@@ -28,12 +28,15 @@ class MeasurementRing:
     """The last ``RING_TICKS`` measurements, one seqlock slot per control tick (module docstring).
 
     Element 0 holds the newest tick index written (-1 before the first); slot ``i`` (from element 1) holds
-    ``[sequence, tick, t, q, v, contacts]`` of a tick ``k`` with ``k % RING_TICKS == i``.
+    ``[sequence, tick, t, q, v, contacts, held]`` of a tick ``k`` with ``k % RING_TICKS == i``; ``read``
+    copies ``[t, q, v, contacts, held]``, ``held`` at ``HELD`` (1: the robot was off the plans).
     """
 
     def __init__(self, nq: int, nv: int, n_feet: int, name: str | None = None) -> None:
         self.nq, self.nv, self.n_feet = nq, nv, n_feet
-        self.slot = 3 + nq + nv + n_feet
+        self.slot = 4 + nq + nv + n_feet
+        self.HELD = self.slot - 3
+        """Index of ``held`` in what ``read`` copies."""
         self.shared = SharedArray(1 + RING_TICKS * self.slot, name)
         self.array = self.shared.array
         if name is None:
@@ -54,7 +57,9 @@ class MeasurementRing:
         """Forget the ticks written (a new run's ticks start again at 0)."""
         self.array[0] = -1.0
 
-    def write(self, tick: int, t: float, q: np.ndarray, v: np.ndarray, contacts: np.ndarray) -> None:
+    def write(
+        self, tick: int, t: float, q: np.ndarray, v: np.ndarray, contacts: np.ndarray, held: bool = False
+    ) -> None:
         lock = self._locks[tick % RING_TICKS]
         slot = lock.array
         nq, nv = self.nq, self.nv
@@ -63,13 +68,14 @@ class MeasurementRing:
         slot[2] = t
         slot[3 : 3 + nq] = q
         slot[3 + nq : 3 + nq + nv] = v
-        slot[3 + nq + nv :] = contacts
+        slot[3 + nq + nv : -1] = contacts
+        slot[-1] = 1.0 if held else 0.0
         lock.end_write()
         self.array[0] = tick
 
     def read(self, tick: int, out: np.ndarray) -> bool:
-        """Copy ``[t, q, v, contacts]`` of ``tick`` into ``out``; ``False`` if that tick is not (or no longer)
-        in the ring or was being written."""
+        """Copy ``[t, q, v, contacts, held]`` of ``tick`` into ``out``; ``False`` if that tick is not (or no
+        longer) in the ring or was being written."""
         lock = self._locks[tick % RING_TICKS]
         slot = lock.array
         before = lock.begin_read()
