@@ -142,3 +142,49 @@ def test_a_bound_taken_back_after_withheld_plans_restarts_from_stance_and_stays_
     tick = int(np.searchsorted(result.log.time, episode["back_at"] - 1e-9))
     assert result.log.extra["planned_stance"][tick].all()  # taken back by a plan that stands
     assert stepping_again(result.log, episode["back_at"]) is not None
+
+
+class _Planner:
+    """What ``_Worker._observe_hold`` looks at of a planner: started, reset, settings, statistics."""
+
+    def __init__(self, reference) -> None:
+        self.reference, self.started, self.statistics = reference, True, object()
+        self.settings = type("Settings", (), {"warm_up": 1.0})()
+
+    def reset(self) -> None:
+        self.started = False
+
+
+class _Reference:
+    def __init__(self) -> None:
+        self.restarts: list[tuple[float, float]] = []
+        self.start_stance = 0.2
+
+    def restart_gait(self, t: float, stand: float) -> None:
+        self.restarts.append((t, stand))
+
+
+def test_a_process_that_solved_cold_on_the_gait_solves_again_from_the_held_stance_once():
+    """A standby that took over solved cold from a measurement of the gait (feet in the air); when the robot
+    is held off the plans its warm start is dropped (the next update solves cold from the stance), once:
+    held again later, the warm start (now from the stance) is kept."""
+    from cafe_mpc.control.process import _Worker
+
+    reference = _Reference()
+    worker = _Worker.__new__(_Worker)
+    worker.planner = planner = _Planner(reference)
+    worker.ring = type("Ring", (), {"HELD": 3})()
+    worker.buffer = np.zeros(4)
+    worker.gait_restart = GaitRestart(reference, None)
+    worker._warm_from_gait = True  # its cold solve was on the gait
+    assert worker._observe_hold(1.0) is False and planner.started
+    worker.buffer[3] = 1.0  # held off the plans
+    assert worker._observe_hold(1.1) is True
+    assert not planner.started and planner.settings.warm_up == 0.0  # the next update solves cold
+    assert worker._observe_hold(1.2) is False and worker._warm_from_gait is False
+    planner.started = True  # that cold solve, from the held stance
+    worker.buffer[3] = 0.0
+    assert worker._observe_hold(1.5) is True  # taken back: the gait restarts
+    worker.buffer[3] = 1.0
+    assert worker._observe_hold(2.0) is True and planner.started  # held again: the warm start is kept
+    assert reference.restarts == [(1.1, math.inf), (1.5, 0.2), (2.0, math.inf)]

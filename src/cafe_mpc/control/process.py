@@ -178,6 +178,8 @@ class _Worker:
         """Runtime commands from the main process (``ProcessMpcLoop.commands``)."""
         self.compiles = CompileWatch()
         """Kernels compiled (or loaded) in this process after its cold solve (``core.compilation``)."""
+        self._warm_from_gait = False
+        """Whether the warm start descends from a cold solve on a measurement of the gait, not held."""
         self.gait_restart = GaitRestart(planner.reference, restart[1], restart[0])
         """The gait restarted from stance after an episode off the plans (``control.loop.GaitRestart``;
         ``restart``: ``recovery.restart_gait`` and ``restart_stand``)."""
@@ -251,11 +253,27 @@ class _Worker:
         """Whether the measurement in ``buffer`` was taken while the robot was held off the plans."""
         return self.buffer[self.ring.HELD] > 0.5
 
+    def _observe_hold(self, t: float) -> bool:
+        """Tell the gait restart whether the measurement in ``buffer`` was held off the plans; True when the
+        reference restarted. When the robot has just been held off the plans, the warm start is of the motion
+        it left (a standby that took over solved cold from a measurement of the gait, feet in the air): it is
+        dropped, so the plans that take the robot back are solved cold from the stance it stands in (without
+        the warm-up: the solver's data exist); once per cold solve from the gait (``_warm_from_gait``), so
+        that a robot held again while that solve runs does not start another."""
+        held = self._held()
+        restarted = self.gait_restart.observe(t, held)
+        if restarted and held and self.planner.started and self._warm_from_gait:
+            forget_warm_start(self.planner)
+            self.planner.settings.warm_up = 0.0
+        if not self.planner.started:
+            self._warm_from_gait = not held  # the cold solve to come: from the gait or the held stance
+        return restarted
+
     def _state_update(self, tick: int):
         """A one-phase update from the measurement of ``tick`` (in ``buffer``)."""
         nq, nv = self.nq, self.nv
         self._take_command(float(self.buffer[0]))
-        self.gait_restart.observe(float(self.buffer[0]), self._held())
+        self._observe_hold(float(self.buffer[0]))
         return self.planner.update(
             float(self.buffer[0]), self.buffer[1 : 1 + nq], self.buffer[1 + nq : 1 + nq + nv]
         )
@@ -304,7 +322,7 @@ class _Worker:
         q, v = self.buffer[1 : 1 + nq], self.buffer[1 + nq : 1 + nq + nv]
         # the tick's measurement is the state at the tick (a robot's clock stamps it a little off the grid)
         t = t_next if prepared else float(self.buffer[0])
-        if self.gait_restart.observe(t, self._held()):
+        if self._observe_hold(t):
             prepared = False  # made for the gait before the restart: a one-phase update
         plan = planner.feedback(t, q, v) if prepared else planner.update(t, q, v)
         self._publish(plan, tick)
