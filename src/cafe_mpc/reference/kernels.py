@@ -411,20 +411,33 @@ rises above its ends' ground (a riser)."""
 
 
 @njit(cache=True, nogil=True)
-def map_height(grid: np.ndarray, terrain: np.ndarray, x: float, y: float) -> float:
-    """``core.height_map.HeightMap.height_at`` of a grid of heights (NaN: not seen) placed by ``terrain``:
-    bilinear between the four cell centres around world ``(x, y)``, plus the offset; NaN outside the grid
-    or next to a cell not seen."""
+def _map_cell(
+    grid: np.ndarray, terrain: np.ndarray, x: float, y: float
+) -> tuple[bool, int, int, float, float]:
+    """Where world ``(x, y)`` falls on a grid placed by ``terrain``: whether inside the cell centres' span,
+    the lower-left cell (row, column) of the four around it, and the fractional row and column (grid
+    units from the grid's cell (0, 0))."""
     dx, dy = x - terrain[TERRAIN_ORIGIN_X], y - terrain[TERRAIN_ORIGIN_Y]
     cos, sin, resolution = terrain[TERRAIN_COS], terrain[TERRAIN_SIN], terrain[TERRAIN_RESOLUTION]
     column = (cos * dx + sin * dy) / resolution
     row = (-sin * dx + cos * dy) / resolution
     rows, columns = grid.shape
     tolerance = 1e-9
-    if not (-tolerance <= column <= columns - 1 + tolerance and -tolerance <= row <= rows - 1 + tolerance):
+    inside = -tolerance <= column <= columns - 1 + tolerance and -tolerance <= row <= rows - 1 + tolerance
+    c0 = min(max(math.floor(column), 0), max(columns - 2, 0)) if inside else 0
+    r0 = min(max(math.floor(row), 0), max(rows - 2, 0)) if inside else 0
+    return inside, r0, c0, row, column
+
+
+@njit(cache=True, nogil=True)
+def map_height(grid: np.ndarray, terrain: np.ndarray, x: float, y: float) -> float:
+    """``core.height_map.HeightMap.height_at`` of a grid of heights (NaN: not seen) placed by ``terrain``:
+    bilinear between the four cell centres around world ``(x, y)``, plus the offset; NaN outside the grid
+    or next to a cell not seen."""
+    inside, r0, c0, row, column = _map_cell(grid, terrain, x, y)
+    if not inside:
         return np.nan
-    c0 = min(max(math.floor(column), 0), max(columns - 2, 0))
-    r0 = min(max(math.floor(row), 0), max(rows - 2, 0))
+    rows, columns = grid.shape
     c1, r1 = min(c0 + 1, columns - 1), min(r0 + 1, rows - 1)
     fr = min(max(row - r0, 0.0), 1.0)
     fc = min(max(column - c0, 0.0), 1.0)
@@ -438,16 +451,10 @@ def map_height_bound(grid: np.ndarray, terrain: np.ndarray, x: float, y: float) 
     """The highest of the (seen) four cell centres around world ``(x, y)``, plus the offset: a bound on the
     terrain there that an edge between two cell centres cannot hide (the bilinear ``map_height`` ramps
     over it); NaN outside the grid or where none of the four was seen."""
-    dx, dy = x - terrain[TERRAIN_ORIGIN_X], y - terrain[TERRAIN_ORIGIN_Y]
-    cos, sin, resolution = terrain[TERRAIN_COS], terrain[TERRAIN_SIN], terrain[TERRAIN_RESOLUTION]
-    column = (cos * dx + sin * dy) / resolution
-    row = (-sin * dx + cos * dy) / resolution
-    rows, columns = grid.shape
-    tolerance = 1e-9
-    if not (-tolerance <= column <= columns - 1 + tolerance and -tolerance <= row <= rows - 1 + tolerance):
+    inside, r0, c0, _, _ = _map_cell(grid, terrain, x, y)
+    if not inside:
         return np.nan
-    c0 = min(max(math.floor(column), 0), max(columns - 2, 0))
-    r0 = min(max(math.floor(row), 0), max(rows - 2, 0))
+    rows, columns = grid.shape
     highest = -np.inf
     for r in range(r0, min(r0 + 1, rows - 1) + 1):
         for c in range(c0, min(c0 + 1, columns - 1) + 1):
