@@ -1,7 +1,7 @@
 """The acrobatics catalogue (``cafe_mpc.trajopt``): tasks carried to other robots (``retarget``), stance feet
-put on their footholds, the catalogue's tasks (backflip, front flip) reduce their defects in their first
-iterations, and their shipped trajectories are dynamically feasible, turn 2 pi about the pitch axis and were
-made from the current task files; the Go2's barrel roll converges.
+put on their footholds, the catalogue's tasks (backflip, front flip, running front flip) reduce their defects
+in their first iterations, and their shipped trajectories are dynamically feasible, turn 2 pi about the pitch
+axis and were made from the current task files; the Go2's barrel roll converges.
 
 Full solves: ``cafe-mpc optimize backflip`` (docs/tasks.md), not part of the suite except the Go2 roll."""
 
@@ -22,7 +22,7 @@ from cafe_mpc.trajopt.retarget import base_configuration, place_stance_feet, res
 from cafe_mpc.trajopt.task import joints12
 
 TWO_PI = 2.0 * np.pi
-FLIPS = [("backflip", -TWO_PI), ("front-flip", TWO_PI)]
+FLIPS = [("backflip", -TWO_PI), ("front-flip", TWO_PI), ("running-front-flip", TWO_PI)]
 
 
 @pytest.fixture(scope="module")
@@ -31,7 +31,8 @@ def go2():
 
 
 def test_catalogue_tasks_are_presets():
-    assert {"barrel-roll", "running-barrel-roll", "backflip", "front-flip"} <= set(TASKS)
+    names = {"barrel-roll", "running-barrel-roll", "backflip", "front-flip", "running-front-flip"}
+    assert names <= set(TASKS)
 
 
 def test_retargeted_roll_fits_the_go2(go2):
