@@ -63,6 +63,7 @@ PACKAGED_TRAJECTORIES: dict[str, str] = {
     "backflip": "backflip.npz",
     "front-flip": "front_flip.npz",
     "running-front-flip": "running_front_flip.npz",
+    "spin": "spin.npz",
 }
 """Trajectories shipped with the package (``reference/data/``), by name."""
 
