@@ -784,6 +784,11 @@ class LocomotionReference(Reference):
                 return float(height[0])
         return 0.0 if self.ground is None else self.ground.height_at(x, y)
 
+    def contact_frame(self) -> np.ndarray | None:
+        """The ground plane's contact frame (``GroundPlane.contact_frame``): the plan's pyramid about the
+        normal of the ground the stance feet stand on; None on flat ground (world z)."""
+        return None if self.ground is None else self.ground.contact_frame()
+
     def observe_height_map(self, height_map: HeightMap, q: np.ndarray) -> None:
         """A height map relative to the base (``HeightMap.relative_to``), placed at the measured base pose
         ``q`` (the estimate of the tick it was taken at): the newest terrain the reference plans on. Ignored
