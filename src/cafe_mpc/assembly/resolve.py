@@ -76,9 +76,10 @@ def resolve(config: RunConfig, robot: Robot) -> ResolvedRun:
     except ValueError as error:
         raise ConfigError(f"mpc: {error}") from error
     segments = config.reference.segments if config.reference is not None else []
-    gait = _gait(config.gait, scale, "gait")
+    blind = config.terrain == "blind"
+    gait = _gait(config.gait, scale, "gait", blind)
     segment_gaits = tuple(
-        _gait(segment.gait, scale, f"reference.segments.{index}.gait")
+        _gait(segment.gait, scale, f"reference.segments.{index}.gait", blind)
         for index, segment in enumerate(segments)
     )
     contact = ContactModel(
@@ -179,27 +180,33 @@ def scaled_terrain_map(settings: TerrainMapSettings, scale: RobotScale) -> Terra
     )
 
 
-def resolve_gait(section: GaitConfig, scale: RobotScale) -> ResolvedGait:
+def resolve_gait(section: GaitConfig, scale: RobotScale, blind: bool = False) -> ResolvedGait:
     """A gait section carried to the robot: its cycle's phase durations, the reference's Raibert gain and the
     touchdown-event threshold by the time scale, the swing height and foothold box by the length scale, the
-    path gain (rad/m) by its inverse."""
+    path gain (rad/m) by its inverse. ``blind`` (``terrain: blind``): the swing at least
+    ``blind_swing_height`` high and ``blind_swing_lift`` lifted first."""
     events = section.touchdown_events
+    swing_height, swing_lift = section.swing_height, section.swing_lift
+    if blind:
+        swing_height = max(swing_height, section.blind_swing_height)
+        swing_lift = max(swing_lift, section.blind_swing_lift)
     return ResolvedGait(
         section=section,
         cycle=scaled_gait(section.name, scale),
-        swing_height=scale.distance(section.swing_height),
+        swing_height=scale.distance(swing_height),
         raibert_gain=scale.duration(section.raibert_gain),
+        swing_lift=swing_lift,
         foothold_box=(scale.distance(FOOTHOLD_BOX[0]), scale.distance(FOOTHOLD_BOX[1])),
         path_gain=section.path_gain / scale.distance(1.0),
         touchdown_events=None if events is None else scale.duration(events),
     )
 
 
-def _gait(section: GaitConfig | None, scale: RobotScale, key: str) -> ResolvedGait | None:
+def _gait(section: GaitConfig | None, scale: RobotScale, key: str, blind: bool) -> ResolvedGait | None:
     if section is None:
         return None
     try:
-        return resolve_gait(section, scale)
+        return resolve_gait(section, scale, blind)
     except ValueError as error:
         raise ConfigError(f"{key}: {error}") from error
 

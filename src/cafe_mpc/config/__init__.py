@@ -9,6 +9,8 @@ from cafe_mpc.config.estimation import KinematicKFSettings
 from cafe_mpc.config.loading import ConfigError, StrictModel, format_validation_error, parse_override
 from cafe_mpc.config.run import (
     BAUMGARTE_ALPHA,
+    BLIND_SWING_HEIGHT,
+    BLIND_SWING_LIFT,
     CONE_TOLERANCE,
     CONTROLLER_FRICTION,
     DEFAULT_FRICTION,
@@ -60,6 +62,8 @@ from cafe_mpc.config.weights import SRBWeights, WholeBodyWeights
 
 __all__ = [
     "BAUMGARTE_ALPHA",
+    "BLIND_SWING_HEIGHT",
+    "BLIND_SWING_LIFT",
     "CONE_TOLERANCE",
     "CONTROLLER_FRICTION",
     "DEFAULT_FRICTION",

@@ -209,6 +209,15 @@ CONTROLLER_FRICTION = 0.4
 work on, not the nominal 0.6. Planned at 0.6, the approach pace of the running roll puts a tenth of its stance
 ticks at the cone's edge on a 0.6 floor and every gait slides on a lower one (docs/robustness.md)."""
 
+BLIND_SWING_HEIGHT = 0.1
+"""m: ``gait.blind_swing_height``, the least swing apex of a blind run (``terrain: blind``). The presets' 6 cm
+apex above lift-off catches a 6 cm riser the foot does not know of; with 10 cm and ``BLIND_SWING_LIFT`` the
+blind trot, pace and flying trot climb and descend three 6 cm steps (docs/terrain.md)."""
+
+BLIND_SWING_LIFT = 0.2
+"""``gait.blind_swing_lift``: a blind swing's foot rises for the first fifth of the swing before it moves
+forward, so that a foot that landed against a riser lifts off it instead of dragging into it."""
+
 ON_TIME_OFF_FLAT = 0.015
 """s: ``vwbc.contact_detection.on_time`` when it is not set and the run has terrain (``terrain`` not
 ``flat``). On flat ground 25 ms keeps the bound's front feet, which land 15-20 ms early, under the plan's
@@ -271,6 +280,27 @@ class GaitConfig(StrictModel):
 
     name: str = Field("trot", description="a gait of cafe_mpc.ocp.contact_schedule.GAITS")
     swing_height: float = Field(0.06, ge=0.0, le=0.2, description="m, swing apex above lift-off")
+    swing_lift: float = Field(
+        0.0,
+        ge=0.0,
+        le=0.4,
+        description="fraction of each swing the foot rises before it moves forward (0: the paper's swing, "
+        "rising and moving together; > 0: a foot that lands against a riser lifts off it before it swings)",
+    )
+    blind_swing_height: float = Field(
+        BLIND_SWING_HEIGHT,
+        ge=0.0,
+        le=0.2,
+        description="m; with terrain: blind, the least swing apex above lift-off (a blind foot must clear a "
+        "riser it does not know of; swing_height where that is higher)",
+    )
+    blind_swing_lift: float = Field(
+        BLIND_SWING_LIFT,
+        ge=0.0,
+        le=0.4,
+        description="with terrain: blind, the least swing_lift (a blind foot that landed against a riser "
+        "rises off it before it swings)",
+    )
     raibert_gain: float = Field(0.03, ge=0.0, le=1.0, description="s, Raibert velocity feedback gain")
     start_stance: float = Field(
         0.0, ge=0.0, le=3600.0, description="s of all-feet stand before the gait's first cycle starts"
