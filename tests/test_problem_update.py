@@ -302,3 +302,33 @@ def test_warm_start_reusing_its_buffers_equals_a_new_one(robot):
         previous = (built, result)
         x = result.phases[0].xs[min(3, len(result.phases[0].xs) - 1)].copy()
     assert rollouts > 0  # roll-out knots came and went: the reused masks were cleared
+
+
+@pytest.mark.parametrize("raised", [0.0, 0.25])
+def test_touchdown_constraint_height_follows_the_reference(robot, raised):
+    """Eq. (25) puts a touchdown on the surface the reference's feet land on: the spin's trajectory lifted
+    by ``raised`` (a box top) lands at that height, and on the floor exactly at 0 (the presets' heights)."""
+    from dataclasses import replace
+
+    from cafe_mpc.reference.trajectory import TrajectoryReference
+    from cafe_mpc.reference.trajectory_file import load_packaged_trajectory
+
+    spin = load_packaged_trajectory("spin", robot)
+    xs = spin.xs.copy()
+    xs[:, 2] += raised
+    lifted = replace(spin, xs=xs)
+    reference = TrajectoryReference(robot, lifted, weight_set="regular", hold_weight_set="regular")
+    builder = _builder(robot, "S4")
+    touchdown_time = float(spin.switching_times[2])  # flight -> landing
+    heights = []
+    for t0 in (touchdown_time - 0.2, touchdown_time - 0.07):
+        built = builder.build(t0, xs[0], reference)
+        constraints = [phase.switching_constraint for phase in built.problem.phases]
+        touchdowns = [c for c in constraints if c is not None and len(c.legs) == robot.n_feet]
+        assert len(touchdowns) == 1
+        heights.append(touchdowns[0].surface_heights.copy())
+    for surface in heights:
+        if raised == 0.0:
+            assert np.all(surface == 0.0) and not np.any(np.signbit(surface))
+        else:
+            np.testing.assert_allclose(surface, raised, atol=1e-12)

@@ -31,6 +31,7 @@ from cafe_mpc.core.physics import GRAVITY
 from cafe_mpc.dynamics.srb import SRBState
 from cafe_mpc.dynamics.statics import static_stance_torques
 from cafe_mpc.dynamics.transition import whole_body_to_srb_state
+from cafe_mpc.ocp.constraints import TouchdownFootHeight
 from cafe_mpc.ocp.knots import (
     SRBKnot,
     SRBModelFactory,
@@ -66,6 +67,11 @@ PAPER_SCHEDULES: dict[str, float] = {
     "S20": 2.0,
 }
 """Table I: Ts of the paper's model schedules (Tw = 0.25 s for all)."""
+
+SURFACE_HEIGHT_RESOLUTION = 0.01
+"""m; a touchdown's surface height (the reference's foot height at the touchdown less the foot radius) is
+rounded to this: an optimised trajectory's feet touch a flat floor within 1 mm of it (the solver's
+tolerance on Eq. (25)), and those stay on the floor at exactly 0, as a gait's footholds do."""
 
 
 @dataclass(frozen=True)
@@ -272,9 +278,11 @@ class CafeProblemBuilder:
             self._terminal[key] = knot
         return knot
 
-    def _switch(self, before: tuple[bool, ...], after: tuple[bool, ...], to_srb: bool):
-        """(reset map, touchdown constraint) of a switch, made once."""
-        key = (before, after, to_srb)
+    def _switch(self, index: int, before: tuple[bool, ...], after: tuple[bool, ...], to_srb: bool):
+        """(reset map, touchdown constraint) of the switch at the end of whole-body phase ``index``, made
+        once; one touchdown constraint per phase index, as its surface heights are written each update
+        (``_write_surface_heights``)."""
+        key = (index, before, after, to_srb)
         parts = self._switches.get(key)
         if parts is None:
             factory = self.whole_body
@@ -460,7 +468,10 @@ class CafeProblemBuilder:
             if is_last and not has_srb:
                 reset, switching = None, None
             else:
-                reset, switching = self._switch(stance, next_stance, to_srb=is_last)
+                reset, switching = self._switch(index, stance, next_stance, to_srb=is_last)
+                if switching is not None:
+                    next_row = last if not is_last else n_w + 1
+                    self._write_surface_heights(switching, positions[next_row])
             entered_by_impact = index > 0 and _touches_down(groups[index - 1][0], stance)
             phases.append(self._phase(index, running, terminal, reset, switching))
             infos.append(
@@ -494,6 +505,14 @@ class CafeProblemBuilder:
         problem = self._problem(phases, x0)
         torque_reference = rows.torque[:n_rows] if n_rows <= rows.capacity else torque[:n_rows].copy()
         return BuiltProblem(problem, infos, t0, srb_forces, torque_reference)
+
+    def _write_surface_heights(self, switching: TouchdownFootHeight, feet: np.ndarray) -> None:
+        """The touchdown constraint's (25) surface heights, in place: the touching-down feet's reference
+        heights ``feet[leg, 2]`` at the touchdown (their footholds) less the foot radius, rounded to
+        ``SURFACE_HEIGHT_RESOLUTION`` (a box top in a stored trajectory; 0 on a flat floor)."""
+        heights = feet[list(switching.legs), 2] - self.robot.foot_radius
+        rounded = np.round(heights / SURFACE_HEIGHT_RESOLUTION) * SURFACE_HEIGHT_RESOLUTION
+        switching.surface_heights[:] = rounded + 0.0  # + 0.0: a flat floor gives +0.0, never -0.0
 
     def _write_srb_tail(
         self,
