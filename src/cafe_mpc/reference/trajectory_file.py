@@ -64,6 +64,7 @@ PACKAGED_TRAJECTORIES: dict[str, str] = {
     "front-flip": "front_flip.npz",
     "running-front-flip": "running_front_flip.npz",
     "spin": "spin.npz",
+    "box-jump": "box_jump.npz",
 }
 """Trajectories shipped with the package (``reference/data/``), by name."""
 
