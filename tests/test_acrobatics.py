@@ -66,7 +66,7 @@ def test_stance_feet_are_put_on_their_footholds(robot):
             np.testing.assert_allclose(feet[2:, :2], initial[2:, :2], atol=1e-6)
 
 
-@pytest.mark.parametrize("name", [name for name, _ in FLIPS] + ["spin"])
+@pytest.mark.parametrize("name", [name for name, _ in FLIPS] + ["spin", "box-jump"])
 def test_first_iterations_reduce_the_defect(robot, name):
     """Three MS-iLQR iterations from the task's guess lower the dynamics defect (L1)."""
     task = resolve_task(load_task(name), robot)

@@ -1,0 +1,62 @@
+"""The box jump: the shipped trajectory is feasible, made from the current task file and lands with every
+foot on the top of the run preset's box (past its edge, the front feet over it in the flight); in closed
+loop (fixed latency) the robot leaves the floor moving forward. The first iterations of its optimisation
+are in test_acrobatics.py; the planner's touchdown height in test_problem_update.py."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from cafe_mpc.assembly import load_run_config
+from cafe_mpc.reference.trajectory import foot_states
+from cafe_mpc.reference.trajectory_file import load_packaged_trajectory, packaged_trajectory_path
+from cafe_mpc.trajopt.multiphase import check_trajectory
+from cafe_mpc.trajopt.presets import load_task
+
+
+def _box(config) -> tuple[float, float]:
+    """(front edge x, top height) of the preset's one-step box."""
+    (step,) = config.scene.terrain
+    return float(step.start), float(step.rise)
+
+
+def test_shipped_box_jump_is_feasible_current_and_lands_on_the_box(robot):
+    task = load_task("box-jump")
+    edge, top = _box(load_run_config("box-jump"))
+    assert task.phase_surface_heights()[-1] == pytest.approx(top)
+    trajectory = load_packaged_trajectory("box-jump", robot)
+    check = check_trajectory(robot, trajectory, task.phase_surface_heights())
+    assert check.max_defect <= 1e-3
+    assert check.max_touchdown_height_error <= 2e-3
+    assert check.min_leg_joint_height >= 0.0
+    assert load_task(str(packaged_trajectory_path("box-jump").with_suffix(".yaml"))) == task
+    feet, _ = foot_states(robot, trajectory.xs)
+    radius = robot.foot_radius
+    # standing on the top at the end, every foot sphere past the edge
+    np.testing.assert_allclose(feet[-1, :, 2] - radius, top, atol=5e-3)
+    assert np.all(feet[-1, :, 0] - radius > edge + 0.02)
+    # in the flight a foot sphere ahead of the edge is above the top
+    flight = ~trajectory.contacts.astype(bool).any(axis=1)
+    airborne = feet[:-1][flight]
+    ahead = airborne[..., 0] + radius > edge
+    assert np.all(airborne[..., 2][ahead] - radius >= top - 1e-3)
+
+
+@pytest.mark.slow
+def test_closed_loop_box_jump_takes_off_forward():
+    """Fixed latency (20 ms, deterministic), VWBC, the box in the scene: the stand, the push and 0.15 s of the
+    flight: all feet off the floor, the base above its standing height moving forward, no fall."""
+    from cafe_mpc.config import load_config
+    from cafe_mpc_lab.experiments.run import simulate_run
+
+    takeoff = 0.5 + 0.30
+    config = load_config(
+        "box-jump", ["mpc.latency=fixed", f"simulation.duration={takeoff + 0.15}", "mpc.warm_up=0.2"]
+    )
+    _, _, log = simulate_run(config)
+    assert not log.fell and log.time[-1] >= takeoff + 0.14
+    flight = log.time > takeoff + 0.05
+    assert np.any(~log.contacts[flight].any(axis=1))
+    assert log.q[flight, 2].max() > 0.38
+    assert log.q[-1, 0] > 0.15  # m forward of the start
