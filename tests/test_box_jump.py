@@ -60,3 +60,21 @@ def test_closed_loop_box_jump_takes_off_forward():
     assert np.any(~log.contacts[flight].any(axis=1))
     assert log.q[flight, 2].max() > 0.38
     assert log.q[-1, 0] > 0.15  # m forward of the start
+
+
+def test_task_block_reads_the_whole_flight_and_the_box_top_off_the_reference(robot):
+    """The task block's planned touchdown is the end of the last of the consecutive flight phases (the tuck,
+    then the landing legs), and the feet it judges stand on the box top at the trajectory's end."""
+    from cafe_mpc.assembly import resolve
+    from cafe_mpc.assembly.references import build_reference
+    from cafe_mpc_lab.report.task_metrics import task_from_reference
+
+    config = load_run_config("box-jump")
+    trajectory = load_packaged_trajectory("box-jump", robot)
+    task = task_from_reference(build_reference(resolve(config, robot)))
+    assert list(trajectory.phase_contacts).count("FT") == 2
+    assert task.takeoff == pytest.approx(0.5 + trajectory.switching_times[1])
+    assert task.touchdown == pytest.approx(0.5 + trajectory.switching_times[3])
+    _, top = _box(config)
+    assert all(task.planned_stance)
+    np.testing.assert_allclose(np.asarray(task.planned_feet)[:, 2] - robot.foot_radius, top, atol=5e-3)

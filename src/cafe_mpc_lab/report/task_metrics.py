@@ -33,7 +33,12 @@ are then judged on the logged closed loop alone:
 * a bar in the scene (``sim.bar``): ``bar_contact``, any robot geom touched it during the run (the plant's
   contacts; legs included), which geoms, and ``bar_clearance_min_m``, the smallest distance between the bar
   and the robot's geoms over the roll from the logged states (geometric; negative: penetration);
-* ``success``: roll turned >= target - ``ROLL_TOLERANCE_RAD``, landed, upright after, stayed up, no
+* ``feet_on_planned_surface``: at the trajectory's end (the last tick before it) every foot the reference has
+  in stance is within ``FOOT_SURFACE_TOLERANCE_M`` of its planned height (a box top, or the floor);
+  ``foot_height_error_m`` and ``foot_position_error_m`` (horizontal, reported, not judged) give the largest
+  differences from the planned footholds;
+* ``success``: roll turned >= target - ``ROLL_TOLERANCE_RAD``, landed, upright after, stayed up, feet on the
+  planned surface, no
   torque-limit violation at the motors during the roll, and, where they apply, no bar contact and the pace
   resumed. A criterion that the run ended too early to judge (it stopped, without a fall, before the
   touchdown, before the upright window or the stay-up time had passed, or before the last speed window after
@@ -71,6 +76,9 @@ FLIGHT_SEARCH_MARGIN_S = 0.1
 """The measured flight is searched in the planned flight window widened by this much on each side."""
 SPEED_WINDOW_S = 1.0
 RESUME_FRACTION = 0.75
+FOOT_SURFACE_TOLERANCE_M = 0.02
+"""m; a stance foot at the trajectory's end is on its planned surface when its height is this close to the
+plan's (a 0.10 m box top and the floor differ by five times as much)."""
 """The gait after the roll has resumed when the last second's mean speed reaches this share of its command."""
 
 
@@ -91,6 +99,10 @@ class AcrobaticTask:
     rotation_axis: int = 0
     """The body axis the task turns about (0 x: roll, 1 y: pitch, 2 z: yaw); ``roll_target`` is the rotation
     to reach about it (signed: a backflip turns -2 pi about y)."""
+    planned_feet: tuple[tuple[float, float, float], ...] | None = None
+    """World foot positions the reference plans at the trajectory's end (its last interval)."""
+    planned_stance: tuple[bool, ...] | None = None
+    """Which feet the reference has in stance there (the feet ``feet_on_planned_surface`` judges)."""
 
 
 def _trajectory_segment(reference: Reference) -> tuple[TrajectoryReference, float] | None:
@@ -155,10 +167,16 @@ def task_from_reference(
     axis, target = planned_rotation(trajectory) if roll_target is None else (0, roll_target)
     start = offset + trajectory_reference.start
     origin = float(trajectory.times[0])
-    for index, code in enumerate(trajectory.phase_contacts):
+    end = start + trajectory_reference.duration
+    feet, stance = _planned_feet(reference, trajectory_reference, end - 0.5 * trajectory_reference.dt)
+    codes = list(trajectory.phase_contacts)
+    for index, code in enumerate(codes):
         if code == "FT":
+            last = index  # a flight may be several phases (a box jump's tuck, then its landing legs)
+            while last + 1 < len(codes) and codes[last + 1] == "FT":
+                last += 1
             takeoff = start + float(trajectory.switching_times[index]) - origin
-            touchdown = start + float(trajectory.switching_times[index + 1]) - origin
+            touchdown = start + float(trajectory.switching_times[last + 1]) - origin
             return AcrobaticTask(
                 trajectory.name,
                 start,
@@ -169,8 +187,44 @@ def task_from_reference(
                 approach,
                 resume,
                 axis,
+                feet,
+                stance,
             )
     return None
+
+
+def _planned_feet(
+    reference: Reference, trajectory: TrajectoryReference, time: float
+) -> tuple[tuple[tuple[float, float, float], ...], tuple[bool, ...]]:
+    """World foot positions and stance flags ``reference`` plans at ``time`` (the whole reference: a
+    composition places its trajectory in the world)."""
+    robot = trajectory.robot
+    window = ReferenceWindow(1, robot.nq, robot.nv, robot.nu, robot.n_feet)
+    window.set_times(np.array([time]))
+    reference.sample(window)
+    feet = tuple(tuple(float(x) for x in foot) for foot in window.foot_positions[0])
+    return feet, tuple(bool(flag) for flag in window.stance[0])
+
+
+def _feet_on_plan(
+    robot: Robot, log: SimulationLog, task: AcrobaticTask, control_period: float, unjudged: dict[str, str]
+) -> tuple[bool | None, float | None, float | None]:
+    """(feet on the planned surface, largest height error, largest horizontal error) of the stance feet at
+    the last tick before the trajectory's end; ``None`` (with the reason in ``unjudged``) when the run ended
+    before it."""
+    if task.planned_feet is None or task.planned_stance is None or not any(task.planned_stance):
+        return None, None, None
+    ticks = np.flatnonzero(log.time <= task.end + 1e-9)
+    if not log.ticks or float(log.time[-1]) + control_period < task.end - 1e-9 or not len(ticks):
+        if not log.fell:
+            unjudged["feet_on_planned_surface"] = "the run ended before the trajectory's end"
+        return (False if log.fell else None), None, None
+    measured = robot.foot_positions(log.q[ticks[-1]])
+    planned = np.asarray(task.planned_feet)
+    stance = np.asarray(task.planned_stance, dtype=bool)
+    height = float(np.max(np.abs(measured[stance, 2] - planned[stance, 2])))
+    horizontal = float(np.max(np.linalg.norm(measured[stance, :2] - planned[stance, :2], axis=1)))
+    return height <= FOOT_SURFACE_TOLERANCE_M, height, horizontal
 
 
 # --------------------------------------------------------------------------------------------------
@@ -464,7 +518,11 @@ def _criteria(task: AcrobaticTask) -> dict[str, str]:
         "bar_contact": "a bar in the scene: any robot geom (trunk, legs, feet) in contact with it at any "
         "tick of the run (null: no bar); bar_clearance_min_m: smallest bar-to-robot distance over the "
         "roll (trajectory start - 0.3 s to its end), from the logged states",
-        "success": "roll_turned and landed and upright_after and stayed_up and no motor torque-limit "
+        "feet_on_planned_surface": "every foot the reference has in stance at the trajectory's end (the last "
+        f"tick before it) within {FOOT_SURFACE_TOLERANCE_M} m of its planned height (a box top, the floor); "
+        "foot_position_error_m: the largest horizontal distance to the planned foothold (not judged)",
+        "success": "roll_turned and landed and upright_after and stayed_up and feet_on_planned_surface and "
+        "no motor torque-limit "
         "violation during the roll; with a bar, no bar contact; with a gait after the roll, "
         "pace_resumed; null when a criterion could not be judged (the run ended too early: unjudged) "
         "and none failed",
@@ -511,6 +569,9 @@ def task_metrics(
         )
     speed_before, speed_after, pace_resumed = _speeds_around_roll(log, task, unjudged)
     bar_block = bar_metrics(robot, log, task, bar)
+    feet_on_plan, foot_height_error, foot_position_error = _feet_on_plan(
+        robot, log, task, control_period, unjudged
+    )
     verdicts = {
         "roll_turned": roll_ok,
         "landed": landing.landed,
@@ -519,6 +580,7 @@ def task_metrics(
         "motor_torque_limits": motor_violations == 0,
         "bar_contact": bar_block.get("bar_contact") is not True,
         "pace_resumed": pace_resumed is not False,
+        "feet_on_planned_surface": feet_on_plan is not False,
     }
     failed = [name for name, ok in verdicts.items() if not ok and name not in unjudged]
     success: bool | None = False if failed else (None if unjudged else True)
@@ -560,6 +622,9 @@ def task_metrics(
         "speed_before_roll_mps": speed_before,
         "speed_after_roll_mps": speed_after,
         "pace_resumed": pace_resumed,
+        "feet_on_planned_surface": feet_on_plan,
+        "foot_height_error_m": foot_height_error,
+        "foot_position_error_m": foot_position_error,
         **bar_block,
         "criteria": _criteria(task),
     }
