@@ -177,7 +177,7 @@ def test_the_approach_starts_from_rest_and_a_heavier_robot_paces_on(robot):
     robot's body flew 2 cm lower than the nominal one's, its right feet met the floor 80 ms before their
     planned touchdown while the trunk still rose, rolled it over (7 rad/s within 60 ms) and it fell at
     0.91 s. With the preset's ramp from rest the right feet land on time and the robot paces on
-    (docs/robustness.md, "The approach's first push")."""
+    (docs/robustness.md, "The approach: its first push and its line")."""
     from cafe_mpc.config import load_config
     from cafe_mpc_lab.experiments.reliability import RandomizationRanges, sample_trial
     from cafe_mpc_lab.experiments.run import simulate_run
@@ -217,7 +217,7 @@ def test_the_approach_holds_its_line_and_the_roll_clears_the_bar_in_a_randomised
     tracks no base position and starts where the pace ends, so where the robot is across its line then
     decides where it crosses the bar. With the approach's path gain at 1 rad/m this robot started the roll
     3.7 cm off its line, away from the bar, and came down on it at 3.02 s; at the preset's 2 rad/m it
-    starts 2.5 cm off and clears the bar (docs/robustness.md, "The approach's first push")."""
+    starts 2.5 cm off and clears the bar (docs/robustness.md, "The approach: its first push and its line")."""
     from cafe_mpc.config import load_config
     from cafe_mpc_lab.experiments.reliability import RandomizationRanges, sample_trial
     from cafe_mpc_lab.experiments.run import simulate_run
