@@ -1192,6 +1192,13 @@ class SensorLimits(StrictModel):
     estimate_speed_max: float = Field(
         10.0, gt=0.0, le=100.0, description="m/s; a faster base estimate counts as a diverged estimator"
     )
+    imu_outage_limit: float | None = Field(
+        None,
+        gt=0.0,
+        le=10.0,
+        description="s the IMU may stay out while the plans are followed on the attitude the estimator "
+        "integrates without it (kinematic_kf.imu_outage: dynamics); null: outage_limit, as any sensor",
+    )
 
 
 class RecoveryConfig(StrictModel):
