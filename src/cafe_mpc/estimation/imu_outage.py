@@ -99,6 +99,9 @@ class ImuOutageObserver:
         self._time = 0.0
         self._momentum: np.ndarray | None = None
         """World-frame angular momentum about the centre of mass at lift-off (None: on the ground)."""
+        self._previous_q = self.q.copy()
+        self._previous_v = np.zeros(nv)
+        self._has_previous = False
         self._tau = np.zeros(nv)
         self._gravity_up = np.array([0.0, 0.0, -float(self.model.gravity.linear[2])])
         self._history_time = np.full(HISTORY, -math.inf)
@@ -147,14 +150,21 @@ class ImuOutageObserver:
         self.angular_velocity[:] = gyro
         self.active = True
         self._momentum = None
+        self._time = math.nan
+        self._has_previous = False
         if math.isnan(sample_time):
-            self._time = math.nan
             return
-        self._time = float(sample_time)
-        for offset in range(HISTORY):
-            row = (self._next + offset) % HISTORY
+        order = [(self._next + offset) % HISTORY for offset in range(HISTORY)]  # oldest first
+        times = self._history_time[order]
+        at_sample = np.flatnonzero(times <= sample_time + 1e-9)
+        if len(at_sample) == 0:  # older than the history: from the oldest tick kept
+            self._time = float(sample_time)
+            first = 0
+        else:  # the tick of the sample itself sets the state (no time passes)
+            first = int(at_sample[-1])
+        for row in order[first:]:
             t = self._history_time[row]
-            if t > sample_time:
+            if np.isfinite(t):
                 self._advance(
                     t,
                     self._history_q[row],
@@ -219,15 +229,18 @@ class ImuOutageObserver:
             on_ground[foot] = planned[foot] and (
                 self.contact_height is None or clearance <= self.contact_height
             )
-        if dt <= 0.0:
-            return
-        if on_ground.any():
-            self._momentum = None
-            self._dynamics(dt, joint_torques)
-            self._feet(dt, velocity)
-        else:
-            self._flight()
-        rotation[:] = rotation @ pin.exp3(w * dt)
+        if dt > 0.0:
+            if on_ground.any():
+                self._momentum = None
+                self._dynamics(dt, joint_torques)
+                self._feet(dt, velocity)
+            else:
+                self._flight()
+            rotation[:] = rotation @ pin.exp3(w * dt)
+        self._previous_q[:] = q
+        self._previous_v[:] = v
+        self._previous_v[3:6] = w
+        self._has_previous = True
 
     def _flight(self) -> None:
         """No foot on the ground: the angular momentum about the centre of mass is conserved whatever the
@@ -235,10 +248,12 @@ class ImuOutageObserver:
         measured joint rates, keeps the momentum it had at lift-off (``A_G v``, Pinocchio's centroidal map:
         no joint friction or torque error enters); the accelerometer reads free fall."""
         model, data, v = self.model, self.data, self.v
-        centroidal = pin.computeCentroidalMap(model, data, self.q)
-        angular = centroidal[3:6]
-        if self._momentum is None:
-            self._momentum = angular @ v
+        if self._momentum is None:  # lift-off: the momentum of the last tick on the ground
+            previous_q, previous_v = (
+                (self._previous_q, self._previous_v) if self._has_previous else (self.q, v)
+            )
+            self._momentum = pin.computeCentroidalMap(model, data, previous_q)[3:6] @ previous_v
+        angular = pin.computeCentroidalMap(model, data, self.q)[3:6]
         self.angular_velocity[:] = np.linalg.solve(angular[:, 3:6], self._momentum - angular[:, 6:] @ v[6:])
         self.specific_force[:] = 0.0
 
