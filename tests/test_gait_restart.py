@@ -188,3 +188,54 @@ def test_a_process_that_solved_cold_on_the_gait_solves_again_from_the_held_stanc
     worker.buffer[3] = 1.0
     assert worker._observe_hold(2.0) is True and planner.started  # held again: the warm start is kept
     assert reference.restarts == [(1.1, math.inf), (1.5, 0.2), (2.0, math.inf)]
+
+
+class _RecordingPlanner:
+    """What ``_Worker.prepare_standby`` uses of a planner: update, reset, settings."""
+
+    def __init__(self) -> None:
+        self.calls: list[tuple] = []
+        self.settings = type("Settings", (), {"warm_up": 1.0})()
+
+    def update(self, t, q, v):
+        self.calls.append(("update", t, q.copy(), v.copy()))
+
+    def reset(self) -> None:
+        self.calls.append(("reset",))
+
+
+def test_a_standby_makes_its_first_solve_while_it_waits_and_forgets_it():
+    """A standby solves once on the newest measurement (kernels and solver data made then, not at its
+    takeover), drops that warm start and the warm-up (its takeover is a cold solve alone); told to stop
+    first, it stops; made the active one before any measurement, it goes straight to work."""
+    import os
+
+    from cafe_mpc.control.ipc.channels import ControlBlock, MeasurementRing
+    from cafe_mpc.control.process import _Worker
+
+    nq, nv = 3, 2
+    ring, control = MeasurementRing(nq, nv, 1), ControlBlock()
+    try:
+        worker = _Worker.__new__(_Worker)
+        worker.planner = planner = _RecordingPlanner()
+        worker.ring, worker.control = ring, control
+        worker.buffer = np.zeros(ring.slot - 2)
+        worker.nq, worker.nv = nq, nv
+        worker.parent_pid, worker.generation = os.getppid(), 2.0
+        control.array[ControlBlock.ACTIVE] = 2.0  # made active before a measurement came: no solve here
+        assert worker.prepare_standby() and planner.calls == []
+        control.array[ControlBlock.ACTIVE] = 1.0
+        control.array[ControlBlock.STOP] = 1.0  # told to stop while waiting for a measurement
+        assert not worker.prepare_standby() and planner.calls == []
+        control.array[ControlBlock.STOP] = 0.0
+        ring.write(4, 0.008, np.arange(3.0), np.ones(2), np.ones(1, bool))
+        ring.write(5, 0.010, np.arange(3.0) + 1, 2 * np.ones(2), np.ones(1, bool))
+        assert worker.prepare_standby()
+        (update, t, q, v), (reset,) = planner.calls
+        assert (update, reset) == ("update", "reset") and t == 0.010  # the newest measurement
+        np.testing.assert_array_equal(q, np.arange(3.0) + 1)
+        np.testing.assert_array_equal(v, 2 * np.ones(2))
+        assert planner.settings.warm_up == 0.0
+    finally:
+        for channel in (ring, control):
+            channel.close(unlink=True)

@@ -91,7 +91,8 @@ def test_memory_is_locked_or_the_reason_is_given_and_steal_is_read():
 @pytest.mark.realtime
 @pytest.mark.skipif(not TWO_CPUS, reason="needs two CPUs")
 def test_the_mpc_process_and_its_standby_run_off_the_loops_core(robot):
-    """The standby is started after the caller pinned itself to the loop's core: it must not inherit it."""
+    """The standby is started after the caller pinned itself to the loop's core: it must not inherit it; it
+    waits in the idle scheduling class."""
     config = load_config("trot", ["output.plots=false"])
     plans = plan_format(25, robot.nq + robot.nv, robot.nu, 2 * robot.nv, robot.n_feet)
     loop = ProcessMpcLoop(
@@ -110,9 +111,43 @@ def test_the_mpc_process_and_its_standby_run_off_the_loops_core(robot):
             assert process is not None and process.is_alive()
             for task in os.listdir(f"/proc/{process.pid}/task"):
                 assert os.sched_getaffinity(int(task)) == {cpus.mpc_cpu}
+        if hasattr(os, "SCHED_IDLE"):  # the standby waits in the idle class, the running process does not
+            for process, policy in ((loop.standby, os.SCHED_IDLE), (loop.process, os.SCHED_OTHER)):
+                for task in os.listdir(f"/proc/{process.pid}/task"):
+                    assert os.sched_getscheduler(int(task)) == policy
 
 
 def _factory(config):
     import functools
 
     return functools.partial(process_planner, config.model_dump(mode="json"))
+
+
+@pytest.mark.skipif(not hasattr(os, "SCHED_IDLE"), reason="needs SCHED_IDLE")
+def test_a_process_goes_to_the_background_and_back_with_every_thread():
+    """A standby MPC process builds and waits in ``SCHED_IDLE`` (every thread, also one started before),
+    and takes over in the normal class; where leaving the idle class is refused it says so."""
+    script = textwrap.dedent(
+        """
+        import os, threading
+        from cafe_mpc.control.scheduling import background_priority, foreground_priority
+        ready, done = threading.Event(), threading.Event()
+        ids = []
+        def worker():
+            ids.append(threading.get_native_id()); ready.set(); done.wait()
+        thread = threading.Thread(target=worker); thread.start(); ready.wait()
+        granted = background_priority()
+        idle = [os.sched_getscheduler(i) == os.SCHED_IDLE for i in (0, ids[0])]
+        back = foreground_priority()
+        normal = [os.sched_getscheduler(i) == os.SCHED_OTHER for i in (0, ids[0])]
+        print(granted, idle, back, normal)
+        done.set(); thread.join()
+        """
+    )
+    output = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, check=True).stdout
+    granted, rest = output.split(" ", 1)
+    assert granted == "SCHED_IDLE" and rest.startswith("[True, True]"), output
+    if os.geteuid() == 0:  # leaving the idle class needs root or CAP_SYS_NICE
+        assert rest.strip().endswith("normal [True, True]"), output
+    else:
+        assert "normal [True, True]" in rest or "refused" in rest, output

@@ -270,3 +270,35 @@ def test_trajectory_state_written_in_place_is_the_knot_or_the_interpolation() ->
         np.testing.assert_array_equal(out, expected)
         np.testing.assert_array_equal(trajectory.state_at(t), expected)
     np.testing.assert_array_equal(xs, kept)
+
+
+def test_a_later_cold_solve_leaves_the_frozen_objects_frozen(monkeypatch) -> None:
+    """The run's first cold solve collects once and freezes what lives (before the clock starts); a cold
+    solve after ``reset`` (a resumed or restarted MPC, the robot waiting for its plan) does not again."""
+    from cafe_mpc.planners.base import MpcStatistics, RecedingHorizonPlanner
+
+    calls: list[str] = []
+    monkeypatch.setattr(collector, "thaw", lambda: calls.append("thaw"))
+    monkeypatch.setattr(collector, "freeze_live_objects", lambda: calls.append("freeze"))
+
+    class Solved(RecedingHorizonPlanner):
+        def _solve_at(self, t, q, v, solver):
+            calls.append("solve")
+            return "built", "result"
+
+        def _plan(self, built, result):
+            return "plan"
+
+    planner = Solved.__new__(Solved)
+    planner.previous = planner.prepared = None
+    planner._collected = False
+    planner.settings = MpcSettings(warm_up=0.0)
+    planner.statistics = MpcStatistics()
+    planner.first_solver = planner.solver = None
+    state = np.zeros(3)
+    assert planner.update(0.0, state, state) == "plan"
+    assert calls == ["thaw", "solve", "freeze"]
+    planner.update(0.02, state, state)  # warm
+    planner.reset()
+    planner.update(0.5, state, state)  # cold again
+    assert calls == ["thaw", "solve", "freeze", "solve", "solve"]

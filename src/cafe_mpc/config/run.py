@@ -1267,11 +1267,12 @@ class RecoveryConfig(StrictModel):
         "stance and the run fails (0: never restart)",
     )
     resync_after: float = Field(
-        0.4,
+        0.1,
         gt=0.0,
         le=60.0,
         description="s the MPC process went without looking at the measurements (it was stopped; its own "
-        "updates do not count) after which it solves cold again from the newest",
+        "updates do not count) after which it solves cold again from the newest (a bound stopped for 0.2 s "
+        "fell on the stale plans of its warm start with 0.4)",
     )
     balance_timeout: float = Field(
         10.0, gt=0.0, le=3600.0, description="s the balance stance holds without a plan before the damped one"

@@ -24,9 +24,12 @@ horizon has run out, the safe ladder (``control.plan_follower``). The MPC proces
 stalled, taken back when its plans are fresh again or restarted after ``recovery.stall_restart_after``.
 A restart hands over to the standby, a second MPC process built beside the running one and waiting
 (``recovery.standby``; a new one is built ``STANDBY_AFTER`` s after the takeover), else starts a new process;
-either solves cold from the newest measurement. Past ``recovery.max_restarts_per_minute`` the robot stays in
-the damped stance and ``failure`` says why (the run then ends with ``MpcProcessError``). ``close()`` (also on
-errors and Ctrl-C, via ``with``) stops the processes and frees the shared memory; no process is left behind.
+either solves cold from the newest measurement. A standby is built, makes its first solve (kernels, solver
+data: ``_Worker.prepare_standby``) and waits in the idle scheduling class (``background_priority``), so that
+it takes no time from the running process on their shared core, and takes over in the normal class.
+Past ``recovery.max_restarts_per_minute`` the robot stays in the damped stance and ``failure`` says why (the
+run then ends with ``MpcProcessError``). ``close()`` (also on errors and Ctrl-C, via ``with``) stops the
+processes and frees the shared memory; no process is left behind.
 """
 
 from __future__ import annotations
@@ -47,7 +50,14 @@ from cafe_mpc.control.commands import CommandChannel, apply_command
 from cafe_mpc.control.ipc.channels import ControlBlock, MeasurementRing, PlanChannel, PlanLayout
 from cafe_mpc.control.loop import GaitRestart, MpcLoop
 from cafe_mpc.control.plan_follower import NewestPlanFollower
-from cafe_mpc.control.scheduling import CpuPlan, lock_memory, pin_every_thread, pin_this_thread
+from cafe_mpc.control.scheduling import (
+    CpuPlan,
+    background_priority,
+    foreground_priority,
+    lock_memory,
+    pin_every_thread,
+    pin_this_thread,
+)
 from cafe_mpc.control.update_clock import UpdateClock
 from cafe_mpc.core.compilation import CompileWatch
 from cafe_mpc.core.controller import LowLevelController
@@ -64,7 +74,7 @@ STANDBY_POLL = 0.005
 """s between a standby MPC process's looks at whether it is its turn (the takeover's delay at most)."""
 STANDBY_AFTER = 2.0
 """s after an MPC process took over (its first plan) before a new standby is built beside it: the build
-takes the MPC's CPU for a few seconds, not while the gait resumes."""
+takes a few seconds of CPU, not while the gait resumes (idle class or not)."""
 
 PlannerFactory = Callable[[], Planner]
 """Builds the planner inside the MPC process (must be picklable: a module-level function or a partial)."""
@@ -93,8 +103,9 @@ def _worker_main(
     results,
 ) -> None:
     """The MPC process: measurements -> updates -> plans (module docstring), until told to stop. A standby
-    (``generation`` is not the control block's ``active``) builds its planner, says so and waits, built, until
-    it is made the active one (or told to stop). Every thread of it runs on ``cpu`` (``CpuPlan.mpc_cpu``:
+    (``generation`` is not the control block's ``active``) builds its planner in the idle scheduling class,
+    makes its first solve (``_Worker.prepare_standby``), says so and waits until it is made the active one
+    (or told to stop), then runs in the normal class. Every thread of it runs on ``cpu`` (``CpuPlan.mpc_cpu``:
     not the 500 Hz loop's core; None: anywhere); with ``lock`` its memory is locked (``lock_memory``)."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # the main process owns Ctrl-C and stops us
     pin_every_thread(cpu)
@@ -106,6 +117,9 @@ def _worker_main(
     control = ControlBlock(control_name)
     statistics = None
     worker = None
+    background = control.array[ControlBlock.ACTIVE] != generation
+    if background:  # a standby: built, prepared and waiting on what the running process leaves of its core
+        background = background_priority() == "SCHED_IDLE"
     try:
         planner = factory()
         worker = _Worker(
@@ -121,9 +135,15 @@ def _worker_main(
             generation,
         )
         if control.array[ControlBlock.ACTIVE] != generation:
-            control.array[ControlBlock.STANDBY_READY] = 1.0  # built; numba kernels loaded
+            if not worker.prepare_standby():
+                return
+            control.array[ControlBlock.STANDBY_READY] = 1.0  # built, solver data made, numba kernels loaded
             if not worker.wait_turn():
                 return
+        if background:
+            priority = foreground_priority()
+            if priority != "normal":
+                logger.warning("the standby MPC process took over in %s", priority)
         control.array[ControlBlock.RTI] = 1.0 if worker.rti else 0.0
         control.array[ControlBlock.READY] = 1.0  # built; numba kernels loaded
         try:
@@ -202,6 +222,29 @@ class _Worker:
                 return True
             time.sleep(STANDBY_POLL)
         return False
+
+    def prepare_standby(self) -> bool:
+        """A standby's first solve, made while it waits: a cold solve on the newest measurement, its kernels
+        and its warm-up's solver data (``MpcSettings.warm_up``), then its warm start and records dropped
+        (``Planner.reset``). Its takeover is then a cold solve alone (0.1-0.2 s on a bound), not that and the
+        start-up's kernels and warm-up (0.5-0.9 s measured, most of which the robot spent in the balance
+        stance). False when told to stop first; True at once when made the active one before a measurement
+        came (the first update then makes all of it)."""
+        array, ring, planner = self.control.array, self.ring, self.planner
+        while True:
+            if array[ControlBlock.STOP] != 0.0 or os.getppid() != self.parent_pid:
+                return False
+            if array[ControlBlock.ACTIVE] == self.generation:
+                return True
+            newest = ring.newest
+            if newest >= 0 and ring.read(newest, self.buffer):
+                break
+            time.sleep(STANDBY_POLL)
+        nq, nv = self.nq, self.nv
+        planner.update(float(self.buffer[0]), self.buffer[1 : 1 + nq], self.buffer[1 + nq : 1 + nq + nv])
+        planner.reset()
+        planner.settings.warm_up = 0.0  # its solver data exist: the takeover's cold solve alone
+        return True
 
     def run(self) -> None:
         planner = self.planner

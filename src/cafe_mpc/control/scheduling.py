@@ -70,6 +70,43 @@ def pin_every_thread(cpu: int | None) -> None:
     pin_this_thread(cpu)
 
 
+def _set_every_thread_policy(policy: int) -> str | None:
+    """Every thread of this process in ``policy`` (priority 0; the calling thread last, so that the threads
+    it starts later inherit it); None when granted, else why not."""
+    refused = None
+    with contextlib.suppress(OSError):
+        for task in os.listdir("/proc/self/task"):
+            try:
+                os.sched_setscheduler(int(task), policy, os.sched_param(0))
+            except (AttributeError, OSError, ValueError) as error:
+                refused = getattr(error, "strerror", None) or type(error).__name__
+    try:
+        os.sched_setscheduler(0, policy, os.sched_param(0))
+    except (AttributeError, OSError) as error:
+        refused = getattr(error, "strerror", None) or type(error).__name__
+    return refused
+
+
+def background_priority() -> str:
+    """Every thread of this process in ``SCHED_IDLE``: it runs only when its core has nothing else to run.
+    A standby MPC process builds and waits so (``control.process``): built at normal priority beside the
+    running MPC process on its core, it took half that core for a few seconds and the running process missed
+    its plans for 0.5 s. Returns the class granted, for the record."""
+    policy = getattr(os, "SCHED_IDLE", None)
+    if policy is None:
+        return "normal (no SCHED_IDLE here)"
+    refused = _set_every_thread_policy(policy)
+    return "SCHED_IDLE" if refused is None else f"normal (SCHED_IDLE refused: {refused})"
+
+
+def foreground_priority() -> str:
+    """Every thread of this process back in the normal class (``SCHED_OTHER``), after
+    ``background_priority``. Leaving ``SCHED_IDLE`` needs root, ``CAP_SYS_NICE`` or an ``RLIMIT_NICE`` of
+    at least 20 where the nice value is 0; where refused, the process stays in the idle class and says so."""
+    refused = _set_every_thread_policy(os.SCHED_OTHER)
+    return "normal" if refused is None else f"SCHED_IDLE (leaving it refused: {refused})"
+
+
 class RealTimePriority:
     """The calling thread in ``SCHED_FIFO`` at ``priority`` (1-99) while held; ``acquire`` says what it got.
 

@@ -268,6 +268,8 @@ class RecedingHorizonPlanner(Generic[PlanT]):
         self.statistics = MpcStatistics()
         self.previous: tuple | None = None
         """The newest (problem, solution) the plan in effect came from."""
+        self._collected = False
+        """Whether the objects of a first solve were frozen out of the collector's reach (``update``)."""
         self.prepared: tuple | None = None
         self._x = np.zeros(robot.nq + robot.nv)
 
@@ -296,10 +298,12 @@ class RecedingHorizonPlanner(Generic[PlanT]):
         """One one-phase update from the state measured at ``t``; ``None`` (counted and logged) if it
         failed. The first update of a run is the cold solve (``first_solve_options``); after it (and the
         warm-up) the objects alive are frozen out of the garbage collector's reach
-        (``planners.collector``)."""
+        (``planners.collector``). A later cold solve (after ``reset``: a resumed or restarted MPC) leaves
+        them frozen: collecting everything again took 60-130 ms while the robot waited for the plan."""
         first = self.previous is None
         self.prepared = None
-        if first:
+        collect = first and not self._collected
+        if collect:
             collector.thaw()
         start = time.perf_counter()
         outcome = self._solve_at(t, q, v, self.first_solver if first else self.solver)
@@ -318,8 +322,9 @@ class RecedingHorizonPlanner(Generic[PlanT]):
             self._compile_kernels()
         if first and self.settings.warm_up > 0.0:
             self._warm_up(t)
-        if first:
+        if collect:
             collector.freeze_live_objects()  # before the clock starts
+            self._collected = True
         return plan
 
     def prepare(self, t: float, q: np.ndarray, v: np.ndarray) -> bool:
