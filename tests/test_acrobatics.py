@@ -1,7 +1,8 @@
 """The acrobatics catalogue (``cafe_mpc.trajopt``): tasks carried to other robots (``retarget``), stance feet
-put on their footholds, the catalogue's tasks (backflip, front flip) reduce their defects in their first
-iterations, and their shipped trajectories are dynamically feasible, turn 2 pi about the pitch axis and were
-made from the current task files; the Go2's barrel roll converges.
+put on their footholds, the catalogue's tasks (backflip, front flip, running front flip, spin) reduce their
+defects in their first iterations, and their shipped trajectories are dynamically feasible, turn 2 pi about
+the pitch axis (the flips) or pi about the yaw axis (the spin) and were made from the current task files; the
+Go2's barrel roll converges.
 
 Full solves: ``cafe-mpc optimize backflip`` (docs/tasks.md), not part of the suite except the Go2 roll."""
 
@@ -22,7 +23,7 @@ from cafe_mpc.trajopt.retarget import base_configuration, place_stance_feet, res
 from cafe_mpc.trajopt.task import joints12
 
 TWO_PI = 2.0 * np.pi
-FLIPS = [("backflip", -TWO_PI), ("front-flip", TWO_PI)]
+FLIPS = [("backflip", -TWO_PI), ("front-flip", TWO_PI), ("running-front-flip", TWO_PI)]
 
 
 @pytest.fixture(scope="module")
@@ -31,7 +32,8 @@ def go2():
 
 
 def test_catalogue_tasks_are_presets():
-    assert {"barrel-roll", "running-barrel-roll", "backflip", "front-flip"} <= set(TASKS)
+    names = {"barrel-roll", "running-barrel-roll", "backflip", "front-flip", "running-front-flip", "spin"}
+    assert names <= set(TASKS)
 
 
 def test_retargeted_roll_fits_the_go2(go2):
@@ -64,7 +66,7 @@ def test_stance_feet_are_put_on_their_footholds(robot):
             np.testing.assert_allclose(feet[2:, :2], initial[2:, :2], atol=1e-6)
 
 
-@pytest.mark.parametrize("name", [name for name, _ in FLIPS])
+@pytest.mark.parametrize("name", [name for name, _ in FLIPS] + ["spin"])
 def test_first_iterations_reduce_the_defect(robot, name):
     """Three MS-iLQR iterations from the task's guess lower the dynamics defect (L1)."""
     task = resolve_task(load_task(name), robot)
@@ -119,3 +121,22 @@ def test_shipped_backflip_keeps_its_push_feet_loaded_and_a_torque_margin(robot):
     assert np.all(normal[stance] >= 0.45 * share)
     motors = np.asarray(robot.plant.motor_torque_limits)
     assert np.all(np.abs(trajectory.us) <= 0.8 * motors + 0.2)
+
+
+def test_shipped_spin_is_feasible_and_current(robot):
+    """The shipped spin: defects <= 1e-3 under the planning model, within its task's torque limits, feet on
+    the floor at the touchdown, no leg joint below the floor, a half turn about the yaw axis (pi at its end,
+    at least 2.6 rad by the touchdown), roll and pitch under 0.2 rad, made from the current task file."""
+    trajectory = load_packaged_trajectory("spin", robot)
+    check = check_trajectory(robot, trajectory)
+    assert check.max_defect <= 1e-3
+    limits = np.asarray(load_task("spin").constraints.torque_limits(robot))
+    assert np.all(np.abs(trajectory.us) <= limits + 0.2)
+    assert check.max_touchdown_height_error <= 2e-3
+    assert check.min_leg_joint_height >= 0.0
+    assert check.rotation_axis == 2
+    assert check.rotation_at_landing[2] >= 2.6
+    turned = rotation_turned(trajectory)
+    assert turned[2] == pytest.approx(np.pi, abs=0.1)
+    assert abs(turned[0]) < 0.2 and abs(turned[1]) < 0.2
+    assert load_task(str(packaged_trajectory_path("spin").with_suffix(".yaml"))) == load_task("spin")

@@ -246,6 +246,46 @@ def test_friction_pyramid_values(robot, factory):
     np.testing.assert_allclose(data.g[:5], [fz, 0.6 * fz - fx, 0.6 * fz + fx, 0.6 * fz - fy, 0.6 * fz + fy])
 
 
+def test_friction_pyramid_in_a_tilted_contact_frame(robot, factory):
+    """With the reference's ``contact_frame`` a 15 degree slope's (``core.ground.contact_frame``) the rows
+    of (26) price the force's components along the slope's tangents and normal, the knot still reports
+    world-frame forces, and the gradient over ``[x | u]`` matches central differences of the cost (the
+    friction rows' derivatives go through the frame too)."""
+    from cafe_mpc.core.ground import contact_frame
+
+    slope = np.tan(np.radians(15.0))
+    frame = contact_frame(np.array([-slope, 0.0, 1.0]) / np.hypot(slope, 1.0))
+    knot = factory.running_knot((1, 1, 1, 1))
+    flat_data, data = knot.create_data(), knot.create_data()
+    knot.reference.contact_frame[:] = frame
+    rng = np.random.default_rng(7)
+    x, u = random_state(robot, rng, spread=0.05, speed=0.1), 2.0 * rng.standard_normal(12)
+    knot.calc(data, x, u)
+    np.testing.assert_allclose(data.forces.ravel(), data.dynamics.forces)
+    expected = np.concatenate([friction_pyramid_matrix(0.6) @ (frame @ f) for f in data.forces])
+    np.testing.assert_allclose(data.g[:20], expected, rtol=1e-12, atol=1e-9)
+    knot.calc_diff(data, x, u)
+    gradient = data.gradient.copy()
+    ndx = knot.state.ndx
+    numeric = np.zeros_like(gradient)
+    for i in range(ndx + 12):
+        step = np.zeros(ndx + 12)
+        step[i] = EPS
+        costs = []
+        for sign in (1.0, -1.0):
+            xs = knot.state.integrate(x, sign * step[:ndx])
+            knot.calc(data, xs, u + sign * step[ndx:])
+            costs.append(data.cost)
+        numeric[i] = (costs[0] - costs[1]) / (2 * EPS)
+    np.testing.assert_allclose(gradient, numeric, rtol=1e-4, atol=1e-5 * np.max(np.abs(numeric)))
+    flat = knot.with_reference(knot.reference.copy())
+    flat.reference.contact_frame[:] = np.eye(3)
+    flat.calc(flat_data, x, u)
+    flat.calc_diff(flat_data, x, u)
+    assert not np.allclose(flat_data.g[:20], data.g[:20])
+    assert not np.allclose(flat_data.gradient, gradient)
+
+
 def test_minimum_normal_force_raises_the_unilateral_row(robot):
     """With ``minimum_normal_force`` the unilateral row of (26) is ``fz - fz_min`` and the face rows stay;
     the fused knot equals the term-by-term one (cost, gradient, Hessian) with it."""

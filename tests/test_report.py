@@ -218,6 +218,9 @@ def test_the_summary_of_a_task_gives_its_criteria_and_margins():
     assert found["Bar"].status == "bad" and found["Bar"].text == "touched (0.40 m high) by trunk at 2.95 s"
     assert "50 ms early on the plan" in found["Flight"].text
     assert "0.85 m/s at the end (command 0.80 m/s); the pace resumed" in found["Speed"].text
+    flip = {**task, "rotation_axis": "pitch", "roll_turned_rad": 0.01, "rotation_turned_rad": 6.3}
+    pitch = {item.topic: item for item in summarize({**metrics, "task": flip}).findings}["Pitch"]
+    assert pitch.text.startswith("6.30 rad of the 6.28 rad asked")  # a flip: about its own axis
     cleared = summarize({**metrics, "task": {**task, "bar_contact": False, "bar_clearance_min_m": 0.0325}})
     assert "cleared (0.40 m high) by 32.5 mm" in {item.topic: item for item in cleared.findings}["Bar"].text
 

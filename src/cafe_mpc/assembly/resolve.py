@@ -40,7 +40,6 @@ from cafe_mpc.assembly.references import reference_profile
 from cafe_mpc.config import (
     BAUMGARTE_ALPHA,
     CONE_TOLERANCE,
-    ON_TIME_OFF_FLAT,
     VWBC_FRICTION_HEADROOM,
     CalibrationConfig,
     ConfigError,
@@ -76,9 +75,10 @@ def resolve(config: RunConfig, robot: Robot) -> ResolvedRun:
     except ValueError as error:
         raise ConfigError(f"mpc: {error}") from error
     segments = config.reference.segments if config.reference is not None else []
-    gait = _gait(config.gait, scale, "gait")
+    blind = config.terrain == "blind"
+    gait = _gait(config.gait, scale, "gait", blind)
     segment_gaits = tuple(
-        _gait(segment.gait, scale, f"reference.segments.{index}.gait")
+        _gait(segment.gait, scale, f"reference.segments.{index}.gait", blind)
         for index, segment in enumerate(segments)
     )
     contact = ContactModel(
@@ -141,12 +141,10 @@ def torque_limits_of(config: RunConfig, robot: Robot) -> np.ndarray:
 
 
 def detection_settings(config: RunConfig) -> ContactDetectionSettings:
-    """``vwbc.contact_detection`` with its on-time margin for terrain (``ON_TIME_OFF_FLAT``) when the run has
-    terrain and the config does not set it."""
+    """``vwbc.contact_detection`` with its on-time margin resolved: the config's, or when it is null the flat
+    ground's or, when the run has terrain, ``ON_TIME_OFF_FLAT`` (``ContactDetectionSettings.on_time_for``)."""
     settings = config.vwbc.contact_detection
-    if config.terrain != "flat" and "on_time" not in settings.model_fields_set:
-        return settings.model_copy(update={"on_time": ON_TIME_OFF_FLAT})
-    return settings
+    return settings.model_copy(update={"on_time": settings.on_time_for(flat=config.terrain == "flat")})
 
 
 def scaled_contact_detection(
@@ -162,7 +160,7 @@ def scaled_contact_detection(
             "touchdown_height": scale.distance(settings.touchdown_height),
             "release_height": scale.distance(settings.release_height),
             "early_window": scale.duration(settings.early_window),
-            "on_time": scale.duration(settings.on_time),
+            "on_time": None if settings.on_time is None else scale.duration(settings.on_time),
         }
     )
 
@@ -179,27 +177,33 @@ def scaled_terrain_map(settings: TerrainMapSettings, scale: RobotScale) -> Terra
     )
 
 
-def resolve_gait(section: GaitConfig, scale: RobotScale) -> ResolvedGait:
+def resolve_gait(section: GaitConfig, scale: RobotScale, blind: bool = False) -> ResolvedGait:
     """A gait section carried to the robot: its cycle's phase durations, the reference's Raibert gain and the
     touchdown-event threshold by the time scale, the swing height and foothold box by the length scale, the
-    path gain (rad/m) by its inverse."""
+    path gain (rad/m) by its inverse. ``blind`` (``terrain: blind``): the swing at least
+    ``blind_swing_height`` high and ``blind_swing_lift`` lifted first."""
     events = section.touchdown_events
+    swing_height, swing_lift = section.swing_height, section.swing_lift
+    if blind:
+        swing_height = max(swing_height, section.blind_swing_height)
+        swing_lift = max(swing_lift, section.blind_swing_lift)
     return ResolvedGait(
         section=section,
         cycle=scaled_gait(section.name, scale),
-        swing_height=scale.distance(section.swing_height),
+        swing_height=scale.distance(swing_height),
         raibert_gain=scale.duration(section.raibert_gain),
+        swing_lift=swing_lift,
         foothold_box=(scale.distance(FOOTHOLD_BOX[0]), scale.distance(FOOTHOLD_BOX[1])),
         path_gain=section.path_gain / scale.distance(1.0),
         touchdown_events=None if events is None else scale.duration(events),
     )
 
 
-def _gait(section: GaitConfig | None, scale: RobotScale, key: str) -> ResolvedGait | None:
+def _gait(section: GaitConfig | None, scale: RobotScale, key: str, blind: bool) -> ResolvedGait | None:
     if section is None:
         return None
     try:
-        return resolve_gait(section, scale)
+        return resolve_gait(section, scale, blind)
     except ValueError as error:
         raise ConfigError(f"{key}: {error}") from error
 

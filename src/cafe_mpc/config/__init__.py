@@ -9,11 +9,14 @@ from cafe_mpc.config.estimation import KinematicKFSettings
 from cafe_mpc.config.loading import ConfigError, StrictModel, format_validation_error, parse_override
 from cafe_mpc.config.run import (
     BAUMGARTE_ALPHA,
+    BLIND_SWING_HEIGHT,
+    BLIND_SWING_LIFT,
     CONE_TOLERANCE,
     CONTROLLER_FRICTION,
     DEFAULT_FRICTION,
     INLINE_MPC_FAULTS,
     MPC_FAULTS,
+    ON_TIME_FLAT,
     ON_TIME_OFF_FLAT,
     PAPER_BUDGET_FRACTION,
     PRESET_DIR,
@@ -60,11 +63,14 @@ from cafe_mpc.config.weights import SRBWeights, WholeBodyWeights
 
 __all__ = [
     "BAUMGARTE_ALPHA",
+    "BLIND_SWING_HEIGHT",
+    "BLIND_SWING_LIFT",
     "CONE_TOLERANCE",
     "CONTROLLER_FRICTION",
     "DEFAULT_FRICTION",
     "INLINE_MPC_FAULTS",
     "MPC_FAULTS",
+    "ON_TIME_FLAT",
     "ON_TIME_OFF_FLAT",
     "PAPER_BUDGET_FRACTION",
     "PRESET_DIR",

@@ -109,6 +109,16 @@ WarmStart = Literal["previous", "plan", "equality", "none"]
 solution (ProxQP), or cold."""
 
 
+ON_TIME_FLAT = 0.025
+"""s: ``vwbc.contact_detection.on_time`` when it is null and the run is on flat ground (``terrain: flat``)."""
+
+ON_TIME_OFF_FLAT = 0.015
+"""s: ``vwbc.contact_detection.on_time`` when it is null and the run has terrain (``terrain`` not
+``flat``). On flat ground 25 ms keeps the bound's front feet, which land 15-20 ms early, under the plan's
+stance timing; off it a foot landing early is what the detector is for: with 25 ms the blind bound fell on a
+10 degree slope at 3.74 s, with 15 ms it climbed it (docs/terrain.md)."""
+
+
 class ContactDetectionSettings(StrictModel):
     """Thresholds of the contact detector (``low_level.contact_detection``; ``vwbc.contact_detection``):
     forces as fractions of a foot's share of the robot's weight (``m g / n_feet``), heights in metres above
@@ -123,12 +133,12 @@ class ContactDetectionSettings(StrictModel):
     )
     release_height: float = Field(0.03, gt=0.0, le=0.5, description="m; foot sole above this: released")
     early_window: float = Field(0.08, ge=0.0, le=1.0, description="s before a planned touchdown that count")
-    on_time: float = Field(
-        0.025,
+    on_time: float | None = Field(
+        None,
         ge=0.0,
         le=1.0,
-        description="s; a touchdown this close to its planned time is on time (not set, with terrain other "
-        "than flat: config.ON_TIME_OFF_FLAT, 0.015)",
+        description="s; a touchdown this close to its planned time is on time (null: config.ON_TIME_FLAT, "
+        "0.025, on flat ground, config.ON_TIME_OFF_FLAT, 0.015, with terrain other than flat)",
     )
     ground_height: float = Field(0.0, description="m; the flat ground's height")
     step_height: float = Field(
@@ -137,6 +147,14 @@ class ContactDetectionSettings(StrictModel):
         le=0.5,
         description="m; with a ground plane (terrain: blind), a loaded foot up to this above it touches down",
     )
+
+    def on_time_for(self, flat: bool) -> float:
+        """The on-time margin (s): ``on_time``, or when it is null ``ON_TIME_FLAT`` on flat ground and
+        ``ON_TIME_OFF_FLAT`` off it. The default is an explicit null rather than "not set", so that a config
+        written out (``config.yaml``, an experiment's task) and read back runs the same."""
+        if self.on_time is not None:
+            return self.on_time
+        return ON_TIME_FLAT if flat else ON_TIME_OFF_FLAT
 
 
 class VWBCSettings(StrictModel):
@@ -209,11 +227,14 @@ CONTROLLER_FRICTION = 0.4
 work on, not the nominal 0.6. Planned at 0.6, the approach pace of the running roll puts a tenth of its stance
 ticks at the cone's edge on a 0.6 floor and every gait slides on a lower one (docs/robustness.md)."""
 
-ON_TIME_OFF_FLAT = 0.015
-"""s: ``vwbc.contact_detection.on_time`` when it is not set and the run has terrain (``terrain`` not
-``flat``). On flat ground 25 ms keeps the bound's front feet, which land 15-20 ms early, under the plan's
-stance timing; off it a foot landing early is what the detector is for: with 25 ms the blind bound fell on a
-10 degree slope at 3.74 s, with 15 ms it climbed it (docs/terrain.md)."""
+BLIND_SWING_HEIGHT = 0.1
+"""m: ``gait.blind_swing_height``, the least swing apex of a blind run (``terrain: blind``). The presets' 6 cm
+apex above lift-off catches a 6 cm riser the foot does not know of; with 10 cm and ``BLIND_SWING_LIFT`` the
+blind trot, pace and flying trot climb and descend three 6 cm steps (docs/terrain.md)."""
+
+BLIND_SWING_LIFT = 0.2
+"""``gait.blind_swing_lift``: a blind swing's foot rises for the first fifth of the swing before it moves
+forward, so that a foot that landed against a riser lifts off it instead of dragging into it."""
 
 VWBC_FRICTION_HEADROOM = 1.25
 """The VWBC's pyramid (34f) over the plan's (26) when ``vwbc.friction`` is not set: ``1.25 mpc.friction`` (0.5
@@ -271,6 +292,27 @@ class GaitConfig(StrictModel):
 
     name: str = Field("trot", description="a gait of cafe_mpc.ocp.contact_schedule.GAITS")
     swing_height: float = Field(0.06, ge=0.0, le=0.2, description="m, swing apex above lift-off")
+    swing_lift: float = Field(
+        0.0,
+        ge=0.0,
+        le=0.4,
+        description="fraction of each swing the foot rises before it moves forward (0: the paper's swing, "
+        "rising and moving together; > 0: a foot that lands against a riser lifts off it before it swings)",
+    )
+    blind_swing_height: float = Field(
+        BLIND_SWING_HEIGHT,
+        ge=0.0,
+        le=0.2,
+        description="m; with terrain: blind, the least swing apex above lift-off (a blind foot must clear a "
+        "riser it does not know of; swing_height where that is higher)",
+    )
+    blind_swing_lift: float = Field(
+        BLIND_SWING_LIFT,
+        ge=0.0,
+        le=0.4,
+        description="with terrain: blind, the least swing_lift (a blind foot that landed against a riser "
+        "rises off it before it swings)",
+    )
     raibert_gain: float = Field(0.03, ge=0.0, le=1.0, description="s, Raibert velocity feedback gain")
     start_stance: float = Field(
         0.0, ge=0.0, le=3600.0, description="s of all-feet stand before the gait's first cycle starts"

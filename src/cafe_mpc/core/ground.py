@@ -105,8 +105,23 @@ class GroundPlane:
         normal = np.array([-self.slope[0], -self.slope[1], 1.0])
         return normal / np.linalg.norm(normal)
 
+    def contact_frame(self) -> np.ndarray:
+        """The plane's contact frame (``contact_frame`` of its normal): the axes of the friction pyramids
+        of the plan (26) and the VWBC (34f) on it."""
+        return contact_frame(self.normal())
+
     def pitch_along(self, yaw: float) -> float:
         """Pitch (rad, about the heading frame's y axis; negative: nose up) of a body lying on the plane with
         heading ``yaw``."""
         rise = self.slope[0] * math.cos(yaw) + self.slope[1] * math.sin(yaw)
         return -math.atan(rise)
+
+
+def contact_frame(normal: np.ndarray) -> np.ndarray:
+    """The frame of a friction pyramid about the ground's unit ``normal`` (world, pointing up): rows ``along``
+    (the ground's direction in the world x-z plane), ``across`` (``normal x along``) and ``normal``; the
+    identity for ``normal = z``."""
+    normal = np.asarray(normal, dtype=float)
+    along = np.array([normal[2], 0.0, -normal[0]])
+    along /= np.linalg.norm(along)
+    return np.array([along, np.cross(normal, along), normal])

@@ -63,6 +63,7 @@ import proxsuite
 from cafe_mpc.config import ContactDetectionSettings, VWBCSettings
 from cafe_mpc.config.run import WarmStart
 from cafe_mpc.core.controller import LowLevelController
+from cafe_mpc.core.ground import contact_frame
 from cafe_mpc.core.measurement import Measurement
 from cafe_mpc.low_level.contact_detection import ContactDetector
 from cafe_mpc.low_level.contact_dynamics import (
@@ -146,9 +147,7 @@ class _StanceQP:
         if np.array_equal(normal, self.normal):
             return
         self.normal[:] = normal
-        along = np.array([normal[2], 0.0, -normal[0]])  # the ground's direction in the world x-z plane
-        along /= np.linalg.norm(along)
-        across = np.cross(normal, along)
+        along, across, _ = contact_frame(normal)
         nv, nu, nc = self.nv, self.nu, self.nc
         for i in range(nc):
             fx = nv + nu + 3 * i

@@ -7,7 +7,9 @@ A whole-body knot (``cafe_mpc.ocp.knots.WholeBodyKnot``) stacks everything it pr
   ``0.5 r' diag(w) r`` (times ``dt`` on running knots);
 * the **constraint values** ``g >= 0`` of (26), (27) and the minimum base height, each priced by the relaxed
   barrier ``eps B(g)`` (Sec. III-B-2): friction pyramid rows ``[fz - fz_min, mu fz -+ fx, mu fz -+ fy]`` per
-  stance foot (``fz_min``: the knot's minimum normal force, 0 in (26)), box rows ``sign * z + offset`` on
+  stance foot (``fz_min``: the knot's minimum normal force, 0 in (26)), the force's components taken in the
+  ground's contact frame (``contact_frame``: rows tangent, tangent, normal; the identity on flat ground, where
+  they are world x, y, z as in (26)), box rows ``sign * z + offset`` on
   one coordinate of ``x`` or ``u`` (torque, joint-position and joint-speed limits), and the base-height row.
 
 ``whole_body_cost`` fills the residual rows (the state rows too, for a free-flyer robot or the ``"world"``
@@ -104,6 +106,36 @@ def same_inputs(x: np.ndarray, u: np.ndarray, last_x: np.ndarray, last_u: np.nda
 
 
 @njit(cache=True, nogil=True)
+def is_identity(frame: np.ndarray) -> bool:
+    """Whether the 3 x 3 ``frame`` is exactly the identity (flat ground: the world frame)."""
+    for i in range(3):
+        for j in range(3):
+            if frame[i, j] != (1.0 if i == j else 0.0):
+                return False
+    return True
+
+
+@njit(cache=True, nogil=True)
+def _in_frame(frame: np.ndarray, x: float, y: float, z: float) -> tuple[float, float, float]:
+    """``frame @ (x, y, z)``: a world vector's components along the frame's rows."""
+    return (
+        frame[0, 0] * x + frame[0, 1] * y + frame[0, 2] * z,
+        frame[1, 0] * x + frame[1, 1] * y + frame[1, 2] * z,
+        frame[2, 0] * x + frame[2, 1] * y + frame[2, 2] * z,
+    )
+
+
+@njit(cache=True, nogil=True)
+def _from_frame(frame: np.ndarray, x: float, y: float, z: float) -> tuple[float, float, float]:
+    """``frame' @ (x, y, z)``: the world vector of components along the frame's rows."""
+    return (
+        frame[0, 0] * x + frame[1, 0] * y + frame[2, 0] * z,
+        frame[0, 1] * x + frame[1, 1] * y + frame[2, 1] * z,
+        frame[0, 2] * x + frame[1, 2] * y + frame[2, 2] * z,
+    )
+
+
+@njit(cache=True, nogil=True)
 def whole_body_cost(
     x: np.ndarray,
     u: np.ndarray,
@@ -117,6 +149,7 @@ def whole_body_cost(
     forces: np.ndarray,
     foot_positions: np.ndarray,
     foot_velocities: np.ndarray,
+    contact_frame: np.ndarray,
 ) -> tuple[float, float]:
     """Cost of one knot from its packed parameters (``integers``, ``floats``; see ``HEADER``) into its
     workspace ``work`` (residual ``r``, weighted ``wr``, constraint values ``g`` and the barrier's ``d1``,
@@ -125,7 +158,9 @@ def whole_body_cost(
     The state rows of ``r``: ``x ⊖ x_ref`` of a free-flyer robot (``free_flyer_configuration_difference``)
     or the ``"world"`` error (``world_base_error``) here; for another robot the caller sets ``r[:nv]``. The
     plain velocity rows ``v - v_ref``, the feet and torque rows and ``g`` follow. The stance forces
-    (``forces``, 3 per stance foot) are scattered into the feet's forces (zero on swing feet).
+    (``forces``, 3 per stance foot, world frame) are scattered into the feet's forces (zero on swing feet);
+    the pyramid takes their components in ``contact_frame`` (3 x 3, rows: the ground's two tangents and its
+    normal; ``is_identity``: world x, y, z, the paper's (26)).
 
     ``values[0]`` = ``scale * (0.5 r' W r + sum eps B(g))``, ``values[1]`` = worst violation
     ``max(0, -min g)``; both are also returned (the knot's ``cost``, ``constraint_violation``).
@@ -194,8 +229,11 @@ def whole_body_cost(
         cost += wr[i] * r[i]
     cost *= 0.5
     # constraint values
+    tilted = not is_identity(contact_frame)
     for c in range(n_friction):
         fx, fy, fz = forces[3 * c], forces[3 * c + 1], forces[3 * c + 2]
+        if tilted:
+            fx, fy, fz = _in_frame(contact_frame, fx, fy, fz)
         g[5 * c] = fz - minimum_normal_force
         g[5 * c + 1] = mu * fz - fx
         g[5 * c + 2] = mu * fz + fx
@@ -232,6 +270,7 @@ def whole_body_derivatives(
     velocity_dq: np.ndarray,
     dforces_dx: np.ndarray,
     dforces_du: np.ndarray,
+    contact_frame: np.ndarray,
 ) -> None:
     """Gradient (``ndx + nu``) and Gauss-Newton Hessian of one knot over ``[tangent x | u]`` from its packed
     parameters and the workspace of the last ``whole_body_cost`` at ``x``.
@@ -240,8 +279,9 @@ def whole_body_derivatives(
     free flyer's ``x_ref ⊖ x`` (``free_flyer_difference_jacobian``) or the ``"world"`` error's
     (``world_base_error_jacobian``) made here, another robot's set by the caller; the other state rows are
     the identity. Foot rows use the Pinocchio foot Jacobians (velocity rows: ``[d v_foot / dq | J]``).
-    Friction rows: ``G = P dF/d(x, u)``; box rows: one column with a sign; the height row: the third row of
-    the base rotation on the three base-position columns. ``d1``/``d2``: the barrier derivatives.
+    Friction rows: ``G = P C dF/d(x, u)`` (``C``: ``contact_frame``, skipped when it is the identity); box
+    rows: one column with a sign; the height row: the third row of the base rotation on the three
+    base-position columns. ``d1``/``d2``: the barrier derivatives.
     """
     h = integers
     nv, feet_row, torque_row, nu_torque = h[NV], h[FEET_ROW], h[TORQUE_ROW], h[NU_TORQUE]
@@ -334,8 +374,9 @@ def whole_body_derivatives(
     for j in range(nu_torque):
         gradient[ndx + j] += scale * wr[torque_row + j]
         hessian[ndx + j, ndx + j] += scale * w[torque_row + j]
-    # friction pyramid: G_c = P F_c with F_c = d f_c / d(x, u) (3 x n)
+    # friction pyramid: G_c = P C F_c with F_c = d f_c / d(x, u) (3 x n), C the contact frame
     nu = n - ndx
+    tilted = not is_identity(contact_frame)
     for c in range(n_friction):
         e0, e1, e2, e3, e4 = d1[5 * c], d1[5 * c + 1], d1[5 * c + 2], d1[5 * c + 3], d1[5 * c + 4]
         h0, h1, h2, h3, h4 = d2[5 * c], d2[5 * c + 1], d2[5 * c + 2], d2[5 * c + 3], d2[5 * c + 4]
@@ -352,12 +393,16 @@ def whole_body_derivatives(
             f0 = dforces_dx[3 * c, p] if p < ndx else dforces_du[3 * c, p - ndx]
             f1 = dforces_dx[3 * c + 1, p] if p < ndx else dforces_du[3 * c + 1, p - ndx]
             f2 = dforces_dx[3 * c + 2, p] if p < ndx else dforces_du[3 * c + 2, p - ndx]
+            if tilted:
+                f0, f1, f2 = _in_frame(contact_frame, f0, f1, f2)
             gradient[p] += scale * (v0 * f0 + v1 * f1 + v2 * f2)
             t0 = scale * (m00 * f0 + m02 * f2)
             t1 = scale * (m11 * f1 + m12 * f2)
             t2 = scale * (m02 * f0 + m12 * f1 + m22 * f2)
             if t0 == 0.0 and t1 == 0.0 and t2 == 0.0:
                 continue
+            if tilted:  # (C' t) . F_c: the row of the Hessian on the world-frame force derivatives
+                t0, t1, t2 = _from_frame(contact_frame, t0, t1, t2)
             for q in range(ndx):
                 hessian[p, q] += (
                     t0 * dforces_dx[3 * c, q]

@@ -62,10 +62,12 @@ class WholeBodyReference:
 
     ``state``: ``x_ref = [q_ref (19, quaternion base), v_ref (18, base-frame velocities)]``;
     ``foot_positions``/``foot_velocities``: world-frame swing-foot targets (4 x 3, leg order; only swing
-    feet are used); ``torque``: torque regularisation target (12, default zero).
+    feet are used); ``torque``: torque regularisation target (12, default zero); ``contact_frame``: the
+    ground's frame the friction pyramid (26) is taken in (3 x 3, rows: two tangents and the normal, world;
+    the identity: flat ground, the paper's pyramid about world z).
     """
 
-    __slots__ = ("foot_positions", "foot_velocities", "state", "torque")
+    __slots__ = ("contact_frame", "foot_positions", "foot_velocities", "state", "torque")
 
     def __init__(
         self,
@@ -81,6 +83,7 @@ class WholeBodyReference:
         self.foot_positions = np.zeros((4, 3))
         self.foot_velocities = np.zeros((4, 3))
         self.torque = np.zeros(12)
+        self.contact_frame = np.eye(3)
         self.set(foot_positions=foot_positions, foot_velocities=foot_velocities, torque=torque)
 
     def set(
@@ -101,7 +104,9 @@ class WholeBodyReference:
             self.torque[:] = _array(torque, (12,), "reference torque")
 
     def copy(self) -> WholeBodyReference:
-        return WholeBodyReference(self.state, self.foot_positions, self.foot_velocities, self.torque)
+        reference = WholeBodyReference(self.state, self.foot_positions, self.foot_velocities, self.torque)
+        reference.contact_frame[:] = self.contact_frame
+        return reference
 
     @classmethod
     def of_rows(
@@ -110,15 +115,20 @@ class WholeBodyReference:
         foot_positions: np.ndarray,
         foot_velocities: np.ndarray,
         torque: np.ndarray,
+        contact_frame: np.ndarray | None = None,
     ) -> WholeBodyReference:
         """A reference whose parts *are* the given arrays (no copies): rows of a caller's stacked storage,
-        so that one write of the stack updates every knot reading it. Shapes and dtype are checked here,
-        once, because the rows are then written without ``set``'s checks."""
+        so that one write of the stack updates every knot reading it (``contact_frame``: one array shared
+        by every knot; None: a frame of its own, the identity). Shapes and dtype are checked here, once,
+        because the rows are then written without ``set``'s checks."""
+        if contact_frame is None:
+            contact_frame = np.eye(3)
         parts = (
             ("reference state", state, None),
             ("reference foot positions", foot_positions, (4, 3)),
             ("reference foot velocities", foot_velocities, (4, 3)),
             ("reference torque", torque, (12,)),
+            ("reference contact frame", contact_frame, (3, 3)),
         )
         for name, array, shape in parts:
             if not isinstance(array, np.ndarray) or array.dtype != np.float64:
@@ -132,6 +142,7 @@ class WholeBodyReference:
         reference.foot_positions = foot_positions
         reference.foot_velocities = foot_velocities
         reference.torque = torque
+        reference.contact_frame = contact_frame
         return reference
 
 
@@ -404,6 +415,7 @@ class WholeBodyKnot(ActionModel):
             data.stance_forces,
             kinematics.positions,
             kinematics.velocities,
+            reference.contact_frame,
         )
 
     def calc_diff(self, data: WholeBodyKnotData, x: np.ndarray, u: np.ndarray) -> None:
@@ -433,6 +445,7 @@ class WholeBodyKnot(ActionModel):
             kinematics.velocity_dq,
             data.dforces_dx,
             data.dforces_du,
+            reference.contact_frame,
         )
 
 

@@ -64,6 +64,7 @@ class ResolvedGait:
     cycle: GaitCycle
     swing_height: float
     raibert_gain: float
+    swing_lift: float
     foothold_box: tuple[float, float]
     path_gain: float
     touchdown_events: float | None

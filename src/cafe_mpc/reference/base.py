@@ -108,6 +108,12 @@ class Reference(ABC):
         """A height map relative to the base (``core.height_map``) taken at the tick of the measured state
         ``q``: references that plan on terrain place it at ``q`` (default: ignored)."""
 
+    def contact_frame(self) -> np.ndarray | None:
+        """The ground's frame the plan's friction pyramid (26) is taken in (3 x 3, rows: two tangents and
+        the normal, world; ``core.ground.contact_frame``), or None: world x, y, z (flat ground, the
+        default)."""
+        return None
+
     @abstractmethod
     def stance_at(self, t: float) -> tuple[bool, ...]:
         """Contact flags at time ``t``."""

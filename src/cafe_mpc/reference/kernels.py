@@ -62,6 +62,7 @@ def sample_foot(
         stance_position,
         swing_height,
         floors,
+        0.0,
         foot,
         stance,
         positions,
@@ -79,13 +80,16 @@ def sample_foot_floored(
     stance_position: np.ndarray,
     swing_height: float,
     apex_floors: np.ndarray,
+    lift: float,
     foot: int,
     stance: np.ndarray,
     positions: np.ndarray,
     velocities: np.ndarray,
 ) -> None:
     """``sample_foot`` with each swing's apex at least ``apex_floors[j]`` (world z; -inf: no floor, the
-    apex ``swing_height`` above the higher end): a swing over terrain higher than its ends clears it."""
+    apex ``swing_height`` above the higher end): a swing over terrain higher than its ends clears it. With
+    ``lift`` > 0 the foot's horizontal Bezier starts after that fraction of the swing (the foot rises off
+    a riser it stands against before it moves toward it) and ends with it."""
     tolerance = 1e-9
     for i in range(times.shape[0]):
         t = times[i]
@@ -97,7 +101,12 @@ def sample_foot_floored(
                 in_swing = True
                 duration = touchdown - liftoff
                 s = (t - liftoff) / duration
-                blend, dblend = _bezier(s)
+                if lift > 0.0:
+                    moving = max(s - lift, 0.0) / (1.0 - lift)
+                    blend, dblend = _bezier(moving)
+                    dblend /= 1.0 - lift
+                else:
+                    blend, dblend = _bezier(s)
                 for a in range(2):
                     delta = ends[j, a] - starts[j, a]
                     positions[i, foot, a] = starts[j, a] + delta * blend
@@ -672,6 +681,7 @@ def sample_feet(
             stance_positions[foot],
             parameters[6],
             floors[:n_swings],
+            parameters[12],
             foot,
             stance,
             positions,

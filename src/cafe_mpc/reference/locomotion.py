@@ -308,6 +308,7 @@ class LocomotionReference(Reference):
         touchdown_events: tuple[float, float, float] | None = None,
         ground_plane: bool = False,
         terrain_map: TerrainMapSettings | None = None,
+        swing_lift: float = 0.0,
     ) -> None:
         if not commands:
             commands = [VelocityCommand()]
@@ -320,6 +321,10 @@ class LocomotionReference(Reference):
         self.gait = gait
         self.commands = list(commands)
         self.swing_height = swing_height
+        if not 0.0 <= swing_lift < 1.0:
+            raise ValueError(f"swing_lift must be in [0, 1), got {swing_lift}")
+        self.swing_lift = float(swing_lift)
+        """Fraction of each swing the foot rises before it moves horizontally (``kernels.sample_foot``)."""
         self.raibert_gain = raibert_gain
         self.foothold_box = np.array(foothold_box, dtype=float)
         if not (math.isfinite(start_stance) and start_stance >= 0.0):
@@ -408,7 +413,7 @@ class LocomotionReference(Reference):
         self._phase_ends = np.zeros(0)
         self._phase_flags = np.zeros((0, robot.n_feet), dtype=bool)
         self._anchor = np.zeros(4)
-        self._feet_parameters = np.zeros(12)
+        self._feet_parameters = np.zeros(13)
         self._factors = np.zeros(0)
         self._keys = np.zeros(0, dtype=np.int64)
         self._data = robot.model.createData()
@@ -784,6 +789,11 @@ class LocomotionReference(Reference):
                 return float(height[0])
         return 0.0 if self.ground is None else self.ground.height_at(x, y)
 
+    def contact_frame(self) -> np.ndarray | None:
+        """The ground plane's contact frame (``GroundPlane.contact_frame``): the plan's pyramid about the
+        normal of the ground the stance feet stand on; None on flat ground (world z)."""
+        return None if self.ground is None else self.ground.contact_frame()
+
     def observe_height_map(self, height_map: HeightMap, q: np.ndarray) -> None:
         """A height map relative to the base (``HeightMap.relative_to``), placed at the measured base pose
         ``q`` (the estimate of the tick it was taken at): the newest terrain the reference plans on. Ignored
@@ -948,6 +958,7 @@ class LocomotionReference(Reference):
         parameters[3:5] = self.foothold_box
         parameters[5] = self.robot.foot_radius
         parameters[6] = self.swing_height
+        parameters[12] = self.swing_lift
         if self.ground is not None:
             parameters[7] = self.ground.height
             parameters[8:10] = self.ground.slope

@@ -62,6 +62,8 @@ PACKAGED_TRAJECTORIES: dict[str, str] = {
     "running-barrel-roll": "running_barrel_roll.npz",
     "backflip": "backflip.npz",
     "front-flip": "front_flip.npz",
+    "running-front-flip": "running_front_flip.npz",
+    "spin": "spin.npz",
 }
 """Trajectories shipped with the package (``reference/data/``), by name."""
 

@@ -1,8 +1,8 @@
 """Task presets of ``cafe-mpc optimize`` and loading a task (preset or YAML file) with overrides.
 
 The presets are the barrel rolls (``barrel_roll``, built in Python from the authors' values) and every task
-file of the catalogue (``catalogue/<name>.yaml``: the backflip and the front flip so far; one file each, the
-same format as any task file ``cafe-mpc optimize`` writes or reads).
+file of the catalogue (``catalogue/<name>.yaml``: the backflip, the front flip, the running front flip and the
+spin; one file each, the same format as any task file ``cafe-mpc optimize`` writes or reads).
 """
 
 from __future__ import annotations

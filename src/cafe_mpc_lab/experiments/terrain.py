@@ -2,13 +2,13 @@
 
 Each run is one gait preset walking at its command onto one piece of terrain (``scene.terrain``, starting
 1 m ahead; the named pieces in ``TERRAINS``: three steps of 2, 4, 6, 8 or 10 cm, up and down, five stairs
-of 10 cm rise and 30 cm tread, up and down, or a 10 degree slope over 1.5 m and a 20 degree one over 1 m,
-each up and down again) with the controller's ground ``terrain``: ``flat`` (the paper's controller, z = 0
-everywhere), ``blind`` (the plane through the stance feet: ``core.ground``, docs/terrain.md) or
-``height_map`` (the plant's height-map sensor on, ``HEIGHT_MAP_SENSOR``: the reference plans on its maps).
-By default with the fixed 20 ms latency, so every row is deterministic
-and its ``cafe-mpc run`` command (``runs.md``) reproduces it. The table gives whether and when the robot
-fell, how far it got and whether that was past the piece (onto its top, and over it).
+of 10 cm rise and 30 cm tread, up and down, a 10 degree slope over 1.5 m, a 15 and a 20 degree one over
+1 m, each up and down again, or a rough field of +-2 cm over 2 m) with the controller's ground
+``terrain``: ``flat`` (the paper's controller, z = 0 everywhere), ``blind`` (the plane through the stance
+feet: ``core.ground``, docs/terrain.md) or ``height_map`` (the plant's height-map sensor on,
+``HEIGHT_MAP_SENSOR``: the reference plans on its maps). By default with the fixed 20 ms latency, so every
+row is deterministic and its ``cafe-mpc run`` command (``runs.md``) reproduces it. The table gives whether
+and when the robot fell, how far it got and whether that was past the piece (onto its top, and over it).
 """
 
 from __future__ import annotations
@@ -25,7 +25,7 @@ from cafe_mpc_lab.experiments.options import ExperimentOptions, names
 from cafe_mpc_lab.experiments.registry import Experiment, ExperimentPlan, PlanContext, Variant
 from cafe_mpc_lab.experiments.run import RunResult
 from cafe_mpc_lab.report.figures import new_figure, save_figure
-from cafe_mpc_lab.sim.terrain import Slope, Stairs, Steps, terrain_piece
+from cafe_mpc_lab.sim.terrain import Rough, Slope, Stairs, Steps, terrain_piece
 
 TERRAINS: dict[str, str] = {
     "step2": "{kind: steps, rise: 0.02}",
@@ -35,7 +35,9 @@ TERRAINS: dict[str, str] = {
     "step10": "{kind: steps, rise: 0.1}",
     "stairs10": "{kind: stairs, count: 5, rise: 0.1, tread: 0.3}",
     "slope10": "{kind: slope, angle_deg: 10, length: 1.5}",
+    "slope15": "{kind: slope, angle_deg: 15, length: 1.0}",
     "slope20": "{kind: slope, angle_deg: 20, length: 1.0}",
+    "rough2": "{kind: rough, amplitude: 0.02}",
 }
 """The named pieces of terrain (``scene.terrain`` entries; the rest of each kind's keys at their defaults:
 from x = 1 m, 3 steps of 0.3 m, a 1 m top, down again)."""
@@ -51,15 +53,17 @@ TerrainNames = names(tuple(TERRAINS))
 ModeNames = names(MODES)
 
 
-def _piece(name: str) -> Slope | Steps | Stairs:
+def _piece(name: str) -> Slope | Steps | Stairs | Rough:
     """The ``sim.terrain`` piece of a named terrain."""
     piece = terrain_piece(TerrainConfig(**yaml.safe_load(TERRAINS[name])))
-    assert isinstance(piece, Slope | Steps | Stairs)
+    assert isinstance(piece, Slope | Steps | Stairs | Rough)
     return piece
 
 
-def _top(piece: Slope | Steps | Stairs) -> float:
-    """World x where the piece's top begins."""
+def _top(piece: Slope | Steps | Stairs | Rough) -> float:
+    """World x where the piece's top begins (a rough field's: where it begins)."""
+    if isinstance(piece, Rough):
+        return piece.start
     if isinstance(piece, Slope):
         return piece.start + piece.length
     return next(begin for _, begin, _, height in piece.treads if height >= piece.height - 1e-12)

@@ -182,7 +182,9 @@ def _criterion_status(task: dict, name: str) -> str:
 def _task_findings(task: dict) -> list[Finding]:
     rules = task.get("criteria") or {}
     out: list[Finding] = []
-    turned, target = task.get("roll_turned_rad"), task.get("roll_target_rad")
+    axis = task.get("rotation_axis", "roll")  # the axis the task turns about: roll, pitch or yaw
+    turned = task.get("roll_turned_rad") if axis == "roll" else task.get("rotation_turned_rad")
+    target = task.get("roll_target_rad")
     if _is_number(turned):
         text = f"{turned:.2f} rad"
         if _is_number(target):
@@ -192,7 +194,9 @@ def _task_findings(task: dict) -> list[Finding]:
         if _is_number(task.get("roll_turned_at_touchdown_rad")):
             text += f"; {task['roll_turned_at_touchdown_rad']:.2f} rad at touchdown"
         out.append(
-            Finding("Roll", text, _criterion_status(task, "roll_turned"), rules.get("roll_turned", ""))
+            Finding(
+                axis.capitalize(), text, _criterion_status(task, "roll_turned"), rules.get("roll_turned", "")
+            )
         )
     flight = []
     if _is_number(task.get("max_base_height_m")):

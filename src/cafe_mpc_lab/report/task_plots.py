@@ -79,7 +79,7 @@ def plot_task(
     if running:
         axes[3].plot(t, forward_speed(log.q, log.v), lw=1.0, label="robot")
         for speed in {task.approach_speed, task.resume_speed} - {None}:
-            axes[3].axhline(speed, color="k", lw=0.8, ls="--", label=f"pace command {speed:g} m/s")
+            axes[3].axhline(speed, color="k", lw=0.8, ls="--", label=f"gait command {speed:g} m/s")
         axes[3].set_ylabel("forward speed [m/s]")
     axes[-1].set_xlabel("time [s]")
     for axis in axes:

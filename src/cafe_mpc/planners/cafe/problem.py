@@ -204,6 +204,9 @@ class CafeProblemBuilder:
         self._switches: dict[tuple, tuple] = {}
         self._names: tuple[str, ...] = ("regular",)
         self._total_weight = self.robot.total_mass * GRAVITY
+        self._contact_frame = np.eye(3)
+        """The ground's frame of every whole-body knot's friction pyramid (``Reference.contact_frame``,
+        written by each ``build``; shared by the knots' references)."""
 
     def stance_torque(
         self, stance: tuple[bool, ...] | None, support_factor: float | None = None
@@ -246,12 +249,15 @@ class CafeProblemBuilder:
         past the stack."""
         rows = self._rows
         if slot >= rows.capacity:
-            return factory.default_reference()
+            reference = factory.default_reference()
+            reference.contact_frame = self._contact_frame
+            return reference
         return WholeBodyReference.of_rows(
             rows.state[slot],
             rows.foot_positions[slot],
             rows.foot_velocities[slot],
             rows.torque[slot] if torque else np.zeros(self.robot.nu),
+            self._contact_frame,
         )
 
     def _terminal_knot(
@@ -409,6 +415,8 @@ class CafeProblemBuilder:
         self._names = tuple(reference.weight_sets)
         reference.sample(window)
         window.check_finite(type(reference).__name__)
+        frame = reference.contact_frame()
+        self._contact_frame[:] = _WORLD_AXES if frame is None else frame
         state, torque = window.state, window.torque
         positions, velocities = window.foot_positions, window.foot_velocities
         # every whole-body slot's reference at once (knots past the stack are written below, one by one)
@@ -612,6 +620,10 @@ def _rotation_matrices(states: np.ndarray, out: np.ndarray) -> None:
         out[i, 2, 0] = txz - twy
         out[i, 2, 1] = tyz + twx
         out[i, 2, 2] = 1.0 - (txx + tyy)
+
+
+_WORLD_AXES = np.eye(3)
+"""The contact frame of flat ground: the friction pyramid (26) about world z."""
 
 
 class _KnotRows:

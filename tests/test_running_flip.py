@@ -1,0 +1,123 @@
+"""The running front flip: the composed reference (trot -> the flip from its all-stance push -> trot) is
+continuous in base position and velocity at both joins and turns 2 pi about the pitch axis once; the closed
+loop gets through the take-off."""
+
+import numpy as np
+import pytest
+
+from cafe_mpc.assembly import build_reference, load_run_config, resolve
+from cafe_mpc.reference.base import ReferenceWindow
+from cafe_mpc_lab.report.task_metrics import task_from_reference
+
+DT = 0.005
+JOIN_EPS = 1e-4
+
+
+@pytest.fixture(scope="module")
+def composed(robot):
+    config = load_run_config("running-front-flip")
+    return config, build_reference(resolve(config, robot))
+
+
+def _sample(reference, robot, times: np.ndarray) -> ReferenceWindow:
+    window = ReferenceWindow(len(times), robot.nq, robot.nv, robot.nu, robot.n_feet)
+    window.set_times(times)
+    reference.sample(window)
+    return window
+
+
+def _world_linear_velocity(state: np.ndarray, nq: int) -> np.ndarray:
+    """World-frame base linear velocity of each row (the state's is in the base frame)."""
+    out = np.zeros((len(state), 3))
+    for row, x in enumerate(state):
+        qx, qy, qz, qw = x[3:7]
+        rotation = np.array(
+            [
+                [1 - 2 * (qy * qy + qz * qz), 2 * (qx * qy - qz * qw), 2 * (qx * qz + qy * qw)],
+                [2 * (qx * qy + qz * qw), 1 - 2 * (qx * qx + qz * qz), 2 * (qy * qz - qx * qw)],
+                [2 * (qx * qz - qy * qw), 2 * (qy * qz + qx * qw), 1 - 2 * (qx * qx + qy * qy)],
+            ]
+        )
+        out[row] = rotation @ x[nq : nq + 3]
+    return out
+
+
+def test_running_flip_reference_is_trot_flip_trot(robot, composed):
+    """The trot ends as a diagonal stance ends, the flip starts on all four feet, flies, lands on all four,
+    and the trot follows at the speed it came in with."""
+    _, reference = composed
+    task = task_from_reference(reference)
+    assert task is not None and task.rotation_axis == 1
+    assert task.roll_target == pytest.approx(2.0 * np.pi)
+    assert task.approach_speed == task.resume_speed == pytest.approx(0.5)
+    start, end = reference.segments[1].start, reference.segments[2].start
+    assert task.start == pytest.approx(start) and task.end == pytest.approx(end)
+    assert sum(reference.stance_at(start - 0.01)) == 2  # the trot's last diagonal stance
+    assert all(reference.stance_at(start + 0.01))  # the flip's all-stance push
+    assert not any(reference.stance_at(0.5 * (task.takeoff + task.touchdown)))
+    assert all(reference.stance_at(end - 0.01))  # the landing
+    after = [reference.stance_at(float(t)) for t in np.arange(end + 0.01, end + 1.0, DT)]
+    assert any(flags == (True, False, False, True) for flags in after)
+    assert any(flags == (False, True, True, False) for flags in after)
+
+
+def test_running_flip_reference_is_continuous_at_the_joins(robot, composed):
+    """At both joins: base x, y continuous (mm), height within the trot's and the flip's standing heights
+    (absolute heights), orientation on the same side of the double cover and within 0.15 rad, world base
+    velocity within 0.1 m/s (the flip is entered and left at the trot's 0.5 m/s)."""
+    _, reference = composed
+    nq = robot.nq
+    for index in (1, 2):
+        join = reference.segments[index].start
+        window = _sample(reference, robot, np.array([join - JOIN_EPS, join + JOIN_EPS]))
+        before, after = window.state
+        assert np.linalg.norm(after[:2] - before[:2]) < 0.005, index
+        assert abs(after[2] - before[2]) < 0.07, index
+        quaternion_dot = float(np.dot(before[3:7], after[3:7]))
+        assert quaternion_dot > np.cos(0.15 / 2.0), index
+        velocity = _world_linear_velocity(window.state, nq)
+        np.testing.assert_allclose(velocity[1], velocity[0], atol=0.1, err_msg=f"join {index}")
+        assert velocity[0, 0] > 0.4, index
+        np.testing.assert_allclose(after[nq + 3 : nq + 6], before[nq + 3 : nq + 6], atol=0.2)
+
+
+def test_running_flip_reference_turns_once_and_keeps_running(robot, composed):
+    """One 2 pi pitch turn read off the quaternions and the trace's forward speed 0.5 m/s before and after."""
+    _, reference = composed
+    times = np.arange(0.0, 5.5, DT)
+    state = _sample(reference, robot, times).state
+    quaternion_dot = np.sum(state[1:, 3:7] * state[:-1, 3:7], axis=1)
+    assert quaternion_dot.min() > 0.99  # sign-continuous: no step on the double cover
+    pitch = 2.0 * np.arctan2(state[:, 4], state[:, 6])  # about the body y axis (no roll or yaw here)
+    assert pitch[0] == pytest.approx(0.0, abs=1e-6)
+    assert abs(pitch[-1]) == pytest.approx(2.0 * np.pi, abs=0.1)
+    task = task_from_reference(reference)
+    forward = np.diff(state[:, 0]) / DT
+    assert np.median(forward[(times[1:] > 1.0) & (times[1:] < task.start)]) == pytest.approx(0.5, abs=0.05)
+    assert np.median(forward[times[1:] > task.end + 0.5]) == pytest.approx(0.5, abs=0.05)
+
+
+@pytest.mark.slow
+def test_closed_loop_running_flip_takes_off():
+    """Fixed latency (20 ms, deterministic), VWBC: a one-cycle trot, the push and the take-off, 0.15 s into
+    the flight: all four feet off the floor, the base higher than it stands and turning nose-down, no fall."""
+    from cafe_mpc.config import load_config
+    from cafe_mpc_lab.experiments.run import simulate_run
+
+    trot = 0.7  # 0.2 s stand + one 0.5 s cycle
+    takeoff = trot + 0.32
+    config = load_config(
+        "running-front-flip",
+        [
+            "mpc.latency=fixed",
+            f"reference.segments.0.duration={trot}",
+            f"simulation.duration={takeoff + 0.15}",
+            "mpc.warm_up=0.2",
+        ],
+    )
+    _, _, log = simulate_run(config)
+    assert not log.fell and log.time[-1] >= takeoff + 0.14
+    flight = log.time > takeoff + 0.05
+    assert np.any(~log.contacts[flight].any(axis=1))
+    assert log.q[flight, 2].max() > 0.35
+    assert np.sum(log.v[:, 4]) * (log.time[1] - log.time[0]) > 1.5  # pitched nose-down by > 1.5 rad
