@@ -10,7 +10,7 @@ import pytest
 
 from cafe_mpc.assembly import build_low_level, build_planner
 from cafe_mpc.assembly.resolve import resolve, run_scale, scaled_gait
-from cafe_mpc.config import load_config
+from cafe_mpc.config import ON_TIME_FLAT, load_config
 from cafe_mpc.config.weights import WholeBodyWeights
 from cafe_mpc.ocp.contact_schedule import get_gait
 from cafe_mpc.planners.cafe.problem import ModelSchedule
@@ -91,4 +91,7 @@ def test_a_big_robot_gets_scaled_settings_and_none_turns_it_off():
     assert plain.scale.is_identity
     assert build_planner(plain).reference.gait.period == pytest.approx(0.5)
     assert np.isclose(build_planner(plain).reference.swing_height, 0.06)
-    assert plain.contact_detection is plain.config.vwbc.contact_detection
+    # unscaled: the config's thresholds, the on-time margin's null resolved to flat ground's
+    assert plain.contact_detection == plain.config.vwbc.contact_detection.model_copy(
+        update={"on_time": ON_TIME_FLAT}
+    )

@@ -40,7 +40,6 @@ from cafe_mpc.assembly.references import reference_profile
 from cafe_mpc.config import (
     BAUMGARTE_ALPHA,
     CONE_TOLERANCE,
-    ON_TIME_OFF_FLAT,
     VWBC_FRICTION_HEADROOM,
     CalibrationConfig,
     ConfigError,
@@ -142,12 +141,10 @@ def torque_limits_of(config: RunConfig, robot: Robot) -> np.ndarray:
 
 
 def detection_settings(config: RunConfig) -> ContactDetectionSettings:
-    """``vwbc.contact_detection`` with its on-time margin for terrain (``ON_TIME_OFF_FLAT``) when the run has
-    terrain and the config does not set it."""
+    """``vwbc.contact_detection`` with its on-time margin resolved: the config's, or when it is null the flat
+    ground's or, when the run has terrain, ``ON_TIME_OFF_FLAT`` (``ContactDetectionSettings.on_time_for``)."""
     settings = config.vwbc.contact_detection
-    if config.terrain != "flat" and "on_time" not in settings.model_fields_set:
-        return settings.model_copy(update={"on_time": ON_TIME_OFF_FLAT})
-    return settings
+    return settings.model_copy(update={"on_time": settings.on_time_for(flat=config.terrain == "flat")})
 
 
 def scaled_contact_detection(
@@ -163,7 +160,7 @@ def scaled_contact_detection(
             "touchdown_height": scale.distance(settings.touchdown_height),
             "release_height": scale.distance(settings.release_height),
             "early_window": scale.duration(settings.early_window),
-            "on_time": scale.duration(settings.on_time),
+            "on_time": None if settings.on_time is None else scale.duration(settings.on_time),
         }
     )
 

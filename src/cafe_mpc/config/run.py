@@ -109,6 +109,16 @@ WarmStart = Literal["previous", "plan", "equality", "none"]
 solution (ProxQP), or cold."""
 
 
+ON_TIME_FLAT = 0.025
+"""s: ``vwbc.contact_detection.on_time`` when it is null and the run is on flat ground (``terrain: flat``)."""
+
+ON_TIME_OFF_FLAT = 0.015
+"""s: ``vwbc.contact_detection.on_time`` when it is null and the run has terrain (``terrain`` not
+``flat``). On flat ground 25 ms keeps the bound's front feet, which land 15-20 ms early, under the plan's
+stance timing; off it a foot landing early is what the detector is for: with 25 ms the blind bound fell on a
+10 degree slope at 3.74 s, with 15 ms it climbed it (docs/terrain.md)."""
+
+
 class ContactDetectionSettings(StrictModel):
     """Thresholds of the contact detector (``low_level.contact_detection``; ``vwbc.contact_detection``):
     forces as fractions of a foot's share of the robot's weight (``m g / n_feet``), heights in metres above
@@ -123,12 +133,12 @@ class ContactDetectionSettings(StrictModel):
     )
     release_height: float = Field(0.03, gt=0.0, le=0.5, description="m; foot sole above this: released")
     early_window: float = Field(0.08, ge=0.0, le=1.0, description="s before a planned touchdown that count")
-    on_time: float = Field(
-        0.025,
+    on_time: float | None = Field(
+        None,
         ge=0.0,
         le=1.0,
-        description="s; a touchdown this close to its planned time is on time (not set, with terrain other "
-        "than flat: config.ON_TIME_OFF_FLAT, 0.015)",
+        description="s; a touchdown this close to its planned time is on time (null: config.ON_TIME_FLAT, "
+        "0.025, on flat ground, config.ON_TIME_OFF_FLAT, 0.015, with terrain other than flat)",
     )
     ground_height: float = Field(0.0, description="m; the flat ground's height")
     step_height: float = Field(
@@ -137,6 +147,14 @@ class ContactDetectionSettings(StrictModel):
         le=0.5,
         description="m; with a ground plane (terrain: blind), a loaded foot up to this above it touches down",
     )
+
+    def on_time_for(self, flat: bool) -> float:
+        """The on-time margin (s): ``on_time``, or when it is null ``ON_TIME_FLAT`` on flat ground and
+        ``ON_TIME_OFF_FLAT`` off it. The default is an explicit null rather than "not set", so that a config
+        written out (``config.yaml``, an experiment's task) and read back runs the same."""
+        if self.on_time is not None:
+            return self.on_time
+        return ON_TIME_FLAT if flat else ON_TIME_OFF_FLAT
 
 
 class VWBCSettings(StrictModel):
@@ -217,12 +235,6 @@ blind trot, pace and flying trot climb and descend three 6 cm steps (docs/terrai
 BLIND_SWING_LIFT = 0.2
 """``gait.blind_swing_lift``: a blind swing's foot rises for the first fifth of the swing before it moves
 forward, so that a foot that landed against a riser lifts off it instead of dragging into it."""
-
-ON_TIME_OFF_FLAT = 0.015
-"""s: ``vwbc.contact_detection.on_time`` when it is not set and the run has terrain (``terrain`` not
-``flat``). On flat ground 25 ms keeps the bound's front feet, which land 15-20 ms early, under the plan's
-stance timing; off it a foot landing early is what the detector is for: with 25 ms the blind bound fell on a
-10 degree slope at 3.74 s, with 15 ms it climbed it (docs/terrain.md)."""
 
 VWBC_FRICTION_HEADROOM = 1.25
 """The VWBC's pyramid (34f) over the plan's (26) when ``vwbc.friction`` is not set: ``1.25 mpc.friction`` (0.5
@@ -1190,6 +1202,20 @@ class BalanceConfig(StrictModel):
         description="share of the weight every foot on the ground keeps pressing with (the statics' forces "
         "and the pyramid's lower bound)",
     )
+    restance_after: float | None = Field(
+        0.15,
+        gt=0.0,
+        le=10.0,
+        description="s after engaging, the stance is picked again once, from the feet where they landed "
+        "(their heights within landed_spread) and the attitude then; null: the first stance is held",
+    )
+    """Engaged in flight or at a bound's touchdown, the first stance puts the feet in the air down where the
+    legs were and the base level on the attitude of that instant; the feet land elsewhere and the joint
+    angles held then pitch the base (IMU out 500 ms at 3 s in the bound: it fell backwards in the balance
+    stance, 0.2 rad nose up; with the stance picked again it stood and bounded on)."""
+    landed_spread: float = Field(
+        0.02, gt=0.0, le=1.0, description="m; the feet count as landed when their heights differ by less"
+    )
 
 
 class SensorLimits(StrictModel):
@@ -1221,6 +1247,13 @@ class SensorLimits(StrictModel):
     )
     estimate_speed_max: float = Field(
         10.0, gt=0.0, le=100.0, description="m/s; a faster base estimate counts as a diverged estimator"
+    )
+    imu_outage_limit: float | None = Field(
+        None,
+        gt=0.0,
+        le=10.0,
+        description="s the IMU may stay out while the plans are followed on the attitude the estimator "
+        "integrates without it (kinematic_kf.imu_outage: dynamics); null: outage_limit, as any sensor",
     )
 
 

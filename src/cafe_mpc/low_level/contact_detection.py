@@ -55,7 +55,8 @@ class ContactDetector:
     """Detected stance per foot (module docstring); preallocated, one Pinocchio data of its own.
 
     ``ground_plane``: heights above the plane through the feet's latest contact points (``ground``) instead
-    of above the flat ``settings.ground_height``."""
+    of above the flat ``settings.ground_height``. ``on_time``: the settings' on-time margin (null: the flat
+    ground's, or with a ground plane the margin off flat ground; ``ContactDetectionSettings.on_time_for``)."""
 
     def __init__(
         self, robot: Robot, settings: ContactDetectionSettings | None = None, ground_plane: bool = False
@@ -63,6 +64,7 @@ class ContactDetector:
         self.robot = robot
         self.settings = settings or ContactDetectionSettings()
         self.ground = GroundPlane(robot.n_feet, self.settings.ground_height) if ground_plane else None
+        self.on_time = self.settings.on_time_for(flat=not ground_plane)
         self.soles = np.zeros((robot.n_feet, 3))
         self.data = robot.model.createData()
         weight_share = robot.total_mass * GRAVITY / robot.n_feet
@@ -126,7 +128,7 @@ class ContactDetector:
                 if self._was_planned[foot]:  # the planned swing has begun: the schedule lifts the foot
                     self.in_contact[foot] = False
                 lead = self._next_touchdown[k, foot] - t
-                soon = s.on_time < lead <= s.early_window
+                soon = self.on_time < lead <= s.early_window
                 if not self.in_contact[foot] and soon and loaded:
                     self.in_contact[foot] = True
                     self.early_touchdowns += 1
