@@ -410,8 +410,9 @@ def load_trajectory(path: str | Path, robot: Robot | None = None) -> WholeBodyTr
 
 def packaged_trajectory_path(name: str, robot_name: str | None = None) -> Path:
     """Path of a trajectory shipped with the package (``PACKAGED_TRAJECTORIES``). With ``robot_name``, that
-    robot's own solution of the task when one is shipped (``<stem>.<robot_name>.npz`` next to the task's file,
-    written by ``cafe-mpc optimize TASK --set robot=ROBOT``), else the task's file (for the robot it names)."""
+    robot's own solution of the task when one is shipped (``<stem>.<robot_name>.npz`` next to the task's
+    file, written by ``cafe-mpc optimize TASK --set robot=ROBOT``), else the task's file (for the robot it
+    names)."""
     if name not in PACKAGED_TRAJECTORIES:
         raise ValueError(f"no packaged trajectory {name!r}; packaged: {', '.join(PACKAGED_TRAJECTORIES)}")
     default = DATA_DIR / PACKAGED_TRAJECTORIES[name]
@@ -423,7 +424,8 @@ def packaged_trajectory_path(name: str, robot_name: str | None = None) -> Path:
 
 
 def packaged_trajectory_robots(name: str) -> list[str]:
-    """Robots a packaged trajectory is shipped for: the robot its file names, then those with their own file."""
+    """Robots a packaged trajectory is shipped for: the robot its file names, then those with their own
+    file."""
     default = packaged_trajectory_path(name)
     with np.load(default, allow_pickle=False) as archive:
         robots = [str(archive["robot"])]
@@ -443,6 +445,6 @@ def load_packaged_trajectory(name: str, robot: Robot | None = None) -> WholeBody
                 "robot",
                 f"packaged trajectory {name!r} is shipped for {', '.join(robots)}, not {robot.name!r}: "
                 f"solve it with `cafe-mpc optimize {name} --set robot={robot.name} --out DIR` and give the "
-                "written .npz as the trajectory segment's file (--set reference.segments.N.trajectory=PATH)"
+                "written .npz as the trajectory segment's file (--set reference.segments.N.trajectory=PATH)",
             )
     return load_trajectory(path, robot)
