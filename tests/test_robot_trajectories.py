@@ -22,13 +22,15 @@ from cafe_mpc_lab.experiments.run import run
 def test_the_barrel_roll_resolves_the_trajectory_of_the_runs_robot():
     assert packaged_trajectory_path("barrel-roll", "go2").name == "barrel_roll.go2.npz"
     assert packaged_trajectory_path("barrel-roll", "mini_cheetah").name == "barrel_roll.npz"
-    assert packaged_trajectory_robots("barrel-roll") == ["mini_cheetah", "go2"]
+    assert packaged_trajectory_robots("barrel-roll") == ["mini_cheetah", "go1", "go2"]
     go2 = load_robot("go2")
     trajectory = load_packaged_trajectory("barrel-roll", go2)
     assert trajectory.robot == "go2" and trajectory.xs.shape[1] == go2.nq + go2.nv
     assert trajectory.phase_contacts == ("FS", "FR-HR", "FT", "FS", "FT", "FS")
-    with pytest.raises(TrajectoryFileError, match=r"shipped for mini_cheetah, go2, not 'go1'.*robot=go1"):
-        load_packaged_trajectory("barrel-roll", load_robot("go1"))
+    with pytest.raises(
+        TrajectoryFileError, match=r"shipped for mini_cheetah, go1, go2, not 'aliengo'.*robot=aliengo"
+    ):
+        load_packaged_trajectory("barrel-roll", load_robot("aliengo"))
 
 
 @pytest.mark.slow
