@@ -8,6 +8,7 @@ import os
 import subprocess
 import sys
 import textwrap
+import time
 
 import numpy as np
 import pytest
@@ -15,6 +16,7 @@ import pytest
 from cafe_mpc.assembly.controllers import process_planner
 from cafe_mpc.assembly.resolve import resolve
 from cafe_mpc.config import RecoveryConfig, load_config
+from cafe_mpc.control.ipc.channels import ControlBlock
 from cafe_mpc.control.process import ProcessMpcLoop
 from cafe_mpc.control.scheduling import (
     CpuPlan,
@@ -91,8 +93,8 @@ def test_memory_is_locked_or_the_reason_is_given_and_steal_is_read():
 @pytest.mark.realtime
 @pytest.mark.skipif(not TWO_CPUS, reason="needs two CPUs")
 def test_the_mpc_process_and_its_standby_run_off_the_loops_core(robot):
-    """The standby is started after the caller pinned itself to the loop's core: it must not inherit it; it
-    waits in the idle scheduling class."""
+    """The standby is started after the caller pinned itself to the loop's core: it must not inherit it; one
+    built while the robot runs waits in the idle scheduling class."""
     config = load_config("trot", ["output.plots=false"])
     plans = plan_format(25, robot.nq + robot.nv, robot.nu, 2 * robot.nv, robot.n_feet)
     loop = ProcessMpcLoop(
@@ -111,10 +113,16 @@ def test_the_mpc_process_and_its_standby_run_off_the_loops_core(robot):
             assert process is not None and process.is_alive()
             for task in os.listdir(f"/proc/{process.pid}/task"):
                 assert os.sched_getaffinity(int(task)) == {cpus.mpc_cpu}
-        if hasattr(os, "SCHED_IDLE"):  # the standby waits in the idle class, the running process does not
+        if hasattr(os, "SCHED_IDLE"):  # a standby built while the robot runs waits in the idle class
+            loop._discard_standby()
+            loop._spawn_standby(background=True)
+            deadline = time.perf_counter() + 60.0  # until it has started and switched (not a timing check)
+            while loop._control.array[ControlBlock.STANDBY_READY] != 1.0 and time.perf_counter() < deadline:
+                time.sleep(0.05)
             for process, policy in ((loop.standby, os.SCHED_IDLE), (loop.process, os.SCHED_OTHER)):
                 for task in os.listdir(f"/proc/{process.pid}/task"):
                     assert os.sched_getscheduler(int(task)) == policy
+                    assert os.sched_getaffinity(int(task)) == {cpus.mpc_cpu}
 
 
 def _factory(config):

@@ -16,6 +16,8 @@ relying more on the IMU does not let its bias or the tilt error of its attitude 
 
 from __future__ import annotations
 
+from typing import Literal
+
 from pydantic import Field
 
 from cafe_mpc.config.loading import StrictModel
@@ -140,6 +142,13 @@ class KinematicKFSettings(StrictModel):
         description="m; null: off (MIT's choice); else a foot planned in stance higher than this above the "
         "(flat) ground counts as not in contact (a late or missed touchdown); only with terrain: flat",
     )
+    imu_outage: Literal["dynamics", "hold"] = Field(
+        "dynamics",
+        description="while the IMU is out: dynamics, the base's attitude and rates from the robot's model, "
+        "joint torques and the feet on the ground (estimation.imu_outage); hold, its last sample",
+    )
+    """A held gyro is the worst guess for a robot in motion: a bound reverses its pitch rate at every stance,
+    and 0.1 s after its IMU went out the held rate was 8 rad/s off (docs/estimation.md)."""
     initial_position_variance: float = Field(
         1e-4, gt=0.0, le=100.0, description="m^2, base and foot positions when the filter starts"
     )

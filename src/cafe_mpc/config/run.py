@@ -1202,6 +1202,20 @@ class BalanceConfig(StrictModel):
         description="share of the weight every foot on the ground keeps pressing with (the statics' forces "
         "and the pyramid's lower bound)",
     )
+    restance_after: float | None = Field(
+        0.15,
+        gt=0.0,
+        le=10.0,
+        description="s after engaging, the stance is picked again once, from the feet where they landed "
+        "(their heights within landed_spread) and the attitude then; null: the first stance is held",
+    )
+    """Engaged in flight or at a bound's touchdown, the first stance puts the feet in the air down where the
+    legs were and the base level on the attitude of that instant; the feet land elsewhere and the joint
+    angles held then pitch the base (IMU out 500 ms at 3 s in the bound: it fell backwards in the balance
+    stance, 0.2 rad nose up; with the stance picked again it stood and bounded on)."""
+    landed_spread: float = Field(
+        0.02, gt=0.0, le=1.0, description="m; the feet count as landed when their heights differ by less"
+    )
 
 
 class SensorLimits(StrictModel):
@@ -1233,6 +1247,13 @@ class SensorLimits(StrictModel):
     )
     estimate_speed_max: float = Field(
         10.0, gt=0.0, le=100.0, description="m/s; a faster base estimate counts as a diverged estimator"
+    )
+    imu_outage_limit: float | None = Field(
+        None,
+        gt=0.0,
+        le=10.0,
+        description="s the IMU may stay out while the plans are followed on the attitude the estimator "
+        "integrates without it (kinematic_kf.imu_outage: dynamics); null: outage_limit, as any sensor",
     )
 
 

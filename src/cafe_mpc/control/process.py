@@ -24,9 +24,10 @@ horizon has run out, the safe ladder (``control.plan_follower``). The MPC proces
 stalled, taken back when its plans are fresh again or restarted after ``recovery.stall_restart_after``.
 A restart hands over to the standby, a second MPC process built beside the running one and waiting
 (``recovery.standby``; a new one is built ``STANDBY_AFTER`` s after the takeover), else starts a new process;
-either solves cold from the newest measurement. A standby is built, makes its first solve (kernels, solver
-data: ``_Worker.prepare_standby``) and waits in the idle scheduling class (``background_priority``), so that
-it takes no time from the running process on their shared core, and takes over in the normal class.
+either solves cold from the newest measurement. A standby is built and makes its first solve (kernels, solver
+data: ``_Worker.prepare_standby``) before it waits; one built while the robot runs does so in the idle
+scheduling class (``background_priority``), so that it takes no time from the running process on their
+shared core, and takes over in the normal class.
 Past ``recovery.max_restarts_per_minute`` the robot stays in the damped stance and ``failure`` says why (the
 run then ends with ``MpcProcessError``). ``close()`` (also on errors and Ctrl-C, via ``with``) stops the
 processes and frees the shared memory; no process is left behind.
@@ -100,12 +101,14 @@ def _worker_main(
     generation: int,
     cpu: int | None,
     lock: bool,
+    background: bool,
     results,
 ) -> None:
     """The MPC process: measurements -> updates -> plans (module docstring), until told to stop. A standby
-    (``generation`` is not the control block's ``active``) builds its planner in the idle scheduling class,
-    makes its first solve (``_Worker.prepare_standby``), says so and waits until it is made the active one
-    (or told to stop), then runs in the normal class. Every thread of it runs on ``cpu`` (``CpuPlan.mpc_cpu``:
+    (``generation`` is not the control block's ``active``) builds its planner, makes its first solve
+    (``_Worker.prepare_standby``), says so and waits until it is made the active one (or told to stop); with
+    ``background`` (a standby built while the robot runs) it does all that in the idle scheduling class and
+    runs in the normal class once active. Every thread of it runs on ``cpu`` (``CpuPlan.mpc_cpu``:
     not the 500 Hz loop's core; None: anywhere); with ``lock`` its memory is locked (``lock_memory``)."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # the main process owns Ctrl-C and stops us
     pin_every_thread(cpu)
@@ -117,8 +120,7 @@ def _worker_main(
     control = ControlBlock(control_name)
     statistics = None
     worker = None
-    background = control.array[ControlBlock.ACTIVE] != generation
-    if background:  # a standby: built, prepared and waiting on what the running process leaves of its core
+    if background:  # a standby built while the robot runs: on what the running process leaves of its core
         background = background_priority() == "SCHED_IDLE"
     try:
         planner = factory()
@@ -530,8 +532,8 @@ class ProcessMpcLoop(MpcLoop[PlanT]):
             self.worker_compilation = None
             self._new_run()
         self._spawn()
-        if self.recovery.standby:
-            self._spawn_standby()
+        if self.recovery.standby:  # before the clock starts: built at the normal priority
+            self._spawn_standby(background=False)
         deadline = time.perf_counter() + self.startup_timeout
         stage("first (cold) MPC solve, in the MPC process")
         self.publish(t, measurement)
@@ -673,7 +675,7 @@ class ProcessMpcLoop(MpcLoop[PlanT]):
             standby is None and self.recovery.standby and self._restarting is None and t >= self._standby_due
         ):
             self._standby_due = math.inf
-            self._spawn_standby()
+            self._spawn_standby(background=True)
             logger.info("t = %.3f s: a new standby MPC process is being built", t)
 
     def _restart(self, t: float, reason: str) -> None:
@@ -754,17 +756,19 @@ class ProcessMpcLoop(MpcLoop[PlanT]):
         """Start the MPC process that runs (the control block's ``active`` generation)."""
         self._generation += 1
         self._control.array[ControlBlock.ACTIVE] = float(self._generation)
-        self.process, self._results = self._launch(self._generation)
+        self.process, self._results = self._launch(self._generation, background=False)
 
-    def _spawn_standby(self) -> None:
-        """Start a standby MPC process: it builds its planner and waits until it is made the active one."""
+    def _spawn_standby(self, background: bool) -> None:
+        """Start a standby MPC process: it builds its planner, makes its first solve and waits until it is
+        made the active one; ``background``: in the idle scheduling class until then (the robot runs)."""
         self._generation += 1
         self._control.array[ControlBlock.STANDBY_READY] = 0.0
         self._standby_generation = self._generation
-        self.standby, self._standby_results = self._launch(self._generation)
+        self.standby, self._standby_results = self._launch(self._generation, background)
 
-    def _launch(self, generation: int):
-        """Start an MPC process of ``generation``; its process and the pipe of what it sends."""
+    def _launch(self, generation: int, background: bool):
+        """Start an MPC process of ``generation`` (``background``: in the idle scheduling class until it is
+        the active one); its process and the pipe of what it sends."""
         if self._cpus is None:  # before this process pins itself: the CPUs it was given
             self._cpus = CpuPlan.of_this_process()
             with contextlib.suppress(AttributeError, OSError):
@@ -788,6 +792,7 @@ class ProcessMpcLoop(MpcLoop[PlanT]):
                 generation,
                 self._cpus.mpc_cpu,
                 self.lock_memory,
+                background,
                 child_end,
             ),
             name="cafe-mpc-solver",

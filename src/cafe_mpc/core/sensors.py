@@ -265,6 +265,10 @@ class SensorGuard:
     def reset(self) -> None:
         """Forget the last good values and the records (a new run)."""
         self.started = False
+        self.imu_out = False
+        """Whether the last reading's IMU sample was held (late, or a value rejected)."""
+        self.imu_sample_time = math.nan
+        """When the last good IMU sample was taken (its time stamp, else the reading's time)."""
         self.counts: dict[str, int] = {}
         self.outages: list[dict] = []
         self._out_since[:] = np.nan
@@ -282,6 +286,8 @@ class SensorGuard:
             readings.validate(len(good.joint_positions))
             good.copy_from(readings)
             self.started = True
+            self.imu_out = False
+            self.imu_sample_time = t if math.isnan(readings.imu_time) else float(readings.imu_time)
             return good
         if not (math.isfinite(t) and t >= good.time):
             self._count("time")
@@ -312,6 +318,9 @@ class SensorGuard:
                 imu_out = True
             self._at_rest(good.orientation, good.accelerometer)
         self._track(0, imu_out, t)
+        self.imu_out = imu_out
+        if not imu_out:
+            self.imu_sample_time = t if math.isnan(readings.imu_time) else float(readings.imu_time)
         self._check_joints(readings, t)
         torques = readings.joint_torques
         if np.all(np.isfinite(torques)) or np.all(np.isnan(torques)):
@@ -380,16 +389,21 @@ class SensorGuard:
         since = float(self._out_since[0])
         return 0.0 if math.isnan(since) else t - since
 
-    def outage(self, t: float) -> str | None:
-        """The sensor out for longest, if longer than ``outage_limit`` at ``t`` (what and since when), else
-        None."""
+    def outage(self, t: float, imu_limit: float | None = None) -> str | None:
+        """The sensor out for longest of those out for longer than ``outage_limit`` at ``t`` (the IMU:
+        ``imu_limit``, default ``outage_limit``), what and since when; else None."""
         if not self._open:
             return None
-        index = int(np.nanargmin(self._out_since))
-        since = float(self._out_since[index])
-        if t - since <= self.limits.outage_limit:
+        limit = self.limits.outage_limit
+        longest = None
+        for index in self._open:
+            since = float(self._out_since[index])
+            allowed = imu_limit if index == 0 and imu_limit is not None else limit
+            if t - since > allowed and (longest is None or since < self._out_since[longest]):
+                longest = index
+        if longest is None:
             return None
-        return f"{self._name(index)} out since t = {since:.3f} s"
+        return f"{self._name(longest)} out since t = {float(self._out_since[longest]):.3f} s"
 
     def summary(self) -> dict:
         """Rejected samples by kind and every outage (``metrics.json``'s ``faults.sensors``)."""

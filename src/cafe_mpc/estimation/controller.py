@@ -64,6 +64,12 @@ class SensorFrontEnd:
         """The IMU's readings into the base frame, for an IMU mounted turned (None: on the base's axes)."""
         self.position_xy = np.zeros(2)
         self._last_xy = np.zeros(2)
+        self.imu_outage_limit = self.limits.imu_outage_limit if estimator.imu_outage is not None else None
+        """s the IMU may be out before the robot is held off its plans, when the estimator integrates the
+        attitude without it (None: ``outage_limit``, as any sensor)."""
+        self._imu_limit = (
+            self.imu_outage_limit if self.imu_outage_limit is not None else self.limits.outage_limit
+        )
         self.reset()
 
     def reset(self, position_xy: tuple[float, float] | np.ndarray = (0.0, 0.0)) -> None:
@@ -85,14 +91,17 @@ class SensorFrontEnd:
         if self.mounting is not None:
             checked = self.mounting.to_base(checked)
         t = float(checked.time)
-        imu_out = self.guard.imu_out_for(t) > self.limits.outage_limit
+        imu_out = self.guard.imu_out_for(t) > self._imu_limit
         if self._imu_out and not imu_out:
             self._restart(t, "the end of an IMU outage")
         self._imu_out = imu_out
-        measurement = self.estimator.update(checked, plan, plan_time)
+        guard = self.guard
+        measurement = self.estimator.update(checked, plan, plan_time, guard.imu_out, guard.imu_sample_time)
         if not self._plausible(measurement):
             self._restart(t, "the estimate diverged")
-            measurement = self.estimator.update(checked, plan, plan_time)
+            measurement = self.estimator.update(
+                checked, plan, plan_time, guard.imu_out, guard.imu_sample_time
+            )
         else:
             self._last_xy[:] = measurement.q[:2]
         return measurement
@@ -115,7 +124,7 @@ class SensorFrontEnd:
     def fault(self, t: float) -> str | None:
         """Why the robot should be held off its plans at ``t`` (a sensor out too long, the estimator
         restarting), else None."""
-        outage = self.guard.outage(t)
+        outage = self.guard.outage(t, self.imu_outage_limit)
         if outage is not None:
             return outage
         if self.estimator_resets and t - self.estimator_resets[-1]["t"] <= self.limits.outage_limit:

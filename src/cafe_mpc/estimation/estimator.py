@@ -35,6 +35,8 @@ estimate's x-y starts where ``reset`` says (the robot's placement: its odometry 
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import pinocchio as pin
 
@@ -44,6 +46,7 @@ from cafe_mpc.core.physics import GRAVITY_VECTOR
 from cafe_mpc.core.plan import KnotPlan
 from cafe_mpc.core.sensors import SensorReadings
 from cafe_mpc.dynamics.srb_kernels import quaternion_to_rotation
+from cafe_mpc.estimation.imu_outage import ImuOutageObserver
 from cafe_mpc.estimation.kernels import (
     NOISE_HEIGHT,
     NOISE_POSITION,
@@ -199,6 +202,13 @@ class StateEstimator:
         with ``foot_contact_frequency``: below it by the foot's sink, ``sink``)."""
         self.legs = LegKinematics(robot, robot.foot_radius)
         self.contacts = PlannedContacts(n_feet, settings.trust_window)
+        self.imu_outage = (
+            ImuOutageObserver(robot, settings.contact_height_threshold if flat_ground else None)
+            if settings.imu_outage == "dynamics"
+            else None
+        )
+        """The attitude and rates while the IMU is out (``update``'s ``imu_out``); None: its last sample
+        held."""
         self.feet_start = 9 if settings.accelerometer_bias else 6
         n = self.feet_start + 3 * n_feet
         self.x = np.zeros(n)
@@ -308,16 +318,39 @@ class StateEstimator:
         self._started = False
         self._moving = moving
         self.contacts.reset()
+        if self.imu_outage is not None:
+            self.imu_outage.stop()
+            if not moving:
+                self.imu_outage.reset()
 
     # ------------------------------------------------------------------------------------------ update
     def update(
-        self, readings: SensorReadings, plan: KnotPlan | None = None, plan_time: float | None = None
+        self,
+        readings: SensorReadings,
+        plan: KnotPlan | None = None,
+        plan_time: float | None = None,
+        imu_out: bool = False,
+        imu_sample_time: float = math.nan,
     ) -> Measurement:
         """The estimate at ``readings.time`` from the readings and the plan in effect (its stance flags,
-        looked up at ``plan_time``, default ``readings.time``: the plan's clock if it is not the sensors')."""
+        looked up at ``plan_time``, default ``readings.time``: the plan's clock if it is not the sensors').
+        ``imu_out``: the readings' IMU values are a held sample (taken at ``imu_sample_time``); with
+        ``imu_outage: dynamics`` the attitude, rates and specific force come from ``ImuOutageObserver``."""
         settings = self.settings
         t = float(readings.time)
         self.contacts.update(t if plan_time is None else float(plan_time), plan)
+        observer = self.imu_outage
+        if observer is not None:
+            if imu_out and self._started:
+                if not observer.active:
+                    observer.start(
+                        imu_sample_time, readings.orientation, readings.gyro, self.x[3:6], self.x[2]
+                    )
+                observer.step(readings, self.contacts.flags, self.x[3:6], float(self.x[2]))
+                readings = observer.write(readings)
+            else:
+                observer.stop()
+                observer.remember(readings, self.contacts.flags)
         quaternion_to_rotation(readings.orientation, self.rotation)
         need_forces = (
             settings.contact_force_threshold is not None or settings.foot_compliance > 0.0

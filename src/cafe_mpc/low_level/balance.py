@@ -12,6 +12,10 @@ first ``compute`` after a ``reset``) it picks, from the measured state, a stance
   by the feet so that the centre of mass is balanced (the minimum-norm vertical forces, each at least
   ``min_normal_force`` of the weight), ``tau_s = S (g(q_s) - sum J_i' f_i)``.
 
+Once, ``restance_after`` s after it engaged, the stance is picked again the same way at the first tick the
+feet have landed (their heights within ``landed_spread`` of each other): engaged in flight, the first stance
+put the feet in the air down where they were and levelled the base on the attitude of that instant.
+
 Every tick: ``tau = tau_s + kp (q_s - q) - kd qd`` on the joints (with the feet on the ground, joint angles
 at ``q_s`` put the base at its level pose). The foot forces this torque implies (quasi-statically, through
 each leg's Jacobian at the stance) are kept inside the friction pyramid with at least the minimum normal
@@ -84,6 +88,9 @@ class BalanceController(LowLevelController[KnotPlan]):
 
     def reset(self) -> None:
         self.engaged = False
+        self.engaged_at = 0.0
+        self.restance_pending = False
+        self.restances = 0
         self.engagements = 0
         self.ticks = 0
         self.friction_clips = 0
@@ -115,8 +122,30 @@ class BalanceController(LowLevelController[KnotPlan]):
         self.ik_error_max = max(self.ik_error_max, float(error))
         self._statics(target)
         self.engaged = True
+        self.engaged_at = float(measurement.time)
+        self.restance_pending = self.settings.restance_after is not None
         self.engagements += 1
         return bool(error <= UNREACHABLE_STANCE)
+
+    def _restance(self, t: float, measurement: Measurement) -> None:
+        """Pick the stance again once the feet have landed (module docstring); a stance out of the legs'
+        reach is not taken (the first one is kept)."""
+        if t - self.engaged_at < self.settings.restance_after:
+            return
+        pin.framesForwardKinematics(self.model, self.data, measurement.q)
+        heights = [self.data.oMf[frame_id].translation[2] for frame_id in self.robot.foot_frame_ids]
+        if max(heights) - min(heights) > self.settings.landed_spread:
+            return
+        kept = (self.target.copy(), self.feet.copy(), self.static_forces.copy(), self.static_torques.copy())
+        kept_jacobians = (self._leg_jacobians.copy(), self._leg_inverse_transposes.copy())
+        engagements = self.engagements
+        if self.engage(measurement):
+            self.restances += 1
+        else:
+            self.target[:], self.feet[:], self.static_forces[:], self.static_torques[:] = kept
+            self._leg_jacobians[:], self._leg_inverse_transposes[:] = kept_jacobians
+        self.engagements = engagements
+        self.restance_pending = False
 
     def _statics(self, q: np.ndarray) -> None:
         """The vertical foot forces that balance the centre of mass over the feet (minimum norm, each at least
@@ -152,6 +181,8 @@ class BalanceController(LowLevelController[KnotPlan]):
     def compute(self, t: float, measurement: Measurement, plan: KnotPlan | None = None) -> np.ndarray:
         if not self.engaged:
             self.engage(measurement)
+        elif self.restance_pending:
+            self._restance(t, measurement)
         robot = self.robot
         torques = self._torques
         joints_q = measurement.q[robot.nq - robot.nu :]
@@ -199,10 +230,11 @@ class BalanceController(LowLevelController[KnotPlan]):
             self.friction_clips += 1
 
     def statistics(self) -> dict:
-        """Engagements and ticks; ticks whose implied foot forces were moved into the friction pyramid and
-        whose torque was clamped; the legs' largest miss of a stance's feet."""
+        """Engagements (and stances picked again) and ticks; ticks whose implied foot forces were moved into
+        the friction pyramid and whose torque was clamped; the legs' largest miss of a stance's feet."""
         return {
             "engagements": self.engagements,
+            "restances": self.restances,
             "ticks": self.ticks,
             "friction_clips": self.friction_clips,
             "torque_clips": self.torque_clips,
