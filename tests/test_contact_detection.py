@@ -125,8 +125,9 @@ def test_a_heavier_trunk_lands_early_in_the_pace_and_detection_keeps_it_up():
     seed 1, fixed latency): the body flies lower than planned, the right feet land 70 ms before their planned
     touchdown and, driven along their swings, scuff and roll the robot over (it falls at 0.78 s with the
     schedule's stance, ``vwbc.stance_source=plan``). With the detected stance it paces on. The controller
-    plans with the floor's friction (0.6), as when the trial fell: with the default margin (0.4) this trial
-    no longer lands early enough to need the detector."""
+    plans with the floor's friction (0.6) and starts its approach with a step to 0.8 m/s, as when the trial
+    fell: with the default margin (0.4), or with the preset's ramp from rest, this trial no longer lands early
+    enough to need the detector."""
     from cafe_mpc.config import load_config
     from cafe_mpc_lab.experiments.run import simulate_run
 
@@ -141,6 +142,8 @@ def test_a_heavier_trunk_lands_early_in_the_pace_and_detection_keeps_it_up():
             "vwbc.stance_source=detected",
             "mpc.friction=0.6",
             "calibration.online.enabled=false",  # the controller of the trial that fell
+            "reference.segments.0.gait.command_ramp=0",  # its approach from a step (the preset now ramps)
+            "reference.segments.0.gait.path_gain=1.0",
         ],
     )
     _, controller, log = simulate_run(config)

@@ -167,3 +167,80 @@ def test_a_take_off_within_the_motors_clears_the_bar_in_a_randomised_trial():
     assert not log.fell and log.time[-1] >= 3.09
     assert not np.any(log.extra["bar_contact"])
     assert log.q[:, 2].max() > 0.52
+
+
+@pytest.mark.slow
+def test_the_approach_starts_from_rest_and_a_heavier_robot_paces_on(robot):
+    """Reliability trial 37 (default ranges, whole robot about 3 % heavier, fixed latency), through the
+    approach's second cycle. With the pace commanded at 0.8 m/s from the start (a step, ``command_ramp`` 0)
+    the first left stance had to carry the robot from 0.34 to 0.9 m/s and into its first flight at once; this
+    robot's body flew 2 cm lower than the nominal one's, its right feet met the floor 80 ms before their
+    planned touchdown while the trunk still rose, rolled it over (7 rad/s within 60 ms) and it fell at
+    0.91 s. With the preset's ramp from rest the right feet land on time and the robot paces on
+    (docs/robustness.md, "The approach: its first push and its line")."""
+    from cafe_mpc.config import load_config
+    from cafe_mpc_lab.experiments.reliability import RandomizationRanges, sample_trial
+    from cafe_mpc_lab.experiments.run import simulate_run
+
+    seed = 37
+    preset = load_config("running-barrel-roll")
+    sensors = preset.plant.sensors.model_dump(mode="json")
+    plant, push = sample_trial(
+        RandomizationRanges(), seed, 12, preset.simulation.duration, preset.estimator, sensors
+    )
+    config = load_config(
+        "running-barrel-roll",
+        [
+            f"plant={json.dumps(plant)}",
+            f"pushes={json.dumps([push])}",
+            "mpc.latency=fixed",
+            "simulation.duration=1.2",
+            "mpc.warm_up=0.2",
+        ],
+    )
+    approach = config.reference.segments[0].gait
+    assert approach.command_ramp > 0.0
+    _, _, log = simulate_run(config)
+    assert not log.fell and log.time[-1] >= 1.19
+    # the right feet's first touchdown after the start stance: planned at 0.55 s (0.3 s stand, 0.15 s left
+    # stance, 0.1 s flight)
+    right = [robot.leg_names.index(name) for name in ("FR", "HR")]
+    after_stand = log.time > approach.start_stance + 0.1
+    for leg in right:
+        first = log.time[after_stand][np.argmax(log.contacts[after_stand, leg])]
+        assert first >= 0.55 - 0.03, f"leg {leg} landed at {first:.3f} s"
+
+
+@pytest.mark.slow
+def test_the_approach_holds_its_line_and_the_roll_clears_the_bar_in_a_randomised_trial():
+    """Reliability trial 26 (default ranges, fixed latency), through the flight over the bar. The roll
+    tracks no base position and starts where the pace ends, so where the robot is across its line then
+    decides where it crosses the bar. With the approach's path gain at 1 rad/m this robot started the roll
+    3.7 cm off its line, away from the bar, and came down on it at 3.02 s; at the preset's 2 rad/m it
+    starts 2.5 cm off and clears the bar (docs/robustness.md, "The approach: its first push and its line")."""
+    from cafe_mpc.config import load_config
+    from cafe_mpc_lab.experiments.reliability import RandomizationRanges, sample_trial
+    from cafe_mpc_lab.experiments.run import simulate_run
+
+    seed = 26
+    preset = load_config("running-barrel-roll")
+    sensors = preset.plant.sensors.model_dump(mode="json")
+    plant, push = sample_trial(
+        RandomizationRanges(), seed, 12, preset.simulation.duration, preset.estimator, sensors
+    )
+    config = load_config(
+        "running-barrel-roll",
+        [
+            f"plant={json.dumps(plant)}",
+            f"pushes={json.dumps([push])}",
+            "mpc.latency=fixed",
+            "simulation.duration=3.1",
+            "mpc.warm_up=0.2",
+        ],
+    )
+    assert config.reference.segments[0].gait.path_gain >= 2.0
+    _, _, log = simulate_run(config)
+    assert not log.fell and log.time[-1] >= 3.09
+    assert not np.any(log.extra["bar_contact"])
+    roll_start = np.searchsorted(log.time, 2.45)
+    assert abs(log.q[roll_start, 1]) < 0.03
