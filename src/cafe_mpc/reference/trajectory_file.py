@@ -409,14 +409,43 @@ def load_trajectory(path: str | Path, robot: Robot | None = None) -> WholeBodyTr
     return trajectory
 
 
-def packaged_trajectory_path(name: str) -> Path:
-    """Path of a trajectory shipped with the package (``PACKAGED_TRAJECTORIES``)."""
+def packaged_trajectory_path(name: str, robot_name: str | None = None) -> Path:
+    """Path of a trajectory shipped with the package (``PACKAGED_TRAJECTORIES``). With ``robot_name``, that
+    robot's own solution of the task when one is shipped (``<stem>.<robot_name>.npz`` next to the task's
+    file, written by ``cafe-mpc optimize TASK --set robot=ROBOT``), else the task's file (for the robot it
+    names)."""
     if name not in PACKAGED_TRAJECTORIES:
         raise ValueError(f"no packaged trajectory {name!r}; packaged: {', '.join(PACKAGED_TRAJECTORIES)}")
-    return DATA_DIR / PACKAGED_TRAJECTORIES[name]
+    default = DATA_DIR / PACKAGED_TRAJECTORIES[name]
+    if robot_name is not None:
+        own = default.with_name(f"{default.stem}.{robot_name}.npz")
+        if own.exists():
+            return own
+    return default
+
+
+def packaged_trajectory_robots(name: str) -> list[str]:
+    """Robots a packaged trajectory is shipped for: the robot its file names, then those with their own
+    file."""
+    default = packaged_trajectory_path(name)
+    with np.load(default, allow_pickle=False) as archive:
+        robots = [str(archive["robot"])]
+    return robots + sorted(path.suffixes[-2][1:] for path in DATA_DIR.glob(f"{default.stem}.*.npz"))
 
 
 def load_packaged_trajectory(name: str, robot: Robot | None = None) -> WholeBodyTrajectory:
     """Load a trajectory shipped with the package (e.g. ``"barrel-roll"``; regenerate it with
-    ``cafe-mpc optimize barrel-roll``, see the README)."""
-    return load_trajectory(packaged_trajectory_path(name), robot)
+    ``cafe-mpc optimize barrel-roll``, see the README): ``robot``'s own when one is shipped
+    (``packaged_trajectory_path``); ``TrajectoryFileError`` naming the robots it is shipped for otherwise."""
+    path = packaged_trajectory_path(name, robot.name if robot is not None else None)
+    if robot is not None:
+        robots = packaged_trajectory_robots(name)
+        if robot.name not in robots:
+            raise TrajectoryFileError(
+                path,
+                "robot",
+                f"packaged trajectory {name!r} is shipped for {', '.join(robots)}, not {robot.name!r}: "
+                f"solve it with `cafe-mpc optimize {name} --set robot={robot.name} --out DIR` and give the "
+                "written .npz as the trajectory segment's file (--set reference.segments.N.trajectory=PATH)",
+            )
+    return load_trajectory(path, robot)
