@@ -239,3 +239,40 @@ def test_a_standby_makes_its_first_solve_while_it_waits_and_forgets_it():
     finally:
         for channel in (ring, control):
             channel.close(unlink=True)
+
+
+def test_a_plan_older_than_the_stale_window_is_not_followed():
+    """A plan received more than ``recovery.stale_after`` after its measurement (a cold solve after a takeover
+    or a stall) is counted and not followed; the process still counts as delivering; a fresh one is
+    followed."""
+    from cafe_mpc.config import RecoveryConfig
+    from cafe_mpc.control.process import ProcessMpcLoop
+    from cafe_mpc.planners.base import MpcStatistics
+
+    class Plans:
+        def __init__(self) -> None:
+            self.queue: list[tuple] = []
+
+        def receive(self):
+            return self.queue.pop(0) if self.queue else None
+
+    class Follower:
+        def __init__(self) -> None:
+            self.heard: list[tuple[float, float]] = []
+
+        def new_plan(self, t, measured_at) -> None:
+            self.heard.append((t, measured_at))
+
+    loop = ProcessMpcLoop.__new__(ProcessMpcLoop)
+    loop.recovery = RecoveryConfig()
+    loop._plans, loop.follower, loop.received = Plans(), Follower(), MpcStatistics()
+    loop._plan, loop._restarting, loop._stalled_at, loop._last_plan_time = "last", None, None, 0.0
+    loop._cold_hold = False
+    stale = loop.recovery.stale_after
+    loop._plans.queue.append(("cold", 1.0, 0.2))
+    loop._poll_plan(1.0 + stale + 0.07, record=True)
+    assert loop._plan == "last" and loop.follower.heard == [] and loop.received.stale_plans == 1
+    assert loop._last_plan_time == 1.0 + stale + 0.07  # delivering: no stall
+    loop._plans.queue.append(("fresh", 1.2, 0.01))
+    loop._poll_plan(1.21, record=True)
+    assert loop._plan == "fresh" and loop.follower.heard == [(1.21, 1.2)]

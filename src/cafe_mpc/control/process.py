@@ -474,6 +474,9 @@ class ProcessMpcLoop(MpcLoop[PlanT]):
         self._stalled_at: float | None = None
         self._last_plan_time = 0.0
         self._failure_time: float | None = None
+        self._cold_hold = False
+        """Whether the robot is held off the plans while the MPC solves cold (``_hold_for_cold_solve``)."""
+        self._resyncs_seen = 0
 
     # ------------------------------------------------------------------------------------ interface
     @property
@@ -504,6 +507,7 @@ class ProcessMpcLoop(MpcLoop[PlanT]):
         if duration is not None:
             summary["rate_hz"] = len(latencies) / duration if duration > 0 else None
         summary["pd_fallback_ticks"] = self.received.fallback_ticks
+        summary["stale_plans"] = self.received.stale_plans
         summary["worker_error"] = self.worker_error
         if self.worker_compilation is not None:  # the MPC process's own (core.compilation)
             summary["mpc_process_compiles_during_run"] = self.worker_compilation["compiles_during_run"]
@@ -642,6 +646,10 @@ class ProcessMpcLoop(MpcLoop[PlanT]):
             self._event(t, "mpc_exited", detail)
             self._restart(t, f"the MPC process exited ({detail})")
             return
+        resyncs = int(self._control.array[ControlBlock.RESYNCS])
+        if resyncs > self._resyncs_seen:  # the process was stopped and solves cold again
+            self._resyncs_seen = resyncs
+            self._hold_for_cold_solve(t, "the MPC process solves cold again after a gap")
         restarting = self._restarting
         if restarting is not None:
             if restarting["ready_at"] is None and self._control.array[ControlBlock.READY] == 1.0:
@@ -696,6 +704,7 @@ class ProcessMpcLoop(MpcLoop[PlanT]):
             self._event(t, "mpc_failed", self.failure)
             return
         self._plans.abandon_write()
+        self._hold_for_cold_solve(t, "the MPC process restarts: its first plan is a cold solve")
         control = self._control.array
         control[ControlBlock.STOP] = 0.0
         control[ControlBlock.READY] = 0.0
@@ -721,6 +730,15 @@ class ProcessMpcLoop(MpcLoop[PlanT]):
             "restart_s": None,
         }
         self.restarts.append(self._restarting)
+
+    def _hold_for_cold_solve(self, t: float, reason: str) -> None:
+        """Hold the robot off the plans (the balance stance) until the next plan arrives: the MPC solves
+        cold from a measurement taken while the robot is held, so that its plans restart the gait from the
+        stance (``control.loop.GaitRestart``) and take the robot back. A cold solve from a measurement of the
+        gait (a foot in the air, 30-90 iterations, rarely converged) that the robot followed from its last
+        plan made a trot and a bound fall (2 of 15 process kills)."""
+        self._cold_hold = True
+        self.follower.hold(t, "mpc", reason)
 
     def _discard_process(self) -> None:
         """Kill the current MPC process if it still runs (a stopped one too), reap it, read what it sent."""
@@ -847,9 +865,18 @@ class ProcessMpcLoop(MpcLoop[PlanT]):
         if received is None:
             return
         plan, measured_at, wall = received
-        self._plan = plan
         self._last_plan_time = t
-        self.follower.new_plan(t, measured_at)
+        if record and t - measured_at > self.recovery.stale_after:
+            # solved from a measurement older than the ladder calls a plan stale (the cold solve of a
+            # standby that took over, or after a stall): not followed, the next update's is. A trot took
+            # such a plan 0.17 s after its measurement, from the last plan, and fell 0.18 s later.
+            self.received.stale_plans += 1
+        else:
+            self._plan = plan
+            self.follower.new_plan(t, measured_at)
+        if self._cold_hold and record:  # the cold solve is out: plans measured from now on take it back
+            self._cold_hold = False
+            self.follower.hold(t, "mpc", None)
         if record:
             self.received.latencies.append(t - measured_at)
             self.received.start_times.append(measured_at)

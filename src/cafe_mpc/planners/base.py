@@ -130,6 +130,9 @@ class MpcStatistics:
     warm_up_time: float | None = None
     """Wall time of the warm-up after the first solve (``MpcSettings.warm_up``), before the clock starts."""
     fallback_ticks: int = 0
+    stale_plans: int = 0
+    """Plans received more than ``recovery.stale_after`` after their measurement, not followed (the MPC in
+    its own process: ``control.process``)."""
 
     def record(self, t: float, result: SolverResult, update_time: float, problem_time: float) -> None:
         stats = result.statistics
@@ -185,6 +188,7 @@ class MpcStatistics:
             "defect_max_median": float(np.median(self.defects)) if self.defects else None,
             "time_budget_stops": sum(status == SolveStatus.TIME_BUDGET for status in self.statuses),
             "pd_fallback_ticks": self.fallback_ticks,
+            "stale_plans": self.stale_plans,
             "prepare_ms_median": float(np.median(self.prepare_times)) * 1e3 if self.prepare_times else None,
             "prepare_ms_p99": float(np.percentile(self.prepare_times, 99)) * 1e3
             if self.prepare_times
