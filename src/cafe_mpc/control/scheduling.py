@@ -89,9 +89,9 @@ def _set_every_thread_policy(policy: int) -> str | None:
 
 def background_priority() -> str:
     """Every thread of this process in ``SCHED_IDLE``: it runs only when its core has nothing else to run.
-    A standby MPC process builds and waits so (``control.process``): built at normal priority beside the
-    running MPC process on its core, it took half that core for a few seconds and the running process missed
-    its plans for 0.5 s. Returns the class granted, for the record."""
+    A standby MPC process built while the robot runs builds, makes its first solve and waits so
+    (``control.process``): a second or two of CPU on the running MPC process's core that must not slow the
+    running process's updates. Returns the class granted, for the record."""
     policy = getattr(os, "SCHED_IDLE", None)
     if policy is None:
         return "normal (no SCHED_IDLE here)"
