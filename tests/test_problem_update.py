@@ -176,9 +176,12 @@ def assert_expected_references(built: BuiltProblem, expected: tuple[list[list[di
                 )
 
 
-def _builder(robot, schedule: str) -> CafeProblemBuilder:
+def _builder(robot, schedule: str, touchdown_on_reference: bool = False) -> CafeProblemBuilder:
     return CafeProblemBuilder(
-        WholeBodyModelFactory(robot), SRBModelFactory(robot=robot), ModelSchedule.named(schedule)
+        WholeBodyModelFactory(robot),
+        SRBModelFactory(robot=robot),
+        ModelSchedule.named(schedule),
+        touchdown_on_reference=touchdown_on_reference,
     )
 
 
@@ -304,10 +307,12 @@ def test_warm_start_reusing_its_buffers_equals_a_new_one(robot):
     assert rollouts > 0  # roll-out knots came and went: the reused masks were cleared
 
 
+@pytest.mark.parametrize("on_reference", [True, False])
 @pytest.mark.parametrize("raised", [0.0, 0.25])
-def test_touchdown_constraint_height_follows_the_reference(robot, raised):
-    """Eq. (25) puts a touchdown on the surface the reference's feet land on: the spin's trajectory lifted
-    by ``raised`` (a box top) lands at that height, and on the floor exactly at 0 (the presets' heights)."""
+def test_touchdown_constraint_height_follows_the_reference(robot, raised, on_reference):
+    """With ``mpc.touchdown_surface: reference`` Eq. (25) puts a touchdown on the surface the reference's
+    feet land on: the spin's trajectory lifted by ``raised`` (a box top) lands at that height, and on the
+    floor exactly at 0 (the presets' heights); with ``floor`` (the default) always at 0."""
     from dataclasses import replace
 
     from cafe_mpc.reference.trajectory import TrajectoryReference
@@ -318,7 +323,7 @@ def test_touchdown_constraint_height_follows_the_reference(robot, raised):
     xs[:, 2] += raised
     lifted = replace(spin, xs=xs)
     reference = TrajectoryReference(robot, lifted, weight_set="regular", hold_weight_set="regular")
-    builder = _builder(robot, "S4")
+    builder = _builder(robot, "S4", touchdown_on_reference=on_reference)
     touchdown_time = float(spin.switching_times[2])  # flight -> landing
     heights = []
     for t0 in (touchdown_time - 0.2, touchdown_time - 0.07):
@@ -328,7 +333,7 @@ def test_touchdown_constraint_height_follows_the_reference(robot, raised):
         assert len(touchdowns) == 1
         heights.append(touchdowns[0].surface_heights.copy())
     for surface in heights:
-        if raised == 0.0:
+        if raised == 0.0 or not on_reference:
             assert np.all(surface == 0.0) and not np.any(np.signbit(surface))
         else:
             np.testing.assert_allclose(surface, raised, atol=1e-12)

@@ -203,4 +203,4 @@ def test_packaged_barrel_roll_loads(robot):
     assert trajectory.n_knots == 125 and trajectory.dt == 0.01
     assert set(FIELDS) <= set(np.load(path).files)
     with pytest.raises(ValueError, match="no packaged trajectory"):
-        packaged_trajectory_path("box-jump")
+        packaged_trajectory_path("no-such-task")

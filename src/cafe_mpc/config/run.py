@@ -486,6 +486,12 @@ class MpcConfig(MpcSettings):
     srb_horizon: float | None = Field(None, ge=0.0, le=5.0, description="Ts, s (schedule: null)")
     whole_body_dt: float = Field(WHOLE_BODY_DT, gt=0.0, le=0.1, description="dt_w, s")
     srb_dt: float = Field(SRB_DT, gt=0.0, le=0.5, description="dt_s, s")
+    touchdown_surface: Literal["floor", "reference"] = Field(
+        "floor",
+        description="where the touchdown constraint (25) puts a landing foot: the floor z = 0 (the paper's) "
+        "or the reference's foothold height at the touchdown (a stored trajectory onto a box; the blind "
+        "ground plane's footholds made the blind bound fall on a 10 deg slope)",
+    )
     friction: float = Field(
         CONTROLLER_FRICTION,
         gt=0.0,

@@ -170,8 +170,12 @@ class CafeProblemBuilder:
         srb: SRBModelFactory,
         schedule: ModelSchedule,
         weights: dict[str, tuple[WholeBodyModelFactory, SRBModelFactory]] | None = None,
+        touchdown_on_reference: bool = False,
     ) -> None:
         self.whole_body = whole_body
+        self.touchdown_on_reference = touchdown_on_reference
+        """Whether a touchdown's surface height is the reference's foothold height (``mpc.touchdown_surface``:
+        reference) or the floor, z = 0."""
         self.srb = srb
         self.schedule = schedule
         self.robot = whole_body.robot
@@ -469,7 +473,7 @@ class CafeProblemBuilder:
                 reset, switching = None, None
             else:
                 reset, switching = self._switch(index, stance, next_stance, to_srb=is_last)
-                if switching is not None:
+                if switching is not None and self.touchdown_on_reference:
                     next_row = last if not is_last else n_w + 1
                     self._write_surface_heights(switching, positions[next_row])
             entered_by_impact = index > 0 and _touches_down(groups[index - 1][0], stance)

@@ -69,7 +69,13 @@ def build_problem(run: ResolvedRun) -> CafeProblemBuilder:
         raise ConfigError(f"costs: {error}") from error
     constraints = plan_constraints(run)
     whole_body, srb = _knot_factories(run, (running, terminal), (srb_running, srb_terminal), constraints)
-    return CafeProblemBuilder(whole_body, srb, run.schedule, weights=task_weight_sets(run))
+    return CafeProblemBuilder(
+        whole_body,
+        srb,
+        run.schedule,
+        weights=task_weight_sets(run),
+        touchdown_on_reference=config.mpc.touchdown_surface == "reference",
+    )
 
 
 def _knot_factories(
