@@ -78,3 +78,18 @@ def test_task_block_reads_the_whole_flight_and_the_box_top_off_the_reference(rob
     _, top = _box(config)
     assert all(task.planned_stance)
     np.testing.assert_allclose(np.asarray(task.planned_feet)[:, 2] - robot.foot_radius, top, atol=5e-3)
+
+
+def test_feet_on_the_planned_surface_are_judged_on_a_raised_surface_only(robot):
+    """The criterion checks a landing on a box top; a trajectory that ends on the floor is left to
+    ``landed`` (a running flip's trot under way at the trajectory's end stood its feet 2.2 cm off their
+    planned height)."""
+    from types import SimpleNamespace
+
+    from cafe_mpc_lab.report.task_metrics import _feet_on_plan
+
+    floor = [(0.0, 0.0, robot.foot_radius)] * robot.n_feet
+    task = SimpleNamespace(planned_feet=floor, planned_stance=(True,) * robot.n_feet, end=1.0)
+    unjudged: dict[str, str] = {}
+    assert _feet_on_plan(robot, None, task, 0.002, unjudged) == (None, None, None)
+    assert "floor" in unjudged["feet_on_planned_surface"]

@@ -33,8 +33,9 @@ are then judged on the logged closed loop alone:
 * a bar in the scene (``sim.bar``): ``bar_contact``, any robot geom touched it during the run (the plant's
   contacts; legs included), which geoms, and ``bar_clearance_min_m``, the smallest distance between the bar
   and the robot's geoms over the roll from the logged states (geometric; negative: penetration);
-* ``feet_on_planned_surface``: at the trajectory's end (the last tick before it) every foot the reference has
-  in stance is within ``FOOT_SURFACE_TOLERANCE_M`` of its planned height (a box top, or the floor);
+* ``feet_on_planned_surface``: for a trajectory that ends on a raised surface (a box top), at its end (the
+  last tick before it) every foot the reference has in stance is within ``FOOT_SURFACE_TOLERANCE_M`` of its
+  planned height (one ending on the floor is left to ``landed``: unjudged);
   ``foot_height_error_m`` and ``foot_position_error_m`` (horizontal, reported, not judged) give the largest
   differences from the planned footholds;
 * ``success``: roll turned >= target - ``ROLL_TOLERANCE_RAD``, landed, upright after, stayed up, feet on the
@@ -214,14 +215,19 @@ def _feet_on_plan(
     before it."""
     if task.planned_feet is None or task.planned_stance is None or not any(task.planned_stance):
         return None, None, None
+    planned = np.asarray(task.planned_feet)
+    stance = np.asarray(task.planned_stance, dtype=bool)
+    if not np.any(planned[stance, 2] - robot.foot_radius > FOOT_SURFACE_TOLERANCE_M):
+        # on the floor: ``landed`` judges it (a running flip's feet, a trot already under way at the
+        # trajectory's end, stood 2.2 cm off their planned height)
+        unjudged["feet_on_planned_surface"] = "the trajectory ends on the floor (landed judges it)"
+        return None, None, None
     ticks = np.flatnonzero(log.time <= task.end + 1e-9)
     if not log.ticks or float(log.time[-1]) + control_period < task.end - 1e-9 or not len(ticks):
         if not log.fell:
             unjudged["feet_on_planned_surface"] = "the run ended before the trajectory's end"
         return (False if log.fell else None), None, None
     measured = robot.foot_positions(log.q[ticks[-1]])
-    planned = np.asarray(task.planned_feet)
-    stance = np.asarray(task.planned_stance, dtype=bool)
     height = float(np.max(np.abs(measured[stance, 2] - planned[stance, 2])))
     horizontal = float(np.max(np.linalg.norm(measured[stance, :2] - planned[stance, :2], axis=1)))
     return height <= FOOT_SURFACE_TOLERANCE_M, height, horizontal
@@ -518,8 +524,9 @@ def _criteria(task: AcrobaticTask) -> dict[str, str]:
         "bar_contact": "a bar in the scene: any robot geom (trunk, legs, feet) in contact with it at any "
         "tick of the run (null: no bar); bar_clearance_min_m: smallest bar-to-robot distance over the "
         "roll (trajectory start - 0.3 s to its end), from the logged states",
-        "feet_on_planned_surface": "every foot the reference has in stance at the trajectory's end (the last "
-        f"tick before it) within {FOOT_SURFACE_TOLERANCE_M} m of its planned height (a box top, the floor); "
+        "feet_on_planned_surface": "a trajectory ending on a raised surface (a box top): every foot the "
+        "reference has in stance at its end (the last tick before it) within "
+        f"{FOOT_SURFACE_TOLERANCE_M} m of its planned height (null: it ends on the floor, landed judges it); "
         "foot_position_error_m: the largest horizontal distance to the planned foothold (not judged)",
         "success": "roll_turned and landed and upright_after and stayed_up and feet_on_planned_surface and "
         "no motor torque-limit "
