@@ -92,4 +92,4 @@ def test_feet_on_the_planned_surface_are_judged_on_a_raised_surface_only(robot):
     task = SimpleNamespace(planned_feet=floor, planned_stance=(True,) * robot.n_feet, end=1.0)
     unjudged: dict[str, str] = {}
     assert _feet_on_plan(robot, None, task, 0.002, unjudged) == (None, None, None)
-    assert "floor" in unjudged["feet_on_planned_surface"]
+    assert unjudged == {}  # not applicable: success does not wait for it
