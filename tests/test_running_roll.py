@@ -142,26 +142,9 @@ def test_a_take_off_within_the_motors_clears_the_bar_in_a_randomised_trial():
     plans ask the right abduction motors for up to 1.26 x their 17 Nm in the take-off, the low level clamps
     and the trunk touches the bar at 2.76 s; with the preset's stiffer barrier at 0.9 of them the plans push
     within what the motors give and the robot clears the bar (docs/robustness.md)."""
-    from cafe_mpc.config import load_config
-    from cafe_mpc_lab.experiments.reliability import RandomizationRanges, sample_trial
     from cafe_mpc_lab.experiments.run import simulate_run
 
-    seed = 6
-    preset = load_config("running-barrel-roll")
-    sensors = preset.plant.sensors.model_dump(mode="json")
-    plant, push = sample_trial(
-        RandomizationRanges(), seed, 12, preset.simulation.duration, preset.estimator, sensors
-    )
-    config = load_config(
-        "running-barrel-roll",
-        [
-            f"plant={json.dumps(plant)}",
-            f"pushes={json.dumps([push])}",
-            "mpc.latency=fixed",
-            "simulation.duration=3.1",
-            "mpc.warm_up=0.2",
-        ],
-    )
+    config = _randomised_trial(6, duration=3.1)
     assert config.mpc.plan_torque_fraction < 1.0 and config.mpc.torque_barrier_eps >= 1.0
     _, _, log = simulate_run(config)
     assert not log.fell and log.time[-1] >= 3.09
@@ -178,26 +161,9 @@ def test_the_approach_starts_from_rest_and_a_heavier_robot_paces_on(robot):
     planned touchdown while the trunk still rose, rolled it over (7 rad/s within 60 ms) and it fell at
     0.91 s. With the preset's ramp from rest the right feet land on time and the robot paces on
     (docs/robustness.md, "The approach: its first push and its line")."""
-    from cafe_mpc.config import load_config
-    from cafe_mpc_lab.experiments.reliability import RandomizationRanges, sample_trial
     from cafe_mpc_lab.experiments.run import simulate_run
 
-    seed = 37
-    preset = load_config("running-barrel-roll")
-    sensors = preset.plant.sensors.model_dump(mode="json")
-    plant, push = sample_trial(
-        RandomizationRanges(), seed, 12, preset.simulation.duration, preset.estimator, sensors
-    )
-    config = load_config(
-        "running-barrel-roll",
-        [
-            f"plant={json.dumps(plant)}",
-            f"pushes={json.dumps([push])}",
-            "mpc.latency=fixed",
-            "simulation.duration=1.2",
-            "mpc.warm_up=0.2",
-        ],
-    )
+    config = _randomised_trial(37, duration=1.2)
     approach = config.reference.segments[0].gait
     assert approach.command_ramp > 0.0
     _, _, log = simulate_run(config)
@@ -218,29 +184,35 @@ def test_the_approach_holds_its_line_and_the_roll_clears_the_bar_in_a_randomised
     decides where it crosses the bar. With the approach's path gain at 1 rad/m this robot started the roll
     3.7 cm off its line, away from the bar, and came down on it at 3.02 s; at the preset's 2 rad/m it
     starts 2.5 cm off and clears the bar (docs/robustness.md, "The approach: its first push and its line")."""
-    from cafe_mpc.config import load_config
-    from cafe_mpc_lab.experiments.reliability import RandomizationRanges, sample_trial
     from cafe_mpc_lab.experiments.run import simulate_run
 
-    seed = 26
-    preset = load_config("running-barrel-roll")
-    sensors = preset.plant.sensors.model_dump(mode="json")
-    plant, push = sample_trial(
-        RandomizationRanges(), seed, 12, preset.simulation.duration, preset.estimator, sensors
-    )
-    config = load_config(
-        "running-barrel-roll",
-        [
-            f"plant={json.dumps(plant)}",
-            f"pushes={json.dumps([push])}",
-            "mpc.latency=fixed",
-            "simulation.duration=3.1",
-            "mpc.warm_up=0.2",
-        ],
-    )
+    config = _randomised_trial(26, duration=3.1)
     assert config.reference.segments[0].gait.path_gain >= 2.0
     _, _, log = simulate_run(config)
     assert not log.fell and log.time[-1] >= 3.09
     assert not np.any(log.extra["bar_contact"])
     roll_start = np.searchsorted(log.time, 2.45)
     assert abs(log.q[roll_start, 1]) < 0.03
+
+
+def _randomised_trial(seed: int, duration: float):
+    """The running roll's reliability trial ``seed`` (default ranges, 12 trials' sampling, fixed latency),
+    simulated for ``duration`` s."""
+    from cafe_mpc.config import load_config
+    from cafe_mpc_lab.experiments.reliability import RandomizationRanges, sample_trial
+
+    preset = load_config("running-barrel-roll")
+    sensors = preset.plant.sensors.model_dump(mode="json")
+    plant, push = sample_trial(
+        RandomizationRanges(), seed, 12, preset.simulation.duration, preset.estimator, sensors
+    )
+    return load_config(
+        "running-barrel-roll",
+        [
+            f"plant={json.dumps(plant)}",
+            f"pushes={json.dumps([push])}",
+            "mpc.latency=fixed",
+            f"simulation.duration={duration}",
+            "mpc.warm_up=0.2",
+        ],
+    )
