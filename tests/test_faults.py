@@ -189,6 +189,13 @@ def test_a_killed_mpc_process_is_replaced_by_its_standby_and_leaves_no_process(t
     assert "code -9" in mpc["events"][exited]["detail"]
     [restart] = mpc["restarts"]
     assert restart["standby"]  # the standby took over: no process was built from scratch
+    # held in the balance stance through the cold solve, taken back by plans that stand (the gait restarts)
+    episodes = metrics["faults"]["ladder"]["episodes"]
+    assert episodes and episodes[0]["off_at"] <= restart["t"] + 0.01, episodes
+    for episode in episodes:
+        if episode["back_at"] is not None:
+            tick = int(np.searchsorted(result.log.time, episode["back_at"] - 1e-9))
+            assert result.log.extra["planned_stance"][tick].all(), episode
     assert mpc["processes"] >= 2 and mpc["failure"] is None
     killed = [item["pid"] for item in metrics["faults"]["applied"] if item["kind"] == "mpc_kill"]
     assert killed and not any(_alive(pid) for pid in killed)
