@@ -527,25 +527,52 @@ class MpcConfig(MpcSettings):
         return self
 
 
+def _weights_over_defaults(model: type[StrictModel], data: Any) -> Any:
+    """``data`` of a section of weight sets with every weight set given as a mapping completed from that
+    set's default: a file that gives ``running: {base_position: ...}`` changes that weight alone, as the
+    ``--set running.base_position=...`` override does, instead of taking every other weight from the weight
+    class's own defaults (which are another set's)."""
+    if not isinstance(data, dict):
+        return data
+    merged = dict(data)
+    for name, value in data.items():
+        field = model.model_fields.get(name)
+        if isinstance(value, dict) and field is not None and field.default_factory is not None:
+            default = field.get_default(call_default_factory=True)
+            merged[name] = {**default.model_dump(), **value}
+    return merged
+
+
 class CostsConfig(StrictModel):
     """Cost weights of the whole-body plan (``running``, ``terminal``: the authors' "regular" set,
     ``WholeBodyWeights``) and of the SRB tail (``srb_running``, ``srb_terminal``: the authors' SRB tracking
     set with ten times its height weight, ``SRBWeights.regular_running``, which says why, and why the tail
-    does not take the whole-body base weights as Eq. (28) does). Sources in docs/settings.md."""
+    does not take the whole-body base weights as Eq. (28) does). Sources in docs/settings.md. A set given in
+    part keeps its default's other weights."""
 
     running: WholeBodyWeights = Field(default_factory=WholeBodyWeights.regular_running)
     terminal: WholeBodyWeights = Field(default_factory=WholeBodyWeights.regular_terminal)
     srb_running: SRBWeights = Field(default_factory=SRBWeights.regular_running)
     srb_terminal: SRBWeights = Field(default_factory=SRBWeights.regular_terminal)
 
+    @model_validator(mode="before")
+    @classmethod
+    def _complete_sets(cls, data: Any) -> Any:
+        return _weights_over_defaults(cls, data)
+
 
 class TrajectoryCostsConfig(StrictModel):
     """Weight set ``barrel_roll`` of the knots inside a stored trajectory (default: the authors' barrel-roll
     set, ``WholeBodyWeights.barrel_roll_running/terminal``; docs/settings.md). The SRB tail uses the same base
-    weights (Eq. (28))."""
+    weights (Eq. (28)). A set given in part keeps the barrel-roll set's other weights."""
 
     running: WholeBodyWeights = Field(default_factory=WholeBodyWeights.barrel_roll_running)
     terminal: WholeBodyWeights = Field(default_factory=WholeBodyWeights.barrel_roll_terminal)
+
+    @model_validator(mode="before")
+    @classmethod
+    def _complete_sets(cls, data: Any) -> Any:
+        return _weights_over_defaults(cls, data)
 
 
 class ReferenceSegmentConfig(StrictModel):
