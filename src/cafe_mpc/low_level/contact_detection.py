@@ -27,7 +27,11 @@ still higher and unloaded is a late touchdown: in the air, out of the stance set
 planned foothold); in the early window of a swing it needs both, a normal force above ``touchdown_force``
 and the ground within ``touchdown_height``. With a ground plane a loaded foot may be up to ``step_height``
 above the plane (a step up the plane does not know yet): the force is the evidence there, and it is the
-ground's, since a foot out of the stance set is not commanded to push. A foot leaves contact when
+ground's. Off flat ground a foot planned in stance lands only while its vertical speed is below
+``landing_speed``: the plane is an estimate (through feet on different treads it lies above the lower
+tread, and a descending foot passes under it before it meets the ground), and a foot out of the stance set
+still gets torques near the plan's stance torques (the VWBC's cost pulls toward them), so a leg pushing its
+foot down through the air shows a load; a foot that met the ground has stopped. A foot leaves contact when
 its force drops below ``release_force`` with the foot higher than ``release_height``, or when its planned
 swing begins (the schedule decides lift-off). In planned stance the force is not asked for: on a robot it is
 estimated from the joint torques, which there are the stance torques this controller commands, so it would
@@ -104,8 +108,12 @@ class ContactDetector:
         k = plan.knot_at(t)
         planned = plan.contacts[k]
         model, data = self.robot.model, self.data
-        pin.framesForwardKinematics(model, data, measurement.q)
         radius, ground, soles = self.robot.foot_radius, self.ground, self.soles
+        if ground is None:
+            pin.framesForwardKinematics(model, data, measurement.q)
+        else:
+            pin.forwardKinematics(model, data, measurement.q, measurement.v)
+            pin.updateFramePlacements(model, data)
         reach = s.touchdown_height if ground is None else s.step_height
         for foot, frame_id in enumerate(self.robot.foot_frame_ids):
             soles[foot] = data.oMf[frame_id].translation
@@ -119,7 +127,10 @@ class ContactDetector:
             loaded = force > self.touchdown_force and height < reach
             if planned[foot]:
                 if not self.in_contact[foot]:
-                    self.in_contact[foot] = height < s.touchdown_height or loaded
+                    landed = height < s.touchdown_height or loaded
+                    if landed and ground is not None:
+                        landed = abs(self._vertical_speed(frame_id)) < s.landing_speed
+                    self.in_contact[foot] = landed
                 elif force < self.release_force and height > s.release_height:
                     self.in_contact[foot] = False
                 if not self.in_contact[foot]:
@@ -141,6 +152,11 @@ class ContactDetector:
         if ground is not None:
             ground.observe(soles, self.in_contact)
         return self.in_contact
+
+    def _vertical_speed(self, frame_id: int) -> float:
+        """World vertical velocity (m/s) of a foot frame, from the kinematics of the measured state."""
+        velocity = pin.getFrameVelocity(self.robot.model, self.data, frame_id, pin.LOCAL_WORLD_ALIGNED)
+        return float(velocity.linear[2])
 
     def statistics(self) -> dict:
         return {
