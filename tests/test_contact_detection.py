@@ -150,3 +150,23 @@ def test_a_heavier_trunk_lands_early_in_the_pace_and_detection_keeps_it_up():
     assert not log.fell and log.time[-1] >= 0.99
     detector = controller.low_level.inner.detector
     assert detector.early_touchdowns >= 1
+
+
+def test_off_flat_ground_a_loaded_foot_moving_down_has_not_landed(robot):
+    """Blind (a ground plane): foot 0, planned in stance from 0.10 s, comes down 4 cm above the ground at
+    1 m/s with a load (the echo of stance torques pushing a leg in the air) and lands at 0.15 s: out of the
+    stance until it has stopped on the ground."""
+    detector = ContactDetector(robot, ContactDetectionSettings(), ground_plane=True)
+    plan = scripted_plan(robot)
+    land = 0.15
+    share = robot.total_mass * GRAVITY / robot.n_feet
+    flags = []
+    times = np.arange(0.0, 0.2, TICK)
+    for t in times:
+        state = measurement(robot, float(t), 0.0 if t >= land else 0.04, share)
+        if t < land:
+            state.v[2] = -1.0  # the base, and the feet with it, moving down
+        flags.append(bool(detector.update(float(t), state, plan)[0]))
+    flags = np.array(flags)
+    assert not flags[(times >= SWING_END) & (times < land)].any()
+    assert flags[times >= land].all()

@@ -494,3 +494,30 @@ def test_interpolated_state_reference_follows_the_plan_inside_the_knot(robot, so
     assert interpolated.last_used_qp and on_knot.last_used_qp
     np.testing.assert_allclose(tau, reference, atol=1e-6)
     assert np.max(np.abs(held.compute(0.015, measured(q, v), plan) - reference)) > 1.0
+
+
+def test_blind_a_late_foot_is_not_given_its_stance_torques(robot):
+    """Off flat ground (``ground_plane``) a foot planned in stance that the detector finds in the air gets the
+    plan's torques without its stance torques ``-J^T F*`` (they would drive the leg down through the air and
+    kick the trunk); on flat ground the paper's: the plan's torques. With every foot in the air the QP is the
+    policy (7) about the torque it is given, so the two differ by ``J^T F*`` on the legs, 0 elsewhere."""
+    plan = synthetic_plan(robot, seed=21)
+    assert plan.contacts[0].all() and np.abs(plan.forces[0]).max() > 1.0
+    q = robot.q_standing.copy()
+    q[2] += 0.1  # every foot 10 cm above the ground: planned in stance, late
+    v = np.zeros(robot.nv)
+    torques = {}
+    for blind in (False, True):
+        vwbc = VWBCController(
+            robot, VWBCSettings(stance_source="detected"), torque_limits=GENEROUS, ground_plane=blind
+        )
+        torques[blind] = vwbc.compute(0.0, measured(q, v, ~FOUR), plan).copy()
+        assert vwbc.last_used_qp and not vwbc.last_stance.any()
+    data = robot.model.createData()
+    pin.computeJointJacobians(robot.model, data, q)
+    pin.updateFramePlacements(robot.model, data)
+    expected = np.zeros(robot.nu)
+    for foot, frame_id in enumerate(robot.foot_frame_ids):
+        jacobian = pin.getFrameJacobian(robot.model, data, frame_id, pin.LOCAL_WORLD_ALIGNED)[:3, 6:]
+        expected += jacobian.T @ plan.forces[0][foot]
+    np.testing.assert_allclose(torques[True] - torques[False], expected, atol=1e-6)

@@ -151,9 +151,9 @@ class ContactDetectionSettings(StrictModel):
         0.3,
         gt=0.0,
         le=10.0,
-        description="m/s; with a ground plane (terrain: blind), a foot planned in stance lands only while its "
-        "vertical speed is below this (a foot moving up or down is in the air: its load may be the echo of "
-        "the stance torques pushing it, its height is measured above an estimated plane)",
+        description="m/s; with a ground plane (terrain: blind), a foot planned in stance lands only while "
+        "its vertical speed is below this (a foot moving up or down is in the air: its load may be the echo "
+        "of the stance torques pushing it, its height is measured above an estimated plane)",
     )
 
     def on_time_for(self, flat: bool) -> float:
