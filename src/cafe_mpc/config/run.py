@@ -155,6 +155,14 @@ class ContactDetectionSettings(StrictModel):
         "its vertical speed is below this (a foot moving up or down is in the air: its load may be the echo "
         "of the stance torques pushing it, its height is measured above an estimated plane)",
     )
+    reach_speed: float = Field(
+        1.5,
+        gt=0.0,
+        le=20.0,
+        description="m/s; with a ground plane (terrain: blind), a late foot (planned in stance, in the air) "
+        "keeps its stance torques and reaches down for the ground until it moves down faster than this; "
+        "faster, the VWBC takes them off (a leg thrown down through the air kicks the trunk)",
+    )
 
     def on_time_for(self, flat: bool) -> float:
         """The on-time margin (s): ``on_time``, or when it is null ``ON_TIME_FLAT`` on flat ground and

@@ -31,7 +31,9 @@ ground's. Off flat ground a foot planned in stance lands only while its vertical
 ``landing_speed``: the plane is an estimate (through feet on different treads it lies above the lower
 tread, and a descending foot passes under it before it meets the ground), and a foot out of the stance set
 still gets torques near the plan's stance torques (the VWBC's cost pulls toward them), so a leg pushing its
-foot down through the air shows a load; a foot that met the ground has stopped. A foot leaves contact when
+foot down through the air shows a load; a foot that met the ground has stopped. The same holds for an early
+touchdown: on the way down a slope or steps the plane lies above the ground ahead, and a swinging foot
+passes under it, loaded by the torques that swing it, before it lands. A foot leaves contact when
 its force drops below ``release_force`` with the foot higher than ``release_height``, or when its planned
 swing begins (the schedule decides lift-off). In planned stance the force is not asked for: on a robot it is
 estimated from the joint torques, which there are the stance torques this controller commands, so it would
@@ -76,6 +78,8 @@ class ContactDetector:
         self.release_force = self.settings.release_force * weight_share
         self.in_contact = np.zeros(robot.n_feet, dtype=bool)
         self.heights = np.zeros(robot.n_feet)
+        self.vertical_speeds = np.zeros(robot.n_feet)
+        """With a ground plane, each foot's world vertical velocity (m/s) at the last update (else zeros)."""
         self._plan: KnotPlan | None = None
         self._next_touchdown = np.zeros((0, robot.n_feet))
         self.reset()
@@ -123,14 +127,15 @@ class ContactDetector:
             else:
                 height = soles[foot, 2] - ground.height_at(soles[foot, 0], soles[foot, 1])
             self.heights[foot] = height
+            if ground is not None:
+                velocity = pin.getFrameVelocity(model, data, frame_id, pin.LOCAL_WORLD_ALIGNED)
+                self.vertical_speeds[foot] = velocity.linear[2]
             force = measurement.foot_forces[foot, 2]
             loaded = force > self.touchdown_force and height < reach
+            moving = ground is not None and abs(self.vertical_speeds[foot]) >= s.landing_speed
             if planned[foot]:
                 if not self.in_contact[foot]:
-                    landed = height < s.touchdown_height or loaded
-                    if landed and ground is not None:
-                        landed = abs(self._vertical_speed(frame_id)) < s.landing_speed
-                    self.in_contact[foot] = landed
+                    self.in_contact[foot] = (height < s.touchdown_height or loaded) and not moving
                 elif force < self.release_force and height > s.release_height:
                     self.in_contact[foot] = False
                 if not self.in_contact[foot]:
@@ -140,7 +145,7 @@ class ContactDetector:
                     self.in_contact[foot] = False
                 lead = self._next_touchdown[k, foot] - t
                 soon = self.on_time < lead <= s.early_window
-                if not self.in_contact[foot] and soon and loaded:
+                if not self.in_contact[foot] and soon and loaded and not moving:
                     self.in_contact[foot] = True
                     self.early_touchdowns += 1
                     self.early_lead_sum += lead
@@ -152,11 +157,6 @@ class ContactDetector:
         if ground is not None:
             ground.observe(soles, self.in_contact)
         return self.in_contact
-
-    def _vertical_speed(self, frame_id: int) -> float:
-        """World vertical velocity (m/s) of a foot frame, from the kinematics of the measured state."""
-        velocity = pin.getFrameVelocity(self.robot.model, self.data, frame_id, pin.LOCAL_WORLD_ALIGNED)
-        return float(velocity.linear[2])
 
     def statistics(self) -> dict:
         return {

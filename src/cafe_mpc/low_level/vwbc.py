@@ -560,13 +560,17 @@ class VWBCController(LowLevelController[Plan]):
 
     def _without_late_stance(self, plan: Plan, k: int, tau_plan: np.ndarray) -> np.ndarray:
         """The plan's torques ``tau*_k`` without the stance torques ``-J_i^T F*_i`` of each late foot ``i``
-        (planned in stance, not detected: in the air). (34a) pulls the torques toward ``tau*_k``; a leg in the
-        air given its stance torques drives its light foot down and back at metres per second and kicks the
-        trunk (on steps and slopes, where the blind plan's ground is an estimate and touchdowns come late),
-        and the foot slams in at several times its weight share. Without them the leg follows the plan's
-        feedback and meets the ground at the speed of its state reference. ``self.terms`` holds the joint
+        (planned in stance, not detected: in the air) that moves down faster than the detector's
+        ``reach_speed``. (34a) pulls the torques toward ``tau*_k``; a leg in the air given its stance torques
+        drives its light foot down and back at metres per second and kicks the trunk (on steps and slopes,
+        where the blind plan's ground is an estimate and touchdowns come late), and the foot slams in at
+        several times its weight share. Slower, the stance torques stay: the late foot reaches down for
+        ground lower than planned (a rough field, the way down a slope). ``self.terms`` holds the joint
         Jacobians of the measured configuration."""
+        assert self.detector is not None
+        detector = self.detector
         late = plan.contacts[k] & ~self._stance
+        late &= detector.vertical_speeds < -detector.settings.reach_speed
         if not late.any():
             return tau_plan
         tau = self._tau_without_late
