@@ -494,33 +494,3 @@ def test_interpolated_state_reference_follows_the_plan_inside_the_knot(robot, so
     assert interpolated.last_used_qp and on_knot.last_used_qp
     np.testing.assert_allclose(tau, reference, atol=1e-6)
     assert np.max(np.abs(held.compute(0.015, measured(q, v), plan) - reference)) > 1.0
-
-
-def test_blind_a_late_foot_thrown_down_is_not_given_its_stance_torques(robot):
-    """Off flat ground (``ground_plane``) a foot planned in stance that the detector finds in the air and that
-    moves down faster than ``reach_speed`` gets the plan's torques without its stance torques ``-J^T F*``
-    (they throw the leg down through the air and kick the trunk); slower, it keeps them and reaches down,
-    as on flat ground. With every foot in the air the QP is the policy (7) about the torque it is given, so
-    blind and flat differ by ``J^T F*`` on the legs when the feet fall fast, and not at all at rest."""
-    plan = synthetic_plan(robot, seed=21)
-    assert plan.contacts[0].all() and np.abs(plan.forces[0]).max() > 1.0
-    q = robot.q_standing.copy()
-    q[2] += 0.1  # every foot 10 cm above the ground: planned in stance, late
-    data = robot.model.createData()
-    pin.computeJointJacobians(robot.model, data, q)
-    pin.updateFramePlacements(robot.model, data)
-    stance_torques = np.zeros(robot.nu)
-    for foot, frame_id in enumerate(robot.foot_frame_ids):
-        jacobian = pin.getFrameJacobian(robot.model, data, frame_id, pin.LOCAL_WORLD_ALIGNED)[:3, 6:]
-        stance_torques += jacobian.T @ plan.forces[0][foot]
-    for fall_speed, difference in ((0.0, np.zeros(robot.nu)), (3.0, stance_torques)):
-        v = np.zeros(robot.nv)
-        v[2] = -fall_speed  # the trunk, and the feet with it, moving down
-        torques = {}
-        for blind in (False, True):
-            vwbc = VWBCController(
-                robot, VWBCSettings(stance_source="detected"), torque_limits=GENEROUS, ground_plane=blind
-            )
-            torques[blind] = vwbc.compute(0.0, measured(q, v, ~FOUR), plan).copy()
-            assert vwbc.last_used_qp and not vwbc.last_stance.any()
-        np.testing.assert_allclose(torques[True] - torques[False], difference, atol=1e-6)

@@ -147,21 +147,14 @@ class ContactDetectionSettings(StrictModel):
         le=0.5,
         description="m; with a ground plane (terrain: blind), a loaded foot up to this above it touches down",
     )
-    landing_speed: float = Field(
-        0.3,
+    landing_speed: float | None = Field(
+        None,
         gt=0.0,
         le=10.0,
-        description="m/s; with a ground plane (terrain: blind), a foot planned in stance lands only while "
-        "its vertical speed is below this (a foot moving up or down is in the air: its load may be the echo "
-        "of the stance torques pushing it, its height is measured above an estimated plane)",
-    )
-    reach_speed: float = Field(
-        1.5,
-        gt=0.0,
-        le=20.0,
-        description="m/s; with a ground plane (terrain: blind), a late foot (planned in stance, in the air) "
-        "keeps its stance torques and reaches down for the ground until it moves down faster than this; "
-        "faster, the VWBC takes them off (a leg thrown down through the air kicks the trunk)",
+        description="m/s; with a ground plane (terrain: blind), a touchdown (early or late) counts only "
+        "while the foot's vertical speed is below this: a foot still moving is in the air (its load may be "
+        "the echo of the torques pushing it, its height is measured above an estimated plane); null: not "
+        "checked",
     )
 
     def on_time_for(self, flat: bool) -> float:

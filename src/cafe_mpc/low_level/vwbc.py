@@ -58,7 +58,6 @@ import time
 from collections import Counter
 
 import numpy as np
-import pinocchio as pin
 import proxsuite
 
 from cafe_mpc.config import ContactDetectionSettings, VWBCSettings
@@ -417,7 +416,6 @@ class VWBCController(LowLevelController[Plan]):
         self._dx = np.zeros(2 * nv)
         self._x_plan = np.zeros(robot.nq + nv)  # the plan's state at t (state_reference: interpolated)
         self._g_tau = np.zeros(nu)
-        self._tau_without_late = np.zeros(nu)
         self._torques = np.zeros(nu)
         self.last_request = self._torques  # the QP respects the limits: the request is the output
         self._stance = np.zeros(robot.n_feet, dtype=bool)
@@ -522,13 +520,10 @@ class VWBCController(LowLevelController[Plan]):
         if self.detector is not None and self.detector.ground is not None:
             qp.orient_cone(self.detector.ground.normal())
         self.terms.compute(q, v, self._stance)
-        tau_plan = plan.us[k]
-        if self.detector is not None and self.detector.ground is not None:
-            tau_plan = self._without_late_stance(plan, k, tau_plan)
         # linear term of (34a) in tau: Qux dx + Qu - Quu tau*
         np.matmul(plan.Qux[k], dx, out=self._g_tau)
         self._g_tau += plan.Qu[k]
-        self._g_tau -= plan.Quu[k] @ tau_plan
+        self._g_tau -= plan.Quu[k] @ plan.us[k]
         qp.fill(self.terms, plan.Quu[k], self._g_tau)
         # warm start from the plan (paper end of Sec. V-A): finite-difference qdd, tau*_k, F*_k
         np.subtract(plan.xs[k + 1, nq:], plan.xs[k, nq:], out=qp.x0[:nv])
@@ -557,31 +552,6 @@ class VWBCController(LowLevelController[Plan]):
         self.last_forces[qp.stance] = x[qp.force].reshape(-1, 3)
         self._previous_pattern = pattern
         return ""
-
-    def _without_late_stance(self, plan: Plan, k: int, tau_plan: np.ndarray) -> np.ndarray:
-        """The plan's torques ``tau*_k`` without the stance torques ``-J_i^T F*_i`` of each late foot ``i``
-        (planned in stance, not detected: in the air) that moves down faster than the detector's
-        ``reach_speed``. (34a) pulls the torques toward ``tau*_k``; a leg in the air given its stance torques
-        drives its light foot down and back at metres per second and kicks the trunk (on steps and slopes,
-        where the blind plan's ground is an estimate and touchdowns come late), and the foot slams in at
-        several times its weight share. Slower, the stance torques stay: the late foot reaches down for
-        ground lower than planned (a rough field, the way down a slope). ``self.terms`` holds the joint
-        Jacobians of the measured configuration."""
-        assert self.detector is not None
-        detector = self.detector
-        late = plan.contacts[k] & ~self._stance
-        late &= detector.vertical_speeds < -detector.settings.reach_speed
-        if not late.any():
-            return tau_plan
-        tau = self._tau_without_late
-        np.copyto(tau, tau_plan)
-        model, data = self.terms.model, self.terms.data
-        actuated = self.robot.nv - self.robot.nu  # the actuated joints are the last nu of v
-        for foot in np.flatnonzero(late):
-            frame_id = self.robot.foot_frame_ids[foot]
-            jacobian = pin.getFrameJacobian(model, data, frame_id, pin.LOCAL_WORLD_ALIGNED)[:3, actuated:]
-            tau += jacobian.T @ plan.forces[k][foot]
-        return tau
 
     def _fallback(self, plan: Plan, k: int, dx: np.ndarray, reason: str) -> None:
         """Clamped Riccati feedback (33); the plan torque alone if even that is not finite."""
