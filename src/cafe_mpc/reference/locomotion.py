@@ -427,21 +427,24 @@ class LocomotionReference(Reference):
     def rest_commands(self, t: float, rest: bool) -> None:
         """The commands rest from ``t`` on while the gait goes on (``rest``: the MPC brings the robot to rest
         on its steps, the safe ladder's stop; docs/faults.md), or (not ``rest``) come back from ``t``, ramped
-        in from rest over ``command_ramp`` as at the start. A gait restart ends a rest."""
+        in from rest over ``command_ramp`` as at the start. A gait restart ends a rest (its own commands
+        follow)."""
         t = float(t)
         self._rest = (t, math.inf) if rest else (self._rest[0], t)
         self.profile = self._command_profile()
 
     def _command_profile(self) -> CommandProfile:
         """The commands over time (``_gait_profile``), resting on ``_rest`` and ramped back in after it."""
-        profile = self._gait_profile()
+        gait = self._gait_profile()
         rest_from, rest_until = self._rest
         if math.isinf(rest_from):
-            return profile
+            return gait
         rest = CommandProfile([VelocityCommand()], self.robot.standing_height)
-        profile = profile.spliced(rest_from, rest)
+        profile = gait.spliced(rest_from, rest)
         if math.isinf(rest_until):
             return profile
+        if self.restarts and self.restarts[-1][0] == rest_until:  # a gait restart ended the rest
+            return profile.spliced(rest_until, gait)
         back = CommandProfile(self.commands, self.robot.standing_height, self.command_ramp, rest_until)
         return profile.spliced(rest_until, back)
 
@@ -481,7 +484,10 @@ class LocomotionReference(Reference):
         segments.append(_GaitSegment.of(start, target, start))
         self._segments = segments
         self._stand = (t, until)
-        self._rest = (math.inf, math.inf)
+        if math.isinf(self._rest[1]):
+            self._rest = (self._rest[0], t)  # a rest ends here: the restart's commands follow
+        else:
+            self._rest = (math.inf, math.inf)  # an ended rest is past (the reference anchors at the updates)
         self.restarts.append((t, float(stand)))
         self.path_origin = None
         self.profile = self._command_profile()
