@@ -154,8 +154,8 @@ class MpcLoop(ABC, Generic[PlanT]):
     def report_sensors(self, t: float, fault: str | None, stop: bool = False) -> None:
         """A sensor has been out for too long (``fault``: which, since when): hold the robot off the plans
         (balance) until all are back (``None``); plans count again once measured after that. ``stop``: the
-        estimate stands in for the sensor (``SensorFrontEnd.modelled``): the robot stays on the plans, which
-        stop it on all feet (the follower's ``stop`` step), instead."""
+        estimate stands in for the sensor (``SensorFrontEnd.modelled``): the robot stays on the plans, whose
+        commands rest, until it is slow (the follower's ``stop`` step), and only then balances."""
         self.follower.hold(t, "sensors", None if stop else fault)
         self.follower.stop(t, "sensors", fault if stop else None)
 

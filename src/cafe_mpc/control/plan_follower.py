@@ -165,7 +165,7 @@ class NewestPlanFollower(Generic[PlanT]):
 
     @property
     def following(self) -> bool:
-        """Whether the low level follows a plan (the plan or last_plan step)."""
+        """Whether the low level follows a plan (the plan, last_plan or stop step)."""
         return self.step in FOLLOWING
 
     @property

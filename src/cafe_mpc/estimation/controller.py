@@ -13,7 +13,9 @@ simulation (``SensingController``) and in the library (``cafe_mpc.Controller.mea
    restart: the other legs carried the estimate, and the leg is read again.
 
 ``fault(t)`` says when the controller should hold the robot off its plans: a sensor out for longer than
-``outage_limit``, or the estimator restarted less than ``outage_limit`` ago. ``record()`` is the ``sensors``
+``outage_limit``, or the estimator restarted less than ``outage_limit`` ago; ``modelled(t)`` whether the
+estimate stands in for it (the IMU with the model's attitude), so that the robot may first be stopped on its
+plans (the safe ladder's ``stop`` step). ``record()`` is the ``sensors``
 part of a run's ``faults`` block.
 
 ``SensingController(inner, estimator, limits=...)`` is what the closed loop calls when the controller must
