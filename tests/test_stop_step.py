@@ -104,3 +104,30 @@ def test_a_bound_whose_imu_goes_out_500ms_in_flight_is_stopped_on_its_steps_and_
     assert not result.log.fell
     steps = [change["step"] for change in result.metrics["faults"]["ladder"]["steps"]]
     assert steps[:2] == ["stop", "balance"]
+
+
+def test_the_mpc_process_hears_of_a_stop_through_the_measurement_ring_and_rests_the_commands(robot):
+    from cafe_mpc.control.ipc.channels import MeasurementRing
+    from cafe_mpc.control.process import STOPPING, _Worker
+
+    ring = MeasurementRing(robot.nq, robot.nv, robot.n_feet)
+    try:
+        out = np.zeros(ring.slot - 2)
+        contacts = np.ones(robot.n_feet)
+        ring.write(3, 0.006, robot.q_standing, np.zeros(robot.nv), contacts, held=STOPPING)
+        assert ring.read(3, out) and out[ring.HELD] == STOPPING
+    finally:
+        ring.close(unlink=True)
+    reference = LocomotionReference(
+        robot, get_gait("bound"), [VelocityCommand(vx=0.5)], start_stance=0.2, command_ramp=0.5
+    )
+    worker = _Worker.__new__(_Worker)
+    worker.planner = type("Planner", (), {"started": True})()
+    worker.ring = type("Ring", (), {"HELD": 0})()
+    worker.buffer = np.array([STOPPING])
+    worker.gait_restart = GaitRestart(reference, None)
+    worker._warm_from_gait = False
+    assert worker._observe_hold(1.0) is True  # stopping, not held: the commands rest, the gait goes on
+    assert reference.restarts == [] and reference.command_at(1.1).vx == 0.0
+    worker.buffer[0] = 0.0
+    assert worker._observe_hold(1.3) is True and reference.command_at(1.9).vx == pytest.approx(0.5)
