@@ -216,6 +216,7 @@ def _whole_body_specs() -> list[CaseSpec]:
     variants: dict[str, SettingsOf] = {
         "world-base-error": _all_terms_with(base_error="world"),
         "semi-implicit": _all_terms_with(integration="semi_implicit", dt=0.02),
+        "explicit-world": _all_terms_with(integration="explicit_world", dt=0.02),
         "contact-damping": _all_terms_with(contact_damping=1e-3),
         "unconstrained": _all_terms_with(constraints=WholeBodyConstraintSettings.unconstrained()),
         "torque-limit-override": _torque_limit_override,

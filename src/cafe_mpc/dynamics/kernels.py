@@ -167,6 +167,94 @@ def free_flyer_euler_step_jacobians(
 
 
 @njit(cache=True, nogil=True)
+def _skew_product_rows(
+    vector: tuple, matrix: np.ndarray, row: int, column: int, scale: float, out: np.ndarray
+) -> None:
+    """``out[:3, column:column + 3] += scale [vector]x matrix[row:row + 3, row:row + 3]``."""
+    x, y, z = vector
+    for j in range(3):
+        m0, m1, m2 = matrix[row, row + j], matrix[row + 1, row + j], matrix[row + 2, row + j]
+        out[0, column + j] += scale * (y * m2 - z * m1)
+        out[1, column + j] += scale * (z * m0 - x * m2)
+        out[2, column + j] += scale * (x * m1 - y * m0)
+
+
+@njit(cache=True, nogil=True)
+def world_velocity_euler_step_jacobians(
+    da_dq: np.ndarray,
+    da_dv: np.ndarray,
+    da_dtau: np.ndarray,
+    symmetric_upper: bool,
+    step: np.ndarray,
+    base_velocity: np.ndarray,
+    next_linear_velocity: np.ndarray,
+    dt: float,
+    blocks: np.ndarray,
+    Fx: np.ndarray,
+    Fu: np.ndarray,
+) -> None:
+    """Tangent Jacobians of ``world_velocity_euler_step`` (free-flyer robot; ``step = (v dt, w dt, joints'
+    v dt)``, ``base_velocity = (v, w)`` before the step, ``next_linear_velocity = v+``).
+
+    With ``E = exp3(w dt)`` (``E'`` is the ``dq`` block of ``free_flyer_integrate_jacobians``) and ``J =
+    Jexp3(w dt)`` (its ``dstep`` block), tangent perturbations ``p ⊕ dp = p + R dp``, ``R ⊕ dθ = R exp3(dθ)``:
+
+    * ``dp+ = E' (dp - dt [v]x dθ + dt dv)``, ``dθ+ = E' dθ + dt J dw``;
+    * ``dv+ = E' ((I + dt [w]x) dv - dt [v]x dw + dt da_lin) + dt [v+]x J dw``;
+    * the angular and joint rows as the explicit step's (``euler_velocity_rows``, ``q+ = q + v dt``).
+    """
+    nv = da_dq.shape[0]
+    nu = Fu.shape[1]
+    dq_block, dstep_block = blocks[:, :6], blocks[:, 6:]
+    free_flyer_integrate_jacobians(step, dq_block, dstep_block)
+    euler_velocity_rows(da_dq, da_dv, da_dtau, symmetric_upper, dt, Fx, Fu)
+    for i in range(nv):
+        for j in range(nv):
+            Fx[i, j] = 0.0
+            Fx[i, nv + j] = 0.0
+        for j in range(nu):
+            Fu[i, j] = 0.0
+    v = (base_velocity[0], base_velocity[1], base_velocity[2])
+    w = (base_velocity[3], base_velocity[4], base_velocity[5])
+    v_next = (next_linear_velocity[0], next_linear_velocity[1], next_linear_velocity[2])
+    # configuration rows: position by the world velocity, orientation as the explicit step's
+    skew_v = np.zeros((3, 3))
+    _set_skew_block(skew_v, 0, 0, -dt, v[0], v[1], v[2])
+    for i in range(3):
+        for j in range(3):
+            rotation_t = dq_block[i, j]
+            Fx[i, j] = rotation_t
+            Fx[i, nv + j] = dt * rotation_t
+            Fx[i, 3 + j] = (
+                dq_block[i, 0] * skew_v[0, j] + dq_block[i, 1] * skew_v[1, j] + dq_block[i, 2] * skew_v[2, j]
+            )
+            Fx[3 + i, 3 + j] = dq_block[3 + i, 3 + j]
+            Fx[3 + i, nv + 3 + j] = dt * dstep_block[3 + i, 3 + j]
+    for i in range(6, nv):
+        Fx[i, i] = 1.0
+        Fx[i, nv + i] = dt
+    # linear velocity rows: E' applied to (the explicit rows + the classical terms), then the rotation of
+    # the frame by dw
+    inner = np.empty((3, 2 * nv))
+    for i in range(3):
+        for j in range(2 * nv):
+            inner[i, j] = Fx[nv + i, j]
+    _set_skew_block(inner, 0, nv, dt, w[0], w[1], w[2])
+    _set_skew_block(inner, 0, nv + 3, -dt, v[0], v[1], v[2])
+    inner_u = np.empty((3, nu))
+    for i in range(3):
+        for j in range(nu):
+            inner_u[i, j] = Fu[nv + i, j]
+    for i in range(3):
+        e0, e1, e2 = dq_block[i, 0], dq_block[i, 1], dq_block[i, 2]
+        for j in range(2 * nv):
+            Fx[nv + i, j] = e0 * inner[0, j] + e1 * inner[1, j] + e2 * inner[2, j]
+        for j in range(nu):
+            Fu[nv + i, j] = e0 * inner_u[0, j] + e1 * inner_u[1, j] + e2 * inner_u[2, j]
+    _skew_product_rows(v_next, dstep_block, 3, nv + 3, dt, Fx[nv : nv + 3])
+
+
+@njit(cache=True, nogil=True)
 def copy_force_derivatives(
     dlambda_dq: np.ndarray,
     dlambda_dv: np.ndarray,
@@ -216,6 +304,61 @@ def euler_step(
         forces[i] = contact_forces[i]
     if free_flyer:
         free_flyer_configuration_integrate(x, step, nq, x_next)
+    return True
+
+
+@njit(cache=True, nogil=True)
+def world_velocity_euler_step(
+    acceleration: np.ndarray,
+    contact_forces: np.ndarray,
+    x: np.ndarray,
+    dt: float,
+    nq: int,
+    acceleration_out: np.ndarray,
+    forces: np.ndarray,
+    x_next: np.ndarray,
+    step: np.ndarray,
+) -> bool:
+    """One explicit Euler step of a free-flyer robot with the base's linear velocity stepped in the world
+    frame (``"explicit_world"``): with the base velocity ``(v, w)`` (body frame) and Pinocchio's spatial
+    acceleration ``(a_lin, a_ang)``, the classical acceleration ``a_c = a_lin + w x v`` and
+
+        p+ = p + R v dt,   R+ = R exp3(w dt),   v+ = exp3(-w dt) (v + a_c dt),   w+ = w + a_ang dt,
+
+    i.e. the world velocity ``R v`` advances by ``R a_c dt``: a spinning body in free fall keeps its
+    horizontal velocity exactly. The joints step as the explicit step's. ``step`` gets ``(v dt, w dt, joints'
+    v dt)`` (what the Jacobians read). Copies the acceleration and the contact forces out of Pinocchio's
+    data. ``False`` if the acceleration is not finite."""
+    v_next = x_next[nq:]
+    for i in range(step.shape[0]):
+        a = acceleration[i]
+        if not np.isfinite(a):
+            return False
+        v = x[nq + i]
+        acceleration_out[i] = a
+        v_next[i] = v + a * dt
+        step[i] = v * dt
+    for i in range(forces.shape[0]):
+        forces[i] = contact_forces[i]
+    vx, vy, vz = x[nq], x[nq + 1], x[nq + 2]
+    wx, wy, wz = x[nq + 3], x[nq + 4], x[nq + 5]
+    # orientation and joints by the explicit step with no base translation, then the world translation
+    linear = (step[0], step[1], step[2])
+    step[0], step[1], step[2] = 0.0, 0.0, 0.0
+    free_flyer_configuration_integrate(x, step, nq, x_next)
+    step[0], step[1], step[2] = linear
+    px, py, pz = _rotate(x[3], x[4], x[5], x[6], linear[0], linear[1], linear[2])
+    x_next[0], x_next[1], x_next[2] = x[0] + px, x[1] + py, x[2] + pz
+    # y = v + (a_lin + w x v) dt, then v+ = exp3(-w dt) y
+    yx = v_next[0] + dt * (wy * vz - wz * vy)
+    yy = v_next[1] + dt * (wz * vx - wx * vz)
+    yz = v_next[2] + dt * (wx * vy - wy * vx)
+    sx, sy, sz = -wx * dt, -wy * dt, -wz * dt
+    a_sine, b_cosine, _ = exp_coefficients(np.sqrt(sx * sx + sy * sy + sz * sz))
+    cx, cy, cz = sy * yz - sz * yy, sz * yx - sx * yz, sx * yy - sy * yx  # s x y
+    v_next[0] = yx + a_sine * cx + b_cosine * (sy * cz - sz * cy)
+    v_next[1] = yy + a_sine * cy + b_cosine * (sz * cx - sx * cz)
+    v_next[2] = yz + a_sine * cz + b_cosine * (sx * cy - sy * cx)
     return True
 
 
