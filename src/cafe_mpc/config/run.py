@@ -495,6 +495,12 @@ class MpcConfig(MpcSettings):
     srb_horizon: float | None = Field(None, ge=0.0, le=5.0, description="Ts, s (schedule: null)")
     whole_body_dt: float = Field(WHOLE_BODY_DT, gt=0.0, le=0.1, description="dt_w, s")
     srb_dt: float = Field(SRB_DT, gt=0.0, le=0.5, description="dt_s, s")
+    integration: Literal["explicit", "semi_implicit", "explicit_world"] = Field(
+        "explicit",
+        description="time stepping of the whole-body knots: explicit (the paper's Eq. (23), body-frame base "
+        "velocity), semi_implicit (Crocoddyl's Euler) or explicit_world (Eq. (23) with the base's linear "
+        "velocity stepped in the world frame: keeps a spinning body's momentum in flight)",
+    )
     touchdown_surface: Literal["floor", "reference"] = Field(
         "floor",
         description="where the touchdown constraint (25) puts a landing foot: the floor z = 0 (the paper's) "

@@ -39,6 +39,7 @@ from cafe_mpc.core.contacts import ContactFlags, touchdown_flags
 from cafe_mpc.core.interfaces import MultiPhaseProblem, Phase
 from cafe_mpc.dynamics.multibody_state import MultibodyState
 from cafe_mpc.dynamics.statics import static_stance_torques
+from cafe_mpc.dynamics.whole_body import IntegrationScheme
 from cafe_mpc.ocp.knots import WholeBodyModelFactory, WholeBodyReference, WholeBodySettings
 from cafe_mpc.reference.trajectory_file import WholeBodyTrajectory, contact_code
 from cafe_mpc.robots.robot import Robot
@@ -188,6 +189,7 @@ def build_problem(robot: Robot, task: TrajOptTask, barriers: BarrierSetSpec | No
         settings = replace(
             PLANNING_SETTINGS,
             dt=dt,
+            integration=task.integration,
             running_weights=spec.running.weights(),
             terminal_weights=spec.terminal.weights(),
             constraints=task.constraints.settings(
@@ -378,7 +380,7 @@ def solve_task(
         previous = result
     assert built is not None and previous is not None
     trajectory = trajectory_from_solution(built, previous)
-    check = check_trajectory(robot, trajectory, task.phase_surface_heights())
+    check = check_trajectory(robot, trajectory, task.phase_surface_heights(), task.integration)
     limits = task.constraints.torque_limits(robot)
     return TrajOptResult(task, trajectory, stages, check, time.perf_counter() - start, limits)
 
@@ -387,7 +389,9 @@ def trajectory_from_solution(built: TrajOptProblem, result: SolverResult) -> Who
     """Flatten the phases onto one knot grid (the pre-impact end state of a phase is dropped: the next
     phase's first state is its impact map) and evaluate the stance forces of every knot."""
     robot, task = built.robot, built.task
-    factory = WholeBodyModelFactory(robot, replace(PLANNING_SETTINGS, dt=task.dt))
+    factory = WholeBodyModelFactory(
+        robot, replace(PLANNING_SETTINGS, dt=task.dt, integration=task.integration)
+    )
     xs = [phase.xs[:-1] for phase in result.phases] + [result.phases[-1].xs[-1:]]
     us = np.concatenate([phase.us for phase in result.phases])
     contacts = np.concatenate(
@@ -513,16 +517,20 @@ def min_leg_joint_height(robot: Robot, configurations: np.ndarray) -> float:
 
 
 def check_trajectory(
-    robot: Robot, trajectory: WholeBodyTrajectory, surface_height: float | Sequence[float] = 0.0
+    robot: Robot,
+    trajectory: WholeBodyTrajectory,
+    surface_height: float | Sequence[float] = 0.0,
+    integration: IntegrationScheme = "explicit",
 ) -> TrajectoryCheck:
-    """Re-simulate every interval with the planning model (``PLANNING_SETTINGS``) and measure the defects,
+    """Re-simulate every interval with the planning model (``PLANNING_SETTINGS`` with the task's
+    ``integration``, the scheme the trajectory was optimised with) and measure the defects,
     torques, joint speeds, base height, touchdown foot heights (above the surface of the phase touched down
     into: one height, or one per phase) and the rotation."""
     trajectory.validate(robot.nq, robot.nv, robot.nu)
     n_phases = len(trajectory.phase_stances)
     surfaces = np.broadcast_to(np.asarray(surface_height, dtype=float), (n_phases,))
     dt = trajectory.dt
-    factory = WholeBodyModelFactory(robot, replace(PLANNING_SETTINGS, dt=dt))
+    factory = WholeBodyModelFactory(robot, replace(PLANNING_SETTINGS, dt=dt, integration=integration))
     state = MultibodyState(robot.model)
     stances = trajectory.phase_stances
     knot_ranges = trajectory.phase_knots()

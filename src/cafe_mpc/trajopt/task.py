@@ -318,6 +318,12 @@ class TrajOptTask(StrictModel):
         "inverse kinematics onto their footholds (trajopt.retarget.place_stance_feet)",
     )
     dt: float = Field(0.01, gt=0.0, le=0.1, description="knot spacing (s)")
+    integration: Literal["explicit", "semi_implicit", "explicit_world"] = Field(
+        "explicit",
+        description="time stepping of the planning model (whole_body.WholeBodyDynamics): explicit (the "
+        "paper's Eq. (23)), semi_implicit, or explicit_world (the base's linear velocity stepped in the "
+        "world frame: keeps a spinning body's momentum in flight)",
+    )
     surface_height: float = Field(0.0, description="ground height for touchdowns (m; phases may override)")
     switching_times: list[float] = Field(description="phase boundaries (s), one more than phases")
     initial: KeyframeSpec = Field(description="initial state (velocities are used as given)")

@@ -92,6 +92,7 @@ def _knot_factories(
         WholeBodySettings(
             dt=run.schedule.whole_body_dt,
             baumgarte_alpha=run.contact.baumgarte_alpha,
+            integration=run.config.mpc.integration,
             running_weights=weights[0],
             terminal_weights=weights[1],
             constraints=constraints,
