@@ -94,7 +94,7 @@ def test_an_imu_out_for_long_holds_the_balance_stance_until_fresh_plans_take_the
     assert episode["lowest"] == "balance" and "imu" in episode["reason"]
     assert episode["back_at"] is not None and episode["back_at"] > outage["end"]
     steps = result.log.extra["safety_step"]
-    assert steps.max() == 2 and steps[-1] == 0  # balance during the outage, the plan again at the end
+    assert steps.max() == 3 and steps[-1] == 0  # balance during the outage, the plan again at the end
 
 
 @pytest.mark.slow

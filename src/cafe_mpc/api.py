@@ -128,7 +128,7 @@ class Controller:
         self._started = False
         self._closed = False
         self._sensing: SensorFrontEnd | None = None  # built on the first measurement_from_sensors
-        self._sensor_fault: str | None = None
+        self._sensor_fault: tuple[str | None, bool] = (None, False)
         self._readings = SensorReadings.zeros(self.robot.nu)
         first = config.gait.commands[0] if config.gait is not None else VelocityCommand()
         self._command = (first.vx, first.vy, first.yaw_rate, first.height)
@@ -351,9 +351,10 @@ class Controller:
         plan_time = readings.time - self._t0
         measurement = sensing.measure(readings, self.plan, plan_time=plan_time)
         fault = sensing.fault(readings.time)
-        if fault != self._sensor_fault:
-            self._loop.report_sensors(plan_time, fault)
-            self._sensor_fault = fault
+        reported = (fault, fault is not None and sensing.modelled(readings.time))
+        if reported != self._sensor_fault:
+            self._loop.report_sensors(plan_time, *reported)
+            self._sensor_fault = reported
         return measurement
 
     def _sensing_front_end(self) -> SensorFrontEnd:

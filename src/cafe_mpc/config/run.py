@@ -1274,6 +1274,18 @@ class SensorLimits(StrictModel):
         description="s the IMU may stay out while the plans are followed on the attitude the estimator "
         "integrates without it (kinematic_kf.imu_outage: dynamics); null: outage_limit, as any sensor",
     )
+    imu_outage_response: Literal["stop", "balance"] = Field(
+        "stop",
+        description="once the IMU has been out longer than its limit while the estimator integrates the "
+        "attitude without it (kinematic_kf.imu_outage: dynamics): stop: the low level follows the plans "
+        "while "
+        "the MPC brings the robot to rest on its gait's steps (the commands rest), then the balance stance "
+        "(recovery.stop_speed); balance: the balance stance at once",
+    )
+    """A bound whose IMU went out 500 ms at 2.0 s: the balance stance engaged in flight at 0.85 m/s, held
+    joint angles toward a stance fixed in the world with the base 7 cm behind the front feet, did not slow
+    it (0.85 m/s 0.35 s later, four feet down, the rear legs at their least force) and it rolled forward
+    over the front feet (fell at 2.56 s). Stopped on the plans it slowed to 0.2 m/s in one front stance."""
 
 
 class RecoveryConfig(StrictModel):
@@ -1334,6 +1346,16 @@ class RecoveryConfig(StrictModel):
         description="s the MPC process went without looking at the measurements (it was stopped; its own "
         "updates do not count) after which it solves cold again from the newest (a bound stopped for 0.2 s "
         "fell on the stale plans of its warm start with 0.4)",
+    )
+    stop_speed: float = Field(
+        0.2,
+        ge=0.0,
+        le=10.0,
+        description="m/s; the safe ladder's stop step (a sensor the estimate stands in for is out: the MPC "
+        "brings the robot to rest on its gait) hands over to the balance stance below this base speed",
+    )
+    stop_timeout: float = Field(
+        0.5, gt=0.0, le=10.0, description="s; the stop step hands over to the balance stance after this long"
     )
     balance_timeout: float = Field(
         10.0, gt=0.0, le=3600.0, description="s the balance stance holds without a plan before the damped one"

@@ -206,7 +206,8 @@ class InlineMpcLoop(MpcLoop[PlanT]):
         command = self.commands.take()
         if command is not None:  # from this update on (with rti: the preparation made after its feedback)
             apply_command(self.reference, t, command)
-        restarted = self.gait_restart.observe(t, not self.follower.following)
+        follower = self.follower
+        restarted = self.gait_restart.observe(t, not follower.following, follower.stopping)
         if self._cold_in_loop and not self.planner.started:
             self._update_one_phase(t, state)
             return

@@ -23,8 +23,9 @@ same channel (``commands``, ``control.commands``). The interface:
   ``scheme``: the update scheme in use (``rti`` or ``one_phase``); ``low_level``;
 * ``statistics``: the planner's per-update records (``MpcStatistics``; process: the MPC process's, once it
   has stopped), ``summary(duration)``: the ``mpc`` block of a run's metrics;
-* ``report_sensors(t, fault)``: the sensing front end says a sensor has been out too long (``fault``: what),
-  or that all are back (None): the robot is held off the plans meanwhile;
+* ``report_sensors(t, fault, stop)``: the sensing front end says a sensor has been out too long (``fault``:
+  what), or that all are back (None): the robot is held off the plans meanwhile, or (``stop``: the estimate
+  stands in for the sensor) stopped on them;
 * ``fault_record(control_period)``: what the safe ladder (and the MPC process's supervision) did, for
   ``metrics.json``'s ``faults`` block; None when nothing happened;
 * ``failure`` and ``should_stop(t)``: why the run must end (the MPC process could not be kept running), and
@@ -65,14 +66,25 @@ class GaitRestart:
 
     def __init__(self, reference: Reference, stand: float | None, enabled: bool = True) -> None:
         self.restart = getattr(reference, "restart_gait", None) if enabled else None
+        self.rest = getattr(reference, "rest_commands", None)
         self.stand = float(stand if stand is not None else getattr(reference, "start_stance", 0.0))
         self.held = False
+        self.stopping = False
 
-    def observe(self, t: float, held: bool) -> bool:
-        """The update at ``t`` is solved from a measurement taken while the robot was ``held`` off the plans:
-        whether the reference was restarted now (a preparation made before is stale)."""
+    def observe(self, t: float, held: bool, stopping: bool = False) -> bool:
+        """The update at ``t`` is solved from a measurement taken while the robot was ``held`` off the plans
+        (or was ``stopping`` on them: the commands rest from then, ``rest_commands``, and come back when the
+        stop ends on the plans): whether the reference was restarted or its commands changed now (a
+        preparation made before is stale)."""
+        changed = False
+        if stopping != self.stopping and self.rest is not None:
+            self.stopping = stopping
+            if stopping or not held:  # held after a stop: the restart below rests the commands
+                self.rest(t, stopping)
+                changed = True
+                logger.info("t = %.3f s: the commands %s", t, "rest" if stopping else "come back")
         if held == self.held or self.restart is None:
-            return False
+            return changed
         self.held = held
         self.restart(t, math.inf if held else self.stand)
         logger.info(
@@ -139,10 +151,13 @@ class MpcLoop(ABC, Generic[PlanT]):
         """The ``mpc`` block of a run's metrics (update times, iterations, latency, fallback ticks); with the
         run's ``duration``, also the achieved update rate ``rate_hz``."""
 
-    def report_sensors(self, t: float, fault: str | None) -> None:
+    def report_sensors(self, t: float, fault: str | None, stop: bool = False) -> None:
         """A sensor has been out for too long (``fault``: which, since when): hold the robot off the plans
-        (balance) until all are back (``None``); plans count again once measured after that."""
-        self.follower.hold(t, "sensors", fault)
+        (balance) until all are back (``None``); plans count again once measured after that. ``stop``: the
+        estimate stands in for the sensor (``SensorFrontEnd.modelled``): the robot stays on the plans, whose
+        commands rest, until it is slow (the follower's ``stop`` step), and only then balances."""
+        self.follower.hold(t, "sensors", None if stop else fault)
+        self.follower.stop(t, "sensors", fault if stop else None)
 
     def fault_record(self, control_period: float) -> dict | None:
         """What the safe ladder did (``NewestPlanFollower.record``), None when it never left the plans."""

@@ -6,10 +6,16 @@ it steps down a ladder of safe behaviours (``SafetyStep``; docs/faults.md):
 
 1. ``plan``: the low level follows the newest plan;
 2. ``last_plan``: no new plan for ``recovery.stale_after`` s; the last one is still followed while it lasts;
-3. ``balance``: the plan has run out (or there is none, or the low level returned non-finite torques, or
+3. ``stop``: a sensor the estimator stands in for (the IMU, its attitude from the model) has been out too
+   long (``stop``): the low level follows the plans, and the MPC, told that the robot is stopping
+   (``stopping``), brings it to rest on its gait's steps (``control.loop.GaitRestart``: the commands rest);
+   once the base is slower than ``recovery.stop_speed`` (or after ``recovery.stop_timeout``) the balance
+   stance takes over (a stance that does not step cannot take a bound's 0.85 m/s); lifted before that, the
+   commands come back;
+4. ``balance``: the plan has run out (or there is none, or the low level returned non-finite torques, or
    the loop holds the robot: its sensors are out): the balance controller (``low_level.balance``) holds the
    current stance, all feet down and the base level;
-4. ``damped``: the balance controller held for ``recovery.balance_timeout`` s without a plan, or could not
+5. ``damped``: the balance controller held for ``recovery.balance_timeout`` s without a plan, or could not
    reach its stance, or the loop failed for good (``fail``): the damped PD stance (``low_level.pd``).
 
 Plans take the robot back (to ``plan``) once they are fresh again: ``recovery.take_back_plans`` in a row,
@@ -47,12 +53,17 @@ class SafetyStep(StrEnum):
 
     PLAN = "plan"
     LAST_PLAN = "last_plan"
+    STOP = "stop"
     BALANCE = "balance"
     DAMPED = "damped"
 
 
-FOLLOWING = (SafetyStep.PLAN, SafetyStep.LAST_PLAN)
+FOLLOWING = (SafetyStep.PLAN, SafetyStep.LAST_PLAN, SafetyStep.STOP)
 """The steps on which the low level follows a plan."""
+ON_GAIT = (SafetyStep.PLAN, SafetyStep.LAST_PLAN)
+"""The steps on which the robot is on its gait (anything else is an episode off it)."""
+STOPPED = "the base has slowed down"
+"""The reason the stop step hands over to the balance stance."""
 
 
 class NewestPlanFollower(Generic[PlanT]):
@@ -88,6 +99,9 @@ class NewestPlanFollower(Generic[PlanT]):
         self.nonfinite_ticks = 0
         self.failure: str | None = None
         self._holds: dict[str, str] = {}
+        self._stops: dict[str, str] = {}
+        self._stopped = False
+        self._stop_since = 0.0
         self._last_plan_time: float | None = None
         self._resume_after = -math.inf
         self._plan_fresh = True
@@ -128,6 +142,15 @@ class NewestPlanFollower(Generic[PlanT]):
         elif self._holds.pop(source, None) is not None:
             self._off_plans_since(t)
 
+    def stop(self, t: float, source: str, reason: str | None) -> None:
+        """``source`` (``sensors``) asks that the robot be brought to rest on the plans and then held in the
+        balance stance (``reason``: the ``stop`` step, then ``balance``), or lets go (``None``)."""
+        if reason is not None:
+            self._stops[source] = reason
+        elif self._stops.pop(source, None) is not None and not self._stops and self._stopped:
+            self._stopped = False
+            self._off_plans_since(t)
+
     def fail(self, t: float, reason: str) -> None:
         """Hold the damped stance for good: the loop gave up (``reason``)."""
         if self.failure is None:
@@ -142,21 +165,34 @@ class NewestPlanFollower(Generic[PlanT]):
 
     @property
     def following(self) -> bool:
-        """Whether the low level follows a plan (the plan or last_plan step)."""
+        """Whether the low level follows a plan (the plan, last_plan or stop step)."""
         return self.step in FOLLOWING
+
+    @property
+    def stopping(self) -> bool:
+        """Whether the robot is being brought to rest on the plans (the ``stop`` step): the MPC is told with
+        every measurement, and rests the commands meanwhile (``control.loop.GaitRestart``)."""
+        return self.step == SafetyStep.STOP
 
     # ------------------------------------------------------------------------------------------ compute
     def compute(self, t: float, measurement: Measurement, plan: PlanT | None) -> np.ndarray:
+        if self._stops and not self._stopped and self.step == SafetyStep.STOP:
+            self._stopped = self._slow(t, measurement)
         usable = (
             plan is not None
             and t < plan.end_time
             and not self._holds
+            and not self._stopped
             and self.failure is None
             and (self.step in FOLLOWING or self._plan_fresh)
         )
         if usable:
             stale = self._last_plan_time is not None and t - self._last_plan_time > self.recovery.stale_after
-            if stale:
+            if self._stops:
+                if self.step != SafetyStep.STOP:
+                    self._stop_since = t
+                self._go(t, SafetyStep.STOP, "; ".join(self._stops.values()), measurement)
+            elif stale:
                 self._go(t, SafetyStep.LAST_PLAN, "no new plan", measurement)
             else:
                 self._go(t, SafetyStep.PLAN, "a fresh plan", measurement)
@@ -184,11 +220,20 @@ class NewestPlanFollower(Generic[PlanT]):
             return SafetyStep.DAMPED, f"no plan for {timeout:g} s in the balance stance"
         if self._holds:
             return SafetyStep.BALANCE, "; ".join(self._holds.values())
+        if self._stopped:
+            return SafetyStep.BALANCE, f"{'; '.join(self._stops.values())}; {STOPPED}"
         if plan is None:
             return SafetyStep.BALANCE, "no plan"
         if t >= plan.end_time:
             return SafetyStep.BALANCE, "the plan ran out"
         return SafetyStep.BALANCE, "no plan measured since the robot left the plans"
+
+    def _slow(self, t: float, measurement: Measurement) -> bool:
+        """Whether the stop has brought the base below ``stop_speed`` (horizontal, base frame), or has lasted
+        ``stop_timeout``."""
+        recovery = self.recovery
+        vx, vy = float(measurement.v[0]), float(measurement.v[1])
+        return vx * vx + vy * vy < recovery.stop_speed**2 or t - self._stop_since >= recovery.stop_timeout
 
     def _safe_torques(self, t: float, measurement: Measurement) -> np.ndarray:
         if self.step == SafetyStep.BALANCE:
@@ -232,14 +277,14 @@ class NewestPlanFollower(Generic[PlanT]):
 
     def record(self, control_period: float) -> dict:
         """The ladder's part of ``metrics.json``'s ``faults`` block: every step with its time, the seconds
-        spent on each, and each episode off the plans (when it began and why, the lowest step, when a fresh
-        plan took the robot back and how long after; ``back_at`` None: it never did)."""
+        spent on each, and each episode off the gait (when it began and why, the lowest step, when the robot
+        was back on its plans' gait and how long after; ``back_at`` None: it never was)."""
         episodes: list[dict] = []
         current: dict | None = None
         order = list(SafetyStep)
         for change in self.steps:
             step = SafetyStep(change["step"])
-            if step not in FOLLOWING:
+            if step not in ON_GAIT:
                 if current is None:
                     current = {"off_at": change["t"], "reason": change["reason"], "lowest": str(step)}
                     episodes.append(current)

@@ -71,6 +71,8 @@ from cafe_mpc.robots.robot import Robot
 
 logger = logging.getLogger(__name__)
 
+STOPPING = 2.0
+"""The ring's ``held`` value of a measurement taken while the robot was being stopped on the plans."""
 STANDBY_POLL = 0.005
 """s between a standby MPC process's looks at whether it is its turn (the takeover's delay at most)."""
 STANDBY_AFTER = 2.0
@@ -296,7 +298,11 @@ class _Worker:
 
     def _held(self) -> bool:
         """Whether the measurement in ``buffer`` was taken while the robot was held off the plans."""
-        return self.buffer[self.ring.HELD] > 0.5
+        return 0.5 < self.buffer[self.ring.HELD] < 1.5
+
+    def _stopping(self) -> bool:
+        """Whether the measurement in ``buffer`` was taken while the robot was being stopped on the plans."""
+        return self.buffer[self.ring.HELD] > 1.5
 
     def _observe_hold(self, t: float) -> bool:
         """Tell the gait restart whether the measurement in ``buffer`` was held off the plans; True when the
@@ -306,7 +312,7 @@ class _Worker:
         the warm-up: the solver's data exist); once per cold solve from the gait (``_warm_from_gait``), so
         that a robot held again while that solve runs does not start another."""
         held = self._held()
-        restarted = self.gait_restart.observe(t, held)
+        restarted = self.gait_restart.observe(t, held, self._stopping())
         if restarted and held and self.planner.started and self._warm_from_gait:
             forget_warm_start(self.planner)
             self.planner.settings.warm_up = 0.0
@@ -621,7 +627,8 @@ class ProcessMpcLoop(MpcLoop[PlanT]):
         whether the safe ladder holds the robot off the plans (the MPC restarts the gait from stance:
         ``control.loop.GaitRestart``)."""
         tick = round(t / self.control_period)
-        held = not self.follower.following
+        follower = self.follower
+        held = STOPPING if follower.stopping else float(not follower.following)
         self._measurements.write(tick, t, measurement.q, measurement.v, measurement.contacts, held)
 
     # ------------------------------------------------------------------------------------ supervision

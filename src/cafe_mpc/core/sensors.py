@@ -405,6 +405,11 @@ class SensorGuard:
             return None
         return f"{self._name(longest)} out since t = {float(self._out_since[longest]):.3f} s"
 
+    def encoders_out(self, t: float) -> bool:
+        """Whether any encoder has been out for longer than ``outage_limit`` at ``t``."""
+        limit = self.limits.outage_limit
+        return any(index > 0 and t - float(self._out_since[index]) > limit for index in self._open)
+
     def summary(self) -> dict:
         """Rejected samples by kind and every outage (``metrics.json``'s ``faults.sensors``)."""
         return {"rejected": dict(self.counts), "outages": [dict(record) for record in self.outages]}

@@ -13,7 +13,9 @@ simulation (``SensingController``) and in the library (``cafe_mpc.Controller.mea
    restart: the other legs carried the estimate, and the leg is read again.
 
 ``fault(t)`` says when the controller should hold the robot off its plans: a sensor out for longer than
-``outage_limit``, or the estimator restarted less than ``outage_limit`` ago. ``record()`` is the ``sensors``
+``outage_limit``, or the estimator restarted less than ``outage_limit`` ago; ``modelled(t)`` whether the
+estimate stands in for it (the IMU with the model's attitude), so that the robot may first be stopped on its
+plans (the safe ladder's ``stop`` step). ``record()`` is the ``sensors``
 part of a run's ``faults`` block.
 
 ``SensingController(inner, estimator, limits=...)`` is what the closed loop calls when the controller must
@@ -43,6 +45,9 @@ from cafe_mpc.core.sensors import ImuMounting, SensorGuard, SensorReadings
 from cafe_mpc.estimation.estimator import StateEstimator
 
 logger = logging.getLogger(__name__)
+
+IMU_OUTAGE_END = "the end of an IMU outage"
+"""Why the estimator restarts when the IMU is back after an outage that held or stopped the robot."""
 
 LATE = 1e-6
 """s: readings older than the tick by more than this are brought forward to it."""
@@ -93,7 +98,7 @@ class SensorFrontEnd:
         t = float(checked.time)
         imu_out = self.guard.imu_out_for(t) > self._imu_limit
         if self._imu_out and not imu_out:
-            self._restart(t, "the end of an IMU outage")
+            self._restart(t, IMU_OUTAGE_END)
         self._imu_out = imu_out
         guard = self.guard
         measurement = self.estimator.update(checked, plan, plan_time, guard.imu_out, guard.imu_sample_time)
@@ -132,6 +137,18 @@ class SensorFrontEnd:
             return f"the state estimator restarted at t = {last['t']:.3f} s ({last['why']})"
         return None
 
+    def modelled(self, t: float) -> bool:
+        """Whether the estimate stands in for what ``fault(t)`` reports, so that the robot may stay on plans
+        that stop it (``recovery.sensors.imu_outage_response: stop``): the IMU out while the estimator
+        integrates the attitude from the model, or the estimator restarted at the end of such an outage; no
+        encoder out too long, and no restart for a diverged estimate."""
+        if self.estimator.imu_outage is None or self.limits.imu_outage_response != "stop":
+            return False
+        if self.guard.encoders_out(t):
+            return False
+        recent = self.estimator_resets and t - self.estimator_resets[-1]["t"] <= self.limits.outage_limit
+        return not recent or self.estimator_resets[-1]["why"] == IMU_OUTAGE_END
+
     @property
     def eventful(self) -> bool:
         """Whether any sample was rejected or the estimator restarted."""
@@ -169,7 +186,7 @@ class SensingController:
         self._contacts = np.zeros((capacity, robot.n_feet), dtype=bool)
         self._trust = np.zeros((capacity, robot.n_feet))
         self._count = 0
-        self._reported: str | None = None
+        self._reported: tuple[str | None, bool] = (None, False)
         self._step = np.zeros(robot.nv)
         self.late_ticks = 0
         """Ticks whose readings were older than the tick and were brought forward (``_bring_forward``)."""
@@ -184,7 +201,7 @@ class SensingController:
         self.inner.reset()
         self.front_end.reset(self.position_xy)
         self._count = 0
-        self._reported = None
+        self._reported = (None, False)
         self.late_ticks = 0
 
     def compute(self, t: float, readings: SensorReadings) -> np.ndarray:
@@ -194,12 +211,14 @@ class SensingController:
             self._bring_forward(measurement, t)
         self.last_measurement = measurement
         self._record(measurement)
-        fault = self.front_end.fault(t)
-        if fault != self._reported:
+        front_end = self.front_end
+        fault = front_end.fault(t)
+        reported = (fault, fault is not None and front_end.modelled(t))
+        if reported != self._reported:
             report = getattr(self.inner, "report_sensors", None)
             if report is not None:
-                report(t, fault)
-            self._reported = fault
+                report(t, *reported)
+            self._reported = reported
         return self.inner.compute(t, measurement)
 
     def fault_record(self) -> dict | None:

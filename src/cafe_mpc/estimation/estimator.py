@@ -344,8 +344,15 @@ class StateEstimator:
             if imu_out and self._started:
                 if not observer.active:
                     observer.start(
-                        imu_sample_time, readings.orientation, readings.gyro, self.x[3:6], self.x[2]
+                        imu_sample_time,
+                        readings.orientation,
+                        readings.gyro,
+                        self.x[3:6],
+                        self.x[2],
                     )
+                    # the held sample integrated since it was taken, in flight: the model's force instead
+                    self.x[0:3] += observer.position_change
+                    self.x[3:6] += observer.velocity_change
                 observer.step(readings, self.contacts.flags, self.x[3:6], float(self.x[2]))
                 readings = observer.write(readings)
             else:

@@ -91,6 +91,10 @@ class ImuOutageObserver:
         """Base frame, rad/s."""
         self.specific_force = np.zeros(3)
         """What the accelerometer would read (base frame, m/s^2)."""
+        self.velocity_change = np.zeros(3)
+        """World, m/s: the model's specific force against the held samples over the replay's flight."""
+        self.position_change = np.zeros(3)
+        """World, m: the same in position."""
         self.on_ground = np.zeros(self.n_feet, dtype=bool)
         """The feet the last step took as standing on the ground."""
         self.active = False
@@ -109,6 +113,10 @@ class ImuOutageObserver:
         self._history_qd = np.zeros((HISTORY, self.nj))
         self._history_tau = np.zeros((HISTORY, self.nj))
         self._history_flags = np.zeros((HISTORY, self.n_feet), dtype=bool)
+        self._history_orientation = np.zeros((HISTORY, 4))
+        self._history_force = np.zeros((HISTORY, 3))
+        """The IMU's samples the position filter integrated (base frame, with their attitude)."""
+        self._held_rotation = np.eye(3)
         self._next = 0
         self.readings = SensorReadings.zeros(self.nj)
         """The reading ``write`` fills (the input's values, the IMU's replaced)."""
@@ -128,6 +136,8 @@ class ImuOutageObserver:
         self._history_qd[row] = readings.joint_velocities
         self._history_tau[row] = readings.joint_torques
         self._history_flags[row] = planned
+        self._history_orientation[row] = readings.orientation
+        self._history_force[row] = readings.accelerometer
         self._next = (row + 1) % HISTORY
 
     def stop(self) -> None:
@@ -145,8 +155,13 @@ class ImuOutageObserver:
     ) -> None:
         """The IMU went out; its last good sample (``orientation``, ``gyro``) was taken at ``sample_time``
         (NaN: this tick). The remembered ticks after it are replayed with the base's world-frame ``velocity``
-        and ``height`` (the position filter's)."""
+        and ``height`` (the position filter's). The position filter integrated the samples the driver
+        repeated over those ticks (remembered, with their attitude); over the ticks in flight (no leg
+        corrected it) ``velocity_change`` and ``position_change`` (world) say what the model's specific
+        force changes in its velocity and position since."""
         quaternion_to_rotation(orientation, self.rotation)
+        self.velocity_change[:] = 0.0
+        self.position_change[:] = 0.0
         self.angular_velocity[:] = gyro
         self.active = True
         self._momentum = None
@@ -165,6 +180,7 @@ class ImuOutageObserver:
         for row in order[first:]:
             t = self._history_time[row]
             if np.isfinite(t):
+                before = self._time
                 self._advance(
                     t,
                     self._history_q[row],
@@ -174,6 +190,15 @@ class ImuOutageObserver:
                     velocity,
                     height,
                 )
+                dt = 0.0 if math.isnan(before) else t - before
+                if dt > 0.0:
+                    self.position_change += self.velocity_change * dt
+                    if not self.on_ground.any():  # in flight: the filter ran on the held sample alone
+                        quaternion_to_rotation(self._history_orientation[row], self._held_rotation)
+                        difference = self.rotation @ self.specific_force
+                        difference -= self._held_rotation @ self._history_force[row]
+                        self.position_change += 0.5 * dt * dt * difference
+                        self.velocity_change += dt * difference
 
     def step(
         self, readings: SensorReadings, planned: np.ndarray, velocity: np.ndarray, height: float

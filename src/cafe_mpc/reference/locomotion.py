@@ -336,6 +336,8 @@ class LocomotionReference(Reference):
         self.cycle_start = self.start_stance if self.start_stance > 0 else cycle_start
         self.command_ramp = float(command_ramp)
         self._stand = (-math.inf, self.start_stance)
+        self._rest = (math.inf, math.inf)
+        """The commands rest on ``[start, end)`` while the gait goes on (``rest_commands``)."""
         """``(from, until)``: all feet stand on this interval and the commands rest (with a ramp): the start
         stance, or the stand of the latest ``restart_gait`` (``until`` inf: until the next one)."""
         self.restarts: list[tuple[float, float]] = []
@@ -422,7 +424,31 @@ class LocomotionReference(Reference):
         self._ik_errors = np.zeros(0)
         self._warm_up()
 
+    def rest_commands(self, t: float, rest: bool) -> None:
+        """The commands rest from ``t`` on while the gait goes on (``rest``: the MPC brings the robot to rest
+        on its steps, the safe ladder's stop; docs/faults.md), or (not ``rest``) come back from ``t``, ramped
+        in from rest over ``command_ramp`` as at the start. A gait restart ends a rest (its own commands
+        follow)."""
+        t = float(t)
+        self._rest = (t, math.inf) if rest else (self._rest[0], t)
+        self.profile = self._command_profile()
+
     def _command_profile(self) -> CommandProfile:
+        """The commands over time (``_gait_profile``), resting on ``_rest`` and ramped back in after it."""
+        gait = self._gait_profile()
+        rest_from, rest_until = self._rest
+        if math.isinf(rest_from):
+            return gait
+        rest = CommandProfile([VelocityCommand()], self.robot.standing_height)
+        profile = gait.spliced(rest_from, rest)
+        if math.isinf(rest_until):
+            return profile
+        if self.restarts and self.restarts[-1][0] == rest_until:  # a gait restart ended the rest
+            return profile.spliced(rest_until, gait)
+        back = CommandProfile(self.commands, self.robot.standing_height, self.command_ramp, rest_until)
+        return profile.spliced(rest_until, back)
+
+    def _gait_profile(self) -> CommandProfile:
         """The commands over time: ramped from rest after the start stance (``command_ramp`` > 0), and after a
         gait restart at rest from its start, ramped again from rest after its stand (a stand until further
         notice rests until then, also with steps)."""
@@ -458,6 +484,10 @@ class LocomotionReference(Reference):
         segments.append(_GaitSegment.of(start, target, start))
         self._segments = segments
         self._stand = (t, until)
+        if math.isinf(self._rest[1]):
+            self._rest = (self._rest[0], t)  # a rest ends here: the restart's commands follow
+        else:
+            self._rest = (math.inf, math.inf)  # an ended rest is past (the reference anchors at the updates)
         self.restarts.append((t, float(stand)))
         self.path_origin = None
         self.profile = self._command_profile()

@@ -298,6 +298,11 @@ class TrajOptResult:
             "inequality_violation": final.inequality_violation,
             "touchdown_foot_height_max_error_m": check.max_touchdown_height_error,
             "max_joint_speed": check.max_joint_speed,
+            "max_driven_joint_speed": check.max_driven_joint_speed,
+            "max_post_impact_joint_speed": check.max_post_impact_joint_speed,
+            "post_impact_knots": check.post_impact_knots,
+            "max_driven_joint_speed_share_of_limit": check.driven_joint_speed_ratio,
+            "max_post_impact_joint_speed_share_of_limit": check.post_impact_joint_speed_ratio,
             "joint_speed_limit": self.task.constraints.joint_speed_limit,
             "min_base_height_m": check.min_base_height,
             "min_leg_joint_height_m": check.min_leg_joint_height,
@@ -438,12 +443,27 @@ class TrajectoryCheck:
     world z of any leg joint (abad, hip pitch, knee) over the knots: the planning model has no collision
     with the floor, so an optimum may fold a leg through it (a backflip pivoting on its hind hips);
     negative is not a motion the plant (or a robot) can make.
+
+    Joint speeds: ``max_joint_speed`` over every knot; ``max_driven_joint_speed`` over the knots the motors
+    drive, i.e. all but the *post-impact* knots (``post_impact_knots``: the first knot of a phase entered by a
+    touchdown, the output of the rigid impact map (22), (24)), whose largest speed is
+    ``max_post_impact_joint_speed``. The impact map jumps the joint velocities in zero time: the landing
+    back-drives the motors (the torque opposes the motion, the motor brakes), which a motor's speed limit
+    (the no-load speed at which its back-EMF leaves no voltage to drive) does not bound; on the plant the
+    jump is spread over the contact's compliance. ``joint_speed_ratio``: the largest ``|qd_j| / limit_j``
+    over the driven knots (above 1: over the robot's speed limit), ``post_impact_joint_speed_ratio`` the same
+    over the post-impact knots (reported, not a limit).
     """
 
     defects: np.ndarray
     max_defect: float
     max_abs_torque: float
     max_joint_speed: float
+    max_driven_joint_speed: float
+    max_post_impact_joint_speed: float
+    post_impact_knots: list[int]
+    driven_joint_speed_ratio: float
+    post_impact_joint_speed_ratio: float
     min_base_height: float
     min_leg_joint_height: float
     touchdown_heights: list[tuple[float, np.ndarray]] = field(default_factory=list)
@@ -509,6 +529,7 @@ def check_trajectory(
     defects = np.zeros(trajectory.n_knots)
     touchdowns: list[tuple[float, np.ndarray]] = []
     landing_time = None
+    post_impact_knots: list[int] = []
     xs, us = trajectory.xs, trajectory.us
     for index, (stance, knots) in enumerate(zip(stances, knot_ranges, strict=True)):
         dynamics = factory.dynamics(stance, dt)
@@ -529,14 +550,24 @@ def check_trajectory(
             heights = feet[legs, 2] - robot.foot_radius - surfaces[index + 1]
             time_of_switch = float(trajectory.times[knots.stop])
             touchdowns.append((time_of_switch, heights))
+            post_impact_knots.append(int(knots.stop))
             if landing_time is None:
                 landing_time = time_of_switch
     nq = robot.nq
+    joint_speeds = np.abs(xs[:, nq + 6 :])
+    driven = np.ones(len(xs), dtype=bool)
+    driven[post_impact_knots] = False
+    speed_ratios = joint_speeds / robot.velocity_limits
     return TrajectoryCheck(
         defects=defects,
         max_defect=float(defects.max(initial=0.0)),
         max_abs_torque=float(np.max(np.abs(us))),
-        max_joint_speed=float(np.max(np.abs(xs[:, nq + 6 :]))),
+        max_joint_speed=float(np.max(joint_speeds)),
+        max_driven_joint_speed=float(np.max(joint_speeds[driven])),
+        max_post_impact_joint_speed=float(np.max(joint_speeds[~driven], initial=0.0)),
+        post_impact_knots=post_impact_knots,
+        driven_joint_speed_ratio=float(np.max(speed_ratios[driven])),
+        post_impact_joint_speed_ratio=float(np.max(speed_ratios[~driven], initial=0.0)),
         min_base_height=float(np.min(xs[:, 2])),
         min_leg_joint_height=min_leg_joint_height(robot, xs[:, :nq]),
         touchdown_heights=touchdowns,

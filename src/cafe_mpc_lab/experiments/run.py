@@ -110,7 +110,8 @@ def simulate_run(
     damped stance). ``config.plant`` varies the simulated robot and its sensors only
     (``sim.randomization``) and injects its ``faults`` (``sim.faults``); the controller is built from the
     nominal robot. When anything happened, the log's ``extra`` holds ``faults`` (``fault_block``) and, when
-    the safe ladder left the plans, ``safety_step`` per tick (0 plan, 1 last_plan, 2 balance, 3 damped).
+    the safe ladder left the plans, ``safety_step`` per tick (0 plan, 1 last_plan, 2 stop, 3 balance,
+    4 damped).
 
     ``viewer``: watch the run in MuJoCo's viewer with the current plan drawn (``sim.viewer.LiveViewer``;
     ``ViewerUnavailable`` without a display, before anything is built); ``log.extra["viewer"]`` then says

@@ -17,6 +17,7 @@ from cafe_mpc_lab.sim.loop import SimulationLog
 STEP_COLORS = {
     SafetyStep.PLAN: "#4caf50",
     SafetyStep.LAST_PLAN: "#cddc39",
+    SafetyStep.STOP: "#03a9f4",
     SafetyStep.BALANCE: "#ff9800",
     SafetyStep.DAMPED: "#e53935",
 }

@@ -29,7 +29,8 @@ class MeasurementRing:
 
     Element 0 holds the newest tick index written (-1 before the first); slot ``i`` (from element 1) holds
     ``[sequence, tick, t, q, v, contacts, held]`` of a tick ``k`` with ``k % RING_TICKS == i``; ``read``
-    copies ``[t, q, v, contacts, held]``, ``held`` at ``HELD`` (1: the robot was off the plans).
+    copies ``[t, q, v, contacts, held]``, ``held`` at ``HELD`` (1: the robot was off the plans, 2: it was
+    being stopped on them).
     """
 
     def __init__(self, nq: int, nv: int, n_feet: int, name: str | None = None) -> None:
@@ -58,8 +59,9 @@ class MeasurementRing:
         self.array[0] = -1.0
 
     def write(
-        self, tick: int, t: float, q: np.ndarray, v: np.ndarray, contacts: np.ndarray, held: bool = False
+        self, tick: int, t: float, q: np.ndarray, v: np.ndarray, contacts: np.ndarray, held: float = 0.0
     ) -> None:
+        """``held``: 0 on the gait, 1 held off the plans, 2 being stopped on them (``control.process``)."""
         lock = self._locks[tick % RING_TICKS]
         slot = lock.array
         nq, nv = self.nq, self.nv
@@ -69,7 +71,7 @@ class MeasurementRing:
         slot[3 : 3 + nq] = q
         slot[3 + nq : 3 + nq + nv] = v
         slot[3 + nq + nv : -1] = contacts
-        slot[-1] = 1.0 if held else 0.0
+        slot[-1] = float(held)
         lock.end_write()
         self.array[0] = tick
 
