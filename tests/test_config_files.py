@@ -60,3 +60,28 @@ def test_version(capsys):
         main(["--version"])
     assert stop.value.code == 0
     assert capsys.readouterr().out.startswith("cafe-mpc ")
+
+
+def test_a_weight_set_given_in_part_keeps_its_own_defaults(tmp_path):
+    """A file that changes one weight of a set keeps the set's other weights, as ``--set`` does: the
+    barrel-roll set's joint weight (2.5), not the regular set's (1.0) that ``WholeBodyWeights`` defaults to;
+    the regular terminal set's, not the running set's."""
+    path = tmp_path / "roll.yaml"
+    path.write_text(
+        yaml.safe_dump(
+            {
+                "base": "running-barrel-roll",
+                "reference": {"costs": {"running": {"base_position": [0, 5, 15, 5, 5, 5]}}},
+                "costs": {"terminal": {"torque": 0.5}},
+            }
+        )
+    )
+    config = load_config(str(path))
+    from_set = load_config("running-barrel-roll", ["reference.costs.running.base_position=[0,5,15,5,5,5]"])
+    assert config.reference.costs.running == from_set.reference.costs.running
+    assert config.reference.costs.running.joint_position == 2.5
+    assert config.reference.costs.terminal == load_config("running-barrel-roll").reference.costs.terminal
+    assert config.costs.terminal.torque == 0.5 and config.costs.terminal.joint_position == 0.5
+    with pytest.raises(ConfigError, match="joint_posture"):
+        path.write_text(yaml.safe_dump({"base": "trot", "costs": {"running": {"joint_posture": 1.0}}}))
+        load_config(str(path))

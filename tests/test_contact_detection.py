@@ -150,3 +150,51 @@ def test_a_heavier_trunk_lands_early_in_the_pace_and_detection_keeps_it_up():
     assert not log.fell and log.time[-1] >= 0.99
     detector = controller.low_level.inner.detector
     assert detector.early_touchdowns >= 1
+
+
+@pytest.mark.parametrize("landing_speed", [None, 0.3], ids=["unchecked", "checked"])
+def test_off_flat_ground_a_loaded_foot_moving_down_has_not_landed(robot, landing_speed):
+    """Blind (a ground plane): foot 0, planned in stance from 0.10 s, comes down 4 cm above the ground at
+    1 m/s with a load (the echo of stance torques pushing a leg in the air) and lands at 0.15 s. With
+    ``landing_speed`` it stays out of the stance until it has stopped on the ground; without (the default)
+    the load counts at once."""
+    settings = ContactDetectionSettings(landing_speed=landing_speed)
+    detector = ContactDetector(robot, settings, ground_plane=True)
+    plan = scripted_plan(robot)
+    land = 0.15
+    share = robot.total_mass * GRAVITY / robot.n_feet
+    flags = []
+    times = np.arange(0.0, 0.2, TICK)
+    for t in times:
+        state = measurement(robot, float(t), 0.0 if t >= land else 0.04, share)
+        if t < land:
+            state.v[2] = -1.0  # the base, and the feet with it, moving down
+        flags.append(bool(detector.update(float(t), state, plan)[0]))
+    flags = np.array(flags)
+    in_the_air = (times >= SWING_END) & (times < land)
+    if landing_speed is None:
+        assert flags[in_the_air].all()
+    else:
+        assert not flags[in_the_air].any()
+    assert flags[times >= land].all()
+
+
+def test_off_flat_ground_an_early_touchdown_waits_for_the_foot_to_stop(robot):
+    """Blind, ``landing_speed`` set: foot 0 swings down through its early window 4 cm above the plane, loaded
+    by its swing torques and moving down at 1 m/s, and lands 40 ms early: an early touchdown from the
+    landing, not before."""
+    detector = ContactDetector(robot, ContactDetectionSettings(landing_speed=0.3), ground_plane=True)
+    plan = scripted_plan(robot)
+    land = 0.06
+    share = robot.total_mass * GRAVITY / robot.n_feet
+    flags = []
+    times = np.arange(0.0, 0.2, TICK)
+    for t in times:
+        state = measurement(robot, float(t), 0.0 if t >= land else 0.04, share)
+        if t < land:
+            state.v[2] = -1.0
+        flags.append(bool(detector.update(float(t), state, plan)[0]))
+    flags = np.array(flags)
+    assert not flags[times < land].any()
+    assert flags[times >= land].all()
+    assert detector.early_touchdowns == 1

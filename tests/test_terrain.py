@@ -295,6 +295,33 @@ def test_the_terrain_experiment_makes_one_valid_run_per_gait_terrain_and_ground(
         assert config.terrain == fields["mode"] and len(config.scene.terrain) == 1
         assert config.mpc.latency == "fixed" and config.mpc.fixed_latency == 0.02
     assert plan.options["--modes"] == "flat,blind"
+    assert "--starts" not in plan.options  # the default start keeps earlier sweeps' commands
+
+
+def test_the_terrain_experiment_runs_each_cell_from_several_starts_and_gives_its_rate():
+    """``--starts``: one run per start with the piece beginning there, and the cell's rate over them."""
+    from cafe_mpc_lab.experiments.catalog import get_experiment
+    from cafe_mpc_lab.experiments.registry import PlanContext
+    from cafe_mpc_lab.experiments.terrain import over_rates
+
+    experiment = get_experiment("terrain")
+    options = experiment.options_from(
+        {"gaits": "bound", "terrains": "step6", "modes": "blind", "starts": "0.9,1,1.1"}
+    )
+    plan = experiment.plan(options, PlanContext())
+    assert [dict(v.fields)["start"] for v in plan.variants] == [0.9, 1.0, 1.1]
+    assert len({v.name for v in plan.variants}) == 3 and plan.options["--starts"] == "0.9,1,1.1"
+    for variant in plan.variants:
+        config = load_run_config(variant.preset, [*experiment.default_overrides, *variant.overrides])
+        assert config.scene.terrain[0].start == dict(variant.fields)["start"]
+        assert config.scene.terrain[0].rise == 0.06
+    rows = [
+        {"status": "ok", "gait": "bound", "terrain_piece": "step6", "mode": "blind", "over": over}
+        for over in (True, False, False)
+    ]
+    assert over_rates(rows) == "bound step6 blind 1 of 3 (6-79 %)"
+    with pytest.raises(ValueError):
+        experiment.options_from({"starts": "1,1"})
 
 
 # ------------------------------------------------------------------------------------------ closed loops

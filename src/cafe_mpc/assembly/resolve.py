@@ -151,14 +151,19 @@ def scaled_contact_detection(
     settings: ContactDetectionSettings, scale: RobotScale
 ) -> ContactDetectionSettings:
     """The contact detector's thresholds carried to the robot: touchdown and release heights by the length
-    scale, the early window and the on-time margin by the time scale; the forces are already shares of the
-    robot's weight and the ground's height is the scene's."""
+    scale, the early window and the on-time margin by the time scale, the landing speed by their ratio; the
+    forces are already shares of the robot's weight and the ground's height is the scene's."""
     if scale.is_identity:
         return settings
     return settings.model_copy(
         update={
             "touchdown_height": scale.distance(settings.touchdown_height),
             "release_height": scale.distance(settings.release_height),
+            "landing_speed": (
+                None
+                if settings.landing_speed is None
+                else scale.distance(settings.landing_speed) / scale.duration(1.0)
+            ),
             "early_window": scale.duration(settings.early_window),
             "on_time": None if settings.on_time is None else scale.duration(settings.on_time),
         }

@@ -147,6 +147,15 @@ class ContactDetectionSettings(StrictModel):
         le=0.5,
         description="m; with a ground plane (terrain: blind), a loaded foot up to this above it touches down",
     )
+    landing_speed: float | None = Field(
+        None,
+        gt=0.0,
+        le=10.0,
+        description="m/s; with a ground plane (terrain: blind), a touchdown (early or late) counts only "
+        "while the foot's vertical speed is below this: a foot still moving is in the air (its load may be "
+        "the echo of the torques pushing it, its height is measured above an estimated plane); null: not "
+        "checked",
+    )
 
     def on_time_for(self, flat: bool) -> float:
         """The on-time margin (s): ``on_time``, or when it is null ``ON_TIME_FLAT`` on flat ground and
@@ -527,25 +536,52 @@ class MpcConfig(MpcSettings):
         return self
 
 
+def _weights_over_defaults(model: type[StrictModel], data: Any) -> Any:
+    """``data`` of a section of weight sets with every weight set given as a mapping completed from that
+    set's default: a file that gives ``running: {base_position: ...}`` changes that weight alone, as the
+    ``--set running.base_position=...`` override does, instead of taking every other weight from the weight
+    class's own defaults (which are another set's)."""
+    if not isinstance(data, dict):
+        return data
+    merged = dict(data)
+    for name, value in data.items():
+        field = model.model_fields.get(name)
+        if isinstance(value, dict) and field is not None and field.default_factory is not None:
+            default = field.get_default(call_default_factory=True)
+            merged[name] = {**default.model_dump(), **value}
+    return merged
+
+
 class CostsConfig(StrictModel):
     """Cost weights of the whole-body plan (``running``, ``terminal``: the authors' "regular" set,
     ``WholeBodyWeights``) and of the SRB tail (``srb_running``, ``srb_terminal``: the authors' SRB tracking
     set with ten times its height weight, ``SRBWeights.regular_running``, which says why, and why the tail
-    does not take the whole-body base weights as Eq. (28) does). Sources in docs/settings.md."""
+    does not take the whole-body base weights as Eq. (28) does). Sources in docs/settings.md. A set given in
+    part keeps its default's other weights."""
 
     running: WholeBodyWeights = Field(default_factory=WholeBodyWeights.regular_running)
     terminal: WholeBodyWeights = Field(default_factory=WholeBodyWeights.regular_terminal)
     srb_running: SRBWeights = Field(default_factory=SRBWeights.regular_running)
     srb_terminal: SRBWeights = Field(default_factory=SRBWeights.regular_terminal)
 
+    @model_validator(mode="before")
+    @classmethod
+    def _complete_sets(cls, data: Any) -> Any:
+        return _weights_over_defaults(cls, data)
+
 
 class TrajectoryCostsConfig(StrictModel):
     """Weight set ``barrel_roll`` of the knots inside a stored trajectory (default: the authors' barrel-roll
     set, ``WholeBodyWeights.barrel_roll_running/terminal``; docs/settings.md). The SRB tail uses the same base
-    weights (Eq. (28))."""
+    weights (Eq. (28)). A set given in part keeps the barrel-roll set's other weights."""
 
     running: WholeBodyWeights = Field(default_factory=WholeBodyWeights.barrel_roll_running)
     terminal: WholeBodyWeights = Field(default_factory=WholeBodyWeights.barrel_roll_terminal)
+
+    @model_validator(mode="before")
+    @classmethod
+    def _complete_sets(cls, data: Any) -> Any:
+        return _weights_over_defaults(cls, data)
 
 
 class ReferenceSegmentConfig(StrictModel):

@@ -27,9 +27,15 @@ still higher and unloaded is a late touchdown: in the air, out of the stance set
 planned foothold); in the early window of a swing it needs both, a normal force above ``touchdown_force``
 and the ground within ``touchdown_height``. With a ground plane a loaded foot may be up to ``step_height``
 above the plane (a step up the plane does not know yet): the force is the evidence there, and it is the
-ground's, since a foot out of the stance set is not commanded to push. A foot leaves contact when
-its force drops below ``release_force`` with the foot higher than ``release_height``, or when its planned
-swing begins (the schedule decides lift-off). In planned stance the force is not asked for: on a robot it is
+ground's. Off flat ground, with ``landing_speed`` set (off by default), a touchdown, early or late, counts
+only while the foot's vertical speed is below it: the plane is an estimate (through feet on two treads it
+lies above the lower one, and a descending foot passes under it before it meets the ground), and a foot out
+of the stance set still gets torques near the plan's (the VWBC's cost pulls toward them: stance torques
+for a late foot, swing torques for a swinging one), so a leg pushing its foot through the air shows a
+load; a foot that met the ground has stopped (on the way down a slope or steps a swinging foot passes under
+the plane, loaded by the torques that swing it, before it lands). A foot leaves contact when its force
+drops below ``release_force`` with the foot higher than ``release_height``, or when its planned swing
+begins (the schedule decides lift-off). In planned stance the force is not asked for: on a robot it is
 estimated from the joint torques, which there are the stance torques this controller commands, so it would
 only echo the schedule. Forces are thresholds on the robot's weight share (``mg / n_feet``), so one
 setting holds for every robot.
@@ -72,6 +78,9 @@ class ContactDetector:
         self.release_force = self.settings.release_force * weight_share
         self.in_contact = np.zeros(robot.n_feet, dtype=bool)
         self.heights = np.zeros(robot.n_feet)
+        self.vertical_speeds = np.zeros(robot.n_feet)
+        """With a ground plane and ``landing_speed``, each foot's world vertical velocity (m/s) at the last
+        update (else zeros)."""
         self._plan: KnotPlan | None = None
         self._next_touchdown = np.zeros((0, robot.n_feet))
         self.reset()
@@ -104,8 +113,13 @@ class ContactDetector:
         k = plan.knot_at(t)
         planned = plan.contacts[k]
         model, data = self.robot.model, self.data
-        pin.framesForwardKinematics(model, data, measurement.q)
         radius, ground, soles = self.robot.foot_radius, self.ground, self.soles
+        checks_speed = ground is not None and s.landing_speed is not None
+        if checks_speed:
+            pin.forwardKinematics(model, data, measurement.q, measurement.v)
+            pin.updateFramePlacements(model, data)
+        else:
+            pin.framesForwardKinematics(model, data, measurement.q)
         reach = s.touchdown_height if ground is None else s.step_height
         for foot, frame_id in enumerate(self.robot.foot_frame_ids):
             soles[foot] = data.oMf[frame_id].translation
@@ -115,11 +129,16 @@ class ContactDetector:
             else:
                 height = soles[foot, 2] - ground.height_at(soles[foot, 0], soles[foot, 1])
             self.heights[foot] = height
+            moving = False
+            if checks_speed:
+                velocity = pin.getFrameVelocity(model, data, frame_id, pin.LOCAL_WORLD_ALIGNED)
+                self.vertical_speeds[foot] = velocity.linear[2]
+                moving = abs(self.vertical_speeds[foot]) >= s.landing_speed
             force = measurement.foot_forces[foot, 2]
             loaded = force > self.touchdown_force and height < reach
             if planned[foot]:
                 if not self.in_contact[foot]:
-                    self.in_contact[foot] = height < s.touchdown_height or loaded
+                    self.in_contact[foot] = (height < s.touchdown_height or loaded) and not moving
                 elif force < self.release_force and height > s.release_height:
                     self.in_contact[foot] = False
                 if not self.in_contact[foot]:
@@ -129,7 +148,7 @@ class ContactDetector:
                     self.in_contact[foot] = False
                 lead = self._next_touchdown[k, foot] - t
                 soon = self.on_time < lead <= s.early_window
-                if not self.in_contact[foot] and soon and loaded:
+                if not self.in_contact[foot] and soon and loaded and not moving:
                     self.in_contact[foot] = True
                     self.early_touchdowns += 1
                     self.early_lead_sum += lead

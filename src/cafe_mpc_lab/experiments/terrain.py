@@ -9,6 +9,10 @@ feet: ``core.ground``, docs/terrain.md) or ``height_map`` (the plant's height-ma
 ``HEIGHT_MAP_SENSOR``: the reference plans on its maps). By default with the fixed 20 ms latency, so every
 row is deterministic and its ``cafe-mpc run`` command (``runs.md``) reproduces it. The table gives whether
 and when the robot fell, how far it got and whether that was past the piece (onto its top, and over it).
+
+One start is one sample of where the feet meet the first edge: a gait that crosses from 1 m may fall from
+0.9 m. ``--starts 0.9,1.0,1.1`` runs each cell with the piece starting at each of these x, and the table's
+notes give each cell's rate of runs over it, with its Wilson interval (a rate, not a run).
 """
 
 from __future__ import annotations
@@ -21,8 +25,9 @@ from pydantic import Field
 
 from cafe_mpc.config import TerrainConfig
 from cafe_mpc_lab.experiments.common import GaitPresetNames, RunStore, colors, fall_fields, fell_text, num
-from cafe_mpc_lab.experiments.options import ExperimentOptions, names
+from cafe_mpc_lab.experiments.options import ExperimentOptions, names, numbers
 from cafe_mpc_lab.experiments.registry import Experiment, ExperimentPlan, PlanContext, Variant
+from cafe_mpc_lab.experiments.reliability import wilson_interval
 from cafe_mpc_lab.experiments.run import RunResult
 from cafe_mpc_lab.report.figures import new_figure, save_figure
 from cafe_mpc_lab.sim.terrain import Rough, Slope, Stairs, Steps, terrain_piece
@@ -53,9 +58,23 @@ TerrainNames = names(tuple(TERRAINS))
 ModeNames = names(MODES)
 
 
-def _piece(name: str) -> Slope | Steps | Stairs | Rough:
-    """The ``sim.terrain`` piece of a named terrain."""
-    piece = terrain_piece(TerrainConfig(**yaml.safe_load(TERRAINS[name])))
+DEFAULT_START = TerrainConfig.model_fields["start"].default
+"""World x where a named piece begins unless ``--starts`` says otherwise (the schema's default)."""
+
+
+def _spec(name: str, start: float) -> str:
+    """The ``scene.terrain`` entry of a named piece beginning at ``start`` (the name's own text at the
+    default start, so the commands of earlier sweeps stay the same)."""
+    if start == DEFAULT_START:
+        return TERRAINS[name]
+    keys = yaml.safe_load(TERRAINS[name])
+    keys["start"] = start
+    return "{" + ", ".join(f"{key}: {value}" for key, value in keys.items()) + "}"
+
+
+def _piece(name: str, start: float = DEFAULT_START) -> Slope | Steps | Stairs | Rough:
+    """The ``sim.terrain`` piece of a named terrain beginning at ``start``."""
+    piece = terrain_piece(TerrainConfig(**yaml.safe_load(_spec(name, start))))
     assert isinstance(piece, Slope | Steps | Stairs | Rough)
     return piece
 
@@ -86,6 +105,11 @@ class TerrainOptions(ExperimentOptions):
         "(the sensor's maps); default flat, blind",
         json_schema_extra={"metavar": "flat,blind,height_map"},
     )
+    starts: numbers(-10.0, 100.0) = Field(
+        (DEFAULT_START,),
+        description="world x where the piece begins, one run each (default 1): several make each cell a rate",
+        json_schema_extra={"metavar": "X,..."},
+    )
 
 
 class Terrain(Experiment):
@@ -100,35 +124,36 @@ class Terrain(Experiment):
     def plan(self, options: TerrainOptions, context: PlanContext) -> ExperimentPlan:
         variants = [
             Variant(
-                f"{gait}-{terrain}-{mode}",
+                f"{gait}-{terrain}-{mode}" + ("" if start == DEFAULT_START else f"-from{start:g}"),
                 gait,
                 (
-                    f"scene.terrain=[{TERRAINS[terrain]}]",
+                    f"scene.terrain=[{_spec(terrain, start)}]",
                     f"terrain={mode}",
                     *(HEIGHT_MAP_SENSOR if mode == "height_map" else ()),
                 ),
-                f"{gait}, {terrain}, {mode}",
+                f"{gait}, {terrain}, {mode}" + ("" if start == DEFAULT_START else f", from {start:g} m"),
                 group=gait,
-                fields=(("gait", gait), ("terrain_piece", terrain), ("mode", mode)),
+                fields=(("gait", gait), ("terrain_piece", terrain), ("mode", mode), ("start", start)),
             )
             for gait in options.gaits
             for terrain in options.terrains
             for mode in options.modes
+            for start in options.starts
         ]
-        return ExperimentPlan(
-            variants,
-            {
-                "--gaits": ",".join(options.gaits),
-                "--terrains": ",".join(options.terrains),
-                "--modes": ",".join(options.modes),
-            },
-        )
+        plan_options = {
+            "--gaits": ",".join(options.gaits),
+            "--terrains": ",".join(options.terrains),
+            "--modes": ",".join(options.modes),
+        }
+        if tuple(options.starts) != (DEFAULT_START,):
+            plan_options["--starts"] = ",".join(f"{s:g}" for s in options.starts)
+        return ExperimentPlan(variants, plan_options)
 
     def summarize(self, result: RunResult, variant: Variant) -> dict:
         metrics = result.metrics
         steady = metrics.get("steady_state") or metrics
         fields = dict(variant.fields)
-        piece = _piece(fields["terrain_piece"])
+        piece = _piece(fields["terrain_piece"], fields["start"])
         x = result.log.q[:, 0]
         reached = float(np.max(x)) if len(x) else None
         top = _top(piece)
@@ -143,12 +168,14 @@ class Terrain(Experiment):
         }
 
     def table(self, rows: list[dict], comparison: dict) -> tuple[list[str], list[list[str]], list[str]]:
-        header = ["gait", "terrain", "ground", "fell", "x reached [m]", "past the top", "over", "vx [m/s]"]
+        header = ["gait", "terrain", "ground", "start [m]", "fell", "x reached [m]", "past the top", "over"]
+        header.append("vx [m/s]")
         body = [
             [
                 str(r.get("gait")),
                 str(r.get("terrain_piece")),
                 str(r.get("mode")),
+                num(r.get("start", DEFAULT_START), 2),
                 fell_text(r),
                 num(r.get("x_reached"), 2),
                 "yes" if r.get("on_top") else "no",
@@ -162,9 +189,12 @@ class Terrain(Experiment):
             "1 m top, each down again. 'past the top': the base got to the top's start; 'over': it got past "
             "the piece's end without falling. vx: mean forward speed from 0.5 s to the end or the fall.",
         ]
+        if len({r.get("start", DEFAULT_START) for r in rows}) > 1:
+            notes.append(f"Over the starts (runs over the piece, Wilson 95 %): {over_rates(rows)}.")
         return header, body, notes
 
     def plot(self, rows: list[dict], runs: RunStore, path: Path) -> None:
+        rows = [r for r in rows if r.get("start", DEFAULT_START) == DEFAULT_START] or rows
         done = [r for r in rows if r.get("status") == "ok"]
         if not done:
             return
@@ -207,3 +237,18 @@ class Terrain(Experiment):
             "How far each gait gets over steps and slopes: flat-ground controller and blind", fontsize=10
         )
         save_figure(figure, path)
+
+
+def over_rates(rows: list[dict]) -> str:
+    """Each (gait, terrain, ground) cell's runs over the piece out of its finished runs, with the Wilson
+    95 % interval, e.g. ``bound step6 blind 1 of 3 (6-79 %)``."""
+    cells: dict[tuple[str, str, str], list[bool]] = {}
+    for r in rows:
+        if r.get("status") == "ok":
+            cells.setdefault((r["gait"], r["terrain_piece"], r["mode"]), []).append(bool(r.get("over")))
+    parts = []
+    for (gait, terrain, mode), over in cells.items():
+        low, high = wilson_interval(sum(over), len(over))
+        interval = f"{100 * low:.0f}-{100 * high:.0f} %"
+        parts.append(f"{gait} {terrain} {mode} {sum(over)} of {len(over)} ({interval})")
+    return "; ".join(parts)
