@@ -121,3 +121,40 @@ def test_closed_loop_running_flip_takes_off():
     assert np.any(~log.contacts[flight].any(axis=1))
     assert log.q[flight, 2].max() > 0.35
     assert np.sum(log.v[:, 4]) * (log.time[1] - log.time[0]) > 1.5  # pitched nose-down by > 1.5 rad
+
+
+def test_trajectory_clock_advances_on_an_early_touchdown(robot):
+    """A trajectory segment with touchdown events: feet on the ground 30 ms before the planned touchdown
+    advance its clock, so the plans stand on them from now; feet still high, or no events, keep it."""
+    from cafe_mpc.reference.trajectory import TrajectoryReference
+    from cafe_mpc.reference.trajectory_file import load_packaged_trajectory
+
+    trajectory = load_packaged_trajectory("running-front-flip", robot)
+    touchdown = float(trajectory.switching_times[3])  # flight -> all-stance landing
+    knot = round(touchdown / trajectory.dt)
+    landed = trajectory.xs[knot, : robot.nq]  # the feet at their planned touchdown height
+    early = touchdown - 0.03
+    in_the_air = trajectory.xs[knot - 3, : robot.nq]
+    velocity = np.zeros(robot.nv)
+    events = (0.015, 0.08, 0.02)
+    reference = TrajectoryReference(robot, trajectory, touchdown_events=events)
+    assert not any(reference.stance_at(early + 1e-3))
+    reference.update(early, in_the_air, velocity)  # feet 3 cm and more above the floor: the clock holds
+    assert reference.advances == 0 and not any(reference.stance_at(early + 1e-3))
+    reference.update(early, landed, velocity)
+    assert reference.advances == 1 and reference.advance_total == pytest.approx(0.03, abs=1e-9)
+    assert all(reference.stance_at(early + 1e-3)) and reference.switch_times(early - 0.01, early + 0.01) == [
+        pytest.approx(early)
+    ]
+    fixed = TrajectoryReference(robot, trajectory)
+    fixed.update(early, landed, velocity)
+    assert not any(fixed.stance_at(early + 1e-3))
+
+
+def test_touchdown_events_belong_to_trajectory_segments():
+    from cafe_mpc.config import ConfigError
+
+    with pytest.raises(ConfigError, match="touchdown_events' belongs to segments of kind trajectory"):
+        load_run_config("running-front-flip", ["reference.segments.0.touchdown_events=0.015"])
+    config = load_run_config("running-front-flip", ["reference.segments.1.touchdown_events=0.02"])
+    assert config.reference.segments[1].touchdown_events == 0.02

@@ -610,6 +610,14 @@ class ReferenceSegmentConfig(StrictModel):
     from_phase: int = Field(
         0, ge=0, description="kind trajectory: the first phase played (0: all; 1: skip the first phase)"
     )
+    touchdown_events: float | None = Field(
+        None,
+        ge=0.0,
+        le=0.5,
+        description="kind trajectory: s; advance the trajectory's clock when a foot lands more than this "
+        "before its planned touchdown (seen at each MPC update within the contact detector's early window "
+        "and height), so that the plans stand on it; null: the trajectory keeps its clock",
+    )
     height: float | None = Field(None, description="kind stand: body height, m (null: standing height)")
     gait: GaitConfig | None = Field(None, description="kind gait: the gait section (name, commands, ...)")
     offset: tuple[float, float, float] | None = Field(
@@ -630,6 +638,11 @@ class ReferenceSegmentConfig(StrictModel):
             raise ValueError(f"'gait' belongs to segments of kind gait, not {self.kind}")
         if self.kind != "trajectory" and self.from_phase:
             raise ValueError(f"'from_phase' belongs to segments of kind trajectory, not {self.kind}")
+        if self.kind != "trajectory" and self.touchdown_events is not None:
+            raise ValueError(
+                f"'touchdown_events' belongs to segments of kind trajectory, not {self.kind} (a gait's: "
+                "gait.touchdown_events)"
+            )
         if self.offset is not None and not all(math.isfinite(value) for value in self.offset):
             raise ValueError(f"offset must be finite, got {self.offset}")
         return self

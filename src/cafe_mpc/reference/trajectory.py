@@ -89,6 +89,11 @@ class TrajectoryReference(Reference):
         start: reference time at which the trajectory's first knot plays (s, >= 0).
         weight_set: weight set of the knots inside the trajectory.
         hold_weight_set: weight set of the knots before ``start`` and after the end.
+        touchdown_events: ``(on_time, window, height)`` or None: at each ``update`` a foot in a planned
+            flight or swing whose sole is within ``height`` of its planned touchdown height, with that
+            touchdown ``window`` s ahead or less and more than ``on_time`` away, advances the trajectory's
+            clock to that touchdown (``advance``), so that the plans stand on the feet that landed early
+            (the gaits' ``touchdown_events``, ``LocomotionReference``); None: the clock is fixed.
     """
 
     def __init__(
@@ -98,6 +103,7 @@ class TrajectoryReference(Reference):
         start: float = 0.0,
         weight_set: str = "barrel_roll",
         hold_weight_set: str = "barrel_roll",
+        touchdown_events: tuple[float, float, float] | None = None,
     ) -> None:
         if not (math.isfinite(start) and start >= 0.0):
             raise ValueError(f"trajectory reference: start must be >= 0 s, got {start}")
@@ -152,6 +158,10 @@ class TrajectoryReference(Reference):
         self.sample(window)
         changes = np.flatnonzero(np.any(contacts[1:] != contacts[:-1], axis=1)) + 1
         self._switches = [self.start + float(k) * self.dt for k in changes]
+        self.touchdown_events = touchdown_events
+        self._data = robot.model.createData() if touchdown_events is not None else None
+        self.advances = 0
+        self.advance_total = 0.0
 
     # ------------------------------------------------------------------------------------------- times
     @property
@@ -184,6 +194,47 @@ class TrajectoryReference(Reference):
         if k >= self.n_intervals:
             return self._holds[1][1]
         return tuple(bool(flag) for flag in self._contacts[k])
+
+    # ------------------------------------------------------------------------------------------ events
+    def update(self, t: float, q: np.ndarray, v: np.ndarray) -> None:
+        """With ``touchdown_events``: advance the clock when a foot landed early (see the class)."""
+        if self.touchdown_events is None:
+            return
+        on_time, window, height = self.touchdown_events
+        k, _ = self._locate(t)
+        if k < 0 or k >= self.n_intervals:
+            return  # the holds: no touchdown ahead
+        assert self._data is not None
+        model, data, robot = self.robot.model, self._data, self.robot
+        pin.framesForwardKinematics(model, data, q)
+        last = min(self.n_intervals - 1, k + math.ceil(window / self.dt))
+        lead = None
+        for foot, frame_id in enumerate(robot.foot_frame_ids):
+            if self._contacts[k, foot]:
+                continue
+            # the first interval ahead in which the foot is planned in stance: its touchdown knot
+            ahead = np.flatnonzero(self._contacts[k + 1 : last + 1, foot])
+            if len(ahead) == 0:
+                continue
+            knot = k + 1 + int(ahead[0])
+            touchdown = self.start + knot * self.dt
+            if not (on_time < touchdown - t <= window):
+                continue
+            planned_sole = self._feet[knot, foot, 2] - robot.foot_radius
+            sole = float(data.oMf[frame_id].translation[2]) - robot.foot_radius
+            if sole - planned_sole <= height:
+                lead = touchdown - t if lead is None else min(lead, touchdown - t)
+        if lead is not None:
+            self.advance(lead)
+
+    def advance(self, lead: float) -> None:
+        """From now on the trajectory plays ``lead`` seconds ahead: what was planned for ``t + lead`` happens
+        at ``t`` (its end comes ``lead`` earlier and its last state is held from there)."""
+        self.start -= lead
+        self._timing[0] = self.start
+        self._switches = [switch - lead for switch in self._switches]
+        self.advances += 1
+        self.advance_total += lead
 
     # ------------------------------------------------------------------------------------------ sample
     def sample(self, window: ReferenceWindow) -> None:
