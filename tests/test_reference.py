@@ -171,6 +171,42 @@ def test_holding_the_path_turns_the_heading_back_toward_the_commanded_line(robot
     assert heading_after(0.1, 0.0) == pytest.approx(0.0)
 
 
+def test_a_path_anchor_places_the_base_reference_and_footholds_on_the_line(robot):
+    """Trot at 0.5 m/s from the origin, measured 1 s later 0.04 m left of the line: with ``path_anchor`` 1
+    the reference's base and the next footholds sit on the line (the footholds 0.04 m right of where the
+    measurement alone puts them; the stance feet stay where they stand), with 0.5 halfway, and without it
+    at the measurement; a path anchor without a path is refused."""
+
+    gait = get_gait("trot")
+    q = robot.q_standing.copy()
+    v = np.zeros(robot.nv)
+
+    def after(offset: float, anchor: float) -> tuple[float, np.ndarray]:
+        reference = LocomotionReference(
+            robot, gait, [VelocityCommand(vx=0.5)], path_gain=1.0, path_heading_limit=0.0, path_anchor=anchor
+        )
+        reference.update(0.0, q, v)
+        moved = q.copy()
+        moved[:2] += (0.5, offset)
+        reference.update(1.0, moved, v)
+        xy, _ = reference.base_pose(1.2)
+        _, positions, _ = reference.feet(np.linspace(1.0, 1.5, 51))
+        return float(xy[1]), positions[..., 1]
+
+    base_on_line, feet_on_line = after(0.04, 1.0)
+    base_measured, feet_measured = after(0.04, 0.0)
+    base_halfway, _ = after(0.04, 0.5)
+    assert base_on_line == pytest.approx(0.0, abs=1e-9)
+    assert base_measured == pytest.approx(0.04, abs=1e-9)
+    assert base_halfway == pytest.approx(0.02, abs=1e-9)
+    assert after(0.0, 1.0)[0] == pytest.approx(0.0, abs=1e-9)
+    shift = feet_on_line - feet_measured  # the swings move toward their new footholds, which moved 0.04 m
+    assert shift.min() == pytest.approx(-0.04, abs=1e-6)
+    assert shift.max() <= 1e-9
+    with pytest.raises(ValueError, match="path_anchor"):
+        LocomotionReference(robot, gait, [VelocityCommand(vx=0.5)], path_anchor=0.5)
+
+
 def test_a_foot_on_the_ground_before_its_touchdown_advances_the_gaits_clock(robot):
     """Pronk (0.1 s stance, 0.2 s flight): measured standing (every foot on the ground) 50 ms before the
     planned touchdown, the reference's clock jumps 50 ms ahead so that its stance starts now; 10 ms before

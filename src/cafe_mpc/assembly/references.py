@@ -89,6 +89,7 @@ def locomotion_reference(
         command_ramp=section.command_ramp,
         path_gain=gait.path_gain,
         path_heading_limit=section.path_heading_limit,
+        path_anchor=section.path_anchor,
         touchdown_events=events,
         ground_plane=ground_plane,
         terrain_map=terrain_map,

@@ -345,6 +345,14 @@ class GaitConfig(StrictModel):
     path_heading_limit: float = Field(
         0.2, ge=0.0, le=1.0, description="rad; the largest heading correction toward the path"
     )
+    path_anchor: float = Field(
+        0.0,
+        ge=0.0,
+        le=1.0,
+        description="with path_gain > 0: the fraction of the cross-track error taken out of the reference's "
+        "anchor at each update, so the base reference and the footholds under its hips are placed that much "
+        "closer to the path than the measured base (0: from the measurement; 1: on the path)",
+    )
     touchdown_events: float | None = Field(
         None,
         ge=0.0,
@@ -370,6 +378,12 @@ class GaitConfig(StrictModel):
         if any(later <= earlier for earlier, later in itertools.pairwise(starts)):
             raise ValueError(f"command start times must increase strictly, got {starts}")
         return commands
+
+    @model_validator(mode="after")
+    def _anchor_needs_path(self) -> GaitConfig:
+        if self.path_anchor > 0.0 and self.path_gain == 0.0:
+            raise ValueError(f"path_anchor {self.path_anchor} needs a path: give path_gain > 0")
+        return self
 
 
 class MpcSettings(StrictModel):

@@ -305,6 +305,7 @@ class LocomotionReference(Reference):
         command_ramp: float = 0.0,
         path_gain: float = 0.0,
         path_heading_limit: float = 0.2,
+        path_anchor: float = 0.0,
         touchdown_events: tuple[float, float, float] | None = None,
         ground_plane: bool = False,
         terrain_map: TerrainMapSettings | None = None,
@@ -356,7 +357,17 @@ class LocomotionReference(Reference):
         """rad of heading per m of cross-track error (0: no path, the commands are dead-reckoned from the
         measurement at every update)."""
         self.path_heading_limit = float(path_heading_limit)
+        if not 0.0 <= path_anchor <= 1.0:
+            raise ValueError(f"path_anchor must be in [0, 1], got {path_anchor}")
+        if path_anchor > 0.0 and self.path_gain == 0.0:
+            raise ValueError("path_anchor needs a path: give path_gain > 0")
+        self.path_anchor = float(path_anchor)
+        """Fraction of the cross-track error taken out of the anchor at each update: the base reference and
+        the footholds under its hips start that much closer to the path than the measurement (0: at the
+        measurement)."""
         self.path_origin: tuple[float, np.ndarray, float] | None = None
+        self._path_offset = np.zeros(2)
+        """World (x, y) of the last update's cross-track error (``_path_heading``)."""
         self.touchdown_events = touchdown_events
         """``(on_time, window, height)``: a swing foot found within ``height`` m of the ground with its
         planned touchdown between ``on_time`` and ``window`` s ahead has landed early; the gait's clock is
@@ -721,6 +732,8 @@ class LocomotionReference(Reference):
         self.anchor_yaw = yaw_from_quaternion(q[3:7])
         if self.path_gain > 0.0:
             self.anchor_yaw = self._path_heading(t, self.anchor_xy, self.anchor_yaw)
+            if self.path_anchor > 0.0:
+                self.anchor_xy = self.anchor_xy - self.path_anchor * self._path_offset
         rotation = _quaternion_matrix(q[3:7])
         self.measured_velocity_xy = (rotation @ v[:3])[:2]
         robot, data = self.robot, self._data
@@ -799,12 +812,14 @@ class LocomotionReference(Reference):
         the robot off its line, which a task fixed in the world, a bar to roll over, cannot afford)."""
         if self.path_origin is None:
             self.path_origin = (t, xy.copy(), yaw)
+            self._path_offset = np.zeros(2)
             return yaw
         start, origin, origin_yaw = self.path_origin
         displacement, turn = self.profile.heading_displacement(start, t)
         path_xy = origin + _yaw_rotation(origin_yaw) @ displacement
         path_yaw = origin_yaw + turn
         cross = float((_yaw_rotation(path_yaw).T @ (xy - path_xy))[1])
+        self._path_offset = cross * _yaw_rotation(path_yaw)[:, 1]
         correction = max(-self.path_heading_limit, min(self.path_heading_limit, self.path_gain * cross))
         return path_yaw - correction
 
