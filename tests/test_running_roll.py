@@ -141,12 +141,11 @@ def test_a_take_off_within_the_motors_clears_the_bar_in_a_randomised_trial():
     torque limits a soft barrier at the motors' limits (``mpc.torque_barrier_eps`` 0.01, fraction 1) the
     plans ask the right abduction motors for up to 1.26 x their 17 Nm in the take-off, the low level clamps
     and the trunk touches the bar at 2.76 s; with the preset's stiffer barrier at 0.9 of them the plans push
-    within what the motors give and the robot clears the bar (docs/robustness.md). The approach's footholds
-    are placed from the measured base here (``path_anchor`` 0): on its line this trial lifts off too close
-    to it and comes down on the bar ("The approach's footholds on its line")."""
+    within what the motors give and the robot clears the bar (docs/robustness.md). The approach here is the
+    one this was measured with (path gain 2 rad/m, footholds from the measured base, ``path_anchor`` 0)."""
     from cafe_mpc_lab.experiments.run import simulate_run
 
-    config = _randomised_trial(6, duration=3.1, overrides=["reference.segments.0.gait.path_anchor=0"])
+    config = _randomised_trial(6, duration=3.1, overrides=APPROACH_WITHOUT_ANCHOR)
     assert config.mpc.plan_torque_fraction < 1.0 and config.mpc.torque_barrier_eps >= 1.0
     _, _, log = simulate_run(config)
     assert not log.fell and log.time[-1] >= 3.09
@@ -183,13 +182,13 @@ def test_the_approach_starts_from_rest_and_a_heavier_robot_paces_on(robot):
 def test_the_approach_holds_its_line_and_the_roll_clears_the_bar_in_a_randomised_trial():
     """Reliability trial 26 (default ranges, fixed latency), through the flight over the bar. The roll
     tracks no base position and starts where the pace ends, so where the robot is across its line then
-    decides where it crosses the bar. With the approach's path gain at 1 rad/m this robot started the roll
-    3.7 cm off its line, away from the bar, and came down on it at 3.02 s; at the preset's 2 rad/m it
-    starts 2.5 cm off and clears the bar (docs/robustness.md, "The approach: its first push and its line")."""
+    decides where it crosses the bar: the preset's approach holds its line (docs/robustness.md, "The
+    approach: its first push and its line") and starts the roll within 3 cm of it."""
     from cafe_mpc_lab.experiments.run import simulate_run
 
     config = _randomised_trial(26, duration=3.1)
-    assert config.reference.segments[0].gait.path_gain >= 2.0
+    approach = config.reference.segments[0].gait
+    assert approach.path_gain > 0.0 and approach.path_anchor == 1.0
     _, _, log = simulate_run(config)
     assert not log.fell and log.time[-1] >= 3.09
     assert not np.any(log.extra["bar_contact"])
@@ -200,9 +199,10 @@ def test_the_approach_holds_its_line_and_the_roll_clears_the_bar_in_a_randomised
 @pytest.mark.slow
 def test_the_approach_steps_onto_its_line_and_the_roll_clears_the_bar_in_a_randomised_trial():
     """Reliability trial 9 (default ranges, fixed latency), through the flight over the bar. With the pace's
-    footholds placed from the measured base (``path_anchor`` 0) this robot touched the bar on the way up
-    at 2.73 s (it lifted off too far across its line); with the reference anchored on the line
-    (``path_anchor`` 1) the approach's steps bring it toward its line and it clears the bar
+    footholds placed from the measured base (``path_anchor`` 0) this robot started the roll 4.4 cm (path
+    gain 2 rad/m) or 6.6 cm (1 rad/m) across its line and touched the bar on the way up at 2.73 or 2.71 s;
+    with the reference anchored on the line (``path_anchor`` 1, path gain 1) the approach's steps bring it
+    to 2.6 cm and it clears the bar
     (docs/robustness.md, "The approach's footholds on its line")."""
     from cafe_mpc_lab.experiments.run import simulate_run
 
@@ -211,6 +211,13 @@ def test_the_approach_steps_onto_its_line_and_the_roll_clears_the_bar_in_a_rando
     _, _, log = simulate_run(config)
     assert not log.fell and log.time[-1] >= 3.29
     assert not np.any(log.extra["bar_contact"])
+
+
+APPROACH_WITHOUT_ANCHOR = [
+    "reference.segments.0.gait.path_gain=2.0",
+    "reference.segments.0.gait.path_anchor=0",
+]
+"""The running roll's approach before its footholds were placed on its line."""
 
 
 def _randomised_trial(seed: int, duration: float, overrides: list[str] | None = None):
