@@ -274,6 +274,36 @@ def copy_force_derivatives(
 
 
 @njit(cache=True, nogil=True)
+def _velocity_step(
+    acceleration: np.ndarray,
+    contact_forces: np.ndarray,
+    x: np.ndarray,
+    dt: float,
+    explicit: bool,
+    nq: int,
+    acceleration_out: np.ndarray,
+    forces: np.ndarray,
+    x_next: np.ndarray,
+    step: np.ndarray,
+) -> bool:
+    """The velocity half of Eq. (23) shared by the Euler steps: ``v+ = v + qdd dt`` into ``x_next[nq:]``, the
+    configuration step ``step`` (``v dt`` explicit, ``v+ dt`` semi-implicit), the acceleration and the contact
+    forces copied out of Pinocchio's data. ``False`` if the acceleration is not finite."""
+    v_next = x_next[nq:]
+    for i in range(step.shape[0]):
+        a = acceleration[i]
+        if not np.isfinite(a):
+            return False
+        v = x[nq + i]
+        acceleration_out[i] = a
+        v_next[i] = v + a * dt
+        step[i] = (v if explicit else v_next[i]) * dt
+    for i in range(forces.shape[0]):
+        forces[i] = contact_forces[i]
+    return True
+
+
+@njit(cache=True, nogil=True)
 def euler_step(
     acceleration: np.ndarray,
     contact_forces: np.ndarray,
@@ -291,17 +321,10 @@ def euler_step(
     (``v dt`` explicit, ``v+ dt`` semi-implicit) and, for a free-flyer robot (``free_flyer``), ``q+ = q ⊕
     step`` (``free_flyer_configuration_integrate``; otherwise the caller integrates). Copies the acceleration
     and the contact forces out of Pinocchio's data. ``False`` if the acceleration is not finite."""
-    v_next = x_next[nq:]
-    for i in range(step.shape[0]):
-        a = acceleration[i]
-        if not np.isfinite(a):
-            return False
-        v = x[nq + i]
-        acceleration_out[i] = a
-        v_next[i] = v + a * dt
-        step[i] = (v if explicit else v_next[i]) * dt
-    for i in range(forces.shape[0]):
-        forces[i] = contact_forces[i]
+    if not _velocity_step(
+        acceleration, contact_forces, x, dt, explicit, nq, acceleration_out, forces, x_next, step
+    ):
+        return False
     if free_flyer:
         free_flyer_configuration_integrate(x, step, nq, x_next)
     return True
@@ -329,17 +352,11 @@ def world_velocity_euler_step(
     horizontal velocity exactly. The joints step as the explicit step's. ``step`` gets ``(v dt, w dt, joints'
     v dt)`` (what the Jacobians read). Copies the acceleration and the contact forces out of Pinocchio's
     data. ``False`` if the acceleration is not finite."""
+    if not _velocity_step(
+        acceleration, contact_forces, x, dt, True, nq, acceleration_out, forces, x_next, step
+    ):
+        return False
     v_next = x_next[nq:]
-    for i in range(step.shape[0]):
-        a = acceleration[i]
-        if not np.isfinite(a):
-            return False
-        v = x[nq + i]
-        acceleration_out[i] = a
-        v_next[i] = v + a * dt
-        step[i] = v * dt
-    for i in range(forces.shape[0]):
-        forces[i] = contact_forces[i]
     vx, vy, vz = x[nq], x[nq + 1], x[nq + 2]
     wx, wy, wz = x[nq + 3], x[nq + 4], x[nq + 5]
     # orientation and joints by the explicit step with no base translation, then the world translation
