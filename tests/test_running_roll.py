@@ -213,6 +213,27 @@ def test_the_approach_steps_onto_its_line_and_the_roll_clears_the_bar_in_a_rando
     assert not np.any(log.extra["bar_contact"])
 
 
+@pytest.mark.slow
+def test_the_run_out_starts_from_rest_on_a_slippery_floor(robot):
+    """Envelope trial 0 at floor friction 0.35 (every other factor nominal, fixed latency), through the
+    run-out's first cycle. The roll lands and stands still; with the pace after it commanded at 0.8 m/s from
+    its start (a step, ``command_ramp`` 0) its first left stance asked the feet for 0.43-0.46 of their load
+    sideways (0.28 -> 0.95 m/s in 0.14 s), the front-left foot slid at up to 2.6 m/s on the 0.35 floor, the
+    trunk flew 6 cm low and the front-right thigh went 2.8 cm into the floor when its foot landed (4.14 s);
+    with the preset's ramp from rest the run-out paces on (docs/robustness.md, "Low friction: the
+    run-out's first push")."""
+    from cafe_mpc_lab.experiments.run import simulate_run
+    from cafe_mpc_lab.report.task_metrics import CONTACT_TOLERANCE_M, body_floor_clearance
+
+    config = _envelope_trial("friction", 0.35, seed=0, duration=4.4)
+    assert config.reference.segments[2].gait.command_ramp > 0.0
+    _, _, log = simulate_run(config)
+    assert not log.fell and log.time[-1] >= 4.39
+    clearance = body_floor_clearance(robot, log.q)
+    for part in ("thigh", "knee"):
+        assert clearance[part].min() > CONTACT_TOLERANCE_M, f"{part} {clearance[part].min():.3f} m"
+
+
 APPROACH_WITHOUT_ANCHOR = [
     "reference.segments.0.gait.path_gain=2.0",
     "reference.segments.0.gait.path_anchor=0",
@@ -236,6 +257,34 @@ def _randomised_trial(seed: int, duration: float, overrides: list[str] | None = 
         [
             f"plant={json.dumps(plant)}",
             f"pushes={json.dumps([push])}",
+            "mpc.latency=fixed",
+            f"simulation.duration={duration}",
+            "mpc.warm_up=0.2",
+            *(overrides or []),
+        ],
+    )
+
+
+def _envelope_trial(
+    factor: str, value: float, seed: int, duration: float, overrides: list[str] | None = None
+):
+    """The running roll's envelope trial ``seed`` at ``factor`` = ``value`` (every other factor nominal, as
+    ``cafe-mpc experiment envelope``), fixed latency, simulated for ``duration`` s."""
+    from cafe_mpc.config import load_config
+    from cafe_mpc.robots.robot import load_robot
+    from cafe_mpc_lab.experiments.envelope import point_ranges
+    from cafe_mpc_lab.experiments.reliability import sample_trial
+
+    preset = load_config("running-barrel-roll")
+    robot = load_robot(preset.robot)
+    sensors = preset.plant.sensors.model_dump(mode="json")
+    ranges, mass = point_ranges(factor, value, robot.plant.floor_friction)
+    plant, _ = sample_trial(ranges, seed, robot.nu, preset.simulation.duration, preset.estimator, sensors)
+    plant["mass_scale"] = mass
+    return load_config(
+        "running-barrel-roll",
+        [
+            f"plant={json.dumps(plant)}",
             "mpc.latency=fixed",
             f"simulation.duration={duration}",
             "mpc.warm_up=0.2",
