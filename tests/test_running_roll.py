@@ -217,8 +217,8 @@ def test_the_approach_steps_onto_its_line_and_the_roll_clears_the_bar_in_a_rando
 def test_the_run_out_starts_from_rest_on_a_slippery_floor(robot):
     """Envelope trial 0 at floor friction 0.35 (every other factor nominal, fixed latency), through the
     run-out's first cycle. The roll lands and stands still; with the pace after it commanded at 0.8 m/s from
-    its start (a step, ``command_ramp`` 0) its first left stance asked the feet for 0.43-0.46 of their load
-    sideways (0.28 -> 0.95 m/s in 0.14 s), the front-left foot slid at up to 2.6 m/s on the 0.35 floor, the
+    its start (a step, ``command_ramp`` 0) its first left stance asked the front-left foot for 0.44-0.48 of
+    its load sideways (0.3 -> 0.95 m/s in 0.16 s), and on the 0.35 floor that foot slid at up to 2.6 m/s, the
     trunk flew 6 cm low and the front-right thigh went 2.8 cm into the floor when its foot landed (4.14 s);
     with the preset's ramp from rest the run-out paces on (docs/robustness.md, "Low friction: the
     run-out's first push")."""
