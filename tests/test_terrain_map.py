@@ -221,7 +221,7 @@ def test_the_stairs_preset_climbs_two_10_cm_stairs():
     """The ``stairs`` preset up two stairs of 10 cm rise and 30 cm tread from 0.6 m, fixed 20 ms latency, 4
     s: the plan lands each foot at its foothold's height on the treads. With the touchdown constraint on the
     floor (``mpc.touchdown_surface=floor``) the plan pulls each swing down toward z = 0, the foot lands early
-    against the riser and it falls (at 2.37 s)."""
+    against the riser and it falls (at 2.70 s)."""
     from cafe_mpc_lab.experiments.run import simulate_run
 
     config = load_run_config(
