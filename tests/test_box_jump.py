@@ -34,7 +34,7 @@ def test_shipped_box_jump_is_feasible_current_and_lands_on_the_box(robot):
     feet, _ = foot_states(robot, trajectory.xs)
     radius = robot.foot_radius
     # standing on the top at the end, every foot sphere at least 10 cm past the edge: the closed loop takes
-    # off slower forward than the plan and lands its hind feet 6-9 cm short of it (docs/tasks.md)
+    # off slower forward than the plan and lands its hind feet up to 10 cm short of it (docs/tasks.md)
     np.testing.assert_allclose(feet[-1, :, 2] - radius, top, atol=5e-3)
     assert np.all(feet[-1, :, 0] - radius > edge + 0.10)
     # in the flight a foot sphere ahead of the edge is above the top
