@@ -192,6 +192,12 @@ def test_trajectory_clock_advances_on_an_early_touchdown(robot):
     fixed.update(early, landed, velocity)
     assert not any(fixed.stance_at(early + 1e-3))
 
+    from cafe_mpc_lab.report.task_metrics import task_from_reference
+
+    task, unmoved = task_from_reference(reference), task_from_reference(fixed)
+    assert task.clock_advance == pytest.approx(0.03, abs=1e-9) and unmoved.clock_advance == 0.0
+    assert task.start == pytest.approx(unmoved.start - 0.03, abs=1e-9)
+
 
 def test_touchdown_events_belong_to_trajectory_segments():
     from cafe_mpc.config import ConfigError

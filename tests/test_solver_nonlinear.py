@@ -400,6 +400,19 @@ def test_time_budget_and_options_are_respected() -> None:
     assert budget.status == "time_budget" and budget.statistics.iterations == 1
 
 
+def test_the_time_budget_counts_from_budget_start() -> None:
+    """A caller's work before the solve (an MPC's problem build) is inside the budget: with ``budget_start``
+    10 s back a 5 s budget is spent after the first iteration; from the call it lasts three."""
+    import time
+
+    problem = pendulum_problem(np.array([0.0, 0.0]), horizon=60)
+    options = SolverOptions(max_iterations=3, max_al_iterations=1, time_budget=5.0)
+    fresh = MSiLQRSolver(options).solve(problem)
+    assert fresh.statistics.iterations == 3 and fresh.status == "max_iterations"
+    late = MSiLQRSolver(options).solve(problem, budget_start=time.perf_counter() - 10.0)
+    assert late.statistics.iterations == 1 and late.status == "time_budget" and late.policy_valid
+
+
 def test_bad_inputs_raise() -> None:
     problem = pendulum_problem(np.array([0.0, 0.0]), horizon=5)
     solver = MSiLQRSolver()

@@ -365,7 +365,7 @@ class RecedingHorizonPlanner(Generic[PlanT]):
             built = self._build(t)
             self._prepare_problem(built)
             problem_time = time.perf_counter() - start
-            result = self._solve(built, solver)
+            result = self._solve(built, solver, budget_start=start)
         except PLANNER_ERRORS as error:
             self._failed(t, f"it failed ({error})")
             return None
@@ -394,7 +394,7 @@ class RecedingHorizonPlanner(Generic[PlanT]):
     def _build(self, t: float):
         raise NotImplementedError
 
-    def _solve(self, built, solver: MSiLQRSolver) -> SolverResult:
+    def _solve(self, built, solver: MSiLQRSolver, budget_start: float | None = None) -> SolverResult:
         raise NotImplementedError
 
     def _plan(self, built, result: SolverResult):

@@ -81,8 +81,11 @@ class _Run:
     """The state of one ``solve`` (or ``prepare``) between its steps."""
 
     __slots__ = (
+        "budget_start",
         "inner_converged",
+        "last_backward_time",
         "last_iteration_time",
+        "last_line_search_time",
         "nominal",
         "pending_step",
         "policy_valid",
@@ -93,6 +96,8 @@ class _Run:
 
     def __init__(self, start: float, statistics: SolverStatistics, nominal: TrajectoryTotals) -> None:
         self.start = start
+        self.budget_start = start
+        """Where ``SolverOptions.time_budget`` counts from (``solve``'s ``budget_start``)."""
         self.statistics = statistics
         self.nominal = nominal
         self.status = SolveStatus.MAX_ITERATIONS
@@ -100,6 +105,8 @@ class _Run:
         self.policy_valid = False
         """The workspace's policy is the sweep's at the nominal (or its shift to it)."""
         self.last_iteration_time = 0.0
+        self.last_backward_time = 0.0
+        self.last_line_search_time = 0.0
         self.pending_step: float | None = None
         """The step of the last accepted iteration while the derivatives are not yet those at its result (the
         linearisation is deferred to the next iteration, or replaced by a shift: ``final_policy``)."""
@@ -137,6 +144,7 @@ class MSiLQRSolver:
         *,
         initial_multipliers: Sequence[np.ndarray | None] | None = None,
         initial_penalties: Sequence[float | None] | None = None,
+        budget_start: float | None = None,
     ) -> SolverResult:
         """Solve ``problem`` from a (possibly infeasible) initial guess.
 
@@ -151,6 +159,8 @@ class MSiLQRSolver:
         when ``initial_xs`` is ``None`` (single shooting), otherwise none is.
         ``initial_multipliers``/``initial_penalties``: augmented-Lagrangian parameters per phase (warm start
         of the AL loop; ``None`` entries use ``0`` and ``options.al_initial_penalty``).
+        ``budget_start``: the ``time.perf_counter()`` instant ``options.time_budget`` counts from (default:
+        this call), so that a caller's own work before the solve (an MPC's problem build) is inside it.
 
         The steps: evaluate and linearise the guess; per augmented-Lagrangian iteration up to
         ``max_iterations`` MS-iLQR iterations (``backward``, then a line search of ``try_step`` trials), then
@@ -162,6 +172,8 @@ class MSiLQRSolver:
         run = self._start(
             problem, initial_xs, initial_us, rollout_knots, initial_multipliers, initial_penalties
         )
+        if budget_start is not None:
+            run.budget_start = budget_start
         for al_iteration in range(options.max_al_iterations):
             run.statistics.al_iterations = al_iteration + 1
             self._iterate(run)
@@ -364,19 +376,21 @@ class MSiLQRSolver:
 
     def _iterate(self, run: _Run) -> None:
         """Up to ``max_iterations`` MS-iLQR iterations, while the time budget lasts (an iteration is not
-        started when the elapsed time plus the last iteration's would exceed it; the first always runs)."""
+        started when the elapsed time plus the last iteration's would exceed it, with the final policy's
+        linearisation and backward sweep when the result needs one; the first always runs)."""
         options = self.options
         run.inner_converged, run.status = False, SolveStatus.MAX_ITERATIONS
+        reserve_final = options.final_backward_pass and options.final_policy == "relinearize"
+        statistics = run.statistics
+        budget = options.time_budget
         for _ in range(options.max_iterations):
-            elapsed = time.perf_counter() - run.start
-            budget = options.time_budget
-            if (
-                budget is not None
-                and run.statistics.iterations > 0
-                and elapsed + run.last_iteration_time > budget
-            ):
-                run.status = SolveStatus.TIME_BUDGET
-                return
+            if budget is not None and statistics.iterations > 0:
+                linearize = statistics.linearize_time / max(statistics.linearizations, 1)
+                sweep = linearize + run.last_backward_time
+                needed = sweep + run.last_line_search_time + (sweep if reserve_final else 0.0)
+                if time.perf_counter() - run.budget_start + needed > budget:
+                    run.status = SolveStatus.TIME_BUDGET
+                    return
             if not self._iteration(run):
                 return
 
@@ -388,7 +402,9 @@ class MSiLQRSolver:
         if run.pending_step is not None:
             self._timed_linearize(statistics)
             run.pending_step = None
+        clock = time.perf_counter()
         outcome = self._timed_backward(statistics)
+        run.last_backward_time = time.perf_counter() - clock
         run.policy_valid = outcome == SweepOutcome.OK
         if not run.policy_valid:
             run.status = SolveStatus(outcome.value)
@@ -401,7 +417,8 @@ class MSiLQRSolver:
         regularization = self._regularization
         clock = time.perf_counter()
         trial, alpha, n_trials, mode = self._line_search(nominal)
-        statistics.line_search_time += time.perf_counter() - clock
+        run.last_line_search_time = time.perf_counter() - clock
+        statistics.line_search_time += run.last_line_search_time
         cost_change = math.inf
         if trial is not None:
             cost_change = trial.augmented_cost - nominal.augmented_cost

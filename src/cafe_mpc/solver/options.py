@@ -19,9 +19,11 @@ class SolverOptions:
         ``max_iterations``: inner MS-iLQR iterations per augmented-Lagrangian (AL) iteration (one iteration
         is a backward sweep plus a line search; a backward sweep that only detects convergence does not
         count). ``max_al_iterations``: outer AL iterations (Sec. III-B-2, bi-level).
-        ``time_budget``: wall-clock seconds for the whole ``solve`` (``None``: unlimited). An iteration is
-        not started when the elapsed time plus the duration of the previous iteration would exceed the
-        budget (the first iteration always runs, and so does the final backward sweep).
+        ``time_budget``: wall-clock seconds for the whole ``solve`` (``None``: unlimited; ``solve``'s
+        ``budget_start`` may start it earlier). An iteration is not started when the elapsed time plus the
+        duration of the previous iteration, and of its linearisation and backward sweep again when the final
+        policy is relinearised, would exceed the budget (the first iteration always runs, and so does the
+        final backward sweep).
         The inner loop has converged when the largest defect (max-norm, tangent space) is at most
         ``defect_tolerance`` and either the expected decrease of the feed-forward step
         ``0.5 * sum Qu' Quu^-1 Qu`` is at most ``expected_decrease_tolerance`` or an accepted step changed

@@ -104,6 +104,10 @@ class AcrobaticTask:
     """World foot positions the reference plans at the trajectory's end (its last interval)."""
     planned_stance: tuple[bool, ...] | None = None
     """Which feet the reference has in stance there (the feet ``feet_on_planned_surface`` judges)."""
+    clock_advance: float = 0.0
+    """Seconds early touchdowns (``touchdown_events``) had advanced the trajectory's clock when the task was
+    read: its times above are the advanced ones, so the composed plan had the trajectory start this much
+    later than ``start``."""
 
 
 def _trajectory_segment(reference: Reference) -> tuple[TrajectoryReference, float] | None:
@@ -190,6 +194,7 @@ def task_from_reference(
                 axis,
                 feet,
                 stance,
+                trajectory_reference.advance_total,
             )
     return None
 
@@ -610,6 +615,7 @@ def task_metrics(
         "stayed_up": None if "stayed_up" in unjudged else bool(landing.stayed_up),
         "stayed_up_s": float(landing.stayed_up_s),
         "planned_start_s": task.start,
+        "clock_advance_s": task.clock_advance,
         "planned_takeoff_s": task.takeoff,
         "planned_touchdown_s": task.touchdown,
         "touchdown_s": touchdown,

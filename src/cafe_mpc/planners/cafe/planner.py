@@ -268,7 +268,7 @@ class RecedingHorizonMpc(RecedingHorizonPlanner[Plan]):
     def _build(self, t: float):
         return self.builder.build(t, self._x.copy(), self.reference)
 
-    def _solve(self, built, solver: MSiLQRSolver) -> SolverResult:
+    def _solve(self, built, solver: MSiLQRSolver, budget_start: float | None = None) -> SolverResult:
         previous_built, previous_solution = self.previous if self.previous else (None, None)
         guess = self.warm_start.guess(built, previous_built, previous_solution)
         return solver.solve(
@@ -278,6 +278,7 @@ class RecedingHorizonMpc(RecedingHorizonPlanner[Plan]):
             guess.rollout,
             initial_multipliers=guess.multipliers,
             initial_penalties=guess.penalties,
+            budget_start=budget_start,
         )
 
     def _plan(self, built, result: SolverResult) -> Plan:

@@ -86,11 +86,13 @@ class TemplateMpc(RecedingHorizonPlanner[TemplatePlan]):
             time = time + milliseconds * TIME_QUANTUM
         return x
 
-    def _solve(self, built: TemplateProblem, solver: MSiLQRSolver) -> SolverResult:
+    def _solve(
+        self, built: TemplateProblem, solver: MSiLQRSolver, budget_start: float | None = None
+    ) -> SolverResult:
         xs, us = self._guess(built)
         if self.builder.settings.leg_torque_limits:
             self.builder.update_torque_maps(built, xs)
-        return solver.solve(built.problem, [xs], [us], None)
+        return solver.solve(built.problem, [xs], [us], None, budget_start=budget_start)
 
     def _plan(self, built: TemplateProblem, result: SolverResult) -> TemplatePlan:
         return template_plan(built, result)
