@@ -312,7 +312,7 @@ def test_warm_start_reusing_its_buffers_equals_a_new_one(robot):
 def test_touchdown_constraint_height_follows_the_reference(robot, raised, on_reference):
     """With ``mpc.touchdown_surface: reference`` Eq. (25) puts a touchdown on the surface the reference's
     feet land on: the spin's trajectory lifted by ``raised`` (a box top) lands at that height, and on the
-    floor exactly at 0 (the presets' heights); with ``floor`` (the default) always at 0."""
+    floor exactly at 0 (the presets' heights); with ``floor`` (the default off the height map) always at 0."""
     from dataclasses import replace
 
     from cafe_mpc.reference.trajectory import TrajectoryReference

@@ -13,7 +13,7 @@ from cafe_mpc.assembly import build_reference, load_run_config, resolve
 from cafe_mpc.config import TerrainMapSettings, VelocityCommand
 from cafe_mpc.core.height_map import HeightMap
 from cafe_mpc.ocp.contact_schedule import get_gait
-from cafe_mpc.reference.kernels import highest_between, map_height, terrain_foothold
+from cafe_mpc.reference.kernels import TERRAIN_OFFSET, highest_between, map_height, terrain_foothold
 from cafe_mpc.reference.locomotion import LocomotionReference
 from cafe_mpc.reference.terrain_map import TerrainMap
 
@@ -139,6 +139,37 @@ def test_the_reference_on_a_map_steps_onto_flat_spots_swings_over_the_riser_and_
     assert blind.base_state(1.0)[0][2] == pytest.approx(robot.standing_height)
 
 
+def test_the_map_is_held_to_the_standing_feet_on_its_flat_spots():
+    """``TerrainMap.register``: the map's offset is the lowest height of a standing foot's sole above the
+    flat spot under it; a foot off a flat spot (at the riser) or not standing does not count, and with none
+    the offset stays the frame's (``follow_frame``)."""
+    terrain = TerrainMap(TerrainMapSettings())
+    terrain.place(step_map())
+    terrain.follow_frame(0.02)
+    soles = np.array([[0.3, 0.1, -0.05], [0.8, -0.1, RISE - 0.03], [EDGE, 0.0, -0.5], [0.9, 0.0, 1.0]])
+    assert terrain.register(soles, np.array([True, True, True, False]))
+    assert terrain.parameters[TERRAIN_OFFSET] == pytest.approx(-0.05)  # the lower of -0.05 and -0.03
+    assert map_height(terrain.heights, terrain.parameters, 0.8, 0.0) == pytest.approx(RISE - 0.05)
+    terrain.follow_frame(0.02)
+    assert not terrain.register(soles, np.array([False, False, True, False]))
+    assert terrain.parameters[TERRAIN_OFFSET] == pytest.approx(0.02)
+
+
+def test_the_touchdown_constraint_lands_on_the_footholds_with_the_height_map_by_default(robot):
+    """``mpc.touchdown_surface`` null: the reference's footholds with the height map (its footholds lie on
+    the treads), the floor otherwise (the paper's); an explicit value holds either way."""
+    cases = {
+        ("stairs", ()): True,
+        ("stairs", ("mpc.touchdown_surface=floor",)): False,
+        ("trot", ("terrain=blind",)): False,
+        ("trot", ()): False,
+        ("trot", ("mpc.touchdown_surface=reference",)): True,
+    }
+    for (preset, overrides), expected in cases.items():
+        config = load_run_config(preset, ["simulation.duration=1", *overrides])
+        assert resolve(config, robot).touchdown_on_reference is expected, (preset, overrides)
+
+
 def test_a_blind_reference_ignores_height_maps(robot):
     reference = LocomotionReference(robot, get_gait("trot"), [VelocityCommand()], ground_plane=True)
     reference.observe_height_map(step_map(), robot.q_standing)
@@ -183,3 +214,26 @@ def test_a_trot_on_the_height_map_climbs_an_8_cm_step_the_blind_trot_falls_on():
     assert not log.fell, log.fall_reason
     assert log.q[-1, 0] > 0.6 + 0.25  # every hip over the step
     assert log.q[-1, 2] - 0.08 > 0.2  # the base stands above the step's top
+
+
+@pytest.mark.slow
+def test_the_stairs_preset_climbs_two_10_cm_stairs():
+    """The ``stairs`` preset up two stairs of 10 cm rise and 30 cm tread from 0.6 m, fixed 20 ms latency, 4
+    s: the plan lands each foot at its foothold's height on the treads. With the touchdown constraint on the
+    floor (``mpc.touchdown_surface=floor``) the plan pulls each swing down toward z = 0, the foot lands early
+    against the riser and it falls (at 2.70 s)."""
+    from cafe_mpc_lab.experiments.run import simulate_run
+
+    config = load_run_config(
+        "stairs",
+        [
+            "simulation.duration=4",
+            "mpc.latency=fixed",
+            "mpc.fixed_latency=0.02",
+            "scene.terrain=[{kind: stairs, count: 2, rise: 0.1, tread: 0.3, start: 0.6}]",
+        ],
+    )
+    _, _, log = simulate_run(config)
+    assert not log.fell, log.fall_reason
+    assert log.q[-1, 0] > 0.6 + 0.3 + 0.25  # every hip over the second stair
+    assert log.q[-1, 2] - 2 * 0.1 > 0.2  # the base stands above the second tread

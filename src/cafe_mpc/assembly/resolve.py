@@ -102,11 +102,22 @@ def resolve(config: RunConfig, robot: Robot) -> ResolvedRun:
         contact_detection=scaled_contact_detection(detection_settings(config), scale),
         ground_plane=config.terrain != "flat",
         terrain_map=scaled_terrain_map(config.terrain_map, scale) if config.terrain == "height_map" else None,
+        touchdown_on_reference=touchdown_on_reference(config),
         gait=gait,
         segment_gaits=segment_gaits,
         command_profile=reference_profile(config, robot),
         control_period=1.0 / config.simulation.control_rate_hz,
     )
+
+
+def touchdown_on_reference(config: RunConfig) -> bool:
+    """Whether the touchdown constraint (25) lands a foot at the reference's foothold height
+    (``mpc.touchdown_surface``); by default with the height map: its footholds lie on the treads, and a
+    plan that lands them on the floor below pulls every swing onto a step down into the riser."""
+    surface = config.mpc.touchdown_surface
+    if surface is None:
+        return config.terrain == "height_map"
+    return surface == "reference"
 
 
 def model_calibration(section: CalibrationConfig) -> ModelCalibration:

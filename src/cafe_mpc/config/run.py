@@ -515,11 +515,12 @@ class MpcConfig(MpcSettings):
         "velocity), semi_implicit (Crocoddyl's Euler) or explicit_world (Eq. (23) with the base's linear "
         "velocity stepped in the world frame: keeps a spinning body's momentum in flight)",
     )
-    touchdown_surface: Literal["floor", "reference"] = Field(
-        "floor",
+    touchdown_surface: Literal["floor", "reference"] | None = Field(
+        None,
         description="where the touchdown constraint (25) puts a landing foot: the floor z = 0 (the paper's) "
-        "or the reference's foothold height at the touchdown (a stored trajectory onto a box; the blind "
-        "ground plane's footholds made the blind bound fall on a 10 deg slope)",
+        "or the reference's foothold height at the touchdown (a stored trajectory onto a box, the height "
+        "map's footholds; the blind ground plane's footholds made the blind bound fall on a 10 deg slope); "
+        "null: reference with terrain: height_map, else floor",
     )
     friction: float = Field(
         CONTROLLER_FRICTION,

@@ -97,6 +97,9 @@ class ResolvedRun:
     (stance feet not dropped for standing above z = 0); False (``terrain: flat``): flat ground at
     ``contact_detection.ground_height``. ``terrain_map``: how the reference plans on the height maps
     (``terrain: height_map``; the config's ``terrain_map``, lengths scaled to the robot), else None.
+    ``touchdown_on_reference``: the touchdown constraint (25) puts a landing foot at the reference's
+    foothold height, not on the floor (``mpc.touchdown_surface``; null: with the height map, whose
+    footholds are where the treads are).
     ``gait``: the
     ``gait`` section resolved (None without one); ``segment_gaits``: each ``reference`` segment's gait
     resolved (None for the others). ``command_profile``: what the run commands over time (tracking metrics
@@ -114,6 +117,7 @@ class ResolvedRun:
     contact_detection: ContactDetectionSettings
     ground_plane: bool
     terrain_map: TerrainMapSettings | None
+    touchdown_on_reference: bool
     gait: ResolvedGait | None
     segment_gaits: tuple[ResolvedGait | None, ...]
     command_profile: CommandProfile

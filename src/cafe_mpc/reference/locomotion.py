@@ -752,6 +752,7 @@ class LocomotionReference(Reference):
             self._observe_ground(q, v, stance)
             if self.terrain is not None:
                 self.terrain.follow_frame(self.ground.frame_shift)
+                self.terrain.register(self._soles, self._still)
 
     def _observe_ground(self, q: np.ndarray, v: np.ndarray, stance: Sequence[bool]) -> None:
         """The ground plane through the feet planned in stance that stand still (a foot planned in stance

@@ -40,6 +40,7 @@ from cafe_mpc.reference.kernels import (
     TERRAIN_RESOLUTION,
     TERRAIN_SEARCH,
     TERRAIN_SIN,
+    map_height,
 )
 
 
@@ -129,3 +130,28 @@ class TerrainMap:
         """The estimator's frame has moved by ``frame_shift`` in all (``GroundPlane.frame_shift``): the
         map's heights move with it."""
         self.parameters[TERRAIN_OFFSET] = frame_shift - self._shift_at_place
+
+    def register(self, soles: np.ndarray, standing: np.ndarray) -> bool:
+        """Hold the map to the feet that stand on it: a standing foot's sole (``soles``, ``(n_feet, 3)``
+        in the estimator's frame, where ``standing``) on a flat spot of the map is on the terrain there,
+        so the map's offset is the sole's height above the spot's. The lowest of these over the standing
+        feet is taken (a foot believed standing that still hangs above the ground reads higher, one on the
+        ground cannot read lower). Whether a standing foot was on a flat spot (else the offset stays the
+        frame's, ``follow_frame``).
+
+        Measured directly, the offset does not accumulate the errors of ``GroundPlane.frame_shift``,
+        whose increments come from every foot believed still (a foot sliding or not yet down moves it)."""
+        if not self.available:
+            return False
+        parameters = self.parameters
+        offset = parameters[TERRAIN_OFFSET]
+        parameters[TERRAIN_OFFSET] = 0.0
+        lowest = math.inf
+        for sole, stands in zip(soles, standing, strict=True):
+            if not stands:
+                continue
+            spot = map_height(self.footholds, parameters, float(sole[0]), float(sole[1]))
+            if math.isfinite(spot):
+                lowest = min(lowest, float(sole[2]) - spot)
+        parameters[TERRAIN_OFFSET] = lowest if math.isfinite(lowest) else offset
+        return math.isfinite(lowest)

@@ -74,7 +74,7 @@ def build_problem(run: ResolvedRun) -> CafeProblemBuilder:
         srb,
         run.schedule,
         weights=task_weight_sets(run),
-        touchdown_on_reference=config.mpc.touchdown_surface == "reference",
+        touchdown_on_reference=run.touchdown_on_reference,
     )
 
 
