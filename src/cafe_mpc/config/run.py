@@ -427,7 +427,11 @@ class MpcSettings(StrictModel):
     )
     fixed_latency: float = Field(0.02, ge=0.0, le=0.5, description="s, with latency: fixed")
     time_budget: float | None = Field(
-        None, gt=0.0, le=0.5, description="wall-clock cap of a solve, s (null: 0.9 x period; measured only)"
+        None,
+        gt=0.0,
+        le=0.5,
+        description="wall-clock cap of an update: problem and solve, with room left for the final policy, s "
+        "(null: 0.9 x period; measured only)",
     )
     max_iterations: int = Field(
         1, ge=1, le=50, description="MS-iLQR iterations per update (1: real-time iteration; the paper: 4)"

@@ -65,6 +65,7 @@ PACKAGED_TRAJECTORIES: dict[str, str] = {
     "running-front-flip": "running_front_flip.npz",
     "spin": "spin.npz",
     "box-jump": "box_jump.npz",
+    "box-jump-off": "box_jump_off.npz",
 }
 """Trajectories shipped with the package (``reference/data/``), by name."""
 
