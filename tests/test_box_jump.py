@@ -21,17 +21,24 @@ def _box(config) -> tuple[float, float]:
     return float(step.start), float(step.rise)
 
 
-def test_shipped_box_jump_is_feasible_current_and_lands_on_the_box(robot):
-    task = load_task("box-jump")
-    edge, top = _box(load_run_config("box-jump"))
-    assert task.phase_surface_heights()[-1] == pytest.approx(top)
-    trajectory = load_packaged_trajectory("box-jump", robot)
+def _shipped(robot, name: str):
+    """(task, stored trajectory, foot positions per knot) of the packaged trajectory ``name``, after checking
+    that it is feasible on its planned surfaces and made from the current task file."""
+    task = load_task(name)
+    trajectory = load_packaged_trajectory(name, robot)
     check = check_trajectory(robot, trajectory, task.phase_surface_heights())
     assert check.max_defect <= 1e-3
     assert check.max_touchdown_height_error <= 2e-3
     assert check.min_leg_joint_height >= 0.0
-    assert load_task(str(packaged_trajectory_path("box-jump").with_suffix(".yaml"))) == task
+    assert load_task(str(packaged_trajectory_path(name).with_suffix(".yaml"))) == task
     feet, _ = foot_states(robot, trajectory.xs)
+    return task, trajectory, feet
+
+
+def test_shipped_box_jump_is_feasible_current_and_lands_on_the_box(robot):
+    edge, top = _box(load_run_config("box-jump"))
+    task, trajectory, feet = _shipped(robot, "box-jump")
+    assert task.phase_surface_heights()[-1] == pytest.approx(top)
     radius = robot.foot_radius
     # standing on the top at the end, every foot sphere at least 10 cm past the edge: the closed loop takes
     # off slower forward than the plan and lands its hind feet up to 10 cm short of it (docs/tasks.md)
@@ -48,20 +55,13 @@ def test_shipped_box_jump_off_lands_on_the_floor_past_the_far_end(robot):
     """The jump on and off: feasible and made from the current task file; it stands on the box top between
     the jumps, every foot sphere inside the top, and lands on the floor with every foot sphere past the
     box's far end; in the jump down no foot sphere dips below the top while over the box."""
-    task = load_task("box-jump-off")
     config = load_run_config("box-jump-off")
+    edge, top = _box(config)
     (step,) = config.scene.terrain
-    edge, top = float(step.start), float(step.rise)
     far_end = edge + float(step.run) + float(step.top_length)
+    task, trajectory, feet = _shipped(robot, "box-jump-off")
     assert task.phase_surface_heights()[3] == pytest.approx(top)
     assert task.phase_surface_heights()[-1] == pytest.approx(0.0)
-    trajectory = load_packaged_trajectory("box-jump-off", robot)
-    check = check_trajectory(robot, trajectory, task.phase_surface_heights())
-    assert check.max_defect <= 1e-3
-    assert check.max_touchdown_height_error <= 2e-3
-    assert check.min_leg_joint_height >= 0.0
-    assert load_task(str(packaged_trajectory_path("box-jump-off").with_suffix(".yaml"))) == task
-    feet, _ = foot_states(robot, trajectory.xs)
     radius = robot.foot_radius
     on_top = round(float(trajectory.switching_times[4]) / trajectory.dt)  # the end of the stand on the box
     np.testing.assert_allclose(feet[on_top, :, 2] - radius, top, atol=5e-3)

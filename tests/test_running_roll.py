@@ -201,8 +201,8 @@ def test_the_approach_steps_onto_its_line_and_the_roll_clears_the_bar_in_a_rando
     """Reliability trial 9 (default ranges, fixed latency), through the flight over the bar. With the pace's
     footholds placed from the measured base (``path_anchor`` 0) this robot started the roll 4.4 cm (path
     gain 2 rad/m) or 6.6 cm (1 rad/m) across its line and touched the bar on the way up at 2.73 or 2.71 s;
-    with the reference anchored on the line (``path_anchor`` 1, path gain 1) the approach's steps bring it
-    to 2.6 cm and it clears the bar
+    with the reference anchored toward the line (``path_anchor`` 1 then, the preset's 0.5 now; path gain 1)
+    the approach's steps bring it closer and it clears the bar
     (docs/robustness.md, "The approach's footholds on its line")."""
     from cafe_mpc_lab.experiments.run import simulate_run
 
