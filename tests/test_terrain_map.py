@@ -4,6 +4,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numpy as np
@@ -153,6 +154,53 @@ def test_the_map_is_held_to_the_standing_feet_on_its_flat_spots():
     terrain.follow_frame(0.02)
     assert not terrain.register(soles, np.array([False, False, True, False]))
     assert terrain.parameters[TERRAIN_OFFSET] == pytest.approx(0.02)
+
+
+def test_the_map_follows_the_estimators_frame_by_the_motion_it_did_not_see(robot):
+    """``registration: motion``: the map's offset is the estimated height's change since the map was placed
+    minus the estimated vertical velocity integrated over the same ticks. A body rising at 0.5 m/s moves
+    no map; a filter whose height jumps 8 cm down with its velocity unchanged (it re-measured feet on a
+    tread at z = 0) moves the map 8 cm down with it, with no foot standing; the predictions an update starts
+    from (``update``) do not move it; a new map starts from zero. Feet registration ignores the motion."""
+    settings = TerrainMapSettings(registration="motion")
+    reference = LocomotionReference(
+        robot, get_gait("bound"), [VelocityCommand(vx=0.5)], ground_plane=True, terrain_map=settings
+    )
+    q, v = robot.q_standing.copy(), np.zeros(robot.nv)
+    v[2] = 0.5  # base frame; the base is level
+    relative = step_map().relative_to(q[0], q[1], q[2], 0.0)
+    reference.observe_height_map(relative, q, v)
+    terrain = reference.terrain
+    assert terrain is not None
+    tick = 0.002
+    for k in range(1, 11):  # 20 ms rising at 0.5 m/s: 1 cm, all of it seen in the velocity
+        q[2] = robot.q_standing[2] + 0.5 * k * tick
+        reference.observe_estimate(k * tick, q, v)
+    assert terrain.parameters[TERRAIN_OFFSET] == pytest.approx(0.0, abs=1e-9)
+    q[2] -= 0.08 - 0.5 * tick  # the next tick: the filter's frame moves 8 cm down
+    reference.observe_estimate(11 * tick, q, v)
+    assert terrain.parameters[TERRAIN_OFFSET] == pytest.approx(-0.08, abs=1e-9)
+    assert map_height(terrain.heights, terrain.parameters, 0.8, 0.0) == pytest.approx(RISE - 0.08, abs=1e-6)
+    predicted = q.copy()
+    predicted[2] += 0.3
+    reference.update(11 * tick, predicted, v)  # a plan's prediction, not an estimate
+    assert terrain.parameters[TERRAIN_OFFSET] == pytest.approx(-0.08, abs=1e-9)
+    newer = dataclasses.replace(step_map().relative_to(q[0], q[1], q[2], 0.0), time=11 * tick)
+    reference.observe_height_map(newer, q, v)
+    reference.observe_estimate(11 * tick, q, v)
+    assert terrain.parameters[TERRAIN_OFFSET] == pytest.approx(0.0, abs=1e-9)
+    with pytest.raises(ValueError, match="velocity"):
+        reference.observe_height_map(relative, q)
+    feet = LocomotionReference(
+        robot,
+        get_gait("bound"),
+        [VelocityCommand(vx=0.5)],
+        ground_plane=True,
+        terrain_map=TerrainMapSettings(),
+    )
+    feet.observe_height_map(relative, robot.q_standing)
+    feet.observe_estimate(0.1, q, v)
+    assert feet.terrain is not None and feet.terrain.parameters[TERRAIN_OFFSET] == 0.0
 
 
 def test_the_touchdown_constraint_lands_on_the_footholds_with_the_height_map_by_default(robot):

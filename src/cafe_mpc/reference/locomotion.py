@@ -750,7 +750,8 @@ class LocomotionReference(Reference):
                 self.liftoff_positions[foot] = position
         if self.ground is not None:
             self._observe_ground(q, v, stance)
-            if self.terrain is not None:
+            if self.terrain is not None and self.terrain.settings.registration == "feet":
+                # (registration "motion": observe_estimate)
                 self.terrain.follow_frame(self.ground.frame_shift)
                 self.terrain.register(self._soles, self._still)
 
@@ -840,16 +841,34 @@ class LocomotionReference(Reference):
         normal of the ground the stance feet stand on; None on flat ground (world z)."""
         return None if self.ground is None else self.ground.contact_frame()
 
-    def observe_height_map(self, height_map: HeightMap, q: np.ndarray) -> None:
+    def observe_height_map(self, height_map: HeightMap, q: np.ndarray, v: np.ndarray | None = None) -> None:
         """A height map relative to the base (``HeightMap.relative_to``), placed at the measured base pose
-        ``q`` (the estimate of the tick it was taken at): the newest terrain the reference plans on. Ignored
-        without ``terrain_map`` (``terrain: flat | blind``)."""
+        ``q`` (the estimate of the tick it was taken at; ``v``, its velocity, base frame, for
+        ``terrain_map.registration: motion``): the newest terrain the reference plans on. Ignored without
+        ``terrain_map`` (``terrain: flat | blind``)."""
         if self.terrain is None:
             return
         assert self.ground is not None
+        vertical_velocity = 0.0
+        if self.terrain.settings.registration == "motion":
+            if v is None:
+                raise ValueError("terrain_map.registration: motion needs each map's estimated velocity")
+            vertical_velocity = float(_quaternion_matrix(q[3:7])[2] @ v[:3])
         yaw = yaw_from_quaternion(q[3:7])
         placed = height_map.placed_at(float(q[0]), float(q[1]), float(q[2]), yaw)
-        self.terrain.place(placed, self.ground.frame_shift)
+        self.terrain.place(placed, self.ground.frame_shift, float(q[2]), vertical_velocity)
+
+    def observe_estimate(self, t: float, q: np.ndarray, v: np.ndarray) -> None:
+        """The state estimate of the control tick at ``t`` (``v`` in the base frame): with
+        ``terrain_map.registration: motion`` the map's offset follows the estimator frame's move since the
+        map was placed (``TerrainMap.follow_motion``). Not from ``update``, whose states are, with the
+        real-time iteration, the plan's own predictions: taken from them the offset moved the plan, which
+        moved the offset (the heights ran away within 60 ms)."""
+        terrain = self.terrain
+        if terrain is None or terrain.settings.registration != "motion" or not terrain.available:
+            return
+        vertical_velocity = float(_quaternion_matrix(q[3:7])[2] @ v[:3])
+        terrain.follow_motion(t, float(q[2]), vertical_velocity)
 
     def _follow_ground(self, state: np.ndarray) -> None:
         """Base rows ``state[:, :7]`` (yaw-only attitude, height above z = 0) onto the ground plane: the
