@@ -171,6 +171,44 @@ class TerrainMap:
             self._motion_time, self._motion_velocity = t, vertical_velocity
         self.parameters[TERRAIN_OFFSET] = base_height - self._placed_height - self._climb
 
+    def normal_under(self, soles: np.ndarray) -> np.ndarray | None:
+        """The terrain's unit normal (world, up) under the feet ``soles`` (``(n_feet, 3)``, world): the
+        mean of the map's normals at the flat spots they stand on (a least-squares plane through the seen
+        cells within ``edge_margin``, at least one cell, of each; the map's noise tilts it by about half a
+        degree), None where none stands on one. Flat treads give world z however the feet are spread over
+        them, where a plane through the feet tilts with the steps between them."""
+        if not self.available:
+            return None
+        p, grid = self.parameters, self.heights
+        resolution, cos, sin = p[TERRAIN_RESOLUTION], p[TERRAIN_COS], p[TERRAIN_SIN]
+        half = max(1, round(self.settings.edge_margin / resolution))
+        rows, columns = grid.shape
+        total = np.zeros(3)
+        for sole in soles:
+            x, y = float(sole[0]), float(sole[1])
+            if not math.isfinite(map_height(self.footholds, p, x, y)):
+                continue
+            dx, dy = x - p[TERRAIN_ORIGIN_X], y - p[TERRAIN_ORIGIN_Y]
+            column = round((cos * dx + sin * dy) / resolution)
+            row = round((-sin * dx + cos * dy) / resolution)
+            r0, r1 = max(row - half, 0), min(row + half, rows - 1)
+            c0, c1 = max(column - half, 0), min(column + half, columns - 1)
+            block = grid[r0 : r1 + 1, c0 : c1 + 1]
+            seen = np.isfinite(block)
+            if seen.sum() < 4:
+                continue
+            along, across = np.meshgrid(np.arange(c0, c1 + 1), np.arange(r0, r1 + 1), indexing="xy")
+            design = np.column_stack(
+                [along[seen] * resolution, across[seen] * resolution, np.ones(int(seen.sum()))]
+            )
+            (rise_along, rise_across, _), *_ = np.linalg.lstsq(design, block[seen], rcond=None)
+            slope_x = cos * rise_along - sin * rise_across  # the grid's axes turned to the world's
+            slope_y = sin * rise_along + cos * rise_across
+            normal = np.array([-slope_x, -slope_y, 1.0])
+            total += normal / np.linalg.norm(normal)
+        norm = float(np.linalg.norm(total))
+        return total / norm if norm > 0.0 else None
+
     def register(self, soles: np.ndarray, standing: np.ndarray) -> bool:
         """Hold the map to the feet that stand on it: a standing foot's sole (``soles``, ``(n_feet, 3)``
         in the estimator's frame, where ``standing``) on a flat spot of the map is on the terrain there,
