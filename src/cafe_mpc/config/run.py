@@ -1017,6 +1017,19 @@ class TerrainMapSettings(StrictModel):
         description="m; the square over which the terrain under each hip is averaged for the base's height "
         "and pitch",
     )
+    cone: Literal["plane", "map"] = Field(
+        "plane",
+        description="the ground normal the plan's (26) and the VWBC's (34f) friction pyramids are taken "
+        "about: plane (the blind ground plane through the feet, tilted by steps between them) | map (the "
+        "map's normal under the flat spots the feet stand on: world z on flat treads)",
+    )
+    registration: Literal["feet", "motion"] = Field(
+        "feet",
+        description="how the map is held in the state estimate's frame, which moves when the estimator "
+        "re-measures its stance feet at z = 0: feet (the lowest standing foot on a flat spot is on the "
+        "terrain) | motion (the frame's move since the map was placed: the estimated height's change minus "
+        "the integrated estimated vertical velocity; no foot needed, as in a bound's flights)",
+    )
 
 
 PlantScales = float | list[float]
