@@ -51,18 +51,22 @@ def synthetic_readings(
     slip: tuple[int, np.ndarray, float] | None = None,
     tilt: tuple[float, float] = (0.05, -0.03),
     ramp: float = 0.2,
+    raised: tuple[int, float] | None = None,
 ) -> list[SensorReadings]:
     """Readings of the base speeding up from rest to ``velocity`` (world) at a constant acceleration over
     ``ramp`` seconds, then translating at it, with a fixed tilted attitude, while the feet stay where they
     stand; ``slip = (leg, foot velocity, from time)``: that foot slides from then on. Joint angles from
     Pinocchio's leg kinematics (Newton on each leg's 3 joints), joint rates exact; the accelerometer reads
-    the acceleration and gravity."""
+    the acceleration and gravity. ``raised = (leg, height)``: that foot stands that much higher (on a
+    step)."""
     model, data = robot.model, robot.model.createData()
     legs = leg_velocity_indices(robot)
     rotation = Rotation.from_euler("xy", tilt)
     q = robot.q_standing.copy()
     q[3:7] = rotation.as_quat()
     feet0 = robot.foot_positions(robot.q_standing)  # standing feet, on the ground
+    if raised is not None:
+        feet0[raised[0], 2] += raised[1]
     base0 = q[:3].copy()
     readings = []
     for k in range(round(duration / DT) + 1):
@@ -173,6 +177,36 @@ def test_a_foot_in_swing_is_ignored_and_in_flight_the_imu_alone_counts(robot):
         estimator.update(falling, flight)
     assert estimator.world_velocity[2] == pytest.approx(-9.81 * 100 * DT, rel=0.02)
     assert not np.any(estimator.in_contact)
+
+
+def test_a_foot_held_at_its_touchdown_height_keeps_feet_on_two_levels_consistent(robot):
+    """``stance_height: touchdown`` off flat ground: a foot that lands 6 cm higher than the others (on a
+    step) is held where it landed, and the base height stays the truth; measured at z = 0 (``ground``) it
+    pulls the base height off."""
+    rise = 0.06
+    readings = synthetic_readings(robot, np.zeros(3), 0.6, raised=(0, rise))
+    times = np.arange(0.0, 1.0, 0.01)
+    contacts = np.ones((len(times), robot.n_feet), dtype=bool)
+    contacts[times < 0.1, 0] = False  # the raised foot touches down at 0.1 s
+    plan = FakePlan(times, np.full(len(times), 0.01), contacts)
+    truth = robot.q_standing[2]
+    errors = {}
+    for mode in ("ground", "touchdown"):
+        settings = KinematicKFSettings(rolling_foot=False, stance_height=mode)
+        estimator = StateEstimator(robot, settings, flat_ground=False)
+        estimator.reset()
+        heights = np.array([estimator.update(reading, plan).q[2] for reading in readings])
+        errors[mode] = np.max(np.abs(heights[round(0.1 / DT) :] - truth))
+        if mode == "touchdown":
+            assert estimator.touchdown_level[0] == pytest.approx(rise, abs=0.002)
+            assert np.all(estimator.touchdown_level[1:] == 0.0)
+    assert errors["touchdown"] < 0.002, errors
+    assert errors["ground"] > 0.01, errors
+    # on flat ground the option is refused at the boundary (every stance foot is on z = 0)
+    with pytest.raises(ConfigError, match=r"kinematic_kf\.stance_height"):
+        load_run_config("trot", ["kinematic_kf.stance_height=touchdown"])
+    config = load_run_config("trot", ["terrain=blind", "kinematic_kf.stance_height=touchdown"])
+    assert config.kinematic_kf.stance_height == "touchdown"
 
 
 def ideal_spec(average: bool = False) -> SensorSpec:

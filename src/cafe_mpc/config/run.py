@@ -1625,6 +1625,11 @@ class RunConfig(StrictModel):
                 f"simulation.control_rate_hz {self.simulation.control_rate_hz} Hz (maps are taken at control "
                 "ticks)"
             )
+        if self.kinematic_kf.stance_height != "ground" and self.terrain == "flat":
+            raise ValueError(
+                f"kinematic_kf.stance_height: {self.kinematic_kf.stance_height!r} holds stance feet off flat "
+                "ground; with terrain: flat every stance foot is on z = 0 (use terrain: blind or height_map)"
+            )
         if self.estimator != "ground_truth" and self.plant.state_noise:
             raise ValueError(
                 f"plant.sensor_noise perturbs the true state handed to the controller, which estimator: "

@@ -191,7 +191,11 @@ class StateEstimator:
         """Whether the ground is flat at z = 0 (``terrain: flat``). Off it (``blind``) a foot planned in
         stance is not dropped for standing above z = 0 (``contact_height_threshold``): on a step every foot
         would be, the filter would lose its legs and drift on the IMU; with them it holds its stance feet at
-        z = 0, a frame that follows the ground (which the blind controller's ground plane expects)."""
+        z = 0, a frame that follows the ground (which the blind controller's ground plane expects), unless
+        ``stance_height: touchdown`` (``touchdown_level``)."""
+        self.hold_touchdown = not flat_ground and settings.stance_height == "touchdown"
+        """Off flat ground with ``stance_height: touchdown``: each stance foot's height is measured at the
+        height its foot state had when it touched down (``touchdown_level``), not at z = 0."""
         self.settings = settings
         n_feet, nj = robot.n_feet, robot.nu
         self.n_feet = n_feet
@@ -200,6 +204,10 @@ class StateEstimator:
         self.ground_height = np.full(n_feet, self.foot_height)
         """Height of each foot frame standing on the ground under its estimated load (``foot_compliance``;
         with ``foot_contact_frequency``: below it by the foot's sink, ``sink``)."""
+        self.touchdown_level = np.zeros(n_feet)
+        """Height of the ground under each foot, as the filter put the foot frame when it touched down
+        (``hold_touchdown``; 0 for a foot standing since the filter started): added to ``ground_height``."""
+        self._anchored = np.zeros(n_feet, dtype=np.bool_)
         self.legs = LegKinematics(robot, robot.foot_radius)
         self.contacts = PlannedContacts(n_feet, settings.trust_window)
         self.imu_outage = (
@@ -423,6 +431,8 @@ class StateEstimator:
                     self.feet_start,
                     self._q_feet,
                 )
+                if self.hold_touchdown:
+                    self._hold_touchdown_levels()
                 kf_update_feet(
                     self.x,
                     self.P,
@@ -441,6 +451,25 @@ class StateEstimator:
         self._last_time = t
         return self._write(readings)
 
+    def _hold_touchdown_levels(self) -> None:
+        """``stance_height: touchdown``: while a foot's trust ramps in after its touchdown (until
+        ``PlannedContacts.settled``) its ground is where the predicted base and its leg put it (less its sink
+        under ``ground_height``): a landing foot still moves (it lands late or early, it sinks), and its
+        height measurement then says nothing of the base's. Once settled the level is held until the foot
+        leaves the ground: every used foot's height measurement is its level (plus its sink's change), so a
+        foot at rest stays where it landed, whatever level it landed on."""
+        height = self.x[2]
+        settled = self.contacts.settled
+        for foot in range(self.n_feet):
+            if self.trust[foot] <= 0.0:
+                self._anchored[foot] = False
+                self.touchdown_level[foot] = 0.0
+                continue
+            if not self._anchored[foot]:
+                self.touchdown_level[foot] = height + self.legs.relative[foot, 2] - self.ground_height[foot]
+                self._anchored[foot] = settled[foot]
+            self.ground_height[foot] += self.touchdown_level[foot]
+
     def _sink_dynamics(self, t: float) -> None:
         """The feet's sink as a spring-damper driven by their load (``kernels.foot_sink_step``): the height
         each foot in contact stands at and the legs' vertical velocity measurement (the foot moves down at
@@ -458,7 +487,12 @@ class StateEstimator:
                 return
             height, vertical = self.x[2] + dt * self.x[5], self.x[5]
             for foot in range(self.n_feet):  # where and how fast a foot touching down now hits the floor
-                self._start_sink[foot] = self.foot_height - (height + relative[foot, 2])
+                # (held at touchdown the floor's height is not known: the static sink of the foot's load)
+                self._start_sink[foot] = (
+                    settings.foot_compliance * self.forces[foot, 2]
+                    if self.hold_touchdown
+                    else self.foot_height - (height + relative[foot, 2])
+                )
                 self._start_rate[foot] = -(vertical + velocity[foot, 2])
             foot_sink_step(
                 self.sink,
@@ -502,6 +536,8 @@ class StateEstimator:
         if start == 9:
             diagonal[6:9] = settings.initial_bias_variance
         self.acceleration[:] = 0.0
+        self.touchdown_level[:] = 0.0
+        np.copyto(self._anchored, self.trust > 0.0)
         self._slip_streak[0] = 0
         self._started = True
         self._last_time = t
