@@ -89,12 +89,13 @@ class KinematicKFSettings(StrictModel):
         "ground",
         description="off flat ground (terrain: blind or height_map): ground, a stance foot's height is "
         "measured at the ground's, z = 0 (MIT's; the frame follows the level the feet stand on); touchdown, "
-        "at the height its foot state had when it touched down (the base height is odometry)",
+        "at the height its foot state settled at after touching down (the base height is odometry)",
     )
-    """With ``ground`` the estimated base height jumps by a step's rise within a few ticks of a stance on a new
-    level, and feet standing on two levels are all measured at z = 0 (inconsistent). With ``touchdown`` a
-    foot at rest stays where it landed: feet on two levels keep their heights, and the base height drifts
-    slowly with the flights' dead reckoning, as x-y does. On flat ground (terrain: flat) z = 0 always."""
+    """With ``ground`` the estimated base height jumps by a step's rise within a few ticks of a stance on a
+    new level, and feet standing on two levels are all measured at z = 0 (inconsistent). With ``touchdown``
+    a foot at rest stays where it landed: feet on two levels keep their heights, and the base height is
+    dead reckoning between the feet's levels: it drifted down by 1.5-5 cm/s on flat ground in the bound
+    and the trot (docs/terrain.md). On flat ground (terrain: flat) z = 0 always."""
     foot_compliance: float = Field(
         9.3e-5, ge=0.0, le=0.01, description="m/N, a loaded foot at rest sinks this much per N (0: off)"
     )

@@ -13,7 +13,8 @@ Dynamic Quadruped Control", ICRA 2019; implemented in MIT's ``Cheetah-Software``
    frame; ``kernels``): the prediction integrates the accelerometer, ``a = R f + g``; every foot in stance
    measures its position relative to the base, ``p_foot - p = R r(q_j)``, and, being at rest, the base
    velocity ``v = -R (w x r + J(q_j) qd_j)`` (leg kinematics from Pinocchio); a stance foot's height is the
-   ground's (flat ground). Feet in swing or flight give nothing (their states are re-anchored at the legs'
+   ground's (flat ground; off it, with ``stance_height: touchdown``, the height the foot settled at). Feet
+   in swing or flight give nothing (their states are re-anchored at the legs'
    kinematic positions with a large variance, uncorrelated): in flight the filter runs on the IMU alone.
    A foot's trust ramps in and out over the first and last ``trust_window`` of its planned stance, scaling
    its velocity and height noise by ``1 + (1 - trust) * 100`` as MIT's filter does.
