@@ -98,42 +98,6 @@ def test_measured_join_places_the_roll_where_the_pace_now_ends(robot):
     assert np.linalg.norm(ends[1, :2] - ends[0, :2]) < 0.01
 
 
-def test_the_roll_waits_a_pace_cycle_for_its_line(robot):
-    """``start_gate``: the first update within ``decide_before`` of the roll's start decides; a base off the
-    window puts the roll and the run-out off by one pace cycle (the pace lasts that much longer, ends on the
-    same legs), at most ``max_delays`` times; one inside it keeps the roll on time."""
-    gate = 'reference.segments.1.start_gate={"lateral_window": [-0.05, 0.03], "max_delays": 1}'
-    config = load_run_config("running-barrel-roll", [gate])
-    v = np.zeros(robot.nv)
-
-    def run_to(reference, end: float, lateral: float) -> None:
-        for t in np.arange(0.0, end + 1e-9, 0.02):
-            q = robot.q_standing.copy()
-            q[:2] = [0.8 * max(0.0, t - 0.55), lateral if t > 1.5 else 0.0]
-            reference.update(float(t), q, v)
-
-    on_line = build_reference(resolve(config, robot))
-    run_to(on_line, 2.44, -0.03)
-    assert [segment.start for segment in on_line.segments[1:]] == pytest.approx([2.45, 2.45 + 1.27])
-    assert on_line.delays == [0, 0, 0]
-
-    off_line = build_reference(resolve(config, robot))
-    run_to(off_line, 2.18, -0.08)
-    assert off_line.segments[1].start == pytest.approx(2.45)  # not decided yet: 0.27 s ahead
-    run_to(off_line, 2.44, -0.08)
-    period = off_line.segments[0].reference.gait.period
-    assert off_line.segments[0].duration == pytest.approx(2.45 + period)
-    assert off_line.segments[1].start == pytest.approx(2.45 + period)
-    assert off_line.segments[2].start == pytest.approx(2.45 + period + 1.27)
-    assert off_line.postponements[0][:3] == pytest.approx((2.2, 1, -0.08), abs=1e-3)
-    assert off_line.stance_at(2.45 + 1e-3) == off_line.segments[0].reference.stance_at(2.45 + 1e-3)
-    run_to(off_line, 2.94, -0.08)  # still off the line, but no delay is left
-    assert off_line.delays == [0, 1, 0] and off_line.segments[1].start == pytest.approx(2.45 + period)
-
-    with pytest.raises(ConfigError, match="start_gate"):
-        load_run_config("running-barrel-roll", [gate.replace("segments.1", "segments.2")])
-
-
 def test_bar_in_the_scene_collides_with_legs_only_where_it_is(robot):
     config = load_run_config("running-barrel-roll")
     bar = bar_of(config.scene)

@@ -30,7 +30,7 @@ from cafe_mpc.ocp.contact_schedule import get_gait
 from cafe_mpc.planners.cafe.setup import TRAJECTORY_WEIGHT_SET
 from cafe_mpc.planners.resolved import ResolvedGait, ResolvedRun
 from cafe_mpc.reference.base import Reference
-from cafe_mpc.reference.composition import ComposedReference, StartGate
+from cafe_mpc.reference.composition import ComposedReference
 from cafe_mpc.reference.locomotion import CommandProfile, LocomotionReference
 from cafe_mpc.reference.trajectory import TrajectoryReference
 from cafe_mpc.reference.trajectory_file import (
@@ -116,7 +116,6 @@ def task_reference(run: ResolvedRun) -> ComposedReference:
     assert section is not None
     pieces: list[tuple[Reference, float | None]] = []
     offsets = []
-    gates: list[StartGate | None] = []
     try:
         for segment, gait in zip(section.segments, run.segment_gaits, strict=True):
             if segment.kind == "trajectory":
@@ -146,12 +145,6 @@ def task_reference(run: ResolvedRun) -> ComposedReference:
                 duration = segment.duration
             pieces.append((reference, duration))
             offsets.append(segment.offset)
-            gate = segment.start_gate
-            gates.append(
-                None
-                if gate is None
-                else StartGate(tuple(gate.lateral_window), gate.decide_before, gate.max_delays)
-            )
         return ComposedReference(
             pieces,
             robot.nq,
@@ -160,7 +153,6 @@ def task_reference(run: ResolvedRun) -> ComposedReference:
             robot.n_feet,
             offsets=offsets,
             rejoin=section.join == "measured",
-            start_gates=gates,
         )
     except ValueError as error:
         raise ConfigError(f"reference: {error}") from error

@@ -609,32 +609,6 @@ class TrajectoryCostsConfig(StrictModel):
         return _weights_over_defaults(cls, data)
 
 
-class StartGateConfig(StrictModel):
-    """When a trajectory segment after a gait with a path (``gait.path_gain`` > 0) may start: at the first
-    MPC update within ``decide_before`` s of its start, the measured base's cross-track offset from the
-    gait's path must lie in ``lateral_window``; otherwise the segment and those after it start one gait
-    cycle later (the gait goes on for that cycle and its steps bring
-    the robot back toward the path), at most ``max_delays`` times. A stored trajectory that tracks no base
-    position (the running roll's) flies where its take-off leaves it, so it waits for a start it can clear
-    from (docs/robustness.md, "The roll waits for its line")."""
-
-    lateral_window: tuple[float, float] = Field(
-        description="m, (low, high): cross-track offset from the gait's path (left of it positive) at the "
-        "deciding update that lets the segment start"
-    )
-    decide_before: float = Field(
-        0.25, gt=0.0, le=1.0, description="s: the first MPC update this close to the start decides"
-    )
-    max_delays: int = Field(2, ge=0, le=10, description="gait cycles the start may be put off, at most")
-
-    @model_validator(mode="after")
-    def _window_ordered(self) -> StartGateConfig:
-        low, high = self.lateral_window
-        if not (math.isfinite(low) and math.isfinite(high) and low < high):
-            raise ValueError(f"lateral_window needs finite low < high, got {list(self.lateral_window)}")
-        return self
-
-
 class ReferenceSegmentConfig(StrictModel):
     """One piece of a composed reference (``reference.composition.ComposedReference``)."""
 
@@ -663,11 +637,6 @@ class ReferenceSegmentConfig(StrictModel):
         "before its planned touchdown (seen at each MPC update within the contact detector's early window "
         "and height), so that the plans stand on it; null: the trajectory keeps its clock",
     )
-    start_gate: StartGateConfig | None = Field(
-        None,
-        description="kind trajectory after a gait with a path: start only from a lateral offset inside a "
-        "window, else one gait cycle later (StartGateConfig); null: start on time",
-    )
     height: float | None = Field(None, description="kind stand: body height, m (null: standing height)")
     gait: GaitConfig | None = Field(None, description="kind gait: the gait section (name, commands, ...)")
     offset: tuple[float, float, float] | None = Field(
@@ -693,8 +662,6 @@ class ReferenceSegmentConfig(StrictModel):
                 f"'touchdown_events' belongs to segments of kind trajectory, not {self.kind} (a gait's: "
                 "gait.touchdown_events)"
             )
-        if self.kind != "trajectory" and self.start_gate is not None:
-            raise ValueError(f"'start_gate' belongs to segments of kind trajectory, not {self.kind}")
         if self.offset is not None and not all(math.isfinite(value) for value in self.offset):
             raise ValueError(f"offset must be finite, got {self.offset}")
         return self
@@ -727,15 +694,6 @@ class ReferenceConfig(StrictModel):
             if segment.kind in ("stand", "gait") and segment.duration is None:
                 raise ValueError(
                     f"segments.{index}: a {segment.kind} segment needs a duration unless it is the last one"
-                )
-        for index, segment in enumerate(self.segments):
-            if segment.start_gate is None:
-                continue
-            before = self.segments[index - 1] if index > 0 else None
-            if before is None or before.gait is None or before.gait.path_gain <= 0.0:
-                raise ValueError(
-                    f"segments.{index}.start_gate: needs a gait segment with a path (gait.path_gain > 0) "
-                    "right before it"
                 )
         return self
 

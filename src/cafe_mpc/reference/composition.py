@@ -92,27 +92,6 @@ class Segment:
         return self.start + self.duration
 
 
-@dataclass(frozen=True)
-class StartGate:
-    """When a segment that follows a locomotion segment with a path may start (``ComposedReference``): at the
-    first update within ``decide_before`` s of its start, the base's cross-track offset from that path must
-    lie in ``lateral_window`` (m, left positive); otherwise the segment and those after it start one gait
-    cycle later, at most ``max_delays`` times."""
-
-    lateral_window: tuple[float, float]
-    decide_before: float
-    max_delays: int
-
-    def __post_init__(self) -> None:
-        low, high = self.lateral_window
-        if not (math.isfinite(low) and math.isfinite(high) and low < high):
-            raise ValueError(f"start gate: lateral_window needs low < high, got {self.lateral_window}")
-        if not (math.isfinite(self.decide_before) and self.decide_before > 0.0):
-            raise ValueError(f"start gate: decide_before must be > 0 s, got {self.decide_before}")
-        if self.max_delays < 0:
-            raise ValueError(f"start gate: max_delays must be >= 0, got {self.max_delays}")
-
-
 class ComposedReference(Reference):
     """A sequence of references joined in time (see the module docstring).
 
@@ -128,9 +107,6 @@ class ComposedReference(Reference):
             started yet is placed where the segment before it now ends (the active segment's end as
             predicted after its own update, e.g. a locomotion reference re-anchored on the measurement).
             Without it (default) the joins are fixed at construction, from the segments' initial anchors.
-        start_gates: one ``StartGate`` or ``None`` per segment: a gated segment must follow a locomotion
-            segment with a path (``path_gain`` > 0); at ``update`` it is put off by that gait's cycle
-            (``postpone``) while the start it predicts lies outside the gate's window (``StartGate``).
     """
 
     def __init__(
@@ -143,7 +119,6 @@ class ComposedReference(Reference):
         offsets: Sequence[Offset | None] | None = None,
         weight_sets: Sequence[str | None] | None = None,
         rejoin: bool = False,
-        start_gates: Sequence[StartGate | None] | None = None,
     ) -> None:
         if not segments:
             raise ValueError("a composed reference needs at least one segment")
@@ -199,24 +174,6 @@ class ComposedReference(Reference):
         self._trajectory_poses: dict[tuple[int, float], np.ndarray] = {}
         """``_local_pose`` of the stored-trajectory segments by (reference id, local time): fixed poses."""
         self._resolve_offsets()
-        gates = list(start_gates) if start_gates is not None else [None] * len(segments)
-        if len(gates) != len(segments):
-            raise ValueError(f"composed reference: {len(segments)} segments but {len(gates)} start gates")
-        for index, gate in enumerate(gates):
-            if gate is None:
-                continue
-            before = self.segments[index - 1].reference if index > 0 else None
-            if getattr(before, "path_gain", 0.0) <= 0.0 or not hasattr(before, "cross_track"):
-                raise ValueError(
-                    f"composed reference: segment {index}'s start gate needs a locomotion segment with a "
-                    "path (path_gain > 0) before it"
-                )
-        self._gates = gates
-        self._gate_open = [gate is None for gate in gates]
-        self.delays = [0] * len(segments)
-        """Gait cycles each segment's start was put off by (``postpone``)."""
-        self.postponements: list[tuple[float, int, float, float]] = []
-        """Each ``postpone`` at an update: (time, segment, cross-track offset (m), delay (s))."""
 
     # -------------------------------------------------------------------------------------- placement
     def _local_pose(self, segment: Segment, local_time: float) -> np.ndarray:
@@ -343,43 +300,8 @@ class ComposedReference(Reference):
         if segment.sign < 0:
             local[3:7] *= -1.0
         segment.reference.update(t - segment.start, local, v)
-        if index < len(self.segments) - 1 and not self._gate_open[index + 1]:
-            self._decide_start(index + 1, t, local)
         if self.rejoin and index < len(self.segments) - 1:
             self._resolve_offsets(index)
-
-    def _decide_start(self, index: int, t: float, local_q: np.ndarray) -> None:
-        """The start gate of segment ``index`` at the update at ``t`` (``local_q``: the measured configuration
-        in the frame of the active segment before it): at the first update within ``decide_before`` s of the
-        start, start on time if the base's cross-track offset from the gait's path is inside the window (or
-        no delay is left), else ``postpone`` by one gait cycle and decide again before the new start."""
-        gate = self._gates[index]
-        assert gate is not None
-        segment, before = self.segments[index], self.segments[index - 1]
-        lead = segment.start - t
-        if lead > gate.decide_before + 1e-9 or lead <= 0.0:
-            return
-        offset = before.reference.cross_track(t - before.start, local_q)  # type: ignore[attr-defined]
-        low, high = gate.lateral_window
-        if low <= offset <= high or self.delays[index] >= gate.max_delays:
-            self._gate_open[index] = True
-            return
-        delay = float(before.reference.gait.period)  # type: ignore[attr-defined]
-        self.postpone(index, delay)
-        self.postponements.append((float(t), index, offset, delay))
-
-    def postpone(self, index: int, delay: float) -> None:
-        """Start segment ``index`` and every one after it ``delay`` s later; the segment before it lasts that
-        much longer (it must not have ended). Joins are redone (``rejoin``) at the next update."""
-        if not 0 < index < len(self.segments):
-            raise ValueError(f"postpone: segment {index} has no segment before it")
-        if not (math.isfinite(delay) and delay > 0.0):
-            raise ValueError(f"postpone: delay must be > 0 s, got {delay}")
-        self.segments[index - 1].duration += delay
-        for segment in self.segments[index:]:
-            segment.start += delay
-        self._thresholds = np.array([segment.start - 1e-12 for segment in self.segments])
-        self.delays[index] += 1
 
     # ------------------------------------------------------------------------------------------ sample
     def _window(self, capacity: int) -> ReferenceWindow:

@@ -824,19 +824,6 @@ class LocomotionReference(Reference):
         correction = max(-self.path_heading_limit, min(self.path_heading_limit, self.path_gain * cross))
         return path_yaw - correction
 
-    def cross_track(self, t: float, q: np.ndarray) -> float:
-        """The base's signed distance from the commanded path at ``t`` (m, left of the path positive) in the
-        configuration ``q``; 0 before the path has an origin (the first update). Needs ``path_gain`` > 0."""
-        if self.path_gain <= 0.0:
-            raise ValueError("cross_track needs a path: give path_gain > 0")
-        if self.path_origin is None:
-            return 0.0
-        start, origin, origin_yaw = self.path_origin
-        displacement, turn = self.profile.heading_displacement(start, t)
-        path_xy = origin + _yaw_rotation(origin_yaw) @ displacement
-        normal = _yaw_rotation(origin_yaw + turn)[:, 1]
-        return float(normal @ (q[:2] - path_xy))
-
     # ------------------------------------------------------------------------------------------- ground
     def ground_height_at(self, x: float, y: float) -> float:
         """The ground's height under world ``(x, y)`` as the reference believes it (0: flat ground; the
