@@ -122,19 +122,16 @@ def task_reference(run: ResolvedRun) -> ComposedReference:
                 assert segment.trajectory is not None
                 trajectory = load_reference_trajectory(robot, segment.trajectory)
                 trajectory = trajectory.from_phase(segment.from_phase)
-                events = start_events = None
-                detection = run.contact_detection or ContactDetectionSettings()
+                events = None
                 if segment.touchdown_events is not None:
+                    detection = run.contact_detection or ContactDetectionSettings()
                     events = (segment.touchdown_events, detection.early_window, detection.touchdown_height)
-                if segment.start_events is not None:
-                    start_events = (segment.start_events, detection.early_window, detection.touchdown_height)
                 reference: Reference = TrajectoryReference(
                     robot,
                     trajectory,
                     weight_set=TRAJECTORY_WEIGHT_SET,
                     hold_weight_set=TRAJECTORY_WEIGHT_SET,
                     touchdown_events=events,
-                    start_events=start_events,
                 )
                 duration = segment.duration if segment.duration is not None else reference.end_time
             elif segment.kind == "gait":

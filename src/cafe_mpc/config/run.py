@@ -647,15 +647,6 @@ class ReferenceSegmentConfig(StrictModel):
         "before its planned touchdown (seen at each MPC update within the contact detector's early window "
         "and height), so that the plans stand on it; null: the trajectory keeps its clock",
     )
-    start_events: float | None = Field(
-        None,
-        ge=0.0,
-        le=0.5,
-        description="kind trajectory: s; start the trajectory early (the segment before it cut short, the "
-        "ones after it moved earlier) when a foot of its first stance, swinging in the segment before, lands "
-        "more than this before the trajectory's start (seen at each MPC update within the contact detector's "
-        "early window and height), so that its take-off follows the feet on the floor; null: on time",
-    )
     height: float | None = Field(None, description="kind stand: body height, m (null: standing height)")
     gait: GaitConfig | None = Field(None, description="kind gait: the gait section (name, commands, ...)")
     offset: tuple[float, float, float] | None = Field(
@@ -676,8 +667,6 @@ class ReferenceSegmentConfig(StrictModel):
             raise ValueError(f"'gait' belongs to segments of kind gait, not {self.kind}")
         if self.kind != "trajectory" and self.from_phase:
             raise ValueError(f"'from_phase' belongs to segments of kind trajectory, not {self.kind}")
-        if self.kind != "trajectory" and self.start_events is not None:
-            raise ValueError(f"'start_events' belongs to segments of kind trajectory, not {self.kind}")
         if self.kind != "trajectory" and self.touchdown_events is not None:
             raise ValueError(
                 f"'touchdown_events' belongs to segments of kind trajectory, not {self.kind} (a gait's: "

@@ -28,7 +28,6 @@ of the appending trajectory are shifted by 2 pi" (Appendix); the CAFE-MPC smooth
 
 from __future__ import annotations
 
-import logging
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -38,8 +37,6 @@ import numpy as np
 from cafe_mpc.reference.base import STANCE_TIME_EPS, Reference, ReferenceWindow, switches_inside
 from cafe_mpc.reference.kernels import place_configurations
 from cafe_mpc.reference.trajectory import TrajectoryReference
-
-logger = logging.getLogger(__name__)
 
 Offset = tuple[float, float, float]
 """Planar placement ``(x, y, yaw)`` of a segment (m, m, rad)."""
@@ -173,8 +170,6 @@ class ComposedReference(Reference):
         ]
         """Per segment without a weight-set override: its weight-set indices mapped to the composition's."""
         self._windows: dict[int, ReferenceWindow] = {}
-        self.early_starts: list[tuple[int, float, float]] = []
-        """``(segment, time, lead)`` of each early start (``_start_next_early``)."""
         self._probe = ReferenceWindow(1, nq, nv, nu, n_feet)
         self._trajectory_poses: dict[tuple[int, float], np.ndarray] = {}
         """``_local_pose`` of the stored-trajectory segments by (reference id, local time): fixed poses."""
@@ -305,33 +300,8 @@ class ComposedReference(Reference):
         if segment.sign < 0:
             local[3:7] *= -1.0
         segment.reference.update(t - segment.start, local, v)
-        self._start_next_early(index, t, q)
         if self.rejoin and index < len(self.segments) - 1:
             self._resolve_offsets(index)
-
-    def _start_next_early(self, index: int, t: float, q: np.ndarray) -> None:
-        """When the next segment is a trajectory with ``start_events`` whose first-stance feet, swinging in
-        segment ``index`` now, have landed early (``TrajectoryReference.early_start``): cut segment
-        ``index`` short by that lead and move every later segment that much earlier, so that the trajectory
-        starts now. Only the feet's heights are tested, which the planar offsets leave unchanged."""
-        if index + 1 >= len(self.segments):
-            return
-        current, following = self.segments[index], self.segments[index + 1]
-        early_start = getattr(following.reference, "early_start", None)
-        if early_start is None or math.isinf(current.duration):
-            return
-        swinging = [not flag for flag in current.reference.stance_at(t - current.start)]
-        lead = early_start(t - following.start, q, swinging)
-        if lead is None or not lead < current.duration:
-            return
-        current.duration -= lead
-        for segment in self.segments[index + 1 :]:
-            segment.start -= lead
-        self._thresholds = np.array([segment.start - 1e-12 for segment in self.segments])
-        self.early_starts.append((index + 1, float(t), float(lead)))
-        logger.info(
-            "reference: segment %d starts %.3f s early at t = %.3f s (its feet landed)", index + 1, lead, t
-        )
 
     # ------------------------------------------------------------------------------------------ sample
     def _window(self, capacity: int) -> ReferenceWindow:

@@ -32,7 +32,6 @@ compose it (``reference.composition.ComposedReference``: x, y and yaw offsets).
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
 
 import numpy as np
 import pinocchio as pin
@@ -95,9 +94,6 @@ class TrajectoryReference(Reference):
             touchdown ``window`` s ahead or less and more than ``on_time`` away, advances the trajectory's
             clock to that touchdown (``advance``), so that the plans stand on the feet that landed early
             (the gaits' ``touchdown_events``, ``LocomotionReference``); None: the clock is fixed.
-        start_events: ``(on_time, window, height)`` or None: the same test before the trajectory's start
-            for the feet of its first stance (``early_start``), which a composition uses to start the
-            trajectory when those feet land early; None: it starts on time.
     """
 
     def __init__(
@@ -108,7 +104,6 @@ class TrajectoryReference(Reference):
         weight_set: str = "barrel_roll",
         hold_weight_set: str = "barrel_roll",
         touchdown_events: tuple[float, float, float] | None = None,
-        start_events: tuple[float, float, float] | None = None,
     ) -> None:
         if not (math.isfinite(start) and start >= 0.0):
             raise ValueError(f"trajectory reference: start must be >= 0 s, got {start}")
@@ -164,10 +159,7 @@ class TrajectoryReference(Reference):
         changes = np.flatnonzero(np.any(contacts[1:] != contacts[:-1], axis=1)) + 1
         self._switches = [self.start + float(k) * self.dt for k in changes]
         self.touchdown_events = touchdown_events
-        self.start_events = start_events
-        self._data = (
-            robot.model.createData() if touchdown_events is not None or start_events is not None else None
-        )
+        self._data = robot.model.createData() if touchdown_events is not None else None
         self.advances = 0
         self.advance_total = 0.0
 
@@ -234,29 +226,6 @@ class TrajectoryReference(Reference):
                 lead = touchdown - t if lead is None else min(lead, touchdown - t)
         if lead is not None:
             self.advance(lead)
-
-    def early_start(self, t: float, q: np.ndarray, swinging: Sequence[bool]) -> float | None:
-        """With ``start_events``, before the start: how long before its start (s) a foot of the first
-        stance that is ``swinging`` now (in whatever plays before the trajectory) has landed, i.e. its sole
-        within ``height`` of its first knot's height, with the start more than ``on_time`` and at most
-        ``window`` ahead; None when none has (or without ``start_events``)."""
-        if self.start_events is None:
-            return None
-        on_time, window, height = self.start_events
-        lead = self.start - t
-        if not (on_time < lead <= window):
-            return None
-        assert self._data is not None
-        model, data, robot = self.robot.model, self._data, self.robot
-        pin.framesForwardKinematics(model, data, q)
-        for foot, frame_id in enumerate(robot.foot_frame_ids):
-            if not (self._contacts[0, foot] and swinging[foot]):
-                continue
-            planned_sole = self._feet[0, foot, 2] - robot.foot_radius
-            sole = float(data.oMf[frame_id].translation[2]) - robot.foot_radius
-            if sole - planned_sole <= height:
-                return lead
-        return None
 
     def advance(self, lead: float) -> None:
         """From now on the trajectory plays ``lead`` seconds ahead: what was planned for ``t + lead`` happens
