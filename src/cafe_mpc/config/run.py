@@ -156,6 +156,16 @@ class ContactDetectionSettings(StrictModel):
         "the echo of the torques pushing it, its height is measured above an estimated plane); null: not "
         "checked",
     )
+    force_estimate: Literal["static", "momentum"] = Field(
+        "static",
+        description="the ground force the detector reads: static (the measurement's, from the joint torques "
+        "through the leg Jacobians, legs massless: a leg swinging or pushed through the air reads its own "
+        "torques as a load) or momentum (a generalized-momentum observer on the torques the low level "
+        "applied: only what the ground adds to the robot's momentum; momentum_gain)",
+    )
+    momentum_gain: float = Field(
+        150.0, gt=0.0, le=2000.0, description="1/s; bandwidth of the momentum observer (force_estimate)"
+    )
 
     def on_time_for(self, flat: bool) -> float:
         """The on-time margin (s): ``on_time``, or when it is null ``ON_TIME_FLAT`` on flat ground and

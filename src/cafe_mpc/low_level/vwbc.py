@@ -472,7 +472,7 @@ class VWBCController(LowLevelController[Plan]):
         if s.stance_source == "intersect":
             self._stance &= contacts
         elif self.detector is not None:
-            np.copyto(self._stance, self.detector.update(t, measurement, plan))
+            np.copyto(self._stance, self.detector.update(t, measurement, plan, self._torques))
         if np.any(contacts != plan.contacts[k]):
             self.stance_mismatch_ticks += 1
         self.last_stance[:] = self._stance
