@@ -4,6 +4,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numpy as np
@@ -155,6 +156,81 @@ def test_the_map_is_held_to_the_standing_feet_on_its_flat_spots():
     assert terrain.parameters[TERRAIN_OFFSET] == pytest.approx(0.02)
 
 
+def test_the_map_follows_the_estimators_frame_by_the_motion_it_did_not_see(robot):
+    """``registration: motion``: the map's offset is the estimated height's change since the map was placed
+    minus the estimated vertical velocity integrated over the same ticks. A body rising at 0.5 m/s moves
+    no map; a filter whose height jumps 8 cm down with its velocity unchanged (it re-measured feet on a
+    tread at z = 0) moves the map 8 cm down with it, with no foot standing; the predictions an update starts
+    from (``update``) do not move it; a new map starts from zero. Feet registration ignores the motion."""
+    settings = TerrainMapSettings(registration="motion")
+    reference = LocomotionReference(
+        robot, get_gait("bound"), [VelocityCommand(vx=0.5)], ground_plane=True, terrain_map=settings
+    )
+    q, v = robot.q_standing.copy(), np.zeros(robot.nv)
+    v[2] = 0.5  # base frame; the base is level
+    relative = step_map().relative_to(q[0], q[1], q[2], 0.0)
+    reference.observe_height_map(relative, q, v)
+    terrain = reference.terrain
+    assert terrain is not None
+    tick = 0.002
+    for k in range(1, 11):  # 20 ms rising at 0.5 m/s: 1 cm, all of it seen in the velocity
+        q[2] = robot.q_standing[2] + 0.5 * k * tick
+        reference.observe_estimate(k * tick, q, v)
+    assert terrain.parameters[TERRAIN_OFFSET] == pytest.approx(0.0, abs=1e-9)
+    q[2] -= 0.08 - 0.5 * tick  # the next tick: the filter's frame moves 8 cm down
+    reference.observe_estimate(11 * tick, q, v)
+    assert terrain.parameters[TERRAIN_OFFSET] == pytest.approx(-0.08, abs=1e-9)
+    assert map_height(terrain.heights, terrain.parameters, 0.8, 0.0) == pytest.approx(RISE - 0.08, abs=1e-6)
+    predicted = q.copy()
+    predicted[2] += 0.3
+    reference.update(11 * tick, predicted, v)  # a plan's prediction, not an estimate
+    assert terrain.parameters[TERRAIN_OFFSET] == pytest.approx(-0.08, abs=1e-9)
+    newer = dataclasses.replace(step_map().relative_to(q[0], q[1], q[2], 0.0), time=11 * tick)
+    reference.observe_height_map(newer, q, v)
+    reference.observe_estimate(11 * tick, q, v)
+    assert terrain.parameters[TERRAIN_OFFSET] == pytest.approx(0.0, abs=1e-9)
+    with pytest.raises(ValueError, match="velocity"):
+        reference.observe_height_map(relative, q)
+    feet = LocomotionReference(
+        robot,
+        get_gait("bound"),
+        [VelocityCommand(vx=0.5)],
+        ground_plane=True,
+        terrain_map=TerrainMapSettings(),
+    )
+    feet.observe_height_map(relative, robot.q_standing)
+    feet.observe_estimate(0.1, q, v)
+    assert feet.terrain is not None and feet.terrain.parameters[TERRAIN_OFFSET] == 0.0
+
+
+def test_the_maps_normal_under_the_feet_is_the_treads_not_the_plane_through_them(robot):
+    """``TerrainMap.normal_under``: feet on the two levels of a step (away from its edge) stand on flat
+    treads, normal world z, where a plane through them tilts; on a 10 degree ramp the ramp's normal; feet
+    on the edge alone give none. ``terrain_map.cone: map`` takes the plan's pyramid about it."""
+    terrain = TerrainMap(TerrainMapSettings())
+    terrain.place(step_map())
+    soles = np.array([[0.9, 0.15, RISE], [0.9, -0.15, RISE], [0.3, 0.15, 0.0], [0.3, -0.15, 0.0]])
+    assert terrain.normal_under(soles) == pytest.approx([0.0, 0.0, 1.0])
+    assert terrain.normal_under(np.array([[EDGE, 0.0, RISE]])) is None
+    ramp = step_map()
+    slope = math.tan(math.radians(10.0))
+    x = np.arange(ramp.heights.shape[1]) * RESOLUTION
+    ramp = dataclasses.replace(ramp, heights=np.tile(slope * x, (ramp.heights.shape[0], 1)))
+    terrain.place(ramp)
+    normal = terrain.normal_under(soles[:2])
+    assert normal == pytest.approx([-math.sin(math.radians(10.0)), 0.0, math.cos(math.radians(10.0))])
+    settings = TerrainMapSettings(cone="map")
+    reference = LocomotionReference(
+        robot, get_gait("bound"), [VelocityCommand(vx=0.5)], ground_plane=True, terrain_map=settings
+    )
+    q = robot.q_standing.copy()
+    q[0] = EDGE - 0.05  # hind feet on the floor, front feet on the step's top
+    reference.observe_height_map(step_map().relative_to(q[0], q[1], q[2], 0.0), q)
+    reference.update(0.0, q, np.zeros(robot.nv))
+    assert reference.terrain_normal() == pytest.approx([0.0, 0.0, 1.0])
+    assert reference.contact_frame() == pytest.approx(np.eye(3))
+
+
 def test_the_touchdown_constraint_lands_on_the_footholds_with_the_height_map_by_default(robot):
     """``mpc.touchdown_surface`` null: the reference's footholds with the height map (its footholds lie on
     the treads), the floor otherwise (the paper's); an explicit value holds either way."""
@@ -237,3 +313,21 @@ def test_the_stairs_preset_climbs_two_10_cm_stairs():
     assert not log.fell, log.fall_reason
     assert log.q[-1, 0] > 0.6 + 0.3 + 0.25  # every hip over the second stair
     assert log.q[-1, 2] - 2 * 0.1 > 0.2  # the base stands above the second tread
+
+
+def test_the_bound_steps_preset_climbs_three_8_cm_steps():
+    """The ``bound-steps`` preset, fixed 20 ms latency, 4 s: the bound up three steps of 8 cm from 1 m, its
+    base over the third. With the pyramids about the ground plane through its feet (``terrain_map.cone:
+    plane``; 10-16 degrees off the treads' normal with front and hind feet on different treads) it fell
+    at 2.98 s, at the bound's standing height at 3.16 s, with footholds 4 cm from edges at 3.31 s (10 s
+    runs of the preset from 1 m)."""
+    from cafe_mpc_lab.experiments.run import simulate_run
+
+    config = load_run_config(
+        "bound-steps",
+        ["simulation.duration=4", "mpc.latency=fixed", "mpc.fixed_latency=0.02", "output.plots=false"],
+    )
+    _, _, log = simulate_run(config)
+    assert not log.fell, log.fall_reason
+    assert log.q[-1, 0] > 1.0 + 2 * 0.3  # past the third riser
+    assert log.q[-1, 2] - 3 * 0.08 > 0.2  # the base above the third tread

@@ -100,9 +100,12 @@ def build_mpc_loop(
     balance = low_levels.build_balance(run)  # the safe ladder's (control.plan_follower)
     damped = low_levels.build_damped(run)
     if mode == "inline":
+        reference = build_reference(run)
+        if run.terrain_map is not None and run.terrain_map.cone == "map":
+            _cone_on_map(low_level, reference)
         return InlineMpcLoop(
             run.controller_robot,
-            planner.build(run, build_reference(run)),
+            planner.build(run, reference),
             low_level,
             run.control_period,
             recovery=config.recovery,
@@ -124,6 +127,18 @@ def build_mpc_loop(
     )
     loop.reference = build_reference(run)  # for the run's report (gait stance)
     return loop
+
+
+def _cone_on_map(low_level: LowLevelController, reference: Reference) -> None:
+    """``terrain_map.cone: map``: the VWBC's pyramid about the reference's height map under the feet
+    (``VWBC.cone_normal``, ``LocomotionReference.terrain_normal``), the VWBC found under the wrappers that
+    record it (``inner``); a low level without a pyramid (Riccati) keeps none."""
+    target = low_level
+    while not hasattr(target, "cone_normal") and hasattr(target, "inner"):
+        target = target.inner
+    normal = getattr(reference, "terrain_normal", None)
+    if hasattr(target, "cone_normal") and normal is not None:
+        target.cone_normal = normal
 
 
 def build_controller(run: ResolvedRun, low_level: LowLevelController | None = None) -> RunController:

@@ -156,6 +156,16 @@ class ContactDetectionSettings(StrictModel):
         "the echo of the torques pushing it, its height is measured above an estimated plane); null: not "
         "checked",
     )
+    force_estimate: Literal["static", "momentum"] = Field(
+        "static",
+        description="the ground force the detector reads: static (the measurement's, from the joint torques "
+        "through the leg Jacobians, legs massless: a leg swinging or pushed through the air reads its own "
+        "torques as a load) or momentum (a generalized-momentum observer on the torques the low level "
+        "applied: only what the ground adds to the robot's momentum; momentum_gain)",
+    )
+    momentum_gain: float = Field(
+        150.0, gt=0.0, le=2000.0, description="1/s; bandwidth of the momentum observer (force_estimate)"
+    )
 
     def on_time_for(self, flat: bool) -> float:
         """The on-time margin (s): ``on_time``, or when it is null ``ON_TIME_FLAT`` on flat ground and
@@ -1006,6 +1016,19 @@ class TerrainMapSettings(StrictModel):
         le=2.0,
         description="m; the square over which the terrain under each hip is averaged for the base's height "
         "and pitch",
+    )
+    cone: Literal["plane", "map"] = Field(
+        "plane",
+        description="the ground normal the plan's (26) and the VWBC's (34f) friction pyramids are taken "
+        "about: plane (the blind ground plane through the feet, tilted by steps between them) | map (the "
+        "map's normal under the flat spots the feet stand on: world z on flat treads)",
+    )
+    registration: Literal["feet", "motion"] = Field(
+        "feet",
+        description="how the map is held in the state estimate's frame, which moves when the estimator "
+        "re-measures its stance feet at z = 0: feet (the lowest standing foot on a flat spot is on the "
+        "terrain) | motion (the frame's move since the map was placed: the estimated height's change minus "
+        "the integrated estimated vertical velocity; no foot needed, as in a bound's flights)",
     )
 
 

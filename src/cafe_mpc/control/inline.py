@@ -170,7 +170,8 @@ class InlineMpcLoop(MpcLoop[PlanT]):
 
     def compute(self, t: float, state: Measurement) -> np.ndarray:
         if state.height_map is not None:  # a new height map: the reference plans on it from now
-            self.reference.observe_height_map(state.height_map, state.q)
+            self.reference.observe_height_map(state.height_map, state.q, state.v)
+        self.reference.observe_estimate(t, state.q, state.v)
         withheld_from, withheld_until = self._withheld
         if withheld_from - 1e-9 <= t < withheld_until - 1e-9:
             self.pending.clear()

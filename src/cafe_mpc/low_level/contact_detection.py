@@ -16,7 +16,15 @@ Bledt et al. ("Contact Model Fusion for Event-Based Locomotion in Unstructured T
   and its speed by 0.03 m/s, so the default margin is 25 ms (docs/robustness.md);
 * the **ground force** the measurement carries (``Measurement.foot_forces``: from the joint torques through
   the leg Jacobians on a robot, ``estimation``; the plant's contact force in a ground-truth run): the foot
-  pushes on something;
+  pushes on something. That estimate takes the legs as massless and static, so a leg that the low level
+  accelerates through the air reads its own torques as a load (the end of a bound's swing: 25 N against a
+  7.1 N threshold, a foot 6.6 cm above the floor taken in as landed; docs/terrain.md). With
+  ``force_estimate: momentum`` the detector estimates it itself with a
+  generalized-momentum observer (De Luca and Mattone, ICRA 2005) on the torques the low level applied at
+  the previous tick: ``r = K_O (p - p(0) - integral(S' tau + C' v - g + r))`` with ``p = M(q) v`` tends
+  to the generalized force the ground adds, ``sum_f J_f' F_f``, at bandwidth ``K_O``
+  (``momentum_gain``); each foot's force is its leg's rows, ``F_f = J_f,leg'^-1 r_leg``, so the motion of
+  a leg in the air is no load;
 * the **foot height** above the ground (forward kinematics of the measured state): the foot is where the
   ground is. The ground is flat at ``ground_height`` (the paper's world), or, with ``ground_plane``, the
   plane through the feet's latest detected contact points (``core.ground.GroundPlane``: a blind robot's
@@ -81,12 +89,21 @@ class ContactDetector:
         self.vertical_speeds = np.zeros(robot.n_feet)
         """With a ground plane and ``landing_speed``, each foot's world vertical velocity (m/s) at the last
         update (else zeros)."""
+        self.estimated_forces = np.zeros((robot.n_feet, 3))
+        """With ``force_estimate: momentum``, each foot's ground force (world, N) from the momentum observer
+        at the last update."""
+        nv = robot.nv
+        self._momentum_start = np.zeros(nv)
+        self._momentum_integral = np.zeros(nv)
+        self._residual = np.zeros(nv)
+        self._generalized_torque = np.zeros(nv)
         self._plan: KnotPlan | None = None
         self._next_touchdown = np.zeros((0, robot.n_feet))
         self.reset()
 
     def reset(self) -> None:
         self.in_contact[:] = True  # a robot starts standing
+        self._observer_time: float | None = None
         if self.ground is not None:
             self.ground.reset()
         self.early_touchdowns = 0
@@ -105,10 +122,54 @@ class ContactDetector:
             self._next_touchdown[k] = np.where(plan.contacts[k], plan.times[k], later)
         self._plan = plan
 
-    def update(self, t: float, measurement: Measurement, plan: KnotPlan) -> np.ndarray:
-        """The detected stance flags at ``t`` (owned by the detector, overwritten next tick)."""
+    def _observe_momentum(self, t: float, measurement: Measurement, torques: np.ndarray) -> np.ndarray:
+        """Each foot's ground force (world) from the generalized-momentum observer (module docstring), given
+        the joint ``torques`` applied since the previous update; zeros on its first update."""
+        model, data, robot = self.robot.model, self.data, self.robot
+        q, v = measurement.q, measurement.v
+        mass = pin.crba(model, data, q)
+        mass = np.triu(mass) + np.triu(mass, 1).T
+        momentum = mass @ v
+        coriolis = pin.computeCoriolisMatrix(model, data, q, v)
+        gravity = pin.computeGeneralizedGravity(model, data, q)
+        self._generalized_torque[model.nv - robot.nu :] = torques
+        if self._observer_time is None:
+            self._momentum_start[:] = momentum
+            self._momentum_integral[:] = 0.0
+            self._residual[:] = 0.0
+        else:
+            dt = t - self._observer_time
+            rate = self._generalized_torque + coriolis.T @ v - gravity + self._residual
+            self._momentum_integral += dt * rate
+            self._residual[:] = self.settings.momentum_gain * (
+                momentum - self._momentum_start - self._momentum_integral
+            )
+        self._observer_time = t
+        pin.computeJointJacobians(model, data, q)
+        pin.updateFramePlacements(model, data)
+        forces = self.estimated_forces
+        for foot, frame_id in enumerate(robot.foot_frame_ids):
+            columns = slice(model.nv - robot.nu + 3 * foot, model.nv - robot.nu + 3 * foot + 3)
+            leg = pin.getFrameJacobian(model, data, frame_id, pin.LOCAL_WORLD_ALIGNED)[:3, columns]
+            try:
+                forces[foot] = np.linalg.solve(leg.T, self._residual[columns])
+            except np.linalg.LinAlgError:  # a singular (stretched) leg: no estimate
+                forces[foot] = 0.0
+        return forces
+
+    def update(
+        self, t: float, measurement: Measurement, plan: KnotPlan, torques: np.ndarray | None = None
+    ) -> np.ndarray:
+        """The detected stance flags at ``t`` (owned by the detector, overwritten next tick). ``torques``:
+        the joint torques applied since the previous update (needed with ``force_estimate: momentum``)."""
         if plan is not self._plan:
             self._index_plan(plan)
+        if self.settings.force_estimate == "momentum":
+            if torques is None:
+                raise ValueError("contact detection with force_estimate: momentum needs the applied torques")
+            foot_forces = self._observe_momentum(t, measurement, torques)
+        else:
+            foot_forces = measurement.foot_forces
         s = self.settings
         k = plan.knot_at(t)
         planned = plan.contacts[k]
@@ -134,7 +195,7 @@ class ContactDetector:
                 velocity = pin.getFrameVelocity(model, data, frame_id, pin.LOCAL_WORLD_ALIGNED)
                 self.vertical_speeds[foot] = velocity.linear[2]
                 moving = abs(self.vertical_speeds[foot]) >= s.landing_speed
-            force = measurement.foot_forces[foot, 2]
+            force = foot_forces[foot, 2]
             loaded = force > self.touchdown_force and height < reach
             if planned[foot]:
                 if not self.in_contact[foot]:

@@ -29,7 +29,8 @@ at zero joint acceleration. The stance set ``C`` is the plan knot's contact flag
 (``Measurement.contacts``), ``"detected"`` (the run config's default) the contact detector's
 (``low_level.contact_detection``). Off flat ground (``ground_plane``, ``terrain: blind``) the pyramid (34f)
 and (34e) are taken about the normal of the contact detector's ground plane (``_StanceQP.orient_cone``): on
-a 20 degree slope a cone about world z allows forces that slide the feet down.
+a 20 degree slope a cone about world z allows forces that slide the feet down. With a height map
+(``terrain_map.cone: map``) about the map's normal under the feet instead (``cone_normal``).
 
 Solvers: one preallocated solver object and matrix set per stance pattern (sizes change with the number of
 stance feet). ProxQP (``proxsuite.proxqp.dense``, ``solver="proxqp"``) solves (34) as written; it is a
@@ -56,6 +57,7 @@ from __future__ import annotations
 import math
 import time
 from collections import Counter
+from collections.abc import Callable
 
 import numpy as np
 import proxsuite
@@ -411,6 +413,10 @@ class VWBCController(LowLevelController[Plan]):
             if self.settings.stance_source == "detected"
             else None
         )
+        self.cone_normal: Callable[[], np.ndarray | None] | None = None
+        """Where the pyramid's ground normal comes from when not from the detector's plane: the
+        reference's height map under the feet (``LocomotionReference.terrain_normal``, wired by the
+        assembly with ``terrain_map.cone: map``); its None falls back to the plane."""
         self._qps: dict[tuple[bool, ...], _StanceQP] = {}
         nv, nu = robot.nv, robot.nu
         self._dx = np.zeros(2 * nv)
@@ -466,7 +472,7 @@ class VWBCController(LowLevelController[Plan]):
         if s.stance_source == "intersect":
             self._stance &= contacts
         elif self.detector is not None:
-            np.copyto(self._stance, self.detector.update(t, measurement, plan))
+            np.copyto(self._stance, self.detector.update(t, measurement, plan, self._torques))
         if np.any(contacts != plan.contacts[k]):
             self.stance_mismatch_ticks += 1
         self.last_stance[:] = self._stance
@@ -517,7 +523,10 @@ class VWBCController(LowLevelController[Plan]):
         s, nv, nq = self.settings, self.robot.nv, self.robot.nq
         pattern = tuple(bool(c) for c in self._stance)
         qp = self._qp_for(pattern)
-        if self.detector is not None and self.detector.ground is not None:
+        normal = self.cone_normal() if self.cone_normal is not None else None
+        if normal is not None:
+            qp.orient_cone(normal)
+        elif self.detector is not None and self.detector.ground is not None:
             qp.orient_cone(self.detector.ground.normal())
         self.terms.compute(q, v, self._stance)
         # linear term of (34a) in tau: Qux dx + Qu - Quu tau*

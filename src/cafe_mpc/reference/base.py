@@ -104,9 +104,15 @@ class Reference(ABC):
     def update(self, t: float, q: np.ndarray, v: np.ndarray) -> None:  # noqa: B027 - optional hook
         """Re-anchor on the measured state before an MPC update (default: nothing)."""
 
-    def observe_height_map(self, height_map: HeightMap, q: np.ndarray) -> None:  # noqa: B027 - optional hook
+    def observe_height_map(  # noqa: B027 - optional hook
+        self, height_map: HeightMap, q: np.ndarray, v: np.ndarray | None = None
+    ) -> None:
         """A height map relative to the base (``core.height_map``) taken at the tick of the measured state
-        ``q``: references that plan on terrain place it at ``q`` (default: ignored)."""
+        ``q`` (velocity ``v``): references that plan on terrain place it at ``q`` (default: ignored)."""
+
+    def observe_estimate(self, t: float, q: np.ndarray, v: np.ndarray) -> None:  # noqa: B027 - optional hook
+        """The state estimate of every control tick (not the predictions an update may start from):
+        references that hold a height map to the estimator's frame follow it (default: ignored)."""
 
     def contact_frame(self) -> np.ndarray | None:
         """The ground's frame the plan's friction pyramid (26) is taken in (3 x 3, rows: two tangents and
