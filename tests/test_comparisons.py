@@ -249,7 +249,7 @@ def test_experiment_options_are_typed():
         (["warm-start", "--warm-starts", "hot"], "--warm-starts: unknown value 'hot'"),
         (
             ["warm-start", "--gaits", "gallop"],
-            "--gaits: unknown value 'gallop'; known: bound, bound-push, flying-trot",
+            "--gaits: unknown value 'gallop'; known: bound, bound-push, bound-steps, flying-trot",
         ),
         (["schedules", "--duration", "-1"], "simulation.duration"),
         (["schedules", "--set", "gait.commands.0.vx=10"], "gait.commands.0"),
