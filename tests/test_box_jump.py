@@ -35,9 +35,11 @@ def _shipped(robot, name: str):
     return task, trajectory, feet
 
 
-def test_shipped_box_jump_is_feasible_current_and_lands_on_the_box(robot):
-    edge, top = _box(load_run_config("box-jump"))
-    task, trajectory, feet = _shipped(robot, "box-jump")
+@pytest.mark.parametrize("name", ["box-jump", "box-jump-25"])
+def test_shipped_box_jump_is_feasible_current_and_lands_on_the_box(robot, name):
+    """The 0.20 m box and the 0.25 m one (its preset's edge 8 cm further ahead)."""
+    edge, top = _box(load_run_config(name))
+    task, trajectory, feet = _shipped(robot, name)
     assert task.phase_surface_heights()[-1] == pytest.approx(top)
     radius = robot.foot_radius
     # standing on the top at the end, every foot sphere at least 10 cm past the edge: the closed loop takes
@@ -49,6 +51,10 @@ def test_shipped_box_jump_is_feasible_current_and_lands_on_the_box(robot):
     airborne = feet[:-1][flight]
     ahead = airborne[..., 0] + radius > edge
     assert np.all(airborne[..., 2][ahead] - radius >= top - 1e-3)
+    # where a foot sphere crosses the edge it is 1.5 cm or more above the top (the closed loop's feet rise
+    # later than the plan's: 2.1-2.8 cm planned, 0.9-1 cm measured at fixed latency, docs/tasks.md)
+    crossing = np.abs(airborne[..., 0] - edge) < radius
+    assert crossing[:, :2].any() and np.all(airborne[..., 2][crossing] - radius >= top + 0.015)
 
 
 def test_shipped_box_jump_off_lands_on_the_floor_past_the_far_end(robot):

@@ -742,7 +742,9 @@ class TerrainConfig(StrictModel):
         None, gt=0.0, le=100.0, description="slope: horizontal length of the incline; rough: the field's, m"
     )
     count: int | None = Field(None, ge=1, le=50, description="steps, stairs: steps up; gaps: trenches")
-    rise: float | None = Field(None, gt=0.0, le=0.2, description="steps, stairs: m per step")
+    rise: float | None = Field(
+        None, gt=0.0, le=0.3, description="steps, stairs: m per step (a box up to 0.3 m)"
+    )
     run: float | None = Field(None, ge=0.05, le=5.0, description="steps: m of tread per step")
     tread: float | None = Field(None, ge=0.05, le=5.0, description="stairs: m of tread per step")
     flight_steps: int | None = Field(

@@ -66,6 +66,7 @@ PACKAGED_TRAJECTORIES: dict[str, str] = {
     "spin": "spin.npz",
     "box-jump": "box_jump.npz",
     "box-jump-off": "box_jump_off.npz",
+    "box-jump-25": "box_jump_25.npz",
 }
 """Trajectories shipped with the package (``reference/data/``), by name."""
 
