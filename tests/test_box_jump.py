@@ -104,15 +104,16 @@ def test_closed_loop_box_jump_takes_off_forward():
     assert log.q[-1, 0] > 0.15  # m forward of the start
 
 
-def test_task_block_reads_the_whole_flight_and_the_box_top_off_the_reference(robot):
+@pytest.mark.parametrize("name", ["box-jump", "box-jump-25"])
+def test_task_block_reads_the_whole_flight_and_the_box_top_off_the_reference(robot, name):
     """The task block's planned touchdown is the end of the last of the consecutive flight phases (the tuck,
     then the landing legs), and the feet it judges stand on the box top at the trajectory's end."""
     from cafe_mpc.assembly import resolve
     from cafe_mpc.assembly.references import build_reference
     from cafe_mpc_lab.report.task_metrics import task_from_reference
 
-    config = load_run_config("box-jump")
-    trajectory = load_packaged_trajectory("box-jump", robot)
+    config = load_run_config(name)
+    trajectory = load_packaged_trajectory(name, robot)
     task = task_from_reference(build_reference(resolve(config, robot)))
     assert list(trajectory.phase_contacts).count("FT") == 2
     assert task.takeoff == pytest.approx(0.5 + trajectory.switching_times[1])
