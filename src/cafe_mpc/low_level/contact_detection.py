@@ -92,11 +92,24 @@ class ContactDetector:
         self.estimated_forces = np.zeros((robot.n_feet, 3))
         """With ``force_estimate: momentum``, each foot's ground force (world, N) from the momentum observer
         at the last update."""
-        nv = robot.nv
+        nv, n_feet = robot.nv, robot.n_feet
         self._momentum_start = np.zeros(nv)
         self._momentum_integral = np.zeros(nv)
         self._residual = np.zeros(nv)
         self._generalized_torque = np.zeros(nv)
+        self._mass = np.zeros((nv, nv))  # M(q), both triangles (CRBA fills the upper one)
+        self._upper = np.triu(np.ones((nv, nv), dtype=bool))
+        self._lower = ~self._upper
+        self._coriolis = np.zeros((nv, nv))  # C(q, v), row-major as the bindings' copies (the same sums)
+        self._momentum = np.zeros(nv)
+        self._rate = np.zeros(nv)
+        self._step = np.zeros(nv)
+        self._leg_transposes = np.zeros((n_feet, 3, 3))  # J_f,leg' per foot
+        self._leg_residuals = np.zeros((n_feet, 3))
+        first_leg_column = nv - robot.nu
+        self._leg_columns = [
+            slice(first_leg_column + 3 * f, first_leg_column + 3 * f + 3) for f in range(n_feet)
+        ]
         self._plan: KnotPlan | None = None
         self._next_touchdown = np.zeros((0, robot.n_feet))
         self.reset()
@@ -124,37 +137,51 @@ class ContactDetector:
 
     def _observe_momentum(self, t: float, measurement: Measurement, torques: np.ndarray) -> np.ndarray:
         """Each foot's ground force (world) from the generalized-momentum observer (module docstring), given
-        the joint ``torques`` applied since the previous update; zeros on its first update."""
+        the joint ``torques`` applied since the previous update; zeros on its first update. It runs at the
+        low level's rate, so it works in the detector's buffers: the only arrays a tick creates are the
+        copies Pinocchio's Python bindings return (the dynamics terms are read from ``data``) and the four
+        feet's forces solved together."""
         model, data, robot = self.robot.model, self.data, self.robot
         q, v = measurement.q, measurement.v
-        mass = pin.crba(model, data, q)
-        mass = np.triu(mass) + np.triu(mass, 1).T
-        momentum = mass @ v
-        coriolis = pin.computeCoriolisMatrix(model, data, q, v)
-        gravity = pin.computeGeneralizedGravity(model, data, q)
+        pin.crba(model, data, q)  # fills the upper triangle of data.M
+        np.copyto(self._mass, data.M, where=self._upper)
+        np.copyto(self._mass, data.M.T, where=self._lower)
+        momentum = np.matmul(self._mass, v, out=self._momentum)
+        pin.computeCoriolisMatrix(model, data, q, v)
+        np.copyto(self._coriolis, data.C)
+        pin.computeGeneralizedGravity(model, data, q)  # data.g
         self._generalized_torque[model.nv - robot.nu :] = torques
         if self._observer_time is None:
             self._momentum_start[:] = momentum
             self._momentum_integral[:] = 0.0
             self._residual[:] = 0.0
         else:
-            dt = t - self._observer_time
-            rate = self._generalized_torque + coriolis.T @ v - gravity + self._residual
-            self._momentum_integral += dt * rate
-            self._residual[:] = self.settings.momentum_gain * (
-                momentum - self._momentum_start - self._momentum_integral
-            )
+            # d p / dt = S' tau + C' v - g + (ground's generalized force), the residual standing for the last
+            rate = np.matmul(self._coriolis.T, v, out=self._rate)
+            np.add(self._generalized_torque, rate, out=rate)
+            rate -= data.g
+            rate += self._residual
+            self._momentum_integral += np.multiply(t - self._observer_time, rate, out=self._step)
+            residual = np.subtract(momentum, self._momentum_start, out=self._residual)
+            residual -= self._momentum_integral
+            residual *= self.settings.momentum_gain
         self._observer_time = t
         pin.computeJointJacobians(model, data, q)
         pin.updateFramePlacements(model, data)
-        forces = self.estimated_forces
         for foot, frame_id in enumerate(robot.foot_frame_ids):
-            columns = slice(model.nv - robot.nu + 3 * foot, model.nv - robot.nu + 3 * foot + 3)
-            leg = pin.getFrameJacobian(model, data, frame_id, pin.LOCAL_WORLD_ALIGNED)[:3, columns]
-            try:
-                forces[foot] = np.linalg.solve(leg.T, self._residual[columns])
-            except np.linalg.LinAlgError:  # a singular (stretched) leg: no estimate
-                forces[foot] = 0.0
+            columns = self._leg_columns[foot]
+            jacobian = pin.getFrameJacobian(model, data, frame_id, pin.LOCAL_WORLD_ALIGNED)
+            np.copyto(self._leg_transposes[foot], jacobian[:3, columns].T)
+            self._leg_residuals[foot] = self._residual[columns]
+        forces = self.estimated_forces
+        try:
+            forces[:] = np.linalg.solve(self._leg_transposes, self._leg_residuals[..., None])[..., 0]
+        except np.linalg.LinAlgError:  # a singular (stretched) leg: no estimate for it
+            for foot in range(robot.n_feet):
+                try:
+                    forces[foot] = np.linalg.solve(self._leg_transposes[foot], self._leg_residuals[foot])
+                except np.linalg.LinAlgError:
+                    forces[foot] = 0.0
         return forces
 
     def update(
