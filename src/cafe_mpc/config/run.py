@@ -166,13 +166,11 @@ class ContactDetectionSettings(StrictModel):
     momentum_gain: float = Field(
         150.0, gt=0.0, le=2000.0, description="1/s; bandwidth of the momentum observer (force_estimate)"
     )
-    late_foot: Literal["feedback", "stance", "plan_torque"] = Field(
-        "feedback",
-        description="a foot planned in stance that has not landed (a late touchdown): feedback (out of the "
-        "low level's stance set, its leg under the plan's stance torque and feedback), stance (kept in the "
-        "set: its leg under the contact constraint) or plan_torque (out of the set, its leg's torque the "
-        "plan's alone: the stance feedback's gains assume a foot on the ground); its point enters the "
-        "ground plane once it lands",
+    late_foot: Literal["air", "stance"] = Field(
+        "air",
+        description="a foot planned in stance that has not landed: air (out of the low level's stance set) "
+        "or stance (kept in it, its leg under the contact constraint, its point out of the ground plane "
+        "until it lands)",
     )
 
     def on_time_for(self, flat: bool) -> float:

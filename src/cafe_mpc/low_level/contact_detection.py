@@ -89,8 +89,6 @@ class ContactDetector:
         self.stance = np.zeros(robot.n_feet, dtype=bool)
         """Per foot: in the low level's stance set (``update``'s result): the feet on the ground and, with
         ``late_foot: stance``, the feet planned in stance that have not landed yet."""
-        self.late = np.zeros(robot.n_feet, dtype=bool)
-        """Per foot: planned in stance and not landed at the last update (a late touchdown)."""
         self.heights = np.zeros(robot.n_feet)
         self.vertical_speeds = np.zeros(robot.n_feet)
         """With a ground plane and ``landing_speed``, each foot's world vertical velocity (m/s) at the last
@@ -253,10 +251,9 @@ class ContactDetector:
             self._was_planned[foot] = planned[foot]
         if ground is not None:
             ground.observe(soles, self.in_contact)
-        np.greater(planned, self.in_contact, out=self.late)
         np.copyto(self.stance, self.in_contact)
         if s.late_foot == "stance":
-            self.stance |= self.late
+            self.stance |= planned
         return self.stance
 
     def statistics(self) -> dict:

@@ -422,7 +422,6 @@ class VWBCController(LowLevelController[Plan]):
         self._dx = np.zeros(2 * nv)
         self._x_plan = np.zeros(robot.nq + nv)  # the plan's state at t (state_reference: interpolated)
         self._g_tau = np.zeros(nu)
-        self._quu = np.zeros((nu, nu))  # the plan's Quu with late legs decoupled (late_foot: plan_torque)
         self._torques = np.zeros(nu)
         self.last_request = self._torques  # the QP respects the limits: the request is the output
         self._stance = np.zeros(robot.n_feet, dtype=bool)
@@ -534,11 +533,7 @@ class VWBCController(LowLevelController[Plan]):
         np.matmul(plan.Qux[k], dx, out=self._g_tau)
         self._g_tau += plan.Qu[k]
         self._g_tau -= plan.Quu[k] @ plan.us[k]
-        quu = plan.Quu[k]
-        detector = self.detector
-        if detector is not None and detector.settings.late_foot == "plan_torque" and detector.late.any():
-            quu = self._decouple_late_legs(quu, plan.us[k], detector.late)
-        qp.fill(self.terms, quu, self._g_tau)
+        qp.fill(self.terms, plan.Quu[k], self._g_tau)
         # warm start from the plan (paper end of Sec. V-A): finite-difference qdd, tau*_k, F*_k
         np.subtract(plan.xs[k + 1, nq:], plan.xs[k, nq:], out=qp.x0[:nv])
         qp.x0[:nv] /= plan.dt[k]
@@ -566,26 +561,6 @@ class VWBCController(LowLevelController[Plan]):
         self.last_forces[qp.stance] = x[qp.force].reshape(-1, 3)
         self._previous_pattern = pattern
         return ""
-
-    def _decouple_late_legs(self, Quu: np.ndarray, tau_plan: np.ndarray, late: np.ndarray) -> np.ndarray:
-        """(34a) with each late foot's leg (planned in stance, not landed) taken out of the plan's Q-function:
-        its rows and columns of ``Quu`` cut from the other joints' and its linear term pulling its torque to
-        the plan's ``tau*`` alone. The plan's feedback for a stance leg moves the body through a foot on the
-        ground; on a leg in the air the same gains swing the leg (a pace's front foot late over the last
-        riser: the hip at the torque limit, the foot rising 8 cm; docs/terrain.md). Under the plan's stance
-        torque alone the leg pushes its foot down, toward the ground it has not met. Writes ``_quu`` and
-        the late rows of ``_g_tau``; returns ``_quu``."""
-        quu = self._quu
-        np.copyto(quu, Quu)
-        for foot in np.flatnonzero(late):
-            rows = slice(3 * foot, 3 * foot + 3)
-            block = quu[rows, rows].copy()
-            quu[rows, :] = 0.0
-            quu[:, rows] = 0.0
-            quu[rows, rows] = block
-            np.matmul(block, tau_plan[rows], out=self._g_tau[rows])
-            np.negative(self._g_tau[rows], out=self._g_tau[rows])
-        return quu
 
     def _fallback(self, plan: Plan, k: int, dx: np.ndarray, reason: str) -> None:
         """Clamped Riccati feedback (33); the plan torque alone if even that is not finite."""
