@@ -213,6 +213,10 @@ class ContactDetector:
         else:
             pin.framesForwardKinematics(model, data, measurement.q)
         reach = s.touchdown_height if ground is None else s.step_height
+        # a late foot lands by its height where the ground is known (flat) or where the force is no
+        # measurement (the static estimate echoes the stance torques); on an estimated plane with the
+        # observer's force it lands when the ground pushes on it (below the plane it may be in the air)
+        lands_by_height = ground is None or s.force_estimate == "static"
         for foot, frame_id in enumerate(self.robot.foot_frame_ids):
             soles[foot] = data.oMf[frame_id].translation
             soles[foot, 2] -= radius
@@ -230,7 +234,8 @@ class ContactDetector:
             loaded = force > self.touchdown_force and height < reach
             if planned[foot]:
                 if not self.in_contact[foot]:
-                    self.in_contact[foot] = (height < s.touchdown_height or loaded) and not moving
+                    at_ground = lands_by_height and height < s.touchdown_height
+                    self.in_contact[foot] = (at_ground or loaded) and not moving
                 elif force < self.release_force and height > s.release_height:
                     self.in_contact[foot] = False
                 if not self.in_contact[foot]:
