@@ -45,8 +45,8 @@ class DetectorRecorder:
     def __enter__(self) -> DetectorRecorder:
         original, recorder = self._original, self
 
-        def update(detector, t, measurement, plan):
-            flags = original(detector, t, measurement, plan)
+        def update(detector, t, measurement, plan, torques=None):
+            flags = original(detector, t, measurement, plan, torques)
             if detector not in recorder.detectors:
                 recorder.detectors.append(detector)
             recorder.times.append(float(t))

@@ -284,3 +284,70 @@ def test_the_momentum_observer_needs_the_applied_torques(robot):
     state = measurement(robot, 0.0, 0.0, 0.0)
     with pytest.raises(ValueError, match="applied torques"):
         detector.update(0.0, state, scripted_plan(robot))
+
+
+def _late_foot_below_the_plane(robot, settings, ground_at=0.14):
+    """The robot in the air (Pinocchio's forward dynamics, no ground), its joints held by a PD, foot 0's leg
+    stretched 4.6 cm below the other feet (a foot reaching down a step), planned in swing until 0.10 s and
+    in stance after; from ``ground_at`` the ground pushes 60 N up on foot 0 (the lower tread it meets).
+    The detector's ground plane runs through the other feet, so foot 0 is under it all along. Returns the
+    times and foot 0's flags: in the stance set, and landed."""
+    import pinocchio as pin
+
+    from cafe_mpc.estimation.kernels import leg_ground_forces
+
+    detector = ContactDetector(robot, settings, ground_plane=True)
+    plan = scripted_plan(robot)
+    model = robot.model
+    data = model.createData()
+    q_held = robot.q_standing.copy()
+    q_held[8] -= 0.15  # foot 0's hip and knee: the leg stretched down
+    q_held[9] -= 0.3
+    q, v = q_held.copy(), np.zeros(robot.nv)
+    torques = np.zeros(robot.nu)  # applied over the last tick, as the VWBC passes its previous output
+    static = np.zeros((robot.n_feet, 3))
+    jacobians = np.zeros((robot.n_feet, 3, 3))
+    push = np.array([0.0, 0.0, 60.0])
+    times = np.arange(0.0, 0.2, TICK)
+    stance, landed = [], []
+    for t in times:
+        pin.computeJointJacobians(model, data, q)
+        pin.updateFramePlacements(model, data)
+        for foot, frame_id in enumerate(robot.foot_frame_ids):
+            columns = slice(6 + 3 * foot, 9 + 3 * foot)
+            jacobians[foot] = pin.getFrameJacobian(model, data, frame_id, pin.LOCAL_WORLD_ALIGNED)[
+                :3, columns
+            ]
+        leg_ground_forces(jacobians, torques, 3, static)
+        state = Measurement(float(t), q.copy(), v.copy(), np.ones(robot.n_feet, dtype=bool), static.copy())
+        stance.append(bool(detector.update(float(t), state, plan, torques)[0]))
+        landed.append(bool(detector.in_contact[0]))
+        torques[:] = 40.0 * (q_held[7:] - q[7:]) - 1.0 * v[6:]
+        generalized = np.zeros(robot.nv)
+        generalized[6:] = torques
+        if t >= ground_at:
+            foot_jacobian = pin.getFrameJacobian(
+                model, data, robot.foot_frame_ids[0], pin.LOCAL_WORLD_ALIGNED
+            )
+            generalized += foot_jacobian[:3].T @ push
+        acceleration = pin.aba(model, data, q, v, generalized)
+        v = v + TICK * acceleration
+        q = pin.integrate(model, q, TICK * v)
+    return times, np.array(stance), np.array(landed)
+
+
+def test_with_the_momentum_observer_a_foot_under_the_plane_lands_when_the_ground_pushes(robot):
+    """Going down a step, a late foot passes under the ground plane (through feet on the upper tread) before
+    it meets the lower one. With the observer's force the detector waits for the ground: foot 0 is out of the
+    stance set from its planned touchdown (0.10 s) until the ground pushes on it (0.14 s), then in within two
+    ticks; by its height alone (the static estimate, whose force only echoes the torques) it was taken in at
+    its planned touchdown, 4.6 cm in the air, and its point pulled the plane down."""
+    ground_at = 0.14
+    times, stance, landed = _late_foot_below_the_plane(
+        robot, ContactDetectionSettings(force_estimate="momentum"), ground_at
+    )
+    late = (times >= SWING_END + TICK) & (times < ground_at)
+    assert not stance[late].any() and not landed[late].any()
+    assert stance[times >= ground_at + 2 * TICK].all()
+    times, stance, _ = _late_foot_below_the_plane(robot, ContactDetectionSettings(), ground_at)
+    assert stance[late].all()
