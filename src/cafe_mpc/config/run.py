@@ -166,12 +166,6 @@ class ContactDetectionSettings(StrictModel):
     momentum_gain: float = Field(
         150.0, gt=0.0, le=2000.0, description="1/s; bandwidth of the momentum observer (force_estimate)"
     )
-    late_foot: Literal["air", "stance"] = Field(
-        "air",
-        description="a foot planned in stance that has not landed: air (out of the low level's stance set) "
-        "or stance (kept in it, its leg under the contact constraint, its point out of the ground plane "
-        "until it lands)",
-    )
 
     def on_time_for(self, flat: bool) -> float:
         """The on-time margin (s): ``on_time``, or when it is null ``ON_TIME_FLAT`` on flat ground and

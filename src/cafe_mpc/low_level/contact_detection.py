@@ -85,10 +85,6 @@ class ContactDetector:
         self.touchdown_force = self.settings.touchdown_force * weight_share
         self.release_force = self.settings.release_force * weight_share
         self.in_contact = np.zeros(robot.n_feet, dtype=bool)
-        """Per foot: on the ground (landed), the points the ground plane is fitted through."""
-        self.stance = np.zeros(robot.n_feet, dtype=bool)
-        """Per foot: in the low level's stance set (``update``'s result): the feet on the ground and, with
-        ``late_foot: stance``, the feet planned in stance that have not landed yet."""
         self.heights = np.zeros(robot.n_feet)
         self.vertical_speeds = np.zeros(robot.n_feet)
         """With a ground plane and ``landing_speed``, each foot's world vertical velocity (m/s) at the last
@@ -256,10 +252,7 @@ class ContactDetector:
             self._was_planned[foot] = planned[foot]
         if ground is not None:
             ground.observe(soles, self.in_contact)
-        np.copyto(self.stance, self.in_contact)
-        if s.late_foot == "stance":
-            self.stance |= planned
-        return self.stance
+        return self.in_contact
 
     def statistics(self) -> dict:
         return {
