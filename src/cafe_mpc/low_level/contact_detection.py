@@ -32,7 +32,11 @@ Bledt et al. ("Contact Model Fusion for Event-Based Locomotion in Unstructured T
 
 In planned stance a foot is in contact once it is within ``touchdown_height`` of the ground or loaded (a foot
 still higher and unloaded is a late touchdown: in the air, out of the stance set, its leg reaching for the
-planned foothold); in the early window of a swing it needs both, a normal force above ``touchdown_force``
+planned foothold); on a ground plane with ``force_estimate: momentum`` only once loaded, since the plane is
+an estimate and the observer's force a measurement: going down steps, a late foot passes under the plane
+through feet on the upper tread before it meets the lower one, and taken in by its height it was put in the
+stance set in the air and its point pulled the plane down (docs/terrain.md, "The momentum observer"). In
+the early window of a swing it needs both, a normal force above ``touchdown_force``
 and the ground within ``touchdown_height``. With a ground plane a loaded foot may be up to ``step_height``
 above the plane (a step up the plane does not know yet): the force is the evidence there, and it is the
 ground's. Off flat ground, with ``landing_speed`` set (off by default), a touchdown, early or late, counts
@@ -43,10 +47,10 @@ for a late foot, swing torques for a swinging one), so a leg pushing its foot th
 load; a foot that met the ground has stopped (on the way down a slope or steps a swinging foot passes under
 the plane, loaded by the torques that swing it, before it lands). A foot leaves contact when its force
 drops below ``release_force`` with the foot higher than ``release_height``, or when its planned swing
-begins (the schedule decides lift-off). In planned stance the force is not asked for: on a robot it is
-estimated from the joint torques, which there are the stance torques this controller commands, so it would
-only echo the schedule. Forces are thresholds on the robot's weight share (``mg / n_feet``), so one
-setting holds for every robot.
+begins (the schedule decides lift-off). With the static estimate the force is not asked for in planned
+stance: on a robot it is estimated from the joint torques, which there are the stance torques this
+controller commands, so it would only echo the schedule. Forces are thresholds on the robot's weight share
+(``mg / n_feet``), so one setting holds for every robot.
 
 ``update(t, measurement, plan)`` returns the detected stance flags (an array the detector owns); counters of
 early and late touchdowns and of the ticks where detection and plan disagree feed the run's statistics.
@@ -156,7 +160,7 @@ class ContactDetector:
             self._momentum_integral[:] = 0.0
             self._residual[:] = 0.0
         else:
-            # d p / dt = S' tau + C' v - g + (ground's generalized force), the residual standing for the last
+            # d p / dt = S' tau + C' v - g + (the ground's generalized force, which the residual estimates)
             rate = np.matmul(self._coriolis.T, v, out=self._rate)
             np.add(self._generalized_torque, rate, out=rate)
             rate -= data.g
