@@ -35,7 +35,7 @@ still higher and unloaded is a late touchdown: in the air, out of the stance set
 planned foothold); on a ground plane with ``force_estimate: momentum`` only once loaded, since the plane is
 an estimate and the observer's force a measurement: going down steps, a late foot passes under the plane
 through feet on the upper tread before it meets the lower one, and taken in by its height it was put in the
-stance set in the air and its point pulled the plane down (docs/terrain.md, "The momentum observer"). In
+stance set in the air, its point in the plane (docs/terrain.md, "The momentum observer"). In
 the early window of a swing it needs both, a normal force above ``touchdown_force``
 and the ground within ``touchdown_height``. With a ground plane a loaded foot may be up to ``step_height``
 above the plane (a step up the plane does not know yet): the force is the evidence there, and it is the
