@@ -8,6 +8,8 @@ plant's contact flags (MuJoCo's) and with the plan's schedule:
   *missed*);
 * **false contact**: ticks the detector calls a foot in contact while the plant has had it off for more than
   20 ms (not a bounce);
+* **false touchdowns**: the detector's touchdowns (a foot's flag off -> on) with no plant contact of that
+  foot within ``NEAR`` of them (false contact ticks count the lift-offs the detector sees late too);
 * **early touchdowns**: feet the detector put in stance before their planned touchdown (on a flat floor in a
   nominal run these are real: the plant's foot was already down).
 
@@ -31,6 +33,8 @@ BOUNCE = 0.02
 """s: a plant contact that was off for less than this is a bounce, not a new touchdown."""
 MISS = 0.1
 """s: a touchdown not seen within this is missed."""
+NEAR = 0.01
+"""s: a detected touchdown with no plant contact of its foot within this of it is false."""
 
 
 class DetectorRecorder:
@@ -45,8 +49,8 @@ class DetectorRecorder:
     def __enter__(self) -> DetectorRecorder:
         original, recorder = self._original, self
 
-        def update(detector, t, measurement, plan, torques=None):
-            flags = original(detector, t, measurement, plan, torques)
+        def update(detector, t, measurement, plan, *applied):
+            flags = original(detector, t, measurement, plan, *applied)
             if detector not in recorder.detectors:
                 recorder.detectors.append(detector)
             recorder.times.append(float(t))
@@ -85,6 +89,18 @@ def touchdown_delays(plant_time, plant, times, detected) -> tuple[list[float], i
     return delays, missed, false_ticks
 
 
+def false_touchdowns(plant_time, plant, times, detected) -> int:
+    """The detector's touchdowns (flag off -> on) with no plant contact of that foot within ``NEAR``."""
+    count = 0
+    rising = detected[1:] & ~detected[:-1]
+    for row, foot in zip(*np.nonzero(rising), strict=True):
+        t = times[row + 1]
+        near = (plant_time >= t - NEAR - 1e-9) & (plant_time <= t + NEAR + 1e-9)
+        if not np.any(plant[near, foot]):
+            count += 1
+    return count
+
+
 def evaluate(preset: str, duration: float, overrides: list[str]) -> dict:
     config = load_config(
         preset,
@@ -104,6 +120,7 @@ def evaluate(preset: str, duration: float, overrides: list[str]) -> dict:
         "delay_ms_p95": float(np.percentile(delays_ms, 95)),
         "delay_ms_max": float(np.max(delays_ms)),
         "false_contact_ticks": false_ticks,
+        "false_touchdowns": false_touchdowns(log.time, log.contacts.astype(bool), times, detected),
         "sim_time": float(log.time[-1]),
         **statistics,
     }
@@ -116,7 +133,7 @@ def main() -> None:
     parser.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE")
     args = parser.parse_args()
     header = ["preset", "simulated [s]", "touchdowns", "missed", "delay median / p95 / max [ms]"]
-    header += ["false-contact ticks", "early touchdowns", "their lead [ms]"]
+    header += ["false touchdowns", "false-contact ticks", "early touchdowns", "their lead [ms]"]
     print("| " + " | ".join(header) + " |")
     print("|" + "---|" * len(header))
     for preset in args.presets.split(","):
@@ -124,7 +141,7 @@ def main() -> None:
         delays = f"{row['delay_ms_median']:.0f} / {row['delay_ms_p95']:.0f} / {row['delay_ms_max']:.0f}"
         cells = [row["preset"], f"{row['sim_time']:.1f}", row["touchdowns"], row["missed"], delays]
         lead = row.get("early_touchdown_lead_s_mean")
-        cells += [row["false_contact_ticks"], row.get("early_touchdowns", "n/a")]
+        cells += [row["false_touchdowns"], row["false_contact_ticks"], row.get("early_touchdowns", "n/a")]
         cells += [f"{1e3 * lead:.0f}" if lead is not None else "-"]
         print("| " + " | ".join(str(cell) for cell in cells) + " |", flush=True)
 

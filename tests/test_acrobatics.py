@@ -71,7 +71,7 @@ def test_stance_feet_are_put_on_their_footholds(robot):
     ("name", "robot_name"),
     [(name, "mini_cheetah") for name, _ in FLIPS]
     + [("spin", "mini_cheetah"), ("box-jump", "mini_cheetah"), ("box-jump-off", "mini_cheetah")]
-    + [("box-jump-25", "mini_cheetah")]
+    + [("box-jump-25", "mini_cheetah"), ("box-jump-30", "mini_cheetah")]
     # the Mini Cheetah's backflip carried to the Go1 (its keyframes retargeted)
     + [("backflip", "go1")],
 )

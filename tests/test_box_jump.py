@@ -14,6 +14,11 @@ from cafe_mpc.reference.trajectory_file import load_packaged_trajectory, package
 from cafe_mpc.trajopt.multiphase import check_trajectory
 from cafe_mpc.trajopt.presets import load_task
 
+STANCE_DRIFT = 6e-3
+"""m: how far a stance foot of the stored plans may sink into the top by the end: the planning model holds a
+stance foot by its acceleration (the explicit step), and the front feet, landing 1-2 mm above the top, sink
+and slide back as the legs straighten in the stand (4.3 mm on the 0.25 m box, 5.5 mm on the 0.30 m one)."""
+
 
 def _box(config) -> tuple[float, float]:
     """(front edge x, top height) of the preset's one-step box."""
@@ -35,16 +40,16 @@ def _shipped(robot, name: str):
     return task, trajectory, feet
 
 
-@pytest.mark.parametrize("name", ["box-jump", "box-jump-25"])
+@pytest.mark.parametrize("name", ["box-jump", "box-jump-25", "box-jump-30"])
 def test_shipped_box_jump_is_feasible_current_and_lands_on_the_box(robot, name):
-    """The 0.20 m box and the 0.25 m one (its preset's edge 8 cm further ahead)."""
+    """The 0.20 m box, the 0.25 m one (its preset's edge 8 cm further ahead) and the 0.30 m one (14 cm)."""
     edge, top = _box(load_run_config(name))
     task, trajectory, feet = _shipped(robot, name)
     assert task.phase_surface_heights()[-1] == pytest.approx(top)
     radius = robot.foot_radius
     # standing on the top at the end, every foot sphere at least 10 cm past the edge: the closed loop takes
     # off slower forward than the plan and lands its hind feet up to 10 cm short of it (docs/tasks.md)
-    np.testing.assert_allclose(feet[-1, :, 2] - radius, top, atol=5e-3)
+    np.testing.assert_allclose(feet[-1, :, 2] - radius, top, atol=STANCE_DRIFT)
     assert np.all(feet[-1, :, 0] - radius > edge + 0.10)
     # in the flight a foot sphere ahead of the edge is above the top
     flight = ~trajectory.contacts.astype(bool).any(axis=1)
@@ -52,7 +57,8 @@ def test_shipped_box_jump_is_feasible_current_and_lands_on_the_box(robot, name):
     ahead = airborne[..., 0] + radius > edge
     assert np.all(airborne[..., 2][ahead] - radius >= top - 1e-3)
     # where a foot sphere crosses the edge it is 1.5 cm or more above the top (the closed loop's feet rise
-    # later than the plan's: 2.1-2.8 cm planned, 0.9-1 cm measured at fixed latency, docs/tasks.md)
+    # later than the plan's: 2.1-2.8 cm planned, 0.9-1 cm measured at fixed latency on the 0.20 and 0.25 m
+    # boxes, docs/tasks.md)
     crossing = np.abs(airborne[..., 0] - edge) < radius
     assert crossing[:, :2].any() and np.all(airborne[..., 2][crossing] - radius >= top + 0.015)
 
@@ -86,15 +92,17 @@ def test_shipped_box_jump_off_lands_on_the_floor_past_the_far_end(robot):
 
 
 @pytest.mark.slow
-def test_closed_loop_box_jump_takes_off_forward():
+@pytest.mark.parametrize("name", ["box-jump", "box-jump-30"])
+def test_closed_loop_box_jump_takes_off_forward(name):
     """Fixed latency (20 ms, deterministic), VWBC, the box in the scene: the stand, the push and 0.15 s of the
-    flight: all feet off the floor, the base above its standing height moving forward, no fall."""
+    flight: all feet off the floor, the base above its standing height moving forward, no fall. The lowest
+    box and the highest (its push the hardest: 2.7 m/s up against 2.0)."""
     from cafe_mpc.config import load_config
     from cafe_mpc_lab.experiments.run import simulate_run
 
     takeoff = 0.5 + 0.30
     config = load_config(
-        "box-jump", ["mpc.latency=fixed", f"simulation.duration={takeoff + 0.15}", "mpc.warm_up=0.2"]
+        name, ["mpc.latency=fixed", f"simulation.duration={takeoff + 0.15}", "mpc.warm_up=0.2"]
     )
     _, _, log = simulate_run(config)
     assert not log.fell and log.time[-1] >= takeoff + 0.14
@@ -104,7 +112,7 @@ def test_closed_loop_box_jump_takes_off_forward():
     assert log.q[-1, 0] > 0.15  # m forward of the start
 
 
-@pytest.mark.parametrize("name", ["box-jump", "box-jump-25"])
+@pytest.mark.parametrize("name", ["box-jump", "box-jump-25", "box-jump-30"])
 def test_task_block_reads_the_whole_flight_and_the_box_top_off_the_reference(robot, name):
     """The task block's planned touchdown is the end of the last of the consecutive flight phases (the tuck,
     then the landing legs), and the feet it judges stand on the box top at the trajectory's end."""
@@ -120,7 +128,9 @@ def test_task_block_reads_the_whole_flight_and_the_box_top_off_the_reference(rob
     assert task.touchdown == pytest.approx(0.5 + trajectory.switching_times[3])
     _, top = _box(config)
     assert all(task.planned_stance)
-    np.testing.assert_allclose(np.asarray(task.planned_feet)[:, 2] - robot.foot_radius, top, atol=5e-3)
+    np.testing.assert_allclose(
+        np.asarray(task.planned_feet)[:, 2] - robot.foot_radius, top, atol=STANCE_DRIFT
+    )
 
 
 def test_feet_on_the_planned_surface_are_judged_on_a_raised_surface_only(robot):

@@ -209,6 +209,49 @@ def test_a_foot_held_at_its_touchdown_height_keeps_feet_on_two_levels_consistent
     assert config.kinematic_kf.stance_height == "touchdown"
 
 
+@dataclass
+class PlanOnTop(FakePlan):
+    """A ``FakePlan`` that also has configurations (every knot the robot standing ``top`` above the floor)."""
+
+    top: float = 0.0
+    configuration: np.ndarray | None = None
+
+    @property
+    def start_time(self) -> float:
+        return float(self.times[0])
+
+    def knot_at(self, t: float) -> int:
+        return int(np.clip(np.searchsorted(self.times, t, side="right") - 1, 0, len(self.times) - 1))
+
+    def knot_configurations(self, nq: int) -> np.ndarray:
+        return np.tile(self.configuration, (len(self.times) + 1, 1))[:, :nq]
+
+
+def test_stance_feet_measured_where_the_plan_puts_them_keep_a_robot_on_a_box_top_at_its_height(robot):
+    """``stance_height: plan``: a robot standing on a 0.30 m box top (its legs read as on the floor) whose
+    plan stands there too is estimated 0.30 m up, every foot in contact; with ``ground`` the filter puts the
+    feet on z = 0 and the base 0.30 m low. A plan on the floor leaves the estimate as ``ground``'s."""
+    top = 0.30
+    readings = synthetic_readings(robot, np.zeros(3), 0.2)
+    steady = steady_plan(robot.n_feet, duration=1.0)
+    heights = {}
+    for mode, plan_top in (("ground", top), ("plan", top), ("plan", 0.0)):
+        q = robot.q_standing.copy()
+        q[2] += plan_top
+        plan = PlanOnTop(steady.times, steady.dt, steady.contacts, plan_top, q)
+        estimator = StateEstimator(robot, KinematicKFSettings(rolling_foot=False, stance_height=mode))
+        estimator.reset()
+        for reading in readings:
+            measurement = estimator.update(reading, plan)
+        heights[mode, plan_top] = measurement.q[2]
+        assert np.all(estimator.in_contact)
+    truth = robot.q_standing[2]
+    assert heights["plan", top] == pytest.approx(truth + top, abs=0.003)
+    assert heights["ground", top] == pytest.approx(truth, abs=0.003)
+    assert heights["plan", 0.0] == heights["ground", top]
+    assert load_run_config("box-jump-30").kinematic_kf.stance_height == "plan"
+
+
 def ideal_spec(average: bool = False) -> SensorSpec:
     return SensorSpec(
         ImuSpec(gyro_noise=0.0, accelerometer_noise=0.0, orientation_noise=0.0, average=average),

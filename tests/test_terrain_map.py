@@ -10,8 +10,8 @@ import math
 import numpy as np
 import pytest
 
-from cafe_mpc.assembly import build_reference, load_run_config, resolve
-from cafe_mpc.config import TerrainMapSettings, VelocityCommand
+from cafe_mpc.assembly import build_mpc_loop, build_reference, load_run_config, resolve
+from cafe_mpc.config import ConfigError, TerrainMapSettings, VelocityCommand
 from cafe_mpc.core.height_map import HeightMap
 from cafe_mpc.ocp.contact_schedule import get_gait
 from cafe_mpc.reference.kernels import TERRAIN_OFFSET, highest_between, map_height, terrain_foothold
@@ -264,6 +264,8 @@ def test_terrain_height_map_in_the_config_reaches_the_reference_and_rejects_the_
     assert resolve(load_run_config("trot", ["terrain=blind"]), robot).terrain_map is None
     with pytest.raises(Exception, match="MPC process"):
         load_run_config("stairs", ["simulation.realtime=true"])
+    with pytest.raises(ConfigError, match="MPC process"):  # the library's process mode, not only --realtime
+        build_mpc_loop(run, "process")
 
 
 # ------------------------------------------------------------------------------------------ closed loop

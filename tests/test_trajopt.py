@@ -165,6 +165,39 @@ def test_shipped_running_roll_trajectory_is_feasible_and_current(robot):
     assert load_task(str(packaged_trajectory_path("running-barrel-roll").with_suffix(".yaml"))) == preset
 
 
+def test_running_roll_from_the_pace_pushes_over_its_whole_right_stance(robot):
+    """The running roll's candidate take-off (catalogue/running_barrel_roll_from_pace.yaml): from the pace's
+    moving left stance (left feet planted, right feet in the air) it converges, sets the right feet down at
+    0.15 s, pushes over the whole right stance (the in-place optimum: 22 % of the stance's vertical impulse
+    in its first half), turns 2 pi by the landing, within 0.85 of the motors' limits and inside the
+    controller's friction pyramid 0.4."""
+    from cafe_mpc.assembly import load_run_config
+    from cafe_mpc.trajopt.multiphase import solve_task
+
+    task = load_task("running-barrel-roll-from-pace")
+    result = solve_task(robot, task)
+    assert result.converged
+    trajectory, check = result.trajectory, result.check
+    assert check.max_defect <= 1e-3
+    assert [t for t, _ in check.touchdown_heights] == pytest.approx([0.15, 0.86, 1.21])
+    assert check.max_touchdown_height_error <= 1e-3
+    start_feet = robot.foot_positions(trajectory.xs[0, : robot.nq])
+    np.testing.assert_allclose(start_feet[[0, 2], 2], robot.foot_radius, atol=1e-3)  # FL, HL planted
+    assert np.all(start_feet[[1, 3], 2] > robot.foot_radius + 0.02)  # FR, HR swinging
+    first, last = (round(t / trajectory.dt) for t in task.switching_times[1:3])
+    vertical = trajectory.forces[first:last, :, 2].sum(axis=1)
+    half = (last - first) // 2
+    assert vertical[:half].sum() > 0.35 * vertical.sum()
+    assert roll_turned(trajectory, task.switching_times[3]) == pytest.approx(TWO_PI, abs=0.05)
+    limits = np.asarray(task.constraints.torque_limits(robot))
+    assert limits == pytest.approx(0.85 * np.asarray(robot.plant.motor_torque_limits))
+    assert np.all(np.abs(trajectory.us) <= limits + 0.2)
+    friction = load_run_config("running-barrel-roll").mpc.friction
+    forces = trajectory.forces[trajectory.contacts.astype(bool)]
+    tangential = np.maximum(np.abs(forces[:, 0]), np.abs(forces[:, 1]))
+    assert np.all(tangential <= friction * forces[:, 2] + 0.01)
+
+
 def test_task_yaml_round_trip_and_overrides(tmp_path, task):
     path = tmp_path / "task.yaml"
     path.write_text(task.to_yaml("header\nline"))

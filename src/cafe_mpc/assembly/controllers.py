@@ -86,7 +86,8 @@ def build_mpc_loop(
     """The planner's MPC loop over ``low_level`` (default: ``build_low_level``'s): ``inline`` (simulated or
     the caller's time, fixed or measured latency) or ``process`` (the planner in its own process against the
     wall clock; close it, ``with``, to stop the process). ``ConfigError`` when the config's ``wbc`` follows
-    no plan (``wbc: pd`` stands without a planner)."""
+    no plan (``wbc: pd`` stands without a planner), and for ``process`` with ``terrain: height_map`` (the
+    process gets no maps)."""
     config = run.config
     if runs_alone(config):
         raise ConfigError(
@@ -94,6 +95,11 @@ def build_mpc_loop(
         )
     if mode not in ("inline", "process"):
         raise ConfigError(f"mode must be 'inline' or 'process', got {mode!r}")
+    if mode == "process" and config.terrain == "height_map":
+        raise ConfigError(
+            "terrain: 'height_map' runs with the MPC in the caller's loop only (mode 'inline'): the MPC "
+            "process does not receive the maps, and its plans carry no map normal for the low level"
+        )
     planner = PLANNERS.get(config.planner)
     if low_level is None:
         low_level = low_levels.build_low_level(run, planner)

@@ -85,17 +85,22 @@ class KinematicKFSettings(StrictModel):
     spheres)."""
     foot_height: bool = Field(True, description="stance feet on flat ground measure the height")
     """Flat ground assumed, as MIT's filter does. Off: the base height is not observable (it drifts)."""
-    stance_height: Literal["ground", "touchdown"] = Field(
+    stance_height: Literal["ground", "touchdown", "plan"] = Field(
         "ground",
-        description="off flat ground (terrain: blind or height_map): ground, a stance foot's height is "
-        "measured at the ground's, z = 0 (MIT's; the frame follows the level the feet stand on); touchdown, "
-        "at the height its foot state settled at after touching down (the base height is odometry)",
+        description="ground: a stance foot's height is measured at the ground's, z = 0 (MIT's; off "
+        "flat ground the frame follows the level the feet stand on); touchdown (terrain: blind or "
+        "height_map): at the height its foot state settled at after touching down (the base height is "
+        "odometry); plan: at the height the plan in effect puts it (its configuration at the current "
+        "knot: a box top in a stored trajectory)",
     )
     """With ``ground`` the estimated base height jumps by a step's rise within a few ticks of a stance on a
     new level, and feet standing on two levels are all measured at z = 0 (inconsistent). With ``touchdown``
     a foot at rest stays where it landed: feet on two levels keep their heights, and the base height is
     dead reckoning between the feet's levels: it drifted down by 1.5-5 cm/s on flat ground in the bound
-    and the trot (docs/terrain.md). On flat ground (terrain: flat) z = 0 always."""
+    and the trot (docs/terrain.md). With ``plan`` the feet stand where the plan says (within
+    ``PLANNED_LEVEL_DEADBAND`` of z = 0: on it): a robot that jumped onto a box keeps its legs in the filter
+    (with ``ground`` on flat terrain, feet planned on a 0.30 m top count as not in contact and the filter
+    drifts on the IMU)."""
     foot_compliance: float = Field(
         9.3e-5, ge=0.0, le=0.01, description="m/N, a loaded foot at rest sinks this much per N (0: off)"
     )

@@ -1627,7 +1627,7 @@ class RunConfig(StrictModel):
                 f"simulation.control_rate_hz {self.simulation.control_rate_hz} Hz (maps are taken at control "
                 "ticks)"
             )
-        if self.kinematic_kf.stance_height != "ground" and self.terrain == "flat":
+        if self.kinematic_kf.stance_height == "touchdown" and self.terrain == "flat":
             raise ValueError(
                 f"kinematic_kf.stance_height: {self.kinematic_kf.stance_height!r} holds stance feet off flat "
                 "ground; with terrain: flat every stance foot is on z = 0 (use terrain: blind or height_map)"

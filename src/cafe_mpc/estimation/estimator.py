@@ -13,7 +13,8 @@ Dynamic Quadruped Control", ICRA 2019; implemented in MIT's ``Cheetah-Software``
    frame; ``kernels``): the prediction integrates the accelerometer, ``a = R f + g``; every foot in stance
    measures its position relative to the base, ``p_foot - p = R r(q_j)``, and, being at rest, the base
    velocity ``v = -R (w x r + J(q_j) qd_j)`` (leg kinematics from Pinocchio); a stance foot's height is the
-   ground's (flat ground; off it, with ``stance_height: touchdown``, the height the foot settled at). Feet
+   ground's (flat ground; off it, with ``stance_height: touchdown``, the height the foot settled at; with
+   ``stance_height: plan``, the height the plan in effect puts it at: a box top). Feet
    in swing or flight give nothing (their states are re-anchored at the legs'
    kinematic positions with a large variance, uncorrelated): in flight the filter runs on the IMU alone.
    A foot's trust ramps in and out over the first and last ``trust_window`` of its planned stance, scaling
@@ -82,6 +83,11 @@ def leg_velocity_indices(robot: Robot) -> np.ndarray:
     if lengths != {3}:
         raise ValueError(f"the estimator needs 3 joints per leg, got {sorted(lengths)}")
     return np.array(rows, dtype=np.int64)
+
+
+PLANNED_LEVEL_DEADBAND = 0.005
+"""m; with ``stance_height: plan`` a planned foot within this of the floor (z = 0) stands on it: a stored
+trajectory's feet touch a flat floor within a millimetre or two (the solver's tolerance), a gait's exactly."""
 
 
 class LegKinematics:
@@ -209,6 +215,17 @@ class StateEstimator:
         """Height of the ground under each foot, as the filter put the foot frame when it touched down
         (``hold_touchdown``; 0 for a foot standing since the filter started): added to ``ground_height``."""
         self._anchored = np.zeros(n_feet, dtype=np.bool_)
+        self.follow_plan = settings.stance_height == "plan"
+        """``stance_height: plan``: each stance foot's ground is the height the plan in effect puts the foot
+        at (``planned_level``)."""
+        self.planned_level = np.zeros(n_feet)
+        """Height of the ground under each foot in the plan in effect at its current knot (``follow_plan``;
+        0 otherwise, within ``PLANNED_LEVEL_DEADBAND`` of the floor, and before the first plan): added to
+        ``ground_height``."""
+        self._plan_data = robot.model.createData() if self.follow_plan else None
+        self._level_plan = -1  # id, start time and knot of the plan configuration the levels are from
+        self._level_start = math.nan
+        self._level_knot = -1
         self.legs = LegKinematics(robot, robot.foot_radius)
         self.contacts = PlannedContacts(n_feet, settings.trust_window)
         self.imu_outage = (
@@ -327,6 +344,9 @@ class StateEstimator:
         self._started = False
         self._moving = moving
         self.contacts.reset()
+        if not moving:  # a restart keeps the levels the robot stands on until the next plan
+            self.planned_level[:] = 0.0
+            self._level_plan = -1
         if self.imu_outage is not None:
             self.imu_outage.stop()
             if not moving:
@@ -348,6 +368,8 @@ class StateEstimator:
         settings = self.settings
         t = float(readings.time)
         self.contacts.update(t if plan_time is None else float(plan_time), plan)
+        if self.follow_plan and plan is not None:
+            self._follow_plan_levels(plan, t if plan_time is None else float(plan_time))
         observer = self.imu_outage
         if observer is not None:
             if imu_out and self._started:
@@ -374,7 +396,7 @@ class StateEstimator:
         self.legs.compute(readings, settings.rolling_foot, need_forces)
         np.copyto(self.trust, self.contacts.trust)
         np.copyto(self.in_contact, self.contacts.flags)
-        self.ground_height[:] = self.foot_height
+        np.add(self.planned_level, self.foot_height, out=self.ground_height)
         if need_forces:
             leg_ground_forces(self.legs.jacobians, readings.joint_torques, 3, self.forces)
             threshold = settings.contact_force_threshold
@@ -452,6 +474,24 @@ class StateEstimator:
         self._last_time = t
         return self._write(readings)
 
+    def _follow_plan_levels(self, plan: KnotPlan, t: float) -> None:
+        """``stance_height: plan``: ``planned_level`` from the plan's configuration at the knot of ``t``
+        (forward kinematics, once per plan and knot): each foot's height there less the foot's radius, 0
+        within ``PLANNED_LEVEL_DEADBAND`` of the floor. A plan without configurations keeps the floor."""
+        k = plan.knot_at(t)
+        if id(plan) == self._level_plan and plan.start_time == self._level_start and k == self._level_knot:
+            return
+        self._level_plan, self._level_start, self._level_knot = id(plan), plan.start_time, k
+        configurations = plan.knot_configurations(self.robot.nq)
+        if configurations is None:
+            self.planned_level[:] = 0.0
+            return
+        model, data = self.robot.model, self._plan_data
+        pin.framesForwardKinematics(model, data, configurations[k])
+        for foot, frame_id in enumerate(self.legs.frame_ids):
+            level = float(data.oMf[frame_id].translation[2]) - self.foot_height
+            self.planned_level[foot] = level if abs(level) >= PLANNED_LEVEL_DEADBAND else 0.0
+
     def _hold_touchdown_levels(self) -> None:
         """``stance_height: touchdown``: while a foot's trust ramps in after its touchdown (until
         ``PlannedContacts.settled``) its ground is where the predicted base and its leg put it (less its sink
@@ -492,7 +532,7 @@ class StateEstimator:
                 self._start_sink[foot] = (
                     settings.foot_compliance * self.forces[foot, 2]
                     if self.hold_touchdown
-                    else self.foot_height - (height + relative[foot, 2])
+                    else self.foot_height + self.planned_level[foot] - (height + relative[foot, 2])
                 )
                 self._start_rate[foot] = -(vertical + velocity[foot, 2])
             foot_sink_step(
@@ -510,10 +550,10 @@ class StateEstimator:
             )
         for foot in range(self.n_feet):
             if self.in_contact[foot]:
-                self.ground_height[foot] = self.foot_height - self.sink[foot]
+                self.ground_height[foot] = self.foot_height + self.planned_level[foot] - self.sink[foot]
                 self.base_velocity[foot, 2] -= self.sink_rate[foot]
             else:
-                self.ground_height[foot] = self.foot_height
+                self.ground_height[foot] = self.foot_height + self.planned_level[foot]
 
     def _initialise(self, t: float) -> None:
         """The robot standing: base height from the feet in planned stance (all if none), velocity zero (or,

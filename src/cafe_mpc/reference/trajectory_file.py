@@ -67,6 +67,7 @@ PACKAGED_TRAJECTORIES: dict[str, str] = {
     "box-jump": "box_jump.npz",
     "box-jump-off": "box_jump_off.npz",
     "box-jump-25": "box_jump_25.npz",
+    "box-jump-30": "box_jump_30.npz",
 }
 """Trajectories shipped with the package (``reference/data/``), by name."""
 
