@@ -219,13 +219,12 @@ class StateEstimator:
         """``stance_height: plan``: each stance foot's ground is the height the plan in effect puts the foot
         at (``planned_level``)."""
         self.planned_level = np.zeros(n_feet)
-        """Height of the ground under each foot in the plan in effect at its current knot (``follow_plan``;
-        0 otherwise, within ``PLANNED_LEVEL_DEADBAND`` of the floor, and before the first plan): added to
+        """Height of the ground under each foot where the plan landed it (``follow_plan``: the plan's
+        configuration at the foot's touchdown knot, held through the stance; 0 otherwise, within
+        ``PLANNED_LEVEL_DEADBAND`` of the floor, and for a foot standing since the start): added to
         ``ground_height``."""
         self._plan_data = robot.model.createData() if self.follow_plan else None
-        self._level_plan = -1  # id, start time and knot of the plan configuration the levels are from
-        self._level_start = math.nan
-        self._level_knot = -1
+        self._level_held = np.ones(n_feet, dtype=np.bool_)
         self.legs = LegKinematics(robot, robot.foot_radius)
         self.contacts = PlannedContacts(n_feet, settings.trust_window)
         self.imu_outage = (
@@ -346,7 +345,7 @@ class StateEstimator:
         self.contacts.reset()
         if not moving:  # a restart keeps the levels the robot stands on until the next plan
             self.planned_level[:] = 0.0
-            self._level_plan = -1
+            self._level_held[:] = True
         if self.imu_outage is not None:
             self.imu_outage.stop()
             if not moving:
@@ -475,21 +474,30 @@ class StateEstimator:
         return self._write(readings)
 
     def _follow_plan_levels(self, plan: KnotPlan, t: float) -> None:
-        """``stance_height: plan``: ``planned_level`` from the plan's configuration at the knot of ``t``
-        (forward kinematics, once per plan and knot): each foot's height there less the foot's radius, 0
-        within ``PLANNED_LEVEL_DEADBAND`` of the floor. A plan without configurations keeps the floor."""
-        k = plan.knot_at(t)
-        if id(plan) == self._level_plan and plan.start_time == self._level_start and k == self._level_knot:
-            return
-        self._level_plan, self._level_start, self._level_knot = id(plan), plan.start_time, k
-        configurations = plan.knot_configurations(self.robot.nq)
-        if configurations is None:
-            self.planned_level[:] = 0.0
-            return
-        model, data = self.robot.model, self._plan_data
-        pin.framesForwardKinematics(model, data, configurations[k])
-        for foot, frame_id in enumerate(self.legs.frame_ids):
-            level = float(data.oMf[frame_id].translation[2]) - self.foot_height
+        """``stance_height: plan``: when a foot's planned stance begins, ``planned_level`` is taken from the
+        plan's configuration at the knot that stance starts at (forward kinematics; the touchdown
+        constraint (25) puts the foot there on the reference's surface), and held until the foot leaves the
+        ground. Not from the plan's current knot: a stance foot's planned height is where the estimate put
+        it, so its level would follow the estimate's drift. 0 within ``PLANNED_LEVEL_DEADBAND`` of the
+        floor; a plan without configurations keeps the floor."""
+        flags, contacts = self.contacts.flags, plan.contacts
+        for foot in range(self.n_feet):
+            if not flags[foot]:
+                self._level_held[foot] = False
+                continue
+            if self._level_held[foot]:
+                continue
+            self._level_held[foot] = True
+            configurations = plan.knot_configurations(self.robot.nq)
+            if configurations is None:
+                self.planned_level[foot] = 0.0
+                continue
+            k = plan.knot_at(t)
+            while k > 0 and contacts[k - 1, foot]:
+                k -= 1
+            model, data = self.robot.model, self._plan_data
+            pin.framesForwardKinematics(model, data, configurations[k])
+            level = float(data.oMf[self.legs.frame_ids[foot]].translation[2]) - self.foot_height
             self.planned_level[foot] = level if abs(level) >= PLANNED_LEVEL_DEADBAND else 0.0
 
     def _hold_touchdown_levels(self) -> None:
