@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from cafe_mpc.assembly import load_run_config
 from cafe_mpc.config import ContactDetectionSettings
 from cafe_mpc.core.measurement import Measurement
 from cafe_mpc.core.physics import GRAVITY
@@ -158,7 +159,7 @@ def test_off_flat_ground_a_loaded_foot_moving_down_has_not_landed(robot, landing
     1 m/s with a load (the echo of stance torques pushing a leg in the air) and lands at 0.15 s. With
     ``landing_speed`` it stays out of the stance until it has stopped on the ground; without (the default)
     the load counts at once."""
-    settings = ContactDetectionSettings(landing_speed=landing_speed)
+    settings = ContactDetectionSettings(landing_speed=landing_speed, force_estimate="static")
     detector = ContactDetector(robot, settings, ground_plane=True)
     plan = scripted_plan(robot)
     land = 0.15
@@ -183,7 +184,9 @@ def test_off_flat_ground_an_early_touchdown_waits_for_the_foot_to_stop(robot):
     """Blind, ``landing_speed`` set: foot 0 swings down through its early window 4 cm above the plane, loaded
     by its swing torques and moving down at 1 m/s, and lands 40 ms early: an early touchdown from the
     landing, not before."""
-    detector = ContactDetector(robot, ContactDetectionSettings(landing_speed=0.3), ground_plane=True)
+    detector = ContactDetector(
+        robot, ContactDetectionSettings(landing_speed=0.3, force_estimate="static"), ground_plane=True
+    )
     plan = scripted_plan(robot)
     land = 0.06
     share = robot.total_mass * GRAVITY / robot.n_feet
@@ -263,7 +266,7 @@ def test_the_momentum_observer_reads_no_load_on_a_leg_swinging_in_the_air(robot)
     assert np.abs(statics[:, 2]).max() > 2 * threshold
     assert np.abs(estimated).max() < 0.3 * threshold
     assert not flags.any()
-    _, static_flags, _, _ = _robot_in_the_air(robot, ContactDetectionSettings())
+    _, static_flags, _, _ = _robot_in_the_air(robot, ContactDetectionSettings(force_estimate="static"))
     assert static_flags.any()
 
 
@@ -349,7 +352,9 @@ def test_with_the_momentum_observer_a_foot_under_the_plane_lands_when_the_ground
     late = (times >= SWING_END + TICK) & (times < ground_at)
     assert not stance[late].any() and not landed[late].any()
     assert stance[times >= ground_at + 2 * TICK].all()
-    times, stance, _ = _late_foot_below_the_plane(robot, ContactDetectionSettings(), ground_at)
+    times, stance, _ = _late_foot_below_the_plane(
+        robot, ContactDetectionSettings(force_estimate="static"), ground_at
+    )
     assert stance[late].all()
 
 
@@ -367,3 +372,13 @@ def test_the_detection_benchmark_runs_and_finds_no_false_touchdown_in_a_short_no
     assert row["touchdowns"] >= 4 and row["missed"] == 0
     assert row["false_touchdowns"] == 0
     assert row["delay_ms_max"] <= 10.0
+
+
+def test_the_force_estimate_defaults_to_the_momentum_observer_off_flat_ground_only(robot):
+    """``force_estimate: null`` resolves to ``static`` on flat ground and ``momentum`` on a ground plane
+    (blind or height-map terrain); a value set is kept either way."""
+    assert ContactDetector(robot, ContactDetectionSettings()).force_estimate == "static"
+    assert ContactDetector(robot, ContactDetectionSettings(), ground_plane=True).force_estimate == "momentum"
+    static = ContactDetectionSettings(force_estimate="static")
+    assert ContactDetector(robot, static, ground_plane=True).force_estimate == "static"
+    assert load_run_config("trot", ["terrain=blind"]).vwbc.contact_detection.force_estimate is None

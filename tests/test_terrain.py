@@ -158,7 +158,9 @@ def test_a_foot_landing_on_a_step_up_is_in_stance_only_with_the_ground_plane(rob
     """Foot 0 lands 6 cm above the others (a step up) at its planned touchdown and carries its share: with
     the plane, its load is the evidence (stance at once, and the plane rises to it); on flat ground it is
     6 cm above the ground: a late touchdown, left out of the stance set."""
-    detector = ContactDetector(robot, ContactDetectionSettings(), ground_plane=ground_plane)
+    detector = ContactDetector(
+        robot, ContactDetectionSettings(force_estimate="static"), ground_plane=ground_plane
+    )
     plan = scripted_plan(robot)
     share = robot.total_mass * GRAVITY / robot.n_feet
     stance = []
@@ -177,7 +179,7 @@ def test_a_foot_landing_on_a_step_up_is_in_stance_only_with_the_ground_plane(rob
 
 def test_an_unloaded_foot_above_the_plane_stays_out_of_stance(robot):
     """Planned stance, 6 cm up, no force: in the air (late) with the plane too."""
-    detector = ContactDetector(robot, ContactDetectionSettings(), ground_plane=True)
+    detector = ContactDetector(robot, ContactDetectionSettings(force_estimate="static"), ground_plane=True)
     plan = scripted_plan(robot)
     flags = [
         bool(detector.update(float(t), _step_up_measurement(robot, float(t), 0.06, 0.0), plan)[0])

@@ -83,6 +83,8 @@ class ContactDetector:
         self.settings = settings or ContactDetectionSettings()
         self.ground = GroundPlane(robot.n_feet, self.settings.ground_height) if ground_plane else None
         self.on_time = self.settings.on_time_for(flat=not ground_plane)
+        self.force_estimate = self.settings.force_estimate_for(flat=not ground_plane)
+        """``static`` or ``momentum`` (``ContactDetectionSettings.force_estimate_for``)."""
         self.soles = np.zeros((robot.n_feet, 3))
         self.data = robot.model.createData()
         weight_share = robot.total_mass * GRAVITY / robot.n_feet
@@ -195,7 +197,7 @@ class ContactDetector:
         the joint torques applied since the previous update (needed with ``force_estimate: momentum``)."""
         if plan is not self._plan:
             self._index_plan(plan)
-        if self.settings.force_estimate == "momentum":
+        if self.force_estimate == "momentum":
             if torques is None:
                 raise ValueError("contact detection with force_estimate: momentum needs the applied torques")
             foot_forces = self._observe_momentum(t, measurement, torques)
@@ -216,7 +218,7 @@ class ContactDetector:
         # a late foot lands by its height where the ground is known (flat) or where the force is no
         # measurement (the static estimate echoes the stance torques); on an estimated plane with the
         # observer's force it lands when the ground pushes on it (below the plane it may be in the air)
-        lands_by_height = ground is None or s.force_estimate == "static"
+        lands_by_height = ground is None or self.force_estimate == "static"
         for foot, frame_id in enumerate(self.robot.foot_frame_ids):
             soles[foot] = data.oMf[frame_id].translation
             soles[foot, 2] -= radius
