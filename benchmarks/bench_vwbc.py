@@ -12,8 +12,10 @@ active-set changes (comparable to the paper's qpOASES numbers). The Riccati cont
 the same states for friction-pyramid violations.
 
 ``--detection``: what contact detection (``stance_source: detected``) adds to a tick. The default VWBC with
-the plan's stance and with the detected stance, on the same states, in interleaved rounds; the median of the
-per-round ratios of the median tick times, and both medians / p99.
+the plan's stance, with the detected stance (flat ground) and, blind (a ground plane), with the detector's
+static force estimate and with its momentum observer (the default off flat ground), on the same states, in
+interleaved rounds; the median of the per-round ratios of the median tick times to the plan's stance, and
+every variant's median / p99.
 
     .venv/bin/python benchmarks/bench_vwbc.py [--ticks 400] [--json]
     .venv/bin/python benchmarks/bench_vwbc.py --detection [--rounds 15]
@@ -31,7 +33,7 @@ import time
 import numpy as np
 import pinocchio as pin
 
-from cafe_mpc.config import VWBCSettings
+from cafe_mpc.config import ContactDetectionSettings, VWBCSettings
 from cafe_mpc.core.measurement import Measurement
 from cafe_mpc.low_level.contact_dynamics import FrictionConeScorer
 from cafe_mpc.low_level.riccati import RiccatiController
@@ -97,11 +99,19 @@ def detection_cost(robot, ticks: int, rounds: int) -> dict:
     measured = [
         Measurement.of_state(q, v, scenario["stance"]) for q, v in states(robot, ticks, scenario["v_scale"])
     ]
+    detected = VWBCSettings(stance_source="detected")
     controllers = {
-        source: VWBCController(robot, VWBCSettings(stance_source=source)) for source in ("plan", "detected")
+        "plan": VWBCController(robot, VWBCSettings(stance_source="plan")),
+        "detected": VWBCController(robot, detected),
+        "blind_static": VWBCController(
+            robot, detected, detection=ContactDetectionSettings(force_estimate="static"), ground_plane=True
+        ),
+        "blind_momentum": VWBCController(
+            robot, detected, detection=ContactDetectionSettings(force_estimate="momentum"), ground_plane=True
+        ),
     }
     ticks_ms: dict[str, list[float]] = {source: [] for source in controllers}
-    ratios = []
+    ratios: dict[str, list[float]] = {source: [] for source in controllers if source != "plan"}
     for _ in range(rounds):
         medians = {}
         for source, vwbc in controllers.items():
@@ -113,11 +123,12 @@ def detection_cost(robot, ticks: int, rounds: int) -> dict:
                 times[i] = time.perf_counter() - start
             ticks_ms[source].extend(1e3 * times)
             medians[source] = float(np.median(times))
-        ratios.append(medians["detected"] / medians["plan"])
+        for source in ratios:
+            ratios[source].append(medians[source] / medians["plan"])
     return {
         "ticks": ticks,
         "rounds": rounds,
-        "ratio_detected_to_plan_median": float(np.median(ratios)),
+        **{f"ratio_{source}_to_plan_median": float(np.median(values)) for source, values in ratios.items()},
         **{
             f"{source}_tick_ms": {
                 "median": float(np.median(values)),
