@@ -306,3 +306,32 @@ def _envelope_trial(
             *(overrides or []),
         ],
     )
+
+
+@pytest.mark.slow
+def test_the_run_out_keeps_its_heading_after_the_take_off_from_the_pace(robot, tmp_path):
+    """Envelope trial 4 at floor friction 0.35 with the take-off optimised from the pace
+    (catalogue/running_barrel_roll_from_pace.yaml), through the run-out's second cycle. That roll lands
+    0.2 rad off its heading, yawing; with the run-out turning back to its line (``path_gain`` 1) and at
+    0.8 m/s 0.5 s after it starts, its left stances slid at the floor's 0.35 and a thigh went 1-5 cm into
+    the floor when the right pair landed; keeping its heading and ramping over 1 s, the preset's run-out
+    paces on (docs/robustness.md, "Low friction: the run-out's first push")."""
+    from cafe_mpc.reference.trajectory_file import save_trajectory
+    from cafe_mpc.trajopt.multiphase import solve_task
+    from cafe_mpc.trajopt.presets import load_task
+    from cafe_mpc_lab.experiments.run import simulate_run
+    from cafe_mpc_lab.report.task_metrics import CONTACT_TOLERANCE_M, body_floor_clearance
+
+    result = solve_task(robot, load_task("running-barrel-roll-from-pace"))
+    assert result.converged
+    path = save_trajectory(tmp_path / "running_barrel_roll_from_pace.npz", result.trajectory, robot)
+    config = _envelope_trial(
+        "friction", 0.35, seed=4, duration=5.0, overrides=[f"reference.segments.1.trajectory={path}"]
+    )
+    run_out = config.reference.segments[2].gait
+    assert run_out.path_gain == 0.0 and run_out.command_ramp == 1.0
+    _, _, log = simulate_run(config)
+    assert not log.fell and log.time[-1] >= 4.99
+    clearance = body_floor_clearance(robot, log.q)
+    for part in ("thigh", "knee"):
+        assert clearance[part].min() > CONTACT_TOLERANCE_M, f"{part} {clearance[part].min():.3f} m"
