@@ -60,6 +60,7 @@ DATA_DIR = Path(__file__).parent / "data"
 PACKAGED_TRAJECTORIES: dict[str, str] = {
     "barrel-roll": "barrel_roll.npz",
     "running-barrel-roll": "running_barrel_roll.npz",
+    "running-barrel-roll-from-pace": "running_barrel_roll_from_pace.npz",
     "backflip": "backflip.npz",
     "front-flip": "front_flip.npz",
     "running-front-flip": "running_front_flip.npz",
