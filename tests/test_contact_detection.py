@@ -203,6 +203,24 @@ def test_off_flat_ground_an_early_touchdown_waits_for_the_foot_to_stop(robot):
     assert detector.early_touchdowns == 1
 
 
+def _measured_in_the_air(robot, data, t, q, v, torques, jacobians, static) -> Measurement:
+    """The measurement of a simulated tick: every foot flagged, its force the static (massless-leg) estimate
+    of ``torques`` through the legs' Jacobians (written into ``jacobians`` and ``static``)."""
+    import pinocchio as pin
+
+    from cafe_mpc.estimation.kernels import leg_ground_forces
+
+    pin.computeJointJacobians(robot.model, data, q)
+    pin.updateFramePlacements(robot.model, data)
+    for foot, frame_id in enumerate(robot.foot_frame_ids):
+        columns = slice(6 + 3 * foot, 9 + 3 * foot)
+        jacobians[foot] = pin.getFrameJacobian(robot.model, data, frame_id, pin.LOCAL_WORLD_ALIGNED)[
+            :3, columns
+        ]
+    leg_ground_forces(jacobians, torques, 3, static)
+    return Measurement(t, q.copy(), v.copy(), np.ones(robot.n_feet, dtype=bool), static.copy())
+
+
 def _robot_in_the_air(robot, settings, push_on_foot0=None):
     """The robot in the air (Pinocchio's forward dynamics, no ground), leg 0's hip and knee driven by 5 N m
     at 15 Hz (a swing's torques, the leg swinging back and forth) from the standing pose, over 0.1 s; foot 0
@@ -211,8 +229,6 @@ def _robot_in_the_air(robot, settings, push_on_foot0=None):
     ``-J' F``, as a leg standing on the ground). Returns the times, foot 0's detected flags, the detector's
     estimated forces on foot 0 and the static (massless-leg) estimate of the same foot from the torques."""
     import pinocchio as pin
-
-    from cafe_mpc.estimation.kernels import leg_ground_forces
 
     detector = ContactDetector(robot, settings, ground_plane=True)
     plan = scripted_plan(robot)
@@ -226,15 +242,7 @@ def _robot_in_the_air(robot, settings, push_on_foot0=None):
     times = np.arange(0.0, 0.1, TICK)
     flags, estimated, statics = [], [], []
     for t in times:
-        pin.computeJointJacobians(model, data, q)
-        pin.updateFramePlacements(model, data)
-        for foot, frame_id in enumerate(robot.foot_frame_ids):
-            columns = slice(6 + 3 * foot, 9 + 3 * foot)
-            jacobians[foot] = pin.getFrameJacobian(model, data, frame_id, pin.LOCAL_WORLD_ALIGNED)[
-                :3, columns
-            ]
-        leg_ground_forces(jacobians, torques, 3, static)
-        state = Measurement(float(t), q.copy(), v.copy(), np.ones(robot.n_feet, dtype=bool), static.copy())
+        state = _measured_in_the_air(robot, data, float(t), q, v, torques, jacobians, static)
         flags.append(bool(detector.update(float(t), state, plan, torques)[0]))
         estimated.append(detector.estimated_forces[0].copy())
         statics.append(static[0].copy())
@@ -297,8 +305,6 @@ def _late_foot_below_the_plane(robot, settings, ground_at=0.14):
     times and foot 0's flags: in the stance set, and landed."""
     import pinocchio as pin
 
-    from cafe_mpc.estimation.kernels import leg_ground_forces
-
     detector = ContactDetector(robot, settings, ground_plane=True)
     plan = scripted_plan(robot)
     model = robot.model
@@ -314,15 +320,7 @@ def _late_foot_below_the_plane(robot, settings, ground_at=0.14):
     times = np.arange(0.0, 0.2, TICK)
     stance, landed = [], []
     for t in times:
-        pin.computeJointJacobians(model, data, q)
-        pin.updateFramePlacements(model, data)
-        for foot, frame_id in enumerate(robot.foot_frame_ids):
-            columns = slice(6 + 3 * foot, 9 + 3 * foot)
-            jacobians[foot] = pin.getFrameJacobian(model, data, frame_id, pin.LOCAL_WORLD_ALIGNED)[
-                :3, columns
-            ]
-        leg_ground_forces(jacobians, torques, 3, static)
-        state = Measurement(float(t), q.copy(), v.copy(), np.ones(robot.n_feet, dtype=bool), static.copy())
+        state = _measured_in_the_air(robot, data, float(t), q, v, torques, jacobians, static)
         stance.append(bool(detector.update(float(t), state, plan, torques)[0]))
         landed.append(bool(detector.in_contact[0]))
         torques[:] = 40.0 * (q_held[7:] - q[7:]) - 1.0 * v[6:]
