@@ -212,7 +212,7 @@ class ContactDetector:
         if checks_speed:
             pin.forwardKinematics(model, data, measurement.q, measurement.v)
             pin.updateFramePlacements(model, data)
-        else:
+        elif self.force_estimate != "momentum":  # the observer placed the frames at this q already
             pin.framesForwardKinematics(model, data, measurement.q)
         reach = s.touchdown_height if ground is None else s.step_height
         # a late foot lands by its height where the ground is known (flat) or where the force is no
