@@ -2,6 +2,7 @@
 
 import json
 
+import numpy as np
 import pytest
 import yaml
 
@@ -101,3 +102,22 @@ def test_cli_robot_json(capsys):
     assert main(["robot", "go1", "--json", "--samples", "1"]) == 0
     go1 = json.loads(capsys.readouterr().out)
     assert go1["srb_mass"] == pytest.approx(go1["total_mass"]) and go1["srb_inertia"] != inertia
+
+
+@pytest.mark.slow
+def test_an_mpc_run_logs_every_update(tmp_path):
+    """log.npz keeps each MPC update's timing and solver record, not only the medians in metrics.json."""
+    out = tmp_path / "trot"
+    overrides = ["--set", "mpc.latency=fixed", "--set", "output.plots=false"]
+    assert main(["run", "trot", "--duration", "0.3", "--out", str(out), *overrides]) == 0
+    metrics = json.loads((out / "metrics.json").read_text())
+    with np.load(out / "log.npz") as log:
+        solves = metrics["mpc"]["solves"]
+        for name in ("start_time", "update_ms", "problem_ms", "iterations", "line_search_steps", "status"):
+            assert log[f"sampled_mpc_{name}"].shape == (solves,), name
+        assert np.all(np.diff(log["sampled_mpc_start_time"]) > 0)
+        assert np.all(log["sampled_mpc_iterations"] >= 1)
+        assert log["sampled_mpc_prepare_ms"].shape == (solves - 1,)  # the first, cold solve has none
+        assert np.all(log["sampled_mpc_prepare_ms"] > 0)
+        assert np.median(log["sampled_mpc_prepare_ms"]) == pytest.approx(metrics["mpc"]["prepare_ms_median"])
+        assert set(log["sampled_mpc_status"]) <= {"converged", "max_iterations", "time_budget"}

@@ -151,6 +151,26 @@ class MpcStatistics:
         self.defects.append(result.defect_max)
         self.statuses.append(result.status)
 
+    def arrays(self) -> dict[str, np.ndarray]:
+        """The per-update records as arrays, one entry per solve (times in milliseconds; ``status`` the
+        solver's stop reason): what a run's log keeps so that the timing of every update, not only its
+        median and p99, can be read back. ``prepare_ms`` and ``feedback_ms`` have one entry per real-time
+        preparation and feedback (none for the first, cold solve)."""
+        ms = 1e3
+        return {
+            "start_time": np.asarray(self.start_times, dtype=float),
+            "update_ms": np.asarray(self.update_times, dtype=float) * ms,
+            "problem_ms": np.asarray(self.problem_times, dtype=float) * ms,
+            "linearize_ms": np.asarray(self.linearize_times, dtype=float) * ms,
+            "backward_ms": np.asarray(self.backward_times, dtype=float) * ms,
+            "line_search_ms": np.asarray(self.line_search_times, dtype=float) * ms,
+            "iterations": np.asarray(self.iterations, dtype=int),
+            "line_search_steps": np.asarray(self.line_search_steps, dtype=int),
+            "status": np.asarray([str(status) for status in self.statuses], dtype=str),
+            "prepare_ms": np.asarray(self.prepare_times, dtype=float) * ms,
+            "feedback_ms": np.asarray(self.feedback_times, dtype=float) * ms,
+        }
+
     def summary(self, skip_first: bool = True) -> dict:
         """Medians and p99 in milliseconds. ``skip_first``: leave out the first (cold) solve, which runs
         before the clock starts."""

@@ -492,6 +492,9 @@ def _write_record(config: RunConfig, state: RunState, metrics: dict, partial: Pa
         json.dump(metrics, handle, indent=2)
     if log is None:
         return
+    statistics = mpc_statistics_of(controller) if controller is not None else None
+    if statistics is not None:
+        log.sampled.update({f"mpc_{name}": values for name, values in statistics.arrays().items()})
     log.save(str(partial / "log.npz"))
     try:
         if config.output.plots and log.ticks > 1:
