@@ -43,32 +43,41 @@ EMPTY_CONTROL = np.zeros(0)
 """The control of terminal knots (size 0; writable so compiled kernels see one array type)."""
 
 
+def _written_zeros(shape: int | tuple[int, ...], dtype: type = float) -> np.ndarray:
+    """An array of zeros whose every page is written now. ``np.zeros`` takes memory the OS maps at its
+    first write, so a workspace's knots past those its first problems used would each cost an update some
+    twenty page faults (a phase that grows into the horizon, one knot per update: a take-off's)."""
+    array = np.empty(shape, dtype=dtype)
+    array.fill(0)
+    return array
+
+
 class _Buffers:
     """The arrays of one phase workspace at full capacity (``capacity`` running knots)."""
 
     def __init__(self, nx: int, ndx: int, nu: int, capacity: int) -> None:
         n = capacity
         self.capacity = capacity
-        self.xs = np.zeros((n + 1, nx))
-        self.us = np.zeros((n, nu))
-        self.defects = np.zeros((n + 1, ndx))
-        self.xs_try = np.zeros((n + 1, nx))
-        self.us_try = np.zeros((n, nu))
-        self.defects_try = np.zeros((n + 1, ndx))
-        self.magnitudes = np.zeros((n + 1, ndx))  # |defects| (scratch of the defect norms)
-        self.rollout = np.zeros(n + 1, dtype=bool)
+        self.xs = _written_zeros((n + 1, nx))
+        self.us = _written_zeros((n, nu))
+        self.defects = _written_zeros((n + 1, ndx))
+        self.xs_try = _written_zeros((n + 1, nx))
+        self.us_try = _written_zeros((n, nu))
+        self.defects_try = _written_zeros((n + 1, ndx))
+        self.magnitudes = _written_zeros((n + 1, ndx))  # |defects| (scratch of the defect norms)
+        self.rollout = _written_zeros(n + 1, dtype=bool)
         self.all_rollout = np.ones(n + 1, dtype=bool)
         # Stacked over [x | u]: F = [A | B], G = [Lx | Lu], H = [[Lxx, .], [Lux, Luu]] (views below).
-        self.F = np.zeros((n, ndx, ndx + nu))
-        self.G = np.zeros((n, ndx + nu))
-        self.H = np.zeros((n, ndx + nu, ndx + nu))
-        self.K = np.zeros((n, nu, ndx))
-        self.k = np.zeros((n, nu))
-        self.Qu = np.zeros((n, nu))
-        self.Quu = np.zeros((n, nu, nu))
-        self.Qux = np.zeros((n, nu, ndx))
-        self.S = np.zeros((n + 1, ndx, ndx))
-        self.s = np.zeros((n + 1, ndx))
+        self.F = _written_zeros((n, ndx, ndx + nu))
+        self.G = _written_zeros((n, ndx + nu))
+        self.H = _written_zeros((n, ndx + nu, ndx + nu))
+        self.K = _written_zeros((n, nu, ndx))
+        self.k = _written_zeros((n, nu))
+        self.Qu = _written_zeros((n, nu))
+        self.Quu = _written_zeros((n, nu, nu))
+        self.Qux = _written_zeros((n, nu, ndx))
+        self.S = _written_zeros((n + 1, ndx, ndx))
+        self.s = _written_zeros((n + 1, ndx))
         self._views: dict[int, dict[str, np.ndarray]] = {}
         self._row_views: dict[int, tuple[np.ndarray, ...]] = {}
 

@@ -214,15 +214,20 @@ class RecedingHorizonMpc(RecedingHorizonPlanner[Plan]):
         measurement differs from the prediction by the touchdown's timing error, not by the whole impact."""
         if stance is None or not any(stance):
             return
+        reset, data = self._projection(stance)
+        reset.calc(data, x)
+        x[:] = data.x_next
+
+    def _projection(self, stance: tuple[bool, ...]) -> tuple:
+        """The impact map onto ``stance`` from a flight and its data (``_contact_consistent``), made at the
+        first call for a stance (the warm-up's, for every stance a phase of its problems has)."""
         key = tuple(bool(s) for s in stance)
         entry = self._projections.get(key)
         if entry is None:
             reset = self.builder.whole_body.reset_map((False,) * len(key), key)
             entry = (reset, reset.create_data())
             self._projections[key] = entry
-        reset, data = entry
-        reset.calc(data, x)
-        x[:] = data.x_next
+        return entry
 
     def _compile_kernels(self) -> None:
         """The real-time iteration's feedback (``MSiLQRSolver.feedback``) run once on the first solve, its
@@ -240,9 +245,12 @@ class RecedingHorizonMpc(RecedingHorizonPlanner[Plan]):
         )
 
     def _warm_up(self, t0: float) -> None:
-        """Create the solver data of every knot object the updates of ``settings.warm_up`` seconds after
-        ``t0`` will use (``MpcSettings.warm_up``): the problems of updates one period apart are built and
-        served by the solver's workspace, nothing is solved; the next update rewrites every reference."""
+        """Create and evaluate the solver data of every knot object the updates of ``settings.warm_up``
+        seconds after ``t0`` will use (``MpcSettings.warm_up``): the problems of updates one period apart,
+        from each start an update can have (``problem_start``), are built and served by the solver's
+        workspace, and each new data object is evaluated once (``_evaluate_new_data``); nothing is solved,
+        and the next update rewrites every reference. An update then creates no data and maps no new
+        memory (``tests/test_warm_up.py``)."""
         start = time.perf_counter()
         period = self.settings.period
         steps = math.ceil(self.settings.warm_up / period)
@@ -250,19 +258,34 @@ class RecedingHorizonMpc(RecedingHorizonPlanner[Plan]):
         workspace = self.solver.workspace
         grid = getattr(getattr(self.builder, "schedule", None), "whole_body_dt", period)
         assert self.previous is not None
-        first_built, first_result = self.previous
+        _, first_result = self.previous
         points = {  # a state and control of each state space, from the first solve
             (phase.xs[0].shape[0], phase.us[0].shape[0] if len(phase.us) else 0): (phase.xs[0], phase.us[0])
             for phase in first_result.phases
         }
-        evaluated = {id(model) for phase in first_built.problem.phases for model in _knot_objects(phase)}
+        evaluated: dict[int, object] = {  # the data the first solve evaluated, kept alive with their ids
+            id(data): data for work in workspace.phases for _, data in _knot_data(work)
+        }
+        evaluated.update((id(work.state), work.state) for work in workspace.phases)
+        nx = self.robot.nq + self.robot.nv
+        whole_body_point = next((x for (n, _), (x, _) in points.items() if n == nx), None)
         for step in range(1, steps + 1):
-            # updates start anywhere on the control ticks: vary the start's offset from the knot grid so
-            # that the knot objects of the first knot's durations get their data too
-            offset = (step * 3 * TIME_QUANTUM) % grid
-            built = self._build(t0 + step * period + offset)
-            workspace.setup(built.problem)
-            _evaluate_new_knots(built.problem, points, evaluated)
+            t = t0 + step * period
+            # without delay compensation an update's problem starts at its measurement, anywhere on the
+            # control ticks: vary the start's offset from the knot grid so that the knot objects of the
+            # first knot's durations get their data too; with it, on the knot grid at or after the
+            # measurement (``problem_start``): every grid point of the period
+            on_grid = math.floor(t / grid + GRID_TOLERANCE) * grid
+            starts = {t + (step * 3 * TIME_QUANTUM) % grid, on_grid, on_grid + grid}
+            for start_time in sorted(starts):
+                built = self._build(start_time)
+                workspace.setup(built.problem)
+                _evaluate_new_data(workspace, points, evaluated)
+                for info in built.phases:  # the impact maps an update's state is projected with
+                    if info.stance is not None and any(info.stance) and info.stance not in self._projections:
+                        reset, data = self._projection(info.stance)
+                        if whole_body_point is not None:
+                            reset.calc(data, whole_body_point.copy())
         self.statistics.warm_up_time = time.perf_counter() - start
 
     def _build(self, t: float):
@@ -323,44 +346,50 @@ def plan_from_solution(built: BuiltProblem, result: SolverResult, buffers: PlanB
     return Plan(**arrays)
 
 
-def _knot_objects(phase) -> list:
-    """The running and terminal models, the reset map and the switching constraint of ``phase``."""
-    objects = [*phase.running_models, phase.terminal_model]
-    return [*objects, *(o for o in (phase.reset_map, phase.switching_constraint) if o is not None)]
+def _knot_data(work) -> list[tuple[object, object]]:
+    """The knot objects of a phase's workspace with the data the solver uses for them: the running and
+    terminal models, the reset map and the switching constraint."""
+    pairs = [*zip(work.models, work.running_data, strict=True), (work.terminal_model, work.terminal_data)]
+    if work.reset_map is not None and work.reset_data is not None:
+        pairs.append((work.reset_map, work.reset_data))
+    if work.constraint is not None and work.constraint_data is not None:
+        pairs.append((work.constraint, work.constraint_data))
+    return pairs
 
 
-def _evaluate_new_knots(problem, points: dict, evaluated: set[int]) -> None:
-    """Evaluate, with derivatives and on data of their own, the knot objects of ``problem`` not evaluated
-    yet (``evaluated``: their ids), at the first solve's point of their state space (``points``): a knot
-    the first solve did not have (a swing foot's costs in a gait that starts standing, a flight phase, a
-    landing's reset map) first runs its compiled kernels here, before the clock starts, instead of in an
-    update (``core.compilation``). The values are dropped; the solver's data are not touched."""
-    for phase in problem.phases:
-        state = phase.state
+def _evaluate_new_data(workspace, points: dict, evaluated: dict[int, object]) -> None:
+    """Evaluate, with derivatives, every data object of the problem ``workspace`` serves that was not
+    evaluated yet (``evaluated``: by id, the objects kept so that an id is not reused), at the first
+    solve's point of its state space (``points``). Before the clock starts, this runs the compiled kernels
+    of a knot the first solve did not have (a swing foot's costs in a gait that starts standing, a flight
+    phase, a landing's reset map: ``core.compilation``), makes the views a data object keeps of Pinocchio's
+    results, and writes every page of the data's arrays, which the OS otherwise maps at their first write:
+    inside an update, a few hundred page faults for the knots that come into the horizon with a take-off.
+    The values are dropped: an update evaluates every knot at its own nominal before it reads one."""
+    for work in workspace.phases:
+        state = work.state
         if id(state) not in evaluated:
-            evaluated.add(id(state))
+            evaluated[id(state)] = state
             x = next((x for (n, _), (x, _) in points.items() if n == state.nx), None)
             if x is not None:
                 _exercise_state(state, x)
-        for model in _knot_objects(phase):
-            if id(model) in evaluated:
+        for model, data in _knot_data(work):
+            if id(data) in evaluated:
                 continue
-            evaluated.add(id(model))
+            evaluated[id(data)] = data
             nx = model.state.nx
             nu = getattr(model, "nu", None)
-            point = points.get((nx, nu or 0)) if nu is not None else None
-            if nu is not None and point is None:
-                point = next(((x, np.zeros(nu)) for (n, _), (x, _) in points.items() if n == nx), None)
             if nu is None:  # a reset map or a switching constraint: a state only
                 x = next((x for (n, _), (x, _) in points.items() if n == nx), None)
                 if x is not None:
-                    data = model.create_data()
                     model.calc(data, x.copy())
                     model.calc_diff(data, x.copy())
                 continue
+            point = points.get((nx, nu))
+            if point is None:
+                point = next(((x, np.zeros(nu)) for (n, _), (x, _) in points.items() if n == nx), None)
             if point is not None:
                 x, u = point
-                data = model.create_data()
                 model.calc(data, x.copy(), u.copy())
                 model.calc_diff(data, x.copy(), u.copy())
 
