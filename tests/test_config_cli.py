@@ -119,5 +119,8 @@ def test_an_mpc_run_logs_every_update(tmp_path):
         assert np.all(log["sampled_mpc_iterations"] >= 1)
         assert log["sampled_mpc_prepare_ms"].shape == (solves - 1,)  # the first, cold solve has none
         assert np.all(log["sampled_mpc_prepare_ms"] > 0)
+        cpu = log["sampled_mpc_prepare_cpu_ms"]  # one thread's CPU time: no more than its wall time
+        assert cpu.shape == (solves - 1,) and np.all(cpu > 0)
+        assert np.all(cpu <= log["sampled_mpc_prepare_ms"] + 0.05)
         assert np.median(log["sampled_mpc_prepare_ms"]) == pytest.approx(metrics["mpc"]["prepare_ms_median"])
         assert set(log["sampled_mpc_status"]) <= {"converged", "max_iterations", "time_budget"}

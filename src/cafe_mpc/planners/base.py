@@ -124,6 +124,9 @@ class MpcStatistics:
     prepare_times: list[float] = field(default_factory=list)
     """Real-time iteration: wall time of each preparation (reference, problem, warm start, linearisation,
     backward sweep and, with ``rti_line_search``, the line search)."""
+    prepare_cpu_times: list[float] = field(default_factory=list)
+    """Real-time iteration: the thread CPU time of each preparation. Below its wall time by what the machine
+    took away (another process, the hypervisor): it tells a slow update from a slow computer."""
     feedback_times: list[float] = field(default_factory=list)
     """Real-time iteration: wall time of each feedback phase (embedding the measurement, the plan)."""
     first_solve_time: float | None = None
@@ -155,7 +158,7 @@ class MpcStatistics:
         """The per-update records as arrays, one entry per solve (times in milliseconds; ``status`` the
         solver's stop reason): what a run's log keeps so that the timing of every update, not only its
         median and p99, can be read back. ``prepare_ms`` and ``feedback_ms`` have one entry per real-time
-        preparation and feedback (none for the first, cold solve)."""
+        preparation and feedback (none for the first, cold solve), ``prepare_cpu_ms`` its thread CPU time."""
         ms = 1e3
         return {
             "start_time": np.asarray(self.start_times, dtype=float),
@@ -168,6 +171,7 @@ class MpcStatistics:
             "line_search_steps": np.asarray(self.line_search_steps, dtype=int),
             "status": np.asarray([str(status) for status in self.statuses], dtype=str),
             "prepare_ms": np.asarray(self.prepare_times, dtype=float) * ms,
+            "prepare_cpu_ms": np.asarray(self.prepare_cpu_times, dtype=float) * ms,
             "feedback_ms": np.asarray(self.feedback_times, dtype=float) * ms,
         }
 
@@ -212,6 +216,12 @@ class MpcStatistics:
             "prepare_ms_median": float(np.median(self.prepare_times)) * 1e3 if self.prepare_times else None,
             "prepare_ms_p99": float(np.percentile(self.prepare_times, 99)) * 1e3
             if self.prepare_times
+            else None,
+            "prepare_cpu_ms_median": float(np.median(self.prepare_cpu_times)) * 1e3
+            if self.prepare_cpu_times
+            else None,
+            "prepare_cpu_ms_p99": float(np.percentile(self.prepare_cpu_times, 99)) * 1e3
+            if self.prepare_cpu_times
             else None,
             "feedback_ms_median": float(np.median(self.feedback_times)) * 1e3
             if self.feedback_times

@@ -447,7 +447,10 @@ def _mpc_findings(metrics: dict) -> list[Finding]:
     update = f"an update took {_ms(mpc.get('update_ms_median'))} (median"
     update += f", p99 {_ms(mpc['update_ms_p99'])})" if _is_number(mpc.get("update_ms_p99")) else ")"
     if _is_number(mpc.get("prepare_ms_median")) and _is_number(mpc.get("feedback_ms_median")):
-        update += f": preparation {_ms(mpc['prepare_ms_median'])}, feedback {_ms(mpc['feedback_ms_median'])}"
+        update += f": preparation {_ms(mpc['prepare_ms_median'])}"
+        if _is_number(mpc.get("prepare_ms_p99")) and _is_number(mpc.get("prepare_cpu_ms_p99")):
+            update += f" (p99 {_ms(mpc['prepare_ms_p99'])}, of CPU time {_ms(mpc['prepare_cpu_ms_p99'])})"
+        update += f", feedback {_ms(mpc['feedback_ms_median'])}"
     parts.append(update)
     solves, failures = mpc.get("solves"), mpc.get("failures")
     if solves is not None:

@@ -131,7 +131,9 @@ class RecedingHorizonMpc(RecedingHorizonPlanner[Plan]):
         if self.previous is None:
             raise RuntimeError(f"{self.name}: prepare needs a first solve (call update once)")
         self.prepared = None
+        cpu_start = time.thread_time()
         outcome = self._solve_at(t, q, v, self.prepare_solver)
+        cpu = time.thread_time() - cpu_start
         if outcome is None:
             return False
         built, result = outcome
@@ -141,6 +143,7 @@ class RecedingHorizonMpc(RecedingHorizonPlanner[Plan]):
             self._failed(t, f"its plan could not be made ({error})")
             return False
         self.statistics.prepare_times.append(self.statistics.update_times[-1])
+        self.statistics.prepare_cpu_times.append(cpu)
         self.prepared = (t, built, result, template)
         return True
 
