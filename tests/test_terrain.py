@@ -392,3 +392,30 @@ def test_a_blind_flying_trot_climbs_6_cm_steps_and_stays_up():
     _, _, log = simulate_run(config)
     assert not log.fell, log.fall_reason
     assert log.q[-1, 0] > 1.3  # the base over the first step's tread
+
+
+@pytest.mark.slow
+def test_a_blind_flying_trot_steps_down_6_cm_steps_without_slamming_a_late_foot():
+    """The flying trot over three 6 cm steps from 1.1 m, fixed 20 ms latency. Going down, a front foot
+    planned in stance 6 cm above the lower tread is late (the plane through the feet on the upper tread lies
+    above it), and its leg's stance torques, with no ground to push, threw it down at 4.5 m/s: it sank 3 cm
+    into the tread against the riser and stuck there, and the robot fell at 6.46 s (docs/terrain.md). With
+    ``late_descent_speed: 1.0`` (off by default: over the blind grid it wins three runs and loses two) the
+    leg loses the planned ground force while it moves the foot down faster than 1 m/s (at twice that, all of
+    it), and the robot is over the last riser."""
+    from cafe_mpc_lab.experiments.run import simulate_run
+
+    config = load_run_config(
+        "flying-trot",
+        [
+            "simulation.duration=6.8",
+            "mpc.latency=fixed",
+            "mpc.fixed_latency=0.02",
+            "terrain=blind",
+            "scene.terrain=[{kind: steps, rise: 0.06, start: 1.1}]",
+            "vwbc.contact_detection.late_descent_speed=1.0",
+        ],
+    )
+    _, _, log = simulate_run(config)
+    assert not log.fell, log.fall_reason
+    assert log.q[-1, 0] > 3.4  # past the riser at 3.3 m

@@ -163,8 +163,8 @@ def scaled_contact_detection(
 ) -> ContactDetectionSettings:
     """The contact detector's thresholds carried to the robot: touchdown and release heights by the length
     scale, the early window and the on-time margin by the time scale (the momentum observer's gain by its
-    inverse), the landing speed by their ratio; the forces are already shares of the robot's weight and the
-    ground's height is the scene's."""
+    inverse), the landing and late descent speeds by their ratio; the forces are already shares of the
+    robot's weight and the ground's height is the scene's."""
     if scale.is_identity:
         return settings
     return settings.model_copy(
@@ -175,6 +175,11 @@ def scaled_contact_detection(
                 None
                 if settings.landing_speed is None
                 else scale.distance(settings.landing_speed) / scale.duration(1.0)
+            ),
+            "late_descent_speed": (
+                None
+                if settings.late_descent_speed is None
+                else scale.distance(settings.late_descent_speed) / scale.duration(1.0)
             ),
             "momentum_gain": settings.momentum_gain / scale.duration(1.0),
             "early_window": scale.duration(settings.early_window),

@@ -156,6 +156,15 @@ class ContactDetectionSettings(StrictModel):
         "the echo of the torques pushing it, its height is measured above an estimated plane); null: not "
         "checked",
     )
+    late_descent_speed: float | None = Field(
+        None,
+        gt=0.0,
+        le=10.0,
+        description="m/s; with a ground plane and the momentum observer, a late foot (planned in stance, not "
+        "landed) whose leg moves it down faster than this (its joints' share of the foot's velocity) loses "
+        "its planned ground force from the leg's torque reference in the VWBC, all of it at twice this "
+        "speed, so that its stance torques do not slam it into a lower tread; null: off",
+    )
     force_estimate: Literal["static", "momentum"] | None = Field(
         None,
         description="the ground force the detector reads: static (the measurement's, from the joint torques "

@@ -95,6 +95,15 @@ class ContactDetector:
         self.vertical_speeds = np.zeros(robot.n_feet)
         """With a ground plane and ``landing_speed``, each foot's world vertical velocity (m/s) at the last
         update (else zeros)."""
+        self.leg_descent_speeds = np.zeros(robot.n_feet)
+        """With ``late_descent_speed`` acting, how fast each leg's joints move its foot down (m/s, world z,
+        the trunk held still: ``-(J_f,leg qdot_leg)_z``) at the last update (else zeros)."""
+        self.late_descent_speed = (
+            self.settings.late_descent_speed if ground_plane and self.force_estimate == "momentum" else None
+        )
+        """``late_descent_speed`` where it acts (a ground plane and the momentum observer), else None: the
+        VWBC takes a late foot's planned ground force off its leg when it descends faster
+        (``leg_torque``)."""
         self.estimated_forces = np.zeros((robot.n_feet, 3))
         """With ``force_estimate: momentum``, each foot's ground force (world, N) from the momentum observer
         at the last update."""
@@ -179,6 +188,8 @@ class ContactDetector:
             jacobian = pin.getFrameJacobian(model, data, frame_id, pin.LOCAL_WORLD_ALIGNED)
             np.copyto(self._leg_transposes[foot], jacobian[:3, columns].T)
             self._leg_residuals[foot] = self._residual[columns]
+            if self.late_descent_speed is not None:  # the leg's own motion, not the trunk's
+                self.leg_descent_speeds[foot] = -(jacobian[2, columns] @ v[columns])
         forces = self.estimated_forces
         try:
             forces[:] = np.linalg.solve(self._leg_transposes, self._leg_residuals[..., None])[..., 0]
@@ -189,6 +200,11 @@ class ContactDetector:
                 except np.linalg.LinAlgError:
                     forces[foot] = 0.0
         return forces
+
+    def leg_torque(self, foot: int, force: np.ndarray) -> np.ndarray:
+        """``J_f,leg' force``: the torques on the foot's leg that push it with ``force`` (world, N) at the
+        last update's configuration (the momentum observer's Jacobians)."""
+        return self._leg_transposes[foot] @ force
 
     def update(
         self, t: float, measurement: Measurement, plan: KnotPlan, torques: np.ndarray | None = None

@@ -533,6 +533,8 @@ class VWBCController(LowLevelController[Plan]):
         np.matmul(plan.Qux[k], dx, out=self._g_tau)
         self._g_tau += plan.Qu[k]
         self._g_tau -= plan.Quu[k] @ plan.us[k]
+        if self.detector is not None and self.detector.late_descent_speed is not None:
+            self._unload_falling_late_feet(plan, k)
         qp.fill(self.terms, plan.Quu[k], self._g_tau)
         # warm start from the plan (paper end of Sec. V-A): finite-difference qdd, tau*_k, F*_k
         np.subtract(plan.xs[k + 1, nq:], plan.xs[k, nq:], out=qp.x0[:nv])
@@ -561,6 +563,25 @@ class VWBCController(LowLevelController[Plan]):
         self.last_forces[qp.stance] = x[qp.force].reshape(-1, 3)
         self._previous_pattern = pattern
         return ""
+
+    def _unload_falling_late_feet(self, plan: Plan, k: int) -> None:
+        """A late foot (planned in stance, not in the stance set) whose leg moves it down faster than the
+        detector's ``late_descent_speed`` ``c`` (``leg_descent_speeds`` ``w``: the joints' share of the
+        foot's velocity, so a trunk coming down on its legs out of a flight does not count) has its planned
+        ground force ``F*_f`` taken off its leg's torque reference in (34a), a share ``min(1, (w - c) / c)``
+        of it: ``tau* + s J_f,leg' F*_f`` (the plan's stance torques push the ground with ``-J' F*``; with no
+        ground under the foot they throw it down, 4-5 m/s onto a lower tread going down steps blind:
+        docs/terrain.md). The plan's feedback stays."""
+        detector = self.detector
+        assert detector is not None and detector.late_descent_speed is not None
+        limit = detector.late_descent_speed
+        for foot in np.flatnonzero(plan.contacts[k] & ~self._stance):
+            share = min(1.0, (detector.leg_descent_speeds[foot] - limit) / limit)
+            if share <= 0.0:
+                continue
+            columns = slice(3 * foot, 3 * foot + 3)
+            shift = share * detector.leg_torque(int(foot), plan.forces[k][foot])
+            self._g_tau -= plan.Quu[k][:, columns] @ shift
 
     def _fallback(self, plan: Plan, k: int, dx: np.ndarray, reason: str) -> None:
         """Clamped Riccati feedback (33); the plan torque alone if even that is not finite."""
