@@ -180,21 +180,20 @@ class MpcStatistics:
         before the clock starts."""
         start = 1 if skip_first and self.solves > 1 else 0
 
-        def ms(values: list[float], percentile: float) -> float | None:
-            values = values[start:] if len(values) == self.solves else values
+        def every_ms(values: list[float], percentile: float) -> float | None:
             return float(np.percentile(values, percentile)) * 1e3 if len(values) else None
+
+        def ms(values: list[float], percentile: float) -> float | None:
+            """``every_ms`` of a per-solve record without the cold solve."""
+            return every_ms(values[start:] if len(values) == self.solves else values, percentile)
 
         iterations = self.iterations[start:]
         return {
             "solves": self.solves,
             "failures": self.failures,
             "iterations_mean": float(np.mean(iterations)) if iterations else None,
-            "iteration_time_ms_median": float(np.median(self.iteration_times)) * 1e3
-            if self.iteration_times
-            else None,
-            "iteration_time_ms_p99": float(np.percentile(self.iteration_times, 99)) * 1e3
-            if self.iteration_times
-            else None,
+            "iteration_time_ms_median": every_ms(self.iteration_times, 50),
+            "iteration_time_ms_p99": every_ms(self.iteration_times, 99),
             "update_ms_median": ms(self.update_times, 50),
             "update_ms_p99": ms(self.update_times, 99),
             "problem_update_ms_median": ms(self.problem_times, 50),
@@ -203,8 +202,8 @@ class MpcStatistics:
             "linearize_ms_median": ms(self.linearize_times, 50),
             "backward_ms_median": ms(self.backward_times, 50),
             "line_search_ms_median": ms(self.line_search_times, 50),
-            "latency_ms_median": float(np.median(self.latencies)) * 1e3 if self.latencies else None,
-            "latency_ms_p99": float(np.percentile(self.latencies, 99)) * 1e3 if self.latencies else None,
+            "latency_ms_median": every_ms(self.latencies, 50),
+            "latency_ms_p99": every_ms(self.latencies, 99),
             "first_solve_ms": self.first_solve_time * 1e3 if self.first_solve_time is not None else None,
             "line_search_steps_mean": float(np.mean(self.line_search_steps[start:]))
             if self.line_search_steps[start:]
@@ -213,22 +212,12 @@ class MpcStatistics:
             "time_budget_stops": sum(status == SolveStatus.TIME_BUDGET for status in self.statuses),
             "pd_fallback_ticks": self.fallback_ticks,
             "stale_plans": self.stale_plans,
-            "prepare_ms_median": float(np.median(self.prepare_times)) * 1e3 if self.prepare_times else None,
-            "prepare_ms_p99": float(np.percentile(self.prepare_times, 99)) * 1e3
-            if self.prepare_times
-            else None,
-            "prepare_cpu_ms_median": float(np.median(self.prepare_cpu_times)) * 1e3
-            if self.prepare_cpu_times
-            else None,
-            "prepare_cpu_ms_p99": float(np.percentile(self.prepare_cpu_times, 99)) * 1e3
-            if self.prepare_cpu_times
-            else None,
-            "feedback_ms_median": float(np.median(self.feedback_times)) * 1e3
-            if self.feedback_times
-            else None,
-            "feedback_ms_p99": float(np.percentile(self.feedback_times, 99)) * 1e3
-            if self.feedback_times
-            else None,
+            "prepare_ms_median": every_ms(self.prepare_times, 50),
+            "prepare_ms_p99": every_ms(self.prepare_times, 99),
+            "prepare_cpu_ms_median": every_ms(self.prepare_cpu_times, 50),
+            "prepare_cpu_ms_p99": every_ms(self.prepare_cpu_times, 99),
+            "feedback_ms_median": every_ms(self.feedback_times, 50),
+            "feedback_ms_p99": every_ms(self.feedback_times, 99),
         }
 
 

@@ -272,6 +272,7 @@ class RecedingHorizonMpc(RecedingHorizonPlanner[Plan]):
         evaluated.update((id(work.state), work.state) for work in workspace.phases)
         nx = self.robot.nq + self.robot.nv
         whole_body_point = next((x for (n, _), (x, _) in points.items() if n == nx), None)
+        built_starts: set[float] = set()
         for step in range(1, steps + 1):
             t = t0 + step * period
             # without delay compensation an update's problem starts at its measurement, anywhere on the
@@ -279,8 +280,9 @@ class RecedingHorizonMpc(RecedingHorizonPlanner[Plan]):
             # first knot's durations get their data too; with it, on the knot grid at or after the
             # measurement (``problem_start``): every grid point of the period
             on_grid = math.floor(t / grid + GRID_TOLERANCE) * grid
-            starts = {t + (step * 3 * TIME_QUANTUM) % grid, on_grid, on_grid + grid}
-            for start_time in sorted(starts):
+            starts = {round(s, 9) for s in (t + (step * 3 * TIME_QUANTUM) % grid, on_grid, on_grid + grid)}
+            for start_time in sorted(starts - built_starts):  # a start shared with the last step: built once
+                built_starts.add(start_time)
                 built = self._build(start_time)
                 workspace.setup(built.problem)
                 _evaluate_new_data(workspace, points, evaluated)
