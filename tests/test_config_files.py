@@ -85,3 +85,16 @@ def test_a_weight_set_given_in_part_keeps_its_own_defaults(tmp_path):
     with pytest.raises(ConfigError, match="joint_posture"):
         path.write_text(yaml.safe_dump({"base": "trot", "costs": {"running": {"joint_posture": 1.0}}}))
         load_config(str(path))
+
+
+def test_a_slower_computer_gets_the_period_on_its_own_clock():
+    """``mpc.compute_scale`` s emulates a computer s times slower: its update's cap (0.9 x period, or
+    ``time_budget``) is simulated time, so this computer's solver gets cap / s of its wall time; a real-time
+    run has no emulated computer and refuses the scale."""
+    config = load_config("spin", ["mpc.compute_scale=1.5"])
+    assert config.mpc.budget == pytest.approx(0.9 * config.mpc.period / 1.5)
+    config = load_config("spin", ["mpc.compute_scale=2", "mpc.time_budget=0.016"])
+    assert config.mpc.budget == pytest.approx(0.008)
+    assert load_config("spin", ["mpc.latency=fixed", "mpc.compute_scale=2"]).mpc.budget is None
+    with pytest.raises(ConfigError, match="compute_scale"):
+        load_config("trot", ["simulation.realtime=true", "mpc.compute_scale=2"])

@@ -518,15 +518,21 @@ class MpcSettings(StrictModel):
         gt=0.0,
         le=100.0,
         description="measured latency: every measured compute time is multiplied by this (a computer that "
-        "many times slower)",
+        "many times slower; its time budget is on that computer's clock); not with simulation.realtime",
     )
 
     @property
     def budget(self) -> float | None:
-        """The wall-clock cap of an update's solve: ``time_budget`` or 0.9 x period in measured mode."""
+        """The wall-clock cap of an update's solve: ``time_budget`` or 0.9 x period in measured mode, in
+        this computer's seconds.
+
+        The cap is simulated time, like the latency: with ``compute_scale`` s (a computer s times slower)
+        an update of w wall seconds here takes s w, so it gets ``cap / s`` of this computer's wall time, the
+        share the slower computer's solver would see on its own clock."""
         if self.latency != "measured":
             return None
-        return self.time_budget if self.time_budget is not None else PAPER_BUDGET_FRACTION * self.period
+        cap = self.time_budget if self.time_budget is not None else PAPER_BUDGET_FRACTION * self.period
+        return cap / self.compute_scale
 
 
 class MpcConfig(MpcSettings):
@@ -1634,6 +1640,11 @@ class RunConfig(StrictModel):
             raise ValueError(
                 "terrain: 'height_map' needs the plant's height-map sensor (plant.height_map.enabled: true); "
                 "a robot without it runs blind (terrain: blind)"
+            )
+        if self.simulation.realtime and self.mpc.compute_scale != 1.0:
+            raise ValueError(
+                "mpc.compute_scale emulates a slower computer in simulated time; a real-time run "
+                "(simulation.realtime: true) runs on this one: leave compute_scale at 1"
             )
         if self.terrain == "height_map" and self.simulation.realtime:
             raise ValueError(
