@@ -261,8 +261,9 @@ def test_locomotion_switch_times_equal_those_of_the_whole_schedule(robot, gait):
 
 def test_composed_reference_joins_equal_those_made_without_kept_poses(robot):
     """The running roll's composed reference keeps its stored trajectory's poses between re-joins; the
-    offsets and signs after each update equal those of a re-join that samples them again."""
-    config = load_run_config("running-barrel-roll", ["simulation.duration=4"])
+    offsets and signs after each update equal those of a re-join that samples them again (re-joined at every
+    update: ``join: measured``; the preset joins fixed)."""
+    config = load_run_config("running-barrel-roll", ["simulation.duration=4", "reference.join=measured"])
     reference = build_reference(resolve(config, robot))
     x = robot.x_standing.copy()
     roll_start = reference.segments[1].start
