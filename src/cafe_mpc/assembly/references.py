@@ -71,23 +71,12 @@ def locomotion_reference(
     be built); with ``touchdown_events``, early touchdowns advance its clock, seen within ``detection``'s
     early window and touchdown height (a run's, resolved for its robot; default as written); with
     ``ground_plane`` its base and footholds follow the plane through the stance feet (``terrain: blind``),
-    with ``terrain_map`` the height maps it is given (``terrain: height_map``); with a ground plane and
-    ``detection.late_reach_speed`` its plans keep a late foot in the air, reaching down
-    (``LocomotionReference.late_reach``)."""
+    with ``terrain_map`` the height maps it is given (``terrain: height_map``)."""
     section = gait.section
     events = None
     if gait.touchdown_events is not None:
         detection = detection or ContactDetectionSettings()
         events = (gait.touchdown_events, detection.early_window, detection.touchdown_height)
-    late_reach = None
-    if (
-        ground_plane
-        and detection is not None
-        and detection.late_reach_speed is not None
-        and detection.late_reach_extension > 0.0
-        and detection.force_estimate_for(flat=False) == "momentum"
-    ):  # where the low level reaches with a late foot (ContactDetector.late_reach_speed), the plans do too
-        late_reach = (detection.late_reach_speed, detection.late_reach_depth, detection.late_reach_extension)
     return LocomotionReference(
         robot,
         gait.cycle,
@@ -104,7 +93,6 @@ def locomotion_reference(
         touchdown_events=events,
         ground_plane=ground_plane,
         terrain_map=terrain_map,
-        late_reach=late_reach,
     )
 
 

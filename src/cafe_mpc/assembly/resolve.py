@@ -164,8 +164,8 @@ def scaled_contact_detection(
     """The contact detector's thresholds carried to the robot: touchdown and release heights by the length
     scale, the early window and the on-time margin by the time scale (the momentum observer's gain by its
     inverse), the landing, late descent and late reach speeds by their ratio, the late reach's depth by the
-    length scale, its frequency by the inverse time scale and its extension by the time scale; the forces
-    are already shares of the robot's weight and the ground's height is the scene's."""
+    length scale and its frequency by the inverse time scale; the forces are already shares of the robot's
+    weight and the ground's height is the scene's."""
     if scale.is_identity:
         return settings
     return settings.model_copy(
@@ -189,7 +189,6 @@ def scaled_contact_detection(
             ),
             "late_reach_depth": scale.distance(settings.late_reach_depth),
             "late_reach_frequency": settings.late_reach_frequency / scale.duration(1.0),
-            "late_reach_extension": scale.duration(settings.late_reach_extension),
             "momentum_gain": settings.momentum_gain / scale.duration(1.0),
             "early_window": scale.duration(settings.early_window),
             "on_time": None if settings.on_time is None else scale.duration(settings.on_time),

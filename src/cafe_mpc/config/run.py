@@ -188,14 +188,6 @@ class ContactDetectionSettings(StrictModel):
         description="rad/s; natural frequency of a reaching late foot's position control (critically "
         "damped, through its leg's operational-space inertia; late_reach_speed)",
     )
-    late_reach_extension: float = Field(
-        0.04,
-        ge=0.0,
-        le=1.0,
-        description="s; with late_reach_speed, the MPC's plans keep a late foot in the air (reaching down) "
-        "for up to this long after each update that finds it late, then land it; 0: the plans keep the "
-        "schedule's stance (the low level alone reaches)",
-    )
     force_estimate: Literal["static", "momentum"] | None = Field(
         None,
         description="the ground force the detector reads: static (the measurement's, from the joint torques "

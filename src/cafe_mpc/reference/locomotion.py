@@ -311,7 +311,6 @@ class LocomotionReference(Reference):
         ground_plane: bool = False,
         terrain_map: TerrainMapSettings | None = None,
         swing_lift: float = 0.0,
-        late_reach: tuple[float, float, float] | None = None,
     ) -> None:
         if not commands:
             commands = [VelocityCommand()]
@@ -393,25 +392,6 @@ class LocomotionReference(Reference):
         self._soles = np.zeros((robot.n_feet, 3))
         self._still = np.zeros(robot.n_feet, dtype=bool)
         self._terrain_normal: np.ndarray | None = None
-        if late_reach is not None and self.ground is None:
-            raise ValueError("late_reach needs the ground plane (ground_plane)")
-        self.late_reach = late_reach
-        """``(speed, depth, extension)``: a foot planned in stance that had not landed at the update where
-        its stance began (it moves down faster than ``GROUND_FOOT_SPEED``) is planned in the air for up to
-        ``extension`` s more, reaching down from where it is at ``speed`` to ``depth`` below the ground
-        plane, and landing there (``_plan_late_feet``); None: the schedule's stance whatever the feet do."""
-        n_feet = robot.n_feet
-        self.late_until = np.full(n_feet, -math.inf)
-        """Per foot, until when the plans keep it in the air (``late_reach``; -inf: not late)."""
-        self._late_origin = np.zeros((n_feet, 3))
-        self._late_time = np.zeros(n_feet)
-        self._late_room = np.zeros(n_feet)
-        self._was_stance = np.ones(n_feet, dtype=bool)
-        self._late = np.zeros(n_feet, dtype=bool)
-        self._fresh = np.zeros(n_feet, dtype=bool)
-        self._late_data = robot.model.createData()
-        self.late_replans = 0
-        """Updates at which a foot was planned late (``late_reach``)."""
         """(time, x y, yaw) the commanded path starts from: the first measured pose after a reset."""
         # anchor (re-set at every update)
         self.anchor_time = 0.0
@@ -685,13 +665,7 @@ class LocomotionReference(Reference):
             self._switches_of = schedule
         times = self._sorted_switches
         # only the times strictly between t0 and t1 can be inside: the same result as from all of them
-        candidates = times[bisect.bisect_right(times, t0) : bisect.bisect_left(times, t1)]
-        inside = switches_inside(candidates, t0, t1)
-        if self.late_reach is not None and np.any(self.late_until > -math.inf):
-            late = [float(u) for u in self.late_until if t0 < u < t1]
-            if late:
-                inside = switches_inside(sorted({*inside, *late}), t0, t1)
-        return inside
+        return switches_inside(times[bisect.bisect_right(times, t0) : bisect.bisect_left(times, t1)], t0, t1)
 
     def stance_at(self, t: float) -> tuple[bool, bool, bool, bool]:
         if self._standing(t):
@@ -778,8 +752,6 @@ class LocomotionReference(Reference):
                 self.liftoff_positions[foot] = position
         if self.ground is not None:
             self._observe_ground(q, v, stance)
-            if self.late_reach is not None:
-                self._plan_late_feet(t)
             if self.terrain is not None and self.terrain.settings.registration == "feet":
                 # (registration "motion": observe_estimate)
                 self.terrain.follow_frame(self.ground.frame_shift)
@@ -801,79 +773,6 @@ class LocomotionReference(Reference):
         np.copyto(self._soles, self.stance_positions)
         self._soles[:, 2] -= robot.foot_radius
         self.ground.observe(self._soles, still)
-
-    def _watch_late_feet(self, t: float, q: np.ndarray, v: np.ndarray) -> None:
-        """Which feet are late at the control tick ``t`` (``late_reach``), from its state estimate (not from
-        ``update``'s state, which with the real-time iteration is the plan's prediction, where every foot
-        lands on time). A foot whose planned stance has begun and that has not stood still since is late
-        once its leg moves it down faster than the reach speed (the joints' share of its velocity,
-        ``-(J_f,leg qdot_leg)_z``: a trunk coming down on its legs out of a flight does not count; the low
-        level's gate, ``ContactDetector.reaching``), from
-        where it is then (``_late_origin``, ``_late_time``); it stays late until it stands still (its world
-        speed below ``GROUND_FOOT_SPEED``) or its stance ends."""
-        speed, depth, _ = self.late_reach  # type: ignore[misc]
-        ground = self.ground
-        assert ground is not None
-        robot, data = self.robot, self._late_data
-        stance = self.stance_at(t)
-        pin.forwardKinematics(robot.model, data, q, v)
-        pin.updateFramePlacements(robot.model, data)
-        pin.computeJointJacobians(robot.model, data, q)
-        first_leg_column = robot.nv - robot.nu
-        for foot, frame_id in enumerate(robot.foot_frame_ids):
-            if stance[foot] and not self._was_stance[foot]:
-                self._fresh[foot] = True
-            self._was_stance[foot] = stance[foot]
-            velocity = pin.getFrameVelocity(robot.model, data, frame_id, pin.LOCAL_WORLD_ALIGNED).linear
-            still = float(np.linalg.norm(velocity)) < GROUND_FOOT_SPEED
-            if not stance[foot] or still:
-                self._fresh[foot] = self._late[foot] = False
-                continue
-            if self._late[foot] or not self._fresh[foot]:
-                continue
-            columns = slice(first_leg_column + 3 * foot, first_leg_column + 3 * foot + 3)
-            jacobian = pin.getFrameJacobian(robot.model, data, frame_id, pin.LOCAL_WORLD_ALIGNED)
-            if -float(jacobian[2, columns] @ v[columns]) > speed:
-                position = data.oMf[frame_id].translation
-                self._late[foot] = True
-                self._late_origin[foot] = position
-                self._late_time[foot] = t
-                floor = ground.height_at(position[0], position[1]) + robot.foot_radius
-                self._late_room[foot] = max(0.0, position[2] - floor + depth)
-
-    def _plan_late_feet(self, t: float) -> None:
-        """Late feet in the plans of the update at ``t`` (``late_reach``; late at the newest control tick:
-        ``_watch_late_feet``): a late foot's stance is put off to ``t + extension`` (no later than the
-        stance's planned end, nor than its reach bottoms out), and until then the plans carry it in the air
-        along a reach straight down from where it was when it became late, at ``speed``, to ``depth`` below
-        the ground plane there; it stands where the reach is at the new touchdown. A foot still late at the
-        next update is put off again from there. The low level takes a foot that lands during the extension
-        in as an early touchdown."""
-        speed, _, extension = self.late_reach  # type: ignore[misc]
-        phases = self.schedule(t, t + 1.0).phases
-        stance = self.stance_at(t)
-        for foot in range(self.robot.n_feet):
-            self.late_until[foot] = -math.inf
-            if not (self._late[foot] and stance[foot]):
-                continue
-            end = next((p.start for p in phases if p.end > t and not p.stance[foot]), math.inf)
-            bottom = self._late_time[foot] + self._late_room[foot] / speed
-            until = min(t + extension, end - TIME_TOLERANCE, bottom)
-            if until > t + TIME_TOLERANCE:
-                self.late_until[foot] = until
-                self.late_replans += 1
-
-    def _late_reach_at(self, foot: int, time: float, position: np.ndarray, velocity: np.ndarray) -> None:
-        """Where a late foot's reach is at ``time`` (``_plan_late_feet``), into ``position`` and
-        ``velocity``."""
-        speed = self.late_reach[0]  # type: ignore[index]
-        sunk = speed * (time - self._late_time[foot])
-        room = self._late_room[foot]
-        position[:] = self._late_origin[foot]
-        position[2] -= min(max(sunk, 0.0), room)
-        velocity[:] = 0.0
-        if sunk < room:
-            velocity[2] = -speed
 
     def _landed_early(self, t: float) -> None:
         """Advance the gait's clock when a swing foot is on the ground before its planned touchdown (the
@@ -992,13 +891,11 @@ class LocomotionReference(Reference):
         self.terrain.place(placed, self.ground.frame_shift, float(q[2]), vertical_velocity)
 
     def observe_estimate(self, t: float, q: np.ndarray, v: np.ndarray) -> None:
-        """The state estimate of the control tick at ``t`` (``v`` in the base frame): the late feet
-        (``late_reach``: ``_watch_late_feet``); with ``terrain_map.registration: motion`` the map's offset
-        follows the estimator frame's move since the map was placed (``TerrainMap.follow_motion``). Not from
-        ``update``, whose states are, with the real-time iteration, the plan's own predictions: taken from
-        them the offset moved the plan, which moved the offset (the heights ran away within 60 ms)."""
-        if self.late_reach is not None:
-            self._watch_late_feet(t, q, v)
+        """The state estimate of the control tick at ``t`` (``v`` in the base frame): with
+        ``terrain_map.registration: motion`` the map's offset follows the estimator frame's move since the
+        map was placed (``TerrainMap.follow_motion``). Not from ``update``, whose states are, with the
+        real-time iteration, the plan's own predictions: taken from them the offset moved the plan, which
+        moved the offset (the heights ran away within 60 ms)."""
         terrain = self.terrain
         if terrain is None or terrain.settings.registration != "motion" or not terrain.available:
             return
@@ -1264,8 +1161,6 @@ class LocomotionReference(Reference):
             )
             state[:, 7:nq] = self.nominal_joints
             self._follow_ground(state[:n])
-            if self.late_reach is not None and np.any(self.late_until > -math.inf):
-                self._sample_late_feet(times[:n], window.stance[:n], keys, positions, velocities)
             self._torques_into(keys, window.torque)
             window.forces[:, :, :2] = 0.0
             window.forces[:, :, 2] = window.stance * (factors * self.mass * GRAVITY)[:, None]
@@ -1283,34 +1178,6 @@ class LocomotionReference(Reference):
         state[:m, 7:nq] = joints
         state[:m, nq + 6 :] = rates
         window.weight_set[:] = 0
-
-    def _sample_late_feet(
-        self,
-        times: np.ndarray,
-        stance: np.ndarray,
-        keys: np.ndarray,
-        positions: np.ndarray,
-        velocities: np.ndarray,
-    ) -> None:
-        """The late feet (``_plan_late_feet``) in a sampled window: in the air before their new touchdown
-        (stance flag and torque key cleared), on their reach before it, standing where it ends after it
-        for the rest of that stance."""
-        for foot in np.flatnonzero(self.late_until > -math.inf).tolist():
-            until = self.late_until[foot]
-            stand = np.zeros(3)
-            self._late_reach_at(foot, until, stand, np.zeros(3))
-            in_stance = True
-            for k in range(len(times)):
-                if times[k] < until - TIME_TOLERANCE:
-                    if stance[k, foot]:
-                        stance[k, foot] = False
-                        keys[k] &= ~(1 << foot)
-                        self._late_reach_at(foot, float(times[k]), positions[k, foot], velocities[k, foot])
-                elif in_stance and stance[k, foot]:
-                    positions[k, foot] = stand
-                    velocities[k, foot] = 0.0
-                else:
-                    in_stance = False
 
     def support_factor(self, t: float) -> float:
         """Vertical force of a stance foot at ``t`` in units of the weight, averaged over the gait cycle
