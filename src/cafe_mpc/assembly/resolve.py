@@ -163,8 +163,9 @@ def scaled_contact_detection(
 ) -> ContactDetectionSettings:
     """The contact detector's thresholds carried to the robot: touchdown and release heights by the length
     scale, the early window and the on-time margin by the time scale (the momentum observer's gain by its
-    inverse), the landing and late descent speeds by their ratio; the forces are already shares of the
-    robot's weight and the ground's height is the scene's."""
+    inverse), the landing, late descent and late reach speeds by their ratio, the late reach's depth by the
+    length scale and its frequency by the inverse time scale; the forces are already shares of the robot's
+    weight and the ground's height is the scene's."""
     if scale.is_identity:
         return settings
     return settings.model_copy(
@@ -181,6 +182,13 @@ def scaled_contact_detection(
                 if settings.late_descent_speed is None
                 else scale.distance(settings.late_descent_speed) / scale.duration(1.0)
             ),
+            "late_reach_speed": (
+                None
+                if settings.late_reach_speed is None
+                else scale.distance(settings.late_reach_speed) / scale.duration(1.0)
+            ),
+            "late_reach_depth": scale.distance(settings.late_reach_depth),
+            "late_reach_frequency": settings.late_reach_frequency / scale.duration(1.0),
             "momentum_gain": settings.momentum_gain / scale.duration(1.0),
             "early_window": scale.duration(settings.early_window),
             "on_time": None if settings.on_time is None else scale.duration(settings.on_time),

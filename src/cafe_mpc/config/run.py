@@ -165,6 +165,29 @@ class ContactDetectionSettings(StrictModel):
         "its planned ground force from the leg's torque reference in the VWBC, all of it at twice this "
         "speed, so that its stance torques do not slam it into a lower tread; null: off",
     )
+    late_reach_speed: float | None = Field(
+        None,
+        gt=0.0,
+        le=10.0,
+        description="m/s; with a ground plane and the momentum observer, a late foot (planned in stance, not "
+        "landed) whose leg moves it down faster than this (its joints' share of the foot's velocity) is "
+        "position-controlled from then on as a swing that reaches down at this speed to late_reach_depth "
+        "below the ground plane, and carries no planned ground force until it lands (instead of its leg's "
+        "stance torques, which throw it down unchecked); null: off",
+    )
+    late_reach_depth: float = Field(
+        0.1,
+        gt=0.0,
+        le=0.5,
+        description="m; how far below the ground plane a late foot reaches (late_reach_speed)",
+    )
+    late_reach_frequency: float = Field(
+        50.0,
+        gt=0.0,
+        le=1000.0,
+        description="rad/s; natural frequency of a reaching late foot's position control (critically "
+        "damped, through its leg's operational-space inertia; late_reach_speed)",
+    )
     force_estimate: Literal["static", "momentum"] | None = Field(
         None,
         description="the ground force the detector reads: static (the measurement's, from the joint torques "

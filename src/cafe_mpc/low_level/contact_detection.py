@@ -52,6 +52,12 @@ stance: on a robot it is estimated from the joint torques, which there are the s
 controller commands, so it would only echo the schedule. Forces are thresholds on the robot's weight share
 (``mg / n_feet``), so one setting holds for every robot.
 
+With ``late_reach_speed`` set (off by default; a ground plane and the observer), a late foot whose leg throws
+it down faster than that is from then on a swing reaching down at that speed (``reaching``,
+``reach_torques``: a position-controlled foot, not the plan's stance torques, until it lands; the VWBC puts
+those torques on its leg, ``VWBCController._reach_with_late_feet``; docs/terrain.md, "Late feet reach
+down").
+
 ``update(t, measurement, plan)`` returns the detected stance flags (an array the detector owns); counters of
 early and late touchdowns and of the ticks where detection and plan disagree feed the run's statistics.
 """
@@ -104,6 +110,29 @@ class ContactDetector:
         """``late_descent_speed`` where it acts (a ground plane and the momentum observer), else None: the
         VWBC takes a late foot's planned ground force off its leg when it descends faster
         (``leg_torque``)."""
+        self.late_reach_speed = (
+            self.settings.late_reach_speed if ground_plane and self.force_estimate == "momentum" else None
+        )
+        """``late_reach_speed`` where it acts (a ground plane and the momentum observer), else None: a late
+        foot reaches down as a position-controlled swing (``reaching``, ``reach_torques``)."""
+        self.reaching = np.zeros(robot.n_feet, dtype=bool)
+        """With ``late_reach_speed`` acting, the late feet (planned in stance, not in contact) whose legs
+        moved them down faster than the reach speed since they became late (``leg_descent_speeds``: the
+        stance torques are throwing them down; a foot that is late by the observer's lag on the ground, or
+        whose trunk comes down on it out of a flight, is not): the VWBC drives their legs with
+        ``reach_torques`` until they land."""
+        self.reach_torques = np.zeros((robot.n_feet, 3))
+        """Each reaching foot's leg torques (its three joints) at the last update: ``J_f,leg' Lambda_f
+        (w^2 (p_d - p) + 2 w (v_d - v)) + h_leg`` (``_reach``)."""
+        self.reach_targets = np.zeros((robot.n_feet, 3))
+        """Each reaching foot's target position (world, foot frame's origin) at the last update."""
+        self._late_since = np.full(robot.n_feet, np.nan)
+        self._late_origin = np.zeros((robot.n_feet, 3))
+        self._late_floor = np.zeros(robot.n_feet)
+        self._foot_jacobians = np.zeros((robot.n_feet, 3, robot.nv))
+        self._foot_velocity = np.zeros(3)
+        self._leg_inertia = np.zeros((3, 3))
+        self._bias = np.zeros(robot.nv)
         self.estimated_forces = np.zeros((robot.n_feet, 3))
         """With ``force_estimate: momentum``, each foot's ground force (world, N) from the momentum observer
         at the last update."""
@@ -139,6 +168,8 @@ class ContactDetector:
         self.late_touchdown_ticks = 0
         self.early_ticks = 0
         self._was_planned = np.ones(self.robot.n_feet, dtype=bool)
+        self.reaching[:] = False
+        self._late_since[:] = np.nan
 
     def _index_plan(self, plan: KnotPlan) -> None:
         """Per knot and foot, the time the foot's next planned stance starts (its own time if the knot is a
@@ -188,8 +219,11 @@ class ContactDetector:
             jacobian = pin.getFrameJacobian(model, data, frame_id, pin.LOCAL_WORLD_ALIGNED)
             np.copyto(self._leg_transposes[foot], jacobian[:3, columns].T)
             self._leg_residuals[foot] = self._residual[columns]
-            if self.late_descent_speed is not None:  # the leg's own motion, not the trunk's
+            if self.late_descent_speed is not None or self.late_reach_speed is not None:
+                # the leg's own motion, not the trunk's
                 self.leg_descent_speeds[foot] = -(jacobian[2, columns] @ v[columns])
+            if self.late_reach_speed is not None:
+                np.copyto(self._foot_jacobians[foot], jacobian[:3])
         forces = self.estimated_forces
         try:
             forces[:] = np.linalg.solve(self._leg_transposes, self._leg_residuals[..., None])[..., 0]
@@ -200,6 +234,47 @@ class ContactDetector:
                 except np.linalg.LinAlgError:
                     forces[foot] = 0.0
         return forces
+
+    def _reach(self, t: float, foot: int, measurement: Measurement) -> None:
+        """The leg torques of a late foot reaching down (``late_reach_speed``): from where the foot was when
+        it began to reach (``p_0``, world), its target sinks at the reach speed ``c`` to ``late_reach_depth``
+        ``d`` below the ground plane under ``p_0`` and stays over ``p_0``:
+        ``p_d = p_0 - min(c (t - t_0), max(0, z_0 - z_g + d)) e_z``, ``v_d = -c e_z`` while it sinks. The
+        leg follows it as a critically damped spring of natural frequency ``w`` through its
+        operational-space inertia with the trunk held (``Lambda_f = (J_f,leg M_leg^-1 J_f,leg')^-1``) plus
+        its own bias forces (``h = C v + g``, the leg's rows of the momentum observer's terms at this
+        state), so that it reaches at a bounded speed and presses nothing: the plan's stance torques push
+        the ground with ``-J' F*`` (Eq. (34a)'s reference ``tau*``), which with no ground under the foot
+        throw it down at 4-5 m/s (docs/terrain.md, "Late feet slammed down")."""
+        s, data = self.settings, self.data
+        speed = self.late_reach_speed
+        assert speed is not None and self.ground is not None
+        position = data.oMf[self.robot.foot_frame_ids[foot]].translation
+        if np.isnan(self._late_since[foot]):
+            self._late_since[foot] = t
+            self._late_origin[foot] = position
+            self._late_floor[foot] = self.ground.height_at(position[0], position[1]) + self.robot.foot_radius
+        origin = self._late_origin[foot]
+        room = max(0.0, origin[2] - self._late_floor[foot] + s.late_reach_depth)
+        sunk = speed * (t - self._late_since[foot])
+        target = self.reach_targets[foot]
+        target[:] = origin
+        target[2] -= min(sunk, room)
+        v = measurement.v
+        jacobian = self._foot_jacobians[foot]
+        np.matmul(jacobian, v, out=self._foot_velocity)
+        columns = self._leg_columns[foot]
+        leg = jacobian[:, columns]
+        mass = self._mass[columns, columns]
+        self._leg_inertia[:] = np.linalg.inv(leg @ np.linalg.solve(mass, leg.T))
+        w = s.late_reach_frequency
+        accel = w * w * (target - position) - 2.0 * w * self._foot_velocity
+        if sunk < room:
+            accel[2] -= 2.0 * w * speed
+        bias = self._bias[columns]
+        np.matmul(self._coriolis[columns], v, out=bias)
+        bias += data.g[columns]
+        self.reach_torques[foot] = leg.T @ (self._leg_inertia @ accel) + bias
 
     def leg_torque(self, foot: int, force: np.ndarray) -> np.ndarray:
         """``J_f,leg' force``: the torques on the foot's leg that push it with ``force`` (world, N) at the
@@ -272,6 +347,14 @@ class ContactDetector:
                 if self.in_contact[foot]:
                     self.early_ticks += 1
             self._was_planned[foot] = planned[foot]
+            if self.late_reach_speed is not None:
+                late = planned[foot] and not self.in_contact[foot]
+                fast = self.leg_descent_speeds[foot] > self.late_reach_speed
+                self.reaching[foot] = late and (self.reaching[foot] or fast)
+                if self.reaching[foot]:
+                    self._reach(t, foot, measurement)
+                else:
+                    self._late_since[foot] = np.nan
         if ground is not None:
             ground.observe(soles, self.in_contact)
         return self.in_contact

@@ -533,7 +533,9 @@ class VWBCController(LowLevelController[Plan]):
         np.matmul(plan.Qux[k], dx, out=self._g_tau)
         self._g_tau += plan.Qu[k]
         self._g_tau -= plan.Quu[k] @ plan.us[k]
-        if self.detector is not None and self.detector.late_descent_speed is not None:
+        if self.detector is not None and self.detector.late_reach_speed is not None:
+            self._reach_with_late_feet(plan, k)
+        elif self.detector is not None and self.detector.late_descent_speed is not None:
             self._unload_falling_late_feet(plan, k)
         qp.fill(self.terms, plan.Quu[k], self._g_tau)
         # warm start from the plan (paper end of Sec. V-A): finite-difference qdd, tau*_k, F*_k
@@ -563,6 +565,27 @@ class VWBCController(LowLevelController[Plan]):
         self.last_forces[qp.stance] = x[qp.force].reshape(-1, 3)
         self._previous_pattern = pattern
         return ""
+
+    def _reach_with_late_feet(self, plan: Plan, k: int) -> None:
+        """A late foot (planned in stance, the detector's ``reaching``) is driven as a swing that reaches
+        down (``ContactDetector._reach``): the linear term of (34a) is shifted so that the QP's unconstrained
+        minimiser, the policy (7) ``tau_p = -H^-1 g`` (``H`` the symmetric part of ``Quu``), takes the
+        detector's ``reach_torques`` on that leg's joints and stays the policy on the others'
+        (``g <- g - H[:, leg] (tau_reach - tau_p[leg])`` moves the minimiser by exactly that shift). The
+        plan's stance torques for that leg, its planned ground force ``-J' F*`` among them, are gone until
+        the foot lands; the torque bounds (34d) and the stance feet's constraints still hold."""
+        detector = self.detector
+        assert detector is not None
+        feet = np.flatnonzero(detector.reaching & ~self._stance)
+        if feet.size == 0:
+            return
+        quu = plan.Quu[k]
+        hessian = 0.5 * (quu + quu.T)
+        policy = -np.linalg.solve(hessian, self._g_tau)
+        for foot in feet:
+            columns = slice(3 * foot, 3 * foot + 3)
+            shift = detector.reach_torques[foot] - policy[columns]
+            self._g_tau -= hessian[:, columns] @ shift
 
     def _unload_falling_late_feet(self, plan: Plan, k: int) -> None:
         """A late foot (planned in stance, not in the stance set) whose leg moves it down faster than the
