@@ -172,24 +172,12 @@ def scaled_contact_detection(
         update={
             "touchdown_height": scale.distance(settings.touchdown_height),
             "release_height": scale.distance(settings.release_height),
-            "landing_speed": (
-                None
-                if settings.landing_speed is None
-                else scale.distance(settings.landing_speed) / scale.duration(1.0)
-            ),
-            "late_descent_speed": (
-                None
-                if settings.late_descent_speed is None
-                else scale.distance(settings.late_descent_speed) / scale.duration(1.0)
-            ),
-            "late_reach_speed": (
-                None
-                if settings.late_reach_speed is None
-                else scale.distance(settings.late_reach_speed) / scale.duration(1.0)
-            ),
+            "landing_speed": scale.speed(settings.landing_speed),
+            "late_descent_speed": scale.speed(settings.late_descent_speed),
+            "late_reach_speed": scale.speed(settings.late_reach_speed),
             "late_reach_depth": scale.distance(settings.late_reach_depth),
-            "late_reach_frequency": settings.late_reach_frequency / scale.duration(1.0),
-            "momentum_gain": settings.momentum_gain / scale.duration(1.0),
+            "late_reach_frequency": scale.rate(settings.late_reach_frequency),
+            "momentum_gain": scale.rate(settings.momentum_gain),
             "early_window": scale.duration(settings.early_window),
             "on_time": None if settings.on_time is None else scale.duration(settings.on_time),
         }

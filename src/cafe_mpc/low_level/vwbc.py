@@ -576,6 +576,8 @@ class VWBCController(LowLevelController[Plan]):
         the foot lands; the torque bounds (34d) and the stance feet's constraints still hold."""
         detector = self.detector
         assert detector is not None
+        if not detector.reaching.any():  # the common tick: nothing made on the 500 Hz path
+            return
         feet = np.flatnonzero(detector.reaching & ~self._stance)
         if feet.size == 0:
             return

@@ -72,6 +72,10 @@ class RobotScale:
     def rate(self, per_second: float) -> float:
         return per_second / self.time
 
+    def speed(self, metres_per_second: float | None) -> float | None:
+        """A speed carried to the robot (length over time); ``None`` (a threshold that is off) stays off."""
+        return None if metres_per_second is None else metres_per_second * self.length / self.time
+
     def force(self, newtons: float) -> float:
         return newtons * self.mass
 
