@@ -245,6 +245,36 @@ def test_a_blind_run_swings_higher_and_lifts_first_and_the_flat_one_keeps_the_pr
     assert build_reference(resolve(load_run_config("trot"), robot)).contact_frame() is None
 
 
+def test_a_blind_ground_from_the_estimate_ignores_the_updates_predicted_feet(robot):
+    """``gait.blind_ground: estimate``: the reference's plane takes its points from each tick's estimate
+    (``observe_estimate``), so an update whose (predicted) state has the standing feet 5 cm lower moves
+    neither the plane nor its frame shift; with ``predicted`` (the default; the bound's preset sets
+    ``estimate``) that update is the plane's measurement. Without a ground plane (flat) it does nothing."""
+    from cafe_mpc.assembly.references import build_reference
+
+    q = robot.q_standing.copy()
+    v = np.zeros(robot.nv)
+    lowered = q.copy()
+    lowered[2] -= 0.05
+    standing = 0.1  # s: the bound's start stance, all four feet planned down
+    estimate = build_reference(
+        resolve(load_run_config("bound", ["terrain=blind", "gait.blind_ground=estimate"]), robot)
+    )
+    predicted = build_reference(
+        resolve(load_run_config("bound", ["terrain=blind", "gait.blind_ground=predicted"]), robot)
+    )
+    assert estimate.ground_from_estimate and not predicted.ground_from_estimate
+    for reference in (estimate, predicted):
+        reference.observe_estimate(standing, q, v)
+        reference.update(standing, q, v)
+        reference.update(standing + 0.02, lowered, v)
+    assert estimate.ground is not None and predicted.ground is not None
+    assert estimate.ground.frame_shift == 0.0
+    assert predicted.ground.height - estimate.ground.height == pytest.approx(-0.05, abs=1e-9)
+    flat = build_reference(resolve(load_run_config("bound", ["gait.blind_ground=estimate"]), robot))
+    assert flat.ground is None and not flat.ground_from_estimate
+
+
 def test_a_swing_that_lifts_first_rises_in_place_then_moves_and_its_velocity_is_its_rate():
     """``sample_foot_floored`` with ``lift`` 0.25: over the first quarter of the swing the foot rises with
     its horizontal position at lift-off; it lands on time at its foothold; velocities are the positions'
@@ -419,6 +449,32 @@ def test_a_blind_flying_trot_steps_down_6_cm_steps_without_slamming_a_late_foot(
     _, _, log = simulate_run(config)
     assert not log.fell, log.fall_reason
     assert log.q[-1, 0] > 3.4  # past the riser at 3.3 m
+
+
+@pytest.mark.slow
+def test_a_blind_bound_climbs_a_15_degree_slope_with_its_ground_from_the_estimate():
+    """The bound onto a 15 degree slope 1 m ahead, fixed 20 ms latency. Its reference's ground plane took
+    its points from the updates' predicted states, in which a landing pair stands where the plan put it
+    (the floor) and rises onto the incline over the next updates; the plane read that rise as the frame
+    moving and lifted the other pair's points with it, flipping between 20 deg and slightly downhill every
+    half cycle: the bound stalled on the incline and fell back at 3.81 s (x 1.39 m; docs/terrain.md). The
+    preset's ``blind_ground: estimate`` takes the points from each tick's estimate: up the incline, past
+    x 1.5 m at 4.5 s. The preset as shipped: it fails with the setting removed from it."""
+    from cafe_mpc_lab.experiments.run import simulate_run
+
+    config = load_run_config(
+        "bound",
+        [
+            "simulation.duration=4.5",
+            "mpc.latency=fixed",
+            "mpc.fixed_latency=0.02",
+            "terrain=blind",
+            "scene.terrain=[{kind: slope, angle_deg: 15, length: 1.0}]",
+        ],
+    )
+    _, _, log = simulate_run(config)
+    assert not log.fell, log.fall_reason
+    assert log.q[-1, 0] > 1.5  # up the incline (1-2 m), past where it stalled (x 1.39 m)
 
 
 @pytest.mark.slow

@@ -93,6 +93,7 @@ def locomotion_reference(
         touchdown_events=events,
         ground_plane=ground_plane,
         terrain_map=terrain_map,
+        ground_from_estimate=ground_plane and terrain_map is None and section.blind_ground == "estimate",
     )
 
 

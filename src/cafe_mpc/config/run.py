@@ -374,6 +374,19 @@ class GaitConfig(StrictModel):
         description="with terrain: blind, the least swing_lift (a blind foot that landed against a riser "
         "rises off it before it swings)",
     )
+    blind_ground: Literal["predicted", "estimate"] = Field(
+        "predicted",
+        description="with terrain: blind, the states the reference's ground plane takes its stance feet's "
+        "points from: predicted (each MPC update's state: with the real-time iteration the plan's "
+        "prediction, whose landing feet stand where the plan put them) | estimate (each control tick's "
+        "state estimate; the MPC in its own process sees only its updates' states and keeps predicted)",
+    )
+    """The plane's frame-shift rule (``GroundPlane.observe``) reads a standing foot's change of height as
+    the estimator's frame moving. In the predicted states a landing foot stands where the plan put it (the
+    floor z = 0 with ``mpc.touchdown_surface: floor``) and rises to where it stands over the next updates:
+    on a slope the blind bound's reference read that as the frame rising 5-10 cm at every touchdown and
+    moved the other pair's points with it, so that its plane flipped between 20 deg and flat (slightly
+    downhill) every half cycle, with ground truth as with the estimator (docs/terrain.md)."""
     raibert_gain: float = Field(0.03, ge=0.0, le=1.0, description="s, Raibert velocity feedback gain")
     start_stance: float = Field(
         0.0, ge=0.0, le=3600.0, description="s of all-feet stand before the gait's first cycle starts"

@@ -311,6 +311,7 @@ class LocomotionReference(Reference):
         ground_plane: bool = False,
         terrain_map: TerrainMapSettings | None = None,
         swing_lift: float = 0.0,
+        ground_from_estimate: bool = False,
     ) -> None:
         if not commands:
             commands = [VelocityCommand()]
@@ -378,6 +379,18 @@ class LocomotionReference(Reference):
         self.ground = GroundPlane(robot.n_feet) if ground_plane else None
         """The plane through the stance feet's latest contact points (``core.ground``) that the base height,
         its pitch and the footholds follow; None: flat ground at z = 0 (the paper's)."""
+        self.ground_from_estimate = bool(ground_from_estimate) and self.ground is not None
+        """The plane's points from each control tick's state estimate (``observe_estimate``) instead of
+        ``update``'s states (``gait.blind_ground: estimate``): with the real-time iteration those are the
+        plan's predictions, in which a landing foot stands where the plan put it and then rises to where it
+        is over the next updates, a change the plane's frame-shift rule takes for the estimator's frame
+        moving. Until the first estimate arrives (the MPC in its own process gets none) ``update``'s."""
+        self._estimated_ground = False
+        """Whether ``observe_estimate`` has fed the plane (``ground_from_estimate``)."""
+        self._estimate_data = robot.model.createData()
+        self._estimate_positions = np.zeros((robot.n_feet, 3))
+        self._estimate_soles = np.zeros((robot.n_feet, 3))
+        self._estimate_still = np.zeros(robot.n_feet, dtype=bool)
         if terrain_map is not None and self.ground is None:
             raise ValueError(
                 "a reference on a height map (terrain_map) needs the ground plane (ground_plane)"
@@ -751,7 +764,8 @@ class LocomotionReference(Reference):
                     self.stance_positions[foot, 2] = robot.foot_radius
                 self.liftoff_positions[foot] = position
         if self.ground is not None:
-            self._observe_ground(q, v, stance)
+            if not self._estimated_ground:
+                self._observe_ground(q, v, stance)
             if self.terrain is not None and self.terrain.settings.registration == "feet":
                 # (registration "motion": observe_estimate)
                 self.terrain.follow_frame(self.ground.frame_shift)
@@ -773,6 +787,27 @@ class LocomotionReference(Reference):
         np.copyto(self._soles, self.stance_positions)
         self._soles[:, 2] -= robot.foot_radius
         self.ground.observe(self._soles, still)
+
+    def _observe_ground_estimate(self, t: float, q: np.ndarray, v: np.ndarray) -> None:
+        """The ground plane through the feet planned in stance at ``t`` that stand still in the state
+        estimate ``q, v`` of that control tick (``_observe_ground``'s rule on the estimate; each foot's
+        latest point while it stands)."""
+        assert self.ground is not None
+        robot, data = self.robot, self._estimate_data
+        pin.forwardKinematics(robot.model, data, q, v)
+        pin.updateFramePlacements(robot.model, data)
+        stance = self.stance_at(t)
+        still = self._estimate_still
+        for foot, frame_id in enumerate(robot.foot_frame_ids):
+            still[foot] = False
+            if stance[foot]:
+                self._estimate_positions[foot] = data.oMf[frame_id].translation
+                velocity = pin.getFrameVelocity(robot.model, data, frame_id, pin.LOCAL_WORLD_ALIGNED).linear
+                still[foot] = float(np.linalg.norm(velocity)) < GROUND_FOOT_SPEED
+        np.copyto(self._estimate_soles, self._estimate_positions)
+        self._estimate_soles[:, 2] -= robot.foot_radius
+        self.ground.observe(self._estimate_soles, still)
+        self._estimated_ground = True
 
     def _landed_early(self, t: float) -> None:
         """Advance the gait's clock when a swing foot is on the ground before its planned touchdown (the
@@ -895,7 +930,10 @@ class LocomotionReference(Reference):
         ``terrain_map.registration: motion`` the map's offset follows the estimator frame's move since the
         map was placed (``TerrainMap.follow_motion``). Not from ``update``, whose states are, with the
         real-time iteration, the plan's own predictions: taken from them the offset moved the plan, which
-        moved the offset (the heights ran away within 60 ms)."""
+        moved the offset (the heights ran away within 60 ms). With ``ground_from_estimate`` the ground
+        plane's points come from here (``_observe_ground_estimate``)."""
+        if self.ground_from_estimate:
+            self._observe_ground_estimate(t, q, v)
         terrain = self.terrain
         if terrain is None or terrain.settings.registration != "motion" or not terrain.available:
             return
