@@ -188,17 +188,6 @@ class ContactDetectionSettings(StrictModel):
         description="rad/s; natural frequency of a reaching late foot's position control (critically "
         "damped, through its leg's operational-space inertia; late_reach_speed)",
     )
-    early_hold: float | None = Field(
-        None,
-        ge=0.0,
-        le=5.0,
-        description="x m g / n_feet; with a ground plane and the momentum observer, an early foot (in "
-        "contact before its planned stance) is held where it was taken in (position-controlled at rest, "
-        "the spring of late_reach_frequency) and pushes the ground with this load along the plane's normal "
-        "until its planned stance begins, instead of being driven by the swing's policy along its swing "
-        "curve into the ground (a front foot meeting an incline at the start of a flight pushed 150 N and "
-        "tipped the trunk nose-up); null: off",
-    )
     force_estimate: Literal["static", "momentum"] | None = Field(
         None,
         description="the ground force the detector reads: static (the measurement's, from the joint torques "

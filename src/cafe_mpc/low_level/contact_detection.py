@@ -58,13 +58,6 @@ it down faster than that is from then on a swing reaching down at that speed (``
 those torques on its leg, ``VWBCController._reach_with_late_feet``; docs/terrain.md, "Late feet reach
 down").
 
-With ``early_hold`` set (off by default; a ground plane and the observer), an early foot (taken in before its
-planned stance) is held where it was taken in and presses ``early_hold`` x its weight share along the plane's
-normal until its planned stance begins (``holding``, ``hold_torques``; ``VWBCController._hold_early_feet``):
-otherwise the swing knot's policy drives it on along its swing curve into the ground, and a front foot meeting
-an incline at the start of a flight pushed 150 N alone and tipped the trunk nose-up (docs/terrain.md, "Early
-feet held").
-
 ``update(t, measurement, plan)`` returns the detected stance flags (an array the detector owns); counters of
 early and late touchdowns and of the ticks where detection and plan disagree feed the run's statistics.
 """
@@ -133,22 +126,6 @@ class ContactDetector:
         (w^2 (p_d - p) + 2 w (v_d - v)) + h_leg`` (``_reach``)."""
         self.reach_targets = np.zeros((robot.n_feet, 3))
         """Each reaching foot's target position (world, foot frame's origin) at the last update."""
-        self.early_hold = (
-            self.settings.early_hold is not None and ground_plane and self.force_estimate == "momentum"
-        )
-        """Whether ``early_hold`` acts (set, a ground plane and the momentum observer): an early foot (in
-        contact before its planned stance) is held where it landed (``holding``, ``hold_torques``)."""
-        self.hold_load = (self.settings.early_hold or 0.0) * weight_share
-        """N: the normal force a held early foot pushes the ground with (``early_hold`` x m g / n_feet)."""
-        self.holding = np.zeros(robot.n_feet, dtype=bool)
-        """With ``early_hold`` acting, the early feet (in the stance set before their planned stance): the
-        VWBC drives their legs with ``hold_torques`` (not the swing's policy, which pushes the foot on along
-        its swing curve into the ground) until their planned stance begins."""
-        self.hold_torques = np.zeros((robot.n_feet, 3))
-        """Each holding foot's leg torques at the last update (``_position_torques`` toward where it was
-        taken in, at rest)."""
-        self._hold_origin = np.zeros((robot.n_feet, 3))
-        self._target_velocity = np.zeros(3)
         self._late_since = np.full(robot.n_feet, np.nan)
         self._late_origin = np.zeros((robot.n_feet, 3))
         self._late_floor = np.zeros(robot.n_feet)
@@ -193,7 +170,6 @@ class ContactDetector:
         self._was_planned = np.ones(self.robot.n_feet, dtype=bool)
         self.reaching[:] = False
         self._late_since[:] = np.nan
-        self.holding[:] = False
 
     def _index_plan(self, plan: KnotPlan) -> None:
         """Per knot and foot, the time the foot's next planned stance starts (its own time if the knot is a
@@ -246,7 +222,7 @@ class ContactDetector:
             if self.late_descent_speed is not None or self.late_reach_speed is not None:
                 # the leg's own motion, not the trunk's
                 self.leg_descent_speeds[foot] = -(jacobian[2, columns] @ v[columns])
-            if self.late_reach_speed is not None or self.early_hold:
+            if self.late_reach_speed is not None:
                 np.copyto(self._foot_jacobians[foot], jacobian[:3])
         forces = self.estimated_forces
         try:
@@ -284,25 +260,6 @@ class ContactDetector:
         target = self.reach_targets[foot]
         target[:] = origin
         target[2] -= min(sunk, room)
-        self._target_velocity[:] = 0.0
-        if sunk < room:
-            self._target_velocity[2] = -speed
-        self._position_torques(foot, measurement, target, self._target_velocity, self.reach_torques[foot])
-
-    def _position_torques(
-        self,
-        foot: int,
-        measurement: Measurement,
-        target: np.ndarray,
-        target_velocity: np.ndarray,
-        out: np.ndarray,
-    ) -> None:
-        """Into ``out``, the torques on the foot's leg that drive it toward ``target`` (world position of
-        the foot frame's origin) at ``target_velocity`` as a critically damped spring of natural frequency
-        ``w`` (``late_reach_frequency``) through the leg's operational-space inertia with the trunk held,
-        plus the leg's bias forces: ``J_f,leg' Lambda_f (w^2 (p_d - p) + 2 w (v_d - v)) + h_leg``."""
-        data = self.data
-        position = data.oMf[self.robot.foot_frame_ids[foot]].translation
         v = measurement.v
         jacobian = self._foot_jacobians[foot]
         np.matmul(jacobian, v, out=self._foot_velocity)
@@ -310,13 +267,14 @@ class ContactDetector:
         leg = jacobian[:, columns]
         mass = self._mass[columns, columns]
         self._leg_inertia[:] = np.linalg.inv(leg @ np.linalg.solve(mass, leg.T))
-        w = self.settings.late_reach_frequency
+        w = s.late_reach_frequency
         accel = w * w * (target - position) - 2.0 * w * self._foot_velocity
-        accel += 2.0 * w * target_velocity
+        if sunk < room:
+            accel[2] -= 2.0 * w * speed
         bias = self._bias[columns]
         np.matmul(self._coriolis[columns], v, out=bias)
         bias += data.g[columns]
-        out[:] = leg.T @ (self._leg_inertia @ accel) + bias
+        self.reach_torques[foot] = leg.T @ (self._leg_inertia @ accel) + bias
 
     def leg_torque(self, foot: int, force: np.ndarray) -> np.ndarray:
         """``J_f,leg' force``: the torques on the foot's leg that push it with ``force`` (world, N) at the
@@ -389,18 +347,6 @@ class ContactDetector:
                 if self.in_contact[foot]:
                     self.early_ticks += 1
             self._was_planned[foot] = planned[foot]
-            if self.early_hold:
-                early = self.in_contact[foot] and not planned[foot]
-                if early and not self.holding[foot]:
-                    self._hold_origin[foot] = data.oMf[frame_id].translation
-                self.holding[foot] = early
-                if early:
-                    self._target_velocity[:] = 0.0
-                    origin, torques = self._hold_origin[foot], self.hold_torques[foot]
-                    self._position_torques(foot, measurement, origin, self._target_velocity, torques)
-                    # the stance torques push the ground with -J' F (Eq. (34a)'s tau*)
-                    assert ground is not None
-                    self.hold_torques[foot] -= self.hold_load * (self._leg_transposes[foot] @ ground.normal())
             if self.late_reach_speed is not None:
                 late = planned[foot] and not self.in_contact[foot]
                 fast = self.leg_descent_speeds[foot] > self.late_reach_speed

@@ -533,8 +533,6 @@ class VWBCController(LowLevelController[Plan]):
         np.matmul(plan.Qux[k], dx, out=self._g_tau)
         self._g_tau += plan.Qu[k]
         self._g_tau -= plan.Quu[k] @ plan.us[k]
-        if self.detector is not None and self.detector.early_hold:
-            self._hold_early_feet(plan, k)
         if self.detector is not None and self.detector.late_reach_speed is not None:
             self._reach_with_late_feet(plan, k)
         elif self.detector is not None and self.detector.late_descent_speed is not None:
@@ -589,27 +587,6 @@ class VWBCController(LowLevelController[Plan]):
         for foot in feet:
             columns = slice(3 * foot, 3 * foot + 3)
             shift = detector.reach_torques[foot] - policy[columns]
-            self._g_tau -= hessian[:, columns] @ shift
-
-    def _hold_early_feet(self, plan: Plan, k: int) -> None:
-        """An early foot (in the stance set before its planned stance, the detector's ``holding``) is held
-        where it was taken in (``ContactDetector.hold_torques``) instead of driven by the swing knot's policy,
-        which pushes it on along its swing curve into the ground: the linear term of (34a) is shifted as in
-        ``_reach_with_late_feet`` so that the QP's unconstrained minimiser takes those torques on that leg's
-        joints and stays the policy on the others'."""
-        detector = self.detector
-        assert detector is not None
-        if not detector.holding.any():
-            return
-        feet = np.flatnonzero(detector.holding & self._stance)
-        if feet.size == 0:
-            return
-        quu = plan.Quu[k]
-        hessian = 0.5 * (quu + quu.T)
-        policy = -np.linalg.solve(hessian, self._g_tau)
-        for foot in feet:
-            columns = slice(3 * foot, 3 * foot + 3)
-            shift = detector.hold_torques[foot] - policy[columns]
             self._g_tau -= hessian[:, columns] @ shift
 
     def _unload_falling_late_feet(self, plan: Plan, k: int) -> None:
