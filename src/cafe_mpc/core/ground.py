@@ -5,13 +5,14 @@ each foot's latest contact point (the sole's position, from the measured state's
 foot is in stance) is its estimate of the ground around it: its height under the base, its slope, its
 normal.
 
-``GroundPlane`` keeps one contact point per foot and refits ``z = height + slope_x (x - cx) + slope_y
-(y - cy)`` by least squares whenever a point changes (``cx, cy``: the points' centroid). With fewer than
-three points that span the plane (feet in a line), the slope stays zero and the height is the points'
-mean. The slope is limited to ``max_slope`` (rise per run) so that a misplaced point cannot tip the plane
-over. The reference (``reference.locomotion``: base height, pitch and footholds on the plane) and the
-contact detector (``low_level.contact_detection``: a foot's height above the plane) each keep their own,
-updated from the measurement they see.
+``GroundPlane`` keeps one contact point per foot and fits ``z = height + slope_x (x - cx) + slope_y (y - cy)``
+by least squares (``cx, cy``: the points' centroid), when the plane is next read after a point changed: a
+plane observed at every control tick and read at every MPC update fits once per update. With fewer than three
+points that span the plane (feet in a line), the slope stays zero and the height is the points' mean. The
+slope is limited to ``max_slope`` (rise per run) so that a misplaced point cannot tip the plane over. The
+reference (``reference.locomotion``: base height, pitch and footholds on the plane) and the contact detector
+(``low_level.contact_detection``: a foot's height above the plane) each keep their own, updated from the
+measurement they see.
 """
 
 from __future__ import annotations
@@ -42,6 +43,7 @@ class GroundPlane:
         self.known = np.zeros(n_feet, dtype=bool)
         self._standing = np.zeros(n_feet, dtype=bool)
         self._design = np.zeros((n_feet, 3))
+        self._stale = False
         self.reset()
 
     def reset(self) -> None:
@@ -50,9 +52,31 @@ class GroundPlane:
         self._standing[:] = False
         self.frame_shift = 0.0
         """How far the measurement's frame has moved up in all (the sum of the shifts ``observe`` saw)."""
-        self.height = self.initial_height
-        self.slope = np.zeros(2)
-        self.centre = np.zeros(2)
+        self._height = self.initial_height
+        self._slope = np.zeros(2)
+        self._centre = np.zeros(2)
+        self._stale = False
+
+    @property
+    def height(self) -> float:
+        """The plane's height (world z) at ``centre``."""
+        if self._stale:
+            self._fit()
+        return self._height
+
+    @property
+    def slope(self) -> np.ndarray:
+        """The plane's rise per run along world x and y."""
+        if self._stale:
+            self._fit()
+        return self._slope
+
+    @property
+    def centre(self) -> np.ndarray:
+        """The contact points' centroid (world x, y)."""
+        if self._stale:
+            self._fit()
+        return self._centre
 
     def observe(self, soles: np.ndarray, stance: np.ndarray) -> None:
         """The soles (world, ``(n_feet, 3)``) of the feet in ``stance`` are contact points now; refit.
@@ -71,14 +95,15 @@ class GroundPlane:
         if standing.any():
             self.points[standing] = soles[standing]
             self.known[standing] = True
-            self._fit()
+            self._stale = True
 
     def _fit(self) -> None:
+        self._stale = False
         points = self.points[self.known]
         centre = points[:, :2].mean(axis=0)
-        self.centre = centre
-        self.height = float(points[:, 2].mean())
-        self.slope = np.zeros(2)
+        self._centre = centre
+        self._height = float(points[:, 2].mean())
+        self._slope = np.zeros(2)
         if len(points) < 3:
             return
         design = self._design[: len(points)]
@@ -93,8 +118,8 @@ class GroundPlane:
         norm = float(np.hypot(slope[0], slope[1]))
         if norm > self.max_slope:
             slope = slope * (self.max_slope / norm)
-        self.height = float(solution[0])
-        self.slope = slope
+        self._height = float(solution[0])
+        self._slope = slope
 
     def height_at(self, x: float, y: float) -> float:
         """The plane's height (world z) at world ``(x, y)``."""
