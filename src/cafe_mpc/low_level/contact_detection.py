@@ -133,10 +133,7 @@ class ContactDetector:
         (w^2 (p_d - p) + 2 w (v_d - v)) + h_leg`` (``_reach``)."""
         self.stumble_force = (
             None
-            if settings is None
-            or self.settings.stumble_force is None
-            or not ground_plane
-            or self.force_estimate != "momentum"
+            if self.settings.stumble_force is None or not ground_plane or self.force_estimate != "momentum"
             else self.settings.stumble_force * weight_share
         )
         """The stumble reflex's threshold (N) where it acts (a ground plane and the momentum observer), else
@@ -297,9 +294,10 @@ class ContactDetector:
         target moves at ``c`` (``stumble_speed``) up by ``stumble_lift`` ``h``, then by ``stumble_forward``
         ``l`` along the trunk's horizontal travel ``d`` at the stumble, then down until it lands (at most
         ``h + late_reach_depth`` below ``p_0``): with ``s = c (t - t_0)``,
-        ``p_d = p_0 + min(s, h) e_z + clip(s
-        - h, 0, l) d - clip(s - h - l, 0, h + depth) e_z``, held where it lands once the observer reads its
-        load on the way down; followed as the late reach's target (``_drive``)."""
+        ``p_d = p_0 + min(s, h) e_z + clip(s - h, 0, l) d - clip(s - h - l, 0, h + depth) e_z``; held where
+        it is once the observer reads its load on the way down (``touchdown_force``), until its planned
+        stance (or the detector's early touchdown) hands it to the plan; followed as the late reach's target
+        (``_drive``)."""
         s = self.settings
         target, velocity = self.reach_targets[foot], self._target_velocity
         if self._stumble_held[foot]:  # landed before its planned stance: held where it landed
@@ -458,6 +456,7 @@ class ContactDetector:
                 if self.in_contact[foot] or (planned[foot] and self._stumble_held[foot]):
                     self.stumbling[foot] = False  # landed: the plan's stance takes it from here
                 elif not self.stumbling[foot] and not planned[foot] and lead > self.on_time:
+                    # (``lead``: this swing's time to its planned touchdown, set above)
                     self.stumbling[foot] = self._start_stumble(t, foot, measurement, foot_forces[foot])
                 if self.stumbling[foot]:
                     self.reaching[foot] = False
