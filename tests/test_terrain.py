@@ -500,3 +500,28 @@ def test_a_blind_flying_trot_reaches_down_with_a_late_foot_and_climbs_a_15_degre
     _, _, log = simulate_run(config)
     assert not log.fell, log.fall_reason
     assert log.q[-1, 0] > 1.8  # on the incline (1-2 m), past where it tipped over (x 1.67 m)
+
+
+@pytest.mark.slow
+def test_a_blind_bound_lifts_a_foot_stopped_by_a_riser_and_climbs_6_cm_steps():
+    """The bound onto 6 cm steps from 1.1 m, fixed 20 ms latency. Its 6 cm swing meets the first riser's
+    face and the front feet were held against it, the trunk pitching nose-down: it fell at 2.58 s, x 1.1 m
+    (docs/terrain.md, "The bound's 6 cm steps at 6d3648d"). With the preset's stumble reflex
+    (``vwbc.contact_detection.stumble_force: 0.4``) a swinging foot pushed back by the riser rises 7 cm,
+    steps 5 cm on and comes down on the tread ("A stumble reflex"): up at 4 s, past the second riser. The
+    preset as shipped: it fails with the setting removed from it."""
+    from cafe_mpc_lab.experiments.run import simulate_run
+
+    config = load_run_config(
+        "bound",
+        [
+            "simulation.duration=4.0",
+            "mpc.latency=fixed",
+            "mpc.fixed_latency=0.02",
+            "terrain=blind",
+            "scene.terrain=[{kind: steps, rise: 0.06, start: 1.1}]",
+        ],
+    )
+    _, _, log = simulate_run(config)
+    assert not log.fell, log.fall_reason
+    assert log.q[-1, 0] > 1.5  # past the second riser (1.1, 1.4, 1.7 m; x 1.69 m at 4 s)

@@ -163,8 +163,9 @@ def scaled_contact_detection(
 ) -> ContactDetectionSettings:
     """The contact detector's thresholds carried to the robot: touchdown and release heights by the length
     scale, the early window and the on-time margin by the time scale (the momentum observer's gain by its
-    inverse), the landing, late descent and late reach speeds by their ratio, the late reach's depth by the
-    length scale and its frequency by the inverse time scale; the forces are already shares of the robot's
+    inverse), the landing, late descent, late reach and stumble speeds by their ratio, the late reach's depth
+    and the stumble's lift and forward step by the length scale and the reach's frequency by the inverse time
+    scale; the forces are already shares of the robot's
     weight and the ground's height is the scene's."""
     if scale.is_identity:
         return settings
@@ -177,6 +178,9 @@ def scaled_contact_detection(
             "late_reach_speed": scale.speed(settings.late_reach_speed),
             "late_reach_depth": scale.distance(settings.late_reach_depth),
             "late_reach_frequency": scale.rate(settings.late_reach_frequency),
+            "stumble_lift": scale.distance(settings.stumble_lift),
+            "stumble_forward": scale.distance(settings.stumble_forward),
+            "stumble_speed": scale.speed(settings.stumble_speed),
             "momentum_gain": scale.rate(settings.momentum_gain),
             "early_window": scale.duration(settings.early_window),
             "on_time": None if settings.on_time is None else scale.duration(settings.on_time),

@@ -188,6 +188,27 @@ class ContactDetectionSettings(StrictModel):
         description="rad/s; natural frequency of a reaching late foot's position control (critically "
         "damped, through its leg's operational-space inertia; late_reach_speed)",
     )
+    stumble_force: float | None = Field(
+        None,
+        gt=0.0,
+        le=5.0,
+        description="x m g / n_feet; with a ground plane and the momentum observer, a swinging foot (planned "
+        "swing, not in contact, more than the on-time margin before its touchdown) pushed back by more than "
+        "this horizontal force against the trunk's travel, and by more than its vertical force, while it "
+        "moves along the travel slower than the trunk (a riser's face in the way) stumbles: from then on it "
+        "is position-controlled, rising stumble_lift at stumble_speed, moving stumble_forward along the "
+        "travel, then reaching down, held where it lands, until its planned stance (a stumble reflex); "
+        "null: off",
+    )
+    stumble_lift: float = Field(
+        0.07, gt=0.0, le=0.5, description="m; how far a stumbling foot rises above where it stumbled"
+    )
+    stumble_forward: float = Field(
+        0.05, ge=0.0, le=0.5, description="m; how far a stumbling foot moves forward once it has risen"
+    )
+    stumble_speed: float = Field(
+        2.0, gt=0.0, le=10.0, description="m/s; the speed of a stumbling foot's target (stumble_force)"
+    )
     force_estimate: Literal["static", "momentum"] | None = Field(
         None,
         description="the ground force the detector reads: static (the measurement's, from the joint torques "

@@ -58,6 +58,13 @@ it down faster than that is from then on a swing reaching down at that speed (``
 those torques on its leg, ``VWBCController._reach_with_late_feet``; docs/terrain.md, "Late feet reach
 down").
 
+With ``stumble_force`` set (off by default; a ground plane and the observer), a stumble reflex (Bledt et al.,
+"Contact Model Fusion", 2018; ANYmal's and Cheetah 3's blind stair climbing): a foot in its planned swing
+that the observer reads pushed back, against the trunk's horizontal travel, by more than that force (a
+riser's face in the way) is from then on position-controlled until it lands (``stumbling``; its torques in
+``reach_torques``, put on its leg as a reaching foot's): it rises ``stumble_lift``, moves ``stumble_forward``
+along the travel, then reaches down, at ``stumble_speed`` (docs/terrain.md, "A stumble reflex").
+
 ``update(t, measurement, plan)`` returns the detected stance flags (an array the detector owns); counters of
 early and late touchdowns and of the ticks where detection and plan disagree feed the run's statistics.
 """
@@ -124,6 +131,21 @@ class ContactDetector:
         self.reach_torques = np.zeros((robot.n_feet, 3))
         """Each reaching foot's leg torques (its three joints) at the last update: ``J_f,leg' Lambda_f
         (w^2 (p_d - p) + 2 w (v_d - v)) + h_leg`` (``_reach``)."""
+        self.stumble_force = (
+            None
+            if self.settings.stumble_force is None or not ground_plane or self.force_estimate != "momentum"
+            else self.settings.stumble_force * weight_share
+        )
+        """The stumble reflex's threshold (N) where it acts (a ground plane and the momentum observer), else
+        None."""
+        self.stumbling = np.zeros(robot.n_feet, dtype=bool)
+        """With ``stumble_force`` acting, the feet whose swing was pushed back (module docstring), until they
+        land: the VWBC drives their legs with ``reach_torques``."""
+        self._stumble_since = np.zeros(robot.n_feet)
+        self._stumble_origin = np.zeros((robot.n_feet, 3))
+        self._stumble_direction = np.zeros((robot.n_feet, 2))
+        self._stumble_held = np.zeros(robot.n_feet, dtype=bool)
+        self._target_velocity = np.zeros(3)
         self.reach_targets = np.zeros((robot.n_feet, 3))
         """Each reaching foot's target position (world, foot frame's origin) at the last update."""
         self._late_since = np.full(robot.n_feet, np.nan)
@@ -169,6 +191,8 @@ class ContactDetector:
         self.early_ticks = 0
         self._was_planned = np.ones(self.robot.n_feet, dtype=bool)
         self.reaching[:] = False
+        self.stumbling[:] = False
+        self.stumbles = 0
         self._late_since[:] = np.nan
 
     def _index_plan(self, plan: KnotPlan) -> None:
@@ -222,7 +246,7 @@ class ContactDetector:
             if self.late_descent_speed is not None or self.late_reach_speed is not None:
                 # the leg's own motion, not the trunk's
                 self.leg_descent_speeds[foot] = -(jacobian[2, columns] @ v[columns])
-            if self.late_reach_speed is not None:
+            if self.late_reach_speed is not None or self.stumble_force is not None:
                 np.copyto(self._foot_jacobians[foot], jacobian[:3])
         forces = self.estimated_forces
         try:
@@ -260,6 +284,80 @@ class ContactDetector:
         target = self.reach_targets[foot]
         target[:] = origin
         target[2] -= min(sunk, room)
+        self._target_velocity[:] = 0.0
+        if sunk < room:
+            self._target_velocity[2] = -speed
+        self._drive(foot, measurement)
+
+    def _stumble(self, t: float, foot: int, measurement: Measurement) -> None:
+        """The leg torques of a stumbling foot (``stumble_force``): from where it stumbled (``p_0``) its
+        target moves at ``c`` (``stumble_speed``) up by ``stumble_lift`` ``h``, then by ``stumble_forward``
+        ``l`` along the trunk's horizontal travel ``d`` at the stumble, then down until it lands (at most
+        ``h + late_reach_depth`` below ``p_0``): with ``s = c (t - t_0)``,
+        ``p_d = p_0 + min(s, h) e_z + clip(s - h, 0, l) d - clip(s - h - l, 0, h + depth) e_z``; held where
+        it is once the observer reads its load on the way down (``touchdown_force``), until its planned
+        stance (or the detector's early touchdown) hands it to the plan; followed as the late reach's target
+        (``_drive``)."""
+        s = self.settings
+        target, velocity = self.reach_targets[foot], self._target_velocity
+        if self._stumble_held[foot]:  # landed before its planned stance: held where it landed
+            velocity[:] = 0.0
+            self._drive(foot, measurement)
+            return
+        speed, lift, forward = s.stumble_speed, s.stumble_lift, s.stumble_forward
+        travelled = speed * (t - self._stumble_since[foot])
+        target[:] = self._stumble_origin[foot]
+        velocity[:] = 0.0
+        direction = self._stumble_direction[foot]
+        rise = min(travelled, lift)
+        ahead = min(max(travelled - lift, 0.0), forward)
+        sink = min(max(travelled - lift - forward, 0.0), lift + s.late_reach_depth)
+        target[2] += rise - sink
+        target[:2] += ahead * direction
+        if travelled < lift:
+            velocity[2] = speed
+        elif travelled < lift + forward:
+            velocity[:2] = speed * direction
+        elif sink < lift + s.late_reach_depth:
+            velocity[2] = -speed
+        if sink > 0.0 and self.estimated_forces[foot, 2] > self.touchdown_force:
+            self._stumble_held[foot] = True  # on the ground: it stops there (the schedule takes it in)
+            target[:] = self.data.oMf[self.robot.foot_frame_ids[foot]].translation
+            velocity[:] = 0.0
+        self._drive(foot, measurement)
+
+    def _start_stumble(self, t: float, foot: int, measurement: Measurement, force: np.ndarray) -> bool:
+        """Whether a swinging foot stumbles now: the observer's horizontal force on it against the trunk's
+        horizontal travel (world) above ``stumble_force`` and above the vertical force (at a lift-off the
+        observer's lag still reads the stance's load for a few milliseconds: mostly vertical), the foot moving
+        along the travel slower than the trunk (held back); if so its origin and direction are set."""
+        assert self.stumble_force is not None
+        rotation = self.data.oMi[1].rotation  # the floating base's orientation (world from base)
+        travel = (rotation @ measurement.v[:3])[:2]
+        norm = float(np.hypot(travel[0], travel[1]))
+        if norm < 1e-3:
+            return False
+        direction = travel / norm
+        push = -float(force[:2] @ direction)
+        if push <= self.stumble_force or push <= abs(float(force[2])):  # not a lift-off's lagging load
+            return False
+        foot_velocity = self._foot_jacobians[foot] @ measurement.v
+        if float(foot_velocity[:2] @ direction) >= norm:  # a foot moving faster than its trunk: not held
+            return False
+        self._stumble_since[foot] = t
+        self._stumble_origin[foot] = self.data.oMf[self.robot.foot_frame_ids[foot]].translation
+        self._stumble_direction[foot] = direction
+        self._stumble_held[foot] = False
+        self.stumbles += 1
+        return True
+
+    def _drive(self, foot: int, measurement: Measurement) -> None:
+        """``reach_torques[foot]``: the leg follows ``reach_targets[foot]`` (moving at ``_target_velocity``)
+        as a critically damped spring of natural frequency ``late_reach_frequency`` through its
+        operational-space inertia with the trunk held, plus its bias forces (``_reach``)."""
+        s, data = self.settings, self.data
+        position = data.oMf[self.robot.foot_frame_ids[foot]].translation
+        target = self.reach_targets[foot]
         v = measurement.v
         jacobian = self._foot_jacobians[foot]
         np.matmul(jacobian, v, out=self._foot_velocity)
@@ -269,8 +367,7 @@ class ContactDetector:
         self._leg_inertia[:] = np.linalg.inv(leg @ np.linalg.solve(mass, leg.T))
         w = s.late_reach_frequency
         accel = w * w * (target - position) - 2.0 * w * self._foot_velocity
-        if sunk < room:
-            accel[2] -= 2.0 * w * speed
+        accel += 2.0 * w * self._target_velocity  # as written before the stumble: the same floats
         bias = self._bias[columns]
         np.matmul(self._coriolis[columns], v, out=bias)
         bias += data.g[columns]
@@ -355,6 +452,15 @@ class ContactDetector:
                     self._reach(t, foot, measurement)
                 else:
                     self._late_since[foot] = np.nan
+            if self.stumble_force is not None:
+                if self.in_contact[foot] or (planned[foot] and self._stumble_held[foot]):
+                    self.stumbling[foot] = False  # landed: the plan's stance takes it from here
+                elif not self.stumbling[foot] and not planned[foot] and lead > self.on_time:
+                    # (``lead``: this swing's time to its planned touchdown, set above)
+                    self.stumbling[foot] = self._start_stumble(t, foot, measurement, foot_forces[foot])
+                if self.stumbling[foot]:
+                    self.reaching[foot] = False
+                    self._stumble(t, foot, measurement)
         if ground is not None:
             ground.observe(soles, self.in_contact)
         return self.in_contact
@@ -367,4 +473,5 @@ class ContactDetector:
             ),
             "early_touchdown_ticks": self.early_ticks,
             "late_touchdown_ticks": self.late_touchdown_ticks,
+            **({"stumbles": self.stumbles} if self.stumble_force is not None else {}),
         }

@@ -533,7 +533,9 @@ class VWBCController(LowLevelController[Plan]):
         np.matmul(plan.Qux[k], dx, out=self._g_tau)
         self._g_tau += plan.Qu[k]
         self._g_tau -= plan.Quu[k] @ plan.us[k]
-        if self.detector is not None and self.detector.late_reach_speed is not None:
+        if self.detector is not None and (
+            self.detector.late_reach_speed is not None or self.detector.stumble_force is not None
+        ):
             self._reach_with_late_feet(plan, k)
         elif self.detector is not None and self.detector.late_descent_speed is not None:
             self._unload_falling_late_feet(plan, k)
@@ -573,12 +575,13 @@ class VWBCController(LowLevelController[Plan]):
         detector's ``reach_torques`` on that leg's joints and stays the policy on the others'
         (``g <- g - H[:, leg] (tau_reach - tau_p[leg])`` moves the minimiser by exactly that shift). The
         plan's stance torques for that leg, its planned ground force ``-J' F*`` among them, are gone until
-        the foot lands; the torque bounds (34d) and the stance feet's constraints still hold."""
+        the foot lands; the torque bounds (34d) and the stance feet's constraints still hold. A stumbling foot
+        (``stumbling``, the stumble reflex) is driven the same way."""
         detector = self.detector
         assert detector is not None
-        if not detector.reaching.any():  # the common tick: nothing made on the 500 Hz path
+        if not detector.reaching.any() and not detector.stumbling.any():  # the common tick
             return
-        feet = np.flatnonzero(detector.reaching & ~self._stance)
+        feet = np.flatnonzero((detector.reaching | detector.stumbling) & ~self._stance)
         if feet.size == 0:
             return
         quu = plan.Quu[k]
