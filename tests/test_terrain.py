@@ -275,6 +275,31 @@ def test_a_blind_ground_from_the_estimate_ignores_the_updates_predicted_feet(rob
     assert flat.ground is None and not flat.ground_from_estimate
 
 
+def test_a_blind_ground_from_the_estimate_takes_moving_feet_below_it_with_ground_below(robot):
+    """``gait.blind_ground_below``: a foot planned in stance that moves (1 m/s, above
+    ``GROUND_FOOT_SPEED``) is a point of the plane once its sole is that far below it: with 3 cm, feet
+    5 cm below move the plane down 5 cm; feet 2 cm below, or without the option, leave it where it was (the
+    bound's stance feet slid down the 15 deg slope and its plane stayed at the top's level)."""
+    from cafe_mpc.assembly.references import build_reference
+
+    standing = 0.1  # s: the bound's start stance, all four feet planned down
+    q = robot.q_standing.copy()
+    still = np.zeros(robot.nv)
+    moving = still.copy()
+    moving[2] = -1.0  # base (and every foot) moving down at 1 m/s
+    overrides = ["terrain=blind", "gait.blind_ground=estimate"]
+    for below, drop, expected in ((None, 0.05, 0.0), (0.03, 0.02, 0.0), (0.03, 0.05, -0.05)):
+        extra = [] if below is None else [f"gait.blind_ground_below={below}"]
+        reference = build_reference(resolve(load_run_config("bound", overrides + extra), robot))
+        assert reference.ground is not None
+        reference.observe_estimate(standing, q, still)
+        start = reference.ground.height
+        lowered = q.copy()
+        lowered[2] -= drop
+        reference.observe_estimate(standing + 0.002, lowered, moving)
+        assert reference.ground.height - start == pytest.approx(expected, abs=1e-9), (below, drop)
+
+
 def test_a_swing_that_lifts_first_rises_in_place_then_moves_and_its_velocity_is_its_rate():
     """``sample_foot_floored`` with ``lift`` 0.25: over the first quarter of the swing the foot rises with
     its horizontal position at lift-off; it lands on time at its foothold; velocities are the positions'
