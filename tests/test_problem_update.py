@@ -176,12 +176,15 @@ def assert_expected_references(built: BuiltProblem, expected: tuple[list[list[di
                 )
 
 
-def _builder(robot, schedule: str, touchdown_on_reference: bool = False) -> CafeProblemBuilder:
+def _builder(
+    robot, schedule: str, touchdown_on_reference: bool = False, touchdown_below_floor: bool = False
+) -> CafeProblemBuilder:
     return CafeProblemBuilder(
         WholeBodyModelFactory(robot),
         SRBModelFactory(robot=robot),
         ModelSchedule.named(schedule),
         touchdown_on_reference=touchdown_on_reference,
+        touchdown_below_floor=touchdown_below_floor,
     )
 
 
@@ -338,3 +341,29 @@ def test_touchdown_constraint_height_follows_the_reference(robot, raised, on_ref
             assert np.all(surface == 0.0) and not np.any(np.signbit(surface))
         else:
             np.testing.assert_allclose(surface, raised, atol=1e-12)
+
+
+@pytest.mark.parametrize("raised", [0.25, -0.1])
+def test_touchdown_on_the_lower_surface_reaches_below_the_floor_only(robot, raised):
+    """``mpc.touchdown_surface: lower``: Eq. (25) lands a foot at the lower of the reference's foothold
+    height and the floor: a trajectory lowered 10 cm (a blind descent's footholds under the estimator's
+    floor) lands 10 cm down, one raised onto a 25 cm box top lands on the floor (met early, as with
+    ``floor``)."""
+    from dataclasses import replace
+
+    from cafe_mpc.reference.trajectory import TrajectoryReference
+    from cafe_mpc.reference.trajectory_file import load_packaged_trajectory
+
+    spin = load_packaged_trajectory("spin", robot)
+    xs = spin.xs.copy()
+    xs[:, 2] += raised
+    reference = TrajectoryReference(
+        robot, replace(spin, xs=xs), weight_set="regular", hold_weight_set="regular"
+    )
+    builder = _builder(robot, "S4", touchdown_on_reference=True, touchdown_below_floor=True)
+    touchdown_time = float(spin.switching_times[2])  # flight -> landing
+    built = builder.build(touchdown_time - 0.07, xs[0], reference)
+    constraints = [phase.switching_constraint for phase in built.problem.phases]
+    touchdowns = [c for c in constraints if c is not None and len(c.legs) == robot.n_feet]
+    assert len(touchdowns) == 1
+    np.testing.assert_allclose(touchdowns[0].surface_heights, min(raised, 0.0), atol=1e-12)

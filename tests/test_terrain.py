@@ -275,6 +275,32 @@ def test_a_blind_ground_from_the_estimate_ignores_the_updates_predicted_feet(rob
     assert flat.ground is None and not flat.ground_from_estimate
 
 
+def test_a_blind_ground_from_the_estimate_takes_moving_feet_below_it_with_ground_below(robot):
+    """``gait.blind_ground_below``: a foot planned in stance that moves (1 m/s, above
+    ``GROUND_FOOT_SPEED``) is a point of the plane once its sole is that far below it: with 3 cm, feet
+    5 cm below move the plane down 5 cm; feet 2 cm below, or without the option (null; the bound's preset
+    sets 0.03), leave it where it was (the bound's stance feet slid down the 15 deg slope and its plane stayed
+    at the top's level)."""
+    from cafe_mpc.assembly.references import build_reference
+
+    standing = 0.1  # s: the bound's start stance, all four feet planned down
+    q = robot.q_standing.copy()
+    still = np.zeros(robot.nv)
+    moving = still.copy()
+    moving[2] = -1.0  # base (and every foot) moving down at 1 m/s
+    overrides = ["terrain=blind", "gait.blind_ground=estimate"]
+    for below, drop, expected in ((None, 0.05, 0.0), (0.03, 0.02, 0.0), (0.03, 0.05, -0.05)):
+        extra = ["gait.blind_ground_below=null" if below is None else f"gait.blind_ground_below={below}"]
+        reference = build_reference(resolve(load_run_config("bound", overrides + extra), robot))
+        assert reference.ground is not None
+        reference.observe_estimate(standing, q, still)
+        start = reference.ground.height
+        lowered = q.copy()
+        lowered[2] -= drop
+        reference.observe_estimate(standing + 0.002, lowered, moving)
+        assert reference.ground.height - start == pytest.approx(expected, abs=1e-9), (below, drop)
+
+
 def test_a_swing_that_lifts_first_rises_in_place_then_moves_and_its_velocity_is_its_rate():
     """``sample_foot_floored`` with ``lift`` 0.25: over the first quarter of the swing the foot rises with
     its horizontal position at lift-off; it lands on time at its foothold; velocities are the positions'
@@ -475,6 +501,31 @@ def test_a_blind_bound_climbs_a_15_degree_slope_with_its_ground_from_the_estimat
     _, _, log = simulate_run(config)
     assert not log.fell, log.fall_reason
     assert log.q[-1, 0] > 1.5  # up the incline (1-2 m), past where it stalled (x 1.39 m)
+
+
+@pytest.mark.slow
+def test_a_blind_bound_goes_down_a_15_degree_slope_with_its_descent_settings():
+    """The bound over a 15 degree slope 1 m ahead (up 1 m, a 1 m top, down 1 m), fixed 20 ms latency, 10 s.
+    At 4546fb5 it climbed and fell going down at 8.83 s (x 3.49 m): the estimator's floor and the plan's
+    touchdown stayed at the top's level, 6-9 cm above the incline, and the reference's plane took no point
+    from stance feet that slid (docs/terrain.md, "Why the descent fails"). The preset's
+    ``mpc.touchdown_surface: lower``, ``gait.blind_ground_below``, ``late_reach_speed`` and no accelerometer
+    bias state take it down and over the end at 4 m."""
+    from cafe_mpc_lab.experiments.run import simulate_run
+
+    config = load_run_config(
+        "bound",
+        [
+            "simulation.duration=10.0",
+            "mpc.latency=fixed",
+            "mpc.fixed_latency=0.02",
+            "terrain=blind",
+            "scene.terrain=[{kind: slope, angle_deg: 15, length: 1.0}]",
+        ],
+    )
+    _, _, log = simulate_run(config)
+    assert not log.fell, log.fall_reason
+    assert log.q[-1, 0] > 4.0  # past the foot of the descent
 
 
 @pytest.mark.slow

@@ -94,6 +94,7 @@ def locomotion_reference(
         ground_plane=ground_plane,
         terrain_map=terrain_map,
         ground_from_estimate=ground_plane and terrain_map is None and section.blind_ground == "estimate",
+        ground_below=gait.blind_ground_below,
     )
 
 

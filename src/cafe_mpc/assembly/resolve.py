@@ -103,6 +103,7 @@ def resolve(config: RunConfig, robot: Robot) -> ResolvedRun:
         ground_plane=config.terrain != "flat",
         terrain_map=scaled_terrain_map(config.terrain_map, scale) if config.terrain == "height_map" else None,
         touchdown_on_reference=touchdown_on_reference(config),
+        touchdown_below_floor=touchdown_below_floor(config),
         gait=gait,
         segment_gaits=segment_gaits,
         command_profile=reference_profile(config, robot),
@@ -117,7 +118,14 @@ def touchdown_on_reference(config: RunConfig) -> bool:
     surface = config.mpc.touchdown_surface
     if surface is None:
         return config.terrain == "height_map"
-    return surface == "reference"
+    return surface in ("reference", "lower")
+
+
+def touchdown_below_floor(config: RunConfig) -> bool:
+    """Whether the touchdown constraint (25) lands a foot at the lower of the floor z = 0 and the
+    reference's foothold height (``mpc.touchdown_surface: lower``): a blind descent's footholds below the
+    estimator's floor are reached, a climb's above it are met early as on the floor."""
+    return config.mpc.touchdown_surface == "lower"
 
 
 def model_calibration(section: CalibrationConfig) -> ModelCalibration:
@@ -219,6 +227,9 @@ def resolve_gait(section: GaitConfig, scale: RobotScale, blind: bool = False) ->
         foothold_box=(scale.distance(FOOTHOLD_BOX[0]), scale.distance(FOOTHOLD_BOX[1])),
         path_gain=section.path_gain / scale.distance(1.0),
         touchdown_events=None if events is None else scale.duration(events),
+        blind_ground_below=None
+        if section.blind_ground_below is None
+        else scale.distance(section.blind_ground_below),
     )
 
 

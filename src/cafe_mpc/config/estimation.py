@@ -70,7 +70,11 @@ class KinematicKFSettings(StrictModel):
     suspect_factor: float = Field(
         100.0, ge=0.0, le=1e6, description="MIT's high suspect number: noise x (1 + (1 - trust) x this)"
     )
-    accelerometer_bias: bool = Field(True, description="estimate a world-frame accelerometer bias")
+    accelerometer_bias: bool | Literal["flat"] = Field(
+        True,
+        description="estimate a world-frame accelerometer bias: true | false | flat (on flat ground only, "
+        "terrain: flat; off it the blind bound went down a 15 deg slope without the state: docs/terrain.md)",
+    )
     """3 more states, a random walk (MIT's filter has none): it absorbs the IMU's bias and the acceleration
     error of a tilted attitude estimate (g x tilt), so the legs' velocity can be trusted less without the
     estimate drifting."""

@@ -408,6 +408,17 @@ class GaitConfig(StrictModel):
     on a slope the blind bound's reference read that as the frame rising 5-10 cm at every touchdown and
     moved the other pair's points with it, so that its plane flipped between 20 deg and flat (slightly
     downhill) every half cycle, with ground truth as with the estimator (docs/terrain.md)."""
+    blind_ground_below: float | None = Field(
+        None,
+        ge=0.0,
+        le=0.2,
+        description="m, with blind_ground: estimate, a foot planned in stance that is still moving counts as "
+        "a point of the plane once its sole is this far below it (a foot sliding or landing down a slope "
+        "the plane has not seen; a late foot hanging above the plane stays out); null: only still feet",
+    )
+    """Going down the 15 deg slope the blind bound's stance feet slid and bounced at 0.3-3 m/s, above
+    ``GROUND_FOOT_SPEED``: its plane took no point for 0.8 s from the crest and stayed flat at the top's
+    level, 6-15 cm above the incline (docs/terrain.md)."""
     raibert_gain: float = Field(0.03, ge=0.0, le=1.0, description="s, Raibert velocity feedback gain")
     start_stance: float = Field(
         0.0, ge=0.0, le=3600.0, description="s of all-feet stand before the gait's first cycle starts"
@@ -611,12 +622,13 @@ class MpcConfig(MpcSettings):
         "velocity), semi_implicit (Crocoddyl's Euler) or explicit_world (Eq. (23) with the base's linear "
         "velocity stepped in the world frame: keeps a spinning body's momentum in flight)",
     )
-    touchdown_surface: Literal["floor", "reference"] | None = Field(
+    touchdown_surface: Literal["floor", "reference", "lower"] | None = Field(
         None,
-        description="where the touchdown constraint (25) puts a landing foot: the floor z = 0 (the paper's) "
-        "or the reference's foothold height at the touchdown (a stored trajectory onto a box, the height "
-        "map's footholds; the blind ground plane's footholds made the blind bound fall on a 10 deg slope); "
-        "null: reference with terrain: height_map, else floor",
+        description="where the touchdown constraint (25) puts a landing foot: the floor z = 0 (the paper's), "
+        "the reference's foothold height at the touchdown (a stored trajectory onto a box, the height "
+        "map's footholds; the blind ground plane's footholds made the blind bound fall on a 10 deg slope) "
+        "or the lower of the two (a foothold below the floor, going down a blind slope, is reached; one "
+        "above it is met early, as on the floor); null: reference with terrain: height_map, else floor",
     )
     friction: float = Field(
         CONTROLLER_FRICTION,

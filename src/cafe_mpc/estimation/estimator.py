@@ -234,7 +234,8 @@ class StateEstimator:
         )
         """The attitude and rates while the IMU is out (``update``'s ``imu_out``); None: its last sample
         held."""
-        self.feet_start = 9 if settings.accelerometer_bias else 6
+        bias = settings.accelerometer_bias is True or (settings.accelerometer_bias == "flat" and flat_ground)
+        self.feet_start = 9 if bias else 6
         n = self.feet_start + 3 * n_feet
         self.x = np.zeros(n)
         self.P = np.zeros((n, n))

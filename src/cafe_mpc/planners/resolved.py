@@ -68,6 +68,8 @@ class ResolvedGait:
     foothold_box: tuple[float, float]
     path_gain: float
     touchdown_events: float | None
+    blind_ground_below: float | None = None
+    """m (length-scaled), ``gait.blind_ground_below``; None: off."""
 
 
 @dataclass(frozen=True)
@@ -99,7 +101,8 @@ class ResolvedRun:
     (``terrain: height_map``; the config's ``terrain_map``, lengths scaled to the robot), else None.
     ``touchdown_on_reference``: the touchdown constraint (25) puts a landing foot at the reference's
     foothold height, not on the floor (``mpc.touchdown_surface``; null: with the height map, whose
-    footholds are where the treads are).
+    footholds are where the treads are). ``touchdown_below_floor``: with it, at the lower of that height
+    and the floor (``mpc.touchdown_surface: lower``).
     ``gait``: the
     ``gait`` section resolved (None without one); ``segment_gaits``: each ``reference`` segment's gait
     resolved (None for the others). ``command_profile``: what the run commands over time (tracking metrics
@@ -118,6 +121,7 @@ class ResolvedRun:
     ground_plane: bool
     terrain_map: TerrainMapSettings | None
     touchdown_on_reference: bool
+    touchdown_below_floor: bool
     gait: ResolvedGait | None
     segment_gaits: tuple[ResolvedGait | None, ...]
     command_profile: CommandProfile

@@ -312,6 +312,7 @@ class LocomotionReference(Reference):
         terrain_map: TerrainMapSettings | None = None,
         swing_lift: float = 0.0,
         ground_from_estimate: bool = False,
+        ground_below: float | None = None,
     ) -> None:
         if not commands:
             commands = [VelocityCommand()]
@@ -385,6 +386,11 @@ class LocomotionReference(Reference):
         plan's predictions, in which a landing foot stands where the plan put it and then rises to where it
         is over the next updates, a change the plane's frame-shift rule takes for the estimator's frame
         moving. Until the first estimate arrives (the MPC in its own process gets none) ``update``'s."""
+        if ground_below is not None and not (math.isfinite(ground_below) and ground_below >= 0.0):
+            raise ValueError(f"ground_below must be >= 0 m or None, got {ground_below}")
+        self.ground_below = ground_below
+        """With ``ground_from_estimate``: a foot planned in stance that still moves is a point of the plane
+        once its sole is this far below the plane (``gait.blind_ground_below``); None: only still feet."""
         self._estimated_ground = False
         """Whether ``observe_estimate`` has fed the plane (``ground_from_estimate``)."""
         self._estimate_data = robot.model.createData()
@@ -791,7 +797,9 @@ class LocomotionReference(Reference):
     def _observe_ground_estimate(self, t: float, q: np.ndarray, v: np.ndarray) -> None:
         """The ground plane through the feet planned in stance at ``t`` that stand still in the state
         estimate ``q, v`` of that control tick (``_observe_ground``'s rule on the estimate; each foot's
-        latest point while it stands)."""
+        latest point while it stands); with ``ground_below`` also those that move with the sole that far
+        below the plane: a foot below the ground believed is on lower ground (sliding down a slope, or
+        landing on it), where a late foot hanging from the body stays above it."""
         assert self.ground is not None
         robot, data = self.robot, self._estimate_data
         pin.forwardKinematics(robot.model, data, q, v)
@@ -804,6 +812,10 @@ class LocomotionReference(Reference):
                 self._estimate_positions[foot] = data.oMf[frame_id].translation
                 velocity = pin.getFrameVelocity(robot.model, data, frame_id, pin.LOCAL_WORLD_ALIGNED).linear
                 still[foot] = float(np.linalg.norm(velocity)) < GROUND_FOOT_SPEED
+                if not still[foot] and self.ground_below is not None:
+                    sole = self._estimate_positions[foot]
+                    plane = self.ground.height_at(float(sole[0]), float(sole[1]))
+                    still[foot] = sole[2] - robot.foot_radius < plane - self.ground_below
         np.copyto(self._estimate_soles, self._estimate_positions)
         self._estimate_soles[:, 2] -= robot.foot_radius
         self.ground.observe(self._estimate_soles, still)

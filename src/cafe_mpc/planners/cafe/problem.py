@@ -171,11 +171,15 @@ class CafeProblemBuilder:
         schedule: ModelSchedule,
         weights: dict[str, tuple[WholeBodyModelFactory, SRBModelFactory]] | None = None,
         touchdown_on_reference: bool = False,
+        touchdown_below_floor: bool = False,
     ) -> None:
         self.whole_body = whole_body
         self.touchdown_on_reference = touchdown_on_reference
         """Whether a touchdown's surface height is the reference's foothold height (``mpc.touchdown_surface``:
         reference) or the floor, z = 0."""
+        self.touchdown_below_floor = touchdown_below_floor
+        """With ``touchdown_on_reference``: the surface height is at most the floor's, z = 0
+        (``mpc.touchdown_surface: lower``)."""
         self.srb = srb
         self.schedule = schedule
         self.robot = whole_body.robot
@@ -513,9 +517,12 @@ class CafeProblemBuilder:
     def _write_surface_heights(self, switching: TouchdownFootHeight, feet: np.ndarray) -> None:
         """The touchdown constraint's (25) surface heights, in place: the touching-down feet's reference
         heights ``feet[leg, 2]`` at the touchdown (their footholds) less the foot radius, rounded to
-        ``SURFACE_HEIGHT_RESOLUTION`` (a box top in a stored trajectory; 0 on a flat floor)."""
+        ``SURFACE_HEIGHT_RESOLUTION`` (a box top in a stored trajectory; 0 on a flat floor); with
+        ``touchdown_below_floor`` at most 0, the floor's."""
         heights = feet[list(switching.legs), 2] - self.robot.foot_radius
         rounded = np.round(heights / SURFACE_HEIGHT_RESOLUTION) * SURFACE_HEIGHT_RESOLUTION
+        if self.touchdown_below_floor:
+            np.minimum(rounded, 0.0, out=rounded)
         switching.surface_heights[:] = rounded + 0.0  # + 0.0: a flat floor gives +0.0, never -0.0
 
     def _write_srb_tail(

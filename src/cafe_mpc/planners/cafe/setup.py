@@ -75,6 +75,7 @@ def build_problem(run: ResolvedRun) -> CafeProblemBuilder:
         run.schedule,
         weights=task_weight_sets(run),
         touchdown_on_reference=run.touchdown_on_reference,
+        touchdown_below_floor=run.touchdown_below_floor,
     )
 
 
