@@ -383,23 +383,30 @@ def test_the_terrain_experiment_runs_each_cell_from_several_starts_and_gives_its
 
 
 # ------------------------------------------------------------------------------------------ closed loops
+def _blind_run(preset: str, terrain: str, duration: float, *overrides: str):
+    """The log of ``preset`` run blind for ``duration`` s at the fixed 20 ms latency over ``terrain`` (one
+    ``scene.terrain`` entry), with ``overrides`` (``--set`` strings) on top."""
+    from cafe_mpc_lab.experiments.run import simulate_run
+
+    config = load_run_config(
+        preset,
+        [
+            f"simulation.duration={duration}",
+            "mpc.latency=fixed",
+            "mpc.fixed_latency=0.02",
+            "terrain=blind",
+            f"scene.terrain=[{terrain}]",
+            *overrides,
+        ],
+    )
+    return simulate_run(config)[2]
+
+
 @pytest.mark.slow
 def test_a_blind_bound_climbs_a_10_degree_slope_and_stays_up():
     """The bound onto a 10 degree slope 0.5 m ahead, fixed 20 ms latency: on the flat-ground controller it
     falls on the incline (at 3.2 s from 1 m ahead: docs/terrain.md); blind, its base follows the incline."""
-    from cafe_mpc_lab.experiments.run import simulate_run
-
-    config = load_run_config(
-        "bound",
-        [
-            "simulation.duration=3.5",
-            "mpc.latency=fixed",
-            "mpc.fixed_latency=0.02",
-            "terrain=blind",
-            "scene.terrain=[{kind: slope, start: 0.5, angle_deg: 10, length: 1.5}]",
-        ],
-    )
-    _, _, log = simulate_run(config)
+    log = _blind_run("bound", "{kind: slope, start: 0.5, angle_deg: 10, length: 1.5}", 3.5)
     assert not log.fell, log.fall_reason
     x = log.q[-1, 0]
     assert x > 1.0  # on the incline, 0.5 m up it
@@ -411,19 +418,7 @@ def test_a_blind_bound_climbs_a_10_degree_slope_and_stays_up():
 def test_a_blind_pace_climbs_4_cm_steps_and_stays_up():
     """The pace onto three 4 cm steps 1 m ahead, fixed 20 ms latency: the flat-ground controller falls on
     the second step at 3.6 s (docs/terrain.md); blind, it is on the steps and up at 4.5 s."""
-    from cafe_mpc_lab.experiments.run import simulate_run
-
-    config = load_run_config(
-        "pace",
-        [
-            "simulation.duration=4.5",
-            "mpc.latency=fixed",
-            "mpc.fixed_latency=0.02",
-            "terrain=blind",
-            "scene.terrain=[{kind: steps, rise: 0.04}]",
-        ],
-    )
-    _, _, log = simulate_run(config)
+    log = _blind_run("pace", "{kind: steps, rise: 0.04}", 4.5)
     assert not log.fell, log.fall_reason
     assert log.q[-1, 0] > 1.6  # past the first step's tread
 
@@ -433,19 +428,7 @@ def test_a_blind_flying_trot_climbs_6_cm_steps_and_stays_up():
     """The flying trot onto three 6 cm steps 1 m ahead, fixed 20 ms latency: with the presets' 6 cm swing a
     blind front foot lands against the first riser, drags into it and the trunk pitches into the step
     (fell at 2.52 s, docs/terrain.md); the blind swing (10 cm, lifting first) takes it onto the steps."""
-    from cafe_mpc_lab.experiments.run import simulate_run
-
-    config = load_run_config(
-        "flying-trot",
-        [
-            "simulation.duration=3.5",
-            "mpc.latency=fixed",
-            "mpc.fixed_latency=0.02",
-            "terrain=blind",
-            "scene.terrain=[{kind: steps, rise: 0.06}]",
-        ],
-    )
-    _, _, log = simulate_run(config)
+    log = _blind_run("flying-trot", "{kind: steps, rise: 0.06}", 3.5)
     assert not log.fell, log.fall_reason
     assert log.q[-1, 0] > 1.3  # the base over the first step's tread
 
@@ -459,20 +442,12 @@ def test_a_blind_flying_trot_steps_down_6_cm_steps_without_slamming_a_late_foot(
     ``late_descent_speed: 1.0`` (off by default: over the blind grid it wins three runs and loses two) the
     leg loses the planned ground force while it moves the foot down faster than 1 m/s (at twice that, all of
     it), and the robot is over the last riser."""
-    from cafe_mpc_lab.experiments.run import simulate_run
-
-    config = load_run_config(
+    log = _blind_run(
         "flying-trot",
-        [
-            "simulation.duration=6.8",
-            "mpc.latency=fixed",
-            "mpc.fixed_latency=0.02",
-            "terrain=blind",
-            "scene.terrain=[{kind: steps, rise: 0.06, start: 1.1}]",
-            "vwbc.contact_detection.late_descent_speed=1.0",
-        ],
+        "{kind: steps, rise: 0.06, start: 1.1}",
+        6.8,
+        "vwbc.contact_detection.late_descent_speed=1.0",
     )
-    _, _, log = simulate_run(config)
     assert not log.fell, log.fall_reason
     assert log.q[-1, 0] > 3.4  # past the riser at 3.3 m
 
@@ -486,19 +461,7 @@ def test_a_blind_bound_climbs_a_15_degree_slope_with_its_ground_from_the_estimat
     half cycle: the bound stalled on the incline and fell back at 3.81 s (x 1.39 m; docs/terrain.md). The
     preset's ``blind_ground: estimate`` takes the points from each tick's estimate: up the incline, past
     x 1.5 m at 4.5 s. The preset as shipped: it fails with the setting removed from it."""
-    from cafe_mpc_lab.experiments.run import simulate_run
-
-    config = load_run_config(
-        "bound",
-        [
-            "simulation.duration=4.5",
-            "mpc.latency=fixed",
-            "mpc.fixed_latency=0.02",
-            "terrain=blind",
-            "scene.terrain=[{kind: slope, angle_deg: 15, length: 1.0}]",
-        ],
-    )
-    _, _, log = simulate_run(config)
+    log = _blind_run("bound", "{kind: slope, angle_deg: 15, length: 1.0}", 4.5)
     assert not log.fell, log.fall_reason
     assert log.q[-1, 0] > 1.5  # up the incline (1-2 m), past where it stalled (x 1.39 m)
 
@@ -512,19 +475,7 @@ def test_a_blind_bound_goes_down_a_15_degree_slope_with_its_descent_settings():
     ``mpc.touchdown_surface: lower``, ``gait.blind_ground_below``, ``late_reach_speed`` and no accelerometer
     bias state off flat ground take it down from 1.0 m; from 1.1 m, run here, it fell at 9.53 s with them
     until the stumble reflex (``stumble_force``) joined them (a front foot meeting the incline early)."""
-    from cafe_mpc_lab.experiments.run import simulate_run
-
-    config = load_run_config(
-        "bound",
-        [
-            "simulation.duration=10.0",
-            "mpc.latency=fixed",
-            "mpc.fixed_latency=0.02",
-            "terrain=blind",
-            "scene.terrain=[{kind: slope, angle_deg: 15, length: 1.0, start: 1.1}]",
-        ],
-    )
-    _, _, log = simulate_run(config)
+    log = _blind_run("bound", "{kind: slope, angle_deg: 15, length: 1.0, start: 1.1}", 10.0)
     assert not log.fell, log.fall_reason
     assert log.q[-1, 0] > 4.1  # past the foot of the descent
 
@@ -537,19 +488,7 @@ def test_a_blind_flying_trot_reaches_down_with_a_late_foot_and_climbs_a_15_degre
     a late foot whose leg throws it down faster than that is position-controlled as a swing reaching down at
     3 m/s, without its planned ground force, until it lands ("Late feet reach down"), and the robot is on
     the incline and up at 4.5 s. The preset as shipped: it fails with the setting removed from it."""
-    from cafe_mpc_lab.experiments.run import simulate_run
-
-    config = load_run_config(
-        "flying-trot",
-        [
-            "simulation.duration=4.5",
-            "mpc.latency=fixed",
-            "mpc.fixed_latency=0.02",
-            "terrain=blind",
-            "scene.terrain=[{kind: slope, angle_deg: 15, length: 1.0}]",
-        ],
-    )
-    _, _, log = simulate_run(config)
+    log = _blind_run("flying-trot", "{kind: slope, angle_deg: 15, length: 1.0}", 4.5)
     assert not log.fell, log.fall_reason
     assert log.q[-1, 0] > 1.8  # on the incline (1-2 m), past where it tipped over (x 1.67 m)
 
@@ -563,22 +502,14 @@ def test_a_blind_bound_lifts_a_foot_stopped_by_a_riser_and_climbs_6_cm_steps():
     steps 5 cm on and comes down on the tread ("A stumble reflex"): up at 4 s, past the second riser. The
     preset without its descent settings (with them it falls on the third riser from this start, 3.44 s:
     the preset's reflex is tested on the slope below); it fails with the reflex removed."""
-    from cafe_mpc_lab.experiments.run import simulate_run
-
-    config = load_run_config(
+    log = _blind_run(
         "bound",
-        [
-            "simulation.duration=4.0",
-            "mpc.latency=fixed",
-            "mpc.fixed_latency=0.02",
-            "terrain=blind",
-            "scene.terrain=[{kind: steps, rise: 0.06, start: 1.1}]",
-            "mpc.touchdown_surface=null",
-            "gait.blind_ground_below=null",
-            "vwbc.contact_detection.late_reach_speed=null",
-            "kinematic_kf.accelerometer_bias=true",
-        ],
+        "{kind: steps, rise: 0.06, start: 1.1}",
+        4.0,
+        "mpc.touchdown_surface=null",
+        "gait.blind_ground_below=null",
+        "vwbc.contact_detection.late_reach_speed=null",
+        "kinematic_kf.accelerometer_bias=true",
     )
-    _, _, log = simulate_run(config)
     assert not log.fell, log.fall_reason
     assert log.q[-1, 0] > 1.5  # past the second riser (1.1, 1.4, 1.7 m; x 1.69 m at 4 s)
