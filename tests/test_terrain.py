@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from cafe_mpc.assembly import build_estimator, load_run_config, resolve
-from cafe_mpc.config import ContactDetectionSettings, VelocityCommand
+from cafe_mpc.config import ConfigError, ContactDetectionSettings, VelocityCommand
 from cafe_mpc.core.ground import GroundPlane
 from cafe_mpc.core.measurement import Measurement
 from cafe_mpc.core.physics import GRAVITY
@@ -380,6 +380,47 @@ def test_the_terrain_experiment_runs_each_cell_from_several_starts_and_gives_its
     assert over_rates(rows) == "bound step6 blind 1 of 3 (6-79 %)"
     with pytest.raises(ValueError):
         experiment.options_from({"starts": "1,1"})
+
+
+def test_the_terrain_experiment_runs_each_cell_at_several_fixed_latencies():
+    """``--latencies``: one run per fixed latency (``mpc.fixed_latency``), the rates per cell and latency and
+    the runs over per latency; a ``--set`` of the latency it varies, or another latency mode, is an error."""
+    from cafe_mpc_lab.experiments.catalog import get_experiment
+    from cafe_mpc_lab.experiments.registry import PlanContext
+    from cafe_mpc_lab.experiments.terrain import over_per_latency, over_rates
+
+    experiment = get_experiment("terrain")
+    options = experiment.options_from(
+        {"gaits": "bound", "terrains": "step6", "modes": "blind", "latencies": "0.002,0.02"}
+    )
+    context = PlanContext(overrides=experiment.default_overrides)
+    plan = experiment.plan(options, context)
+    assert [dict(v.fields)["latency"] for v in plan.variants] == [0.002, 0.02]
+    assert len({v.name for v in plan.variants}) == 2 and plan.options["--latencies"] == "0.002,0.02"
+    for variant in plan.variants:
+        config = load_run_config(variant.preset, [*context.overrides, *variant.overrides])
+        assert config.mpc.latency == "fixed" and config.mpc.fixed_latency == dict(variant.fields)["latency"]
+    unvaried = experiment.plan(experiment.options_from({"gaits": "bound"}), context)
+    assert all("latency" not in dict(v.fields) for v in unvaried.variants)
+    assert "--latencies" not in unvaried.options  # earlier sweeps' commands stay the same
+    for user in ("mpc.fixed_latency=0.01", "mpc.latency=measured"):
+        with pytest.raises(ConfigError, match="--latencies"):
+            experiment.plan(options, PlanContext(overrides=(*experiment.default_overrides, user)))
+    rows = [
+        {
+            "status": "ok",
+            "gait": "bound",
+            "terrain_piece": "step6",
+            "mode": "blind",
+            "latency": lat,
+            "over": ok,
+        }
+        for lat, ok in ((0.002, False), (0.002, True), (0.02, True), (0.02, True))
+    ]
+    assert over_rates(rows) == (
+        "bound step6 blind at 2 ms 1 of 2 (9-91 %); bound step6 blind at 20 ms 2 of 2 (34-100 %)"
+    )
+    assert over_per_latency(rows) == "2 ms 1 of 2 (9-91 %); 20 ms 2 of 2 (34-100 %)"
 
 
 # ------------------------------------------------------------------------------------------ closed loops

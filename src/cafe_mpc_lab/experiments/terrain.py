@@ -13,6 +13,11 @@ and when the robot fell, how far it got and whether that was past the piece (ont
 One start is one sample of where the feet meet the first edge: a gait that crosses from 1 m may fall from
 0.9 m. ``--starts 0.9,1.0,1.1`` runs each cell with the piece starting at each of these x, and the table's
 notes give each cell's rate of runs over it, with its Wilson interval (a rate, not a run).
+
+One latency is one sample too: a controller tuned at the fixed 20 ms may fall at 2 ms, which is what
+measured latency gives on a fast machine. ``--latencies 0.002,0.01,0.02,0.03`` runs every cell at each of
+these fixed latencies (``mpc.fixed_latency``), and the notes give the runs over per latency and each cell's
+rate at each latency.
 """
 
 from __future__ import annotations
@@ -23,7 +28,7 @@ import numpy as np
 import yaml
 from pydantic import Field
 
-from cafe_mpc.config import TerrainConfig
+from cafe_mpc.config import ConfigError, TerrainConfig, parse_override
 from cafe_mpc_lab.experiments.common import GaitPresetNames, RunStore, colors, fall_fields, fell_text, num
 from cafe_mpc_lab.experiments.options import ExperimentOptions, names, numbers
 from cafe_mpc_lab.experiments.registry import Experiment, ExperimentPlan, PlanContext, Variant
@@ -110,6 +115,12 @@ class TerrainOptions(ExperimentOptions):
         description="world x where the piece begins, one run each (default 1): several make each cell a rate",
         json_schema_extra={"metavar": "X,..."},
     )
+    latencies: numbers(0.0, 0.5) = Field(
+        (),
+        description="fixed latencies in s, one run each (mpc.fixed_latency; default: the one the runs "
+        "have, 0.02 unless --set changes it)",
+        json_schema_extra={"metavar": "L,..."},
+    )
 
 
 class Terrain(Experiment):
@@ -122,19 +133,32 @@ class Terrain(Experiment):
     Options = TerrainOptions
 
     def plan(self, options: TerrainOptions, context: PlanContext) -> ExperimentPlan:
+        latencies = _checked_latencies(options.latencies, context.overrides)
         variants = [
             Variant(
-                f"{gait}-{terrain}-{mode}" + ("" if start == DEFAULT_START else f"-from{start:g}"),
+                f"{gait}-{terrain}-{mode}"
+                + ("" if start == DEFAULT_START else f"-from{start:g}")
+                + ("" if latency is None else f"-lat{1000 * latency:g}ms"),
                 gait,
                 (
                     f"scene.terrain=[{_spec(terrain, start)}]",
                     f"terrain={mode}",
                     *(HEIGHT_MAP_SENSOR if mode == "height_map" else ()),
+                    *(() if latency is None else (f"mpc.fixed_latency={latency:g}",)),
                 ),
-                f"{gait}, {terrain}, {mode}" + ("" if start == DEFAULT_START else f", from {start:g} m"),
+                f"{gait}, {terrain}, {mode}"
+                + ("" if start == DEFAULT_START else f", from {start:g} m")
+                + ("" if latency is None else f", fixed {1000 * latency:g} ms"),
                 group=gait,
-                fields=(("gait", gait), ("terrain_piece", terrain), ("mode", mode), ("start", start)),
+                fields=(
+                    ("gait", gait),
+                    ("terrain_piece", terrain),
+                    ("mode", mode),
+                    ("start", start),
+                    *(() if latency is None else (("latency", latency),)),
+                ),
             )
+            for latency in latencies
             for gait in options.gaits
             for terrain in options.terrains
             for mode in options.modes
@@ -147,6 +171,8 @@ class Terrain(Experiment):
         }
         if tuple(options.starts) != (DEFAULT_START,):
             plan_options["--starts"] = ",".join(f"{s:g}" for s in options.starts)
+        if options.latencies:
+            plan_options["--latencies"] = ",".join(f"{latency:g}" for latency in options.latencies)
         return ExperimentPlan(variants, plan_options)
 
     def summarize(self, result: RunResult, variant: Variant) -> dict:
@@ -168,14 +194,17 @@ class Terrain(Experiment):
         }
 
     def table(self, rows: list[dict], comparison: dict) -> tuple[list[str], list[list[str]], list[str]]:
-        header = ["gait", "terrain", "ground", "start [m]", "fell", "x reached [m]", "past the top", "over"]
-        header.append("vx [m/s]")
+        latencies = any("latency" in r for r in rows)
+        header = ["gait", "terrain", "ground", "start [m]"]
+        header += ["latency [ms]"] if latencies else []
+        header += ["fell", "x reached [m]", "past the top", "over", "vx [m/s]"]
         body = [
             [
                 str(r.get("gait")),
                 str(r.get("terrain_piece")),
                 str(r.get("mode")),
                 num(r.get("start", DEFAULT_START), 2),
+                *([num(1000 * r["latency"], 0) if "latency" in r else "-"] if latencies else []),
                 fell_text(r),
                 num(r.get("x_reached"), 2),
                 "yes" if r.get("on_top") else "no",
@@ -189,11 +218,23 @@ class Terrain(Experiment):
             "1 m top, each down again. 'past the top': the base got to the top's start; 'over': it got past "
             "the piece's end without falling. vx: mean forward speed from 0.5 s to the end or the fall.",
         ]
-        if len({r.get("start", DEFAULT_START) for r in rows}) > 1:
-            notes.append(f"Over the starts (runs over the piece, Wilson 95 %): {over_rates(rows)}.")
+        if len({r.get("start", DEFAULT_START) for r in rows}) > 1 or latencies:
+            over = "the starts and latencies" if latencies else "the starts"
+            notes.append(f"Over {over} (runs over the piece, Wilson 95 %): {over_rates(rows)}.")
+        if latencies:
+            notes.append(f"Runs over, per fixed latency: {over_per_latency(rows)}.")
         return header, body, notes
 
+    def summary_line(self, comparison: dict) -> str | None:
+        rows = list((comparison.get("variants") or {}).values())
+        if any("latency" in r for r in rows):
+            return f"runs over, per fixed latency: {over_per_latency(rows)}"
+        return None
+
     def plot(self, rows: list[dict], runs: RunStore, path: Path) -> None:
+        if any("latency" in r for r in rows):
+            _plot_over_latencies(rows, path)
+            return
         rows = [r for r in rows if r.get("start", DEFAULT_START) == DEFAULT_START] or rows
         done = [r for r in rows if r.get("status") == "ok"]
         if not done:
@@ -239,16 +280,79 @@ class Terrain(Experiment):
         save_figure(figure, path)
 
 
+def _checked_latencies(latencies: tuple[float, ...], overrides: tuple[str, ...]) -> tuple[float | None, ...]:
+    """The fixed latencies the plan runs at (``(None,)``: the one the runs' config has). ``--latencies``
+    varies ``mpc.fixed_latency``, so a ``--set`` of it would be overridden silently, and with another
+    latency mode than ``fixed`` the value would mean nothing: both are errors."""
+    if not latencies:
+        return (None,)
+    mode = "fixed"
+    for item in overrides:
+        key, value = parse_override(item)
+        if key == "mpc.fixed_latency" and item not in Terrain.default_overrides:
+            raise ConfigError("--latencies sets mpc.fixed_latency per run: drop --set mpc.fixed_latency")
+        if key == "mpc.latency":
+            mode = str(value)
+    if mode != "fixed":
+        raise ConfigError(f"--latencies needs mpc.latency=fixed, got --set mpc.latency={mode}")
+    return latencies
+
+
+def _cell(r: dict) -> str:
+    return f"{r['gait']} {r['terrain_piece']} {r['mode']}"
+
+
+def _rate(over: list[bool]) -> str:
+    """``k of n (low-high %)``: the runs over with the Wilson 95 % interval."""
+    low, high = wilson_interval(sum(over), len(over))
+    return f"{sum(over)} of {len(over)} ({100 * low:.0f}-{100 * high:.0f} %)"
+
+
 def over_rates(rows: list[dict]) -> str:
     """Each (gait, terrain, ground) cell's runs over the piece out of its finished runs, with the Wilson
-    95 % interval, e.g. ``bound step6 blind 1 of 3 (6-79 %)``."""
-    cells: dict[tuple[str, str, str], list[bool]] = {}
+    95 % interval, e.g. ``bound step6 blind 1 of 3 (6-79 %)``; with several fixed latencies one rate per
+    cell and latency (``bound step6 blind at 2 ms 1 of 3 (6-79 %)``)."""
+    latencies = len({r.get("latency") for r in rows}) > 1
+    cells: dict[str, list[bool]] = {}
     for r in rows:
         if r.get("status") == "ok":
-            cells.setdefault((r["gait"], r["terrain_piece"], r["mode"]), []).append(bool(r.get("over")))
-    parts = []
-    for (gait, terrain, mode), over in cells.items():
-        low, high = wilson_interval(sum(over), len(over))
-        interval = f"{100 * low:.0f}-{100 * high:.0f} %"
-        parts.append(f"{gait} {terrain} {mode} {sum(over)} of {len(over)} ({interval})")
-    return "; ".join(parts)
+            name = _cell(r) + (f" at {1000 * r['latency']:g} ms" if latencies else "")
+            cells.setdefault(name, []).append(bool(r.get("over")))
+    return "; ".join(f"{name} {_rate(over)}" for name, over in cells.items())
+
+
+def over_per_latency(rows: list[dict]) -> str:
+    """The runs over the piece at each fixed latency, all cells together, e.g. ``2 ms 35 of 45 (...)``."""
+    runs: dict[float, list[bool]] = {}
+    for r in rows:
+        if r.get("status") == "ok" and "latency" in r:
+            runs.setdefault(r["latency"], []).append(bool(r.get("over")))
+    return "; ".join(f"{1000 * latency:g} ms {_rate(over)}" for latency, over in sorted(runs.items()))
+
+
+def _plot_over_latencies(rows: list[dict], path: Path) -> None:
+    """Each (gait, terrain, ground) cell's share of runs over the piece (over its starts), a bar per fixed
+    latency: whether a cell holds over the latencies or at one of them only."""
+    done = [r for r in rows if r.get("status") == "ok" and "latency" in r]
+    if not done:
+        return
+    cells = list(dict.fromkeys(_cell(r) for r in done))
+    latencies = sorted({r["latency"] for r in done})
+    figure = new_figure((max(8.0, 0.6 * len(cells) * max(len(latencies), 2) / 2), 4.5))
+    axis = figure.add_subplot(1, 1, 1)
+    width = 0.8 / len(latencies)
+    palette = colors(len(latencies))
+    for index, latency in enumerate(latencies):
+        shares = []
+        for cell in cells:
+            over = [bool(r.get("over")) for r in done if _cell(r) == cell and r["latency"] == latency]
+            shares.append(np.mean(over) if over else np.nan)
+        positions = np.arange(len(cells)) + (index - 0.5 * (len(latencies) - 1)) * width
+        axis.bar(positions, shares, width, color=palette[index], label=f"fixed {1000 * latency:g} ms")
+    axis.set_xticks(np.arange(len(cells)), cells, rotation=60, ha="right", fontsize=7)
+    axis.set_ylabel("share of runs over the piece")
+    axis.set_ylim(0.0, 1.05)
+    axis.legend(fontsize=7, ncol=len(latencies))
+    axis.grid(alpha=0.3, axis="y")
+    figure.suptitle("Each cell over the fixed latencies: does it hold at every one?", fontsize=10)
+    save_figure(figure, path)
