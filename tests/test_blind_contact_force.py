@@ -19,7 +19,8 @@ def test_the_blind_bound_lands_no_foot_in_the_air(monkeypatch):
     """The bound, blind, onto 6 cm steps from 1 m (fixed 20 ms latency, 2.45 s: its first stride onto the
     first tread). With the force from the joint torques through massless legs, a hind foot whose swing ended
     on the tilted plane 6.6 cm above the floor read its swing's final torques as 25 N and was taken in as an
-    early touchdown at 2.372 s, and the stance torques threw it onto the floor at 5 m/s (docs/terrain.md).
+    early touchdown at 2.372 s, and the stance torques threw it onto the floor at 5 m/s
+    (docs/terrain-notes.md).
     With the momentum observer no foot is taken into the stance out of the plant's contact and more than 3 cm
     above the terrain. (Not asserted: a foot taken in on a riser's corner that then slides off it stays in
     the stance, the plane following its point down.)"""

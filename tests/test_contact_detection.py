@@ -264,7 +264,8 @@ def _robot_in_the_air(robot, settings, push_on_foot0=None):
 
 def test_the_momentum_observer_reads_no_load_on_a_leg_swinging_in_the_air(robot):
     """A swing's torques on a leg in the air read as a load through the massless-leg (static) estimate
-    (docs/terrain.md: 25 N at the end of the bound's swing took a foot 6.6 cm above the floor in as landed);
+    (docs/terrain-notes.md: 25 N at the end of the bound's swing took a foot 6.6 cm above the floor in as
+    landed);
     the momentum observer sees the leg's own motion and reads nothing, so the foot, in its early window and
     at the ground plane's height, is not taken in; the static estimate takes it in."""
     _, flags, estimated, statics = _robot_in_the_air(

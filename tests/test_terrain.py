@@ -446,7 +446,8 @@ def _blind_run(preset: str, terrain: str, duration: float, *overrides: str):
 @pytest.mark.slow
 def test_a_blind_bound_climbs_a_10_degree_slope_and_stays_up():
     """The bound onto a 10 degree slope 0.5 m ahead, fixed 20 ms latency: on the flat-ground controller it
-    falls on the incline (at 3.2 s from 1 m ahead: docs/terrain.md); blind, its base follows the incline."""
+    falls on the incline (at 3.2 s from 1 m ahead: docs/terrain-notes.md); blind, its base follows the
+    incline."""
     log = _blind_run("bound", "{kind: slope, start: 0.5, angle_deg: 10, length: 1.5}", 3.5)
     assert not log.fell, log.fall_reason
     x = log.q[-1, 0]
@@ -458,7 +459,7 @@ def test_a_blind_bound_climbs_a_10_degree_slope_and_stays_up():
 @pytest.mark.slow
 def test_a_blind_pace_climbs_4_cm_steps_and_stays_up():
     """The pace onto three 4 cm steps 1 m ahead, fixed 20 ms latency: the flat-ground controller falls on
-    the second step at 3.6 s (docs/terrain.md); blind, it is on the steps and up at 4.5 s."""
+    the second step at 3.6 s (docs/terrain-notes.md); blind, it is on the steps and up at 4.5 s."""
     log = _blind_run("pace", "{kind: steps, rise: 0.04}", 4.5)
     assert not log.fell, log.fall_reason
     assert log.q[-1, 0] > 1.6  # past the first step's tread
@@ -468,7 +469,8 @@ def test_a_blind_pace_climbs_4_cm_steps_and_stays_up():
 def test_a_blind_flying_trot_climbs_6_cm_steps_and_stays_up():
     """The flying trot onto three 6 cm steps 1 m ahead, fixed 20 ms latency: with the presets' 6 cm swing a
     blind front foot lands against the first riser, drags into it and the trunk pitches into the step
-    (fell at 2.52 s, docs/terrain.md); the blind swing (10 cm, lifting first) takes it onto the steps."""
+    (fell at 2.52 s, docs/terrain-notes.md); the blind swing (10 cm, lifting first) takes it onto the
+    steps."""
     log = _blind_run("flying-trot", "{kind: steps, rise: 0.06}", 3.5)
     assert not log.fell, log.fall_reason
     assert log.q[-1, 0] > 1.3  # the base over the first step's tread
@@ -479,10 +481,10 @@ def test_a_blind_flying_trot_steps_down_6_cm_steps_without_slamming_a_late_foot(
     """The flying trot over three 6 cm steps from 1.1 m, fixed 20 ms latency. Going down, a front foot
     planned in stance 6 cm above the lower tread is late (the plane through the feet on the upper tread lies
     above it), and its leg's stance torques, with no ground to push, threw it down at 4.5 m/s: it sank 3 cm
-    into the tread against the riser and stuck there, and the robot fell at 6.46 s (docs/terrain.md). With
-    ``late_descent_speed: 1.0`` (off by default: over the blind grid it wins three runs and loses two) the
-    leg loses the planned ground force while it moves the foot down faster than 1 m/s (at twice that, all of
-    it), and the robot is over the last riser."""
+    into the tread against the riser and stuck there, and the robot fell at 6.46 s (docs/terrain-notes.md).
+    With ``late_descent_speed: 1.0`` (off by default: over the blind grid it wins three runs and loses two)
+    the leg loses the planned ground force while it moves the foot down faster than 1 m/s (at twice that,
+    all of it), and the robot is over the last riser."""
     log = _blind_run(
         "flying-trot",
         "{kind: steps, rise: 0.06, start: 1.1}",
@@ -499,8 +501,8 @@ def test_a_blind_bound_climbs_a_15_degree_slope_with_its_ground_from_the_estimat
     its points from the updates' predicted states, in which a landing pair stands where the plan put it
     (the floor) and rises onto the incline over the next updates; the plane read that rise as the frame
     moving and lifted the other pair's points with it, flipping between 20 deg and slightly downhill every
-    half cycle: the bound stalled on the incline and fell back at 3.81 s (x 1.39 m; docs/terrain.md). The
-    preset's ``blind_ground: estimate`` takes the points from each tick's estimate: up the incline, past
+    half cycle: the bound stalled on the incline and fell back at 3.81 s (x 1.39 m; docs/terrain-notes.md).
+    The preset's ``blind_ground: estimate`` takes the points from each tick's estimate: up the incline, past
     x 1.5 m at 4.5 s. The preset as shipped: it fails with the setting removed from it."""
     log = _blind_run("bound", "{kind: slope, angle_deg: 15, length: 1.0}", 4.5)
     assert not log.fell, log.fall_reason
@@ -512,7 +514,7 @@ def test_a_blind_bound_goes_down_a_15_degree_slope_with_its_descent_settings():
     """The bound over a 15 degree slope 1 m ahead (up 1 m, a 1 m top, down 1 m), fixed 20 ms latency, 10 s.
     At 4546fb5 it climbed and fell going down at 8.83 s (x 3.49 m): the estimator's floor and the plan's
     touchdown stayed at the top's level, 6-9 cm above the incline, and the reference's plane took no point
-    from stance feet that slid (docs/terrain.md, "Why the descent fails"). The preset's
+    from stance feet that slid (docs/terrain-notes.md, "Why the descent fails"). The preset's
     ``mpc.touchdown_surface: lower``, ``gait.blind_ground_below``, ``late_reach_speed`` and no accelerometer
     bias state off flat ground take it down from 1.0 m; from 1.1 m, run here, it fell at 9.53 s with them
     until the stumble reflex (``stumble_force``) joined them (a front foot meeting the incline early)."""
@@ -525,10 +527,11 @@ def test_a_blind_bound_goes_down_a_15_degree_slope_with_its_descent_settings():
 def test_a_blind_flying_trot_reaches_down_with_a_late_foot_and_climbs_a_15_degree_slope():
     """The flying trot onto a 15 degree slope 1 m ahead, fixed 20 ms latency. On the incline a hind foot
     planned in stance 7 cm above it is late, its leg's stance torques throw it about, and the robot tipped
-    over at 3.93 s (docs/terrain.md, "Late feet slammed down"). With the preset's ``late_reach_speed: 3.0``
-    a late foot whose leg throws it down faster than that is position-controlled as a swing reaching down at
-    3 m/s, without its planned ground force, until it lands ("Late feet reach down"), and the robot is on
-    the incline and up at 4.5 s. The preset as shipped: it fails with the setting removed from it."""
+    over at 3.93 s (docs/terrain-notes.md, "Late feet slammed down"). With the preset's
+    ``late_reach_speed: 3.0`` a late foot whose leg throws it down faster than that is position-controlled
+    as a swing reaching down at 3 m/s, without its planned ground force, until it lands ("Late feet reach
+    down"), and the robot is on the incline and up at 4.5 s. The preset as shipped: it fails with the
+    setting removed from it."""
     log = _blind_run("flying-trot", "{kind: slope, angle_deg: 15, length: 1.0}", 4.5)
     assert not log.fell, log.fall_reason
     assert log.q[-1, 0] > 1.8  # on the incline (1-2 m), past where it tipped over (x 1.67 m)
@@ -538,7 +541,7 @@ def test_a_blind_flying_trot_reaches_down_with_a_late_foot_and_climbs_a_15_degre
 def test_a_blind_bound_lifts_a_foot_stopped_by_a_riser_and_climbs_6_cm_steps():
     """The bound onto 6 cm steps from 1.1 m, fixed 20 ms latency. Its 6 cm swing meets the first riser's
     face and the front feet were held against it, the trunk pitching nose-down: it fell at 2.58 s, x 1.1 m
-    (docs/terrain.md, "The bound's 6 cm steps at 6d3648d"). With the preset's stumble reflex
+    (docs/terrain-notes.md, "The bound's 6 cm steps at 6d3648d"). With the preset's stumble reflex
     (``vwbc.contact_detection.stumble_force: 0.4``) a swinging foot pushed back by the riser rises 7 cm,
     steps 5 cm on and comes down on the tread ("A stumble reflex"): up at 4 s, past the second riser. The
     preset without its descent settings (with them it falls on the third riser from this start, 3.44 s:

@@ -324,7 +324,7 @@ def test_the_bound_steps_preset_climbs_three_8_cm_steps():
     treads) it fell at 2.98 s, at the bound's standing height at 3.16 s, with footholds 4 cm from edges at
     3.31 s (10 s runs of the preset from 1 m). Which starts get over is decided in the last bits: from 1.0
     m it climbed on the VMs of the earlier sessions and falls at the third riser on an AMD EPYC VM (3.49 s),
-    where 0.8, 0.9, 1.1 and 1.2 m get over (docs/terrain.md); 0.9 m got over on both."""
+    where 0.8, 0.9, 1.1 and 1.2 m get over (docs/terrain-notes.md); 0.9 m got over on both."""
     from cafe_mpc_lab.experiments.run import simulate_run
 
     start = 0.9

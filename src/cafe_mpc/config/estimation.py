@@ -101,7 +101,7 @@ class KinematicKFSettings(StrictModel):
     new level, and feet standing on two levels are all measured at z = 0 (inconsistent). With ``touchdown``
     a foot at rest stays where it landed: feet on two levels keep their heights, and the base height is
     dead reckoning between the feet's levels: it drifted down by 1.5-5 cm/s on flat ground in the bound
-    and the trot (docs/terrain.md). With ``plan`` the feet stand where the plan says (within
+    and the trot (docs/terrain-notes.md). With ``plan`` the feet stand where the plan says (within
     ``PLANNED_LEVEL_DEADBAND`` of z = 0: on it): a robot that jumped onto a box keeps its legs in the filter
     (with ``ground`` on flat terrain, feet planned on a 0.30 m top count as not in contact and the filter
     drifts on the IMU)."""

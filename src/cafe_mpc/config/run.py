@@ -116,7 +116,7 @@ ON_TIME_OFF_FLAT = 0.015
 """s: ``vwbc.contact_detection.on_time`` when it is null and the run has terrain (``terrain`` not
 ``flat``). On flat ground 25 ms keeps the bound's front feet, which land 15-20 ms early, under the plan's
 stance timing; off it a foot landing early is what the detector is for: with 25 ms the blind bound fell on a
-10 degree slope at 3.74 s, with 15 ms it climbed it (docs/terrain.md)."""
+10 degree slope at 3.74 s, with 15 ms it climbed it (docs/terrain-notes.md)."""
 
 
 class ContactDetectionSettings(StrictModel):
@@ -217,8 +217,9 @@ class ContactDetectionSettings(StrictModel):
         "applied: only what the ground adds to the robot's momentum; momentum_gain); null: static on flat "
         "ground, momentum off it (terrain: blind or height_map)",
     )
-    """Off flat ground the observer took 36 of the blind grid's 45 runs over (static 32: docs/terrain.md, "The
-    momentum observer"); on flat ground both give the same runs to the bit, and static costs less."""
+    """Off flat ground the observer took 36 of the blind grid's 45 runs over (static 32:
+    docs/terrain-notes.md, "The momentum observer"); on flat ground both give the same runs to the bit, and
+    static costs less."""
     momentum_gain: float = Field(
         150.0, gt=0.0, le=2000.0, description="1/s; bandwidth of the momentum observer (force_estimate)"
     )
@@ -312,7 +313,7 @@ ticks at the cone's edge on a 0.6 floor and every gait slides on a lower one (do
 BLIND_SWING_HEIGHT = 0.1
 """m: ``gait.blind_swing_height``, the least swing apex of a blind run (``terrain: blind``). The presets' 6 cm
 apex above lift-off catches a 6 cm riser the foot does not know of; with 10 cm and ``BLIND_SWING_LIFT`` the
-blind trot, pace and flying trot climb and descend three 6 cm steps (docs/terrain.md)."""
+blind trot, pace and flying trot climb and descend three 6 cm steps (docs/terrain-notes.md)."""
 
 BLIND_SWING_LIFT = 0.2
 """``gait.blind_swing_lift``: a blind swing's foot rises for the first fifth of the swing before it moves
@@ -407,7 +408,7 @@ class GaitConfig(StrictModel):
     floor z = 0 with ``mpc.touchdown_surface: floor``) and rises to where it stands over the next updates:
     on a slope the blind bound's reference read that as the frame rising 5-10 cm at every touchdown and
     moved the other pair's points with it, so that its plane flipped between 20 deg and flat (slightly
-    downhill) every half cycle, with ground truth as with the estimator (docs/terrain.md)."""
+    downhill) every half cycle, with ground truth as with the estimator (docs/terrain-notes.md)."""
     blind_ground_below: float | None = Field(
         None,
         ge=0.0,
@@ -418,7 +419,7 @@ class GaitConfig(StrictModel):
     )
     """Going down the 15 deg slope the blind bound's stance feet slid and bounced at 0.3-3 m/s, above
     ``GROUND_FOOT_SPEED``: its plane took no point for 0.8 s from the crest and stayed flat at the top's
-    level, 6-15 cm above the incline (docs/terrain.md)."""
+    level, 6-15 cm above the incline (docs/terrain-notes.md)."""
     raibert_gain: float = Field(0.03, ge=0.0, le=1.0, description="s, Raibert velocity feedback gain")
     start_stance: float = Field(
         0.0, ge=0.0, le=3600.0, description="s of all-feet stand before the gait's first cycle starts"

@@ -18,7 +18,7 @@ Bledt et al. ("Contact Model Fusion for Event-Based Locomotion in Unstructured T
   the leg Jacobians on a robot, ``estimation``; the plant's contact force in a ground-truth run): the foot
   pushes on something. That estimate takes the legs as massless and static, so a leg that the low level
   accelerates through the air reads its own torques as a load (the end of a bound's swing: 25 N against a
-  7.1 N threshold, a foot 6.6 cm above the floor taken in as landed; docs/terrain.md). With
+  7.1 N threshold, a foot 6.6 cm above the floor taken in as landed; docs/terrain-notes.md). With
   ``force_estimate: momentum`` the detector estimates it itself with a
   generalized-momentum observer (De Luca and Mattone, ICRA 2005) on the torques the low level applied at
   the previous tick: ``r = K_O (p - p(0) - integral(S' tau + C' v - g + r))`` with ``p = M(q) v`` tends
@@ -35,7 +35,7 @@ still higher and unloaded is a late touchdown: in the air, out of the stance set
 planned foothold); on a ground plane with ``force_estimate: momentum`` only once loaded, since the plane is
 an estimate and the observer's force a measurement: going down steps, a late foot passes under the plane
 through feet on the upper tread before it meets the lower one, and taken in by its height it was put in the
-stance set in the air, its point in the plane (docs/terrain.md, "The momentum observer"). In
+stance set in the air, its point in the plane (docs/terrain-notes.md, "The momentum observer"). In
 the early window of a swing it needs both, a normal force above ``touchdown_force``
 and the ground within ``touchdown_height``. With a ground plane a loaded foot may be up to ``step_height``
 above the plane (a step up the plane does not know yet): the force is the evidence there, and it is the
@@ -55,7 +55,7 @@ controller commands, so it would only echo the schedule. Forces are thresholds o
 With ``late_reach_speed`` set (off by default; a ground plane and the observer), a late foot whose leg throws
 it down faster than that is from then on a swing reaching down at that speed (``reaching``,
 ``reach_torques``: a position-controlled foot, not the plan's stance torques, until it lands; the VWBC puts
-those torques on its leg, ``VWBCController._reach_with_late_feet``; docs/terrain.md, "Late feet reach
+those torques on its leg, ``VWBCController._reach_with_late_feet``; docs/terrain-notes.md, "Late feet reach
 down").
 
 With ``stumble_force`` set (off by default; a ground plane and the observer), a stumble reflex (Bledt et al.,
@@ -63,7 +63,7 @@ With ``stumble_force`` set (off by default; a ground plane and the observer), a 
 that the observer reads pushed back, against the trunk's horizontal travel, by more than that force (a
 riser's face in the way) is from then on position-controlled until it lands (``stumbling``; its torques in
 ``reach_torques``, put on its leg as a reaching foot's): it rises ``stumble_lift``, moves ``stumble_forward``
-along the travel, then reaches down, at ``stumble_speed`` (docs/terrain.md, "A stumble reflex").
+along the travel, then reaches down, at ``stumble_speed`` (docs/terrain-notes.md, "A stumble reflex").
 
 ``update(t, measurement, plan)`` returns the detected stance flags (an array the detector owns); counters of
 early and late touchdowns and of the ticks where detection and plan disagree feed the run's statistics.
@@ -269,7 +269,7 @@ class ContactDetector:
         its own bias forces (``h = C v + g``, the leg's rows of the momentum observer's terms at this
         state), so that it reaches at a bounded speed and presses nothing: the plan's stance torques push
         the ground with ``-J' F*`` (Eq. (34a)'s reference ``tau*``), which with no ground under the foot
-        throw it down at 4-5 m/s (docs/terrain.md, "Late feet slammed down")."""
+        throw it down at 4-5 m/s (docs/terrain-notes.md, "Late feet slammed down")."""
         s, data = self.settings, self.data
         speed = self.late_reach_speed
         assert speed is not None and self.ground is not None

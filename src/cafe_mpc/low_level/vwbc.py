@@ -599,7 +599,7 @@ class VWBCController(LowLevelController[Plan]):
         ground force ``F*_f`` taken off its leg's torque reference in (34a), a share ``min(1, (w - c) / c)``
         of it: ``tau* + s J_f,leg' F*_f`` (the plan's stance torques push the ground with ``-J' F*``; with no
         ground under the foot they throw it down, 4-5 m/s onto a lower tread going down steps blind:
-        docs/terrain.md). The plan's feedback stays."""
+        docs/terrain-notes.md). The plan's feedback stays."""
         detector = self.detector
         assert detector is not None and detector.late_descent_speed is not None
         limit = detector.late_descent_speed
