@@ -557,3 +557,16 @@ def test_a_blind_bound_lifts_a_foot_stopped_by_a_riser_and_climbs_6_cm_steps():
     )
     assert not log.fell, log.fall_reason
     assert log.q[-1, 0] > 1.5  # past the second riser (1.1, 1.4, 1.7 m; x 1.69 m at 4 s)
+
+
+@pytest.mark.slow
+def test_a_blind_flying_trot_climbs_a_15_degree_slope_with_early_feet_capped():
+    """The flying trot onto a 15 degree slope from 1.1 m, fixed 20 ms latency. At the start of a flight a
+    front foot meets the incline 84 ms before its planned touchdown; taken into the stance set early, its
+    swing knot's policy drove it on into the incline (up to 154 N with the other three feet in the air),
+    the trunk pitched nose-up and tipped over at 4.22 s (docs/terrain-notes.md, "Early feet on the incline").
+    The preset's ``vwbc.contact_detection.early_force: 1.0`` bounds an early foot's normal force in the
+    VWBC (34e) by one weight share: up the incline at 4.6 s."""
+    log = _blind_run("flying-trot", "{kind: slope, angle_deg: 15, length: 1.0, start: 1.1}", 4.6)
+    assert not log.fell, log.fall_reason
+    assert log.q[-1, 0] > 1.8  # on the incline (1.1-2.1 m; x 1.97 m at 4.6 s), past its fall (x 1.69 m)

@@ -209,6 +209,15 @@ class ContactDetectionSettings(StrictModel):
     stumble_speed: float = Field(
         2.0, gt=0.0, le=10.0, description="m/s; the speed of a stumbling foot's target (stumble_force)"
     )
+    early_force: float | None = Field(
+        None,
+        ge=0.0,
+        le=10.0,
+        description="x m g / n_feet; with a ground plane (terrain: blind), an early foot (taken into the "
+        "stance set before its planned touchdown) may push the ground with at most this normal force in the "
+        "VWBC (34e), so that its swing knot's policy does not drive it into the ground with the trunk in "
+        "flight (an incline met early); null: no cap",
+    )
     force_estimate: Literal["static", "momentum"] | None = Field(
         None,
         description="the ground force the detector reads: static (the measurement's, from the joint torques "

@@ -58,6 +58,12 @@ it down faster than that is from then on a swing reaching down at that speed (``
 those torques on its leg, ``VWBCController._reach_with_late_feet``; docs/terrain-notes.md, "Late feet reach
 down").
 
+With ``early_force`` set (off by default; a ground plane), an early foot (in the stance set before its
+planned touchdown, still driven by its swing knot's policy) may push the ground with at most that normal
+force (``early_force_cap``): the VWBC bounds its row of (34e) above (``_StanceQP.cap_normal_forces``), so a
+front foot that meets an incline at the start of a flight does not tip the trunk over (docs/terrain-notes.md,
+"Early feet on the incline").
+
 With ``stumble_force`` set (off by default; a ground plane and the observer), a stumble reflex (Bledt et al.,
 "Contact Model Fusion", 2018; ANYmal's and Cheetah 3's blind stair climbing): a foot in its planned swing
 that the observer reads pushed back, against the trunk's horizontal travel, by more than that force (a
@@ -122,6 +128,13 @@ class ContactDetector:
         )
         """``late_reach_speed`` where it acts (a ground plane and the momentum observer), else None: a late
         foot reaches down as a position-controlled swing (``reaching``, ``reach_torques``)."""
+        self.early_force_cap = (
+            None
+            if self.settings.early_force is None or not ground_plane
+            else self.settings.early_force * weight_share
+        )
+        """``early_force`` (N) where it acts (a ground plane), else None: the VWBC caps an early foot's normal
+        force at it."""
         self.reaching = np.zeros(robot.n_feet, dtype=bool)
         """With ``late_reach_speed`` acting, the late feet (planned in stance, not in contact) whose legs
         moved them down faster than the reach speed since they became late (``leg_descent_speeds``: the

@@ -164,6 +164,18 @@ class _StanceQP:
     def _cone_changed(self) -> None:
         """The backend's copy of the constraint rows follows ``C``."""
 
+    def cap_normal_forces(self, caps: np.ndarray) -> None:
+        """Bound each stance foot's normal force (the unilateral row (34e), about the cone's normal) above by
+        ``caps`` (N, one per stance foot in order; inf: unbounded): ``0 <= n . F_i <= caps[i]``."""
+        rows = slice(self.nu + 4 * self.nc, self.nu + 5 * self.nc)
+        if np.array_equal(self.u[rows], caps):
+            return
+        self.u[rows] = caps
+        self._bounds_changed()
+
+    def _bounds_changed(self) -> None:
+        """The backend's copy of the bounds follows ``l`` and ``u``."""
+
     def fill(self, terms: ContactDynamicsTerms, Quu: np.ndarray, g_tau: np.ndarray) -> None:
         """Write the tick's dynamics (34b)-(34c) and cost (34a) into the preallocated matrices."""
         nv, tau, force = self.nv, self.tau, self.force
@@ -199,6 +211,7 @@ class _ProxQPStance(_StanceQP):
         self.qp.settings.verbose = False
         self.initialized = False
         self.cone_changed = False
+        self.bounds_changed = False
         self.y0 = np.zeros(self.n_eq)
         self.z0 = np.zeros(self.n_in)
         self.prev_x = np.zeros(self.n)
@@ -208,16 +221,22 @@ class _ProxQPStance(_StanceQP):
     def _cone_changed(self) -> None:
         self.cone_changed = True
 
+    def _bounds_changed(self) -> None:
+        self.bounds_changed = True
+
     def solve(self, mode: WarmStart) -> None:
         qp = self.qp
         if not self.initialized:
             qp.init(self.H, self.g, self.A, self.b, self.C, self.l, self.u)
             self.initialized = True
+        elif self.bounds_changed:
+            qp.update(H=self.H, g=self.g, A=self.A, b=self.b, C=self.C, l=self.l, u=self.u)
         elif self.cone_changed:
             qp.update(H=self.H, g=self.g, A=self.A, b=self.b, C=self.C)
         else:
             qp.update(H=self.H, g=self.g, A=self.A, b=self.b)
         self.cone_changed = False
+        self.bounds_changed = False
         qp.settings.initial_guess = _INITIAL_GUESS[mode]
         if mode == "previous" and self.has_previous:
             qp.solve(self.prev_x, self.prev_y, self.prev_z)
@@ -285,6 +304,9 @@ class _DaqpStance(_StanceQP):
 
     def _cone_changed(self) -> None:
         self.Cf[:] = self.C[self.nu :, self.force]
+
+    def _bounds_changed(self) -> None:
+        np.minimum(self.u[self.nu :], _DAQP_INF, out=self.bu_const)
 
     def _condense(self) -> tuple[np.ndarray, np.ndarray]:
         nv, nu = self.nv, self.nu
@@ -528,6 +550,9 @@ class VWBCController(LowLevelController[Plan]):
             qp.orient_cone(normal)
         elif self.detector is not None and self.detector.ground is not None:
             qp.orient_cone(self.detector.ground.normal())
+        if self.detector is not None and self.detector.early_force_cap is not None:
+            early = self._stance & ~plan.contacts[k]
+            qp.cap_normal_forces(np.where(early[self._stance], self.detector.early_force_cap, np.inf))
         self.terms.compute(q, v, self._stance)
         # linear term of (34a) in tau: Qux dx + Qu - Quu tau*
         np.matmul(plan.Qux[k], dx, out=self._g_tau)
