@@ -570,3 +570,17 @@ def test_a_blind_flying_trot_climbs_a_15_degree_slope_with_early_feet_capped():
     log = _blind_run("flying-trot", "{kind: slope, angle_deg: 15, length: 1.0, start: 1.1}", 4.6)
     assert not log.fell, log.fall_reason
     assert log.q[-1, 0] > 1.8  # on the incline (1.1-2.1 m; x 1.97 m at 4.6 s), past its fall (x 1.69 m)
+
+
+@pytest.mark.slow
+def test_a_blind_bound_holds_a_foot_landing_early_on_the_next_tread_and_climbs_6_cm_steps():
+    """The bound onto 6 cm steps from 0.9 m, fixed 20 ms latency. Past the first riser the front feet meet
+    the next tread about 100 ms before their planned touchdown (the plan lands them on the estimator's floor,
+    the tread they left): taken in early, they were still driven down their swing curve into the tread (up
+    to 147 N in 60 ms), which threw the trunk up (1.2 m/s), the hind feet planned in stance hung 5 cm above
+    their tread, their stance torques kicked them back, and it fell at 2.97 s, x 1.34 m. With the preset's
+    ``vwbc.contact_detection.early_hold_height: 0.03`` such a foot is held where it landed until its planned
+    stance: on the top at 4 s. It fails with the setting removed."""
+    log = _blind_run("bound", "{kind: steps, rise: 0.06, start: 0.9}", 4.0)
+    assert not log.fell, log.fall_reason
+    assert log.q[-1, 0] > 1.8  # on the top (risers at 0.9, 1.2, 1.5 m; the top from 1.8 m)

@@ -218,6 +218,16 @@ class ContactDetectionSettings(StrictModel):
         "VWBC (34e), so that its swing knot's policy does not drive it into the ground with the trunk in "
         "flight (an incline met early); null: no cap",
     )
+    early_hold_height: float | None = Field(
+        None,
+        ge=0.0,
+        le=0.5,
+        description="m; with a ground plane and the momentum observer, a foot taken in early (landed in its "
+        "planned swing, within early_window) with its sole more than this above the ground plane (a higher "
+        "tread than the plane knows) is held where it landed until its planned stance (position-controlled "
+        "as a landed stumbling foot, late_reach_frequency), instead of driven along its swing curve into the "
+        "tread; null: off",
+    )
     force_estimate: Literal["static", "momentum"] | None = Field(
         None,
         description="the ground force the detector reads: static (the measurement's, from the joint torques "

@@ -71,6 +71,13 @@ riser's face in the way) is from then on position-controlled until it lands (``s
 ``reach_torques``, put on its leg as a reaching foot's): it rises ``stumble_lift``, moves ``stumble_forward``
 along the travel, then reaches down, at ``stumble_speed`` (docs/terrain-notes.md, "A stumble reflex").
 
+With ``early_hold_height`` set (off by default; a ground plane and the observer), a foot taken in early (in
+the early window of its swing) with its sole more than that above the plane, on a tread higher than the one
+the plan lands it on, is held where it landed until its planned stance (``holding``; its leg position-
+controlled as a landed stumbling foot's, through ``reach_torques``): in the stance set the VWBC would
+otherwise take its swing knot's policy (7) in (34a), whose feedback drives it on down its swing curve into
+the tread and pushes the trunk up (docs/terrain.md, the bound on 6 cm steps).
+
 ``update(t, measurement, plan)`` returns the detected stance flags (an array the detector owns); counters of
 early and late touchdowns and of the ticks where detection and plan disagree feed the run's statistics.
 """
@@ -154,6 +161,14 @@ class ContactDetector:
         self.stumbling = np.zeros(robot.n_feet, dtype=bool)
         """With ``stumble_force`` acting, the feet whose swing was pushed back (module docstring), until they
         land: the VWBC drives their legs with ``reach_torques``."""
+        self.early_hold_height = (
+            self.settings.early_hold_height if ground_plane and self.force_estimate == "momentum" else None
+        )
+        """``early_hold_height`` where it acts (a ground plane and the momentum observer), else None."""
+        self.holding = np.zeros(robot.n_feet, dtype=bool)
+        """With ``early_hold_height`` acting, the feet that landed early on ground that far above the plane,
+        until their planned stance: the VWBC drives their legs with ``reach_torques`` (held where they
+        landed)."""
         self._stumble_since = np.zeros(robot.n_feet)
         self._stumble_origin = np.zeros((robot.n_feet, 3))
         self._stumble_direction = np.zeros((robot.n_feet, 2))
@@ -205,6 +220,7 @@ class ContactDetector:
         self._was_planned = np.ones(self.robot.n_feet, dtype=bool)
         self.reaching[:] = False
         self.stumbling[:] = False
+        self.holding[:] = False
         self.stumbles = 0
         self._late_since[:] = np.nan
 
@@ -259,7 +275,11 @@ class ContactDetector:
             if self.late_descent_speed is not None or self.late_reach_speed is not None:
                 # the leg's own motion, not the trunk's
                 self.leg_descent_speeds[foot] = -(jacobian[2, columns] @ v[columns])
-            if self.late_reach_speed is not None or self.stumble_force is not None:
+            if (
+                self.late_reach_speed is not None
+                or self.stumble_force is not None
+                or self.early_hold_height is not None
+            ):
                 np.copyto(self._foot_jacobians[foot], jacobian[:3])
         forces = self.estimated_forces
         try:
@@ -452,11 +472,20 @@ class ContactDetector:
                     self.in_contact[foot] = True
                     self.early_touchdowns += 1
                     self.early_lead_sum += lead
+                    if self.early_hold_height is not None and height > self.early_hold_height:
+                        self.holding[foot] = True  # on a higher tread: held where it landed
+                        self.reach_targets[foot] = data.oMf[frame_id].translation
                 elif self.in_contact[foot] and force < self.release_force and height > s.release_height:
                     self.in_contact[foot] = False
                 if self.in_contact[foot]:
                     self.early_ticks += 1
             self._was_planned[foot] = planned[foot]
+            if self.holding[foot]:
+                if planned[foot] or not self.in_contact[foot]:
+                    self.holding[foot] = False  # its stance began (or it left the ground): the plan's
+                else:
+                    self._target_velocity[:] = 0.0
+                    self._drive(foot, measurement)
             if self.late_reach_speed is not None:
                 late = planned[foot] and not self.in_contact[foot]
                 fast = self.leg_descent_speeds[foot] > self.late_reach_speed

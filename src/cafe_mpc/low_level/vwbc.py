@@ -559,7 +559,9 @@ class VWBCController(LowLevelController[Plan]):
         self._g_tau += plan.Qu[k]
         self._g_tau -= plan.Quu[k] @ plan.us[k]
         if self.detector is not None and (
-            self.detector.late_reach_speed is not None or self.detector.stumble_force is not None
+            self.detector.late_reach_speed is not None
+            or self.detector.stumble_force is not None
+            or self.detector.early_hold_height is not None
         ):
             self._reach_with_late_feet(plan, k)
         elif self.detector is not None and self.detector.late_descent_speed is not None:
@@ -601,12 +603,13 @@ class VWBCController(LowLevelController[Plan]):
         (``g <- g - H[:, leg] (tau_reach - tau_p[leg])`` moves the minimiser by exactly that shift). The
         plan's stance torques for that leg, its planned ground force ``-J' F*`` among them, are gone until
         the foot lands; the torque bounds (34d) and the stance feet's constraints still hold. A stumbling foot
-        (``stumbling``, the stumble reflex) is driven the same way."""
+        (``stumbling``, the stumble reflex) is driven the same way, and so is a foot held where it landed
+        early on a higher tread (``holding``, ``early_hold_height``), which is in the stance set."""
         detector = self.detector
         assert detector is not None
-        if not detector.reaching.any() and not detector.stumbling.any():  # the common tick
-            return
-        feet = np.flatnonzero((detector.reaching | detector.stumbling) & ~self._stance)
+        if not detector.reaching.any() and not detector.stumbling.any() and not detector.holding.any():
+            return  # the common tick
+        feet = np.flatnonzero(((detector.reaching | detector.stumbling) & ~self._stance) | detector.holding)
         if feet.size == 0:
             return
         quu = plan.Quu[k]
