@@ -76,7 +76,7 @@ the early window of its swing) with its sole more than that above the plane, on 
 the plan lands it on, is held where it landed until its planned stance (``holding``; its leg position-
 controlled as a landed stumbling foot's, through ``reach_torques``): in the stance set the VWBC would
 otherwise take its swing knot's policy (7) in (34a), whose feedback drives it on down its swing curve into
-the tread and pushes the trunk up (docs/terrain.md, the bound on 6 cm steps).
+the tread and pushes the trunk up (docs/terrain-notes.md, "Early feet on the next tread").
 
 ``update(t, measurement, plan)`` returns the detected stance flags (an array the detector owns); counters of
 early and late touchdowns and of the ticks where detection and plan disagree feed the run's statistics.

@@ -447,6 +447,8 @@ class VWBCController(LowLevelController[Plan]):
         self._torques = np.zeros(nu)
         self.last_request = self._torques  # the QP respects the limits: the request is the output
         self._stance = np.zeros(robot.n_feet, dtype=bool)
+        self._early_caps = np.full(robot.n_feet, np.inf)
+        """Each stance foot's normal-force cap, in stance order (``early_force``; inf: unbounded)."""
         self._previous_pattern: tuple[bool, ...] | None = None
         # last tick's results (for tests, logging by the caller and the friction-cone score)
         self.last_knot = -1
@@ -551,8 +553,12 @@ class VWBCController(LowLevelController[Plan]):
         elif self.detector is not None and self.detector.ground is not None:
             qp.orient_cone(self.detector.ground.normal())
         if self.detector is not None and self.detector.early_force_cap is not None:
-            early = self._stance & ~plan.contacts[k]
-            qp.cap_normal_forces(np.where(early[self._stance], self.detector.early_force_cap, np.inf))
+            caps, count, planned = self._early_caps, 0, plan.contacts[k]
+            for foot, standing in enumerate(self._stance):
+                if standing:  # an early foot: in the stance set before its planned touchdown
+                    caps[count] = np.inf if planned[foot] else self.detector.early_force_cap
+                    count += 1
+            qp.cap_normal_forces(caps[:count])
         self.terms.compute(q, v, self._stance)
         # linear term of (34a) in tau: Qux dx + Qu - Quu tau*
         np.matmul(plan.Qux[k], dx, out=self._g_tau)
