@@ -356,6 +356,19 @@ def test_the_terrain_experiment_makes_one_valid_run_per_gait_terrain_and_ground(
     assert "--starts" not in plan.options  # the default start keeps earlier sweeps' commands
 
 
+def test_the_terrain_experiments_gaps_are_trenches_from_the_start_and_over_past_the_last():
+    """``gap5``/``gap10``: three trenches of that width from the start; the run is past the top at the
+    first trench and over past the last one."""
+    from cafe_mpc_lab.experiments.terrain import _piece, _top
+    from cafe_mpc_lab.sim.terrain import Gaps
+
+    piece = _piece("gap10", 1.1)
+    assert isinstance(piece, Gaps)
+    np.testing.assert_allclose(piece.trenches, [(1.1, 1.2), (1.8, 1.9), (2.5, 2.6)])
+    assert _top(piece) == pytest.approx(1.1) and piece.end == pytest.approx(2.6)
+    assert _piece("gap5").trenches[0] == pytest.approx((1.0, 1.05))
+
+
 def test_the_terrain_experiment_runs_each_cell_from_several_starts_and_gives_its_rate():
     """``--starts``: one run per start with the piece beginning there, and the cell's rate over them."""
     from cafe_mpc_lab.experiments.catalog import get_experiment

@@ -3,7 +3,8 @@
 Each run is one gait preset walking at its command onto one piece of terrain (``scene.terrain``, starting
 1 m ahead; the named pieces in ``TERRAINS``: three steps of 2, 4, 6, 8 or 10 cm, up and down, five stairs
 of 10 cm rise and 30 cm tread, up and down, a 10 degree slope over 1.5 m, a 15 and a 20 degree one over
-1 m, each up and down again, or a rough field of +-2 cm over 2 m) with the controller's ground
+1 m, each up and down again, a rough field of +-2 cm over 2 m, or three trenches 5 or 10 cm wide, 0.6 m
+apart) with the controller's ground
 ``terrain``: ``flat`` (the paper's controller, z = 0 everywhere), ``blind`` (the plane through the stance
 feet: ``core.ground``, docs/terrain.md) or ``height_map`` (the plant's height-map sensor on,
 ``HEIGHT_MAP_SENSOR``: the reference plans on its maps). By default with the fixed 20 ms latency, so every
@@ -35,7 +36,7 @@ from cafe_mpc_lab.experiments.registry import Experiment, ExperimentPlan, PlanCo
 from cafe_mpc_lab.experiments.reliability import wilson_interval
 from cafe_mpc_lab.experiments.run import RunResult
 from cafe_mpc_lab.report.figures import new_figure, save_figure
-from cafe_mpc_lab.sim.terrain import Rough, Slope, Stairs, Steps, terrain_piece
+from cafe_mpc_lab.sim.terrain import Gaps, Rough, Slope, Stairs, Steps, terrain_piece
 
 TERRAINS: dict[str, str] = {
     "step2": "{kind: steps, rise: 0.02}",
@@ -48,6 +49,8 @@ TERRAINS: dict[str, str] = {
     "slope15": "{kind: slope, angle_deg: 15, length: 1.0}",
     "slope20": "{kind: slope, angle_deg: 20, length: 1.0}",
     "rough2": "{kind: rough, amplitude: 0.02}",
+    "gap5": "{kind: gaps, gap_width: 0.05}",
+    "gap10": "{kind: gaps, gap_width: 0.1}",
 }
 """The named pieces of terrain (``scene.terrain`` entries; the rest of each kind's keys at their defaults:
 from x = 1 m, 3 steps of 0.3 m, a 1 m top, down again)."""
@@ -77,16 +80,14 @@ def _spec(name: str, start: float) -> str:
     return "{" + ", ".join(f"{key}: {value}" for key, value in keys.items()) + "}"
 
 
-def _piece(name: str, start: float = DEFAULT_START) -> Slope | Steps | Stairs | Rough:
+def _piece(name: str, start: float = DEFAULT_START) -> Slope | Steps | Stairs | Rough | Gaps:
     """The ``sim.terrain`` piece of a named terrain beginning at ``start``."""
-    piece = terrain_piece(TerrainConfig(**yaml.safe_load(_spec(name, start))))
-    assert isinstance(piece, Slope | Steps | Stairs | Rough)
-    return piece
+    return terrain_piece(TerrainConfig(**yaml.safe_load(_spec(name, start))))
 
 
-def _top(piece: Slope | Steps | Stairs | Rough) -> float:
-    """World x where the piece's top begins (a rough field's: where it begins)."""
-    if isinstance(piece, Rough):
+def _top(piece: Slope | Steps | Stairs | Rough | Gaps) -> float:
+    """World x where the piece's top begins (a rough field's and the gaps': where they begin)."""
+    if isinstance(piece, Rough | Gaps):
         return piece.start
     if isinstance(piece, Slope):
         return piece.start + piece.length
