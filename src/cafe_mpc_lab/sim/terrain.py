@@ -11,7 +11,8 @@ ground, so terrain tests how far its feedback carries it. Every piece runs along
   staircase down, landings mirrored.
 * ``Rough``: a random field of heights in ``[0, 2 amplitude]`` (``+-amplitude`` about ``amplitude``) on a
   grid of ``cell_size``, ``length`` by ``width``, drawn from ``seed`` (the same field for the same seed), its
-  border at the floor's height; a MuJoCo height field.
+  border at the floor's height; a MuJoCo height field, its contacts stiffer than the floor's
+  (``FIELD_SOLREF``).
 * ``Gaps``: ``count`` trenches ``gap_width`` wide (along x), ``spacing`` apart, whose bottom is ``depth``
   below the floor. A plane cannot have holes: with gaps in the scene the floor plane moves down to the
   deepest bottom and boxes whose top is at 0 tile the ground around the trenches (``ground_boxes``).
@@ -43,6 +44,15 @@ _RGBA = "0.42 0.48 0.56 1"
 _GROUND_RGBA = "0.5 0.55 0.6 1"
 _SLOPE_THICKNESS = 0.2  # m: the incline boxes reach below the floor, so no edge sticks out
 _FIELD_BASE = 0.05  # m: the height field's solid part below its lowest point
+FIELD_SOLREF = (0.01, 1.0)
+"""The rough field's contact ``solref`` (time constant s, damping ratio). The field's geom has
+``priority="1"``, so MuJoCo takes its parameters for its contacts with the feet: this ``solref``, and its
+friction and ``condim`` (the floor's, which are also the generated feet's); the floor and the other pieces
+keep MuJoCo's default (0.02 s). MuJoCo collides a sphere with a height field as with one vertical prism per
+triangle: a foot landing near a cell's diagonal at 0.02 s went up to its radius into the field, the walls
+between the two prisms then pushed it sideways from both sides with nothing pushing it up (google-deepmind/
+mujoco issue 2883), and feet were held under the surface for up to 0.47 s. At 0.01 s a landing foot stays on
+the top faces; the surface is unchanged (docs/terrain-notes.md, "Feet stuck in the rough field")."""
 GROUND_EXTENT = 100.0
 """m: with gaps in the scene, the ground boxes cover world x and y within this of the origin."""
 
@@ -493,7 +503,7 @@ def terrain_xml(pieces: Sequence[Terrain], friction: float) -> tuple[str, str]:
             assets.append(asset)
             lines.append(
                 f'    <geom name="{TERRAIN_PREFIX}{index}_{kind}_field" {geom} {_contact(friction)} '
-                f'rgba="{_RGBA}"/>\n'
+                f'priority="1" solref="{FIELD_SOLREF[0]:.10g} {FIELD_SOLREF[1]:.10g}" rgba="{_RGBA}"/>\n'
             )
     for box in ground_boxes(pieces)[0]:
         lines.append(_box_xml(f"{TERRAIN_PREFIX}ground_{box[0]}", box, friction, _GROUND_RGBA))
