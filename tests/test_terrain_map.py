@@ -77,6 +77,67 @@ def test_a_foothold_on_the_edge_moves_to_the_nearest_flat_spot_at_its_height(x, 
     assert (foothold[0] > EDGE) == (side == "high")
 
 
+def trench_map() -> HeightMap:
+    """A world map of a trench across x = 0.48-0.56 (cells not seen: deeper than the sensor's range)."""
+    columns, rows = 30, 21
+    x = np.arange(columns) * RESOLUTION
+    valid = np.tile((x < 0.47) | (x > 0.57), (rows, 1))
+    return HeightMap((0.0, -0.4), 0.0, RESOLUTION, np.zeros((rows, columns)), valid)
+
+
+def test_a_foothold_over_a_trench_keeps_the_side_it_moved_to_while_that_is_in_reach():
+    """Flat spots end a cell before the trench (x <= 0.40 and >= 0.64): a foothold at 0.53 moves to the
+    nearest side (0.64); given the spot it moved to before (0.40, the held spot, 2 cm farther) it keeps that
+    side; a held spot more than ``foothold_hysteresis`` farther than the nearest, out of reach, or not flat
+    is not kept; with no hysteresis the nearest is taken."""
+    settings = TerrainMapSettings(edge_margin=0.04, foothold_search=0.15, foothold_hysteresis=0.04)
+    terrain = TerrainMap(settings)
+    terrain.place(trench_map())
+
+    def moved(x: float, held: tuple[float, float] = (math.nan, math.nan)) -> tuple[bool, float]:
+        foothold = np.array([x, 0.0, 0.0])
+        was_moved = terrain_foothold(
+            terrain.heights, terrain.footholds, terrain.parameters, RADIUS, foothold, *held
+        )
+        return was_moved, float(foothold[0])
+
+    assert moved(0.53) == (True, pytest.approx(0.64))
+    assert moved(0.53, (0.40, 0.0)) == (True, pytest.approx(0.40))
+    assert moved(0.53, (0.41, 0.01)) == (True, pytest.approx(0.40))  # the held point's cell
+    assert moved(0.55, (0.40, 0.0)) == (True, pytest.approx(0.64))  # 6 cm farther than the nearest
+    assert moved(0.58, (0.40, 0.0)) == (True, pytest.approx(0.64))  # 0.18 away: out of reach
+    assert moved(0.53, (0.52, 0.0)) == (True, pytest.approx(0.64))  # in the trench: not a flat spot
+    assert moved(0.30, (0.64, 0.0)) == (False, pytest.approx(0.30))  # on a flat spot: it stays
+    terrain = TerrainMap(settings.model_copy(update={"foothold_hysteresis": 0.0}))
+    terrain.place(trench_map())
+    assert moved(0.53, (0.40, 0.0)) == (True, pytest.approx(0.64))
+
+
+@pytest.mark.slow
+def test_a_pronk_on_the_height_map_holds_its_footholds_and_crosses_a_5_cm_trench():
+    """The pronk over three 5 cm trenches from 0.9 m on the height map, fixed 20 ms latency: its hind
+    footholds at 2.3 s lie over the first trench; chosen afresh at every update they flip between its two
+    sides (0.85 and 1.02 m), the plan lands the feet between, in the trench, and it falls (at 2.41 s).
+    Held (``terrain_map.foothold_hysteresis``, 4 cm by default) it lands on one side and crosses."""
+    from cafe_mpc_lab.experiments.run import simulate_run
+
+    config = load_run_config(
+        "pronk",
+        [
+            "simulation.duration=3",
+            "mpc.latency=fixed",
+            "mpc.fixed_latency=0.02",
+            "terrain=height_map",
+            "plant.height_map.enabled=true",
+            "plant.height_map.forward_offset=0.3",
+            "scene.terrain=[{kind: gaps, gap_width: 0.05, start: 0.9}]",
+        ],
+    )
+    _, _, log = simulate_run(config)
+    assert not log.fell, log.fall_reason
+    assert log.q[-1, 0] > 0.95 + 0.25  # the hind hips past the first trench
+
+
 def test_a_foothold_on_a_flat_spot_keeps_its_place_and_takes_the_maps_height():
     terrain = TerrainMap(TerrainMapSettings())
     terrain.place(step_map())

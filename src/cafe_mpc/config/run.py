@@ -1117,7 +1117,11 @@ class TerrainMapSettings(StrictModel):
         description="m; the spread of heights a flat spot allows (above the map's noise)",
     )
     foothold_search: float = Field(
-        0.1, ge=0.0, le=0.5, description="m; how far a foothold off a flat spot may move to the nearest one"
+        0.15,
+        ge=0.0,
+        le=0.5,
+        description="m; how far a foothold off a flat spot may move to the nearest one (a 10 cm gap with "
+        "the edge margin on both sides needs 0.13)",
     )
     swing_clearance: float = Field(
         0.03,
@@ -1138,6 +1142,15 @@ class TerrainMapSettings(StrictModel):
         description="the ground normal the plan's (26) and the VWBC's (34f) friction pyramids are taken "
         "about: plane (the blind ground plane through the feet, tilted by steps between them) | map (the "
         "map's normal under the flat spots the feet stand on: world z on flat treads)",
+    )
+    foothold_hysteresis: float = Field(
+        0.04,
+        ge=0.0,
+        le=0.5,
+        description="m; over a hole in the map (a gap), a swing keeps the flat spot its foothold moved to "
+        "while that is at most this much farther from each update's Raibert foothold than the nearest one "
+        "(0: the nearest at every update, which flips across a gap as the foothold moves by a centimetre, "
+        "and the plan lands the foot between)",
     )
     registration: Literal["feet", "motion"] = Field(
         "feet",

@@ -410,13 +410,20 @@ def _foothold(
 
 # ------------------------------------------------------------------------------------ terrain (height map)
 TERRAIN_ENABLED, TERRAIN_ORIGIN_X, TERRAIN_ORIGIN_Y, TERRAIN_COS, TERRAIN_SIN = 0, 1, 2, 3, 4
-TERRAIN_RESOLUTION, TERRAIN_SEARCH, TERRAIN_OFFSET, TERRAIN_CLEARANCE = 5, 6, 7, 8
-TERRAIN_PARAMETERS = 9
+TERRAIN_RESOLUTION, TERRAIN_SEARCH, TERRAIN_OFFSET, TERRAIN_CLEARANCE, TERRAIN_HOLD = 5, 6, 7, 8, 9
+TERRAIN_PARAMETERS = 10
 """The ``terrain`` array of the kernels (``reference.terrain_map.TerrainMap``): a map in use (1) or none (0),
 the grid's origin (world x, y of cell (0, 0)), the cosine and sine of its yaw, its resolution (m), how far a
 foothold may move to a flat spot (m), a height offset added to every height read (m: how far the
-estimator's frame moved since the map was placed) and the clearance (m) a swing keeps above terrain that
-rises above its ends' ground (a riser)."""
+estimator's frame moved since the map was placed), the clearance (m) a swing keeps above terrain that
+rises above its ends' ground (a riser) and how much farther than the nearest flat spot (m) the one a swing's
+foothold moved to before may be and be kept (0: the nearest at every sampling;
+``terrain_map.foothold_hysteresis``)."""
+
+HOLD_MATCH = 0.1
+"""s; a held foothold (``sample_feet``'s ``held``) belongs to the swing whose touchdown is within this of the
+touchdown it was chosen for: an early touchdown's phase advance moves it by less, the same foot's next swing
+is a gait cycle later."""
 
 
 @njit(cache=True, nogil=True)
@@ -485,17 +492,32 @@ def map_heights(
 
 @njit(cache=True, nogil=True)
 def terrain_foothold(
-    heights: np.ndarray, footholds: np.ndarray, terrain: np.ndarray, foot_radius: float, out: np.ndarray
-) -> None:
+    heights: np.ndarray,
+    footholds: np.ndarray,
+    terrain: np.ndarray,
+    foot_radius: float,
+    out: np.ndarray,
+    held_x: float = np.nan,
+    held_y: float = np.nan,
+) -> bool:
     """A planned foothold ``out`` (world x, y, z) onto the map: where the four cells around it are flat
     spots (``footholds``: a flat spot's height, NaN elsewhere; ``reference.terrain_map``) its height is
-    theirs; else it moves to the nearest flat spot's centre within ``terrain[TERRAIN_SEARCH]`` m; with none
-    there it stays, at the map's height (``heights``) if the map saw it, else at the height it had (the
-    ground plane's)."""
+    theirs; else it moves to the nearest flat spot's centre within ``terrain[TERRAIN_SEARCH]`` m, or, over
+    a hole (next to a cell the map did not see: a gap deeper than the sensor's range), to the cell under
+    ``(held_x, held_y)`` (the spot this swing moved to at the last sampling) while that is a flat spot within
+    reach and at most ``terrain[TERRAIN_HOLD]`` m farther than the nearest; with none there it stays, at the
+    map's height (``heights``) if the map saw it, else at the height it had (the ground plane's). Whether it
+    moved to a flat spot.
+
+    Chosen afresh at every update, the nearest spot to a foothold over a gap flips from one side to the
+    other as the Raibert foothold moves by a centimetre, and a plan that follows each update lands the foot
+    between them, in the gap (the pronk's hind feet on 5 cm trenches). On a step's edge the foot lands on
+    something either way, and holding the spot there cost the trot two of three starts over 10 cm steps at
+    2 ms: the hold is for holes only."""
     z = map_height(footholds, terrain, out[0], out[1])
     if math.isfinite(z):
         out[2] = foot_radius + z
-        return
+        return False
     cos, sin, resolution = terrain[TERRAIN_COS], terrain[TERRAIN_SIN], terrain[TERRAIN_RESOLUTION]
     dx, dy = out[0] - terrain[TERRAIN_ORIGIN_X], out[1] - terrain[TERRAIN_ORIGIN_Y]
     column = (cos * dx + sin * dy) / resolution
@@ -510,15 +532,28 @@ def terrain_foothold(
             distance = (r - row) * (r - row) + (c - column) * (c - column)
             if distance <= best:
                 best, best_row, best_column = distance, r, c
+    hole = not math.isfinite(map_height(heights, terrain, out[0], out[1]))
+    if best_row >= 0 and hole and terrain[TERRAIN_HOLD] > 0.0 and math.isfinite(held_x + held_y):
+        hx, hy = held_x - terrain[TERRAIN_ORIGIN_X], held_y - terrain[TERRAIN_ORIGIN_Y]
+        r = round((-sin * hx + cos * hy) / resolution)
+        c = round((cos * hx + sin * hy) / resolution)
+        if 0 <= r < rows and 0 <= c < columns and math.isfinite(footholds[r, c]):
+            distance = (r - row) * (r - row) + (c - column) * (c - column)
+            if (
+                distance <= reach * reach
+                and math.sqrt(distance) <= math.sqrt(best) + terrain[TERRAIN_HOLD] / resolution
+            ):
+                best_row, best_column = r, c
     if best_row >= 0:
         along, across = best_column * resolution, best_row * resolution
         out[0] = terrain[TERRAIN_ORIGIN_X] + cos * along - sin * across
         out[1] = terrain[TERRAIN_ORIGIN_Y] + sin * along + cos * across
         out[2] = foot_radius + footholds[best_row, best_column] + terrain[TERRAIN_OFFSET]
-        return
+        return True
     z = map_height(heights, terrain, out[0], out[1])
     if math.isfinite(z):
         out[2] = foot_radius + z
+    return False
 
 
 MAX_SWING_LENGTH = 10.0
@@ -609,6 +644,7 @@ def sample_feet(
     terrain: np.ndarray,
     heights: np.ndarray,
     footholds: np.ndarray,
+    held: np.ndarray,
     stance: np.ndarray,
     positions: np.ndarray,
     velocities: np.ndarray,
@@ -619,7 +655,9 @@ def sample_feet(
     swing that started by the anchor, else the previous foothold) and Raibert footholds (``_foothold``),
     then the foot sampled at ``times`` (``sample_foot``). With a height map (``terrain``, ``heights``,
     ``footholds``: ``reference.terrain_map``) each foothold moves onto it (``terrain_foothold``) and each
-    swing's apex clears the terrain between its ends (``swing_apex_floor``)."""
+    swing's apex clears the terrain between its ends (``swing_apex_floor``). ``held`` (feet, 3): per foot
+    the touchdown time and world x, y of the flat spot its next touchdown moved to (NaN: none), written here
+    and read at the next sampling when ``terrain[TERRAIN_HOLD]`` > 0 (``terrain_foothold``'s held spot)."""
     count = phase_starts.shape[0]
     liftoffs = np.empty(count)
     touchdowns = np.empty(count)
@@ -627,8 +665,10 @@ def sample_feet(
     ends = np.empty((count, 3))
     floors = np.full(count, -np.inf)
     mapped = terrain[TERRAIN_ENABLED] > 0.0
+    hold = mapped and terrain[TERRAIN_HOLD] > 0.0
     for foot in range(stance_positions.shape[0]):
         n_swings = 0
+        next_touchdown = True
         start_position = stance_positions[foot]
         index = 0
         while index < count:
@@ -663,7 +703,17 @@ def sample_feet(
                         ends[j],
                     )
                     if mapped:
-                        terrain_foothold(heights, footholds, terrain, parameters[5], ends[j])
+                        held_x = held_y = np.nan
+                        keep = hold and next_touchdown and end > anchor[0]
+                        if keep and abs(held[foot, 0] - end) <= HOLD_MATCH:
+                            held_x, held_y = held[foot, 1], held[foot, 2]
+                        moved = terrain_foothold(
+                            heights, footholds, terrain, parameters[5], ends[j], held_x, held_y
+                        )
+                        if keep:
+                            next_touchdown = False
+                            if moved:
+                                held[foot, 0], held[foot, 1], held[foot, 2] = end, ends[j, 0], ends[j, 1]
                         floors[j] = swing_apex_floor(
                             heights, terrain, starts[j], ends[j], parameters[5], parameters[6]
                         )

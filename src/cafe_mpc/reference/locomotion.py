@@ -419,6 +419,9 @@ class LocomotionReference(Reference):
         self.measured_velocity_xy = np.zeros(2)
         self.stance_positions = robot.foot_positions(robot.q_standing)
         self.liftoff_positions = self.stance_positions.copy()
+        self._held_footholds = np.full((robot.n_feet, 3), np.nan)
+        """Per foot, the touchdown time and world x, y of the flat spot of the map its next touchdown moved
+        to (``kernels.sample_feet``'s ``held``; ``terrain_map.foothold_hysteresis``)."""
         self._schedule: ContactSchedule | None = None
         self._schedule_window = (math.inf, -math.inf)
         self.inverse_kinematics = LegInverseKinematics(robot)
@@ -1132,6 +1135,7 @@ class LocomotionReference(Reference):
             terrain.parameters,
             terrain.heights,
             terrain.footholds,
+            self._held_footholds,
             stance,
             positions,
             velocities,

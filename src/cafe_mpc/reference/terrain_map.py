@@ -43,6 +43,7 @@ from cafe_mpc.reference.kernels import (
     TERRAIN_CLEARANCE,
     TERRAIN_COS,
     TERRAIN_ENABLED,
+    TERRAIN_HOLD,
     TERRAIN_OFFSET,
     TERRAIN_ORIGIN_X,
     TERRAIN_ORIGIN_Y,
@@ -146,6 +147,7 @@ class TerrainMap:
         p[TERRAIN_SEARCH] = self.settings.foothold_search
         p[TERRAIN_OFFSET] = 0.0
         p[TERRAIN_CLEARANCE] = self.settings.swing_clearance
+        p[TERRAIN_HOLD] = self.settings.foothold_hysteresis
         self.time = height_map.time
         self._shift_at_place = frame_shift
         self._placed_height = base_height
