@@ -228,6 +228,18 @@ class ContactDetectionSettings(StrictModel):
         "as a landed stumbling foot, late_reach_frequency), instead of driven along its swing curve into the "
         "tread; null: off",
     )
+    ground_max_slope: float | None = Field(
+        None,
+        gt=0.0,
+        le=2.0,
+        description="rise per run; with a ground plane (terrain: blind), the steepest plane the detector's "
+        "and the reference's ground plane estimates believe (their least-squares slope through the feet's "
+        "latest contact points is scaled down to it); null: core.ground.MAX_SLOPE (0.7, 35 deg)",
+    )
+    """Going down 6 cm steps the blind bound's pairs stood 10-12 cm apart in x on two treads and both planes
+    tilted 0.6 (31 deg): 17 cm ahead they lay 10 cm under the tread, the front feet's swing aimed there and
+    met the tread 100 ms early, more than ``step_height`` above the detector's plane (docs/terrain-notes.md,
+    "Early feet on the next tread")."""
     force_estimate: Literal["static", "momentum"] | None = Field(
         None,
         description="the ground force the detector reads: static (the measurement's, from the joint torques "
@@ -242,6 +254,11 @@ class ContactDetectionSettings(StrictModel):
     momentum_gain: float = Field(
         150.0, gt=0.0, le=2000.0, description="1/s; bandwidth of the momentum observer (force_estimate)"
     )
+
+    def ground_plane_limits(self) -> dict[str, float]:
+        """The keyword arguments of ``core.ground.GroundPlane`` these settings fix: ``max_slope`` when
+        ``ground_max_slope`` is set (none when it is null: the plane's default)."""
+        return {} if self.ground_max_slope is None else {"max_slope": self.ground_max_slope}
 
     def force_estimate_for(self, flat: bool) -> str:
         """The ground force the detector reads: ``force_estimate``, or when it is null ``static`` on flat

@@ -28,7 +28,9 @@ Bledt et al. ("Contact Model Fusion for Event-Based Locomotion in Unstructured T
 * the **foot height** above the ground (forward kinematics of the measured state): the foot is where the
   ground is. The ground is flat at ``ground_height`` (the paper's world), or, with ``ground_plane``, the
   plane through the feet's latest detected contact points (``core.ground.GroundPlane``: a blind robot's
-  estimate of steps and slopes, ``terrain: blind``).
+  estimate of steps and slopes, ``terrain: blind``), its slope limited to ``ground_max_slope`` when that is
+  set (the reference's plane takes the same limit: through feet 10 cm apart on two treads an unlimited fit
+  tilted 0.6 and lay 10 cm under the tread a swing was aimed at; docs/terrain-notes.md).
 
 In planned stance a foot is in contact once it is within ``touchdown_height`` of the ground or loaded (a foot
 still higher and unloaded is a late touchdown: in the air, out of the stance set, its leg reaching for the
@@ -107,7 +109,11 @@ class ContactDetector:
     ) -> None:
         self.robot = robot
         self.settings = settings or ContactDetectionSettings()
-        self.ground = GroundPlane(robot.n_feet, self.settings.ground_height) if ground_plane else None
+        self.ground = (
+            GroundPlane(robot.n_feet, self.settings.ground_height, **self.settings.ground_plane_limits())
+            if ground_plane
+            else None
+        )
         self.on_time = self.settings.on_time_for(flat=not ground_plane)
         self.force_estimate = self.settings.force_estimate_for(flat=not ground_plane)
         """``static`` or ``momentum`` (``ContactDetectionSettings.force_estimate_for``)."""

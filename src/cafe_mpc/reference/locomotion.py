@@ -313,6 +313,7 @@ class LocomotionReference(Reference):
         swing_lift: float = 0.0,
         ground_from_estimate: bool = False,
         ground_below: float | None = None,
+        ground_limits: dict[str, float] | None = None,
     ) -> None:
         if not commands:
             commands = [VelocityCommand()]
@@ -377,9 +378,11 @@ class LocomotionReference(Reference):
         advanced to it (``advance_phase``). None: the schedule runs on its clock whatever the feet do."""
         self.phase_advances = 0
         self.phase_advance_total = 0.0
-        self.ground = GroundPlane(robot.n_feet) if ground_plane else None
+        self.ground = GroundPlane(robot.n_feet, **(ground_limits or {})) if ground_plane else None
         """The plane through the stance feet's latest contact points (``core.ground``) that the base height,
-        its pitch and the footholds follow; None: flat ground at z = 0 (the paper's)."""
+        its pitch and the footholds follow; None: flat ground at z = 0 (the paper's). ``ground_limits``: its
+        keyword arguments (``max_slope``: ``vwbc.contact_detection.ground_max_slope``, the detector's plane's
+        limit too)."""
         self.ground_from_estimate = bool(ground_from_estimate) and self.ground is not None
         """The plane's points from each control tick's state estimate (``observe_estimate``) instead of
         ``update``'s states (``gait.blind_ground: estimate``): with the real-time iteration those are the
