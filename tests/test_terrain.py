@@ -322,7 +322,6 @@ def test_a_swing_that_lifts_first_rises_in_place_then_moves_and_its_velocity_is_
             0.1,
             np.array([-np.inf]),
             lift,
-            0.0,
             0,
             stance,
             positions,
@@ -340,42 +339,6 @@ def test_a_swing_that_lifts_first_rises_in_place_then_moves_and_its_velocity_is_
 
 
 # ------------------------------------------------------------------------------------------ experiment
-def test_a_swing_that_drops_last_is_over_its_foothold_before_its_last_descent():
-    """``sample_foot_floored`` with ``drop`` 0.25 (``gait.blind_swing_drop``): the horizontal blend ends a
-    quarter of the swing before touchdown, the height profile is the swing's; velocities are the positions'
-    rate."""
-    from cafe_mpc.reference.kernels import sample_foot_floored
-
-    times = np.linspace(0.0, 0.3, 301)
-    starts, ends = np.array([[0.0, 0.0, 0.18]]), np.array([[0.18, 0.0, 0.13]])
-    sampled = {}
-    for drop in (0.0, 0.25):
-        stance, positions, velocities = np.zeros((301, 1), bool), np.zeros((301, 1, 3)), np.zeros((301, 1, 3))
-        sample_foot_floored(
-            times,
-            np.array([0.0]),
-            np.array([0.3]),
-            starts,
-            ends,
-            starts[0],
-            0.1,
-            np.array([-np.inf]),
-            0.2,
-            drop,
-            0,
-            stance,
-            positions,
-            velocities,
-        )
-        sampled[drop] = positions[:, 0].copy(), velocities[:, 0].copy()
-    positions, velocities = sampled[0.25]
-    dropping = (times >= 0.75 * 0.3) & (times < 0.3)
-    np.testing.assert_allclose(positions[dropping, :2] - ends[0, :2], 0.0, atol=1e-12)
-    np.testing.assert_allclose(positions[:, 2], sampled[0.0][0][:, 2])
-    rate = np.gradient(positions[:-1, 0], times[:-1])
-    np.testing.assert_allclose(velocities[1:-2, 0], rate[1:-1], atol=2e-2)
-
-
 def test_the_terrain_experiment_makes_one_valid_run_per_gait_terrain_and_ground():
     from cafe_mpc_lab.experiments.catalog import get_experiment
     from cafe_mpc_lab.experiments.registry import PlanContext

@@ -84,7 +84,6 @@ def locomotion_reference(
         swing_height=gait.swing_height,
         raibert_gain=gait.raibert_gain,
         swing_lift=gait.swing_lift,
-        swing_drop=gait.swing_drop,
         foothold_box=gait.foothold_box,
         start_stance=section.start_stance,
         command_ramp=section.command_ramp,

@@ -212,10 +212,9 @@ def resolve_gait(section: GaitConfig, scale: RobotScale, blind: bool = False) ->
     """A gait section carried to the robot: its cycle's phase durations, the reference's Raibert gain and the
     touchdown-event threshold by the time scale, the swing height and foothold box by the length scale, the
     path gain (rad/m) by its inverse. ``blind`` (``terrain: blind``): the swing at least
-    ``blind_swing_height`` high, ``blind_swing_lift`` lifted first and ``blind_swing_drop`` lowered last."""
+    ``blind_swing_height`` high and ``blind_swing_lift`` lifted first."""
     events = section.touchdown_events
     swing_height, swing_lift = section.swing_height, section.swing_lift
-    swing_drop = section.blind_swing_drop if blind else 0.0
     if blind:
         swing_height = max(swing_height, section.blind_swing_height)
         swing_lift = max(swing_lift, section.blind_swing_lift)
@@ -231,7 +230,6 @@ def resolve_gait(section: GaitConfig, scale: RobotScale, blind: bool = False) ->
         blind_ground_below=None
         if section.blind_ground_below is None
         else scale.distance(section.blind_ground_below),
-        swing_drop=swing_drop,
     )
 
 

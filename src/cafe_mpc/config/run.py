@@ -415,14 +415,6 @@ class GaitConfig(StrictModel):
         description="with terrain: blind, the least swing_lift (a blind foot that landed against a riser "
         "rises off it before it swings)",
     )
-    blind_swing_drop: float = Field(
-        0.0,
-        ge=0.0,
-        le=0.4,
-        description="with terrain: blind, the fraction of each swing at its end in which the foot comes down "
-        "over its foothold without moving forward (0: the horizontal blend ends at touchdown); a blind foot "
-        "stepping down past a riser it does not know of then lands beside the riser's corner, not on it",
-    )
     blind_ground: Literal["predicted", "estimate"] = Field(
         "predicted",
         description="with terrain: blind, the states the reference's ground plane takes its stance feet's "

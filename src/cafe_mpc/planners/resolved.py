@@ -70,9 +70,6 @@ class ResolvedGait:
     touchdown_events: float | None
     blind_ground_below: float | None = None
     """m (length-scaled), ``gait.blind_ground_below``; None: off."""
-    swing_drop: float = 0.0
-    """Fraction of each swing at its end the foot comes down over its foothold (``gait.blind_swing_drop``
-    with terrain: blind; 0 otherwise)."""
 
 
 @dataclass(frozen=True)

@@ -63,7 +63,6 @@ def sample_foot(
         swing_height,
         floors,
         0.0,
-        0.0,
         foot,
         stance,
         positions,
@@ -82,7 +81,6 @@ def sample_foot_floored(
     swing_height: float,
     apex_floors: np.ndarray,
     lift: float,
-    drop: float,
     foot: int,
     stance: np.ndarray,
     positions: np.ndarray,
@@ -91,9 +89,7 @@ def sample_foot_floored(
     """``sample_foot`` with each swing's apex at least ``apex_floors[j]`` (world z; -inf: no floor, the
     apex ``swing_height`` above the higher end): a swing over terrain higher than its ends clears it. With
     ``lift`` > 0 the foot's horizontal Bezier starts after that fraction of the swing (the foot rises off
-    a riser it stands against before it moves toward it) and ends with it; with ``drop`` > 0 it ends that
-    fraction before the touchdown (the foot is over its foothold before the last of its descent, so that
-    stepping down past a riser it does not know of it comes down beside the riser's corner, not onto it)."""
+    a riser it stands against before it moves toward it) and ends with it."""
     tolerance = 1e-9
     for i in range(times.shape[0]):
         t = times[i]
@@ -105,12 +101,7 @@ def sample_foot_floored(
                 in_swing = True
                 duration = touchdown - liftoff
                 s = (t - liftoff) / duration
-                if drop > 0.0:
-                    span = 1.0 - lift - drop
-                    moving = max(s - lift, 0.0) / span
-                    blend, dblend = _bezier(moving)
-                    dblend = dblend / span if moving < 1.0 else 0.0
-                elif lift > 0.0:
+                if lift > 0.0:
                     moving = max(s - lift, 0.0) / (1.0 - lift)
                     blend, dblend = _bezier(moving)
                     dblend /= 1.0 - lift
@@ -691,7 +682,6 @@ def sample_feet(
             parameters[6],
             floors[:n_swings],
             parameters[12],
-            parameters[13],
             foot,
             stance,
             positions,

@@ -311,7 +311,6 @@ class LocomotionReference(Reference):
         ground_plane: bool = False,
         terrain_map: TerrainMapSettings | None = None,
         swing_lift: float = 0.0,
-        swing_drop: float = 0.0,
         ground_from_estimate: bool = False,
         ground_below: float | None = None,
     ) -> None:
@@ -330,10 +329,6 @@ class LocomotionReference(Reference):
             raise ValueError(f"swing_lift must be in [0, 1), got {swing_lift}")
         self.swing_lift = float(swing_lift)
         """Fraction of each swing the foot rises before it moves horizontally (``kernels.sample_foot``)."""
-        if not (swing_drop >= 0.0 and swing_lift + swing_drop < 1.0):
-            raise ValueError(f"swing_drop must be >= 0 with swing_lift + swing_drop < 1, got {swing_drop}")
-        self.swing_drop = float(swing_drop)
-        """Fraction of each swing at its end the foot comes down without moving horizontally."""
         self.raibert_gain = raibert_gain
         self.foothold_box = np.array(foothold_box, dtype=float)
         if not (math.isfinite(start_stance) and start_stance >= 0.0):
@@ -452,7 +447,7 @@ class LocomotionReference(Reference):
         self._phase_ends = np.zeros(0)
         self._phase_flags = np.zeros((0, robot.n_feet), dtype=bool)
         self._anchor = np.zeros(4)
-        self._feet_parameters = np.zeros(14)
+        self._feet_parameters = np.zeros(13)
         self._factors = np.zeros(0)
         self._keys = np.zeros(0, dtype=np.int64)
         self._data = robot.model.createData()
@@ -1111,7 +1106,6 @@ class LocomotionReference(Reference):
         parameters[5] = self.robot.foot_radius
         parameters[6] = self.swing_height
         parameters[12] = self.swing_lift
-        parameters[13] = self.swing_drop
         if self.ground is not None:
             parameters[7] = self.ground.height
             parameters[8:10] = self.ground.slope
