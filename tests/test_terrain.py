@@ -597,3 +597,15 @@ def test_a_blind_bound_holds_a_foot_landing_early_on_the_next_tread_and_climbs_6
     log = _blind_run("bound", "{kind: steps, rise: 0.06, start: 0.9}", 4.0)
     assert not log.fell, log.fall_reason
     assert log.q[-1, 0] > 1.8  # on the top (risers at 0.9, 1.2, 1.5 m; the top from 1.8 m)
+
+
+@pytest.mark.slow
+def test_a_blind_pronk_with_its_lower_blind_swing_climbs_6_cm_steps_at_30_ms():
+    """The pronk onto 6 cm steps from 1.1 m at fixed 30 ms latency. With the schema's 10 cm blind swing the
+    hind feet reach their planned touchdown on the first riser 5-6 cm above the plane (late, the observer
+    reading nothing, their legs too slow for the late reach); the plan's stance torques sweep them back 34 cm
+    onto the floor and the trunk tips over backwards at 3.09 s. The preset's ``gait.blind_swing_height:
+    0.09`` lands them on time: up at 4 s. It fails with the setting removed."""
+    log = _blind_run("pronk", "{kind: steps, rise: 0.06, start: 1.1}", 4.0, "mpc.fixed_latency=0.03")
+    assert not log.fell, log.fall_reason
+    assert log.q[-1, 0] > 1.5  # on the treads (risers at 1.1, 1.4, 1.7 m), past its fall (x 1.22 m)
