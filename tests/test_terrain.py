@@ -664,3 +664,15 @@ def test_a_blind_bound_goes_down_6_cm_steps_with_its_ground_planes_slope_limited
     log = _blind_run("bound", "{kind: steps, rise: 0.06, start: 0.9}", 7.6)
     assert not log.fell, log.fall_reason
     assert log.q[-1, 0] > 3.8  # past the last riser (down at 3.1, 3.4, 3.7 m; x 4.0 m at 7.6 s)
+
+
+@pytest.mark.slow
+def test_a_blind_pronk_with_its_lower_blind_swing_climbs_6_cm_steps_at_30_ms():
+    """The pronk onto 6 cm steps from 1.1 m at fixed 30 ms latency. With the schema's 10 cm blind swing the
+    hind feet reach their planned touchdown on the first riser 5-6 cm above the plane (late, the observer
+    reading nothing, their legs too slow for the late reach); the plan's stance torques sweep them back 34 cm
+    onto the floor and the trunk tips over backwards at 3.09 s. The preset's ``gait.blind_swing_height:
+    0.09`` lands them on time: up at 4 s. It fails with the setting removed."""
+    log = _blind_run("pronk", "{kind: steps, rise: 0.06, start: 1.1}", 4.0, "mpc.fixed_latency=0.03")
+    assert not log.fell, log.fall_reason
+    assert log.q[-1, 0] > 1.5  # on the treads (risers at 1.1, 1.4, 1.7 m), past its fall (x 1.22 m)
