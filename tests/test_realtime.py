@@ -183,6 +183,18 @@ def _crashing_process_planner(config_data: dict) -> CrashingMpc:
     return crashing_mpc(config_data, 5, "crash")
 
 
+def test_an_interrupt_swallowed_before_the_loop_stops_the_run_at_its_next_tick(tmp_path):
+    """A SIGINT that lands while numba compiles or loads a kernel is swallowed in llvmlite's ctypes callback;
+    the command line's handler also sets ``sim.loop.INTERRUPT``, so the closed loop raises it again at its
+    next tick: exit status 130, and the flag cleared for the next command."""
+    from cafe_mpc_lab.cli import main
+    from cafe_mpc_lab.sim.loop import INTERRUPT
+
+    INTERRUPT.set()  # as the handler leaves it when its KeyboardInterrupt was swallowed
+    assert main(["run", "stand", "--duration", "0.2", "--out", str(tmp_path / "out")]) == 130
+    assert not INTERRUPT.is_set()
+
+
 @pytest.mark.slow
 def test_ctrl_c_stops_the_run_and_leaves_no_process(tmp_path):
     """SIGINT (Ctrl-C) during a real-time run: exit status 130 and no MPC process left behind."""

@@ -9,7 +9,9 @@ from __future__ import annotations
 import argparse
 import json
 import logging
+import signal
 import sys
+import threading
 from pathlib import Path
 
 EXIT_USAGE = 2
@@ -724,7 +726,6 @@ class DeployTeleop:
 
 
 def _command_deploy(arguments: argparse.Namespace) -> int:
-    import signal
 
     from pydantic import ValidationError
 
@@ -1024,10 +1025,16 @@ def main(argv: list[str] | None = None) -> int:
     from cafe_mpc.trajopt.task import TrajOptTaskError
     from cafe_mpc_lab.experiments.registry import SweepError
     from cafe_mpc_lab.report.html import ReportError
-    from cafe_mpc_lab.sim.loop import ControllerError
+    from cafe_mpc_lab.sim.loop import INTERRUPT, ControllerError
     from cafe_mpc_lab.sim.plant import SimulationDiverged
     from cafe_mpc_lab.sim.viewer import ViewerUnavailable
 
+    def interrupt(signal_number: int, frame: object) -> None:
+        INTERRUPT.set()  # the loop's next tick raises it again if this one is swallowed
+        raise KeyboardInterrupt
+
+    main_thread = threading.current_thread() is threading.main_thread()
+    previous_handler = signal.signal(signal.SIGINT, interrupt) if main_thread else None
     try:
         return int(arguments.handler(arguments))
     except (
@@ -1047,6 +1054,10 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         print("cafe-mpc: interrupted", file=sys.stderr)
         return 130
+    finally:
+        INTERRUPT.clear()
+        if main_thread:
+            signal.signal(signal.SIGINT, previous_handler)
 
 
 if __name__ == "__main__":

@@ -12,6 +12,7 @@ Ctrl-C: ``simulation.log`` then holds every tick simulated (a run's record up to
 from __future__ import annotations
 
 import logging
+import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -33,6 +34,12 @@ from cafe_mpc.core.sensors import SensorReadings
 from cafe_mpc_lab.sim.plant import Plant
 
 logger = logging.getLogger(__name__)
+
+INTERRUPT = threading.Event()
+"""Set by the command line's SIGINT handler (Ctrl-C), cleared when the interrupt is handled: the closed loop
+raises ``KeyboardInterrupt`` at its next tick while it is set. The handler raises it too, but a SIGINT that
+lands while numba compiles or loads a kernel is swallowed in llvmlite's ctypes callback ("Exception ignored
+on calling ctypes callback function"), and the run went on to its end."""
 
 
 class SensorController(Protocol):
@@ -311,6 +318,8 @@ class Simulation:
         external = np.zeros(3)
         for tick in range(ticks):
             t = tick * control_period
+            if INTERRUPT.is_set():
+                raise KeyboardInterrupt
             if pacer is not None:
                 pacer.wait(tick)
             if before_tick is not None:
