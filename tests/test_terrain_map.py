@@ -77,6 +77,23 @@ def test_a_foothold_on_the_edge_moves_to_the_nearest_flat_spot_at_its_height(x, 
     assert (foothold[0] > EDGE) == (side == "high")
 
 
+def _height_map_run(preset: str, duration: float, piece: str):
+    """A closed loop of ``preset`` on the height map (the experiment's sensor, 0.3 m ahead) over one
+    ``scene.terrain`` piece, fixed 20 ms latency: its log."""
+    from cafe_mpc_lab.experiments.run import simulate_run
+
+    overrides = [
+        f"simulation.duration={duration}",
+        "mpc.latency=fixed",
+        "mpc.fixed_latency=0.02",
+        "terrain=height_map",
+        "plant.height_map.enabled=true",
+        "plant.height_map.forward_offset=0.3",
+        f"scene.terrain=[{piece}]",
+    ]
+    return simulate_run(load_run_config(preset, overrides))[2]
+
+
 def trench_map() -> HeightMap:
     """A world map of a trench across x = 0.48-0.56 (cells not seen: deeper than the sensor's range)."""
     columns, rows = 30, 21
@@ -119,21 +136,7 @@ def test_a_pronk_on_the_height_map_holds_its_footholds_and_crosses_a_5_cm_trench
     footholds at 2.3 s lie over the first trench; chosen afresh at every update they flip between its two
     sides (0.85 and 1.02 m), the plan lands the feet between, in the trench, and it falls (at 2.41 s).
     Held (``terrain_map.foothold_hysteresis``, 4 cm by default) it lands on one side and crosses."""
-    from cafe_mpc_lab.experiments.run import simulate_run
-
-    config = load_run_config(
-        "pronk",
-        [
-            "simulation.duration=3",
-            "mpc.latency=fixed",
-            "mpc.fixed_latency=0.02",
-            "terrain=height_map",
-            "plant.height_map.enabled=true",
-            "plant.height_map.forward_offset=0.3",
-            "scene.terrain=[{kind: gaps, gap_width: 0.05, start: 0.9}]",
-        ],
-    )
-    _, _, log = simulate_run(config)
+    log = _height_map_run("pronk", 3.0, "{kind: gaps, gap_width: 0.05, start: 0.9}")
     assert not log.fell, log.fall_reason
     assert log.q[-1, 0] > 0.95 + 0.25  # the hind hips past the first trench
 
@@ -335,21 +338,7 @@ def test_a_trot_on_the_height_map_climbs_an_8_cm_step_the_blind_trot_falls_on():
     """The trot onto one 8 cm step 0.6 m ahead, fixed 20 ms latency, the state estimated: blind, its swing
     (6 cm above lift-off) meets the riser and it falls (at 1.97 s); on the height map its footholds land on
     the step's top away from the edge, its swings clear the riser, and it stands on the top at 3.5 s."""
-    from cafe_mpc_lab.experiments.run import simulate_run
-
-    config = load_run_config(
-        "trot",
-        [
-            "simulation.duration=3.5",
-            "mpc.latency=fixed",
-            "mpc.fixed_latency=0.02",
-            "terrain=height_map",
-            "plant.height_map.enabled=true",
-            "plant.height_map.forward_offset=0.3",
-            "scene.terrain=[{kind: steps, count: 1, rise: 0.08, start: 0.6}]",
-        ],
-    )
-    _, _, log = simulate_run(config)
+    log = _height_map_run("trot", 3.5, "{kind: steps, count: 1, rise: 0.08, start: 0.6}")
     assert not log.fell, log.fall_reason
     assert log.q[-1, 0] > 0.6 + 0.25  # every hip over the step
     assert log.q[-1, 2] - 0.08 > 0.2  # the base stands above the step's top

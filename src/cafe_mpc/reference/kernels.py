@@ -532,7 +532,8 @@ def terrain_foothold(
             distance = (r - row) * (r - row) + (c - column) * (c - column)
             if distance <= best:
                 best, best_row, best_column = distance, r, c
-    hole = not math.isfinite(map_height(heights, terrain, out[0], out[1]))
+    seen = map_height(heights, terrain, out[0], out[1])  # NaN next to a hole
+    hole = not math.isfinite(seen)
     if best_row >= 0 and hole and terrain[TERRAIN_HOLD] > 0.0 and math.isfinite(held_x + held_y):
         hx, hy = held_x - terrain[TERRAIN_ORIGIN_X], held_y - terrain[TERRAIN_ORIGIN_Y]
         r = round((-sin * hx + cos * hy) / resolution)
@@ -550,9 +551,8 @@ def terrain_foothold(
         out[1] = terrain[TERRAIN_ORIGIN_Y] + sin * along + cos * across
         out[2] = foot_radius + footholds[best_row, best_column] + terrain[TERRAIN_OFFSET]
         return True
-    z = map_height(heights, terrain, out[0], out[1])
-    if math.isfinite(z):
-        out[2] = foot_radius + z
+    if not hole:
+        out[2] = foot_radius + seen
     return False
 
 
