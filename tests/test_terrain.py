@@ -369,6 +369,19 @@ def test_the_terrain_experiments_gaps_are_trenches_from_the_start_and_over_past_
     assert _piece("gap5").trenches[0] == pytest.approx((1.0, 1.05))
 
 
+def test_the_terrain_experiments_rough_fields_reach_twice_their_amplitude():
+    """``rough2``/``rough3``/``rough4``: the same 2 m field (seed 0) with heights in [0, 2 amplitude], the
+    roughness the grid's column and "where it stops" compare."""
+    from cafe_mpc_lab.experiments.terrain import _piece
+    from cafe_mpc_lab.sim.terrain import Rough
+
+    for name, amplitude in (("rough2", 0.02), ("rough3", 0.03), ("rough4", 0.04)):
+        piece = _piece(name, 1.1)
+        assert isinstance(piece, Rough) and piece.amplitude == amplitude and piece.start == 1.1
+        heights = piece.heights
+        assert heights.min() == 0.0 and 1.5 * amplitude < heights.max() <= 2 * amplitude
+
+
 def test_the_terrain_experiment_runs_each_cell_from_several_starts_and_gives_its_rate():
     """``--starts``: one run per start with the piece beginning there, and the cell's rate over them."""
     from cafe_mpc_lab.experiments.catalog import get_experiment

@@ -49,6 +49,8 @@ TERRAINS: dict[str, str] = {
     "slope15": "{kind: slope, angle_deg: 15, length: 1.0}",
     "slope20": "{kind: slope, angle_deg: 20, length: 1.0}",
     "rough2": "{kind: rough, amplitude: 0.02}",
+    "rough3": "{kind: rough, amplitude: 0.03}",
+    "rough4": "{kind: rough, amplitude: 0.04}",
     "gap5": "{kind: gaps, gap_width: 0.05}",
     "gap10": "{kind: gaps, gap_width: 0.1}",
 }
