@@ -51,6 +51,7 @@ TERRAINS: dict[str, str] = {
     "rough2": "{kind: rough, amplitude: 0.02}",
     "rough3": "{kind: rough, amplitude: 0.03}",
     "rough4": "{kind: rough, amplitude: 0.04}",
+    "rough6": "{kind: rough, amplitude: 0.06}",
     "gap5": "{kind: gaps, gap_width: 0.05}",
     "gap10": "{kind: gaps, gap_width: 0.1}",
 }
