@@ -171,9 +171,9 @@ def scaled_contact_detection(
 ) -> ContactDetectionSettings:
     """The contact detector's thresholds carried to the robot: touchdown and release heights by the length
     scale, the early window and the on-time margin by the time scale (the momentum observer's gain by its
-    inverse), the landing, late descent, late reach and stumble speeds by their ratio, the late reach's depth
-    and the stumble's lift and forward step by the length scale and the reach's frequency by the inverse time
-    scale; the forces are already shares of the robot's
+    inverse), the landing, late descent, late reach and stumble speeds by their ratio, the late reach's depth,
+    the stumble's lift and forward step and the ground planes' least span by the length scale and the reach's
+    frequency by the inverse time scale; the forces are already shares of the robot's
     weight and the ground's height is the scene's."""
     if scale.is_identity:
         return settings
@@ -189,6 +189,9 @@ def scaled_contact_detection(
             "stumble_lift": scale.distance(settings.stumble_lift),
             "stumble_forward": scale.distance(settings.stumble_forward),
             "stumble_speed": scale.speed(settings.stumble_speed),
+            "ground_min_span": (
+                None if settings.ground_min_span is None else scale.distance(settings.ground_min_span)
+            ),
             "momentum_gain": scale.rate(settings.momentum_gain),
             "early_window": scale.duration(settings.early_window),
             "on_time": None if settings.on_time is None else scale.duration(settings.on_time),

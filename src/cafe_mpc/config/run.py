@@ -240,6 +240,19 @@ class ContactDetectionSettings(StrictModel):
     tilted 0.6 (31 deg): 17 cm ahead they lay 10 cm under the tread, the front feet's swing aimed there and
     met the tread 100 ms early, more than ``step_height`` above the detector's plane (docs/terrain-notes.md,
     "Early feet on the next tread")."""
+    ground_min_span: float | None = Field(
+        None,
+        gt=0.0,
+        le=1.0,
+        description="m; with a ground plane (terrain: blind), both ground planes (the detector's, the "
+        "reference's) fit their slope only along directions their points spread at least this along (root "
+        "mean square about their centroid) and hold the last fitted slope along the others; null: every "
+        "fit's slope",
+    )
+    """Climbing 6 cm steps the blind bound's hind feet landed 6-7 cm ahead of the front feet's last points,
+    1.6 cm lower (the soles sinking, the estimate drifting): both planes tilted to -0.25 to -0.3, 7-8 cm under
+    the next tread where the front feet landed early, so the detector (``step_height`` above its plane) did
+    not take them in and their swing drove them into the tread at 150 N (docs/terrain-notes.md)."""
     force_estimate: Literal["static", "momentum"] | None = Field(
         None,
         description="the ground force the detector reads: static (the measurement's, from the joint torques "
@@ -257,8 +270,12 @@ class ContactDetectionSettings(StrictModel):
 
     def ground_plane_limits(self) -> dict[str, float]:
         """The keyword arguments of ``core.ground.GroundPlane`` these settings fix: ``max_slope`` when
-        ``ground_max_slope`` is set (none when it is null: the plane's default)."""
-        return {} if self.ground_max_slope is None else {"max_slope": self.ground_max_slope}
+        ``ground_max_slope`` is set, ``min_span`` when ``ground_min_span`` is (none when they are null: the
+        plane's defaults)."""
+        limits = {} if self.ground_max_slope is None else {"max_slope": self.ground_max_slope}
+        if self.ground_min_span is not None:
+            limits["min_span"] = self.ground_min_span
+        return limits
 
     def force_estimate_for(self, flat: bool) -> str:
         """The ground force the detector reads: ``force_estimate``, or when it is null ``static`` on flat

@@ -9,7 +9,11 @@ normal.
 by least squares (``cx, cy``: the points' centroid), when the plane is next read after a point changed: a
 plane observed at every control tick and read at every MPC update fits once per update. With fewer than three
 points that span the plane (feet in a line), the slope stays zero and the height is the points' mean. The
-slope is limited to ``max_slope`` (rise per run) so that a misplaced point cannot tip the plane over. The
+slope is limited to ``max_slope`` (rise per run) so that a misplaced point cannot tip the plane over. With
+``min_span`` a slope along a direction the points spread less than that along (their root-mean-square
+distance from the centroid along it) is not fitted but held from the last fit that resolved it (a bound's hind
+feet land 6-7 cm ahead of the front feet's last points, and a centimetre between the pairs' heights, the
+soles' sinking or the estimate's drift, then tilted the plane by 0.25). The
 reference (``reference.locomotion``: base height, pitch and footholds on the plane) and the contact detector
 (``low_level.contact_detection``: a foot's height above the plane) each keep their own, updated from the
 measurement they see.
@@ -28,16 +32,23 @@ MAX_SLOPE = 0.7
 class GroundPlane:
     """A plane through the feet's latest contact points (module docstring); starts flat at ``height``."""
 
-    def __init__(self, n_feet: int, height: float = 0.0, max_slope: float = MAX_SLOPE) -> None:
+    def __init__(
+        self, n_feet: int, height: float = 0.0, max_slope: float = MAX_SLOPE, min_span: float = 0.0
+    ) -> None:
         if n_feet < 1:
             raise ValueError(f"a ground plane needs at least one foot, got {n_feet}")
         if not (math.isfinite(height) and math.isfinite(max_slope) and max_slope >= 0.0):
             raise ValueError(
                 f"ground plane: height must be finite and max_slope >= 0, got {height}, {max_slope}"
             )
+        if not (math.isfinite(min_span) and min_span >= 0.0):
+            raise ValueError(f"ground plane: min_span must be >= 0 m, got {min_span}")
         self.n_feet = n_feet
         self.initial_height = float(height)
         self.max_slope = float(max_slope)
+        self.min_span = float(min_span)
+        """m; the points' root-mean-square spread along a direction below which the slope along it is held
+        (module docstring); 0: every fit's slope (the points in a line: flat)."""
         self.points = np.zeros((n_feet, 3))
         """Each foot's latest contact point (world; the sole), valid where ``known``."""
         self.known = np.zeros(n_feet, dtype=bool)
@@ -55,6 +66,8 @@ class GroundPlane:
         self._height = self.initial_height
         self._slope = np.zeros(2)
         self._centre = np.zeros(2)
+        self._held_slope = np.zeros(2)
+        """With ``min_span``, the slope of the last fit (what a direction the points do not resolve keeps)."""
         self._stale = False
 
     @property
@@ -104,6 +117,9 @@ class GroundPlane:
         self._centre = centre
         self._height = float(points[:, 2].mean())
         self._slope = np.zeros(2)
+        if self.min_span > 0.0:
+            self._fit_spanned(points, centre)
+            return
         if len(points) < 3:
             return
         design = self._design[: len(points)]
@@ -120,6 +136,30 @@ class GroundPlane:
             slope = slope * (self.max_slope / norm)
         self._height = float(solution[0])
         self._slope = slope
+
+    def _fit_spanned(self, points: np.ndarray, centre: np.ndarray) -> None:
+        """``_fit`` with ``min_span``: the least-squares slope along each principal direction of the points'
+        spread (``D = U S V'``, ``D`` their centred x, y) that they spread at least ``min_span`` along
+        (``S_i / sqrt(n)``), the held slope's component along the others, limited to ``max_slope``; the
+        height at the centroid is then the points' mean height (the centred columns sum to zero)."""
+        design = self._design[: len(points), :2]
+        np.subtract(points[:, :2], centre, out=design)
+        _, singular, directions = np.linalg.svd(design)  # directions: 2 x 2 even for one point
+        spread = np.zeros(2)
+        spread[: len(singular)] = singular
+        resolved = spread >= max(self.min_span * math.sqrt(len(points)), 1e-3)
+        along = directions @ self._held_slope  # the held slope in the principal directions
+        for i in np.flatnonzero(resolved):
+            # least squares along a principal direction alone (the projections on them are uncorrelated,
+            # so this is the plane's least-squares slope there): sum (d_i . p) z / sum (d_i . p)^2
+            projection = design @ directions[i]
+            along[i] = float(projection @ points[:, 2]) / float(projection @ projection)
+        slope = directions.T @ along
+        norm = float(np.hypot(slope[0], slope[1]))
+        if norm > self.max_slope:
+            slope = slope * (self.max_slope / norm)
+        self._slope = slope
+        self._held_slope = slope.copy()
 
     def height_at(self, x: float, y: float) -> float:
         """The plane's height (world z) at world ``(x, y)``."""

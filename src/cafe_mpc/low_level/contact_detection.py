@@ -30,7 +30,9 @@ Bledt et al. ("Contact Model Fusion for Event-Based Locomotion in Unstructured T
   plane through the feet's latest detected contact points (``core.ground.GroundPlane``: a blind robot's
   estimate of steps and slopes, ``terrain: blind``), its slope limited to ``ground_max_slope`` when that is
   set (the reference's plane takes the same limit: through feet 10 cm apart on two treads an unlimited fit
-  tilted 0.6 and lay 10 cm under the tread a swing was aimed at; docs/terrain-notes.md).
+  tilted 0.6 and lay 10 cm under the tread a swing was aimed at; docs/terrain-notes.md), and along a direction
+  its points spread less than ``ground_min_span`` along, held from the last fit (both planes: a bound's hind
+  feet land 7 cm ahead of the front feet's last points, and a centimetre between them tilted the planes 0.3).
 
 In planned stance a foot is in contact once it is within ``touchdown_height`` of the ground or loaded (a foot
 still higher and unloaded is a late touchdown: in the air, out of the stance set, its leg reaching for the

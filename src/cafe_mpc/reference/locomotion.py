@@ -382,7 +382,7 @@ class LocomotionReference(Reference):
         """The plane through the stance feet's latest contact points (``core.ground``) that the base height,
         its pitch and the footholds follow; None: flat ground at z = 0 (the paper's). ``ground_limits``: its
         keyword arguments (``max_slope``: ``vwbc.contact_detection.ground_max_slope``, the detector's plane's
-        limit too)."""
+        limit too; ``min_span``: ``ground_min_span``, likewise)."""
         self.ground_from_estimate = bool(ground_from_estimate) and self.ground is not None
         """The plane's points from each control tick's state estimate (``observe_estimate``) instead of
         ``update``'s states (``gait.blind_ground: estimate``): with the real-time iteration those are the
