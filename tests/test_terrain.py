@@ -370,8 +370,8 @@ def test_the_terrain_experiments_gaps_are_trenches_from_the_start_and_over_past_
 
 
 def test_the_terrain_experiments_rough_fields_reach_twice_their_amplitude():
-    """``rough2``/``rough3``/``rough4``/``rough6``: the same 2 m field (seed 0) with heights in [0, 2 amplitude], the
-    roughness the grid's column and "where it stops" compare."""
+    """``rough2``/``rough3``/``rough4``/``rough6``: the same 2 m field (seed 0) with heights in [0, 2
+    amplitude], the roughness the grid's column and "where it stops" compare."""
     from cafe_mpc_lab.experiments.terrain import _piece
     from cafe_mpc_lab.sim.terrain import Rough
 
