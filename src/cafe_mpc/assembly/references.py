@@ -95,6 +95,7 @@ def locomotion_reference(
         terrain_map=terrain_map,
         ground_from_estimate=ground_plane and terrain_map is None and section.blind_ground == "estimate",
         ground_below=gait.blind_ground_below,
+        ground_follow=gait.blind_ground_follow,
         ground_limits=(detection or ContactDetectionSettings()).ground_plane_limits(),
     )
 

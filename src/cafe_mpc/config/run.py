@@ -473,6 +473,20 @@ class GaitConfig(StrictModel):
     """Going down the 15 deg slope the blind bound's stance feet slid and bounced at 0.3-3 m/s, above
     ``GROUND_FOOT_SPEED``: its plane took no point for 0.8 s from the crest and stayed flat at the top's
     level, 6-15 cm above the incline (docs/terrain-notes.md)."""
+    blind_ground_follow: bool = Field(
+        False,
+        description="with blind_ground: estimate, a foot that became a point of the plane in its planned "
+        "stance stays one while it moves only up or down (horizontally slower than 0.2 m/s), to the "
+        "stance's end: its change of height is read as the estimator's frame moving and moves the other "
+        "points with it",
+    )
+    """Going down 6 cm steps the blind bound's front pair landed on the lower tread, became points (below
+    the plane), and while the estimator's frame moved up 6-8 cm to stand them at z = 0 they moved in the
+    estimate (0.2-0.5 m/s): no longer still nor below the plane, their points stayed at the landing's height
+    and the hind pair's were not moved. When the hind pair then stood on the upper tread, still, the frame
+    moved down 7 cm and the plane moved the front points with it: 7 cm under the tread, the plane tilted to
+    its slope limit and the base's reference sank 12 cm (docs/terrain-notes.md). Feet sliding on (down the
+    15 deg slope) are not followed: their drop is the ground's, not the frame's."""
     raibert_gain: float = Field(0.03, ge=0.0, le=1.0, description="s, Raibert velocity feedback gain")
     start_stance: float = Field(
         0.0, ge=0.0, le=3600.0, description="s of all-feet stand before the gait's first cycle starts"
