@@ -610,6 +610,7 @@ def test_a_blind_bound_lifts_a_foot_stopped_by_a_riser_and_climbs_6_cm_steps():
         4.0,
         "mpc.touchdown_surface=null",
         "gait.blind_ground_below=null",
+        "gait.blind_ground_follow=false",
         "vwbc.contact_detection.late_reach_speed=null",
         "kinematic_kf.accelerometer_bias=true",
     )
