@@ -289,7 +289,7 @@ def test_a_blind_ground_from_the_estimate_takes_moving_feet_below_it_with_ground
     moving = still.copy()
     moving[2] = -1.0  # base (and every foot) moving down at 1 m/s
     # (without the bound's blind_ground_follow, which would follow these feet down from where they stood)
-    overrides = ["terrain=blind", "gait.blind_ground=estimate", "gait.blind_ground_follow=false"]
+    overrides = ["terrain=blind", "gait.blind_ground=estimate", "gait.blind_ground_follow=null"]
     for below, drop, expected in ((None, 0.05, 0.0), (0.03, 0.02, 0.0), (0.03, 0.05, -0.05)):
         extra = ["gait.blind_ground_below=null" if below is None else f"gait.blind_ground_below={below}"]
         reference = build_reference(resolve(load_run_config("bound", overrides + extra), robot))
@@ -304,33 +304,34 @@ def test_a_blind_ground_from_the_estimate_takes_moving_feet_below_it_with_ground
 
 def test_a_blind_ground_from_the_estimate_follows_its_points_through_their_stance_with_ground_follow(robot):
     """``gait.blind_ground_follow``: a foot that became a point of the reference's plane in its planned stance
-    stays one while it moves only up or down, so the estimator's frame moving its stance feet up (here the
-    front pair 6 cm up at 0.5 m/s in the estimate, the hind pair swinging) moves the plane and the hind
-    pair's points with it, 6 cm; without the option (false in the schema) the moving front feet are no
-    points (neither still nor below the plane) and the plane stays (going down 6 cm steps, it then read the
-    frame's later move down as the ground's: docs/terrain-notes.md), and so it does with feet that also
-    slide forward at 0.5 m/s (down a slope: the ground's drop, not the frame's)."""
+    stays one while it moves up or down within that distance (horizontally) of where it became one, so the
+    estimator's frame moving its stance feet up (here the front pair 6 cm up at 0.5 m/s in the estimate, the
+    hind pair swinging) moves the plane and the hind pair's points with it, 6 cm; without the option (null
+    in the schema; the bound's preset sets 0.02 m) the moving front feet are no points (neither still nor
+    below the plane) and the plane stays (going down 6 cm steps, it then read the frame's later move down as
+    the ground's: docs/terrain-notes.md), and so it does with 2 cm when the feet also moved 5 cm forward
+    (sliding down a slope: the ground's drop, not the frame's)."""
     from cafe_mpc.assembly.references import build_reference
 
     q = robot.q_standing.copy()
     still = np.zeros(robot.nv)
     rising = still.copy()
     rising[2] = 0.5  # base (and every foot) moving up at 0.5 m/s
-    sliding = rising.copy()
-    sliding[0] = 0.5  # and forward at 0.5 m/s
     raised = q.copy()
     raised[2] += 0.06
+    slid = raised.copy()
+    slid[0] += 0.05  # and 5 cm forward
     overrides = ["terrain=blind", "gait.blind_ground=estimate"]
-    for follow, velocity, expected in ((False, rising, 0.0), (True, rising, 0.06), (True, sliding, 0.0)):
-        extra = [f"gait.blind_ground_follow={str(follow).lower()}"]
+    for follow, moved, expected in ((None, raised, 0.0), (0.02, raised, 0.06), (0.02, slid, 0.0)):
+        extra = ["gait.blind_ground_follow=" + ("null" if follow is None else str(follow))]
         reference = build_reference(resolve(load_run_config("bound", overrides + extra), robot))
         assert reference.ground is not None and reference.ground_follow == follow
         reference.observe_estimate(0.19, q, still)  # the start stance: all four feet down, still
         assert reference.stance_at(0.21) == (True, True, False, False)  # the fronts' stance, hinds swinging
         start = reference.ground.height
-        reference.observe_estimate(0.21, raised, velocity)
-        assert reference.ground.height - start == pytest.approx(expected, abs=1e-9), (follow, velocity[0])
-        assert reference.ground.frame_shift == pytest.approx(expected, abs=1e-9), (follow, velocity[0])
+        reference.observe_estimate(0.21, moved, rising)
+        assert reference.ground.height - start == pytest.approx(expected, abs=1e-9), (follow, moved[0])
+        assert reference.ground.frame_shift == pytest.approx(expected, abs=1e-9), (follow, moved[0])
 
 
 def test_a_swing_that_lifts_first_rises_in_place_then_moves_and_its_velocity_is_its_rate():
@@ -610,7 +611,7 @@ def test_a_blind_bound_lifts_a_foot_stopped_by_a_riser_and_climbs_6_cm_steps():
         4.0,
         "mpc.touchdown_surface=null",
         "gait.blind_ground_below=null",
-        "gait.blind_ground_follow=false",
+        "gait.blind_ground_follow=null",
         "vwbc.contact_detection.late_reach_speed=null",
         "kinematic_kf.accelerometer_bias=true",
     )
@@ -787,7 +788,7 @@ def test_a_blind_bound_goes_down_6_cm_steps_with_its_plane_following_the_estimat
     on the top (6.04 s) the frame moved down 7 cm and the plane moved the front points with it, 7 cm under
     their tread: the plane tilted to its 0.3 limit, the base's reference sank 12 cm, the front feet met the
     tread 90 ms early, the trunk fell onto them (0.14 m above the tread) and, pushed up at 1.7 m/s, tipped
-    over at 6.43 s (docs/terrain-notes.md). With the preset's ``gait.blind_ground_follow: true`` it is down
+    over at 6.43 s (docs/terrain-notes.md). With the preset's ``gait.blind_ground_follow: 0.02`` it is down
     the last riser at 7.2 s (it goes on over the piece); it fails with the setting removed."""
     log = _blind_run("bound", "{kind: steps, rise: 0.06, start: 0.9}", 7.2, "mpc.fixed_latency=0.002")
     assert not log.fell, log.fall_reason

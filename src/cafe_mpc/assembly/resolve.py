@@ -233,7 +233,9 @@ def resolve_gait(section: GaitConfig, scale: RobotScale, blind: bool = False) ->
         blind_ground_below=None
         if section.blind_ground_below is None
         else scale.distance(section.blind_ground_below),
-        blind_ground_follow=section.blind_ground_follow,
+        blind_ground_follow=None
+        if section.blind_ground_follow is None
+        else scale.distance(section.blind_ground_follow),
     )
 
 

@@ -473,12 +473,14 @@ class GaitConfig(StrictModel):
     """Going down the 15 deg slope the blind bound's stance feet slid and bounced at 0.3-3 m/s, above
     ``GROUND_FOOT_SPEED``: its plane took no point for 0.8 s from the crest and stayed flat at the top's
     level, 6-15 cm above the incline (docs/terrain-notes.md)."""
-    blind_ground_follow: bool = Field(
-        False,
-        description="with blind_ground: estimate, a foot that became a point of the plane in its planned "
-        "stance stays one while it moves only up or down (horizontally slower than 0.2 m/s), to the "
-        "stance's end: its change of height is read as the estimator's frame moving and moves the other "
-        "points with it",
+    blind_ground_follow: float | None = Field(
+        None,
+        ge=0.0,
+        le=0.2,
+        description="m, with blind_ground: estimate, a foot that became a point of the plane in its planned "
+        "stance stays one, however fast it moves up or down, while it stays within this horizontal distance "
+        "of where it became one, to the stance's end: its change of height is read as the estimator's frame "
+        "moving and moves the other points with it; null: off",
     )
     """Going down 6 cm steps the blind bound's front pair landed on the lower tread, became points (below
     the plane), and while the estimator's frame moved up 6-8 cm to stand them at z = 0 they moved in the

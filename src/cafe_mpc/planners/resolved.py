@@ -70,8 +70,8 @@ class ResolvedGait:
     touchdown_events: float | None
     blind_ground_below: float | None = None
     """m (length-scaled), ``gait.blind_ground_below``; None: off."""
-    blind_ground_follow: bool = False
-    """``gait.blind_ground_follow``."""
+    blind_ground_follow: float | None = None
+    """m (length-scaled), ``gait.blind_ground_follow``; None: off."""
 
 
 @dataclass(frozen=True)

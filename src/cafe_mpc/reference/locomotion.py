@@ -314,7 +314,7 @@ class LocomotionReference(Reference):
         ground_from_estimate: bool = False,
         ground_below: float | None = None,
         ground_limits: dict[str, float] | None = None,
-        ground_follow: bool = False,
+        ground_follow: float | None = None,
     ) -> None:
         if not commands:
             commands = [VelocityCommand()]
@@ -395,11 +395,14 @@ class LocomotionReference(Reference):
         self.ground_below = ground_below
         """With ``ground_from_estimate``: a foot planned in stance that still moves is a point of the plane
         once its sole is this far below the plane (``gait.blind_ground_below``); None: only still feet."""
-        self.ground_follow = bool(ground_follow)
-        """With ``ground_from_estimate``: a foot that became a point in its planned stance stays one while it
-        moves only up or down, to the stance's end (``gait.blind_ground_follow``;
-        ``_observe_ground_estimate``)."""
+        if ground_follow is not None and not (math.isfinite(ground_follow) and ground_follow >= 0.0):
+            raise ValueError(f"ground_follow must be >= 0 m or None, got {ground_follow}")
+        self.ground_follow = ground_follow
+        """With ``ground_from_estimate``: a foot that became a point in its planned stance stays one, however
+        it moves up or down, while it stays within this horizontal distance (m) of where it became one, to
+        the stance's end (``gait.blind_ground_follow``; ``_observe_ground_estimate``); None: off."""
         self._following = np.zeros(robot.n_feet, dtype=bool)
+        self._follow_origins = np.zeros((robot.n_feet, 2))
         self._estimated_ground = False
         """Whether ``observe_estimate`` has fed the plane (``ground_from_estimate``)."""
         self._estimate_data = robot.model.createData()
@@ -812,10 +815,11 @@ class LocomotionReference(Reference):
         latest point while it stands); with ``ground_below`` also those that move with the sole that far
         below the plane: a foot below the ground believed is on lower ground (sliding down a slope, or
         landing on it), where a late foot hanging from the body stays above it. With ``ground_follow`` a foot
-        that was a point at the previous tick of its planned stance stays one while it moves only up or
-        down (horizontally slower than ``GROUND_FOOT_SPEED``): the estimator's frame moves its stance feet
-        to z = 0 over some 25 ms after they land on a new tread, and that change of height is what
-        ``GroundPlane.observe`` moves the other points by; a foot sliding along the ground is no point."""
+        that became a point in its planned stance stays one, however fast it moves up or down, while it
+        stays within ``ground_follow`` (horizontally) of where it became one: the estimator's frame moves its
+        stance feet to z = 0 over some 25 ms after they land on a new tread, and that change of height is
+        what ``GroundPlane.observe`` moves the other points by; a foot sliding along the ground is no
+        point."""
         assert self.ground is not None
         robot, data = self.robot, self._estimate_data
         pin.forwardKinematics(robot.model, data, q, v)
@@ -833,10 +837,19 @@ class LocomotionReference(Reference):
                     sole = self._estimate_positions[foot]
                     plane = self.ground.height_at(float(sole[0]), float(sole[1]))
                     still[foot] = sole[2] - robot.foot_radius < plane - self.ground_below
-                if self.ground_follow and following[foot] and not still[foot]:
-                    # the frame moves a standing foot up or down only; a foot sliding on is no point
-                    still[foot] = float(np.hypot(velocity[0], velocity[1])) < GROUND_FOOT_SPEED
-            following[foot] = still[foot]
+                if self.ground_follow is not None:
+                    position = self._estimate_positions[foot]
+                    origin = self._follow_origins[foot]
+                    if following[foot]:
+                        # the frame moves a standing foot up or down only; a foot sliding on is no point
+                        moved = math.hypot(position[0] - origin[0], position[1] - origin[1])
+                        following[foot] = moved <= self.ground_follow
+                        still[foot] = still[foot] or bool(following[foot])
+                    if still[foot] and not following[foot]:
+                        following[foot] = True
+                        origin[:] = position[:2]
+            else:
+                following[foot] = False
         np.copyto(self._estimate_soles, self._estimate_positions)
         self._estimate_soles[:, 2] -= robot.foot_radius
         self.ground.observe(self._estimate_soles, still)
