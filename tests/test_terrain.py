@@ -307,7 +307,7 @@ def test_a_blind_ground_from_the_estimate_follows_its_points_through_their_stanc
     stays one while it moves up or down within that distance (horizontally) of where it became one, so the
     estimator's frame moving its stance feet up (here the front pair 6 cm up at 0.5 m/s in the estimate, the
     hind pair swinging) moves the plane and the hind pair's points with it, 6 cm; without the option (null
-    in the schema; the bound's preset sets 0.02 m) the moving front feet are no points (neither still nor
+    in the schema; the bound's preset sets 0.01 m) the moving front feet are no points (neither still nor
     below the plane) and the plane stays (going down 6 cm steps, it then read the frame's later move down as
     the ground's: docs/terrain-notes.md), and so it does with 2 cm when the feet also moved 5 cm forward
     (sliding down a slope: the ground's drop, not the frame's)."""
@@ -788,7 +788,7 @@ def test_a_blind_bound_goes_down_6_cm_steps_with_its_plane_following_the_estimat
     on the top (6.04 s) the frame moved down 7 cm and the plane moved the front points with it, 7 cm under
     their tread: the plane tilted to its 0.3 limit, the base's reference sank 12 cm, the front feet met the
     tread 90 ms early, the trunk fell onto them (0.14 m above the tread) and, pushed up at 1.7 m/s, tipped
-    over at 6.43 s (docs/terrain-notes.md). With the preset's ``gait.blind_ground_follow: 0.02`` it is down
+    over at 6.43 s (docs/terrain-notes.md). With the preset's ``gait.blind_ground_follow: 0.01`` it is down
     the last riser at 7.2 s (it goes on over the piece); it fails with the setting removed."""
     log = _blind_run("bound", "{kind: steps, rise: 0.06, start: 0.9}", 7.2, "mpc.fixed_latency=0.002")
     assert not log.fell, log.fall_reason
