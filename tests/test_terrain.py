@@ -647,32 +647,21 @@ def test_a_blind_bound_holds_a_foot_landing_early_on_the_next_tread_and_climbs_6
 
 
 @pytest.mark.slow
-def test_a_blind_bound_over_the_rough_field_keeps_its_feet_on_top_of_it():
+def test_a_blind_bound_over_the_rough_field_keeps_its_feet_on_top_of_it(robot):
     """The bound over the experiment's rough field (``rough2``) from 1.1 m at the fixed 2 ms latency. With
     MuJoCo's default contact time constant on the height field its HR foot landed near a cell's diagonal at
     3.61 s, sank 14 mm below the surface, pinched between the walls of the cell's two triangle prisms with
     nothing pushing it up, and stayed there 156 ms (docs/terrain-notes.md, "Feet stuck in the rough field").
     With the field's stiffer contacts (``sim.terrain.FIELD_SOLREF``) no foot centre goes below the surface."""
-    from cafe_mpc_lab.experiments.run import simulate_run
     from cafe_mpc_lab.sim.terrain import Rough
 
-    config = load_run_config(
-        "bound",
-        [
-            "simulation.duration=3.9",
-            "mpc.latency=fixed",
-            "mpc.fixed_latency=0.002",
-            "terrain=blind",
-            "scene.terrain=[{kind: rough, amplitude: 0.02, start: 1.1}]",
-        ],
-    )
-    run, _, log = simulate_run(config)
+    log = _blind_run("bound", "{kind: rough, amplitude: 0.02, start: 1.1}", 3.9, "mpc.fixed_latency=0.002")
     assert not log.fell, log.fall_reason
     field = Rough(amplitude=0.02, start=1.1)
     depths = [
         surface - z
         for q in log.q[::2]
-        for x, y, z in run.robot.foot_positions(q)
+        for x, y, z in robot.foot_positions(q)
         if (surface := field.height_at(x, y)) is not None
     ]
     assert len(depths) > 1000  # the feet were over the field
