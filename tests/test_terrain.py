@@ -482,6 +482,36 @@ def test_the_terrain_experiment_runs_each_cell_at_several_fixed_latencies():
     assert over_per_latency(rows) == "2 ms 1 of 2 (9-91 %); 20 ms 2 of 2 (34-100 %)"
 
 
+def test_the_terrain_experiment_counts_a_run_over_at_a_steady_speed_only_near_the_command():
+    """A run over the piece holds the targets' steady speed when its mean speed from 0.5 s is within 0.1 m/s
+    of the commanded one (the trot's 0.5 m/s); a run that fell never does."""
+    from types import SimpleNamespace
+
+    from cafe_mpc_lab.experiments.catalog import get_experiment
+    from cafe_mpc_lab.experiments.registry import PlanContext
+
+    experiment = get_experiment("terrain")
+    plan = experiment.plan(
+        experiment.options_from({"gaits": "trot", "terrains": "step6", "modes": "blind"}), PlanContext()
+    )
+    variant = plan.variants[0]
+    config = load_run_config(variant.preset, [*experiment.default_overrides, *variant.overrides])
+    q = np.zeros((3, 19))
+    q[:, 0] = (0.0, 2.0, 4.5)  # past the piece's end (3.8 m)
+    log = SimpleNamespace(q=q, time=np.array([0.0, 5.0, 10.0]))
+
+    def verdict(vx: float, fell: bool = False) -> dict:
+        metrics = {"fell": fell, "fall_time_s": None, "sim_time_s": 10.0, "steady_state": {"vx_mean": vx}}
+        result = SimpleNamespace(config=config, log=log, metrics=metrics)
+        return experiment.summarize(result, variant)
+
+    assert verdict(0.58)["vx_desired"] == pytest.approx(0.5)
+    assert verdict(0.58)["over"] and verdict(0.58)["steady_speed"]
+    assert verdict(0.41)["over"] and verdict(0.62)["over"]
+    assert not verdict(0.38)["steady_speed"] and not verdict(0.62)["steady_speed"]
+    assert not verdict(0.5, fell=True)["steady_speed"]
+
+
 # ------------------------------------------------------------------------------------------ closed loops
 def _blind_run(preset: str, terrain: str, duration: float, *overrides: str):
     """The log of ``preset`` run blind for ``duration`` s at the fixed 20 ms latency over ``terrain`` (one

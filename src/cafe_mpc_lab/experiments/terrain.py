@@ -29,6 +29,7 @@ import numpy as np
 import yaml
 from pydantic import Field
 
+from cafe_mpc.assembly.references import reference_commands
 from cafe_mpc.config import ConfigError, TerrainConfig, parse_override
 from cafe_mpc_lab.experiments.common import GaitPresetNames, RunStore, colors, fall_fields, fell_text, num
 from cafe_mpc_lab.experiments.options import ExperimentOptions, names, numbers
@@ -36,6 +37,7 @@ from cafe_mpc_lab.experiments.registry import Experiment, ExperimentPlan, PlanCo
 from cafe_mpc_lab.experiments.reliability import wilson_interval
 from cafe_mpc_lab.experiments.run import RunResult
 from cafe_mpc_lab.report.figures import new_figure, save_figure
+from cafe_mpc_lab.report.metrics import commanded_at
 from cafe_mpc_lab.sim.terrain import Gaps, Rough, Slope, Stairs, Steps, terrain_piece
 
 TERRAINS: dict[str, str] = {
@@ -71,6 +73,10 @@ ModeNames = names(MODES)
 
 DEFAULT_START = TerrainConfig.model_fields["start"].default
 """World x where a named piece begins unless ``--starts`` says otherwise (the schema's default)."""
+
+SPEED_TOLERANCE = 0.1
+"""m/s: a run over the piece holds a steady speed when its mean forward speed from 0.5 s to the end is this
+close to the commanded one (the terrain targets' "steady speed within 0.1 m/s")."""
 
 
 def _spec(name: str, start: float) -> str:
@@ -187,14 +193,20 @@ class Terrain(Experiment):
         x = result.log.q[:, 0]
         reached = float(np.max(x)) if len(x) else None
         top = _top(piece)
+        end = result.log.time[-1:] if len(result.log.time) else np.zeros(1)
+        desired = float(commanded_at(end, reference_commands(result.config), 0.0)[0, 0])
+        vx = steady.get("vx_mean")
+        over = reached is not None and reached >= piece.end and not metrics["fell"]
         return {
             **fall_fields(metrics),
             "x_reached": reached,
             "terrain_top_x": top,
             "terrain_end_x": piece.end,
             "on_top": reached is not None and reached >= top,
-            "over": reached is not None and reached >= piece.end and not metrics["fell"],
-            "vx_mean": steady.get("vx_mean"),
+            "over": over,
+            "vx_mean": vx,
+            "vx_desired": desired,
+            "steady_speed": over and vx is not None and abs(vx - desired) <= SPEED_TOLERANCE,
         }
 
     def table(self, rows: list[dict], comparison: dict) -> tuple[list[str], list[list[str]], list[str]]:
@@ -221,6 +233,8 @@ class Terrain(Experiment):
             "Terrain from x = 1 m (the robot starts at 0): steps 0.3 m deep with a 1 m top, slopes with a "
             "1 m top, each down again. 'past the top': the base got to the top's start; 'over': it got past "
             "the piece's end without falling. vx: mean forward speed from 0.5 s to the end or the fall.",
+            f"Runs over at a steady speed (vx within {SPEED_TOLERANCE:g} m/s of the command): "
+            f"{sum(bool(r.get('steady_speed')) for r in rows)} of {sum(bool(r.get('over')) for r in rows)}.",
         ]
         if len({r.get("start", DEFAULT_START) for r in rows}) > 1 or latencies:
             over = "the starts and latencies" if latencies else "the starts"
@@ -231,8 +245,10 @@ class Terrain(Experiment):
 
     def summary_line(self, comparison: dict) -> str | None:
         rows = list((comparison.get("variants") or {}).values())
+        over = sum(bool(r.get("over")) for r in rows)
+        steady = f"{sum(bool(r.get('steady_speed')) for r in rows)} of the {over} over at a steady speed"
         if any("latency" in r for r in rows):
-            return f"runs over, per fixed latency: {over_per_latency(rows)}"
+            return f"runs over, per fixed latency: {over_per_latency(rows)}; {steady}"
         return None
 
     def plot(self, rows: list[dict], runs: RunStore, path: Path) -> None:
