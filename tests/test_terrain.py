@@ -482,6 +482,24 @@ def test_the_terrain_experiment_runs_each_cell_at_several_fixed_latencies():
     assert over_per_latency(rows) == "2 ms 1 of 2 (9-91 %); 20 ms 2 of 2 (34-100 %)"
 
 
+def test_the_terrain_experiments_task_is_one_preset_as_gaits_names_it():
+    """``--task PRESET`` (the other experiments' option) plans what ``--gaits PRESET`` plans; several presets,
+    or both options, are errors."""
+    from cafe_mpc_lab.experiments.catalog import get_experiment
+    from cafe_mpc_lab.experiments.registry import PlanContext
+
+    experiment = get_experiment("terrain")
+    given = {"terrains": "step6", "modes": "blind", "starts": "0.9,1.1"}
+    by_task = experiment.plan(experiment.options_from({**given, "task": "stairs"}), PlanContext())
+    by_gaits = experiment.plan(experiment.options_from({**given, "gaits": "stairs"}), PlanContext())
+    assert [v.name for v in by_task.variants] == [v.name for v in by_gaits.variants]
+    assert [v.overrides for v in by_task.variants] == [v.overrides for v in by_gaits.variants]
+    assert {v.preset for v in by_task.variants} == {"stairs"}
+    for wrong in ({"task": "stairs,trot"}, {"task": "stairs", "gaits": "trot"}, {"task": "no-such-preset"}):
+        with pytest.raises(ConfigError, match=r"--task|--gaits"):
+            experiment.options_from({**given, **wrong})
+
+
 def test_the_terrain_experiment_counts_a_run_over_at_a_steady_speed_only_near_the_command():
     """A run over the piece holds the targets' steady speed when its mean speed from 0.5 s is within 0.1 m/s
     of the commanded one (the trot's 0.5 m/s); a run that fell never does."""

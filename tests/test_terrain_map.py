@@ -367,6 +367,24 @@ def test_the_stairs_preset_climbs_two_10_cm_stairs():
     assert log.q[-1, 2] - 2 * 0.1 > 0.2  # the base stands above the second tread
 
 
+@pytest.mark.slow
+def test_the_rough_preset_trots_onto_its_rough_field_on_the_height_map():
+    """The ``rough`` preset (a 3 m field of heights 0-8 cm from 1 m, on the height map), fixed 20 ms latency,
+    4 s: up, 0.5 m into the field, the base above the field's top."""
+    from cafe_mpc_lab.experiments.run import simulate_run
+
+    config = load_run_config(
+        "rough",
+        ["simulation.duration=4", "mpc.latency=fixed", "mpc.fixed_latency=0.02", "output.plots=false"],
+    )
+    (piece,) = config.scene.terrain
+    assert piece.kind == "rough" and config.terrain == "height_map" and config.plant.height_map.enabled
+    _, _, log = simulate_run(config)
+    assert not log.fell, log.fall_reason
+    assert log.q[-1, 0] > piece.start + 0.5
+    assert log.q[-1, 2] - 2 * piece.amplitude > 0.15
+
+
 def test_the_bound_steps_preset_climbs_three_8_cm_steps():
     """The ``bound-steps`` preset, fixed 20 ms latency, 4 s: the bound up three steps of 8 cm starting 0.9
     m ahead, its base over the third. With the pyramids about the ground plane through its feet

@@ -32,15 +32,13 @@ from pathlib import Path
 from pydantic import Field
 
 from cafe_mpc.assembly.checks import load_run_config
-from cafe_mpc_lab.experiments.common import RunStore, fell_text, num
+from cafe_mpc_lab.experiments.common import SPEED_TOLERANCE, RunStore, fell_text, num
 from cafe_mpc_lab.experiments.options import ExperimentOptions, names, numbers
 from cafe_mpc_lab.experiments.registry import Experiment, ExperimentPlan, PlanContext, Variant
 from cafe_mpc_lab.experiments.run import RunResult, run
 from cafe_mpc_lab.report.figures import save_figure, subplots
 
 GAIT_PRESETS = ("trot", "pace", "bound", "pronk", "flying-trot")
-SPEED_TOLERANCE = 0.1
-"""m/s: a tracked speed is within this + ``SPEED_FRACTION`` x |vx| of the command."""
 SPEED_FRACTION = 0.2
 YAW_TOLERANCE = 0.1
 """rad/s: a tracked yaw rate has an RMS error within this + ``YAW_FRACTION`` x |yaw rate|."""

@@ -21,6 +21,10 @@ from cafe_mpc_lab.sim.loop import SimulationLog
 
 PUSH_SETTLE_S = 0.5  # "vx after the push" is measured from this long after the push ends
 
+SPEED_TOLERANCE = 0.1
+"""m/s: a gait run tracks its command when its steady-state mean forward speed (``metrics.json``'s
+``steady_state.vx_mean``, from 0.5 s) is this close to the commanded one (the issues' "within 0.1 m/s")."""
+
 
 # ------------------------------------------------------------------------------------------ summaries
 def fall_fields(metrics: dict) -> dict:

@@ -23,7 +23,7 @@ from pydantic import Field, model_validator
 
 from cafe_mpc.assembly.checks import load_run_config
 from cafe_mpc.config import ConfigError
-from cafe_mpc_lab.experiments.common import RunStore, fall_fields, fell_text, num
+from cafe_mpc_lab.experiments.common import SPEED_TOLERANCE, RunStore, fall_fields, fell_text, num
 from cafe_mpc_lab.experiments.options import ExperimentOptions, integer, number, numbers
 from cafe_mpc_lab.experiments.registry import Experiment, ExperimentPlan, PlanContext, Variant
 from cafe_mpc_lab.experiments.run import RunResult
@@ -32,8 +32,6 @@ from cafe_mpc_lab.report.figures import new_figure, save_figure
 DEFAULT_LATENCIES = tuple(round(0.005 * i, 3) for i in range(13))  # 0 to 60 ms
 DEFAULT_PERIODS = tuple(round(0.015 + 0.005 * i, 3) for i in range(6))  # 15 to 40 ms
 DEFAULT_PERIOD_LATENCY = 0.01
-SPEED_TOLERANCE = 0.1
-"""m/s: a gait run succeeds when its steady-state forward speed is this close to the command."""
 
 
 Latencies = numbers(0.0, 0.5, none_word=True)

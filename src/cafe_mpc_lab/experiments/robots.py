@@ -24,7 +24,15 @@ import numpy as np
 from pydantic import Field
 
 from cafe_mpc.core.physics import GRAVITY
-from cafe_mpc_lab.experiments.common import GaitPresetNames, RunStore, fall_fields, fell_text, num, pct
+from cafe_mpc_lab.experiments.common import (
+    SPEED_TOLERANCE,
+    GaitPresetNames,
+    RunStore,
+    fall_fields,
+    fell_text,
+    num,
+    pct,
+)
 from cafe_mpc_lab.experiments.options import ExperimentOptions, names
 from cafe_mpc_lab.experiments.registry import Experiment, ExperimentPlan, PlanContext, Variant
 from cafe_mpc_lab.experiments.run import RunResult
@@ -35,8 +43,6 @@ DEFAULT_GAITS = ("trot", "bound")
 PLANTS = ("mujoco", "gym-quadruped")
 STEADY_FROM_S = 3.0
 """s; the steady-state window starts here (0.2 s stand + 0.5 s command ramp + settling)."""
-SPEED_TOLERANCE = 0.1
-"""m/s; a run passes when it stays up and its steady-state vx is this close to the command."""
 AT_LIMIT = 0.99
 
 

@@ -41,7 +41,15 @@ from cafe_mpc.assembly.resolve import resolve
 from cafe_mpc.core.physics import GRAVITY
 from cafe_mpc.ocp.contact_schedule import GaitCycle, get_gait
 from cafe_mpc.robots.robot import Robot
-from cafe_mpc_lab.experiments.common import RunStore, colors, fall_fields, fell_text, num, pct
+from cafe_mpc_lab.experiments.common import (
+    SPEED_TOLERANCE,
+    RunStore,
+    colors,
+    fall_fields,
+    fell_text,
+    num,
+    pct,
+)
 from cafe_mpc_lab.experiments.controllers import low_level_of
 from cafe_mpc_lab.experiments.options import ExperimentOptions, names
 from cafe_mpc_lab.experiments.registry import Experiment, ExperimentPlan, PlanContext, Variant
@@ -51,8 +59,6 @@ from cafe_mpc_lab.report.metrics import body_rates, roll_pitch_yaw
 
 STEADY_FROM_S = 3.0
 """s; the steady-state window starts here (0.2 s stand, 0.5 s command ramp, settling; after the push)."""
-SPEED_TOLERANCE = 0.1
-"""m/s; a run passes when it stays up and its steady-state vx is this close to the command."""
 LOADED_FOOT_N = 5.0
 """N; a plant foot pushing at least this much counts as loaded (for the delivered-force mean)."""
 DELIVERED_WINDOW_S = 0.02

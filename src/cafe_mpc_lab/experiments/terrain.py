@@ -24,14 +24,23 @@ rate at each latency.
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import yaml
-from pydantic import Field
+from pydantic import Field, model_validator
 
 from cafe_mpc.assembly.references import reference_commands
 from cafe_mpc.config import ConfigError, TerrainConfig, parse_override
-from cafe_mpc_lab.experiments.common import GaitPresetNames, RunStore, colors, fall_fields, fell_text, num
+from cafe_mpc_lab.experiments.common import (
+    SPEED_TOLERANCE,
+    GaitPresetNames,
+    RunStore,
+    colors,
+    fall_fields,
+    fell_text,
+    num,
+)
 from cafe_mpc_lab.experiments.options import ExperimentOptions, names, numbers
 from cafe_mpc_lab.experiments.registry import Experiment, ExperimentPlan, PlanContext, Variant
 from cafe_mpc_lab.experiments.reliability import wilson_interval
@@ -74,10 +83,6 @@ ModeNames = names(MODES)
 DEFAULT_START = TerrainConfig.model_fields["start"].default
 """World x where a named piece begins unless ``--starts`` says otherwise (the schema's default)."""
 
-SPEED_TOLERANCE = 0.1
-"""m/s: a run over the piece holds a steady speed when its mean forward speed from 0.5 s to the end is this
-close to the commanded one (the terrain targets' "steady speed within 0.1 m/s")."""
-
 
 def _spec(name: str, start: float) -> str:
     """The ``scene.terrain`` entry of a named piece beginning at ``start`` (the name's own text at the
@@ -109,6 +114,11 @@ class TerrainOptions(ExperimentOptions):
         description="gait presets (default: trot, pace, bound)",
         json_schema_extra={"metavar": "G,..."},
     )
+    task: GaitPresetNames = Field(
+        (),
+        description="one gait preset (as the other experiments' --task): the same as --gaits PRESET",
+        json_schema_extra={"metavar": "PRESET"},
+    )
     terrains: TerrainNames = Field(
         DEFAULT_TERRAINS,
         description=f"named terrain pieces: {', '.join(TERRAINS)} (default: {', '.join(DEFAULT_TERRAINS)})",
@@ -131,6 +141,20 @@ class TerrainOptions(ExperimentOptions):
         "have, 0.02 unless --set changes it)",
         json_schema_extra={"metavar": "L,..."},
     )
+
+    @model_validator(mode="before")
+    @classmethod
+    def _task_is_the_gaits(cls, given: Any) -> Any:
+        """``--task PRESET`` runs that preset's cells, as ``--gaits PRESET`` does; with ``--gaits`` too it
+        would be ambiguous which one holds."""
+        if isinstance(given, dict) and given.get("task"):
+            if given.get("gaits"):
+                raise ValueError("--task PRESET and --gaits G,... name the presets twice: give one of them")
+            task = given["task"]
+            if (len(task.split(",")) if isinstance(task, str) else len(task)) != 1:
+                raise ValueError("--task takes one preset (several: --gaits G,...)")
+            given = {**given, "gaits": task}
+        return given
 
 
 class Terrain(Experiment):
@@ -206,7 +230,7 @@ class Terrain(Experiment):
             "over": over,
             "vx_mean": vx,
             "vx_desired": desired,
-            "steady_speed": over and vx is not None and abs(vx - desired) <= SPEED_TOLERANCE,
+            "steady_speed": over and vx is not None and abs(vx - desired) < SPEED_TOLERANCE,
         }
 
     def table(self, rows: list[dict], comparison: dict) -> tuple[list[str], list[list[str]], list[str]]:
