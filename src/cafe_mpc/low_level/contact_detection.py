@@ -76,8 +76,9 @@ riser's face in the way) is from then on position-controlled until it lands (``s
 along the travel, then reaches down, at ``stumble_speed`` (docs/terrain-notes.md, "A stumble reflex"). With
 ``stumble_to_plan`` set (a share ``a``) it moves at least as far along the travel as the point ``a`` of the
 way from the plan's base to the plan's foot at the foot's planned touchdown (``_planned_step``; 0: under
-the trunk's centre): held where it lands until its planned stance, a foot stepped 5 cm past a riser had
-been left 7-28 cm behind the base by then, and the trunk pitched over (docs/terrain-notes.md).
+the trunk's centre; a hind foot, behind the base, to its planned foothold at most): held where it lands
+until its planned stance, a foot stepped 5 cm past a riser had been left 7-28 cm behind the base by then,
+and the trunk pitched over (docs/terrain-notes.md).
 
 With ``early_hold_height`` set (off by default; a ground plane and the observer), a foot taken in early (in
 the early window of its swing) with its sole more than that above the plane, on a tread higher than the one
@@ -187,6 +188,7 @@ class ContactDetector:
         self._stumble_held = np.zeros(robot.n_feet, dtype=bool)
         self._plan_data = robot.model.createData() if self.settings.stumble_to_plan is not None else None
         self._planned_touchdowns = np.zeros((robot.n_feet, 3))
+        self._planned_footholds = np.zeros((robot.n_feet, 3))
         self._planned_known = np.zeros(robot.n_feet, dtype=bool)
         self._stumble_forward = np.zeros(robot.n_feet)
         self._target_velocity = np.zeros(3)
@@ -253,8 +255,9 @@ class ContactDetector:
 
     def _planned_step(self, t: float, foot: int) -> float:
         """With ``stumble_to_plan`` (``a``), how far along the stumble's direction ``d`` from where it
-        stumbled (``p_0``) the plan puts the point between its base and the foot: ``((1 - a) r* + a p_f*
-        - p_0) . d`` (horizontal), with the base position ``r*`` and the foot's ``p_f*`` (forward kinematics)
+        stumbled (``p_0``) the plan puts the point between its base and the foot, or the foot if that is
+        nearer (a hind foot, behind the base): ``min((1 - a) r* + a p_f* - p_0, p_f* - p_0) . d``
+        (horizontal), with the base position ``r*`` and the foot's ``p_f*`` (forward kinematics)
         of the plan's ``q*`` at the first knot from ``t`` on that plans the foot in stance, or at the
         whole-body part's last knot when none does (the touchdown lies beyond it); ``stumble_forward``
         when the plan has no configurations. Computed once per plan and foot."""
@@ -272,9 +275,11 @@ class ContactDetector:
             foothold = self._plan_data.oMf[self.robot.foot_frame_ids[foot]].translation
             share = self.settings.stumble_to_plan
             self._planned_touchdowns[foot] = (1.0 - share) * q[:3] + share * foothold
+            self._planned_footholds[foot] = foothold
             self._planned_known[foot] = True
-        step = self._planned_touchdowns[foot, :2] - self._stumble_origin[foot, :2]
-        return float(step @ self._stumble_direction[foot])
+        origin, direction = self._stumble_origin[foot, :2], self._stumble_direction[foot]
+        between = float((self._planned_touchdowns[foot, :2] - origin) @ direction)
+        return min(between, float((self._planned_footholds[foot, :2] - origin) @ direction))
 
     def _observe_momentum(self, t: float, measurement: Measurement, torques: np.ndarray) -> np.ndarray:
         """Each foot's ground force (world) from the generalized-momentum observer (module docstring), given
