@@ -813,6 +813,20 @@ def test_a_blind_bound_climbs_6_cm_steps_at_2_ms_with_its_planes_slope_held_betw
 
 
 @pytest.mark.slow
+def test_a_blind_bound_steps_a_stumbling_foot_under_the_plans_trunk_and_climbs_6_cm_steps_at_10_ms():
+    """The bound onto 6 cm steps from 1.0 m at fixed 10 ms latency. Its front feet stumble on the last riser
+    (3.55 s, 250 ms before their planned touchdown); the reflex's 5 cm step put them on the top at x 1.64 m,
+    held there until their planned stance (3.80 s), when the base was at 1.76 m: 12 cm behind it, the
+    stance pitched the trunk nose-down (0.4 -> 0.9 rad), the hind legs were flung forward and it fell at
+    3.91 s. With the preset's ``vwbc.contact_detection.stumble_to_plan: 0.0`` the stumbling foot steps at
+    least to under the plan's trunk centre at its touchdown: on the top at 4.5 s. It fails with the setting
+    removed."""
+    log = _blind_run("bound", "{kind: steps, rise: 0.06, start: 1.0}", 4.5, "mpc.fixed_latency=0.01")
+    assert not log.fell, log.fall_reason
+    assert log.q[-1, 0] > 2.0  # on the top (risers at 1.0, 1.3, 1.6 m; fell at x 1.85 m)
+
+
+@pytest.mark.slow
 def test_a_blind_pronk_with_its_lower_blind_swing_climbs_6_cm_steps_at_30_ms():
     """The pronk onto 6 cm steps from 1.1 m at fixed 30 ms latency. With the schema's 10 cm blind swing the
     hind feet reach their planned touchdown on the first riser 5-6 cm above the plane (late, the observer

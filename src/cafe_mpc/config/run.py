@@ -206,6 +206,17 @@ class ContactDetectionSettings(StrictModel):
     stumble_forward: float = Field(
         0.05, ge=0.0, le=0.5, description="m; how far a stumbling foot moves forward once it has risen"
     )
+    stumble_to_plan: float | None = Field(
+        None,
+        ge=0.0,
+        le=1.0,
+        description="a stumbling foot moves forward at least to this share of the way from the plan's base "
+        "to the plan's foothold at its planned touchdown, or to the foothold if that is nearer (a hind "
+        "foot; 0: under the trunk's centre, 1: on the foothold; along the travel; stumble_forward if the "
+        "plan has no configurations), not only stumble_forward: held where it lands until its planned "
+        "stance, a foot stepped 5 cm past a riser was left 7-28 cm behind the base when its stance came "
+        "(stumble_force); null: stumble_forward only",
+    )
     stumble_speed: float = Field(
         2.0, gt=0.0, le=10.0, description="m/s; the speed of a stumbling foot's target (stumble_force)"
     )

@@ -73,7 +73,12 @@ With ``stumble_force`` set (off by default; a ground plane and the observer), a 
 that the observer reads pushed back, against the trunk's horizontal travel, by more than that force (a
 riser's face in the way) is from then on position-controlled until it lands (``stumbling``; its torques in
 ``reach_torques``, put on its leg as a reaching foot's): it rises ``stumble_lift``, moves ``stumble_forward``
-along the travel, then reaches down, at ``stumble_speed`` (docs/terrain-notes.md, "A stumble reflex").
+along the travel, then reaches down, at ``stumble_speed`` (docs/terrain-notes.md, "A stumble reflex"). With
+``stumble_to_plan`` set (a share ``a``) it moves at least as far along the travel as the point ``a`` of the
+way from the plan's base to the plan's foot at the foot's planned touchdown (``_planned_step``; 0: under
+the trunk's centre; a hind foot, behind the base, to its planned foothold at most): held where it lands
+until its planned stance, a foot stepped 5 cm past a riser had been left 7-28 cm behind the base by then,
+and the trunk pitched over (docs/terrain-notes.md).
 
 With ``early_hold_height`` set (off by default; a ground plane and the observer), a foot taken in early (in
 the early window of its swing) with its sole more than that above the plane, on a tread higher than the one
@@ -181,6 +186,11 @@ class ContactDetector:
         self._stumble_origin = np.zeros((robot.n_feet, 3))
         self._stumble_direction = np.zeros((robot.n_feet, 2))
         self._stumble_held = np.zeros(robot.n_feet, dtype=bool)
+        self._plan_data = robot.model.createData() if self.settings.stumble_to_plan is not None else None
+        self._planned_touchdowns = np.zeros((robot.n_feet, 3))
+        self._planned_footholds = np.zeros((robot.n_feet, 3))
+        self._planned_known = np.zeros(robot.n_feet, dtype=bool)
+        self._stumble_forward = np.zeros(robot.n_feet)
         self._target_velocity = np.zeros(3)
         self.reach_targets = np.zeros((robot.n_feet, 3))
         """Each reaching foot's target position (world, foot frame's origin) at the last update."""
@@ -241,6 +251,35 @@ class ContactDetector:
             later = self._next_touchdown[k + 1] if k + 1 < n else self._next_touchdown[k]
             self._next_touchdown[k] = np.where(plan.contacts[k], plan.times[k], later)
         self._plan = plan
+        self._planned_known[:] = False
+
+    def _planned_step(self, t: float, foot: int) -> float:
+        """With ``stumble_to_plan`` (``a``), how far along the stumble's direction ``d`` from where it
+        stumbled (``p_0``) the plan puts the point between its base and the foot, or the foot if that is
+        nearer (a hind foot, behind the base): ``min((1 - a) r* + a p_f* - p_0, p_f* - p_0) . d``
+        (horizontal), with the base position ``r*`` and the foot's ``p_f*`` (forward kinematics)
+        of the plan's ``q*`` at the first knot from ``t`` on that plans the foot in stance, or at the
+        whole-body part's last knot when none does (the touchdown lies beyond it); ``stumble_forward``
+        when the plan has no configurations. Computed once per plan and foot."""
+        plan = self._plan
+        assert plan is not None and self._plan_data is not None
+        if not self._planned_known[foot]:
+            configurations = plan.knot_configurations(self.robot.model.nq)
+            if configurations is None:
+                return self.settings.stumble_forward
+            k = plan.knot_at(t)
+            stance = np.flatnonzero(plan.contacts[k:, foot])
+            knot = k + int(stance[0]) if len(stance) else len(configurations) - 1
+            q = configurations[knot]
+            pin.framesForwardKinematics(self.robot.model, self._plan_data, q)
+            foothold = self._plan_data.oMf[self.robot.foot_frame_ids[foot]].translation
+            share = self.settings.stumble_to_plan
+            self._planned_touchdowns[foot] = (1.0 - share) * q[:3] + share * foothold
+            self._planned_footholds[foot] = foothold
+            self._planned_known[foot] = True
+        origin, direction = self._stumble_origin[foot, :2], self._stumble_direction[foot]
+        between = float((self._planned_touchdowns[foot, :2] - origin) @ direction)
+        return min(between, float((self._planned_footholds[foot, :2] - origin) @ direction))
 
     def _observe_momentum(self, t: float, measurement: Measurement, torques: np.ndarray) -> np.ndarray:
         """Each foot's ground force (world) from the generalized-momentum observer (module docstring), given
@@ -333,7 +372,8 @@ class ContactDetector:
     def _stumble(self, t: float, foot: int, measurement: Measurement) -> None:
         """The leg torques of a stumbling foot (``stumble_force``): from where it stumbled (``p_0``) its
         target moves at ``c`` (``stumble_speed``) up by ``stumble_lift`` ``h``, then by ``stumble_forward``
-        ``l`` along the trunk's horizontal travel ``d`` at the stumble, then down until it lands (at most
+        ``l`` along the trunk's horizontal travel ``d`` at the stumble (with ``stumble_to_plan`` at least
+        to the plan's touchdown, ``_planned_step``), then down until it lands (at most
         ``h + late_reach_depth`` below ``p_0``): with ``s = c (t - t_0)``,
         ``p_d = p_0 + min(s, h) e_z + clip(s - h, 0, l) d - clip(s - h - l, 0, h + depth) e_z``; held where
         it is once the observer reads its load on the way down (``touchdown_force``), until its planned
@@ -347,6 +387,10 @@ class ContactDetector:
             return
         speed, lift, forward = s.stumble_speed, s.stumble_lift, s.stumble_forward
         travelled = speed * (t - self._stumble_since[foot])
+        if s.stumble_to_plan is not None:  # the step, from each new plan until the foot comes down
+            if travelled < lift + self._stumble_forward[foot]:
+                self._stumble_forward[foot] = max(forward, self._planned_step(t, foot))
+            forward = self._stumble_forward[foot]
         target[:] = self._stumble_origin[foot]
         velocity[:] = 0.0
         direction = self._stumble_direction[foot]
@@ -389,6 +433,7 @@ class ContactDetector:
         self._stumble_origin[foot] = self.data.oMf[self.robot.foot_frame_ids[foot]].translation
         self._stumble_direction[foot] = direction
         self._stumble_held[foot] = False
+        self._stumble_forward[foot] = self.settings.stumble_forward
         self.stumbles += 1
         return True
 
