@@ -785,13 +785,15 @@ def test_a_blind_bound_goes_down_6_cm_steps_with_its_ground_planes_slope_limited
     ``vwbc.contact_detection.ground_max_slope: 0.3`` it is down the last riser at 7.6 s (it goes on over
     the piece); it fails with the setting removed. The preset's later blind-plane settings are removed, as
     the slope limit was measured without them (with them this start falls at 7.39 s going down, the other
-    five 6 cm starts at 2 and 30 ms are over: docs/terrain.md, "Current results")."""
+    five 6 cm starts at 2 and 30 ms are over: docs/terrain.md, "Current results"; with ``early_hold_rise``
+    as well, but without the two plane settings, it falls at 7.39 s)."""
     log = _blind_run(
         "bound",
         "{kind: steps, rise: 0.06, start: 0.9}",
         7.6,
         "vwbc.contact_detection.ground_min_span=null",
         "gait.blind_ground_follow=null",
+        "vwbc.contact_detection.early_hold_rise=null",
     )
     assert not log.fell, log.fall_reason
     assert log.q[-1, 0] > 3.8  # past the last riser (down at 3.1, 3.4, 3.7 m; x 4.0 m at 7.6 s)
@@ -852,3 +854,19 @@ def test_a_blind_bound_goes_down_6_cm_steps_with_its_plane_following_the_estimat
     log = _blind_run("bound", "{kind: steps, rise: 0.06, start: 0.9}", 7.2, "mpc.fixed_latency=0.002")
     assert not log.fell, log.fall_reason
     assert log.q[-1, 0] > 3.75  # past the last riser (down at 3.1, 3.4, 3.7 m)
+
+
+@pytest.mark.slow
+def test_a_blind_bound_goes_down_6_cm_steps_with_an_early_foot_on_lower_ground_not_held():
+    """The bound over 6 cm steps from 1.0 m at fixed 20 ms latency, going down. Past the last riser the
+    front feet land on the floor 80-90 ms before their planned touchdown (8.12 s). The detector's plane,
+    tilted down ahead from the hind feet on the 6 cm tread, lies 4 cm under them there, so
+    ``early_hold_height`` (0.03 m) took them for feet on a higher tread and held them where they landed,
+    though they stood 4 cm below where they had lifted off: they carried 5-15 N while the hinds lifted off on
+    schedule (8.10 s), the trunk sank 7 cm, pitched nose-down to 0.62 rad and touched the floor at 8.21 s
+    (docs/terrain-notes.md). With the preset's ``vwbc.contact_detection.early_hold_rise: -0.02`` such a foot
+    is not held, and ``early_low_force: 2.0`` caps what its swing's policy pushes: over the piece at 8.5 s
+    (x 4.11 m). It fails with the settings removed."""
+    log = _blind_run("bound", "{kind: steps, rise: 0.06, start: 1.0}", 8.5)
+    assert not log.fell, log.fall_reason
+    assert log.q[-1, 0] > 3.8  # past the piece's end (3.8 m; x 4.04 m at the fall without the settings)

@@ -192,6 +192,9 @@ def scaled_contact_detection(
             "ground_min_span": (
                 None if settings.ground_min_span is None else scale.distance(settings.ground_min_span)
             ),
+            "early_hold_rise": (
+                None if settings.early_hold_rise is None else scale.distance(settings.early_hold_rise)
+            ),
             "momentum_gain": scale.rate(settings.momentum_gain),
             "early_window": scale.duration(settings.early_window),
             "on_time": None if settings.on_time is None else scale.duration(settings.on_time),

@@ -239,6 +239,28 @@ class ContactDetectionSettings(StrictModel):
         "as a landed stumbling foot, late_reach_frequency), instead of driven along its swing curve into the "
         "tread; null: off",
     )
+    early_hold_rise: float | None = Field(
+        None,
+        ge=-0.5,
+        le=0.5,
+        description="m; with early_hold_height, a foot is held only if its sole also landed more than this "
+        "above its sole at its planned lift-off (a higher tread than the one it left); a foot landing early "
+        "on lower ground under a plane tilted past it stays in the stance set unheld; null: no such check",
+    )
+    """Going down the 6 cm steps the blind bound's front feet landed on the floor 80-90 ms early, 4 cm above
+    the detector's plane (tilted down from the hind feet on the tread) but 4 cm below where they lifted off:
+    held where they landed they carried 5-15 N while the hinds lifted off on schedule, and the trunk fell on
+    its nose (docs/terrain-notes.md, "Early feet on lower ground")."""
+    early_low_force: float | None = Field(
+        None,
+        ge=0.0,
+        le=10.0,
+        description="x m g / n_feet; with early_hold_rise, a foot it keeps from being held (taken in early "
+        "above the plane, not above its lift-off) pushes at most this normal force in the VWBC (34e) until "
+        "its planned stance; null: no cap",
+    )
+    """Unheld, such a foot on the floor past the blind bound's last 6 cm riser was driven down its swing curve
+    at 150 N per foot and threw the trunk up (docs/terrain-notes.md, "Early feet on lower ground")."""
     ground_max_slope: float | None = Field(
         None,
         gt=0.0,

@@ -85,7 +85,13 @@ the early window of its swing) with its sole more than that above the plane, on 
 the plan lands it on, is held where it landed until its planned stance (``holding``; its leg position-
 controlled as a landed stumbling foot's, through ``reach_torques``): in the stance set the VWBC would
 otherwise take its swing knot's policy (7) in (34a), whose feedback drives it on down its swing curve into
-the tread and pushes the trunk up (docs/terrain-notes.md, "Early feet on the next tread").
+the tread and pushes the trunk up (docs/terrain-notes.md, "Early feet on the next tread"). With
+``early_hold_rise`` also set, only a foot whose sole landed more than that above its sole at its planned
+lift-off is held: a plane tilted down ahead (through one pair on a tread and the other's points below it) can
+lie under a foot landing early on lower ground, which held carried nothing while the other pair lifted off
+(docs/terrain-notes.md, "Early feet on lower ground"). Such a foot stays in the stance set unheld
+(``lowered``), driven by its swing knot's policy; with ``early_low_force`` the VWBC caps its normal force in
+(34e) at that until its planned stance (unheld and uncapped, it was driven into the floor at 150 N).
 
 ``update(t, measurement, plan)`` returns the detected stance flags (an array the detector owns); counters of
 early and late touchdowns and of the ticks where detection and plan disagree feed the run's statistics.
@@ -182,6 +188,22 @@ class ContactDetector:
         """With ``early_hold_height`` acting, the feet that landed early on ground that far above the plane,
         until their planned stance: the VWBC drives their legs with ``reach_torques`` (held where they
         landed)."""
+        self.early_hold_rise = self.settings.early_hold_rise if self.early_hold_height is not None else None
+        """``early_hold_rise`` where it acts (with ``early_hold_height``), else None."""
+        self.early_low_force_cap = (
+            None
+            if self.settings.early_low_force is None or self.early_hold_rise is None
+            else self.settings.early_low_force * weight_share
+        )
+        """``early_low_force`` (N) where it acts (with ``early_hold_rise``), else None: the VWBC caps a
+        ``lowered`` foot's normal force at it."""
+        self.lowered = np.zeros(robot.n_feet, dtype=bool)
+        """With ``early_hold_rise`` acting, the feet taken in early more than ``early_hold_height`` above the
+        plane but not above their lift-off (lower ground under a plane tilted past them), not held, until
+        their planned stance."""
+        self._liftoff_soles = np.zeros(robot.n_feet)
+        """With ``early_hold_rise`` acting, each foot's sole height (the measurement's frame) at its last
+        planned lift-off."""
         self._stumble_since = np.zeros(robot.n_feet)
         self._stumble_origin = np.zeros((robot.n_feet, 3))
         self._stumble_direction = np.zeros((robot.n_feet, 2))
@@ -239,6 +261,8 @@ class ContactDetector:
         self.reaching[:] = False
         self.stumbling[:] = False
         self.holding[:] = False
+        self._liftoff_soles[:] = 0.0
+        self.lowered[:] = False
         self.stumbles = 0
         self._late_since[:] = np.nan
 
@@ -519,6 +543,8 @@ class ContactDetector:
             else:
                 if self._was_planned[foot]:  # the planned swing has begun: the schedule lifts the foot
                     self.in_contact[foot] = False
+                    if self.early_hold_rise is not None:
+                        self._liftoff_soles[foot] = soles[foot, 2]
                 lead = self._next_touchdown[k, foot] - t
                 soon = self.on_time < lead <= s.early_window
                 if not self.in_contact[foot] and soon and loaded and not moving:
@@ -526,13 +552,21 @@ class ContactDetector:
                     self.early_touchdowns += 1
                     self.early_lead_sum += lead
                     if self.early_hold_height is not None and height > self.early_hold_height:
-                        self.holding[foot] = True  # on a higher tread: held where it landed
-                        self.reach_targets[foot] = data.oMf[frame_id].translation
+                        if (
+                            self.early_hold_rise is None
+                            or soles[foot, 2] - self._liftoff_soles[foot] > self.early_hold_rise
+                        ):
+                            self.holding[foot] = True  # on a higher tread: held where it landed
+                            self.reach_targets[foot] = data.oMf[frame_id].translation
+                        else:
+                            self.lowered[foot] = True  # on lower ground: in the stance set, not held
                 elif self.in_contact[foot] and force < self.release_force and height > s.release_height:
                     self.in_contact[foot] = False
                 if self.in_contact[foot]:
                     self.early_ticks += 1
             self._was_planned[foot] = planned[foot]
+            if self.lowered[foot] and (planned[foot] or not self.in_contact[foot]):
+                self.lowered[foot] = False
             if self.holding[foot]:
                 if planned[foot] or not self.in_contact[foot]:
                     self.holding[foot] = False  # its stance began (or it left the ground): the plan's

@@ -559,6 +559,13 @@ class VWBCController(LowLevelController[Plan]):
                     caps[count] = np.inf if planned[foot] else self.detector.early_force_cap
                     count += 1
             qp.cap_normal_forces(caps[:count])
+        elif self.detector is not None and self.detector.early_low_force_cap is not None:
+            caps, count, lowered = self._early_caps, 0, self.detector.lowered
+            for foot, standing in enumerate(self._stance):
+                if standing:  # an early foot on lower ground (``early_low_force``), else unbounded
+                    caps[count] = self.detector.early_low_force_cap if lowered[foot] else np.inf
+                    count += 1
+            qp.cap_normal_forces(caps[:count])
         self.terms.compute(q, v, self._stance)
         # linear term of (34a) in tau: Qux dx + Qu - Quu tau*
         np.matmul(plan.Qux[k], dx, out=self._g_tau)
