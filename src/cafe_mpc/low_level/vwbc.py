@@ -552,18 +552,19 @@ class VWBCController(LowLevelController[Plan]):
             qp.orient_cone(normal)
         elif self.detector is not None and self.detector.ground is not None:
             qp.orient_cone(self.detector.ground.normal())
-        if self.detector is not None and self.detector.early_force_cap is not None:
+        detector = self.detector
+        if detector is not None and (
+            detector.early_force_cap is not None or detector.early_low_force_cap is not None
+        ):
             caps, count, planned = self._early_caps, 0, plan.contacts[k]
+            early_cap, low_cap = detector.early_force_cap, detector.early_low_force_cap
             for foot, standing in enumerate(self._stance):
-                if standing:  # an early foot: in the stance set before its planned touchdown
-                    caps[count] = np.inf if planned[foot] else self.detector.early_force_cap
-                    count += 1
-            qp.cap_normal_forces(caps[:count])
-        elif self.detector is not None and self.detector.early_low_force_cap is not None:
-            caps, count, lowered = self._early_caps, 0, self.detector.lowered
-            for foot, standing in enumerate(self._stance):
-                if standing:  # an early foot on lower ground (``early_low_force``), else unbounded
-                    caps[count] = self.detector.early_low_force_cap if lowered[foot] else np.inf
+                if standing:  # the least cap that applies: an early foot (in the stance set before its
+                    # planned touchdown; ``early_force``), one early on lower ground (``early_low_force``)
+                    cap = np.inf if early_cap is None or planned[foot] else early_cap
+                    if low_cap is not None and detector.lowered[foot]:
+                        cap = min(cap, low_cap)
+                    caps[count] = cap
                     count += 1
             qp.cap_normal_forces(caps[:count])
         self.terms.compute(q, v, self._stance)
