@@ -528,6 +528,9 @@ def test_the_terrain_experiment_counts_a_run_over_at_a_steady_speed_only_near_th
     assert verdict(0.41)["over"] and verdict(0.62)["over"]
     assert not verdict(0.38)["steady_speed"] and not verdict(0.62)["steady_speed"]
     assert not verdict(0.5, fell=True)["steady_speed"]
+    from cafe_mpc_lab.experiments.terrain import steady_over
+
+    assert steady_over([verdict(0.58), verdict(0.62), verdict(0.5, fell=True)]) == "1 of 2"
 
 
 # ------------------------------------------------------------------------------------------ closed loops

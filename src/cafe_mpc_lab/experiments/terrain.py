@@ -258,7 +258,7 @@ class Terrain(Experiment):
             "1 m top, each down again. 'past the top': the base got to the top's start; 'over': it got past "
             "the piece's end without falling. vx: mean forward speed from 0.5 s to the end or the fall.",
             f"Runs over at a steady speed (vx within {SPEED_TOLERANCE:g} m/s of the command): "
-            f"{sum(bool(r.get('steady_speed')) for r in rows)} of {sum(bool(r.get('over')) for r in rows)}.",
+            f"{steady_over(rows)}.",
         ]
         if len({r.get("start", DEFAULT_START) for r in rows}) > 1 or latencies:
             over = "the starts and latencies" if latencies else "the starts"
@@ -269,10 +269,9 @@ class Terrain(Experiment):
 
     def summary_line(self, comparison: dict) -> str | None:
         rows = list((comparison.get("variants") or {}).values())
-        over = sum(bool(r.get("over")) for r in rows)
-        steady = f"{sum(bool(r.get('steady_speed')) for r in rows)} of the {over} over at a steady speed"
         if any("latency" in r for r in rows):
-            return f"runs over, per fixed latency: {over_per_latency(rows)}; {steady}"
+            steady = steady_over(rows)
+            return f"runs over, per fixed latency: {over_per_latency(rows)}; at a steady speed {steady}"
         return None
 
     def plot(self, rows: list[dict], runs: RunStore, path: Path) -> None:
@@ -363,6 +362,11 @@ def over_rates(rows: list[dict]) -> str:
             name = _cell(r) + (f" at {1000 * r['latency']:g} ms" if latencies else "")
             cells.setdefault(name, []).append(bool(r.get("over")))
     return "; ".join(f"{name} {_rate(over)}" for name, over in cells.items())
+
+
+def steady_over(rows: list[dict]) -> str:
+    """The runs over the piece at a steady speed (``steady_speed``) out of the runs over: ``44 of 45``."""
+    return f"{sum(bool(r.get('steady_speed')) for r in rows)} of {sum(bool(r.get('over')) for r in rows)}"
 
 
 def over_per_latency(rows: list[dict]) -> str:
