@@ -226,17 +226,21 @@ def test_terrain_blind_reaches_the_reference_the_contact_detector_and_the_estima
 
 def test_a_blind_run_swings_higher_and_lifts_first_and_the_flat_one_keeps_the_presets_swing(robot):
     """``terrain: blind`` raises the swing to ``gait.blind_swing_height`` and lifts first
-    (``blind_swing_lift``); on flat ground and the height map the preset's swing stands; the bound's preset
-    keeps its own swing blind; and the plan's pyramid follows the blind reference's ground plane."""
+    (``blind_swing_lift``); on flat ground and the height map the preset's swing stands; the bound's and the
+    trot's presets keep their own blind swings; and the plan's pyramid follows the blind reference's ground
+    plane."""
     from cafe_mpc.assembly.references import build_reference
     from cafe_mpc.config import BLIND_SWING_HEIGHT, BLIND_SWING_LIFT
 
-    flat = resolve(load_run_config("trot"), robot).gait
-    blind = resolve(load_run_config("trot", ["terrain=blind"]), robot).gait
+    flat = resolve(load_run_config("pace"), robot).gait
+    blind = resolve(load_run_config("pace", ["terrain=blind"]), robot).gait
     assert (flat.swing_height, flat.swing_lift) == (0.06, 0.0)
     assert (blind.swing_height, blind.swing_lift) == (BLIND_SWING_HEIGHT, BLIND_SWING_LIFT)
+    assert (resolve(load_run_config("trot"), robot).gait.swing_height) == 0.06
     bound = resolve(load_run_config("bound", ["terrain=blind"]), robot).gait
     assert (bound.swing_height, bound.swing_lift) == (0.06, 0.0)
+    trot = resolve(load_run_config("trot", ["terrain=blind"]), robot).gait
+    assert (trot.swing_height, trot.swing_lift) == (0.08, 0.0)
     reference = build_reference(resolve(load_run_config("trot", ["terrain=blind"]), robot))
     assert reference.ground is not None and np.array_equal(reference.contact_frame(), np.eye(3))
     reference.ground.slope[:] = (math.tan(math.radians(15.0)), 0.0)
@@ -564,6 +568,21 @@ def test_a_blind_bound_climbs_a_10_degree_slope_and_stays_up():
     assert x > 1.0  # on the incline, 0.5 m up it
     rise = (x - 0.5) * math.tan(math.radians(10.0))
     assert log.q[-1, 2] - rise > 0.18  # the base stands above the incline, not on it
+
+
+@pytest.mark.slow
+def test_a_blind_trot_climbs_a_20_degree_slope_with_its_touchdowns_on_the_plane():
+    """The trot onto a 20 degree slope 1 m ahead, fixed 20 ms latency. With the schema's blind swing (10 cm,
+    lifting first) and the plan's touchdowns (25) on the floor z = 0, the front feet land on the incline
+    50-80 ms before their planned stance and carry up to 133 N in planned swing, the hind feet are 2-5 cm
+    above it at theirs, and the trot stalls at the incline's foot and falls at 4.26 s
+    (docs/terrain-notes.md). The preset's ``mpc.touchdown_surface: reference`` (on the ground plane) and its
+    lower swing without the lift (``gait.blind_swing_height: 0.08``, ``blind_swing_lift: 0.0``) take it up:
+    at 5 s it is on the top. It fails without them (4.26 s), with the touchdowns on the floor (3.76 s) or
+    with the lift (3.57 s)."""
+    log = _blind_run("trot", "{kind: slope, angle_deg: 20, length: 1.0}", 5.0)
+    assert not log.fell, log.fall_reason
+    assert log.q[-1, 0] > 2.05  # on the top (the incline from 1 to 2 m), past the fall (x 1.33 m)
 
 
 @pytest.mark.slow

@@ -301,9 +301,11 @@ def test_the_touchdown_constraint_lands_on_the_footholds_with_the_height_map_by_
     cases = {
         ("stairs", ()): True,
         ("stairs", ("mpc.touchdown_surface=floor",)): False,
-        ("trot", ("terrain=blind",)): False,
-        ("trot", ()): False,
-        ("trot", ("mpc.touchdown_surface=reference",)): True,
+        ("trot", ("terrain=blind", "mpc.touchdown_surface=null")): False,
+        ("trot", ("mpc.touchdown_surface=null",)): False,
+        ("pace", ("terrain=blind",)): False,
+        ("pace", ("mpc.touchdown_surface=reference",)): True,
+        ("trot", ("terrain=blind",)): True,  # the trot's preset: on the blind plane (a 20 deg slope)
     }
     for (preset, overrides), expected in cases.items():
         config = load_run_config(preset, ["simulation.duration=1", *overrides])
