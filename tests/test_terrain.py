@@ -240,7 +240,8 @@ def test_a_blind_run_swings_higher_and_lifts_first_and_the_flat_one_keeps_the_pr
     bound = resolve(load_run_config("bound", ["terrain=blind"]), robot).gait
     assert (bound.swing_height, bound.swing_lift) == (0.06, 0.0)
     trot = resolve(load_run_config("trot", ["terrain=blind"]), robot).gait
-    assert (trot.swing_height, trot.swing_lift) == (0.08, 0.0)
+    assert (trot.swing_height, trot.swing_lift, trot.touchdown_clearance) == (0.1, 0.0, 0.08)
+    assert resolve(load_run_config("trot"), robot).gait.touchdown_clearance is None  # flat: the paper's swing
     reference = build_reference(resolve(load_run_config("trot", ["terrain=blind"]), robot))
     assert reference.ground is not None and np.array_equal(reference.contact_frame(), np.eye(3))
     reference.ground.slope[:] = (math.tan(math.radians(15.0)), 0.0)
@@ -338,6 +339,30 @@ def test_a_blind_ground_from_the_estimate_follows_its_points_through_their_stanc
         assert reference.ground.frame_shift == pytest.approx(expected, abs=1e-9), (follow, moved[0])
 
 
+def test_a_swing_up_to_a_higher_touchdown_rises_its_touchdown_clearance_above_it():
+    """``sample_foot_floored``'s apex: ``swing_height`` above the lift-off and ``touchdown_clearance`` above
+    the touchdown, whichever is higher (``gait.blind_touchdown_clearance``). With both 10 cm a swing to a
+    foothold 6 cm higher peaks 16 cm above its lift-off; with 8 cm above the touchdown, 14 cm; to a foothold
+    at the lift-off's height both peak 10 cm above it."""
+    from cafe_mpc.reference.kernels import sample_foot_floored
+
+    times = np.linspace(0.0, 0.3, 301)
+    apexes = {}
+    for rise in (0.0, 0.06):
+        starts, ends = np.array([[0.0, 0.0, 0.0]]), np.array([[0.2, 0.0, rise]])
+        for clearance in (0.1, 0.08):
+            stance = np.zeros((301, 1), bool)
+            positions, velocities = np.zeros((301, 1, 3)), np.zeros((301, 1, 3))
+            sample_foot_floored(
+                times, np.array([0.0]), np.array([0.3]), starts, ends, starts[0], 0.1,
+                np.array([-np.inf]), 0.0, clearance, 0, stance, positions, velocities,
+            )  # fmt: skip
+            apexes[rise, clearance] = positions[:, 0, 2].max()
+            assert positions[-2, 0, 2] == pytest.approx(rise, abs=1e-4)  # lands on its foothold
+    assert apexes[0.0, 0.1] == pytest.approx(0.1) and apexes[0.0, 0.08] == pytest.approx(0.1)
+    assert apexes[0.06, 0.1] == pytest.approx(0.16) and apexes[0.06, 0.08] == pytest.approx(0.14)
+
+
 def test_a_swing_that_lifts_first_rises_in_place_then_moves_and_its_velocity_is_its_rate():
     """``sample_foot_floored`` with ``lift`` 0.25: over the first quarter of the swing the foot rises with
     its horizontal position at lift-off; it lands on time at its foothold; velocities are the positions'
@@ -359,6 +384,7 @@ def test_a_swing_that_lifts_first_rises_in_place_then_moves_and_its_velocity_is_
             0.1,
             np.array([-np.inf]),
             lift,
+            0.1,
             0,
             stance,
             positions,

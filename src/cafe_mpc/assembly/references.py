@@ -84,6 +84,7 @@ def locomotion_reference(
         swing_height=gait.swing_height,
         raibert_gain=gait.raibert_gain,
         swing_lift=gait.swing_lift,
+        touchdown_clearance=gait.touchdown_clearance,
         foothold_box=gait.foothold_box,
         start_stance=section.start_stance,
         command_ramp=section.command_ramp,

@@ -218,12 +218,15 @@ def resolve_gait(section: GaitConfig, scale: RobotScale, blind: bool = False) ->
     """A gait section carried to the robot: its cycle's phase durations, the reference's Raibert gain and the
     touchdown-event threshold by the time scale, the swing height and foothold box by the length scale, the
     path gain (rad/m) by its inverse. ``blind`` (``terrain: blind``): the swing at least
-    ``blind_swing_height`` high and ``blind_swing_lift`` lifted first."""
+    ``blind_swing_height`` high and ``blind_swing_lift`` lifted first, its apex at least
+    ``blind_touchdown_clearance`` above its touchdown where set."""
     events = section.touchdown_events
     swing_height, swing_lift = section.swing_height, section.swing_lift
+    clearance = None
     if blind:
         swing_height = max(swing_height, section.blind_swing_height)
         swing_lift = max(swing_lift, section.blind_swing_lift)
+        clearance = section.blind_touchdown_clearance
     return ResolvedGait(
         section=section,
         cycle=scaled_gait(section.name, scale),
@@ -239,6 +242,7 @@ def resolve_gait(section: GaitConfig, scale: RobotScale, blind: bool = False) ->
         blind_ground_follow=None
         if section.blind_ground_follow is None
         else scale.distance(section.blind_ground_follow),
+        touchdown_clearance=None if clearance is None else scale.distance(clearance),
     )
 
 

@@ -482,6 +482,15 @@ class GaitConfig(StrictModel):
         description="with terrain: blind, the least swing_lift (a blind foot that landed against a riser "
         "rises off it before it swings)",
     )
+    blind_touchdown_clearance: float | None = Field(
+        None,
+        ge=0.0,
+        le=0.2,
+        description="m; with terrain: blind, the least swing apex above a touchdown higher than its lift-off "
+        "(null: blind_swing_height, the apex that high above the higher end). Lower than blind_swing_height, "
+        "a swing up a slope rises less above its touchdown, where the plane may lie above the ground, while "
+        "a swing to level ground still clears blind_swing_height above its lift-off",
+    )
     blind_ground: Literal["predicted", "estimate"] = Field(
         "predicted",
         description="with terrain: blind, the states the reference's ground plane takes its stance feet's "

@@ -72,6 +72,9 @@ class ResolvedGait:
     """m (length-scaled), ``gait.blind_ground_below``; None: off."""
     blind_ground_follow: float | None = None
     """m (length-scaled), ``gait.blind_ground_follow``; None: off."""
+    touchdown_clearance: float | None = None
+    """m (length-scaled), a swing's least apex above its touchdown (``gait.blind_touchdown_clearance``
+    with ``terrain: blind``); None: ``swing_height`` above the higher end."""
 
 
 @dataclass(frozen=True)

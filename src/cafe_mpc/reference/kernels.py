@@ -63,6 +63,7 @@ def sample_foot(
         swing_height,
         floors,
         0.0,
+        swing_height,
         foot,
         stance,
         positions,
@@ -81,15 +82,18 @@ def sample_foot_floored(
     swing_height: float,
     apex_floors: np.ndarray,
     lift: float,
+    touchdown_clearance: float,
     foot: int,
     stance: np.ndarray,
     positions: np.ndarray,
     velocities: np.ndarray,
 ) -> None:
-    """``sample_foot`` with each swing's apex at least ``apex_floors[j]`` (world z; -inf: no floor, the
-    apex ``swing_height`` above the higher end): a swing over terrain higher than its ends clears it. With
-    ``lift`` > 0 the foot's horizontal Bezier starts after that fraction of the swing (the foot rises off
-    a riser it stands against before it moves toward it) and ends with it."""
+    """``sample_foot`` with each swing's apex at least ``apex_floors[j]`` (world z; -inf: no floor): a
+    swing over terrain higher than its ends clears it. Without a floor the apex is ``swing_height`` above
+    the lift-off and ``touchdown_clearance`` above the touchdown, whichever is higher (with both equal,
+    ``swing_height`` above the higher end). With ``lift`` > 0 the foot's horizontal Bezier starts after that
+    fraction of the swing (the foot rises off a riser it stands against before it moves toward it) and ends
+    with it."""
     tolerance = 1e-9
     for i in range(times.shape[0]):
         t = times[i]
@@ -112,7 +116,7 @@ def sample_foot_floored(
                     positions[i, foot, a] = starts[j, a] + delta * blend
                     velocities[i, foot, a] = delta * dblend / duration
                 z0, z1 = starts[j, 2], ends[j, 2]
-                apex = max(max(z0, z1) + swing_height, apex_floors[j])
+                apex = max(max(z0 + swing_height, z1 + touchdown_clearance), apex_floors[j])
                 if s < 0.5:
                     blend, dblend = _bezier(2.0 * s)
                     positions[i, foot, 2] = z0 + (apex - z0) * blend
@@ -732,6 +736,7 @@ def sample_feet(
             parameters[6],
             floors[:n_swings],
             parameters[12],
+            parameters[13],
             foot,
             stance,
             positions,

@@ -315,6 +315,7 @@ class LocomotionReference(Reference):
         ground_below: float | None = None,
         ground_limits: dict[str, float] | None = None,
         ground_follow: float | None = None,
+        touchdown_clearance: float | None = None,
     ) -> None:
         if not commands:
             commands = [VelocityCommand()]
@@ -331,6 +332,11 @@ class LocomotionReference(Reference):
             raise ValueError(f"swing_lift must be in [0, 1), got {swing_lift}")
         self.swing_lift = float(swing_lift)
         """Fraction of each swing the foot rises before it moves horizontally (``kernels.sample_foot``)."""
+        if touchdown_clearance is not None and not 0.0 <= touchdown_clearance <= 0.2:
+            raise ValueError(f"touchdown_clearance must be in [0, 0.2] m, got {touchdown_clearance}")
+        self.touchdown_clearance = swing_height if touchdown_clearance is None else float(touchdown_clearance)
+        """A swing's least apex above its touchdown (``kernels.sample_foot_floored``): ``swing_height`` (the
+        apex that high above the higher end) unless set lower for blind swings up slopes."""
         self.raibert_gain = raibert_gain
         self.foothold_box = np.array(foothold_box, dtype=float)
         if not (math.isfinite(start_stance) and start_stance >= 0.0):
@@ -462,7 +468,7 @@ class LocomotionReference(Reference):
         self._phase_ends = np.zeros(0)
         self._phase_flags = np.zeros((0, robot.n_feet), dtype=bool)
         self._anchor = np.zeros(4)
-        self._feet_parameters = np.zeros(13)
+        self._feet_parameters = np.zeros(14)
         self._factors = np.zeros(0)
         self._keys = np.zeros(0, dtype=np.int64)
         self._data = robot.model.createData()
@@ -1140,6 +1146,7 @@ class LocomotionReference(Reference):
         parameters[5] = self.robot.foot_radius
         parameters[6] = self.swing_height
         parameters[12] = self.swing_lift
+        parameters[13] = self.touchdown_clearance
         if self.ground is not None:
             parameters[7] = self.ground.height
             parameters[8:10] = self.ground.slope
