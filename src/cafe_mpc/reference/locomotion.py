@@ -334,9 +334,9 @@ class LocomotionReference(Reference):
         """Fraction of each swing the foot rises before it moves horizontally (``kernels.sample_foot``)."""
         if touchdown_clearance is not None and not 0.0 <= touchdown_clearance <= 0.2:
             raise ValueError(f"touchdown_clearance must be in [0, 0.2] m, got {touchdown_clearance}")
-        self.touchdown_clearance = swing_height if touchdown_clearance is None else float(touchdown_clearance)
-        """A swing's least apex above its touchdown (``kernels.sample_foot_floored``): ``swing_height`` (the
-        apex that high above the higher end) unless set lower for blind swings up slopes."""
+        self.touchdown_clearance = None if touchdown_clearance is None else float(touchdown_clearance)
+        """A swing's least apex above its touchdown (``kernels.sample_foot_floored``); None: ``swing_height``
+        (the apex that high above the higher end)."""
         self.raibert_gain = raibert_gain
         self.foothold_box = np.array(foothold_box, dtype=float)
         if not (math.isfinite(start_stance) and start_stance >= 0.0):
@@ -1146,7 +1146,8 @@ class LocomotionReference(Reference):
         parameters[5] = self.robot.foot_radius
         parameters[6] = self.swing_height
         parameters[12] = self.swing_lift
-        parameters[13] = self.touchdown_clearance
+        clearance = self.touchdown_clearance
+        parameters[13] = self.swing_height if clearance is None else clearance
         if self.ground is not None:
             parameters[7] = self.ground.height
             parameters[8:10] = self.ground.slope
