@@ -726,7 +726,8 @@ class LegInverseKinematics:
 
         ``base_configuration``: base position and quaternion (7); ``foot_positions``: world (legs, 3);
         ``base_velocity``: base-frame linear and angular velocity (6); ``foot_velocities``: world (legs, 3).
-        Feet out of reach end as close as the joint limits allow (the error is returned, not raised).
+        Feet out of reach end at a closest point the leg reaches with its knee on the standing side (a local
+        least of the distance; the error is returned, not raised).
         The rates are zero unless both velocities are given.
         """
         if not self.fast:
