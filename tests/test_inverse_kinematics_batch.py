@@ -4,8 +4,9 @@ The batch path reimplements the leg kinematics (chains read from the Pinocchio m
 and Jacobians in numba), so these tests pin it to Pinocchio: same joints, rates and errors as the per-knot
 Pinocchio solver (``_solve_pinocchio``) on the Mini Cheetah, on Go1 and on a synthetic quadruped with rotated
 joint placements and all revolute joint kinds; Pinocchio's forward kinematics and frame Jacobians of the
-solution reproduce the targets; unreachable targets end at the joint limits; models that do not fit fall
-back to Pinocchio instead of failing.
+solution reproduce the targets; a leg the Newton iteration leaves short of its target is repaired on the
+standing knee branch (a folded swing foot is reached, an unreachable one ends at a closest point); models
+that do not fit fall back to Pinocchio instead of failing.
 """
 
 from __future__ import annotations
@@ -22,11 +23,18 @@ from cafe_mpc.dynamics.leg_inverse_kinematics import (
     LegInverseKinematics,
     _chain_kinematics,
     extract_leg_chains,
+    knee_branches,
 )
 from cafe_mpc.robots.robot import Robot, load_robot
 
 KNOTS = 26
 MATCH = 1e-8  # batch vs Pinocchio path (same iteration, different rounding)
+FOLDED_SWING = np.array(
+    [[0.154, 0.109, -0.264], [0.052, -0.127, -0.098], [-0.358, 0.009, -0.162], [-0.261, -0.057, -0.193]]
+)
+"""Base-frame feet of the reference's first knot in the blind flying trot on 6 cm steps from 1.0 m at fixed
+2 ms, the update at 2.70 s (docs/terrain-notes.md, "the reference's leg IK at the joint limits"): FR's
+swing starts folded off the riser's corner, 10 cm below and 14 cm behind its hip."""
 LWA = pin.ReferenceFrame.LOCAL_WORLD_ALIGNED
 
 
@@ -239,32 +247,87 @@ def test_rates_are_the_derivative_of_the_foot_motion(robot, ik):
     np.testing.assert_allclose(rates, true_rates, rtol=1e-3, atol=1e-3)
 
 
-def test_unreachable_targets_end_at_the_joint_limits(robot, ik):
-    """Feet 1-10 m away: finite joints and rates, joints inside the limits, each leg against at least one
-    limit, a large error.
+def test_unreachable_targets_end_closer_on_the_standing_knee_branch(robot, ik):
+    """Feet 1-10 m away: finite joints and rates inside the limits, the knees on the standing side of
+    straight (``ik.branch``), a large error, and each foot closer to its target than the standing foot (the
+    repair's steps only ever reduce the error; it ends at a local least of the distance, not necessarily
+    the global one for such targets).
 
-    Not compared with the Pinocchio path: out of reach the Newton steps (damping 1e-6 on a nearly singular
-    Jacobian) jump between limit corners, a sensitive iteration in which rounding differences of 1e-16
-    can end at another corner (the Mini Cheetah's wide hip and knee ranges do; Go1 mostly agrees).
+    Before the repair, whole Newton steps on the nearly singular Jacobian jumped between limit corners and
+    left the feet there. Not compared with the Pinocchio path: rounding differences of 1e-16 in that
+    iteration can end at another corner, from which the repair may settle on another local least.
     """
     rng = np.random.default_rng(3)
     n = 12
     bases = np.tile(robot.q_standing[:7], (n, 1))
     directions = rng.normal(size=(n, 4, 3))
     distances = rng.uniform(1.0, 10.0, (n, 4, 1))
-    targets = robot.foot_positions(robot.q_standing)[None] + distances * directions / np.linalg.norm(
-        directions, axis=2, keepdims=True
-    )
+    standing_feet = robot.foot_positions(robot.q_standing)
+    targets = standing_feet[None] + distances * directions / np.linalg.norm(directions, axis=2, keepdims=True)
     velocities = rng.normal(size=(n, 4, 3))
     base_velocities = rng.normal(size=(n, 6))
     joints, rates, errors = ik.solve_batch(bases, targets, None, base_velocities, velocities)
     assert np.all(np.isfinite(joints)) and np.all(np.isfinite(rates)) and np.all(np.isfinite(errors))
-    assert np.all(joints >= robot.position_lower) and np.all(joints <= robot.position_upper)
-    at_limit = np.isclose(joints, robot.position_lower, rtol=0, atol=1e-12) | np.isclose(
-        joints, robot.position_upper, rtol=0, atol=1e-12
-    )
-    assert np.all(at_limit.reshape(n, 4, 3).any(axis=2))
+    assert np.all(joints >= ik.branch[0]) and np.all(joints <= ik.branch[1])
     assert np.all(errors > 0.3)
+    for i in range(n):
+        positions, _ = _feet_and_jacobians(robot, np.concatenate([bases[i], joints[i]]))
+        reached = np.linalg.norm(positions - targets[i], axis=1)
+        assert np.all(reached < distances[i, :, 0]), (i, reached, distances[i, :, 0])
+
+
+def test_the_knee_branch_is_the_standing_side_of_a_straight_knee(robot, ik):
+    """``knee_branches``: the Mini Cheetah's knees bend forward from straight at 0 (its branch 0 .. pi);
+    Go1's knee limits lie on one side of straight already (kept). Abduction and hip keep their limits,
+    and the standing joints lie in the branch."""
+    branch = knee_branches(robot)
+    np.testing.assert_array_equal(branch, ik.branch)
+    standing = robot.q_standing[7:]
+    assert np.all(branch[0] <= standing) and np.all(standing <= branch[1])
+    knees = slice(2, None, 3)
+    not_knees = np.ones(12, bool)
+    not_knees[knees] = False
+    np.testing.assert_array_equal(branch[0, not_knees], robot.position_lower[not_knees])
+    np.testing.assert_array_equal(branch[1, not_knees], robot.position_upper[not_knees])
+    if robot.name == "mini_cheetah":
+        np.testing.assert_allclose(branch[0, knees], 0.0, rtol=0, atol=1e-12)
+        np.testing.assert_array_equal(branch[1, knees], robot.position_upper[knees])
+    else:
+        np.testing.assert_array_equal(branch, np.vstack([robot.position_lower, robot.position_upper]))
+
+
+def test_a_folded_swing_foot_is_reached_on_the_standing_knee_branch(mini_cheetah):
+    """The flying trot's folded FR swing (``FOLDED_SWING``, the base standing): whole Newton steps from the
+    standing guess ended with FR's abduction at its limit and its knee reversed (1.3, -0.67, -2.26 rad),
+    16 cm from the target, and the plan tracked that. The repair reaches every foot (both paths), FR with
+    its knee bent the standing way, and no joint at a limit."""
+    ik = LegInverseKinematics(mini_cheetah)
+    base = mini_cheetah.q_standing[None, :7]
+    targets = base[:, None, :3] + FOLDED_SWING[None]
+    joints, _, errors = ik.solve_batch(base, targets)
+    expected = ik._solve_pinocchio(base[0], targets[0])
+    np.testing.assert_allclose(joints[0], expected[0], rtol=0, atol=MATCH)
+    assert errors[0] < ik.tolerance and expected[2] < ik.tolerance
+    assert np.all(joints[0] > ik.branch[0]) and np.all(joints[0] < ik.branch[1])
+    assert joints[0, 5] > 1.0  # FR's knee, bent as standing (1.94 rad)
+    positions, _ = _feet_and_jacobians(mini_cheetah, np.concatenate([base[0], joints[0]]))
+    np.testing.assert_allclose(positions, targets[0], rtol=0, atol=1e-5)
+
+
+def test_a_leg_converged_with_its_knee_reversed_is_kept(mini_cheetah):
+    """A guess with FR's knee reversed that reaches the target: the iteration converges there and the leg
+    is kept as it is (only legs left short of their targets are repaired; repairing these too lost the
+    bound-steps preset's climb, see the module's docstring), equal to the Pinocchio path."""
+    ik = LegInverseKinematics(mini_cheetah)
+    reversed_q = mini_cheetah.q_standing.copy()
+    reversed_q[7 + 3 : 7 + 6] = [0.0, 0.8, -1.6]
+    base = reversed_q[None, :7]
+    targets, _ = _feet_and_jacobians(mini_cheetah, reversed_q)
+    joints, _, errors = ik.solve_batch(base, targets[None], reversed_q[7:])
+    assert errors[0] < ik.tolerance
+    np.testing.assert_allclose(joints[0], reversed_q[7:], rtol=0, atol=1e-9)  # one Newton step of rounding
+    expected = ik._solve_pinocchio(base[0], targets, reversed_q[7:])
+    np.testing.assert_allclose(joints[0], expected[0], rtol=0, atol=MATCH)
 
 
 def test_solve_matches_pinocchio_and_batch(robot, ik):

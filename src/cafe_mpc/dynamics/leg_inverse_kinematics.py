@@ -12,6 +12,18 @@ Each leg is a 3-joint chain, so per leg this is a 3 x 3 damped Newton iteration 
 quadruped, no closed form per robot); warm-started from the previous knot it converges in two or three
 iterations.
 
+Whole Newton steps are not globalised, and near a folded leg (its foot a few cm from its hip, as a swing
+lifting off a riser's corner starts) the hip's lever arm is short and a step overshoots by radians: from the
+standing guess the iteration ended at the joint limits (abduction 1.3, hip 5, knee -pi rad; the knee
+reversed), 15-25 cm from the target, and the MPC tracked those joint references (the blind flying trot on
+6 cm steps rolled over so). So a leg the iteration leaves above the tolerance is repaired: projected damped
+Newton steps with backtracking inside the limits with the knee kept on the side of straight it bends to
+standing (``knee_branches``, from the Pinocchio model), from the previous knot's joints and from standing,
+each following its foot to the target in stages, and the closest result is kept. A leg the iteration
+converges on is untouched (bit for bit), so flat-ground runs do not change; that includes a leg it
+converges on with the knee reversed (a stretched hind leg at a bound's lift-off can end so): repairing
+those too lost the ``bound-steps`` preset's climb of 8 cm steps from 0.9 m (3.06 s).
+
 The MPC asks for ~26 knots per update. Done per knot through Pinocchio that costs milliseconds, nearly all
 of it Python overhead, so the chains are read once from the Pinocchio model (joint placements, joint axes,
 foot placement) and all knots are solved in one compiled call (``solve_batch``, numba). The iteration is the
@@ -48,6 +60,10 @@ _AXIS_OF_TYPE = {
     "JointModelRY": (0.0, 1.0, 0.0),
     "JointModelRZ": (0.0, 0.0, 1.0),
 }
+_BACKTRACKS = 30
+"""Halvings of a repair step (``_refine_leg``) before its direction is given up."""
+_STAGES = 4
+"""Stages in which a repair moves the target from the start's foot to the knot's (``_repair_leg``)."""
 # Tolerance of the construction-time comparison of the extracted chains with Pinocchio's kinematics.
 _SELF_CHECK_TOLERANCE = 1e-9
 
@@ -172,6 +188,193 @@ def _chain_kinematics(
 
 
 @_jit
+def _leg_residual(
+    joints: np.ndarray,
+    foot: np.ndarray,
+    angles: np.ndarray,
+    target: np.ndarray,
+    position: np.ndarray,
+    jacobian: np.ndarray,
+    work: np.ndarray,
+    error: np.ndarray,
+) -> float:
+    """Squared foot error ``|target - foot(angles)|^2`` of one leg (base frame); leaves the foot error in
+    ``error`` and the leg Jacobian at ``angles`` (3) in ``jacobian``."""
+    _leg_kinematics(joints, foot, angles, 0, position, jacobian, work)
+    total = 0.0
+    for r in range(3):
+        error[r] = target[r] - position[r]
+        total += error[r] * error[r]
+    return total
+
+
+@_jit
+def _refine_leg(
+    joints: np.ndarray,
+    foot: np.ndarray,
+    angles: np.ndarray,
+    target: np.ndarray,
+    lower: np.ndarray,
+    upper: np.ndarray,
+    iterations: int,
+    tolerance: float,
+    damping: float,
+    position: np.ndarray,
+    jacobian: np.ndarray,
+    work: np.ndarray,
+    error: np.ndarray,
+    step: np.ndarray,
+    trial: np.ndarray,
+) -> float:
+    """One leg's foot error minimised from ``angles`` (3, updated in place) inside the box ``lower`` ..
+    ``upper`` (3): projected damped Newton steps with backtracking, a projected gradient step where the
+    Newton direction does not reduce the error; returns the squared foot error at the result. A joint at a
+    bound of the box that the error's gradient pushes further out is held (its Jacobian column zeroed for
+    the step), so the other joints still take Newton steps (an active set).
+
+    Every accepted step reduces ``|target - foot|``, so from a start on the nominal knee branch (the box) it
+    ends at the target when that is reachable from it and otherwise at a closest point (a stationary point
+    of the distance in the box), never jumping to the limits as whole Newton steps near a folded leg do.
+    """
+    for k in range(3):
+        angles[k] = min(max(angles[k], lower[k]), upper[k])
+    current = _leg_residual(joints, foot, angles, target, position, jacobian, work, error)
+    value = current
+    gradient = np.empty(3)
+    for _ in range(iterations):
+        if current < tolerance * tolerance:
+            break
+        # the gradient direction J^T e, without the joints held at their bounds (columns zeroed)
+        for k in range(3):
+            g = jacobian[0, k] * error[0] + jacobian[1, k] * error[1] + jacobian[2, k] * error[2]
+            if (angles[k] <= lower[k] and g < 0.0) or (angles[k] >= upper[k] and g > 0.0):
+                g = 0.0
+                for r in range(3):
+                    jacobian[r, k] = 0.0
+            gradient[k] = g
+        g0, g1, g2 = gradient[0], gradient[1], gradient[2]
+        _damped_solve(jacobian, error, damping, step)
+        jg_squared = 0.0
+        for r in range(3):
+            jg = jacobian[r, 0] * g0 + jacobian[r, 1] * g1 + jacobian[r, 2] * g2
+            jg_squared += jg * jg
+        accepted = False
+        for direction in range(2):
+            if direction == 0:
+                scale = 1.0
+            else:
+                if jg_squared <= 0.0:
+                    break
+                # the Cauchy step (the linearised error's least along the gradient)
+                scale = (g0 * g0 + g1 * g1 + g2 * g2) / jg_squared
+                step[0], step[1], step[2] = g0, g1, g2
+            for _ in range(_BACKTRACKS):
+                for k in range(3):
+                    trial[k] = min(max(angles[k] + scale * step[k], lower[k]), upper[k])
+                value = _leg_residual(joints, foot, trial, target, position, jacobian, work, error)
+                if value < current:
+                    accepted = True
+                    break
+                scale *= 0.5
+            if accepted:
+                break
+        if not accepted:  # stationary in the box: leave the Jacobian and error at ``angles``
+            _leg_residual(joints, foot, angles, target, position, jacobian, work, error)
+            break
+        for k in range(3):
+            angles[k] = trial[k]
+        current = value
+    return current
+
+
+@_jit
+def _repair_leg(
+    joints: np.ndarray,
+    foot: np.ndarray,
+    q: np.ndarray,
+    start: np.ndarray,
+    standing: np.ndarray,
+    first: int,
+    target: np.ndarray,
+    branch: np.ndarray,
+    converged: bool,
+    iterations: int,
+    tolerance: float,
+    damping: float,
+    position: np.ndarray,
+    jacobian: np.ndarray,
+    work: np.ndarray,
+    error: np.ndarray,
+    step: np.ndarray,
+    scratch: np.ndarray,
+) -> bool:
+    """Repair one leg of the plain iteration's result ``q`` (joints, in place) unless it ``converged``;
+    returns whether it was repaired. ``branch`` (2, joints): the limits with the knee on the standing side
+    of straight (``knee_branches``).
+
+    The leg is refined in the branch (``_refine_leg``) from the knot's warm start ``start`` and from the
+    standing joints ``standing``, each toward targets moved from its own foot to ``target`` in ``_STAGES``
+    equal stages (a continuation: the leg follows its foot along the segment instead of jumping, which
+    from standing can end at a local least against the abduction limit with a folded target); the closest
+    of those and the plain result (when on the branch) is kept, earlier ones on ties within ``tolerance``:
+    the foot at its target whenever that is reachable along either segment, else a closest reachable point
+    (a local least of the distance), with the knee bent the nominal way.
+    """
+    if converged:
+        return False
+    off_branch = False
+    for k in range(3):
+        if q[first + k] < branch[0, first + k] or q[first + k] > branch[1, first + k]:
+            off_branch = True
+    lower, upper, angles, best, trial = scratch[0], scratch[1], scratch[2], scratch[3], scratch[4]
+    for k in range(3):
+        lower[k] = branch[0, first + k]
+        upper[k] = branch[1, first + k]
+    best_value = np.inf
+    if not off_branch:
+        for k in range(3):
+            best[k] = q[first + k]
+        best_value = _leg_residual(joints, foot, best, target, position, jacobian, work, error)
+    stage_target, origin_foot = scratch[5], scratch[6]
+    value = np.inf
+    for seed in range(2):
+        origin = start if seed == 0 else standing
+        for k in range(3):
+            angles[k] = min(max(origin[first + k], lower[k]), upper[k])
+        _leg_kinematics(joints, foot, angles, 0, position, jacobian, work)
+        for r in range(3):
+            origin_foot[r] = position[r]
+        for stage in range(1, _STAGES + 1):
+            fraction = stage / _STAGES
+            for r in range(3):
+                stage_target[r] = origin_foot[r] + fraction * (target[r] - origin_foot[r])
+            value = _refine_leg(
+                joints,
+                foot,
+                angles,
+                stage_target if stage < _STAGES else target,
+                lower,
+                upper,
+                iterations,
+                tolerance,
+                damping,
+                position,
+                jacobian,
+                work,
+                error,
+                step,
+                trial,
+            )
+        if np.sqrt(value) + tolerance < np.sqrt(best_value):
+            best_value = value
+            for k in range(3):
+                best[k] = angles[k]
+    for k in range(3):
+        q[first + k] = best[k]
+    return True
+
+
+@_jit
 def _solve_knots(
     base_configurations: np.ndarray,
     foot_positions: np.ndarray,
@@ -181,7 +384,10 @@ def _solve_knots(
     joints: np.ndarray,
     feet: np.ndarray,
     limits: np.ndarray,
+    branch: np.ndarray,
+    standing: np.ndarray,
     iterations: int,
+    repair_iterations: int,
     tolerance: float,
     damping: float,
     joints_out: np.ndarray,
@@ -193,9 +399,12 @@ def _solve_knots(
     Per knot: the foot targets are brought into the base frame once, then up to ``iterations`` damped Newton
     sweeps over the legs; each sweep measures the largest world-frame foot error of all legs, steps
     every leg, clips to ``limits`` (2, joints) and stops once that error (measured before the step) is below
-    ``tolerance`` (the Pinocchio iteration exactly). Rates: ``(J^T J + damping I)^-1 J^T (v_foot - v_base
-    part)`` at the solution, in the base frame (the rotation cancels in ``J^T J``); skipped (zero) when
-    ``base_velocities`` has no rows.
+    ``tolerance`` (the Pinocchio iteration exactly). A leg that this leaves above ``tolerance`` is
+    repaired (``_repair_leg``) inside ``branch`` (2, joints; the limits with the knee kept on the standing
+    side of straight); every other leg, and every knot on which the iteration converges, is the plain
+    iteration's to the bit. Rates: ``(J^T J + damping I)^-1 J^T
+    (v_foot - v_base part)`` at the solution, in the base frame (the rotation cancels in ``J^T J``); skipped
+    (zero) when ``base_velocities`` has no rows.
     """
     n = base_configurations.shape[0]
     legs = joints.shape[0]
@@ -207,8 +416,12 @@ def _solve_knots(
     jacobian = np.empty((3, 3))
     error = np.empty(3)
     step = np.empty(3)
+    leg_errors = np.empty(legs)
+    repair_work = np.empty((7, 3))
     q = joint_guess.copy()
+    start = np.empty_like(q)
     for i in range(n):
+        start[:] = q
         base = base_configurations[i]
         quaternion_rotation_into(base[3:7], rotation)
         for leg in range(legs):
@@ -229,12 +442,47 @@ def _solve_knots(
                     world = rotation[r, 0] * error[0] + rotation[r, 1] * error[1] + rotation[r, 2] * error[2]
                     if abs(world) > error_max:
                         error_max = abs(world)
+                    if r == 0 or abs(world) > leg_errors[leg]:
+                        leg_errors[leg] = abs(world)
                 _damped_solve(jacobian, error, damping, step)
                 for k in range(3):
                     value = q[first + k] + step[k]
                     q[first + k] = min(max(value, limits[0, first + k]), limits[1, first + k])
             if error_max < tolerance:
                 break
+        repaired = False
+        for leg in range(legs):
+            if _repair_leg(
+                joints[leg],
+                feet[leg],
+                q,
+                start,
+                standing,
+                3 * leg,
+                targets[leg],
+                branch,
+                leg_errors[leg] < tolerance,
+                repair_iterations,
+                tolerance,
+                damping,
+                position,
+                jacobian,
+                work,
+                error,
+                step,
+                repair_work,
+            ):
+                repaired = True
+        if repaired:  # the largest world-frame foot error at the repaired joints
+            error_max = 0.0
+            for leg in range(legs):
+                _leg_kinematics(joints[leg], feet[leg], q, 3 * leg, position, jacobian, work)
+                for r in range(3):
+                    error[r] = targets[leg, r] - position[r]
+                for r in range(3):
+                    world = rotation[r, 0] * error[0] + rotation[r, 1] * error[1] + rotation[r, 2] * error[2]
+                    if abs(world) > error_max:
+                        error_max = abs(world)
         joints_out[i] = q
         errors_out[i] = error_max
         if not with_rates:
@@ -355,6 +603,46 @@ def _check_chains(robot: Robot, joints: np.ndarray, feet: np.ndarray) -> None:
                 raise LegChainError(f"leg {leg}: extracted kinematics disagree with Pinocchio")
 
 
+def knee_branches(robot: Robot) -> np.ndarray:
+    """The joint limits (2, joints) with each leg's knee kept on the side of straight it bends to standing.
+
+    The distance from a leg's hip joint (its second) to its foot depends on the knee angle ``t`` alone (the
+    hip rotates about an axis through its own origin), as ``A + B cos t + C sin t`` in its square (a point
+    turning about the knee axis): three evaluations on the Pinocchio model give the straight knee
+    ``atan2(C, B)`` (the longest leg). The knee's range is cut to the half turn from straight on the
+    standing knee's side (``robot.q_standing``), shifted by whole turns to contain it: the branch the
+    standing pose bends on. A knee whose angle does not change the leg's reach keeps its limits.
+    """
+    model = robot.model
+    data = model.createData()
+    branch = np.vstack([robot.position_lower, robot.position_upper]).astype(np.float64)
+    for leg, frame_id in enumerate(robot.foot_frame_ids):
+        knee = model.frames[frame_id].parentJoint
+        hip = model.parents[knee]
+        index = JOINTS_PER_LEG * leg + JOINTS_PER_LEG - 1
+        squared = []
+        for angle in (0.0, 0.5 * np.pi, np.pi):
+            q = robot.q_standing.copy()
+            q[7 + index] = angle
+            pin.framesForwardKinematics(model, data, q)
+            offset = data.oMf[frame_id].translation - data.oMi[hip].translation
+            squared.append(float(offset @ offset))
+        mean = 0.5 * (squared[0] + squared[2])
+        b, c = 0.5 * (squared[0] - squared[2]), squared[1] - mean
+        if np.hypot(b, c) <= 1e-9 * mean:
+            continue
+        straight = float(np.arctan2(c, b))
+        standing = float(robot.q_standing[7 + index])
+        side = np.sin(standing - straight)
+        if side == 0.0:
+            continue
+        low, high = (straight, straight + np.pi) if side > 0 else (straight - np.pi, straight)
+        shift = 2.0 * np.pi * np.round((standing - 0.5 * (low + high)) / (2.0 * np.pi))
+        branch[0, index] = max(branch[0, index], low + shift)
+        branch[1, index] = min(branch[1, index], high + shift)
+    return branch
+
+
 # ------------------------------------------------------------------------------------ public solver
 class LegInverseKinematics:
     """Joint angles and rates that put the feet at given world positions/velocities for a base pose.
@@ -363,7 +651,14 @@ class LegInverseKinematics:
     goes through Pinocchio, per knot, with the same results but ~80x slower).
     """
 
-    def __init__(self, robot: Robot, iterations: int = 8, tolerance: float = 1e-5, damping: float = 1e-6):
+    def __init__(
+        self,
+        robot: Robot,
+        iterations: int = 8,
+        tolerance: float = 1e-5,
+        damping: float = 1e-6,
+        repair_iterations: int = 50,
+    ):
         self.robot = robot
         self.model = robot.model
         self.data = robot.model.createData()
@@ -371,6 +666,7 @@ class LegInverseKinematics:
         self.iterations = iterations
         self.tolerance = tolerance
         self.damping = damping
+        self.repair_iterations = repair_iterations
         self._damping_matrix = damping * np.eye(3)
         self.lower = robot.position_lower
         self.upper = robot.position_upper
@@ -383,6 +679,10 @@ class LegInverseKinematics:
         self._no_foot_velocity = np.zeros((0, self.legs, 3))
         self.fast = False
         self.fallback_reason: str | None = None
+        self.branch = self._limits.copy()
+        """Joint limits (2, joints) with the knees on their standing side (``knee_branches``; the limits
+        where the compiled path does not apply): a leg the Newton iteration leaves short of its target is
+        repaired inside it."""
         self._joints = np.zeros((self.legs, JOINTS_PER_LEG, 5, 3))
         self._feet = np.zeros((self.legs, 3))
         try:
@@ -395,6 +695,7 @@ class LegInverseKinematics:
                 raise LegChainError(f"joint limits are not {self.n_joints} numbers")
             _check_chains(robot, self._joints, self._feet)
             self.fast = True
+            self.branch = np.ascontiguousarray(knee_branches(robot))
         except LegChainError as error:
             self.fallback_reason = str(error)
         if self.fast:
@@ -427,7 +728,8 @@ class LegInverseKinematics:
 
         ``base_configuration``: base position and quaternion (7); ``foot_positions``: world (legs, 3);
         ``base_velocity``: base-frame linear and angular velocity (6); ``foot_velocities``: world (legs, 3).
-        Feet out of reach end as close as the joint limits allow (the error is returned, not raised).
+        Feet out of reach end at a closest point the leg reaches with its knee on the standing side (a local
+        least of the distance; the error is returned, not raised).
         The rates are zero unless both velocities are given.
         """
         if not self.fast:
@@ -504,7 +806,10 @@ class LegInverseKinematics:
             self._joints,
             self._feet,
             self._limits,
+            self.branch,
+            self._standing_joints,
             self.iterations,
+            self.repair_iterations,
             self.tolerance,
             self.damping,
             joints,
@@ -550,6 +855,8 @@ class LegInverseKinematics:
         model, data, q = self.model, self.data, self._q
         q[:7] = base_configuration
         q[7:] = self.robot.q_standing[7:] if joint_guess is None else joint_guess
+        start = q[7:].copy()
+        leg_errors = np.zeros(self.legs)
         error_max = np.inf
         for _ in range(self.iterations):
             pin.forwardKinematics(model, data, q)
@@ -558,7 +865,8 @@ class LegInverseKinematics:
             for leg, frame_id in enumerate(self.frame_ids):
                 position = pin.updateFramePlacement(model, data, frame_id).translation
                 error = foot_positions[leg] - position
-                error_max = max(error_max, float(np.max(np.abs(error))))
+                leg_errors[leg] = float(np.max(np.abs(error)))
+                error_max = max(error_max, leg_errors[leg])
                 columns = slice(6 + 3 * leg, 9 + 3 * leg)
                 jacobian = pin.getFrameJacobian(model, data, frame_id, LWA)[:3, columns]
                 step = np.linalg.solve(jacobian.T @ jacobian + self._damping_matrix, jacobian.T @ error)
@@ -566,6 +874,18 @@ class LegInverseKinematics:
                 q[rows] = np.clip(q[rows] + step, self.lower[limits], self.upper[limits])
             if error_max < self.tolerance:
                 break
+        repaired = False
+        for leg, frame_id in enumerate(self.frame_ids):
+            if self._repair_leg_pinocchio(
+                leg, frame_id, foot_positions[leg], start, leg_errors[leg] < self.tolerance
+            ):
+                repaired = True
+        if repaired:
+            pin.framesForwardKinematics(model, data, q)
+            error_max = max(
+                float(np.max(np.abs(foot_positions[leg] - data.oMf[frame_id].translation)))
+                for leg, frame_id in enumerate(self.frame_ids)
+            )
         joints = q[7:].copy()
         rates = np.zeros(self.robot.nu)
         if base_velocity is not None and foot_velocities is not None:
@@ -580,3 +900,85 @@ class LegInverseKinematics:
                     leg_jacobian.T @ (foot_velocities[leg] - base_part),
                 )
         return joints, rates, error_max
+
+    def _leg_error_pinocchio(
+        self, leg: int, frame_id: int, target: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """World foot error (3) and leg Jacobian (3, 3) of leg ``leg`` at the joints in ``self._q``."""
+        model, data, q = self.model, self.data, self._q
+        pin.forwardKinematics(model, data, q)
+        pin.computeJointJacobians(model, data, q)
+        error = target - pin.updateFramePlacement(model, data, frame_id).translation
+        jacobian = pin.getFrameJacobian(model, data, frame_id, LWA)[:3, 6 + 3 * leg : 9 + 3 * leg]
+        return error, jacobian
+
+    def _refine_leg_pinocchio(
+        self, leg: int, frame_id: int, target: np.ndarray, lower: np.ndarray, upper: np.ndarray
+    ) -> float:
+        """``_refine_leg`` on Pinocchio's kinematics: leg ``leg``'s joints in ``self._q`` (in place)."""
+        q, rows = self._q, slice(7 + 3 * leg, 10 + 3 * leg)
+        q[rows] = np.clip(q[rows], lower, upper)
+        error, jacobian = self._leg_error_pinocchio(leg, frame_id, target)
+        current = float(error @ error)
+        for _ in range(self.repair_iterations):
+            if current < self.tolerance * self.tolerance:
+                break
+            gradient = jacobian.T @ error
+            angles = q[rows]
+            held = ((angles <= lower) & (gradient < 0.0)) | ((angles >= upper) & (gradient > 0.0))
+            gradient[held] = 0.0
+            jacobian = jacobian.copy()
+            jacobian[:, held] = 0.0
+            step = np.linalg.solve(jacobian.T @ jacobian + self._damping_matrix, jacobian.T @ error)
+            jg_squared = float((jacobian @ gradient) @ (jacobian @ gradient))
+            angles = q[rows].copy()
+            accepted = False
+            for direction in range(2):
+                if direction == 0:
+                    scale = 1.0
+                else:
+                    if jg_squared <= 0.0:
+                        break
+                    scale, step = float(gradient @ gradient) / jg_squared, gradient
+                for _ in range(_BACKTRACKS):
+                    q[rows] = np.clip(angles + scale * step, lower, upper)
+                    error, jacobian = self._leg_error_pinocchio(leg, frame_id, target)
+                    value = float(error @ error)
+                    if value < current:
+                        accepted = True
+                        break
+                    scale *= 0.5
+                if accepted:
+                    break
+            if not accepted:
+                q[rows] = angles
+                break
+            current = value
+        return current
+
+    def _repair_leg_pinocchio(
+        self, leg: int, frame_id: int, target: np.ndarray, start: np.ndarray, converged: bool
+    ) -> bool:
+        """``_repair_leg`` on Pinocchio's kinematics: leg ``leg`` of ``self._q`` (in place); ``start`` is the
+        knot's warm start (joints)."""
+        q, rows, limits = self._q, slice(7 + 3 * leg, 10 + 3 * leg), slice(3 * leg, 3 * leg + 3)
+        lower, upper = self.branch[0, limits], self.branch[1, limits]
+        if converged:
+            return False
+        off_branch = bool(np.any(q[rows] < lower) or np.any(q[rows] > upper))
+        best, best_value = q[rows].copy(), np.inf
+        if not off_branch:
+            error, _ = self._leg_error_pinocchio(leg, frame_id, target)
+            best_value = float(error @ error)
+        for origin in (start, self.robot.q_standing[7:]):
+            q[rows] = np.clip(origin[limits], lower, upper)
+            origin_foot = target - self._leg_error_pinocchio(leg, frame_id, target)[0]
+            for stage in range(1, _STAGES + 1):
+                stage_target = (
+                    origin_foot + stage / _STAGES * (target - origin_foot) if stage < _STAGES else target
+                )
+                value = self._refine_leg_pinocchio(leg, frame_id, stage_target, lower, upper)
+            if np.sqrt(value) + self.tolerance < np.sqrt(best_value):
+                best, best_value = q[rows].copy(), value
+        q[rows] = best
+        return True
