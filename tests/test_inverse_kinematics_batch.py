@@ -426,3 +426,58 @@ def test_models_that_do_not_fit_fall_back_to_pinocchio(mini_cheetah):
     assert not prismatic.fast and caught
     joints, _, _ = prismatic.solve(mini_cheetah.q_standing[:7], targets[0])
     assert np.all(np.isfinite(joints))
+
+
+def test_a_stretched_leg_short_of_its_target_inside_the_limits_is_kept(mini_cheetah):
+    """A knot of the running roll's approach pace (the reliability trial in
+    ``test_contact_detection.py``, trunk 9 % heavier): HR's foot 35 cm behind its hip, past its reach. From
+    the previous knot's joints the iteration flips HR's knee through straight (1.17 -> -1.95 rad) and stops
+    1.1 cm short, inside the joint limits. That leg is the iteration's on both paths (a repair would put it
+    straight on the standing side, and that trial's pace then fell at 0.92 s): only a leg left short at a
+    joint limit is repaired."""
+    ik = LegInverseKinematics(mini_cheetah)
+    base = np.array(
+        [
+            [
+                0.35999978523317239,
+                3.9323284425676517e-04,
+                0.25,
+                0.0,
+                0.0,
+                5.4615680959021139e-04,
+                0.99999985085635856,
+            ]
+        ]
+    )
+    feet = np.array(
+        [
+            [
+                [0.21952195875814706, 0.09989957899961013, 0.02],
+                [0.5284273620144013, -0.0995637416163877, 0.07376],
+                [-0.1805342720930353, 0.09946359986456571, 0.02],
+                [0.12840772414539597, -0.1000010265319384, 0.07376],
+            ]
+        ]
+    )
+    guess = np.array(
+        [
+            -0.06724529484120086,
+            -1.1772087934447568,
+            0.4519487407436593,
+            0.08730296578474384,
+            -1.3010617067475458,
+            2.2627060102640977,
+            -0.06745819593515477,
+            -1.5516898505077223,
+            1.1693392299233776,
+            0.08730061983739859,
+            -1.3970792935076437,
+            2.230258798070215,
+        ]
+    )
+    joints, _, errors = ik.solve_batch(base, feet, guess)
+    expected = ik._solve_pinocchio(base[0], feet[0], guess)
+    np.testing.assert_allclose(errors[0], 0.0112, rtol=0, atol=5e-4)
+    np.testing.assert_allclose(joints[0, 6:9], [-0.0675, -0.058, -1.947], rtol=0, atol=1e-3)
+    assert np.all(joints[0] > mini_cheetah.position_lower) and np.all(joints[0] < mini_cheetah.position_upper)
+    np.testing.assert_allclose(joints[0], expected[0], rtol=0, atol=MATCH)

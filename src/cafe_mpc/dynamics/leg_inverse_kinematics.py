@@ -16,13 +16,14 @@ Whole Newton steps are not globalised, and near a folded leg (its foot a few cm 
 lifting off a riser's corner starts) the hip's lever arm is short and a step overshoots by radians: from the
 standing guess the iteration ended at the joint limits (abduction 1.3, hip 5, knee -pi rad; the knee
 reversed), 15-25 cm from the target, and the MPC tracked those joint references (the blind flying trot on
-6 cm steps rolled over so). So a leg the iteration leaves above the tolerance is repaired: projected damped
-Newton steps with backtracking inside the limits with the knee kept on the side of straight it bends to
-standing (``knee_branches``, from the Pinocchio model), from the previous knot's joints and from standing,
-each following its foot to the target in stages, and the closest result is kept. A leg the iteration
-converges on is untouched (bit for bit), so flat-ground runs do not change; that includes a leg it
-converges on with the knee reversed (a stretched hind leg at a bound's lift-off can end so): repairing
-those too lost the ``bound-steps`` preset's climb of 8 cm steps from 0.9 m (3.06 s).
+6 cm steps rolled over so). So a leg the iteration leaves above the tolerance with a joint at a limit is
+repaired: projected damped Newton steps with backtracking inside the limits with the knee kept on the side
+of straight it bends to standing (``knee_branches``, from the Pinocchio model), from the previous knot's
+joints and from standing, each following its foot to the target in stages, and the closest result is kept.
+Every other leg is the iteration's, to the bit: one it converges on, with the knee reversed too (a
+stretched hind leg at a bound's lift-off can end so: repairing those lost the ``bound-steps`` preset's
+climb of 8 cm steps from 0.9 m, 3.06 s), and one left short inside the limits (a running roll's hind leg
+stretched past straight; repairing those lost a reliability trial's pace on flat ground).
 
 The MPC asks for ~26 knots per update. Done per knot through Pinocchio that costs milliseconds, nearly all
 of it Python overhead, so the chains are read once from the Pinocchio model (joint placements, joint axes,
@@ -297,6 +298,7 @@ def _repair_leg(
     first: int,
     target: np.ndarray,
     branch: np.ndarray,
+    limits: np.ndarray,
     converged: bool,
     iterations: int,
     tolerance: float,
@@ -308,9 +310,10 @@ def _repair_leg(
     step: np.ndarray,
     scratch: np.ndarray,
 ) -> bool:
-    """Repair one leg of the plain iteration's result ``q`` (joints, in place) unless it ``converged``;
-    returns whether it was repaired. ``branch`` (2, joints): the limits with the knee on the standing side
-    of straight (``knee_branches``).
+    """Repair one leg of the plain iteration's result ``q`` (joints, in place) if it is left short of its
+    target (not ``converged``) with a joint at ``limits`` (2, joints): the whole Newton steps' jump to a limit
+    corner. Returns whether it was repaired. ``branch`` (2, joints): the limits with the knee on the
+    standing side of straight (``knee_branches``).
 
     The leg is refined in the branch (``_refine_leg``) from the knot's warm start ``start`` and from the
     standing joints ``standing``, each toward targets moved from its own foot to ``target`` in ``_STAGES``
@@ -319,13 +322,23 @@ def _repair_leg(
     of those and the plain result (when on the branch) is kept, earlier ones on ties within ``tolerance``:
     the foot at its target whenever that is reachable along either segment, else a closest reachable point
     (a local least of the distance), with the knee bent the nominal way.
+
+    A leg short of its target inside the limits is kept as the iteration left it: a leg stretched past
+    its reach (passing straight, as a running roll's hind leg does) or a hip 2 pi off its usual angle. The
+    plans were tuned with those joints; repairing them too moved falls between the terrain grid's cells
+    and lost a reliability trial's pace on flat ground.
     """
     if converged:
         return False
+    at_limit = False
     off_branch = False
     for k in range(3):
+        if q[first + k] <= limits[0, first + k] or q[first + k] >= limits[1, first + k]:
+            at_limit = True
         if q[first + k] < branch[0, first + k] or q[first + k] > branch[1, first + k]:
             off_branch = True
+    if not at_limit:
+        return False
     lower, upper, angles, best, trial = scratch[0], scratch[1], scratch[2], scratch[3], scratch[4]
     for k in range(3):
         lower[k] = branch[0, first + k]
@@ -461,6 +474,7 @@ def _solve_knots(
                 3 * leg,
                 targets[leg],
                 branch,
+                limits,
                 leg_errors[leg] < tolerance,
                 repair_iterations,
                 tolerance,
@@ -728,8 +742,9 @@ class LegInverseKinematics:
 
         ``base_configuration``: base position and quaternion (7); ``foot_positions``: world (legs, 3);
         ``base_velocity``: base-frame linear and angular velocity (6); ``foot_velocities``: world (legs, 3).
-        Feet out of reach end at a closest point the leg reaches with its knee on the standing side (a local
-        least of the distance; the error is returned, not raised).
+        Feet out of reach end as close as the iteration gets them, or, for a leg it leaves at a joint limit,
+        at a closest point the leg reaches with its knee on the standing side (a local least of the
+        distance); the error is returned, not raised.
         The rates are zero unless both velocities are given.
         """
         if not self.fast:
@@ -963,7 +978,7 @@ class LegInverseKinematics:
         knot's warm start (joints)."""
         q, rows, limits = self._q, slice(7 + 3 * leg, 10 + 3 * leg), slice(3 * leg, 3 * leg + 3)
         lower, upper = self.branch[0, limits], self.branch[1, limits]
-        if converged:
+        if converged or not (np.any(q[rows] <= self.lower[limits]) or np.any(q[rows] >= self.upper[limits])):
             return False
         off_branch = bool(np.any(q[rows] < lower) or np.any(q[rows] > upper))
         best, best_value = q[rows].copy(), np.inf
